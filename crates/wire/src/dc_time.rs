@@ -38,13 +38,15 @@ pub const fn phase_in_period(t: u64, period_ns: u32) -> u32 {
     (t % period_ns as u64) as u32
 }
 
-/// Decodes the sign-magnitude System Time Difference register (0x092C).
+/// Decodes the System Time Difference register (0x092C) into `received - local copy` in ns.
 ///
-/// Bits 30:0 hold |local copy of system time - received system time| and bit 31 is set when
-/// the local copy is smaller than the received time (ESC datasheet section II, register 0x092C).
-/// The result is `local - received` in ns.
+/// The register is sign-magnitude: bits 30:0 hold |received system time - local copy of system
+/// time| and bit 31 is set when the local copy is greater than or equal to the received time
+/// (ESC datasheet section II v3.3, register 0x092C; the v2.x text had the polarity reversed and was
+/// corrected in v2.8). Decoding bit 31 as a minus sign therefore yields `received - local`: a
+/// negative value means this clock is ahead of the reference.
 #[inline]
-pub const fn decode_sign_magnitude(raw: u32) -> i32 {
+pub const fn decode_time_difference(raw: u32) -> i32 {
     let magnitude = (raw & 0x7fff_ffff) as i32;
     if raw & 0x8000_0000 != 0 {
         -magnitude
@@ -53,17 +55,17 @@ pub const fn decode_sign_magnitude(raw: u32) -> i32 {
     }
 }
 
-/// Encodes `local - received` in ns as the sign-magnitude 0x092C value, saturating the magnitude
-/// at 2^31 - 1.
+/// Encodes `received - local` in ns as the 0x092C value, saturating the magnitude at 2^31 - 1.
+/// Equality sets bit 31 ("local copy greater than or equal").
 #[inline]
-pub const fn encode_sign_magnitude(diff_ns: i64) -> u32 {
-    let magnitude = diff_ns.unsigned_abs();
+pub const fn encode_time_difference(received_minus_local_ns: i64) -> u32 {
+    let magnitude = received_minus_local_ns.unsigned_abs();
     let magnitude = if magnitude > 0x7fff_ffff {
         0x7fff_ffff
     } else {
         magnitude as u32
     };
-    if diff_ns < 0 {
+    if received_minus_local_ns <= 0 {
         magnitude | 0x8000_0000
     } else {
         magnitude
@@ -91,17 +93,20 @@ mod tests {
     }
 
     #[test]
-    fn sign_magnitude_matches_the_register_description() {
-        assert_eq!(decode_sign_magnitude(0x0000_0064), 100);
-        assert_eq!(decode_sign_magnitude(0x8000_0064), -100);
-        // Negative zero is zero.
-        assert_eq!(decode_sign_magnitude(0x8000_0000), 0);
-        assert_eq!(encode_sign_magnitude(-100), 0x8000_0064);
-        assert_eq!(encode_sign_magnitude(100), 0x64);
-        assert_eq!(encode_sign_magnitude(i64::MIN), 0xffff_ffff);
-        assert_eq!(encode_sign_magnitude(1 << 40), 0x7fff_ffff);
+    fn time_difference_matches_the_register_description() {
+        // Local copy 100 ns behind the received time: bit 31 clear, magnitude 100.
+        assert_eq!(encode_time_difference(100), 0x64);
+        assert_eq!(decode_time_difference(0x0000_0064), 100);
+        // Local copy 100 ns ahead: bit 31 set.
+        assert_eq!(encode_time_difference(-100), 0x8000_0064);
+        assert_eq!(decode_time_difference(0x8000_0064), -100);
+        // Equal: "greater than or equal" sets bit 31; decodes to 0.
+        assert_eq!(encode_time_difference(0), 0x8000_0000);
+        assert_eq!(decode_time_difference(0x8000_0000), 0);
+        assert_eq!(encode_time_difference(i64::MIN), 0xffff_ffff);
+        assert_eq!(encode_time_difference(1 << 40), 0x7fff_ffff);
         // Not two's complement: -1 is 0x80000001, not 0xffffffff.
-        assert_eq!(encode_sign_magnitude(-1), 0x8000_0001);
+        assert_eq!(encode_time_difference(-1), 0x8000_0001);
     }
 
     #[test]

@@ -1,0 +1,318 @@
+//! The DC unit's local clock: a crystal with a static frequency error and random-walk wander,
+//! corrected by the ESC's time control loop, evaluated analytically between events.
+//!
+//! # Model
+//!
+//! Real time `t` is in picoseconds since the start of the simulation. The local time `L(t)` in
+//! nanoseconds obeys
+//!
+//! ```text
+//! dL/dt = 1 + e_osc(t) + c_drift + c_slew(t)
+//! ```
+//!
+//! * `e_osc(t) = ppm * 1e-6 + w(t)`: the crystal's static error plus wander. `w` is a random walk
+//!   of frequency, piecewise constant on a fixed real-time grid (`wander_step_ps`): at every grid
+//!   point it takes a Gaussian step with standard deviation `wander_ppm_per_sqrt_s * sqrt(step)`.
+//!   Because the grid depends on real time only, a clock's trajectory is the same whatever frames
+//!   it sees: every sync method run on the same seed meets the same crystals.
+//! * `c_drift`, `c_slew`: the time control loop, see [`TimeControlLoop`].
+//!
+//! Registers show the local time at the last 10 ns tick of the oscillator: the ESC's system time
+//! counter advances once per 100 MHz tick (by 10 ns, or by 9/11 ns while it is being adjusted), so a
+//! read is quantised to the oscillator's tick grid, not to multiples of 10 ns of the value.
+//!
+//! Between events nothing is stepped: `local_at` evaluates the piecewise-linear function directly,
+//! and `advance_to` moves the anchor forward only across wander grid points and control loop
+//! updates.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+/// Picoseconds per nanosecond.
+pub const PS_PER_NS: u64 = 1000;
+/// System time counter tick.
+pub const TICK_NS: f64 = 10.0;
+
+/// Crystal parameters of one clock.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CrystalParams {
+    /// Static frequency error in ppm (positive: the clock runs fast).
+    pub ppm: f64,
+    /// Random-walk frequency wander: standard deviation of the frequency after one second, in ppm.
+    pub wander_ppm_per_sqrt_s: f64,
+    /// Grid on which the wander takes its steps, in ps.
+    pub wander_step_ps: u64,
+    /// Local time at real time 0, in ns (the instant the ESC powered up is arbitrary).
+    pub initial_local_ns: u64,
+    /// Seed of the wander process.
+    pub seed: u64,
+}
+
+impl Default for CrystalParams {
+    fn default() -> Self {
+        CrystalParams {
+            ppm: 0.0,
+            wander_ppm_per_sqrt_s: 0.0,
+            wander_step_ps: 10_000_000_000,
+            initial_local_ns: 0,
+            seed: 0,
+        }
+    }
+}
+
+/// A local time value split into an integer and a fractional part, so that picosecond-level
+/// drift accumulates exactly over hours while the integer part holds 64-bit DC times.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Split {
+    ns: u64,
+    frac: f64,
+}
+
+impl Split {
+    fn add(self, delta_ns: f64) -> Split {
+        let total = self.frac + delta_ns;
+        let whole = total.floor();
+        Split {
+            ns: self.ns.wrapping_add(whole as i64 as u64),
+            frac: total - whole,
+        }
+    }
+}
+
+/// The local clock of one ESC.
+#[derive(Debug, Clone)]
+pub struct LocalClock {
+    params: CrystalParams,
+    rng: ChaCha8Rng,
+    /// Real time of the anchor, ps.
+    anchor_ps: u64,
+    /// Local time at the anchor.
+    anchor_local: Split,
+    /// Raw oscillator phase within its 10 ns tick at the anchor, ns in [0, 10).
+    anchor_tick_phase: f64,
+    /// Current wander, as a fraction (not ppm).
+    wander: f64,
+    /// Next wander grid point, ps.
+    next_wander_ps: u64,
+    /// Time control loop corrections currently in force.
+    c_drift: f64,
+    slew_rate: f64,
+    slew_remaining_ns: f64,
+}
+
+impl LocalClock {
+    /// A clock whose local time at real time 0 is `params.initial_local_ns`.
+    pub fn new(params: CrystalParams) -> Self {
+        LocalClock {
+            params,
+            rng: ChaCha8Rng::seed_from_u64(params.seed),
+            anchor_ps: 0,
+            anchor_local: Split {
+                ns: params.initial_local_ns,
+                frac: 0.0,
+            },
+            anchor_tick_phase: 0.0,
+            wander: 0.0,
+            next_wander_ps: params.wander_step_ps.max(1),
+            c_drift: 0.0,
+            slew_rate: 0.0,
+            slew_remaining_ns: 0.0,
+        }
+    }
+
+    /// The crystal parameters.
+    pub fn params(&self) -> &CrystalParams {
+        &self.params
+    }
+
+    /// Current oscillator frequency error (static plus wander), as a fraction.
+    pub fn oscillator_error(&self) -> f64 {
+        self.params.ppm * 1e-6 + self.wander
+    }
+
+    /// Local clock rate relative to real time (1.0 = perfect), control loop included.
+    pub fn rate(&self) -> f64 {
+        1.0 + self.oscillator_error() + self.c_drift + self.slew_rate
+    }
+
+    /// Local and tick phase advance over `dt_ns` real nanoseconds from the anchor, without
+    /// crossing a wander grid point.
+    fn delta_from_anchor(&self, dt_ns: f64) -> (f64, f64) {
+        let osc = 1.0 + self.oscillator_error();
+        let mut d = dt_ns * (osc + self.c_drift);
+        if self.slew_rate != 0.0 {
+            let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
+            d += slewed.copysign(self.slew_rate);
+        }
+        (d, dt_ns * osc)
+    }
+
+    /// Local time at real time `t_ps` in ns, with fraction, not quantised. `t_ps` may lie before
+    /// the anchor (the current rates are extrapolated backwards) or beyond the next wander grid
+    /// point (the wander step there is not yet known, so the current rate is extrapolated; call
+    /// [`LocalClock::advance_to`] first for exact values).
+    pub fn local_exact_ns(&self, t_ps: u64) -> (u64, f64) {
+        let dt_ns = (t_ps as i128 - self.anchor_ps as i128) as f64 / PS_PER_NS as f64;
+        let (d, _) = self.delta_from_anchor(dt_ns);
+        let s = self.anchor_local.add(d);
+        (s.ns, s.frac)
+    }
+
+    /// Local time at real time `t_ps` as the registers show it: the value at the last oscillator
+    /// tick.
+    pub fn local_ns(&self, t_ps: u64) -> u64 {
+        let dt_ns = (t_ps as i128 - self.anchor_ps as i128) as f64 / PS_PER_NS as f64;
+        let (d, osc) = self.delta_from_anchor(dt_ns);
+        let phase = (self.anchor_tick_phase + osc).rem_euclid(TICK_NS);
+        // Step back to the tick; the counter's rate over a fraction of a tick is 1 to ~1e-3.
+        let s = self.anchor_local.add(d - phase);
+        if s.frac > 0.999_999 {
+            s.ns.wrapping_add(1)
+        } else {
+            s.ns
+        }
+    }
+
+    /// Moves the anchor to `t_ps`, applying every wander step on the way. Times before the anchor
+    /// are ignored (events are processed in time order per clock; a frame that overtakes another
+    /// by a few microseconds reads the clock through [`LocalClock::local_ns`] instead).
+    pub fn advance_to(&mut self, t_ps: u64) {
+        if t_ps <= self.anchor_ps {
+            return;
+        }
+        while self.next_wander_ps <= t_ps {
+            let at = self.next_wander_ps;
+            self.move_anchor(at);
+            if self.params.wander_ppm_per_sqrt_s > 0.0 {
+                let step_s = self.params.wander_step_ps as f64 * 1e-12;
+                let z: f64 = StandardNormal.sample(&mut self.rng);
+                self.wander += z * self.params.wander_ppm_per_sqrt_s * 1e-6 * step_s.sqrt();
+            }
+            self.next_wander_ps = at.saturating_add(self.params.wander_step_ps.max(1));
+        }
+        self.move_anchor(t_ps);
+    }
+
+    fn move_anchor(&mut self, t_ps: u64) {
+        if t_ps <= self.anchor_ps {
+            return;
+        }
+        let dt_ns = (t_ps - self.anchor_ps) as f64 / PS_PER_NS as f64;
+        let (d, osc) = self.delta_from_anchor(dt_ns);
+        if self.slew_rate != 0.0 {
+            let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
+            self.slew_remaining_ns -= slewed;
+            if self.slew_remaining_ns <= 0.0 {
+                self.slew_remaining_ns = 0.0;
+                self.slew_rate = 0.0;
+            }
+        }
+        self.anchor_local = self.anchor_local.add(d);
+        self.anchor_tick_phase = (self.anchor_tick_phase + osc).rem_euclid(TICK_NS);
+        self.anchor_ps = t_ps;
+    }
+
+    /// Sets the frequency correction of the drift compensation (fraction), from the anchor on.
+    pub fn set_drift_correction(&mut self, t_ps: u64, c: f64) {
+        self.advance_to(t_ps);
+        self.c_drift = c;
+    }
+
+    /// Current drift correction (fraction).
+    pub fn drift_correction(&self) -> f64 {
+        self.c_drift
+    }
+
+    /// Starts slewing `amount_ns` (signed: positive moves the clock forward) at `rate` (fraction,
+    /// > 0), replacing any slew in progress.
+    pub fn set_slew(&mut self, t_ps: u64, amount_ns: f64, rate: f64) {
+        self.advance_to(t_ps);
+        if amount_ns == 0.0 || rate <= 0.0 {
+            self.slew_rate = 0.0;
+            self.slew_remaining_ns = 0.0;
+        } else {
+            self.slew_rate = rate.copysign(amount_ns);
+            self.slew_remaining_ns = amount_ns.abs();
+        }
+    }
+
+    /// Slew still to be applied (signed ns).
+    pub fn slew_remaining_ns(&self) -> f64 {
+        self.slew_remaining_ns.copysign(self.slew_rate)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = 1_000_000_000; // ps
+
+    #[test]
+    fn a_fast_crystal_gains_its_ppm() {
+        let mut c = LocalClock::new(CrystalParams {
+            ppm: 50.0,
+            initial_local_ns: 1_000,
+            ..Default::default()
+        });
+        // After 1 s of real time a +50 ppm clock is 50 us ahead.
+        let t = 1000 * MS;
+        let (ns, _) = c.local_exact_ns(t);
+        assert_eq!(ns, 1_000 + 1_000_000_000 + 50_000);
+        c.advance_to(t / 2);
+        assert_eq!(
+            c.local_exact_ns(t).0,
+            ns,
+            "advancing the anchor changes nothing"
+        );
+    }
+
+    #[test]
+    fn register_reads_are_quantised_to_the_tick() {
+        let c = LocalClock::new(CrystalParams::default());
+        assert_eq!(c.local_ns(0), 0);
+        assert_eq!(c.local_ns(9_999), 0);
+        assert_eq!(c.local_ns(10_000), 10);
+        assert_eq!(c.local_ns(25_000), 20);
+        assert_eq!(c.local_ns(1_000_005_000), 1_000_000);
+    }
+
+    #[test]
+    fn slew_stops_when_done() {
+        let mut c = LocalClock::new(CrystalParams::default());
+        // Move 100 ns forward at 1e-4 (100 ns per ms of real time): done after 1 ms.
+        c.set_slew(0, 100.0, 1e-4);
+        assert_eq!(c.local_exact_ns(MS / 2).0, 500_000 + 50);
+        assert_eq!(c.local_exact_ns(2 * MS).0, 2_000_000 + 100);
+        c.advance_to(3 * MS);
+        assert_eq!(c.slew_remaining_ns(), 0.0);
+        assert_eq!(c.local_exact_ns(4 * MS).0, 4_000_000 + 100);
+        // Backwards.
+        c.set_slew(4 * MS, -40.0, 1e-4);
+        assert_eq!(c.local_exact_ns(5 * MS).0, 5_000_000 + 60);
+    }
+
+    #[test]
+    fn wander_is_a_function_of_real_time_only() {
+        let p = CrystalParams {
+            ppm: -20.0,
+            wander_ppm_per_sqrt_s: 0.5,
+            wander_step_ps: MS,
+            seed: 7,
+            ..Default::default()
+        };
+        let mut a = LocalClock::new(p);
+        let mut b = LocalClock::new(p);
+        // a is advanced in many small steps, b in one: same trajectory.
+        for i in 0..1000u64 {
+            a.advance_to(i * 333_333_333);
+        }
+        let t = 1000 * 333_333_333;
+        a.advance_to(t);
+        b.advance_to(t);
+        assert_eq!(a.local_exact_ns(t).0, b.local_exact_ns(t).0);
+        assert!((a.local_exact_ns(t).1 - b.local_exact_ns(t).1).abs() < 1e-3);
+        assert_ne!(a.oscillator_error(), -20e-6, "wander moved the frequency");
+    }
+}

@@ -1,0 +1,583 @@
+//! The Distributed Clocks unit of one ESC: local clock, system time offset and delay, the time
+//! control loop, receive-time latches and the SYNC0/SYNC1 cyclic unit, behind the register block
+//! 0x0900-0x09FF.
+//!
+//! # Time control loop model
+//!
+//! The datasheet describes the loop by its registers, not its circuit, so this is a model with
+//! the following assumptions, chosen so that the registers behave as the datasheet says and the
+//! loop converges the way real segments do (tens of ns after the recommended ~15 000 system time
+//! writes of static drift compensation):
+//!
+//! 1. A write to System Time (0x0910) in a frame whose first bit reached the processing unit at
+//!    real time `t` compares bits 31:0 of the written value `V` with the local copy of the system
+//!    time latched at that instant (quantised, as the register reads it):
+//!    `dt = (L(t) + offset - delay) - V` (datasheet section I, 9.1.3.3). Differences of 2^30 ns
+//!    or more are shown but do not steer the clock (the datasheet guarantees nothing there).
+//! 2. `dt` is averaged with an exponential filter of weight `2^-depth` (depth = 0x0934 bits 3:0;
+//!    depth 0 means no averaging). 0x092C shows `-dt_filtered` = received - local, sign-magnitude.
+//! 3. Phase: after each write the clock is slewed by `-dt_filtered`, one nanosecond per
+//!    `speed counter start` (0x0930) ticks of 10 ns, i.e. at a rate of `1 / (10 * start)`
+//!    (24.4 ppm for the default 0x1000), until that amount is applied or the next write replaces
+//!    it. This is the datasheet's "local time is incremented by 9 or 11 ns instead of 10 ns".
+//! 4. Drift: the ESC estimates how fast `dt` drifts when no phase slew acts — the residual
+//!    frequency error `r = (dt_k - dt_{k-1} - slew applied) / T` between consecutive writes — and
+//!    integrates it into a frequency correction `c_drift -= r * 2^-depth` (depth = 0x0935 bits
+//!    3:0, the speed counter filter depth). `c_drift` is what the speed counter diff (0x0932)
+//!    represents; it is limited to the range the speed counter can express, `1 / (10 * 0x80)`
+//!    = 781 ppm. Writes less than 1 us apart, or after a reset, only seed the estimator.
+//! 5. Writing 0x0930 resets 0x092C and the drift correction; writing 0x0934 resets 0x092C; writing
+//!    0x0920 or 0x0928 restarts the estimator (the next difference is not a drift).
+//!
+//! 0x0932 is shown as `c_drift` in units of 2^-24 (0.0596 ppm), an encoding of this model: no
+//! master interprets that register.
+
+use crate::clock::{CrystalParams, LocalClock, PS_PER_NS};
+use ecsync_wire::dc_time;
+use ecsync_wire::register as reg;
+
+/// Offset of the DC block in register space.
+pub const DC_BLOCK_START: u16 = 0x0900;
+/// Size of the DC block.
+pub const DC_BLOCK_LEN: usize = 0x100;
+
+const SPEED_COUNTER_MIN: u16 = 0x0080;
+const SPEED_COUNTER_MAX: u16 = 0x3fff;
+const MAX_DRIFT_CORRECTION: f64 = 1.0 / (10.0 * SPEED_COUNTER_MIN as f64);
+/// 0x0932 units.
+const SPEED_DIFF_UNIT: f64 = 1.0 / (1u64 << 24) as f64;
+
+/// Static configuration of a DC unit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DcParams {
+    /// The crystal.
+    pub crystal: CrystalParams,
+    /// 64-bit system time (feature bit 3); 32-bit units ignore the upper half.
+    pub is_64bit: bool,
+}
+
+/// State of the DC unit.
+#[derive(Debug, Clone)]
+pub struct DcUnit {
+    clock: LocalClock,
+    is_64bit: bool,
+    offset: u64,
+    delay: u32,
+    // Time control loop.
+    speed_counter_start: u16,
+    dt_filter_depth: u8,
+    speed_filter_depth: u8,
+    dt_filtered: f64,
+    last_sample: Option<(u64, f64)>,
+    writes: u64,
+    // Latches.
+    port_times: [u32; 4],
+    pu_time: u64,
+    // Cyclic unit.
+    cyclic_control: u8,
+    activation: u8,
+    pulse_length: u16,
+    start_time: u64,
+    sync0_cycle: u32,
+    sync1_cycle: u32,
+    sync0_status_cleared_at: Option<u64>,
+    latch_mode: u8,
+}
+
+/// What a write to the DC block asks the segment to do beyond the unit itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct DcWriteEffects {
+    /// Receive Time Port 0 was written: latch this frame's receive times on all ports.
+    pub latch_receive_times: bool,
+}
+
+impl DcUnit {
+    /// A powered-up DC unit with datasheet defaults.
+    pub fn new(params: DcParams) -> Self {
+        DcUnit {
+            clock: LocalClock::new(params.crystal),
+            is_64bit: params.is_64bit,
+            offset: 0,
+            delay: 0,
+            speed_counter_start: 0x1000,
+            dt_filter_depth: 4,
+            speed_filter_depth: 12,
+            dt_filtered: 0.0,
+            last_sample: None,
+            writes: 0,
+            port_times: [0; 4],
+            pu_time: 0,
+            cyclic_control: 0,
+            activation: 0,
+            pulse_length: 0,
+            start_time: 0,
+            sync0_cycle: 0,
+            sync1_cycle: 0,
+            sync0_status_cleared_at: None,
+            latch_mode: 0,
+        }
+    }
+
+    /// The local clock.
+    pub fn clock(&self) -> &LocalClock {
+        &self.clock
+    }
+
+    /// Brings the clock's anchor to `t_ps` (wander steps, slews).
+    pub fn advance_to(&mut self, t_ps: u64) {
+        self.clock.advance_to(t_ps);
+    }
+
+    /// Local time (register view, quantised) at `t_ps`.
+    pub fn local_ns(&self, t_ps: u64) -> u64 {
+        let l = self.clock.local_ns(t_ps);
+        if self.is_64bit { l } else { l & 0xffff_ffff }
+    }
+
+    /// Local copy of the system time (register view) at `t_ps`.
+    pub fn system_time_ns(&self, t_ps: u64) -> u64 {
+        let s = self.clock.local_ns(t_ps).wrapping_add(self.offset);
+        if self.is_64bit { s } else { s & 0xffff_ffff }
+    }
+
+    /// System time at `t_ps` without quantisation, in ns with fraction (ground truth).
+    pub fn system_time_exact(&self, t_ps: u64) -> f64 {
+        let (ns, frac) = self.clock.local_exact_ns(t_ps);
+        // Relative to an arbitrary 2^40 ns window is enough for differences between clocks.
+        ns.wrapping_add(self.offset) as f64 + frac
+    }
+
+    /// System time at `t_ps` as (integer ns, fraction), unquantised (ground truth).
+    pub fn system_time_split(&self, t_ps: u64) -> (u64, f64) {
+        let (ns, frac) = self.clock.local_exact_ns(t_ps);
+        (ns.wrapping_add(self.offset), frac)
+    }
+
+    /// System time offset (0x0920).
+    pub fn offset(&self) -> u64 {
+        self.offset
+    }
+
+    /// System time delay (0x0928).
+    pub fn delay(&self) -> u32 {
+        self.delay
+    }
+
+    /// Filtered system time difference in ns (what 0x092C shows, signed).
+    pub fn time_difference_ns(&self) -> f64 {
+        self.dt_filtered
+    }
+
+    /// Number of system time writes the loop has processed.
+    pub fn loop_writes(&self) -> u64 {
+        self.writes
+    }
+
+    /// Latches receive times: `ports[p]` is the real time the frame's first bit reached port p, or
+    /// `None` if it did not pass that port (the register keeps its old value); `pu_ps` the time
+    /// it reached the processing unit.
+    pub fn latch(&mut self, ports: [Option<u64>; 4], pu_ps: u64) {
+        for (p, t) in ports.iter().enumerate() {
+            if let Some(t) = t {
+                self.port_times[p] = self.clock.local_ns(*t) as u32;
+            }
+        }
+        self.pu_time = self.local_ns(pu_ps);
+    }
+
+    /// Fills the shadow of the DC block (`block[0]` is register 0x0900) with the values registers
+    /// in `range` (absolute addresses, half-open) read at `t_ps`.
+    pub fn refresh(&mut self, block: &mut [u8; DC_BLOCK_LEN], lo: u16, hi: u16, t_ps: u64) {
+        let overlaps = |a: u16, len: u16| lo < a + len && a < hi;
+        let mut put = |addr: u16, bytes: &[u8]| {
+            let at = usize::from(addr - DC_BLOCK_START);
+            block[at..at + bytes.len()].copy_from_slice(bytes);
+        };
+        if overlaps(reg::DC_RECEIVE_TIME_PORT0, 16) {
+            for p in 0..4 {
+                put(
+                    reg::DC_RECEIVE_TIME_PORT0 + 4 * p as u16,
+                    &self.port_times[p].to_le_bytes(),
+                );
+            }
+        }
+        if overlaps(reg::DC_SYSTEM_TIME, 8) {
+            self.clock.advance_to(t_ps);
+            put(
+                reg::DC_SYSTEM_TIME,
+                &self.system_time_read_ns(t_ps).to_le_bytes(),
+            );
+        }
+        if overlaps(reg::DC_RECEIVE_TIME_PU, 8) {
+            put(reg::DC_RECEIVE_TIME_PU, &self.pu_time.to_le_bytes());
+        }
+        if overlaps(reg::DC_SYSTEM_TIME_OFFSET, 16) {
+            put(reg::DC_SYSTEM_TIME_OFFSET, &self.offset.to_le_bytes());
+            put(reg::DC_SYSTEM_TIME_DELAY, &self.delay.to_le_bytes());
+            let diff = dc_time::encode_time_difference(-(self.dt_filtered.round() as i64));
+            put(reg::DC_SYSTEM_TIME_DIFF, &diff.to_le_bytes());
+        }
+        if overlaps(reg::DC_SPEED_COUNTER_START, 7) {
+            put(
+                reg::DC_SPEED_COUNTER_START,
+                &self.speed_counter_start.to_le_bytes(),
+            );
+            let diff = (self.clock.drift_correction() / SPEED_DIFF_UNIT)
+                .round()
+                .clamp(i16::MIN as f64, i16::MAX as f64) as i16;
+            put(reg::DC_SPEED_COUNTER_DIFF, &diff.to_le_bytes());
+            put(reg::DC_TIME_DIFF_FILTER_DEPTH, &[self.dt_filter_depth]);
+            put(
+                reg::DC_SPEED_COUNTER_FILTER_DEPTH,
+                &[self.speed_filter_depth],
+            );
+            put(0x0936, &[self.latch_mode]);
+        }
+        if overlaps(reg::DC_CYCLIC_UNIT_CONTROL, 0x28) {
+            self.clock.advance_to(t_ps);
+            let now = self.system_time_ns(t_ps);
+            put(reg::DC_CYCLIC_UNIT_CONTROL, &[self.cyclic_control]);
+            put(reg::DC_ACTIVATION, &[self.activation]);
+            put(reg::DC_PULSE_LENGTH, &self.pulse_length.to_le_bytes());
+            let next0 = self.next_sync0_after(now);
+            let status = if self.sync0_active() {
+                let pending = next0.map(|n| n == self.first_sync0()).unwrap_or(true);
+                u8::from(!pending) // bit 0: SYNC0 pulse has been generated
+            } else {
+                0
+            };
+            put(reg::DC_ACTIVATION_STATUS, &[u8::from(self.sync0_active())]);
+            put(reg::DC_SYNC0_STATUS, &[status]);
+            put(reg::DC_SYNC1_STATUS, &[0]);
+            let next0_v = if self.sync0_active() {
+                next0.unwrap_or(0)
+            } else {
+                self.start_time
+            };
+            put(reg::DC_START_TIME, &next0_v.to_le_bytes());
+            let next1 = next0.map(|n| n.wrapping_add(u64::from(self.sync1_cycle)));
+            put(reg::DC_NEXT_SYNC1, &next1.unwrap_or(0).to_le_bytes());
+            put(reg::DC_SYNC0_CYCLE, &self.sync0_cycle.to_le_bytes());
+            put(reg::DC_SYNC1_CYCLE, &self.sync1_cycle.to_le_bytes());
+        }
+    }
+
+    /// Applies a write of `data` to the registers at `addr..addr + data.len()` (absolute
+    /// addresses within the DC block) at real time `t_ps`.
+    pub fn write(&mut self, addr: u16, data: &[u8], t_ps: u64) -> DcWriteEffects {
+        let mut fx = DcWriteEffects::default();
+        let lo = addr;
+        let hi = addr + data.len() as u16;
+        let byte = |a: u16| -> Option<u8> {
+            if a >= lo && a < hi {
+                Some(data[usize::from(a - lo)])
+            } else {
+                None
+            }
+        };
+        // Merge written bytes over the current value of a register of `N` bytes.
+        fn merge<const N: usize>(
+            cur: [u8; N],
+            at: u16,
+            byte: &dyn Fn(u16) -> Option<u8>,
+        ) -> [u8; N] {
+            let mut v = cur;
+            for (i, b) in v.iter_mut().enumerate() {
+                if let Some(nb) = byte(at + i as u16) {
+                    *b = nb;
+                }
+            }
+            v
+        }
+        let touches = |a: u16, len: u16| lo < a + len && a < hi;
+
+        if touches(reg::DC_RECEIVE_TIME_PORT0, 4) {
+            fx.latch_receive_times = true;
+        }
+        if touches(reg::DC_SYSTEM_TIME_OFFSET, 8) {
+            self.clock.advance_to(t_ps);
+            self.offset = u64::from_le_bytes(merge(
+                self.offset.to_le_bytes(),
+                reg::DC_SYSTEM_TIME_OFFSET,
+                &byte,
+            ));
+            self.last_sample = None;
+        }
+        if touches(reg::DC_SYSTEM_TIME_DELAY, 4) {
+            self.delay = u32::from_le_bytes(merge(
+                self.delay.to_le_bytes(),
+                reg::DC_SYSTEM_TIME_DELAY,
+                &byte,
+            ));
+            self.last_sample = None;
+        }
+        if touches(reg::DC_SPEED_COUNTER_START, 2) {
+            let v = u16::from_le_bytes(merge(
+                self.speed_counter_start.to_le_bytes(),
+                reg::DC_SPEED_COUNTER_START,
+                &byte,
+            ));
+            self.speed_counter_start = v.clamp(SPEED_COUNTER_MIN, SPEED_COUNTER_MAX);
+            self.clock.set_drift_correction(t_ps, 0.0);
+            self.clock.set_slew(t_ps, 0.0, 0.0);
+            self.dt_filtered = 0.0;
+            self.last_sample = None;
+        }
+        if let Some(b) = byte(reg::DC_TIME_DIFF_FILTER_DEPTH) {
+            self.dt_filter_depth = b & 0x0f;
+            self.dt_filtered = 0.0;
+        }
+        if let Some(b) = byte(reg::DC_SPEED_COUNTER_FILTER_DEPTH) {
+            self.speed_filter_depth = b & 0x0f;
+        }
+        if let Some(b) = byte(0x0936) {
+            self.latch_mode = b;
+        }
+        if let Some(b) = byte(reg::DC_CYCLIC_UNIT_CONTROL) {
+            self.cyclic_control = b;
+        }
+        if touches(reg::DC_PULSE_LENGTH, 2) {
+            self.pulse_length = u16::from_le_bytes(merge(
+                self.pulse_length.to_le_bytes(),
+                reg::DC_PULSE_LENGTH,
+                &byte,
+            ));
+        }
+        if touches(reg::DC_START_TIME, 8) {
+            self.start_time = u64::from_le_bytes(merge(
+                self.start_time.to_le_bytes(),
+                reg::DC_START_TIME,
+                &byte,
+            ));
+            if !self.is_64bit {
+                self.start_time &= 0xffff_ffff;
+            }
+        }
+        if touches(reg::DC_SYNC0_CYCLE, 4) {
+            self.sync0_cycle = u32::from_le_bytes(merge(
+                self.sync0_cycle.to_le_bytes(),
+                reg::DC_SYNC0_CYCLE,
+                &byte,
+            ));
+        }
+        if touches(reg::DC_SYNC1_CYCLE, 4) {
+            self.sync1_cycle = u32::from_le_bytes(merge(
+                self.sync1_cycle.to_le_bytes(),
+                reg::DC_SYNC1_CYCLE,
+                &byte,
+            ));
+        }
+        if let Some(b) = byte(reg::DC_ACTIVATION) {
+            self.activate(b, t_ps);
+        }
+        if byte(reg::DC_SYSTEM_TIME).is_some() {
+            // The comparison uses bits 31:0 of the written value (datasheet section I, 9.1.3.3);
+            // it needs at least the first byte, unwritten low bytes count as zero.
+            let mut v = [0u8; 4];
+            for (i, b) in v.iter_mut().enumerate() {
+                *b = byte(reg::DC_SYSTEM_TIME + i as u16).unwrap_or(0);
+            }
+            self.compare_system_time(u32::from_le_bytes(v), t_ps);
+        }
+        fx
+    }
+
+    fn sync0_active(&self) -> bool {
+        self.activation & 0b11 == 0b11
+    }
+
+    fn activate(&mut self, b: u8, t_ps: u64) {
+        let was = self.sync0_active();
+        self.activation = b;
+        if self.sync0_active() && !was {
+            // Cyclic operation starts: if the start time already lies in the past, the ESC
+            // waits until its 32-bit comparison matches again, i.e. one 2^32 ns wrap later
+            // (datasheet: a start time in the past starts SYNC only after ~4.3 s).
+            self.clock.advance_to(t_ps);
+            let now = self.system_time_ns(t_ps);
+            if dc_time::diff_u64(self.start_time, now) <= 0 {
+                let behind = now.wrapping_sub(self.start_time);
+                let wraps = behind / (1 << 32) + 1;
+                self.start_time = self.start_time.wrapping_add(wraps << 32);
+            }
+            self.sync0_status_cleared_at = None;
+        }
+    }
+
+    fn first_sync0(&self) -> u64 {
+        self.start_time
+    }
+
+    /// The system time of the first SYNC0 pulse strictly after system time `s`, if SYNC0 runs.
+    pub fn next_sync0_after(&self, s: u64) -> Option<u64> {
+        if !self.sync0_active() {
+            return None;
+        }
+        let since = dc_time::diff_u64(s, self.start_time);
+        if since < 0 {
+            return Some(self.start_time);
+        }
+        if self.sync0_cycle == 0 {
+            return None; // single shot, already fired
+        }
+        let cyc = u64::from(self.sync0_cycle);
+        let k = since as u64 / cyc + 1;
+        Some(self.start_time.wrapping_add(k * cyc))
+    }
+
+    /// SYNC0 configuration: (start time, cycle ns), if SYNC0 is active.
+    pub fn sync0(&self) -> Option<(u64, u32)> {
+        self.sync0_active()
+            .then_some((self.start_time, self.sync0_cycle))
+    }
+
+    /// The system time as an ECAT read of 0x0910 returns it: the local copy at the frame's SOF
+    /// minus the system time delay, i.e. the system time at which the frame passed the reference
+    /// clock (datasheet section II, 0x0910 "including system time delay").
+    pub fn system_time_read_ns(&self, t_ps: u64) -> u64 {
+        let v = self
+            .system_time_ns(t_ps)
+            .wrapping_sub(u64::from(self.delay));
+        if self.is_64bit { v } else { v & 0xffff_ffff }
+    }
+
+    fn compare_system_time(&mut self, received: u32, t_ps: u64) {
+        self.clock.advance_to(t_ps);
+        let dt = dc_time::diff_u32(self.system_time_read_ns(t_ps) as u32, received);
+        // The datasheet guarantees stability only for |dt| < 2^30 ns; larger differences (a
+        // master writing 0 during its reset sequence, say) are shown but do not steer the clock.
+        if dt.unsigned_abs() >= 1 << 30 {
+            self.dt_filtered = f64::from(dt);
+            self.last_sample = None;
+            return;
+        }
+        let dt = f64::from(dt);
+        self.writes += 1;
+
+        // (2) Filtered difference.
+        let w = 1.0 / f64::from(1u32 << self.dt_filter_depth);
+        self.dt_filtered += (dt - self.dt_filtered) * w;
+
+        // (4) Drift estimation from consecutive differences.
+        let slew_left = self.clock.slew_remaining_ns();
+        if let Some((t_prev, dt_expected)) = self.last_sample {
+            let elapsed_ns = (t_ps - t_prev) as f64 / PS_PER_NS as f64;
+            if elapsed_ns >= 1_000.0 {
+                // dt_expected is the difference the previous write aimed for once its slew was
+                // complete; slew still pending counts as expected change too.
+                let residual = (dt - (dt_expected + slew_left)) / elapsed_ns;
+                let residual = residual.clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
+                let gain = 1.0 / f64::from(1u32 << self.speed_filter_depth);
+                let c = (self.clock.drift_correction() - residual * gain)
+                    .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
+                self.clock.set_drift_correction(t_ps, c);
+            }
+        }
+
+        // (3) Slew the filtered difference away.
+        let rate = 1.0 / (10.0 * f64::from(self.speed_counter_start));
+        self.clock.set_slew(t_ps, -self.dt_filtered, rate);
+        self.last_sample = Some((t_ps, dt - self.dt_filtered));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const US: u64 = 1_000_000; // ps
+
+    fn unit(ppm: f64, start: u64) -> DcUnit {
+        DcUnit::new(DcParams {
+            crystal: CrystalParams {
+                ppm,
+                initial_local_ns: start,
+                ..Default::default()
+            },
+            is_64bit: true,
+        })
+    }
+
+    #[test]
+    fn reading_system_time_adds_the_offset() {
+        let mut u = unit(0.0, 5_000);
+        u.write(reg::DC_SYSTEM_TIME_OFFSET, &1_000_000u64.to_le_bytes(), 0);
+        let mut block = [0u8; DC_BLOCK_LEN];
+        u.refresh(&mut block, 0x0910, 0x0918, 2 * US);
+        let v = u64::from_le_bytes(block[0x10..0x18].try_into().unwrap());
+        assert_eq!(v, 5_000 + 2_000 + 1_000_000);
+    }
+
+    #[test]
+    fn sign_magnitude_difference_after_a_write() {
+        let mut u = unit(0.0, 0);
+        u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0], 0);
+        // Local system time at t = 100 us is 100_000; write 100_300 with delay 0: the local copy
+        // is 300 ns behind the received time, so bit 31 is clear and the magnitude 300.
+        u.write(reg::DC_SYSTEM_TIME, &100_300u64.to_le_bytes(), 100 * US);
+        let mut block = [0u8; DC_BLOCK_LEN];
+        u.refresh(&mut block, 0x092c, 0x0930, 100 * US);
+        let raw = u32::from_le_bytes(block[0x2c..0x30].try_into().unwrap());
+        assert_eq!(raw, 300);
+        // With a delay of 500 ns the local copy minus the delay is 200 ns ahead: bit 31 set.
+        u.write(reg::DC_SYSTEM_TIME_DELAY, &500u32.to_le_bytes(), 100 * US);
+        u.write(reg::DC_SYSTEM_TIME, &99_300u64.to_le_bytes(), 100 * US);
+        u.refresh(&mut block, 0x092c, 0x0930, 100 * US);
+        let raw = u32::from_le_bytes(block[0x2c..0x30].try_into().unwrap());
+        assert_eq!(raw, 0x8000_0000 | 200);
+    }
+
+    #[test]
+    fn a_32_bit_write_compares_across_the_wrap() {
+        // Local system time just after a 2^32 wrap, written value just before it.
+        let mut u = unit(0.0, (1u64 << 32) + 40);
+        u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0], 0);
+        u.write(reg::DC_SYSTEM_TIME, &(u32::MAX - 59).to_le_bytes(), 0);
+        assert_eq!(u.time_difference_ns(), 100.0);
+    }
+
+    #[test]
+    fn the_loop_pulls_a_drifting_clock_onto_the_reference() {
+        // A reference with a perfect clock; this unit runs 80 ppm fast. System time writes every
+        // 20 us (static drift compensation), then every 1 ms.
+        let mut u = unit(80.0, 0);
+        u.write(reg::DC_SPEED_COUNTER_START, &0x1000u16.to_le_bytes(), 0);
+        u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &0x0c00u16.to_le_bytes(), 0);
+        let mut t = 0;
+        for _ in 0..15_000 {
+            t += 20 * US;
+            let reference = t / 1000;
+            u.write(reg::DC_SYSTEM_TIME, &reference.to_le_bytes(), t);
+        }
+        let mut worst = 0.0f64;
+        for _ in 0..2_000 {
+            t += 1_000 * US;
+            let reference = t / 1000;
+            u.write(reg::DC_SYSTEM_TIME, &reference.to_le_bytes(), t);
+            worst = worst.max(u.time_difference_ns().abs());
+        }
+        assert!(worst < 100.0, "worst |dt| after lock {worst} ns");
+        let c = u.clock().drift_correction();
+        assert!((c + 80e-6).abs() < 2e-6, "drift correction {c}");
+    }
+
+    #[test]
+    fn sync0_pulses_on_the_start_time_grid() {
+        let mut u = unit(0.0, 0);
+        u.write(reg::DC_SYNC0_CYCLE, &1_000_000u32.to_le_bytes(), 0);
+        u.write(reg::DC_START_TIME, &5_250_000u64.to_le_bytes(), 0);
+        u.write(reg::DC_ACTIVATION, &[0x03], 0);
+        assert_eq!(u.next_sync0_after(0), Some(5_250_000));
+        assert_eq!(u.next_sync0_after(5_250_000), Some(6_250_000));
+        assert_eq!(u.next_sync0_after(7_000_000), Some(7_250_000));
+    }
+
+    #[test]
+    fn sync0_start_in_the_past_waits_for_the_32_bit_wrap() {
+        let mut u = unit(0.0, 10_000_000);
+        u.write(reg::DC_SYNC0_CYCLE, &1_000_000u32.to_le_bytes(), 0);
+        u.write(reg::DC_START_TIME, &1_000u64.to_le_bytes(), 0);
+        u.write(reg::DC_ACTIVATION, &[0x03], 0);
+        assert_eq!(u.sync0().unwrap().0, 1_000 + (1 << 32));
+    }
+}
