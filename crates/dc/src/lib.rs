@@ -1,0 +1,21 @@
+//! Distributed Clocks math for EtherCAT masters: the segment's tree and propagation delays from
+//! port receive times, system time offsets, SYNC0 start times and lock detection.
+//!
+//! `no_std` and allocation-free: every function works on slices the caller owns, so it runs in
+//! a microcontroller master as well as in the simulator.
+#![no_std]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+extern crate std;
+
+pub mod lock;
+pub mod offset;
+pub mod topology;
+
+pub use lock::LockDetector;
+pub use offset::{sync0_start_time, system_time_offset};
+pub use topology::{
+    SlavePorts, TopologyError, TreeNode, arrival_times, build_tree, propagation_delays,
+};
