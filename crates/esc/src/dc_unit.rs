@@ -464,8 +464,9 @@ impl DcUnit {
             let elapsed_ns = (t_ps - t_prev) as f64 / PS_PER_NS as f64;
             if elapsed_ns >= 1_000.0 {
                 // dt_expected is the difference the previous write aimed for once its slew was
-                // complete; slew still pending counts as expected change too.
-                let residual = (dt - (dt_expected + slew_left)) / elapsed_ns;
+                // complete; slew still pending (signed, opposite to the difference it removes)
+                // is expected to be left over.
+                let residual = (dt - (dt_expected - slew_left)) / elapsed_ns;
                 let residual = residual.clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
                 let gain = 1.0 / f64::from(1u32 << self.speed_filter_depth);
                 let c = (self.clock.drift_correction() - residual * gain)

@@ -1,0 +1,825 @@
+//! The DC bring-up: scan, addressing, SII identity, topology and propagation delays, system time
+//! offsets, static drift compensation, lock detection, process data mapping, SYNC0 and the
+//! state machine up to OP — the sequence of the datasheet (section I, 9.1.3.6) as SOEM and IgH
+//! run it, with delays averaged over several latches.
+
+use crate::MasterError;
+use crate::io::{Event, Link, Pdu};
+use crate::sii::{SiiReader, pdo_bits_for_sm};
+use ecsync_dc::{LockDetector, SlavePorts, TreeNode, build_tree, propagation_delays};
+use ecsync_wire::register::{self as reg, al_state, dl_status, features};
+use ecsync_wire::sii::{self, Identity, category};
+use ecsync_wire::{Command, DatagramAddress, dc_time};
+
+/// First configured station address; slave k gets `STATION_BASE + k`.
+pub const STATION_BASE: u16 = 0x1000;
+
+/// Processing-minus-forwarding delay of an ESC, as a master learns it from the ESI.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct EsiTiming {
+    /// Vendor ID.
+    pub vendor_id: u32,
+    /// Product code.
+    pub product_code: u32,
+    /// tDiff = tP - tF, ns.
+    pub tdiff_ns: i32,
+}
+
+/// How far to bring the network up and how.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BringupConfig {
+    /// Latches of the receive times whose delays are averaged.
+    pub latch_rounds: u32,
+    /// Separate FRMW frames of static drift compensation (the datasheet recommends ~15000).
+    pub static_drift_frames: u32,
+    /// Read every slave's 0x092C after this many static drift frames.
+    pub check_every_frames: u32,
+    /// Lock when every |0x092C| stays below this, ns.
+    pub lock_threshold_ns: u32,
+    /// ... for this many consecutive checks.
+    pub lock_hold_checks: u32,
+    /// Give up if not locked this long after drift compensation starts, ns.
+    pub lock_timeout_ns: u64,
+    /// Cycle time of the cyclic phase and SYNC0, ns.
+    pub cycle_ns: u32,
+    /// SYNC0 shift: SYNC0 fires this long after the cycle's grid point, ns.
+    pub sync0_shift_ns: u32,
+    /// How far ahead of the current system time SYNC0 starts, ns.
+    pub sync0_lead_ns: u64,
+    /// Cycles to run in the cyclic frame after OP, monitoring 0x092C.
+    pub monitor_cycles: u32,
+    /// Bring the slaves to OP with their process data mapped (else stop in PRE-OP with DC
+    /// running).
+    pub to_op: bool,
+    /// ESI timing of known ESCs.
+    pub esi: Vec<EsiTiming>,
+}
+
+impl Default for BringupConfig {
+    fn default() -> Self {
+        BringupConfig {
+            latch_rounds: 16,
+            static_drift_frames: 15_000,
+            check_every_frames: 100,
+            lock_threshold_ns: 100,
+            lock_hold_checks: 1_000,
+            lock_timeout_ns: 30_000_000_000,
+            cycle_ns: 1_000_000,
+            sync0_shift_ns: 300_000,
+            sync0_lead_ns: 100_000_000,
+            monitor_cycles: 1_000,
+            to_op: true,
+            esi: Vec::new(),
+        }
+    }
+}
+
+/// DC capability as read from 0x0008 and the presence of receive times.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DcCapability {
+    /// No DC.
+    None,
+    /// Port receive times only.
+    ReceiveTimes,
+    /// System time (can be synchronised).
+    SystemTime,
+}
+
+/// What the master learned about one slave.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SlaveInfo {
+    /// Auto-increment position (network order).
+    pub position: u16,
+    /// Configured station address.
+    pub station: u16,
+    /// Station alias.
+    pub alias: u16,
+    /// ESC type.
+    pub esc_type: u8,
+    /// ESC features (0x0008).
+    pub features: u16,
+    /// SII identity.
+    #[serde(skip)]
+    pub identity: Identity,
+    /// Vendor ID.
+    pub vendor_id: u32,
+    /// Product code.
+    pub product_code: u32,
+    /// Serial number.
+    pub serial: u32,
+    /// Device name from the SII strings.
+    pub name: String,
+    /// DC capability.
+    pub dc: DcCapability,
+    /// Open ports (DL status).
+    pub open_ports: [bool; 4],
+    /// Parent position and port, from the topology.
+    pub parent: Option<(u16, u8)>,
+    /// Entry port.
+    pub entry_port: u8,
+    /// Measured propagation delay from the reference, ns (mean over the latch rounds).
+    pub delay_ns: Option<f64>,
+    /// Spread (max - min) of the delay over the latch rounds, ns.
+    pub delay_spread_ns: Option<f64>,
+    /// System time offset written to 0x0920.
+    pub offset: Option<u64>,
+    /// Output bytes (RxPDO) and where they sit in the logical process image.
+    pub outputs: (u32, u16),
+    /// Input bytes (TxPDO) and where they sit in the logical process image.
+    pub inputs: (u32, u16),
+    /// Output and input SyncManager indices and physical starts.
+    #[serde(skip)]
+    pub sms: Vec<SmConfig>,
+}
+
+/// A process data SyncManager as the SII describes it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SmConfig {
+    /// Index.
+    pub index: u8,
+    /// Physical start.
+    pub start: u16,
+    /// Control byte.
+    pub control: u8,
+    /// 3 = outputs, 4 = inputs.
+    pub kind: u8,
+    /// Bytes (from the PDOs assigned to it).
+    pub len: u16,
+}
+
+/// The outcome of lock detection.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct LockReport {
+    /// Whether every |0x092C| stayed below the threshold.
+    pub converged: bool,
+    /// From the start of drift compensation to the first check of the run that held, ns.
+    pub time_to_lock_ns: Option<u64>,
+    /// Master time when drift compensation started, ns.
+    pub drift_start_ns: u64,
+    /// Largest |0x092C| seen while monitoring after lock, ns.
+    pub max_abs_092c_after_lock_ns: u32,
+    /// FRMW frames sent before lock.
+    pub frmw_frames: u64,
+}
+
+/// SYNC0 as programmed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Sync0Config {
+    /// Start time (system time), ns.
+    pub start_ns: u64,
+    /// Cycle, ns.
+    pub cycle_ns: u32,
+    /// Shift within the cycle, ns.
+    pub shift_ns: u32,
+}
+
+/// The network as brought up.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Network {
+    /// Slaves in network order.
+    pub slaves: Vec<SlaveInfo>,
+    /// Position of the reference clock.
+    pub reference: u16,
+    /// Lock detection.
+    pub lock: LockReport,
+    /// SYNC0, when configured.
+    pub sync0: Option<Sync0Config>,
+    /// Bytes of the logical process image (outputs then inputs).
+    pub pdi_len: u32,
+    /// Expected LRW working counter in OP.
+    pub expected_lrw_wkc: u16,
+    /// Master time when bring-up finished, ns.
+    pub done_ns: u64,
+}
+
+fn position_addr(pos: u16, ado: u16) -> DatagramAddress {
+    DatagramAddress::position(pos, ado)
+}
+
+fn fp(station: u16, ado: u16) -> DatagramAddress {
+    DatagramAddress::Configured { adp: station, ado }
+}
+
+/// Runs the bring-up on a link.
+pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterError> {
+    if cfg.cycle_ns == 0 || cfg.sync0_shift_ns >= cfg.cycle_ns {
+        return Err(MasterError::Config(format!(
+            "cycle {} ns and SYNC0 shift {} ns: the shift must lie within the cycle",
+            cfg.cycle_ns, cfg.sync0_shift_ns
+        )));
+    }
+    link.event(Event::Phase("scan"));
+    let count = link
+        .pdu(
+            Command::Brd,
+            position_addr(0, reg::TYPE),
+            vec![0],
+            "count slaves",
+        )
+        .await?
+        .wkc;
+    if count == 0 {
+        return Err(MasterError::NoSlaves);
+    }
+
+    // Reset: INIT with error acknowledge, FMMUs and SyncManagers cleared, SYNC off.
+    let mut reset = vec![Pdu::new(
+        Command::Bwr,
+        position_addr(0, reg::AL_CONTROL),
+        vec![0x11, 0x00],
+    )];
+    for n in 0..16 {
+        reset.push(Pdu::new(
+            Command::Bwr,
+            position_addr(0, reg::FMMU_BASE + n * reg::FMMU_LEN),
+            vec![0; 16],
+        ));
+        reset.push(Pdu::new(
+            Command::Bwr,
+            position_addr(0, reg::SM_BASE + n * reg::SM_LEN),
+            vec![0; 8],
+        ));
+    }
+    reset.push(Pdu::new(
+        Command::Bwr,
+        position_addr(0, reg::DC_ACTIVATION),
+        vec![0],
+    ));
+    link.pdus(&reset, "reset").await?;
+
+    // Addresses.
+    for pos in 0..count {
+        link.pdu_wkc(
+            Command::Apwr,
+            position_addr(pos, reg::STATION_ADDRESS),
+            (STATION_BASE + pos).to_le_bytes().to_vec(),
+            1,
+            "set station address",
+        )
+        .await?;
+    }
+
+    // Identity, features, ports.
+    link.event(Event::Phase("identify"));
+    let mut slaves = Vec::with_capacity(usize::from(count));
+    for pos in 0..count {
+        let station = STATION_BASE + pos;
+        let (r, _) = link
+            .pdus(
+                &[
+                    Pdu::new(Command::Fprd, fp(station, 0x0000), vec![0; 16]),
+                    Pdu::new(Command::Fprd, fp(station, reg::STATION_ALIAS), vec![0; 2]),
+                    Pdu::new(Command::Fprd, fp(station, reg::DL_STATUS), vec![0; 2]),
+                ],
+                "read ESC information",
+            )
+            .await?;
+        for p in &r {
+            if p.wkc != 1 {
+                return Err(MasterError::WorkingCounter {
+                    command: Command::Fprd,
+                    what: "read ESC information",
+                    expected: 1,
+                    got: p.wkc,
+                });
+            }
+        }
+        let info = &r[0].data;
+        let feats = u16::from_le_bytes([info[8], info[9]]);
+        let dls = u16::from_le_bytes([r[2].data[0], r[2].data[1]]);
+        let open = core::array::from_fn(|p| {
+            dls & dl_status::link(p) != 0 && dls & dl_status::loop_closed(p) == 0
+        });
+        let mut sii = SiiReader::new(&link, station);
+        sii.take_ownership().await?;
+        let id_bytes = sii.read(sii::WORD_VENDOR_ID, 16).await?;
+        let identity = sii::identity(&{
+            let mut img = vec![0u8; 16];
+            img.extend_from_slice(&id_bytes);
+            img
+        })
+        .map_err(|_| MasterError::Sii {
+            slave: station,
+            what: "identity unreadable",
+        })?;
+        let name = match (
+            sii.category(category::GENERAL).await?,
+            sii.category(category::STRINGS).await?,
+        ) {
+            (Some(g), Some(s)) if g.len() > sii::general::NAME_IDX => {
+                sii::string(&s, g[sii::general::NAME_IDX])
+                    .map(|b| String::from_utf8_lossy(b).into_owned())
+                    .unwrap_or_default()
+            }
+            _ => String::new(),
+        };
+        let mut sms = Vec::new();
+        if let Some(smcat) = sii.category(category::SYNC_MANAGER).await? {
+            let tx = sii.category(category::TXPDO).await?.unwrap_or_default();
+            let rx = sii.category(category::RXPDO).await?.unwrap_or_default();
+            for (i, e) in smcat.chunks_exact(8).enumerate() {
+                let kind = e[7];
+                let bits = match kind {
+                    3 => pdo_bits_for_sm(&rx, i as u8),
+                    4 => pdo_bits_for_sm(&tx, i as u8),
+                    _ => continue,
+                };
+                sms.push(SmConfig {
+                    index: i as u8,
+                    start: u16::from_le_bytes([e[0], e[1]]),
+                    control: e[4],
+                    kind,
+                    len: bits.div_ceil(8) as u16,
+                });
+            }
+        }
+        let dc = if feats & features::DC != 0 {
+            DcCapability::SystemTime
+        } else {
+            DcCapability::None
+        };
+        slaves.push(SlaveInfo {
+            position: pos,
+            station,
+            alias: u16::from_le_bytes([r[1].data[0], r[1].data[1]]),
+            esc_type: info[0],
+            features: feats,
+            identity,
+            vendor_id: identity.vendor_id,
+            product_code: identity.product_code,
+            serial: identity.serial,
+            name,
+            dc,
+            open_ports: open,
+            parent: None,
+            entry_port: 0,
+            delay_ns: None,
+            delay_spread_ns: None,
+            offset: None,
+            outputs: (0, 0),
+            inputs: (0, 0),
+            sms,
+        });
+    }
+
+    // Slaves without the DC feature may still have receive times (junctions must): probe
+    // 0x0900 with a read and see who counts it.
+    for s in slaves.iter_mut().filter(|s| s.dc == DcCapability::None) {
+        let r = link
+            .pdu(
+                Command::Fprd,
+                fp(s.station, reg::DC_RECEIVE_TIME_PORT0),
+                vec![0; 4],
+                "probe receive times",
+            )
+            .await?;
+        if r.wkc == 1 {
+            s.dc = DcCapability::ReceiveTimes;
+        }
+    }
+    let reference = slaves
+        .iter()
+        .position(|s| s.dc == DcCapability::SystemTime)
+        .ok_or(MasterError::NoReferenceClock)?;
+    let ref_station = slaves[reference].station;
+
+    // Propagation delays, averaged over latch rounds with the send instant dithered across the
+    // receive stamps' 40 ns resolution.
+    link.event(Event::Phase("delays"));
+    let n = slaves.len();
+    let rounds = cfg.latch_rounds.max(1);
+    let mut sums = vec![0.0f64; n];
+    let mut mins = vec![f64::INFINITY; n];
+    let mut maxs = vec![f64::NEG_INFINITY; n];
+    let mut last_pu = vec![0u64; n];
+    let mut latch_sent_ns = 0;
+    let mut tree = vec![TreeNode::default(); n];
+    let mut delays = vec![None; n];
+    for round in 0..rounds {
+        let dither = u64::from(round) * 40 / u64::from(rounds);
+        let t = link.now_ns() + 2_000 + dither;
+        link.sleep_until(t).await;
+        let r = link
+            .pdu(
+                Command::Bwr,
+                position_addr(0, reg::DC_RECEIVE_TIME_PORT0),
+                vec![0; 4],
+                "latch receive times",
+            )
+            .await?;
+        let latch_sent = link.now_ns();
+        let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
+        if r.wkc != expected {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Bwr,
+                what: "latch receive times",
+                expected,
+                got: r.wkc,
+            });
+        }
+        let mut ports = vec![SlavePorts::default(); n];
+        for (i, s) in slaves.iter().enumerate() {
+            ports[i].open = s.open_ports;
+            ports[i].tdiff_ns = cfg
+                .esi
+                .iter()
+                .find(|e| e.vendor_id == s.vendor_id && e.product_code == s.product_code)
+                .map(|e| e.tdiff_ns)
+                .unwrap_or(0);
+            if s.dc == DcCapability::None {
+                continue;
+            }
+            let t = link
+                .fprd(
+                    s.station,
+                    reg::DC_RECEIVE_TIME_PORT0,
+                    16,
+                    "read receive times",
+                )
+                .await?;
+            let times = core::array::from_fn(|p| {
+                u32::from_le_bytes([t[4 * p], t[4 * p + 1], t[4 * p + 2], t[4 * p + 3]])
+            });
+            ports[i].times = Some(times);
+            if s.dc == DcCapability::SystemTime {
+                let pu = link
+                    .fprd(
+                        s.station,
+                        reg::DC_RECEIVE_TIME_PU,
+                        8,
+                        "read processing unit receive time",
+                    )
+                    .await?;
+                last_pu[i] = u64::from_le_bytes(pu[..8].try_into().unwrap_or([0; 8]));
+            }
+        }
+        build_tree(&ports, &mut tree)?;
+        propagation_delays(&ports, &tree, reference, &mut delays)?;
+        for (i, d) in delays.iter().enumerate() {
+            if let Some(d) = d {
+                sums[i] += d;
+                mins[i] = mins[i].min(*d);
+                maxs[i] = maxs[i].max(*d);
+            }
+        }
+        latch_sent_ns = latch_sent;
+    }
+    for (i, s) in slaves.iter_mut().enumerate() {
+        s.parent = tree[i].parent;
+        s.entry_port = tree[i].entry_port;
+        if s.dc == DcCapability::SystemTime && delays[i].is_some() {
+            s.delay_ns = Some(sums[i] / f64::from(rounds));
+            s.delay_spread_ns = Some(maxs[i] - mins[i]);
+        }
+    }
+
+    // Offsets from the last latch, written together with the delays in one frame, then the
+    // loop filters reset (0x0934: time difference depth 0, speed counter depth 12, as SOEM and
+    // ethercrab write; then 0x0930, whose write resets the filters).
+    link.event(Event::Phase("offsets"));
+    // The reference's system time takes the master's clock at the latch (SOEM, IgH, ethercrab).
+    let ref_time = latch_sent_ns;
+    let mut writes = Vec::new();
+    for (i, s) in slaves.iter_mut().enumerate() {
+        if s.dc != DcCapability::SystemTime {
+            continue;
+        }
+        let delay = ecsync_dc::offset::round_ns(s.delay_ns.unwrap_or(0.0)).max(0);
+        let offset = ecsync_dc::system_time_offset(ref_time, delay, last_pu[i]);
+        s.offset = Some(offset);
+        writes.push(Pdu::new(
+            Command::Fpwr,
+            fp(s.station, reg::DC_SYSTEM_TIME_DELAY),
+            (delay as u32).to_le_bytes().to_vec(),
+        ));
+        writes.push(Pdu::new(
+            Command::Fpwr,
+            fp(s.station, reg::DC_SYSTEM_TIME_OFFSET),
+            offset.to_le_bytes().to_vec(),
+        ));
+    }
+    let (r, _) = link.pdus(&writes, "write offsets and delays").await?;
+    if let Some(bad) = r.iter().find(|p| p.wkc != 1) {
+        return Err(MasterError::WorkingCounter {
+            command: Command::Fpwr,
+            what: "write offsets and delays",
+            expected: 1,
+            got: bad.wkc,
+        });
+    }
+    link.event(Event::OffsetsWritten);
+    link.bwr(
+        reg::DC_TIME_DIFF_FILTER_DEPTH,
+        &[0x00, 0x0c],
+        "filter depths",
+    )
+    .await?;
+    link.bwr(
+        reg::DC_SPEED_COUNTER_START,
+        &0x1000u16.to_le_bytes(),
+        "reset loop filters",
+    )
+    .await?;
+
+    // Static drift compensation, with lock checks.
+    link.event(Event::Phase("drift"));
+    let synced: Vec<u16> = slaves
+        .iter()
+        .filter(|s| s.dc == DcCapability::SystemTime && s.station != ref_station)
+        .map(|s| s.station)
+        .collect();
+    let frmw = || {
+        Pdu::new(
+            Command::Frmw,
+            fp(ref_station, reg::DC_SYSTEM_TIME),
+            vec![0; 8],
+        )
+    };
+    let check_pdus = |with_frmw: bool| {
+        let mut v = Vec::with_capacity(synced.len() + 1);
+        if with_frmw {
+            v.push(frmw());
+        }
+        v.extend(
+            synced
+                .iter()
+                .map(|&st| Pdu::new(Command::Fprd, fp(st, reg::DC_SYSTEM_TIME_DIFF), vec![0; 4])),
+        );
+        v
+    };
+    let worst_of = |replies: &[crate::io::PduReply]| -> Result<u32, MasterError> {
+        let mut worst = 0u32;
+        for p in replies {
+            if p.wkc != 1 {
+                return Err(MasterError::WorkingCounter {
+                    command: Command::Fprd,
+                    what: "read system time difference",
+                    expected: 1,
+                    got: p.wkc,
+                });
+            }
+            let raw = u32::from_le_bytes([p.data[0], p.data[1], p.data[2], p.data[3]]);
+            worst = worst.max(dc_time::decode_time_difference(raw).unsigned_abs());
+        }
+        Ok(worst)
+    };
+    let drift_start = link.now_ns();
+    let mut lock = LockDetector::new(cfg.lock_threshold_ns, cfg.lock_hold_checks.max(1));
+    let mut frmw_frames = 0u64;
+    for i in 0..cfg.static_drift_frames {
+        let r = link
+            .pdu(
+                Command::Frmw,
+                fp(ref_station, reg::DC_SYSTEM_TIME),
+                vec![0; 8],
+                "static drift compensation",
+            )
+            .await?;
+        frmw_frames += 1;
+        if r.wkc == 0 {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Frmw,
+                what: "static drift compensation",
+                expected: 1,
+                got: 0,
+            });
+        }
+        if cfg.check_every_frames > 0 && (i + 1) % cfg.check_every_frames == 0 && !synced.is_empty()
+        {
+            let (r, _) = link
+                .pdus(&check_pdus(false), "read system time difference")
+                .await?;
+            lock.update(worst_of(&r)?, link.now_ns());
+        }
+    }
+
+    // Cyclic FRMW until locked.
+    let cycle = u64::from(cfg.cycle_ns);
+    let mut next = (link.now_ns() / cycle + 1) * cycle;
+    while !synced.is_empty() && !lock.is_locked() {
+        if link.now_ns().saturating_sub(drift_start) > cfg.lock_timeout_ns {
+            return Err(MasterError::NoLock(cfg.lock_timeout_ns / 1_000_000));
+        }
+        link.sleep_until(next).await;
+        next += cycle;
+        let (r, _) = link.pdus(&check_pdus(true), "cyclic DC").await?;
+        frmw_frames += 1;
+        lock.update(worst_of(&r[1..])?, link.now_ns());
+    }
+    let mut lock_report = LockReport {
+        converged: synced.is_empty() || lock.is_locked(),
+        time_to_lock_ns: if synced.is_empty() {
+            Some(0)
+        } else {
+            lock.locked_at_ns().map(|t| t.saturating_sub(drift_start))
+        },
+        drift_start_ns: drift_start,
+        max_abs_092c_after_lock_ns: 0,
+        frmw_frames,
+    };
+
+    // Process data mapping: outputs of all slaves, then inputs, in the logical image.
+    let mut logical = 0u32;
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 3) {
+            s.outputs = (logical, sm.len);
+            logical += u32::from(sm.len);
+        }
+    }
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 4) {
+            s.inputs = (logical, sm.len);
+            logical += u32::from(sm.len);
+        }
+    }
+    let pdi_len = logical;
+    let mut expected_lrw_wkc = 0u16;
+    let mut sync0 = None;
+    if cfg.to_op {
+        for s in &slaves {
+            request_state(&link, s.station, al_state::PRE_OP).await?;
+        }
+        for s in &slaves {
+            let mut fmmu_n = 0u16;
+            for sm in &s.sms {
+                let (log, len) = if sm.kind == 3 { s.outputs } else { s.inputs };
+                if len == 0 {
+                    continue;
+                }
+                let mut smr = [0u8; 8];
+                smr[0..2].copy_from_slice(&sm.start.to_le_bytes());
+                smr[2..4].copy_from_slice(&len.to_le_bytes());
+                smr[4] = sm.control;
+                smr[6] = 0x01;
+                link.fpwr(
+                    s.station,
+                    reg::SM_BASE + u16::from(sm.index) * reg::SM_LEN,
+                    &smr,
+                    "configure SyncManager",
+                )
+                .await?;
+                let mut f = [0u8; 16];
+                f[0..4].copy_from_slice(&log.to_le_bytes());
+                f[4..6].copy_from_slice(&len.to_le_bytes());
+                f[7] = 7;
+                f[8..10].copy_from_slice(&sm.start.to_le_bytes());
+                f[11] = if sm.kind == 3 { 0x02 } else { 0x01 };
+                f[12] = 0x01;
+                link.fpwr(
+                    s.station,
+                    reg::FMMU_BASE + fmmu_n * reg::FMMU_LEN,
+                    &f,
+                    "configure FMMU",
+                )
+                .await?;
+                fmmu_n += 1;
+                expected_lrw_wkc += if sm.kind == 3 { 2 } else { 1 };
+            }
+        }
+    }
+
+    // SYNC0 on the absolute grid of the reference's system time.
+    link.event(Event::Phase("sync0"));
+    let now_sys = link
+        .fprd(ref_station, reg::DC_SYSTEM_TIME, 8, "read system time")
+        .await?;
+    let now_sys = u64::from_le_bytes(now_sys[..8].try_into().unwrap_or([0; 8]));
+    let start =
+        ecsync_dc::sync0_start_time(now_sys, cfg.sync0_lead_ns, cfg.cycle_ns, cfg.sync0_shift_ns);
+    for s in slaves.iter().filter(|s| s.dc == DcCapability::SystemTime) {
+        link.fpwr(s.station, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
+            .await?;
+        link.fpwr(
+            s.station,
+            reg::DC_SYNC0_CYCLE,
+            &cfg.cycle_ns.to_le_bytes(),
+            "SYNC0 cycle",
+        )
+        .await?;
+        link.fpwr(
+            s.station,
+            reg::DC_START_TIME,
+            &start.to_le_bytes(),
+            "SYNC0 start",
+        )
+        .await?;
+        link.fpwr(s.station, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
+            .await?;
+        sync0 = Some(Sync0Config {
+            start_ns: start,
+            cycle_ns: cfg.cycle_ns,
+            shift_ns: cfg.sync0_shift_ns,
+        });
+    }
+
+    // SAFE-OP and OP with the cyclic frame running, then monitoring.
+    let cyclic = |with_lrw: bool| {
+        let mut v = vec![frmw()];
+        if with_lrw && pdi_len > 0 {
+            v.push(Pdu::new(
+                Command::Lrw,
+                DatagramAddress::Logical(0),
+                vec![0; pdi_len as usize],
+            ));
+        }
+        v.extend(
+            synced
+                .iter()
+                .map(|&st| Pdu::new(Command::Fprd, fp(st, reg::DC_SYSTEM_TIME_DIFF), vec![0; 4])),
+        );
+        v
+    };
+    let k = 1 + usize::from(cfg.to_op && pdi_len > 0);
+    if cfg.to_op {
+        link.event(Event::Phase("safe-op"));
+        for s in &slaves {
+            request_state(&link, s.station, al_state::SAFE_OP).await?;
+        }
+        link.event(Event::Phase("op"));
+        for s in &slaves {
+            link.fpwr(s.station, reg::AL_CONTROL, &[al_state::OP, 0], "request OP")
+                .await?;
+        }
+        // Cycle until every slave reports OP.
+        let deadline = link.now_ns() + 10_000_000_000;
+        loop {
+            link.sleep_until(next).await;
+            next += cycle;
+            link.pdus(&cyclic(true), "cyclic").await?;
+            let (r, _) = link
+                .pdus(
+                    &[Pdu::new(
+                        Command::Brd,
+                        position_addr(0, reg::AL_STATUS),
+                        vec![0; 2],
+                    )],
+                    "AL status",
+                )
+                .await?;
+            if r[0].wkc == count && r[0].data[0] & 0x1f == al_state::OP {
+                break;
+            }
+            if link.now_ns() > deadline {
+                return Err(MasterError::StateTimeout {
+                    slave: 0,
+                    state: al_state::OP,
+                });
+            }
+        }
+    }
+    link.event(Event::Phase("monitor"));
+    for _ in 0..cfg.monitor_cycles {
+        link.sleep_until(next).await;
+        next += cycle;
+        let (r, _) = link.pdus(&cyclic(cfg.to_op), "cyclic").await?;
+        let worst = worst_of(&r[k..])?;
+        lock_report.max_abs_092c_after_lock_ns = lock_report.max_abs_092c_after_lock_ns.max(worst);
+        if cfg.to_op && pdi_len > 0 && r[1].wkc != expected_lrw_wkc {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Lrw,
+                what: "process data",
+                expected: expected_lrw_wkc,
+                got: r[1].wkc,
+            });
+        }
+    }
+    Ok(Network {
+        slaves,
+        reference: reference as u16,
+        lock: lock_report,
+        sync0,
+        pdi_len,
+        expected_lrw_wkc,
+        done_ns: link.now_ns(),
+    })
+}
+
+/// Requests an AL state from one slave and waits until it is reached or refused.
+pub async fn request_state(link: &Link, station: u16, state: u8) -> Result<(), MasterError> {
+    link.fpwr(station, reg::AL_CONTROL, &[state, 0], "AL control")
+        .await?;
+    let start = link.now_ns();
+    loop {
+        let v = link.fprd(station, reg::AL_STATUS, 6, "AL status").await?;
+        let status = u16::from_le_bytes([v[0], v[1]]);
+        if status & al_state::ERROR_FLAG != 0 {
+            return Err(MasterError::StateChange {
+                slave: station,
+                state,
+                code: u16::from_le_bytes([v[4], v[5]]),
+            });
+        }
+        if (status & 0x0f) as u8 == state {
+            return Ok(());
+        }
+        if link.now_ns().saturating_sub(start) > 5_000_000_000 {
+            return Err(MasterError::StateTimeout {
+                slave: station,
+                state,
+            });
+        }
+        let t = link.now_ns() + 100_000;
+        link.sleep_until(t).await;
+    }
+}

@@ -1,0 +1,410 @@
+//! The sans-IO boundary. Master procedures are `async` code written against a [`Link`]; they
+//! never touch a socket or a clock. An [`Engine`] runs such a procedure step by step: each
+//! [`Engine::poll`] says what the procedure needs (send this frame, wake me at that time) and
+//! the driver — the in-process segment, a raw socket — does it and hands back the reply with
+//! its timestamps. The same procedure thus runs in virtual time against the simulator and in
+//! real time on a network interface.
+
+use crate::MasterError;
+use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
+use std::cell::RefCell;
+use std::future::Future;
+use std::pin::Pin;
+use std::rc::Rc;
+use std::task::{Context, Poll, Waker};
+
+/// Source MAC of frames the master sends (locally administered bit clear, so returning frames,
+/// which the first ESC marks, are told apart).
+pub const MASTER_MAC: [u8; 6] = [0x00, 0x1b, 0x21, 0xec, 0x00, 0x01];
+
+/// A reply with the master clock's timestamps.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Reply {
+    /// The frame as it came back.
+    pub frame: Vec<u8>,
+    /// Master time (ns) right before the frame was handed to the network (t_ms).
+    pub sent_ns: u64,
+    /// Master time (ns) when the reply was received.
+    pub received_ns: u64,
+}
+
+/// Something the procedure reports to the driver along the way.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    /// A bring-up phase begins.
+    Phase(&'static str),
+    /// System time offsets and delays were written (ground truth can be compared now).
+    OffsetsWritten,
+}
+
+#[derive(Debug, Default)]
+struct Shared {
+    now_ns: u64,
+    outgoing: Option<Vec<u8>>,
+    sleep_until: Option<u64>,
+    reply: Option<Result<Reply, ()>>,
+    events: Vec<Event>,
+    next_index: u8,
+}
+
+/// The procedure's handle on the network: frames out, replies in, time.
+#[derive(Debug, Clone)]
+pub struct Link {
+    shared: Rc<RefCell<Shared>>,
+}
+
+/// One datagram of a request frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Pdu {
+    /// Command.
+    pub command: Command,
+    /// Raw 32-bit address.
+    pub address: u32,
+    /// Data (zeros of the read length for reads).
+    pub data: Vec<u8>,
+}
+
+impl Pdu {
+    /// A datagram.
+    pub fn new(command: Command, address: DatagramAddress, data: Vec<u8>) -> Self {
+        Pdu {
+            command,
+            address: address.raw(),
+            data,
+        }
+    }
+}
+
+/// One datagram of a reply.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PduReply {
+    /// Data as returned.
+    pub data: Vec<u8>,
+    /// Working counter.
+    pub wkc: u16,
+    /// Address field as returned (ADP incremented by auto-increment commands).
+    pub address: u32,
+}
+
+struct Exchange<'a> {
+    link: &'a Link,
+    frame: Option<Vec<u8>>,
+}
+
+impl Future for Exchange<'_> {
+    type Output = Result<Reply, ()>;
+    fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<Self::Output> {
+        let mut s = self.link.shared.borrow_mut();
+        if let Some(f) = self.frame.take() {
+            s.outgoing = Some(f);
+            s.reply = None;
+            return Poll::Pending;
+        }
+        match s.reply.take() {
+            Some(r) => Poll::Ready(r),
+            None => Poll::Pending,
+        }
+    }
+}
+
+struct Sleep<'a> {
+    link: &'a Link,
+    until_ns: u64,
+}
+
+impl Future for Sleep<'_> {
+    type Output = ();
+    fn poll(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<()> {
+        let mut s = self.link.shared.borrow_mut();
+        if s.now_ns >= self.until_ns {
+            s.sleep_until = None;
+            Poll::Ready(())
+        } else {
+            s.sleep_until = Some(self.until_ns);
+            Poll::Pending
+        }
+    }
+}
+
+impl Link {
+    /// Master time now, ns.
+    pub fn now_ns(&self) -> u64 {
+        self.shared.borrow().now_ns
+    }
+
+    /// Reports an event to the driver.
+    pub fn event(&self, e: Event) {
+        self.shared.borrow_mut().events.push(e);
+    }
+
+    /// Sends a raw frame and waits for its reply.
+    pub async fn exchange(&self, frame: Vec<u8>) -> Result<Reply, ()> {
+        Exchange {
+            link: self,
+            frame: Some(frame),
+        }
+        .await
+    }
+
+    /// Waits until master time `until_ns`.
+    pub async fn sleep_until(&self, until_ns: u64) {
+        Sleep {
+            link: self,
+            until_ns,
+        }
+        .await
+    }
+
+    /// Sends the datagrams in one frame and returns their replies in order.
+    pub async fn pdus(
+        &self,
+        pdus: &[Pdu],
+        what: &'static str,
+    ) -> Result<(Vec<PduReply>, Reply), MasterError> {
+        let mut buf = vec![0u8; ecsync_wire::MAX_FRAME_LEN];
+        let first_index;
+        let n = {
+            let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)
+                .map_err(|_| MasterError::BadReply("frame buffer"))?;
+            let mut s = self.shared.borrow_mut();
+            first_index = s.next_index;
+            for (i, p) in pdus.iter().enumerate() {
+                b.push(
+                    p.command,
+                    first_index.wrapping_add(i as u8),
+                    DatagramAddress::Logical(p.address),
+                    &p.data,
+                )
+                .map_err(|_| MasterError::Config(format!("{what}: datagrams exceed one frame")))?;
+            }
+            s.next_index = first_index.wrapping_add(pdus.len() as u8);
+            b.finish()
+        };
+        buf.truncate(n);
+        let reply = self
+            .exchange(buf)
+            .await
+            .map_err(|_| MasterError::FrameLost { what })?;
+        let f = EcatFrame::new_checked(&reply.frame[..])
+            .map_err(|_| MasterError::BadReply("not an EtherCAT frame"))?;
+        let mut out = Vec::with_capacity(pdus.len());
+        for (i, d) in f.datagrams().enumerate() {
+            let d = d.map_err(|_| MasterError::BadReply("malformed datagram"))?;
+            let req = pdus.get(i).ok_or(MasterError::BadReply("extra datagram"))?;
+            if d.index() != first_index.wrapping_add(i as u8)
+                || d.command_code() != req.command.code()
+                || d.data_len() != req.data.len()
+            {
+                return Err(MasterError::BadReply("datagram index, command or length"));
+            }
+            out.push(PduReply {
+                data: d.data().to_vec(),
+                wkc: d.wkc(),
+                address: d.address_raw(),
+            });
+        }
+        if out.len() != pdus.len() {
+            return Err(MasterError::BadReply("missing datagram"));
+        }
+        Ok((out, reply))
+    }
+
+    /// One datagram in its own frame.
+    pub async fn pdu(
+        &self,
+        command: Command,
+        address: DatagramAddress,
+        data: Vec<u8>,
+        what: &'static str,
+    ) -> Result<PduReply, MasterError> {
+        let (mut r, _) = self.pdus(&[Pdu::new(command, address, data)], what).await?;
+        Ok(r.remove(0))
+    }
+
+    /// One datagram whose working counter must equal `expected`.
+    pub async fn pdu_wkc(
+        &self,
+        command: Command,
+        address: DatagramAddress,
+        data: Vec<u8>,
+        expected: u16,
+        what: &'static str,
+    ) -> Result<Vec<u8>, MasterError> {
+        let r = self.pdu(command, address, data, what).await?;
+        if r.wkc != expected {
+            return Err(MasterError::WorkingCounter {
+                command,
+                what,
+                expected,
+                got: r.wkc,
+            });
+        }
+        Ok(r.data)
+    }
+
+    /// FPRD of `len` bytes from one slave (WKC 1).
+    pub async fn fprd(
+        &self,
+        station: u16,
+        register: u16,
+        len: usize,
+        what: &'static str,
+    ) -> Result<Vec<u8>, MasterError> {
+        self.pdu_wkc(
+            Command::Fprd,
+            DatagramAddress::Configured {
+                adp: station,
+                ado: register,
+            },
+            vec![0; len],
+            1,
+            what,
+        )
+        .await
+    }
+
+    /// FPWR to one slave (WKC 1).
+    pub async fn fpwr(
+        &self,
+        station: u16,
+        register: u16,
+        data: &[u8],
+        what: &'static str,
+    ) -> Result<(), MasterError> {
+        self.pdu_wkc(
+            Command::Fpwr,
+            DatagramAddress::Configured {
+                adp: station,
+                ado: register,
+            },
+            data.to_vec(),
+            1,
+            what,
+        )
+        .await
+        .map(|_| ())
+    }
+
+    /// BWR to all slaves; returns the working counter.
+    pub async fn bwr(
+        &self,
+        register: u16,
+        data: &[u8],
+        what: &'static str,
+    ) -> Result<u16, MasterError> {
+        Ok(self
+            .pdu(
+                Command::Bwr,
+                DatagramAddress::Position {
+                    adp: 0,
+                    ado: register,
+                },
+                data.to_vec(),
+                what,
+            )
+            .await?
+            .wkc)
+    }
+}
+
+/// What the procedure needs next.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Action<'a, T> {
+    /// Send this frame now and hand its reply to [`Engine::handle_reply`] (or report loss with
+    /// [`Engine::handle_lost`]).
+    Send(&'a [u8]),
+    /// Nothing to do before master time `t_ns`; poll again then.
+    WaitUntil(u64),
+    /// The procedure finished.
+    Done(T),
+}
+
+type Proc<T> = Pin<Box<dyn Future<Output = T>>>;
+
+/// Runs an async procedure step by step, without I/O of its own.
+pub struct Engine<T> {
+    link: Link,
+    proc: Option<Proc<T>>,
+    pending: Option<Vec<u8>>,
+    result: Option<T>,
+}
+
+impl<T> std::fmt::Debug for Engine<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Engine").finish_non_exhaustive()
+    }
+}
+
+impl<T: 'static> Engine<T> {
+    /// Wraps a procedure built from a link.
+    pub fn new<F, Fut>(make: F) -> Self
+    where
+        F: FnOnce(Link) -> Fut,
+        Fut: Future<Output = T> + 'static,
+    {
+        let link = Link {
+            shared: Rc::new(RefCell::new(Shared::default())),
+        };
+        let proc: Proc<T> = Box::pin(make(link.clone()));
+        Engine {
+            link,
+            proc: Some(proc),
+            pending: None,
+            result: None,
+        }
+    }
+
+    /// Advances the procedure at master time `now_ns`.
+    pub fn poll(&mut self, now_ns: u64) -> Action<'_, T> {
+        self.link.shared.borrow_mut().now_ns = now_ns;
+        if self.pending.is_some() {
+            // A frame is out; the driver must answer it first.
+            return Action::Send(self.pending.as_deref().unwrap_or(&[]));
+        }
+        if let Some(p) = self.proc.as_mut() {
+            let mut cx = Context::from_waker(Waker::noop());
+            if let Poll::Ready(v) = p.as_mut().poll(&mut cx) {
+                self.proc = None;
+                self.result = Some(v);
+            }
+        }
+        if let Some(v) = self.result.take() {
+            return Action::Done(v);
+        }
+        let mut s = self.link.shared.borrow_mut();
+        if let Some(f) = s.outgoing.take() {
+            drop(s);
+            self.pending = Some(f);
+            return Action::Send(self.pending.as_deref().unwrap_or(&[]));
+        }
+        match s.sleep_until {
+            Some(t) => Action::WaitUntil(t),
+            // A procedure that waits on nothing would never finish; treat as a busy poll.
+            None => Action::WaitUntil(now_ns),
+        }
+    }
+
+    /// The frame sent last came back: `sent_ns` is the master time right before sending,
+    /// `received_ns` the time the reply arrived.
+    pub fn handle_reply(&mut self, frame: &[u8], sent_ns: u64, received_ns: u64) {
+        self.pending = None;
+        let mut s = self.link.shared.borrow_mut();
+        s.now_ns = s.now_ns.max(received_ns);
+        s.reply = Some(Ok(Reply {
+            frame: frame.to_vec(),
+            sent_ns,
+            received_ns,
+        }));
+    }
+
+    /// The frame sent last was lost.
+    pub fn handle_lost(&mut self) {
+        self.pending = None;
+        self.link.shared.borrow_mut().reply = Some(Err(()));
+    }
+
+    /// Takes the events reported since the last call.
+    pub fn take_events(&mut self) -> Vec<Event> {
+        std::mem::take(&mut self.link.shared.borrow_mut().events)
+    }
+}

@@ -1,0 +1,15 @@
+//! A sans-IO EtherCAT master engine: the DC bring-up (scan, SII identity, topology, propagation
+//! delays, offsets, static drift compensation, SYNC0, state machine) written once as `async`
+//! procedures over a [`Link`], and run by transports that do the I/O: [`sim::SimTransport`]
+//! against the virtual segment in virtual time, a raw socket on a real network.
+#![forbid(unsafe_code)]
+
+pub mod bringup;
+mod error;
+pub mod io;
+pub mod sii;
+pub mod sim;
+
+pub use bringup::{BringupConfig, Network, SlaveInfo, bringup};
+pub use error::MasterError;
+pub use io::{Action, Engine, Event, Link};

@@ -1,0 +1,148 @@
+//! The in-process transport: drives an [`Engine`] against a virtual [`Segment`] in virtual time.
+
+use crate::io::{Action, Engine, Event};
+use ecsync_esc::pcap::PcapCapture;
+use ecsync_esc::{Segment, frame_wire_time_ps};
+use std::fs::File;
+use std::io::BufWriter;
+
+/// Master clock at simulation start: 2026-11-22 00:00 UTC in DC time (ns since 2000-01-01).
+pub const SIM_EPOCH_NS: u64 = 848_620_800_000_000_000;
+
+/// A frame exchange as the driver saw it, for observers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Exchange {
+    /// Real time the frame left the master, ps.
+    pub sent_ps: u64,
+    /// Real time the reply was complete at the master, ps (`None`: lost).
+    pub received_ps: Option<u64>,
+}
+
+/// Runs master procedures against a segment in virtual time.
+pub struct SimTransport {
+    /// The segment.
+    pub segment: Segment,
+    /// Real time now, ps since the start of the simulation.
+    pub now_ps: u64,
+    /// Master clock at real time 0, ns.
+    pub master_epoch_ns: u64,
+    /// Delay from the master's send timestamp to the frame's first bit on the wire, ps.
+    pub tx_latency_ps: u64,
+    /// Delay from the reply's last bit to the master's receive timestamp, ps.
+    pub rx_latency_ps: u64,
+    /// How long the master waits before declaring a frame lost, ps.
+    pub timeout_ps: u64,
+    capture: Option<PcapCapture<BufWriter<File>>>,
+}
+
+impl std::fmt::Debug for SimTransport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimTransport")
+            .field("now_ps", &self.now_ps)
+            .finish_non_exhaustive()
+    }
+}
+
+impl SimTransport {
+    /// A transport with an ideal master clock and a few microseconds of NIC latency.
+    pub fn new(segment: Segment) -> Self {
+        SimTransport {
+            segment,
+            now_ps: 0,
+            master_epoch_ns: SIM_EPOCH_NS,
+            tx_latency_ps: 2_000_000,
+            rx_latency_ps: 3_000_000,
+            timeout_ps: 10_000_000_000,
+            capture: None,
+        }
+    }
+
+    /// Captures every frame (sent and returned) to a pcap file.
+    pub fn capture_to(&mut self, path: &std::path::Path) -> Result<(), pcap_file_error::Error> {
+        self.capture = Some(PcapCapture::create(path).map_err(pcap_file_error::Error)?);
+        Ok(())
+    }
+
+    /// Flushes the capture, returning the number of frames written.
+    pub fn finish_capture(&mut self) -> std::io::Result<u64> {
+        match self.capture.take() {
+            Some(c) => {
+                let n = c.frames();
+                c.finish()?;
+                Ok(n)
+            }
+            None => Ok(0),
+        }
+    }
+
+    /// Master clock now, ns.
+    pub fn master_now_ns(&self) -> u64 {
+        self.master_epoch_ns + self.now_ps / 1000
+    }
+
+    /// Real time (ps) at master time `t_ns`.
+    pub fn real_ps_at(&self, t_ns: u64) -> u64 {
+        t_ns.saturating_sub(self.master_epoch_ns) * 1000
+    }
+
+    /// Runs an engine to completion. `observe` sees the segment after every exchange, with the
+    /// events the procedure reported.
+    pub fn run<T: 'static>(
+        &mut self,
+        engine: &mut Engine<T>,
+        mut observe: impl FnMut(&Segment, &Exchange, &[Event]),
+    ) -> T {
+        loop {
+            let now = self.master_now_ns();
+            let frame = match engine.poll(now) {
+                Action::Done(v) => return v,
+                Action::WaitUntil(t) => {
+                    let t_ps = self.real_ps_at(t).max(self.now_ps + 1000);
+                    self.now_ps = t_ps;
+                    continue;
+                }
+                Action::Send(f) => f.to_vec(),
+            };
+            let mut frame = frame;
+            let sent_ns = now;
+            let t_tx = self.now_ps + self.tx_latency_ps;
+            if let Some(c) = &mut self.capture {
+                let _ = c.record(t_tx, &frame);
+            }
+            let out = self.segment.process(&mut frame, t_tx);
+            let ex = match out.returned_sof_ps {
+                Some(t) => {
+                    let t_rx = t + frame_wire_time_ps(frame.len()) + self.rx_latency_ps;
+                    if let Some(c) = &mut self.capture {
+                        let _ = c.record(t + frame_wire_time_ps(frame.len()), &frame);
+                    }
+                    self.now_ps = t_rx;
+                    let rx_ns = self.master_now_ns();
+                    engine.handle_reply(&frame, sent_ns, rx_ns);
+                    Exchange {
+                        sent_ps: t_tx,
+                        received_ps: Some(t_rx),
+                    }
+                }
+                None => {
+                    self.now_ps = t_tx + self.timeout_ps;
+                    engine.handle_lost();
+                    Exchange {
+                        sent_ps: t_tx,
+                        received_ps: None,
+                    }
+                }
+            };
+            let events = engine.take_events();
+            observe(&self.segment, &ex, &events);
+        }
+    }
+}
+
+/// Error type for capture creation.
+pub mod pcap_file_error {
+    /// A pcap file could not be created.
+    #[derive(Debug, thiserror::Error)]
+    #[error("pcap capture: {0}")]
+    pub struct Error(pub pcap_file::PcapError);
+}
