@@ -20,29 +20,37 @@
 //! ```
 //!
 //! `t_A[c] - t_A[prev]` is the round trip from A's port `prev` through everything behind `c`;
-//! removing X's own loop leaves the path from A to X and back, which is symmetric except for the
-//! difference between processing and forwarding delay (tDiff, datasheet section I table 30): the
-//! way out passes A's processing unit when `prev` is port 0 and A was entered there, and every
-//! 2-port slave without receive times between A and X forwards through its processing unit on the
-//! way out; the way back passes X's processing unit when X has no open port after its entry.
-//! `k = (sum of those tDiffs out - X's tDiff back) / 2` corrects for them when the master knows
-//! them (ESI); with all tDiff = 0 this is the formula of SOEM and ethercrab generalised to any
-//! tree. Slaves without receive times must have at most two open ports (datasheet: "devices with
-//! more than two ports must support at least receive times").
+//! removing X's own loop leaves the path from A to X and back. The cables are symmetric, the
+//! ESCs are not: the way out leaves A through its processing delay tP (when `prev` is A's entry
+//! port 0, the processing unit sitting between ports 0 and 3) or its forwarding delay tF, and
+//! crosses every 2-port slave without receive times between A and X through *its* processing
+//! unit (tP) where the way back forwards (tF); the way back leaves X through tP if X has no
+//! other open port, else tF. Half the round trip therefore misses
+//! `k = (out_A - back_X + sum(tP_n - tF_n)) / 2` of the true one-way time, which the master can
+//! add when it knows the ESCs' delays (ESI; for identical ESCs only tDiff = tP - tF matters,
+//! datasheet section I table 30). With all delays unknown (zero) this is the formula of SOEM and
+//! ethercrab, generalised to any tree. Slaves without receive times must have at most two open
+//! ports (datasheet: "devices with more than two ports must support at least receive times").
 //!
 //! The delay of X relative to the reference R is `arrival(X) - arrival(R)`: what 0x0928 holds.
 
 use ecsync_wire::dc_time::diff_u32;
 
 /// What the master read from one slave.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct SlavePorts {
     /// Ports that forward (link up and loop open, from DL status 0x0110).
     pub open: [bool; 4],
     /// Receive times of ports 0..3 (0x0900..0x090F), if the slave has them.
     pub times: Option<[u32; 4]>,
-    /// Processing minus forwarding delay of this slave's ESC, ns (ESI; 0 if unknown).
-    pub tdiff_ns: i32,
+    /// Forwarding delay tF of this slave's ESC, ns (from the ESI; 0 if unknown).
+    pub forwarding_ns: i32,
+    /// Processing delay tP of this slave's ESC, ns (from the ESI; 0 if unknown).
+    pub processing_ns: i32,
+    /// Rate of this slave's local clock relative to the master's time base (1 + frequency
+    /// error), if measured; 0 means unknown (taken as 1). Spans between receive stamps are
+    /// local-time durations: over a 100 us round trip a 100 ppm clock is 10 ns off.
+    pub clock_rate: f64,
 }
 
 /// A slave's place in the tree.
@@ -171,16 +179,21 @@ pub fn build_tree(slaves: &[SlavePorts], out: &mut [TreeNode]) -> Result<(), Top
     Ok(())
 }
 
-/// `t[b] - t[a]` of one slave's stamps, ns.
-fn span(t: &[u32; 4], a: u8, b: u8) -> i64 {
-    i64::from(diff_u32(t[usize::from(b)], t[usize::from(a)]))
+/// `t[b] - t[a]` of one slave's stamps in the master's time base, ns.
+fn span(s: &SlavePorts, t: &[u32; 4], a: u8, b: u8) -> f64 {
+    let local = f64::from(diff_u32(t[usize::from(b)], t[usize::from(a)]));
+    if s.clock_rate > 0.0 {
+        local / s.clock_rate
+    } else {
+        local
+    }
 }
 
 /// A slave's own loop: from its entry stamp to its last open port's stamp, ns.
-fn own_loop(s: &SlavePorts, entry: u8) -> i64 {
+fn own_loop(s: &SlavePorts, entry: u8) -> f64 {
     match (s.times, ports_after(&s.open, entry).last()) {
-        (Some(t), Some(last)) => span(&t, entry, last),
-        _ => 0,
+        (Some(t), Some(last)) => span(s, &t, entry, last),
+        _ => 0.0,
     }
 }
 
@@ -219,7 +232,7 @@ pub fn arrival_times(
         // slaves without receive times on the way (they forward through their processing unit
         // on the way out).
         let mut child = i;
-        let mut passthrough_tdiff: i64 = 0;
+        let mut passthrough: i64 = 0;
         let mut found = None;
         while let Some((p, port)) = tree[child].parent {
             let p = usize::from(p);
@@ -228,7 +241,7 @@ pub fn arrival_times(
                 break;
             }
             if tree[p].entry_port == 0 {
-                passthrough_tdiff += i64::from(slaves[p].tdiff_ns);
+                passthrough += i64::from(slaves[p].processing_ns - slaves[p].forwarding_ns);
             }
             child = p;
         }
@@ -250,15 +263,19 @@ pub fn arrival_times(
             prev = p;
         }
         let ex = tree[i].entry_port;
-        let round_trip = span(&ta, prev, c) - own_loop(x, ex);
-        let mut k = passthrough_tdiff;
-        if out_passes_pu(sa, ea, c) {
-            k += i64::from(sa.tdiff_ns);
-        }
-        if back_passes_pu(x, ex) {
-            k -= i64::from(x.tdiff_ns);
-        }
-        out[i] = Some(arr_a + span(&ta, ea, prev) as f64 + (round_trip + k) as f64 / 2.0);
+        let round_trip = span(sa, &ta, prev, c) - own_loop(x, ex);
+        let mut k = passthrough;
+        k += i64::from(if out_passes_pu(sa, ea, c) {
+            sa.processing_ns
+        } else {
+            sa.forwarding_ns
+        });
+        k -= i64::from(if back_passes_pu(x, ex) {
+            x.processing_ns
+        } else {
+            x.forwarding_ns
+        });
+        out[i] = Some(arr_a + span(sa, &ta, ea, prev) + (round_trip + k as f64) / 2.0);
     }
     Ok(())
 }
@@ -295,7 +312,7 @@ mod tests {
         SlavePorts {
             open: [true, t1.is_some(), false, false],
             times: Some(times),
-            tdiff_ns: 0,
+            ..SlavePorts::default()
         }
     }
 
@@ -341,7 +358,7 @@ mod tests {
         let j = SlavePorts {
             open: [true, true, false, true],
             times: Some([0, 1_200, 0, 600]),
-            tdiff_ns: 0,
+            ..SlavePorts::default()
         };
         let b = line_slave(80_000, None);
         let c = line_slave(9_000, None);
@@ -365,17 +382,23 @@ mod tests {
         let a = SlavePorts {
             open: [true, true, false, false],
             times: Some([0, 1_350, 0, 0]),
-            tdiff_ns: 50,
+            forwarding_ns: 100,
+            processing_ns: 150,
+            clock_rate: 0.0,
         };
         let b = SlavePorts {
             open: [true, true, false, false],
             times: Some([10_000, 10_700, 0, 0]),
-            tdiff_ns: 50,
+            forwarding_ns: 100,
+            processing_ns: 150,
+            clock_rate: 0.0,
         };
         let c = SlavePorts {
             open: [true, false, false, false],
             times: Some([5, 0, 0, 0]),
-            tdiff_ns: 50,
+            forwarding_ns: 100,
+            processing_ns: 150,
+            clock_rate: 0.0,
         };
         let s = [a, b, c];
         let mut tree = [TreeNode::default(); 3];
@@ -384,7 +407,11 @@ mod tests {
         propagation_delays(&s, &tree, 0, &mut d).unwrap();
         assert_eq!(d[1], Some(350.0));
         assert_eq!(d[2], Some(700.0));
-        let s0: [SlavePorts; 3] = s.map(|x| SlavePorts { tdiff_ns: 0, ..x });
+        let s0: [SlavePorts; 3] = s.map(|x| SlavePorts {
+            forwarding_ns: 0,
+            processing_ns: 0,
+            ..x
+        });
         propagation_delays(&s0, &tree, 0, &mut d).unwrap();
         assert_eq!(
             d[1],
@@ -394,11 +421,59 @@ mod tests {
     }
 
     #[test]
+    fn different_escs() {
+        // A (tP 300, tF 300) -> B (tP 100, tF 100, end of line), 200 ns link. A: t0 = 0, out at
+        // 300, B arrives at 500, leaves through its PU at 600, back at A port 1 at 800.
+        // Half the round trip says 400; the truth is 500.
+        let a = SlavePorts {
+            open: [true, true, false, false],
+            times: Some([0, 800, 0, 0]),
+            forwarding_ns: 300,
+            processing_ns: 300,
+            clock_rate: 0.0,
+        };
+        let b = SlavePorts {
+            open: [true, false, false, false],
+            times: Some([123, 0, 0, 0]),
+            forwarding_ns: 100,
+            processing_ns: 100,
+            clock_rate: 0.0,
+        };
+        let mut tree = [TreeNode::default(); 2];
+        build_tree(&[a, b], &mut tree).unwrap();
+        let mut d = [None; 2];
+        propagation_delays(&[a, b], &tree, 0, &mut d).unwrap();
+        assert_eq!(d[1], Some(500.0));
+    }
+
+    #[test]
+    fn clock_rates_scale_the_spans() {
+        // A's clock runs 100 ppm fast: its 1_000_100 ns local loop is 1_000_000 ns of master
+        // time; B's end-of-line loop is empty. Half of it is the delay.
+        let a = SlavePorts {
+            open: [true, true, false, false],
+            times: Some([0, 1_000_100, 0, 0]),
+            clock_rate: 1.0001,
+            ..SlavePorts::default()
+        };
+        let b = SlavePorts {
+            open: [true, false, false, false],
+            times: Some([5, 0, 0, 0]),
+            ..SlavePorts::default()
+        };
+        let mut tree = [TreeNode::default(); 2];
+        build_tree(&[a, b], &mut tree).unwrap();
+        let mut d = [None; 2];
+        propagation_delays(&[a, b], &tree, 0, &mut d).unwrap();
+        assert!((d[1].unwrap() - 500_000.0).abs() < 1e-6);
+    }
+
+    #[test]
     fn bad_trees() {
         let lone = SlavePorts {
             open: [false; 4],
             times: None,
-            tdiff_ns: 0,
+            ..SlavePorts::default()
         };
         let mut tree = [TreeNode::default(); 2];
         assert_eq!(

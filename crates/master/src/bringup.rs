@@ -14,20 +14,36 @@ use ecsync_wire::{Command, DatagramAddress, dc_time};
 /// First configured station address; slave k gets `STATION_BASE + k`.
 pub const STATION_BASE: u16 = 0x1000;
 
-/// Processing-minus-forwarding delay of an ESC, as a master learns it from the ESI.
+/// Forwarding and processing delay of an ESC, as a master learns them from the ESI. Needed for
+/// exact delays when ESCs of different kinds share a segment (see `ecsync_dc::topology`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct EsiTiming {
     /// Vendor ID.
     pub vendor_id: u32,
     /// Product code.
     pub product_code: u32,
-    /// tDiff = tP - tF, ns.
-    pub tdiff_ns: i32,
+    /// Forwarding delay tF, ns.
+    pub forwarding_ns: i32,
+    /// Processing delay tP, ns.
+    pub processing_ns: i32,
+}
+
+/// Where the bring-up stops.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Stage {
+    /// After measuring propagation delays (identity only from the SII, nothing written).
+    Delays,
+    /// After offsets, static drift compensation and lock.
+    Lock,
+    /// After SYNC0, process data mapping and OP, with the cyclic frame monitored.
+    Op,
 }
 
 /// How far to bring the network up and how.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BringupConfig {
+    /// Where to stop.
+    pub until: Stage,
     /// Latches of the receive times whose delays are averaged.
     pub latch_rounds: u32,
     /// Separate FRMW frames of static drift compensation (the datasheet recommends ~15000).
@@ -48,9 +64,6 @@ pub struct BringupConfig {
     pub sync0_lead_ns: u64,
     /// Cycles to run in the cyclic frame after OP, monitoring 0x092C.
     pub monitor_cycles: u32,
-    /// Bring the slaves to OP with their process data mapped (else stop in PRE-OP with DC
-    /// running).
-    pub to_op: bool,
     /// ESI timing of known ESCs.
     pub esi: Vec<EsiTiming>,
 }
@@ -58,6 +71,7 @@ pub struct BringupConfig {
 impl Default for BringupConfig {
     fn default() -> Self {
         BringupConfig {
+            until: Stage::Op,
             latch_rounds: 16,
             static_drift_frames: 15_000,
             check_every_frames: 100,
@@ -68,7 +82,6 @@ impl Default for BringupConfig {
             sync0_shift_ns: 300_000,
             sync0_lead_ns: 100_000_000,
             monitor_cycles: 1_000,
-            to_op: true,
             esi: Vec::new(),
         }
     }
@@ -193,6 +206,11 @@ pub struct Network {
     pub done_ns: u64,
 }
 
+/// Master time right before the last frame was sent.
+fn r_sent(link: &Link) -> u64 {
+    link.last_sent_ns()
+}
+
 fn position_addr(pos: u16, ado: u16) -> DatagramAddress {
     DatagramAddress::position(pos, ado)
 }
@@ -303,19 +321,29 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             slave: station,
             what: "identity unreadable",
         })?;
-        let name = match (
-            sii.category(category::GENERAL).await?,
-            sii.category(category::STRINGS).await?,
-        ) {
-            (Some(g), Some(s)) if g.len() > sii::general::NAME_IDX => {
-                sii::string(&s, g[sii::general::NAME_IDX])
-                    .map(|b| String::from_utf8_lossy(b).into_owned())
-                    .unwrap_or_default()
+        let details = cfg.until > Stage::Delays;
+        let name = if !details {
+            String::new()
+        } else {
+            match (
+                sii.category(category::GENERAL).await?,
+                sii.category(category::STRINGS).await?,
+            ) {
+                (Some(g), Some(s)) if g.len() > sii::general::NAME_IDX => {
+                    sii::string(&s, g[sii::general::NAME_IDX])
+                        .map(|b| String::from_utf8_lossy(b).into_owned())
+                        .unwrap_or_default()
+                }
+                _ => String::new(),
             }
-            _ => String::new(),
         };
         let mut sms = Vec::new();
-        if let Some(smcat) = sii.category(category::SYNC_MANAGER).await? {
+        let smcat = if details {
+            sii.category(category::SYNC_MANAGER).await?
+        } else {
+            None
+        };
+        if let Some(smcat) = smcat {
             let tx = sii.category(category::TXPDO).await?.unwrap_or_default();
             let rx = sii.category(category::RXPDO).await?.unwrap_or_default();
             for (i, e) in smcat.chunks_exact(8).enumerate() {
@@ -396,9 +424,14 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     let mut latch_sent_ns = 0;
     let mut tree = vec![TreeNode::default(); n];
     let mut delays = vec![None; n];
+    // The rounds are spread over ~20 ms so that each slave's clock rate relative to the master
+    // can be measured from its first and last port 0 stamps and the spans corrected for it.
+    let gap_ns = (20_000_000 / u64::from(rounds)).max(2_000);
+    let mut all_ports: Vec<Vec<SlavePorts>> = Vec::with_capacity(rounds as usize);
+    let mut sent_at: Vec<u64> = Vec::with_capacity(rounds as usize);
     for round in 0..rounds {
         let dither = u64::from(round) * 40 / u64::from(rounds);
-        let t = link.now_ns() + 2_000 + dither;
+        let t = link.now_ns() + gap_ns + dither;
         link.sleep_until(t).await;
         let r = link
             .pdu(
@@ -408,7 +441,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 "latch receive times",
             )
             .await?;
-        let latch_sent = link.now_ns();
+        let latch_sent = r_sent(&link);
         let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
         if r.wkc != expected {
             return Err(MasterError::WorkingCounter {
@@ -421,12 +454,14 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         let mut ports = vec![SlavePorts::default(); n];
         for (i, s) in slaves.iter().enumerate() {
             ports[i].open = s.open_ports;
-            ports[i].tdiff_ns = cfg
+            if let Some(e) = cfg
                 .esi
                 .iter()
                 .find(|e| e.vendor_id == s.vendor_id && e.product_code == s.product_code)
-                .map(|e| e.tdiff_ns)
-                .unwrap_or(0);
+            {
+                ports[i].forwarding_ns = e.forwarding_ns;
+                ports[i].processing_ns = e.processing_ns;
+            }
             if s.dc == DcCapability::None {
                 continue;
             }
@@ -454,8 +489,39 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 last_pu[i] = u64::from_le_bytes(pu[..8].try_into().unwrap_or([0; 8]));
             }
         }
-        build_tree(&ports, &mut tree)?;
-        propagation_delays(&ports, &tree, reference, &mut delays)?;
+        all_ports.push(ports);
+        sent_at.push(latch_sent);
+        latch_sent_ns = latch_sent;
+    }
+    // Clock rates from the first and last latch: local time elapsed at the entry port over
+    // master time elapsed.
+    let master_span = sent_at
+        .last()
+        .copied()
+        .unwrap_or(0)
+        .saturating_sub(sent_at[0]) as f64;
+    if rounds > 1 && master_span > 0.0 {
+        for i in 0..n {
+            let (Some(a), Some(b)) = (
+                all_ports[0][i].times,
+                all_ports[all_ports.len() - 1][i].times,
+            ) else {
+                continue;
+            };
+            let e = ecsync_dc::topology::entry_port(&all_ports[0][i]).unwrap_or(0);
+            let local = f64::from(dc_time::diff_u32(b[usize::from(e)], a[usize::from(e)]));
+            let rate = local / master_span;
+            // Only plausible rates (within 0.1 %) are used; anything else is a misread.
+            if (rate - 1.0).abs() < 1e-3 {
+                for round in all_ports.iter_mut() {
+                    round[i].clock_rate = rate;
+                }
+            }
+        }
+    }
+    for ports in &all_ports {
+        build_tree(ports, &mut tree)?;
+        propagation_delays(ports, &tree, reference, &mut delays)?;
         for (i, d) in delays.iter().enumerate() {
             if let Some(d) = d {
                 sums[i] += d;
@@ -463,7 +529,6 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 maxs[i] = maxs[i].max(*d);
             }
         }
-        latch_sent_ns = latch_sent;
     }
     for (i, s) in slaves.iter_mut().enumerate() {
         s.parent = tree[i].parent;
@@ -472,6 +537,24 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             s.delay_ns = Some(sums[i] / f64::from(rounds));
             s.delay_spread_ns = Some(maxs[i] - mins[i]);
         }
+    }
+
+    if cfg.until == Stage::Delays {
+        return Ok(Network {
+            slaves,
+            reference: reference as u16,
+            lock: LockReport {
+                converged: false,
+                time_to_lock_ns: None,
+                drift_start_ns: 0,
+                max_abs_092c_after_lock_ns: 0,
+                frmw_frames: 0,
+            },
+            sync0: None,
+            pdi_len: 0,
+            expected_lrw_wkc: 0,
+            done_ns: link.now_ns(),
+        });
     }
 
     // Offsets from the last latch, written together with the delays in one frame, then the
@@ -636,7 +719,19 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     let pdi_len = logical;
     let mut expected_lrw_wkc = 0u16;
     let mut sync0 = None;
-    if cfg.to_op {
+    let to_op = cfg.until == Stage::Op;
+    if !to_op {
+        return Ok(Network {
+            slaves,
+            reference: reference as u16,
+            lock: lock_report,
+            sync0,
+            pdi_len,
+            expected_lrw_wkc,
+            done_ns: link.now_ns(),
+        });
+    }
+    {
         for s in &slaves {
             request_state(&link, s.station, al_state::PRE_OP).await?;
         }
@@ -730,8 +825,8 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         );
         v
     };
-    let k = 1 + usize::from(cfg.to_op && pdi_len > 0);
-    if cfg.to_op {
+    let k = 1 + usize::from(to_op && pdi_len > 0);
+    {
         link.event(Event::Phase("safe-op"));
         for s in &slaves {
             request_state(&link, s.station, al_state::SAFE_OP).await?;
@@ -772,10 +867,10 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     for _ in 0..cfg.monitor_cycles {
         link.sleep_until(next).await;
         next += cycle;
-        let (r, _) = link.pdus(&cyclic(cfg.to_op), "cyclic").await?;
+        let (r, _) = link.pdus(&cyclic(to_op), "cyclic").await?;
         let worst = worst_of(&r[k..])?;
         lock_report.max_abs_092c_after_lock_ns = lock_report.max_abs_092c_after_lock_ns.max(worst);
-        if cfg.to_op && pdi_len > 0 && r[1].wkc != expected_lrw_wkc {
+        if to_op && pdi_len > 0 && r[1].wkc != expected_lrw_wkc {
             return Err(MasterError::WorkingCounter {
                 command: Command::Lrw,
                 what: "process data",

@@ -45,6 +45,7 @@ struct Shared {
     reply: Option<Result<Reply, ()>>,
     events: Vec<Event>,
     next_index: u8,
+    last_sent_ns: u64,
 }
 
 /// The procedure's handle on the network: frames out, replies in, time.
@@ -130,6 +131,11 @@ impl Link {
     /// Master time now, ns.
     pub fn now_ns(&self) -> u64 {
         self.shared.borrow().now_ns
+    }
+
+    /// Master time right before the last frame that came back was sent (its send timestamp).
+    pub fn last_sent_ns(&self) -> u64 {
+        self.shared.borrow().last_sent_ns
     }
 
     /// Reports an event to the driver.
@@ -390,6 +396,7 @@ impl<T: 'static> Engine<T> {
         self.pending = None;
         let mut s = self.link.shared.borrow_mut();
         s.now_ns = s.now_ns.max(received_ns);
+        s.last_sent_ns = sent_ns;
         s.reply = Some(Ok(Reply {
             frame: frame.to_vec(),
             sent_ns,

@@ -10,6 +10,6 @@ pub mod io;
 pub mod sii;
 pub mod sim;
 
-pub use bringup::{BringupConfig, Network, SlaveInfo, bringup};
+pub use bringup::{BringupConfig, Network, SlaveInfo, Stage, bringup};
 pub use error::MasterError;
 pub use io::{Action, Engine, Event, Link};
