@@ -17,9 +17,10 @@
 //!   it sees: every sync method run on the same seed meets the same crystals.
 //! * `c_drift`, `c_slew`: the time control loop, see [`TimeControlLoop`].
 //!
-//! Registers show the local time at the last 10 ns tick of the oscillator: the ESC's system time
-//! counter advances once per 100 MHz tick (by 10 ns, or by 9/11 ns while it is being adjusted), so a
-//! read is quantised to the oscillator's tick grid, not to multiples of 10 ns of the value.
+//! Registers show the local time at the last 10 ns tick: the ESC's system time counter advances
+//! once per 100 MHz tick. The model quantises the counter's value to a fixed 10 ns grid (the
+//! residue the counter had at power-up); the real counter's residue creeps by a nanosecond each
+//! time the loop inserts a 9 or 11 ns step, a difference far below anything measured here.
 //!
 //! Between events nothing is stepped: `local_at` evaluates the piecewise-linear function directly,
 //! and `advance_to` moves the anchor forward only across wander grid points and control loop
@@ -69,10 +70,19 @@ struct Split {
     frac: f64,
 }
 
+/// `x.floor()` without a libm call (the baseline x86-64 target has no SSE4.1 `roundsd`):
+/// truncation, corrected for negative non-integers. Exact for |x| < 2^63.
+#[inline]
+fn floor_fast(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x { t - 1.0 } else { t }
+}
+
 impl Split {
+    #[inline]
     fn add(self, delta_ns: f64) -> Split {
         let total = self.frac + delta_ns;
-        let whole = total.floor();
+        let whole = floor_fast(total);
         Split {
             ns: self.ns.wrapping_add(whole as i64 as u64),
             frac: total - whole,
@@ -89,8 +99,8 @@ pub struct LocalClock {
     anchor_ps: u64,
     /// Local time at the anchor.
     anchor_local: Split,
-    /// Raw oscillator phase within its 10 ns tick at the anchor, ns in [0, 10).
-    anchor_tick_phase: f64,
+    /// Residue of the counter's values modulo 10 ns.
+    tick_residue: u64,
     /// Current wander, as a fraction (not ppm).
     wander: f64,
     /// Next wander grid point, ps.
@@ -112,7 +122,7 @@ impl LocalClock {
                 ns: params.initial_local_ns,
                 frac: 0.0,
             },
-            anchor_tick_phase: 0.0,
+            tick_residue: params.initial_local_ns % 10,
             wander: 0.0,
             next_wander_ps: params.wander_step_ps.max(1),
             c_drift: 0.0,
@@ -136,16 +146,22 @@ impl LocalClock {
         1.0 + self.oscillator_error() + self.c_drift + self.slew_rate
     }
 
-    /// Local and tick phase advance over `dt_ns` real nanoseconds from the anchor, without
-    /// crossing a wander grid point.
-    fn delta_from_anchor(&self, dt_ns: f64) -> (f64, f64) {
-        let osc = 1.0 + self.oscillator_error();
-        let mut d = dt_ns * (osc + self.c_drift);
+    /// Local time advance over `dt_ns` real nanoseconds from the anchor, without crossing a
+    /// wander grid point.
+    #[inline]
+    fn delta_from_anchor(&self, dt_ns: f64) -> f64 {
+        let mut d = dt_ns * (1.0 + self.oscillator_error() + self.c_drift);
         if self.slew_rate != 0.0 {
             let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
             d += slewed.copysign(self.slew_rate);
         }
-        (d, dt_ns * osc)
+        d
+    }
+
+    /// The counter value at the last tick at or before local time `ns`.
+    #[inline]
+    fn quantise(&self, ns: u64) -> u64 {
+        ns - (ns.wrapping_sub(self.tick_residue) % 10)
     }
 
     /// Local time at real time `t_ps` in ns, with fraction, not quantised. `t_ps` may lie before
@@ -153,30 +169,36 @@ impl LocalClock {
     /// point (the wander step there is not yet known, so the current rate is extrapolated; call
     /// [`LocalClock::advance_to`] first for exact values).
     pub fn local_exact_ns(&self, t_ps: u64) -> (u64, f64) {
-        let dt_ns = (t_ps as i128 - self.anchor_ps as i128) as f64 / PS_PER_NS as f64;
-        let (d, _) = self.delta_from_anchor(dt_ns);
-        let s = self.anchor_local.add(d);
+        let dt_ns = (t_ps as i64).wrapping_sub(self.anchor_ps as i64) as f64 * 1e-3;
+        let s = self.anchor_local.add(self.delta_from_anchor(dt_ns));
         (s.ns, s.frac)
     }
 
-    /// Local time at real time `t_ps` as the registers show it: the value at the last oscillator
-    /// tick.
+    /// Local time at real time `t_ps` as the registers show it: the counter at its last tick.
     pub fn local_ns(&self, t_ps: u64) -> u64 {
-        let dt_ns = (t_ps as i128 - self.anchor_ps as i128) as f64 / PS_PER_NS as f64;
-        let (d, osc) = self.delta_from_anchor(dt_ns);
-        let phase = (self.anchor_tick_phase + osc).rem_euclid(TICK_NS);
-        // Step back to the tick; the counter's rate over a fraction of a tick is 1 to ~1e-3.
-        let s = self.anchor_local.add(d - phase);
-        if s.frac > 0.999_999 {
-            s.ns.wrapping_add(1)
-        } else {
-            s.ns
-        }
+        self.quantise(self.local_exact_ns(t_ps).0)
+    }
+
+    /// Local time (register view) at the anchor.
+    #[inline]
+    pub fn local_ns_at_anchor(&self) -> u64 {
+        self.quantise(self.anchor_local.ns)
+    }
+
+    /// Residue modulo 10 ns of every counter value (the tick grid).
+    pub fn tick_residue(&self) -> u64 {
+        self.tick_residue
+    }
+
+    /// Real time of the anchor, ps.
+    pub fn anchor_ps(&self) -> u64 {
+        self.anchor_ps
     }
 
     /// Moves the anchor to `t_ps`, applying every wander step on the way. Times before the anchor
     /// are ignored (events are processed in time order per clock; a frame that overtakes another
     /// by a few microseconds reads the clock through [`LocalClock::local_ns`] instead).
+    #[inline]
     pub fn advance_to(&mut self, t_ps: u64) {
         if t_ps <= self.anchor_ps {
             return;
@@ -194,12 +216,13 @@ impl LocalClock {
         self.move_anchor(t_ps);
     }
 
+    #[inline]
     fn move_anchor(&mut self, t_ps: u64) {
         if t_ps <= self.anchor_ps {
             return;
         }
-        let dt_ns = (t_ps - self.anchor_ps) as f64 / PS_PER_NS as f64;
-        let (d, osc) = self.delta_from_anchor(dt_ns);
+        let dt_ns = (t_ps - self.anchor_ps) as f64 * 1e-3;
+        let d = self.delta_from_anchor(dt_ns);
         if self.slew_rate != 0.0 {
             let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
             self.slew_remaining_ns -= slewed;
@@ -209,11 +232,10 @@ impl LocalClock {
             }
         }
         self.anchor_local = self.anchor_local.add(d);
-        self.anchor_tick_phase = (self.anchor_tick_phase + osc).rem_euclid(TICK_NS);
         self.anchor_ps = t_ps;
     }
 
-    /// Sets the frequency correction of the drift compensation (fraction), from the anchor on.
+    /// Sets the frequency correction of the drift compensation (fraction), from `t_ps` on.
     pub fn set_drift_correction(&mut self, t_ps: u64, c: f64) {
         self.advance_to(t_ps);
         self.c_drift = c;
@@ -276,6 +298,14 @@ mod tests {
         assert_eq!(c.local_ns(10_000), 10);
         assert_eq!(c.local_ns(25_000), 20);
         assert_eq!(c.local_ns(1_000_005_000), 1_000_000);
+        // The grid keeps the power-up residue.
+        let c = LocalClock::new(CrystalParams {
+            initial_local_ns: 1_003,
+            ..Default::default()
+        });
+        assert_eq!(c.local_ns(0), 1_003);
+        assert_eq!(c.local_ns(9_999), 1_003);
+        assert_eq!(c.local_ns(10_000), 1_013);
     }
 
     #[test]
@@ -314,5 +344,27 @@ mod tests {
         assert_eq!(a.local_exact_ns(t).0, b.local_exact_ns(t).0);
         assert!((a.local_exact_ns(t).1 - b.local_exact_ns(t).1).abs() < 1e-3);
         assert_ne!(a.oscillator_error(), -20e-6, "wander moved the frequency");
+    }
+}
+
+#[cfg(test)]
+mod fast_math_tests {
+    use super::*;
+
+    #[test]
+    fn floor() {
+        for x in [
+            -10.5,
+            -10.0,
+            -0.25,
+            0.0,
+            0.25,
+            9.999,
+            10.0,
+            12345.678,
+            -3e12 - 0.5,
+        ] {
+            assert_eq!(floor_fast(x), x.floor(), "{x}");
+        }
     }
 }

@@ -56,6 +56,16 @@ pub struct DcParams {
     pub is_64bit: bool,
 }
 
+/// Rounds half away from zero without a libm call.
+#[inline]
+fn round_fast(x: f64) -> i64 {
+    if x >= 0.0 {
+        (x + 0.5) as i64
+    } else {
+        (x - 0.5) as i64
+    }
+}
+
 /// State of the DC unit.
 #[derive(Debug, Clone)]
 pub struct DcUnit {
@@ -68,6 +78,10 @@ pub struct DcUnit {
     dt_filter_depth: u8,
     speed_filter_depth: u8,
     dt_filtered: f64,
+    // Derived from the registers above, kept so the hot path divides nothing.
+    dt_weight: f64,
+    speed_gain: f64,
+    slew_rate: f64,
     last_sample: Option<(u64, f64)>,
     writes: u64,
     // Latches.
@@ -103,6 +117,9 @@ impl DcUnit {
             dt_filter_depth: 4,
             speed_filter_depth: 12,
             dt_filtered: 0.0,
+            dt_weight: 1.0 / 16.0,
+            speed_gain: 1.0 / 4096.0,
+            slew_rate: 1.0 / (10.0 * 4096.0),
             last_sample: None,
             writes: 0,
             port_times: [0; 4],
@@ -173,16 +190,41 @@ impl DcUnit {
         self.writes
     }
 
-    /// Latches receive times: `ports[p]` is the real time the frame's first bit reached port p, or
-    /// `None` if it did not pass that port (the register keeps its old value); `pu_ps` the time
-    /// it reached the processing unit.
-    pub fn latch(&mut self, ports: [Option<u64>; 4], pu_ps: u64) {
+    /// Latches receive times: `ports[p]` is the real time the frame's first bit reached port p,
+    /// or `None` if it did not pass that port (the register keeps its old value); `pu_ps` the
+    /// time it reached the processing unit. Each port stamps with its own resolution `res_ns`
+    /// (40 ns on MII, whose 25 MHz receive clock samples the frame start; 10 ns on EBUS; datasheet
+    /// section I, 18.14): the counter is sampled on that port's clock edges, so all its stamps
+    /// share one residue. The processing unit's stamp is port 0's when `pu_is_port0`.
+    pub fn latch(
+        &mut self,
+        ports: [Option<u64>; 4],
+        pu_ps: u64,
+        pu_is_port0: bool,
+        res_ns: [u64; 4],
+    ) {
+        let seed = self.clock.params().seed;
         for (p, t) in ports.iter().enumerate() {
             if let Some(t) = t {
-                self.port_times[p] = self.clock.local_ns(*t) as u32;
+                let v = self.clock.local_ns(*t);
+                let res = res_ns[p].max(10) / 10 * 10;
+                // The receive clock's phase against the counter: fixed per port, on the
+                // counter's 10 ns tick grid (the sample is the counter's value at that edge).
+                let phase = self.clock.tick_residue() + 10 * ((seed >> (8 * p)) % (res / 10));
+                let q = v - (v.wrapping_sub(phase) % res);
+                self.port_times[p] = q as u32;
+                if p == 0 && pu_is_port0 {
+                    let mut pu = q;
+                    if !self.is_64bit {
+                        pu &= 0xffff_ffff;
+                    }
+                    self.pu_time = pu;
+                }
             }
         }
-        self.pu_time = self.local_ns(pu_ps);
+        if !pu_is_port0 {
+            self.pu_time = self.local_ns(pu_ps);
+        }
     }
 
     /// Fills the shadow of the DC block (`block[0]` is register 0x0900) with the values registers
@@ -214,7 +256,7 @@ impl DcUnit {
         if overlaps(reg::DC_SYSTEM_TIME_OFFSET, 16) {
             put(reg::DC_SYSTEM_TIME_OFFSET, &self.offset.to_le_bytes());
             put(reg::DC_SYSTEM_TIME_DELAY, &self.delay.to_le_bytes());
-            let diff = dc_time::encode_time_difference(-(self.dt_filtered.round() as i64));
+            let diff = dc_time::encode_time_difference(-round_fast(self.dt_filtered));
             put(reg::DC_SYSTEM_TIME_DIFF, &diff.to_le_bytes());
         }
         if overlaps(reg::DC_SPEED_COUNTER_START, 7) {
@@ -265,6 +307,14 @@ impl DcUnit {
     /// Applies a write of `data` to the registers at `addr..addr + data.len()` (absolute
     /// addresses within the DC block) at real time `t_ps`.
     pub fn write(&mut self, addr: u16, data: &[u8], t_ps: u64) -> DcWriteEffects {
+        // The cyclic hot path: a system time write (FRMW/ARMW of 0x0910) touches nothing else.
+        if addr == reg::DC_SYSTEM_TIME && data.len() <= 8 {
+            let mut v = [0u8; 4];
+            let n = data.len().min(4);
+            v[..n].copy_from_slice(&data[..n]);
+            self.compare_system_time(u32::from_le_bytes(v), t_ps);
+            return DcWriteEffects::default();
+        }
         let mut fx = DcWriteEffects::default();
         let lo = addr;
         let hi = addr + data.len() as u16;
@@ -318,6 +368,7 @@ impl DcUnit {
                 &byte,
             ));
             self.speed_counter_start = v.clamp(SPEED_COUNTER_MIN, SPEED_COUNTER_MAX);
+            self.slew_rate = 1.0 / (10.0 * f64::from(self.speed_counter_start));
             self.clock.set_drift_correction(t_ps, 0.0);
             self.clock.set_slew(t_ps, 0.0, 0.0);
             self.dt_filtered = 0.0;
@@ -325,10 +376,12 @@ impl DcUnit {
         }
         if let Some(b) = byte(reg::DC_TIME_DIFF_FILTER_DEPTH) {
             self.dt_filter_depth = b & 0x0f;
+            self.dt_weight = 1.0 / f64::from(1u32 << self.dt_filter_depth);
             self.dt_filtered = 0.0;
         }
         if let Some(b) = byte(reg::DC_SPEED_COUNTER_FILTER_DEPTH) {
             self.speed_filter_depth = b & 0x0f;
+            self.speed_gain = 1.0 / f64::from(1u32 << self.speed_filter_depth);
         }
         if let Some(b) = byte(0x0936) {
             self.latch_mode = b;
@@ -441,9 +494,43 @@ impl DcUnit {
         if self.is_64bit { v } else { v & 0xffff_ffff }
     }
 
+    /// Reads the registers the cyclic frame reads (0x0910 by ARMW/FRMW/FPRD, 0x092C by BRD or
+    /// FPRD) without going through the register shadow. Returns `false` for anything else.
+    #[inline]
+    pub fn read_fast(&mut self, addr: u16, out: &mut [u8], or: bool, t_ps: u64) -> bool {
+        let v: [u8; 8] = if addr == reg::DC_SYSTEM_TIME && out.len() <= 8 {
+            self.clock.advance_to(t_ps);
+            let mut s = self.clock.local_ns_at_anchor().wrapping_add(self.offset);
+            s = s.wrapping_sub(u64::from(self.delay));
+            if !self.is_64bit {
+                s &= 0xffff_ffff;
+            }
+            s.to_le_bytes()
+        } else if addr == reg::DC_SYSTEM_TIME_DIFF && out.len() <= 4 {
+            let d = dc_time::encode_time_difference(-round_fast(self.dt_filtered));
+            let mut v = [0u8; 8];
+            v[..4].copy_from_slice(&d.to_le_bytes());
+            v
+        } else {
+            return false;
+        };
+        if or {
+            out.iter_mut().zip(v).for_each(|(o, b)| *o |= b);
+        } else {
+            let n = out.len();
+            out.copy_from_slice(&v[..n]);
+        }
+        true
+    }
+
     fn compare_system_time(&mut self, received: u32, t_ps: u64) {
         self.clock.advance_to(t_ps);
-        let dt = dc_time::diff_u32(self.system_time_read_ns(t_ps) as u32, received);
+        let read = self
+            .clock
+            .local_ns_at_anchor()
+            .wrapping_add(self.offset)
+            .wrapping_sub(u64::from(self.delay));
+        let dt = dc_time::diff_u32(read as u32, received);
         // The datasheet guarantees stability only for |dt| < 2^30 ns; larger differences (a
         // master writing 0 during its reset sequence, say) are shown but do not steer the clock.
         if dt.unsigned_abs() >= 1 << 30 {
@@ -455,8 +542,7 @@ impl DcUnit {
         self.writes += 1;
 
         // (2) Filtered difference.
-        let w = 1.0 / f64::from(1u32 << self.dt_filter_depth);
-        self.dt_filtered += (dt - self.dt_filtered) * w;
+        self.dt_filtered += (dt - self.dt_filtered) * self.dt_weight;
 
         // (4) Drift estimation from consecutive differences.
         let slew_left = self.clock.slew_remaining_ns();
@@ -468,16 +554,14 @@ impl DcUnit {
                 // is expected to be left over.
                 let residual = (dt - (dt_expected - slew_left)) / elapsed_ns;
                 let residual = residual.clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
-                let gain = 1.0 / f64::from(1u32 << self.speed_filter_depth);
-                let c = (self.clock.drift_correction() - residual * gain)
+                let c = (self.clock.drift_correction() - residual * self.speed_gain)
                     .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
                 self.clock.set_drift_correction(t_ps, c);
             }
         }
 
         // (3) Slew the filtered difference away.
-        let rate = 1.0 / (10.0 * f64::from(self.speed_counter_start));
-        self.clock.set_slew(t_ps, -self.dt_filtered, rate);
+        self.clock.set_slew(t_ps, -self.dt_filtered, self.slew_rate);
         self.last_sample = Some((t_ps, dt - self.dt_filtered));
     }
 }

@@ -83,6 +83,9 @@ pub struct Esc {
     al_error: bool,
     al_code: u16,
     fmmus: [Fmmu; 16],
+    /// Indices of active FMMUs with write / read enabled, lowest first.
+    fmmu_writers: ([u8; 16], u8),
+    fmmu_readers: ([u8; 16], u8),
     sms: [SyncManager; 16],
     link: [bool; 4],
     loop_mode: [LoopMode; 4],
@@ -131,6 +134,8 @@ impl Esc {
             al_error: false,
             al_code: 0,
             fmmus: [Fmmu::default(); 16],
+            fmmu_writers: ([0; 16], 0),
+            fmmu_readers: ([0; 16], 0),
             sms: [SyncManager::default(); 16],
             link: [false; 4],
             loop_mode: [LoopMode::Auto; 4],
@@ -527,6 +532,22 @@ impl Esc {
                 write: active && b[11] & 2 != 0,
             };
         }
+        self.fmmu_writers.1 = 0;
+        self.fmmu_readers.1 = 0;
+        for n in 0..usize::from(self.model.fmmu_count.min(16)) {
+            let f = self.fmmus[n];
+            if f.len == 0 {
+                continue;
+            }
+            if f.write {
+                self.fmmu_writers.0[usize::from(self.fmmu_writers.1)] = n as u8;
+                self.fmmu_writers.1 += 1;
+            }
+            if f.read {
+                self.fmmu_readers.0[usize::from(self.fmmu_readers.1)] = n as u8;
+                self.fmmu_readers.1 += 1;
+            }
+        }
     }
 
     fn parse_sms(&mut self) {
@@ -560,6 +581,16 @@ impl Esc {
     /// Reads physical memory into `out`; returns whether the access counts (at least one byte
     /// exists). Bytes that do not exist leave `out` unchanged. With `or`, data is ORed (BRD).
     fn read_physical(&mut self, ado: u16, out: &mut [u8], or: bool, t_ps: u64) -> bool {
+        // The cyclic frame's DC reads (system time, time difference) skip the register shadow.
+        if (ado == reg::DC_SYSTEM_TIME || ado == reg::DC_SYSTEM_TIME_DIFF)
+            && self.attr[usize::from(ado)] & EXISTS != 0
+        {
+            if let Some(dc) = &mut self.dc {
+                if dc.read_fast(ado, out, or, t_ps) {
+                    return true;
+                }
+            }
+        }
         let lo = usize::from(ado);
         let hi = lo + out.len();
         let mut counted = false;
@@ -767,11 +798,8 @@ impl Esc {
         let mut read_hit = false;
         let mut write_hit = false;
         if cmd.writes() {
-            for n in 0..usize::from(self.model.fmmu_count.min(16)) {
-                let f = self.fmmus[n];
-                if !f.write || f.len == 0 {
-                    continue;
-                }
+            for k in 0..usize::from(self.fmmu_writers.1) {
+                let f = self.fmmus[usize::from(self.fmmu_writers.0[k])];
                 let (fs, fe) = (
                     u64::from(f.logical),
                     u64::from(f.logical) + u64::from(f.len),
@@ -795,11 +823,8 @@ impl Esc {
         }
         if cmd.reads() {
             let mut refreshed = false;
-            for n in 0..usize::from(self.model.fmmu_count.min(16)) {
-                let f = self.fmmus[n];
-                if !f.read || f.len == 0 {
-                    continue;
-                }
+            for k in 0..usize::from(self.fmmu_readers.1) {
+                let f = self.fmmus[usize::from(self.fmmu_readers.0[k])];
                 let (fs, fe) = (
                     u64::from(f.logical),
                     u64::from(f.logical) + u64::from(f.len),

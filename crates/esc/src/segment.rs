@@ -123,6 +123,50 @@ struct Node {
     entry_port: u8,
     forwarding_ps: u64,
     processing_ps: u64,
+    /// What a frame entering at `entry_port` meets, in processing order (rebuilt when the
+    /// master changes the loop settings).
+    plan: Plan,
+}
+
+/// One element of a frame's way through an ESC.
+#[derive(Debug, Clone, Copy)]
+enum Step {
+    /// The processing unit.
+    Pu,
+    /// An open port with a cable: out and back.
+    Port(u8, Link),
+    /// A port forced open without a link: the frame is lost there.
+    Lost,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Plan {
+    steps: [Step; 5],
+    len: u8,
+}
+
+fn build_plan(esc: &Esc, links: &[Option<Link>; 4], entry: usize) -> Plan {
+    let mut plan = Plan {
+        steps: [Step::Pu; 5],
+        len: 0,
+    };
+    let start = ring_pos(entry);
+    for k in 1..5 {
+        let step = match RING[(start + k) % 5] {
+            None => Step::Pu,
+            Some(p) => match esc.port_forwards(p) {
+                Ok(true) => match links[p] {
+                    Some(l) => Step::Port(p as u8, l),
+                    None => continue,
+                },
+                Ok(false) => continue,
+                Err(()) => Step::Lost,
+            },
+        };
+        plan.steps[usize::from(plan.len)] = step;
+        plan.len += 1;
+    }
+    plan
 }
 
 /// Per-frame ground truth of one slave.
@@ -290,12 +334,14 @@ impl Segment {
                     l[2].is_some(),
                     l[3].is_some(),
                 ]);
+                let plan = build_plan(&esc, &l, usize::from(s.entry_port));
                 Node {
                     esc,
                     links: l,
                     entry_port: s.entry_port,
                     forwarding_ps: ps(s.model.forwarding_delay_ns),
                     processing_ps: ps(s.model.processing_delay_ns),
+                    plan,
                 }
             })
             .collect();
@@ -399,16 +445,22 @@ impl Segment {
         frame: &mut [u8],
         valid: bool,
     ) -> Option<u64> {
+        let node = &self.nodes[idx];
+        let plan = if in_port == usize::from(node.entry_port) {
+            node.plan
+        } else {
+            build_plan(&node.esc, &node.links, in_port)
+        };
+        let (fwd, proc) = (node.forwarding_ps, node.processing_ps);
         let mut arrivals: [Option<u64>; 4] = [None; 4];
         arrivals[in_port] = Some(t_in);
         let mut t_cur = t_in;
         let mut through_pu = false;
-        let mut latch = false;
+        let mut fx = FrameEffects::default();
         let mut pu_time = None;
-        let start = ring_pos(in_port);
-        for k in 1..5 {
-            match RING[(start + k) % 5] {
-                None => {
+        for step in &plan.steps[..usize::from(plan.len)] {
+            match *step {
+                Step::Pu => {
                     through_pu = true;
                     pu_time = Some(t_cur);
                     self.trace[idx].pu_ps = Some(t_cur);
@@ -418,31 +470,18 @@ impl Segment {
                     // (forwarding rule of DL control bit 0).
                     frame[6] |= 0x02;
                     if valid {
-                        latch |= process_datagrams(&mut node.esc, frame, t_cur);
+                        fx = process_datagrams(&mut node.esc, frame, t_cur);
                     }
                 }
-                Some(p) => {
-                    let node = &self.nodes[idx];
-                    match node.esc.port_forwards(p) {
-                        Ok(true) => {}
-                        Ok(false) => continue,
-                        Err(()) => return None,
-                    }
-                    let Some(link) = node.links[p] else {
-                        continue;
-                    };
-                    let d = if through_pu {
-                        node.processing_ps
-                    } else {
-                        node.forwarding_ps
-                    };
+                Step::Lost => return None,
+                Step::Port(p, link) => {
+                    let d = if through_pu { proc } else { fwd };
                     through_pu = false;
-                    let t_out = t_cur + d;
                     let back = match link.peer {
                         Peer::Slave(peer) => self.traverse(
                             usize::from(peer),
                             usize::from(link.peer_port),
-                            t_out + link.delay_ps,
+                            t_cur + d + link.delay_ps,
                             frame,
                             valid,
                         )?,
@@ -450,32 +489,23 @@ impl Segment {
                         Peer::Master => return None,
                     };
                     t_cur = back + link.delay_ps;
-                    arrivals[p] = Some(t_cur);
+                    arrivals[usize::from(p)] = Some(t_cur);
                 }
             }
         }
         let node = &mut self.nodes[idx];
-        let d = if through_pu {
-            node.processing_ps
-        } else {
-            node.forwarding_ps
-        };
-        if latch {
-            let res = node.esc.model().ports;
+        if fx.latch {
+            let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
             if let (Some(dc), Some(pu)) = (node.esc.dc_mut(), pu_time) {
-                // Ports latch at their own stamp resolution (40 ns on MII, datasheet section I,
-                // 18.14); the processing unit's stamp equals port 0's when port 0 is open.
-                let mut q = arrivals;
-                for (p, t) in q.iter_mut().enumerate() {
-                    if let Some(t) = t {
-                        *t = quantise_stamp(dc, *t, res[p].stamp_resolution_ns());
-                    }
-                }
-                let pu_q = if in_port == 0 { q[0].unwrap_or(pu) } else { pu };
-                dc.latch(q, pu_q);
+                // The processing unit's stamp equals port 0's when the frame entered there.
+                dc.latch(arrivals, pu, in_port == 0, res);
             }
         }
-        Some(t_cur + d)
+        if fx.loops_changed {
+            // Loop changes take effect after the frame has passed (datasheet section II, 0x0100).
+            node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+        }
+        Some(t_cur + if through_pu { proc } else { fwd })
     }
 
     /// Time from the master sending a frame to its first bit reaching each slave's processing
@@ -556,16 +586,6 @@ impl Segment {
     }
 }
 
-/// Quantises a receive stamp to the port's resolution in local time: the latch samples on the
-/// port's receive clock, whose phase is fixed relative to the local clock.
-fn quantise_stamp(dc: &crate::dc_unit::DcUnit, t_ps: u64, res_ns: u64) -> u64 {
-    let local = dc.clock().local_ns(t_ps);
-    let rem = local % res_ns;
-    // Step back `rem` ns of local time (rates are within 1e-3 of 1, so this is exact to <1 ps
-    // per ns).
-    t_ps.saturating_sub(rem * PS_PER_NS)
-}
-
 /// Whether a frame is an EtherCAT command frame whose datagram chain is well formed.
 pub fn frame_is_processable(frame: &[u8]) -> bool {
     let Ok(f) = EcatFrame::new_checked(frame) else {
@@ -574,13 +594,18 @@ pub fn frame_is_processable(frame: &[u8]) -> bool {
     f.datagrams().all(|d| d.is_ok())
 }
 
-/// Processes every datagram of a validated frame at an ESC; returns whether a receive-time
-/// latch was requested.
-fn process_datagrams(esc: &mut Esc, frame: &mut [u8], t_ps: u64) -> bool {
+#[derive(Debug, Clone, Copy, Default)]
+struct FrameEffects {
+    latch: bool,
+    loops_changed: bool,
+}
+
+/// Processes every datagram of a validated frame at an ESC.
+fn process_datagrams(esc: &mut Esc, frame: &mut [u8], t_ps: u64) -> FrameEffects {
     let base = EcatFrame::<&[u8]>::first_datagram_offset();
     let end = base + usize::from(u16::from_le_bytes([frame[14], frame[15]]) & 0x07ff);
     let mut at = base;
-    let mut latch = false;
+    let mut out = FrameEffects::default();
     while at + ecsync_wire::DATAGRAM_OVERHEAD <= end {
         let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
         let more = frame[at + 7] & 0x80 != 0;
@@ -589,11 +614,12 @@ fn process_datagrams(esc: &mut Esc, frame: &mut [u8], t_ps: u64) -> bool {
             break;
         }
         let fx = esc.process_datagram(&mut frame[at..at + total], t_ps);
-        latch |= fx.latch_receive_times;
+        out.latch |= fx.latch_receive_times;
+        out.loops_changed |= fx.loops_changed;
         at += total;
         if !more {
             break;
         }
     }
-    latch
+    out
 }

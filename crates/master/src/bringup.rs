@@ -72,7 +72,7 @@ impl Default for BringupConfig {
     fn default() -> Self {
         BringupConfig {
             until: Stage::Op,
-            latch_rounds: 16,
+            latch_rounds: 64,
             static_drift_frames: 15_000,
             check_every_frames: 100,
             lock_threshold_ns: 100,
@@ -452,6 +452,11 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             });
         }
         let mut ports = vec![SlavePorts::default(); n];
+        // One FPRD of the four receive times per slave that has them, batched into as few
+        // frames as fit; the processing unit's 64-bit stamp only in the last round (offsets).
+        let last = round + 1 == rounds;
+        let mut reads = Vec::new();
+        let mut owners = Vec::new();
         for (i, s) in slaves.iter().enumerate() {
             ports[i].open = s.open_ports;
             if let Some(e) = cfg
@@ -465,28 +470,38 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             if s.dc == DcCapability::None {
                 continue;
             }
-            let t = link
-                .fprd(
-                    s.station,
-                    reg::DC_RECEIVE_TIME_PORT0,
-                    16,
-                    "read receive times",
-                )
-                .await?;
-            let times = core::array::from_fn(|p| {
-                u32::from_le_bytes([t[4 * p], t[4 * p + 1], t[4 * p + 2], t[4 * p + 3]])
-            });
-            ports[i].times = Some(times);
-            if s.dc == DcCapability::SystemTime {
-                let pu = link
-                    .fprd(
-                        s.station,
-                        reg::DC_RECEIVE_TIME_PU,
-                        8,
-                        "read processing unit receive time",
-                    )
-                    .await?;
-                last_pu[i] = u64::from_le_bytes(pu[..8].try_into().unwrap_or([0; 8]));
+            reads.push(Pdu::new(
+                Command::Fprd,
+                fp(s.station, reg::DC_RECEIVE_TIME_PORT0),
+                vec![0; 16],
+            ));
+            owners.push((i, false));
+            if last && s.dc == DcCapability::SystemTime {
+                reads.push(Pdu::new(
+                    Command::Fprd,
+                    fp(s.station, reg::DC_RECEIVE_TIME_PU),
+                    vec![0; 8],
+                ));
+                owners.push((i, true));
+            }
+        }
+        let replies = link.pdus_batched(&reads, "read receive times").await?;
+        for (r, &(i, is_pu)) in replies.iter().zip(&owners) {
+            if r.wkc != 1 {
+                return Err(MasterError::WorkingCounter {
+                    command: Command::Fprd,
+                    what: "read receive times",
+                    expected: 1,
+                    got: r.wkc,
+                });
+            }
+            let t = &r.data;
+            if is_pu {
+                last_pu[i] = u64::from_le_bytes(t[..8].try_into().unwrap_or([0; 8]));
+            } else {
+                ports[i].times = Some(core::array::from_fn(|p| {
+                    u32::from_le_bytes([t[4 * p], t[4 * p + 1], t[4 * p + 2], t[4 * p + 3]])
+                }));
             }
         }
         all_ports.push(ports);

@@ -215,6 +215,35 @@ impl Link {
         Ok((out, reply))
     }
 
+    /// Sends the datagrams in as many frames as they need (each frame's datagrams up to
+    /// `MAX_FRAME_LEN`), one frame after another; returns the replies in order.
+    pub async fn pdus_batched(
+        &self,
+        pdus: &[Pdu],
+        what: &'static str,
+    ) -> Result<Vec<PduReply>, MasterError> {
+        let room =
+            ecsync_wire::MAX_FRAME_LEN - ecsync_wire::ETH_HEADER_LEN - ecsync_wire::ECAT_HEADER_LEN;
+        let mut out = Vec::with_capacity(pdus.len());
+        let mut start = 0;
+        while start < pdus.len() {
+            let mut end = start;
+            let mut used = 0;
+            while end < pdus.len() {
+                let need = ecsync_wire::DATAGRAM_OVERHEAD + pdus[end].data.len();
+                if used + need > room && end > start {
+                    break;
+                }
+                used += need;
+                end += 1;
+            }
+            let (r, _) = self.pdus(&pdus[start..end], what).await?;
+            out.extend(r);
+            start = end;
+        }
+        Ok(out)
+    }
+
     /// One datagram in its own frame.
     pub async fn pdu(
         &self,

@@ -4,6 +4,7 @@
 //! against the virtual segment in virtual time, a raw socket on a real network.
 #![forbid(unsafe_code)]
 
+pub mod bench;
 pub mod bringup;
 mod error;
 pub mod io;

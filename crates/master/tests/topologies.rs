@@ -15,7 +15,7 @@ use ecsync_master::bringup::EsiTiming;
 use ecsync_master::sim::SimTransport;
 use ecsync_master::{BringupConfig, Engine, Stage, bringup};
 use proptest::prelude::*;
-use proptest::test_runner::TestRunner;
+use proptest::test_runner::{RngAlgorithm, TestRng, TestRunner};
 use std::cell::Cell;
 
 #[derive(Debug, Clone, Copy)]
@@ -195,11 +195,16 @@ fn topology() -> impl Strategy<Value = Gen> {
 
 #[test]
 fn measured_delays_match_the_ground_truth() {
-    let mut runner = TestRunner::new(ProptestConfig {
-        cases: 500,
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    });
+    // A fixed seed: CI sees the same 500 topologies every run (set PROPTEST_RNG_SEED-free runs
+    // by changing the seed here when exploring).
+    let mut runner = TestRunner::new_with_rng(
+        ProptestConfig {
+            cases: 500,
+            failure_persistence: None,
+            ..ProptestConfig::default()
+        },
+        TestRng::from_seed(RngAlgorithm::ChaCha, &[0x5e; 32]),
+    );
     let worst = Cell::new(0.0f64);
     let wrapped = Cell::new(0usize);
     let checked = Cell::new(0usize);

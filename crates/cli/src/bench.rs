@@ -1,0 +1,68 @@
+//! `ecsync bench`: how fast the simulator runs.
+
+use anyhow::{Result, ensure};
+use ecsync_master::bench::CycleBench;
+use serde::Serialize;
+use std::process::ExitCode;
+use std::time::Instant;
+
+/// Arguments of `ecsync bench`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Simulated cycles to time.
+    #[arg(long, default_value_t = 2_000_000)]
+    cycles: u64,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct Out {
+    workload: &'static str,
+    slaves: usize,
+    cycles: u64,
+    wall_s: f64,
+    cycles_per_s: f64,
+    slave_cycles_per_s: f64,
+    ns_per_slave_cycle: f64,
+}
+
+pub fn run(args: Args) -> Result<ExitCode> {
+    let mut b = CycleBench::paper_2024();
+    let mut work = vec![0u8; 1514];
+    // Warm up caches and the branch predictor.
+    b.run(10_000, &mut work);
+    let t0 = Instant::now();
+    let wkc = b.run(args.cycles, &mut work);
+    let wall = t0.elapsed().as_secs_f64();
+    ensure!(
+        wkc == b.expected_lrw_wkc,
+        "the segment answered the LRW with working counter {wkc}, expected {}",
+        b.expected_lrw_wkc
+    );
+    let slaves = b.slaves();
+    let out = Out {
+        workload: "paper-2024: 6 slaves, 1 ms cycle, FRMW 0x0910 + LRW 204 B + BRD 0x092C per frame",
+        slaves,
+        cycles: args.cycles,
+        wall_s: wall,
+        cycles_per_s: args.cycles as f64 / wall,
+        slave_cycles_per_s: (args.cycles * slaves as u64) as f64 / wall,
+        ns_per_slave_cycle: wall * 1e9 / (args.cycles * slaves as u64) as f64,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!("{}", out.workload);
+        println!(
+            "{} cycles in {:.3} s on one core: {:.2} M cycles/s, {:.2} M slave-cycles/s ({:.1} ns per slave-cycle)",
+            out.cycles,
+            out.wall_s,
+            out.cycles_per_s / 1e6,
+            out.slave_cycles_per_s / 1e6,
+            out.ns_per_slave_cycle
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,261 @@
+//! `ecsync bringup`: the master engine against the virtual segment, with ground truth.
+
+use crate::source::SourceArgs;
+use anyhow::{Context, Result};
+use ecsync_esc::Segment;
+use ecsync_master::bringup::{DcCapability, Stage};
+use ecsync_master::sim::SimTransport;
+use ecsync_master::{BringupConfig, Engine, Event, bringup};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// Arguments of `ecsync bringup`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// Capture every frame to this pcap file (Wireshark, tshark).
+    #[arg(long)]
+    pcap: Option<PathBuf>,
+    /// Print a JSON object instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// FRMW frames of static drift compensation.
+    #[arg(long, default_value_t = 15_000)]
+    static_drift: u32,
+    /// Receive time latches averaged for the delays.
+    #[arg(long, default_value_t = 16)]
+    latch_rounds: u32,
+    /// Cycles monitored in OP after lock.
+    #[arg(long, default_value_t = 1_000)]
+    monitor_cycles: u32,
+}
+
+#[derive(Debug, Serialize)]
+struct SlaveOut {
+    position: u16,
+    station: u16,
+    name: String,
+    vendor_id: u32,
+    product_code: u32,
+    serial: u32,
+    dc: DcCapability,
+    parent: Option<(u16, u8)>,
+    delay_ns: Option<f64>,
+    true_delay_ns: Option<f64>,
+    delay_spread_ns: Option<f64>,
+    offset: Option<u64>,
+    /// Written offset minus the offset that would have aligned the slave exactly, ns.
+    offset_error_ns: Option<i64>,
+}
+
+#[derive(Debug, Serialize)]
+struct LockOut {
+    converged: bool,
+    time_to_lock_ms: Option<f64>,
+    /// Largest true |slave - reference| system time difference from lock to the end, ns.
+    max_abs_diff_ns: f64,
+    /// Largest |0x092C| read while monitoring, ns.
+    max_abs_092c_ns: u32,
+    frmw_frames: u64,
+}
+
+#[derive(Debug, Serialize)]
+struct Out {
+    source: String,
+    reference: u16,
+    slaves: Vec<SlaveOut>,
+    lock: LockOut,
+    sync0_start_ns: Option<u64>,
+    pdi_bytes: u32,
+    expected_lrw_wkc: u16,
+    bringup_ms: f64,
+    frames: u64,
+    pcap: Option<String>,
+    pcap_frames: u64,
+}
+
+/// True system time of slave `pos` minus the reference's at real time `t_ps`, ns.
+fn true_diff(seg: &Segment, pos: usize, reference: usize, t_ps: u64) -> Option<f64> {
+    let a = seg.esc(pos).dc()?.system_time_split(t_ps);
+    let r = seg.esc(reference).dc()?.system_time_split(t_ps);
+    Some((a.0.wrapping_sub(r.0) as i64) as f64 + (a.1 - r.1))
+}
+
+pub fn run(args: Args) -> Result<ExitCode> {
+    let (name, specs) = args.source.segment()?;
+    let seg = Segment::new(&specs).context("building the segment")?;
+    let reference = (0..seg.len())
+        .find(|&i| seg.esc(i).model().dc.has_system_time())
+        .context("no slave has a DC system time to act as reference")?;
+    let mut sim = SimTransport::new(seg);
+    if let Some(p) = &args.pcap {
+        sim.capture_to(p)
+            .with_context(|| format!("cannot create {}", p.display()))?;
+    }
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: args.static_drift,
+        latch_rounds: args.latch_rounds,
+        monitor_cycles: args.monitor_cycles,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |link| bringup(link, cfg));
+    let n = sim.segment.len();
+    let mut offset_error: Vec<Option<i64>> = vec![None; n];
+    // (real time, worst true |slave - reference|) after the offsets are written.
+    let mut samples: Vec<(u64, f64)> = Vec::new();
+    let mut after_offsets = false;
+    let mut frames = 0u64;
+    let result = sim.run(&mut engine, |seg, ex, events| {
+        frames += 1;
+        if events.contains(&Event::OffsetsWritten) {
+            after_offsets = true;
+            for (i, e) in offset_error.iter_mut().enumerate() {
+                if seg.esc(i).model().dc.has_system_time() {
+                    *e = true_diff(seg, i, reference, ex.sent_ps).map(|d| d.round() as i64);
+                }
+            }
+        }
+        if after_offsets {
+            let worst = (0..seg.len())
+                .filter_map(|i| true_diff(seg, i, reference, ex.sent_ps))
+                .fold(0.0f64, |w, d| w.max(d.abs()));
+            samples.push((ex.sent_ps, worst));
+        }
+    });
+    let pcap_frames = sim.finish_capture().context("writing the pcap file")?;
+    let net = result.map_err(|e| anyhow::anyhow!("bring-up failed: {e}"))?;
+    let truth = sim.segment.true_delays_ns(usize::from(net.reference));
+    let lock_real_ps = net
+        .lock
+        .time_to_lock_ns
+        .map(|t| sim.real_ps_at(net.lock.drift_start_ns + t));
+    let max_abs_diff_ns = match lock_real_ps {
+        Some(t0) => samples
+            .iter()
+            .filter(|(t, _)| *t >= t0)
+            .fold(0.0f64, |w, (_, d)| w.max(*d)),
+        None => f64::NAN,
+    };
+    let out = Out {
+        source: name,
+        reference: net.reference,
+        slaves: net
+            .slaves
+            .iter()
+            .map(|s| SlaveOut {
+                position: s.position,
+                station: s.station,
+                name: s.name.clone(),
+                vendor_id: s.vendor_id,
+                product_code: s.product_code,
+                serial: s.serial,
+                dc: s.dc,
+                parent: s.parent,
+                delay_ns: s.delay_ns,
+                true_delay_ns: truth[usize::from(s.position)]
+                    .filter(|_| s.dc == DcCapability::SystemTime),
+                delay_spread_ns: s.delay_spread_ns,
+                offset: s.offset,
+                offset_error_ns: offset_error[usize::from(s.position)],
+            })
+            .collect(),
+        lock: LockOut {
+            converged: net.lock.converged,
+            time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
+            max_abs_diff_ns,
+            max_abs_092c_ns: net.lock.max_abs_092c_after_lock_ns,
+            frmw_frames: net.lock.frmw_frames,
+        },
+        sync0_start_ns: net.sync0.map(|s| s.start_ns),
+        pdi_bytes: net.pdi_len,
+        expected_lrw_wkc: net.expected_lrw_wkc,
+        bringup_ms: sim.now_ps as f64 / 1e9,
+        frames,
+        pcap: args.pcap.as_ref().map(|p| p.display().to_string()),
+        pcap_frames,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        print_human(&out);
+    }
+    Ok(if out.lock.converged {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(2)
+    })
+}
+
+fn print_human(o: &Out) {
+    println!(
+        "ecsync bringup: {} ({} slaves), reference clock at position {}",
+        o.source,
+        o.slaves.len(),
+        o.reference
+    );
+    println!();
+    println!(
+        "{:>3}  {:>7}  {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
+        "pos", "station", "name", "parent", "DC", "delay ns", "true ns", "err ns", "offset err"
+    );
+    for s in &o.slaves {
+        let parent = match s.parent {
+            Some((p, port)) => format!("{p} port {port}"),
+            None => "master".to_string(),
+        };
+        let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+        let err = match (s.delay_ns, s.true_delay_ns) {
+            (Some(d), Some(t)) => format!("{:+.1}", d - t),
+            _ => "-".to_string(),
+        };
+        let dc = match s.dc {
+            DcCapability::SystemTime if s.position == o.reference => "reference",
+            DcCapability::SystemTime => "system time",
+            DcCapability::ReceiveTimes => "rx times",
+            DcCapability::None => "none",
+        };
+        let mut name = s.name.clone();
+        name.truncate(28);
+        println!(
+            "{:>3}  {:#07x}  {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
+            s.position,
+            s.station,
+            name,
+            parent,
+            dc,
+            f(s.delay_ns),
+            f(s.true_delay_ns),
+            err,
+            s.offset_error_ns
+                .map_or("-".to_string(), |e| format!("{e:+} ns")),
+        );
+    }
+    println!();
+    match (o.lock.converged, o.lock.time_to_lock_ms) {
+        (true, Some(t)) => println!(
+            "DC locked {t:.1} ms after drift compensation began ({} FRMW frames): every |0x092C| stayed below 100 ns from then on.",
+            o.lock.frmw_frames
+        ),
+        _ => println!("DC did NOT lock."),
+    }
+    println!(
+        "After lock: largest true |slave - reference| difference {:.1} ns; largest |0x092C| read {} ns.",
+        o.lock.max_abs_diff_ns, o.lock.max_abs_092c_ns
+    );
+    if let Some(s) = o.sync0_start_ns {
+        println!(
+            "SYNC0 started at system time {s} ns; process data: {} bytes, LRW working counter {}.",
+            o.pdi_bytes, o.expected_lrw_wkc
+        );
+    }
+    println!(
+        "Bring-up took {:.1} ms of simulated time, {} frames.",
+        o.bringup_ms, o.frames
+    );
+    if let Some(p) = &o.pcap {
+        println!("Captured {} frames to {p}.", o.pcap_frames);
+    }
+}

@@ -1,0 +1,40 @@
+//! `ecsync`: EtherCAT clock synchronization on a virtual segment and on real networks.
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+mod bench;
+mod bringup;
+mod source;
+
+/// EtherCAT Distributed Clocks: bring-up, master synchronization methods, measurement.
+#[derive(Debug, Parser)]
+#[command(name = "ecsync", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Brings a virtual segment up (scan, SII, topology, delays, offsets, drift compensation,
+    /// SYNC0, OP) and compares what the master measured with the segment's ground truth.
+    Bringup(bringup::Args),
+    /// Measures the simulator's speed.
+    Bench(bench::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let r = match cli.command {
+        Command::Bringup(a) => bringup::run(a),
+        Command::Bench(a) => bench::run(a),
+    };
+    match r {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("ecsync: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,44 @@
+//! Where a network description comes from: a built-in preset or a file.
+
+use anyhow::{Context, Result, bail};
+use ecsync_esc::SlaveSpec;
+use std::path::PathBuf;
+
+/// `--preset NAME` or `--config FILE`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SourceArgs {
+    /// Built-in preset (paper-2024).
+    #[arg(long, conflicts_with = "config")]
+    pub preset: Option<String>,
+    /// A TOML file describing the network (see presets/paper-2024.toml).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+impl SourceArgs {
+    /// The TOML text and a name for messages.
+    pub fn load(&self) -> Result<(String, String)> {
+        match (&self.preset, &self.config) {
+            (_, Some(path)) => {
+                let text = std::fs::read_to_string(path)
+                    .with_context(|| format!("cannot read {}", path.display()))?;
+                Ok((path.display().to_string(), text))
+            }
+            (Some(name), None) => match ecsync_esc::preset::named(name) {
+                Some(t) => Ok((format!("preset {name}"), t.to_string())),
+                None => bail!("unknown preset \"{name}\"; the built-in presets are: paper-2024"),
+            },
+            (None, None) => Ok((
+                "preset paper-2024".to_string(),
+                ecsync_esc::preset::PAPER_2024_TOML.to_string(),
+            )),
+        }
+    }
+
+    /// The segment's slaves.
+    pub fn segment(&self) -> Result<(String, Vec<SlaveSpec>)> {
+        let (name, text) = self.load()?;
+        let specs = ecsync_esc::config::parse_segment(&name, &text).map_err(anyhow::Error::msg)?;
+        Ok((name, specs))
+    }
+}

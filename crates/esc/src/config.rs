@@ -1,0 +1,428 @@
+//! Segment descriptions in TOML, with errors that name the file, line, field and fix.
+//!
+//! ```toml
+//! [segment]
+//! [[segment.slave]]
+//! name = "drive-1"
+//! model = "servo-mii"        # servo-mii | ebus-terminal | ebus-terminal-no-dc | junction-mii
+//! device = "servo-drive"     # servo-drive | coupler
+//! upstream = "master"        # "master" or the name of a slave listed before this one
+//! upstream_port = 1          # port of the upstream slave (not used for the master)
+//! entry_port = 0             # this slave's port towards the master
+//! cable_m = 2.0
+//! ppm = 12.4                 # crystal error
+//! ```
+
+use crate::clock::CrystalParams;
+use crate::model::{DcSupport, DeviceInfo, EscModel, PortKind};
+use crate::segment::{SlaveSpec, Upstream};
+use serde::Deserialize;
+use std::fmt;
+
+/// A configuration error located in its file.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ConfigError {
+    /// File name as given.
+    pub file: String,
+    /// 1-based line, if known.
+    pub line: Option<usize>,
+    /// Dotted path of the field.
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+    /// What to do.
+    pub fix: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            Some(l) => write!(f, "{}:{}: ", self.file, l)?,
+            None => write!(f, "{}: ", self.file)?,
+        }
+        write!(f, "{}: {}", self.field, self.message)?;
+        if !self.fix.is_empty() {
+            write!(f, "; fix: {}", self.fix)?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+/// 1-based line of a byte offset.
+pub fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+/// Turns a TOML deserialisation error into a located one.
+pub fn toml_error(file: &str, text: &str, e: &toml::de::Error) -> ConfigError {
+    let msg = e.message().trim().to_string();
+    let line = e.span().map(|s| line_of(text, s.start));
+    // Name the field: the last "key" in the message, or the table header at that line.
+    let field = e
+        .span()
+        .and_then(|s| {
+            let start = text[..s.start.min(text.len())]
+                .rfind('\n')
+                .map_or(0, |i| i + 1);
+            let l = text[start..].lines().next()?;
+            let key = l.split('=').next()?.trim();
+            Some(key.trim_matches(['[', ']']).to_string())
+        })
+        .unwrap_or_default();
+    let fix = if msg.contains("unknown field") {
+        "remove the field or correct its spelling (the message lists the expected fields)"
+    } else if msg.contains("missing field") {
+        "add the field"
+    } else if msg.contains("invalid type") || msg.contains("invalid value") {
+        "give a value of the type the message names"
+    } else {
+        "correct the TOML syntax at that line"
+    };
+    ConfigError {
+        file: file.to_string(),
+        line,
+        field,
+        message: msg,
+        fix: fix.to_string(),
+    }
+}
+
+/// The `[segment]` table.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SegmentConfig {
+    /// Seed of the crystals' wander processes (each slave adds its index).
+    #[serde(default)]
+    pub seed: u64,
+    /// The slaves.
+    pub slave: Vec<toml::Spanned<SlaveConfig>>,
+}
+
+/// One `[[segment.slave]]` table.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SlaveConfig {
+    /// Name, unique in the segment.
+    pub name: String,
+    /// ESC model.
+    #[serde(default = "default_model")]
+    pub model: String,
+    /// Device.
+    #[serde(default = "default_device")]
+    pub device: String,
+    /// "master" or the name of an earlier slave.
+    pub upstream: String,
+    /// Port of the upstream slave.
+    #[serde(default = "default_upstream_port")]
+    pub upstream_port: u8,
+    /// This slave's port towards the master.
+    #[serde(default)]
+    pub entry_port: u8,
+    /// Cable to the upstream device, m.
+    #[serde(default = "default_cable")]
+    pub cable_m: f64,
+    /// Crystal error, ppm.
+    #[serde(default)]
+    pub ppm: f64,
+    /// Crystal wander, ppm per sqrt(s).
+    #[serde(default = "default_wander")]
+    pub wander_ppm_per_sqrt_s: f64,
+    /// Local time at power-up (simulation start), ns.
+    #[serde(default)]
+    pub power_up_ns: Option<u64>,
+    /// Serial number.
+    #[serde(default)]
+    pub serial: Option<u32>,
+    /// Forwarding delay override, ns.
+    #[serde(default)]
+    pub forwarding_delay_ns: Option<f64>,
+    /// Processing delay override, ns.
+    #[serde(default)]
+    pub processing_delay_ns: Option<f64>,
+    /// Link PHY delay override, ns.
+    #[serde(default)]
+    pub link_phy_delay_ns: Option<f64>,
+}
+
+fn default_model() -> String {
+    "servo-mii".into()
+}
+fn default_device() -> String {
+    "servo-drive".into()
+}
+fn default_upstream_port() -> u8 {
+    1
+}
+fn default_cable() -> f64 {
+    1.0
+}
+fn default_wander() -> f64 {
+    crate::preset::CRYSTAL_WANDER_PPM_PER_SQRT_S
+}
+
+/// Most slaves a segment may have (the 16-bit auto-increment address space).
+pub const MAX_SLAVES: usize = 65_535;
+
+impl SegmentConfig {
+    /// Builds the slave specs, checking every field. `file` and `text` locate errors.
+    pub fn to_specs(
+        &self,
+        file: &str,
+        text: &str,
+        path: &str,
+    ) -> Result<Vec<SlaveSpec>, ConfigError> {
+        let err = |line: Option<usize>, field: String, message: String, fix: &str| ConfigError {
+            file: file.to_string(),
+            line,
+            field,
+            message,
+            fix: fix.to_string(),
+        };
+        if self.slave.is_empty() {
+            return Err(err(
+                None,
+                format!("{path}.slave"),
+                "the segment has no slaves".into(),
+                "add at least one [[segment.slave]] table",
+            ));
+        }
+        if self.slave.len() > MAX_SLAVES {
+            return Err(err(
+                None,
+                format!("{path}.slave"),
+                format!(
+                    "{} slaves, more than the {MAX_SLAVES} auto-increment addresses",
+                    self.slave.len()
+                ),
+                "split the network into segments of at most 65535 slaves",
+            ));
+        }
+        let mut names: Vec<&str> = Vec::with_capacity(self.slave.len());
+        let mut specs = Vec::with_capacity(self.slave.len());
+        for (i, sp) in self.slave.iter().enumerate() {
+            let s = sp.get_ref();
+            let line = Some(line_of(text, sp.span().start));
+            let f = |name: &str| format!("{path}.slave[{i}].{name}");
+            if names.contains(&s.name.as_str()) {
+                return Err(err(
+                    line,
+                    f("name"),
+                    format!("\"{}\" is used twice", s.name),
+                    "give every slave its own name",
+                ));
+            }
+            let mut model = match s.model.as_str() {
+                "servo-mii" => EscModel::servo_mii(),
+                "ebus-terminal" => EscModel::ebus_terminal(DcSupport::Full64),
+                "ebus-terminal-no-dc" => EscModel::ebus_terminal(DcSupport::None),
+                "junction-mii" => EscModel::junction_mii(),
+                other => {
+                    return Err(err(
+                        line,
+                        f("model"),
+                        format!("unknown ESC model \"{other}\""),
+                        "use servo-mii, ebus-terminal, ebus-terminal-no-dc or junction-mii",
+                    ));
+                }
+            };
+            let serial = s.serial.unwrap_or(i as u32 + 1);
+            let device = match s.device.as_str() {
+                "servo-drive" => DeviceInfo::servo_drive(serial),
+                "coupler" => DeviceInfo::coupler(&s.name, serial),
+                other => {
+                    return Err(err(
+                        line,
+                        f("device"),
+                        format!("unknown device \"{other}\""),
+                        "use servo-drive or coupler",
+                    ));
+                }
+            };
+            for (name, v, target) in [
+                (
+                    "forwarding_delay_ns",
+                    s.forwarding_delay_ns,
+                    &mut model.forwarding_delay_ns,
+                ),
+                (
+                    "processing_delay_ns",
+                    s.processing_delay_ns,
+                    &mut model.processing_delay_ns,
+                ),
+                (
+                    "link_phy_delay_ns",
+                    s.link_phy_delay_ns,
+                    &mut model.link_phy_delay_ns,
+                ),
+            ] {
+                if let Some(v) = v {
+                    if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
+                        return Err(err(
+                            line,
+                            f(name),
+                            format!("{v} is not a delay"),
+                            "give a delay between 0 and 1000000 ns",
+                        ));
+                    }
+                    *target = v;
+                }
+            }
+            if !(s.cable_m.is_finite() && (0.0..=100_000.0).contains(&s.cable_m)) {
+                return Err(err(
+                    line,
+                    f("cable_m"),
+                    format!("{} m is not a cable length", s.cable_m),
+                    "give a length between 0 and 100000 m",
+                ));
+            }
+            if !(s.ppm.is_finite() && s.ppm.abs() <= 1000.0) {
+                return Err(err(
+                    line,
+                    f("ppm"),
+                    format!("{} ppm is not a crystal error", s.ppm),
+                    "give a value between -1000 and 1000",
+                ));
+            }
+            if !(s.wander_ppm_per_sqrt_s.is_finite()
+                && (0.0..=10.0).contains(&s.wander_ppm_per_sqrt_s))
+            {
+                return Err(err(
+                    line,
+                    f("wander_ppm_per_sqrt_s"),
+                    format!("{} is not a wander", s.wander_ppm_per_sqrt_s),
+                    "give a value between 0 and 10",
+                ));
+            }
+            let port_ok = |m: &EscModel, p: u8| p < 4 && m.ports[usize::from(p)] != PortKind::None;
+            if !port_ok(&model, s.entry_port) {
+                return Err(err(
+                    line,
+                    f("entry_port"),
+                    format!("port {} does not exist on {}", s.entry_port, s.model),
+                    "use a port the model has (servo-mii: 0, 1)",
+                ));
+            }
+            let upstream = if s.upstream == "master" {
+                Upstream::Master
+            } else {
+                let Some(k) = names.iter().position(|n| *n == s.upstream) else {
+                    return Err(err(
+                        line,
+                        f("upstream"),
+                        format!(
+                            "no slave named \"{}\" is listed before this one",
+                            s.upstream
+                        ),
+                        "name a slave listed earlier, or \"master\"",
+                    ));
+                };
+                let up: &SlaveSpec = &specs[k];
+                if !port_ok(&up.model, s.upstream_port) {
+                    return Err(err(
+                        line,
+                        f("upstream_port"),
+                        format!(
+                            "port {} does not exist on \"{}\"",
+                            s.upstream_port, s.upstream
+                        ),
+                        "use a port of the upstream slave's model",
+                    ));
+                }
+                Upstream::Slave {
+                    index: k,
+                    port: s.upstream_port,
+                }
+            };
+            specs.push(SlaveSpec {
+                model,
+                device,
+                crystal: CrystalParams {
+                    ppm: s.ppm,
+                    wander_ppm_per_sqrt_s: s.wander_ppm_per_sqrt_s,
+                    wander_step_ps: 10_000_000_000,
+                    initial_local_ns: s
+                        .power_up_ns
+                        .unwrap_or(1_000_000_000 + 123_456_789 * i as u64),
+                    seed: self.seed.wrapping_add(i as u64),
+                },
+                upstream,
+                entry_port: s.entry_port,
+                cable_m: s.cable_m,
+            });
+            names.push(&s.name);
+        }
+        if let Err(e) = crate::Segment::new(&specs) {
+            return Err(err(
+                None,
+                format!("{path}.slave"),
+                e.to_string(),
+                "connect every slave once, one of them to the master",
+            ));
+        }
+        Ok(specs)
+    }
+}
+
+/// A file holding only a segment (`ecsync bringup --config`).
+#[derive(Debug, Clone, Deserialize)]
+pub struct SegmentFile {
+    /// The segment.
+    pub segment: SegmentConfig,
+}
+
+/// Parses a file's segment. Other top-level tables (host, run, ...) are left to their owners.
+pub fn parse_segment(file: &str, text: &str) -> Result<Vec<SlaveSpec>, ConfigError> {
+    let f: SegmentFile = toml::from_str(text).map_err(|e| toml_error(file, text, &e))?;
+    f.segment.to_specs(file, text, "segment")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+[segment]
+seed = 7
+[[segment.slave]]
+name = "a"
+upstream = "master"
+[[segment.slave]]
+name = "b"
+upstream = "a"
+upstream_port = 1
+ppm = -3.5
+"#;
+
+    #[test]
+    fn parses_a_line() {
+        let specs = parse_segment("net.toml", GOOD).unwrap();
+        assert_eq!(specs.len(), 2);
+        assert_eq!(specs[1].upstream, Upstream::Slave { index: 0, port: 1 });
+        assert_eq!(specs[1].crystal.ppm, -3.5);
+    }
+
+    #[test]
+    fn errors_name_file_line_field_and_fix() {
+        let bad = GOOD.replace("ppm = -3.5", "ppmm = -3.5");
+        let e = parse_segment("net.toml", &bad).unwrap_err();
+        assert_eq!(e.line, Some(11));
+        assert!(e.to_string().starts_with("net.toml:11: ppmm"), "{e}");
+        assert!(e.message.contains("unknown field"), "{e}");
+
+        let bad = GOOD.replace("upstream = \"a\"", "upstream = \"zz\"");
+        let e = parse_segment("net.toml", &bad).unwrap_err();
+        assert_eq!(e.field, "segment.slave[1].upstream");
+        assert_eq!(e.line, Some(7));
+        assert!(e.fix.contains("master"));
+
+        let bad = GOOD.replace("ppm = -3.5", "cable_m = -1.0");
+        let e = parse_segment("net.toml", &bad).unwrap_err();
+        assert_eq!(e.field, "segment.slave[1].cable_m");
+
+        let bad = GOOD.replace("upstream_port = 1", "upstream_port = 2");
+        let e = parse_segment("net.toml", &bad).unwrap_err();
+        assert_eq!(e.field, "segment.slave[1].upstream_port");
+    }
+}
