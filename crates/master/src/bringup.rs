@@ -170,6 +170,9 @@ pub struct LockReport {
     pub time_to_lock_ns: Option<u64>,
     /// Master time when drift compensation started, ns.
     pub drift_start_ns: u64,
+    /// Master time when the master declared the network in sync (the good run had lasted
+    /// `lock_hold_checks` checks), ns.
+    pub declared_ns: Option<u64>,
     /// Largest |0x092C| seen while monitoring after lock, ns.
     pub max_abs_092c_after_lock_ns: u32,
     /// FRMW frames sent before lock.
@@ -562,6 +565,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 converged: false,
                 time_to_lock_ns: None,
                 drift_start_ns: 0,
+                declared_ns: None,
                 max_abs_092c_after_lock_ns: 0,
                 frmw_frames: 0,
             },
@@ -713,6 +717,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             lock.locked_at_ns().map(|t| t.saturating_sub(drift_start))
         },
         drift_start_ns: drift_start,
+        declared_ns: (synced.is_empty() || lock.is_locked()).then(|| link.now_ns()),
         max_abs_092c_after_lock_ns: 0,
         frmw_frames,
     };
