@@ -60,6 +60,90 @@ struct SiiState {
     read_busy_ps: u64,
 }
 
+/// What one datagram did at this ESC, recorded so that the same frame shape can replay it while
+/// the ESC's configuration is unchanged (the cyclic frame is the same every cycle).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+enum Act {
+    /// Nothing beyond the address and working counter updates.
+    #[default]
+    None,
+    /// System time read (0x0910) into the data, ORed for broadcast reads.
+    SysTimeRead { or: bool },
+    /// System time write (0x0910): the time control loop compares.
+    SysTimeWrite,
+    /// System time difference read (0x092C).
+    DiffRead { or: bool },
+    /// Logical access: `ops[start..start + count]` of the program.
+    Logical { start: u8, count: u8 },
+}
+
+/// One step of a logical access.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+enum LogicalOp {
+    /// Datagram data -> process RAM.
+    #[default]
+    Refresh,
+    Write {
+        data_off: u16,
+        ram_off: u16,
+        len: u16,
+    },
+    Read {
+        data_off: u16,
+        ram_off: u16,
+        len: u16,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct DgAct {
+    act: Act,
+    adp_inc: bool,
+    wkc_inc: u16,
+}
+
+const MAX_PROGRAM_DATAGRAMS: usize = 8;
+const MAX_PROGRAM_OPS: usize = 8;
+
+/// The recorded actions for one frame shape.
+#[derive(Debug, Clone, Copy, Default)]
+struct Program {
+    shape: u32,
+    generation: u64,
+    acts: [DgAct; MAX_PROGRAM_DATAGRAMS],
+    n: u8,
+    ops: [LogicalOp; MAX_PROGRAM_OPS],
+    nops: u8,
+}
+
+/// The recorder for the datagram being processed.
+#[derive(Debug, Clone, Copy, Default)]
+struct Recorder {
+    active: bool,
+    cacheable: bool,
+    act: Act,
+    ops: [LogicalOp; MAX_PROGRAM_OPS],
+    nops: u8,
+}
+
+impl Recorder {
+    fn uncacheable(&mut self) {
+        self.cacheable = false;
+    }
+
+    fn op(&mut self, op: LogicalOp) {
+        if !self.active {
+            return;
+        }
+        if usize::from(self.nops) < MAX_PROGRAM_OPS {
+            self.ops[usize::from(self.nops)] = op;
+            self.nops += 1;
+        } else {
+            self.cacheable = false;
+        }
+    }
+}
+
 /// Counters of what an ESC saw, for diagnostics and tests.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct EscStats {
@@ -67,6 +151,8 @@ pub struct EscStats {
     pub frames: u64,
     /// Datagrams that addressed this ESC (changed the working counter).
     pub datagrams_counted: u64,
+    /// Frames whose datagrams were replayed from a recorded program.
+    pub replayed_frames: u64,
 }
 
 /// A virtual ESC.
@@ -94,6 +180,11 @@ pub struct Esc {
     app_cycles: u16,
     stats: EscStats,
     device: DeviceInfo,
+    /// Bumped by every change that could make a datagram act differently (register writes,
+    /// state changes); a recorded program is valid only for the generation it was recorded in.
+    generation: u64,
+    program: Program,
+    rec: Recorder,
 }
 
 /// Side effects of processing one datagram that the segment must act on.
@@ -145,6 +236,9 @@ impl Esc {
             stats: EscStats::default(),
             model,
             device,
+            generation: 0,
+            program: Program::default(),
+            rec: Recorder::default(),
         };
         esc.build_attributes();
         esc.reset_registers();
@@ -306,6 +400,7 @@ impl Esc {
 
     /// Sets which ports have a physical link (done once by the segment).
     pub fn set_links(&mut self, link: [bool; 4]) {
+        self.generation += 1;
         self.link = link;
         self.update_dl_status();
     }
@@ -361,6 +456,7 @@ impl Esc {
     /// Handles a write to AL control: the transitions of the datasheet's state machine (figure
     /// "EtherCAT State Machine"), with the status codes of ETG.1020.
     fn request_state(&mut self, control: u16) {
+        self.generation += 1;
         let requested = (control & 0x0f) as u8;
         let ack = control & al_state::ERROR_FLAG != 0;
         if self.al_error && !ack && requested != al_state::INIT {
@@ -459,6 +555,7 @@ impl Esc {
     fn sii_update(&mut self, t_ps: u64) {
         if let Some(addr) = self.sii.pending_read {
             if t_ps >= self.sii.busy_until_ps {
+                self.generation += 1;
                 let at = addr as usize * 2;
                 for i in 0..8 {
                     self.regs[usize::from(reg::SII_DATA) + i] =
@@ -587,10 +684,16 @@ impl Esc {
         {
             if let Some(dc) = &mut self.dc {
                 if dc.read_fast(ado, out, or, t_ps) {
+                    self.rec.act = if ado == reg::DC_SYSTEM_TIME {
+                        Act::SysTimeRead { or }
+                    } else {
+                        Act::DiffRead { or }
+                    };
                     return true;
                 }
             }
         }
+        self.rec.uncacheable();
         let lo = usize::from(ado);
         let hi = lo + out.len();
         let mut counted = false;
@@ -654,6 +757,21 @@ impl Esc {
         t_ps: u64,
         fx: &mut DatagramEffects,
     ) -> bool {
+        // The cyclic frame's system time write (FRMW/ARMW) goes straight to the control loop.
+        if ado == reg::DC_SYSTEM_TIME
+            && data.len() <= 8
+            && self.attr[usize::from(ado)] & WRITABLE != 0
+        {
+            if let Some(dc) = &mut self.dc {
+                let a = usize::from(ado);
+                self.regs[a..a + data.len()].copy_from_slice(data);
+                dc.write(ado, data, t_ps);
+                self.rec.act = Act::SysTimeWrite;
+                return true;
+            }
+        }
+        self.rec.uncacheable();
+        self.generation += 1;
         let lo = usize::from(ado);
         let hi = lo + data.len();
         let mut counted = false;
@@ -793,6 +911,7 @@ impl Esc {
 
     /// LRD/LWR/LRW through the FMMUs. Returns the working counter increment.
     fn logical(&mut self, cmd: Command, laddr: u32, data: &mut [u8]) -> u16 {
+        self.rec.act = Act::Logical { start: 0, count: 0 };
         let len = data.len() as u64;
         let lstart = u64::from(laddr);
         let mut read_hit = false;
@@ -818,6 +937,11 @@ impl Esc {
                     self.ram[r0..r0 + n_bytes]
                         .copy_from_slice(&data[(s - lstart) as usize..(e - lstart) as usize]);
                     write_hit = true;
+                    self.rec.op(LogicalOp::Write {
+                        data_off: (s - lstart) as u16,
+                        ram_off: r0 as u16,
+                        len: n_bytes as u16,
+                    });
                 }
             }
         }
@@ -840,6 +964,7 @@ impl Esc {
                 if !refreshed {
                     self.app_refresh_inputs();
                     refreshed = true;
+                    self.rec.op(LogicalOp::Refresh);
                 }
                 let r0 = phys as usize - REG_SPACE;
                 let n_bytes = (e - s) as usize;
@@ -847,6 +972,11 @@ impl Esc {
                     data[(s - lstart) as usize..(e - lstart) as usize]
                         .copy_from_slice(&self.ram[r0..r0 + n_bytes]);
                     read_hit = true;
+                    self.rec.op(LogicalOp::Read {
+                        data_off: (s - lstart) as u16,
+                        ram_off: r0 as u16,
+                        len: n_bytes as u16,
+                    });
                 }
             }
         }
@@ -935,6 +1065,7 @@ impl Esc {
             (true, false) => u16::from(self.read_physical(ado, data, or, t_ps)),
             (false, true) => u16::from(self.write_physical(ado, data, t_ps, fx)),
             (true, true) => {
+                self.rec.uncacheable();
                 // Keep the incoming data for the write; the read replaces the datagram's data.
                 // A stack buffer keeps this allocation-free for register-sized accesses.
                 let mut buf = [0u8; ecsync_wire::MAX_DATAGRAM_DATA];
@@ -946,6 +1077,165 @@ impl Esc {
                 u16::from(r) + 2 * u16::from(w)
             }
             (false, false) => 0,
+        }
+    }
+
+    /// Processes the datagrams of a frame (at `offsets`, already validated) as it passes the
+    /// processing unit. Frames of the same `shape` (same datagram headers, as the segment
+    /// tells; 0 = do not cache) replay what the last one did while nothing in the ESC changed,
+    /// instead of decoding every access again: the cyclic frame costs a fraction. The replay is
+    /// exact: it was recorded from the full path, and any register write, state change or
+    /// uncacheable access invalidates it.
+    pub fn process_frame(
+        &mut self,
+        frame: &mut [u8],
+        offsets: &[u16],
+        shape: u32,
+        t_ps: u64,
+    ) -> DatagramEffects {
+        self.stats.frames += 1;
+        let p = &self.program;
+        if shape != 0
+            && p.shape == shape
+            && p.generation == self.generation
+            && usize::from(p.n) == offsets.len()
+        {
+            self.replay(frame, offsets, t_ps);
+            return DatagramEffects::default();
+        }
+        let record = shape != 0 && offsets.len() <= MAX_PROGRAM_DATAGRAMS;
+        let generation = self.generation;
+        let mut prog = Program {
+            shape,
+            generation,
+            n: offsets.len() as u8,
+            ..Program::default()
+        };
+        let mut ok = record;
+        let mut out = DatagramEffects::default();
+        for (k, &at) in offsets.iter().enumerate() {
+            let at = usize::from(at);
+            let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
+            let total = ecsync_wire::DATAGRAM_OVERHEAD + n;
+            self.rec = Recorder {
+                active: ok,
+                cacheable: true,
+                ..Recorder::default()
+            };
+            let wkc_before = u16::from_le_bytes([frame[at + 10 + n], frame[at + 11 + n]]);
+            let fx = self.process_datagram(&mut frame[at..at + total], t_ps);
+            out.latch_receive_times |= fx.latch_receive_times;
+            out.loops_changed |= fx.loops_changed;
+            if ok {
+                if !self.rec.cacheable
+                    || usize::from(prog.nops) + usize::from(self.rec.nops) > MAX_PROGRAM_OPS
+                {
+                    ok = false;
+                    continue;
+                }
+                let wkc_after = u16::from_le_bytes([frame[at + 10 + n], frame[at + 11 + n]]);
+                let mut act = self.rec.act;
+                if let Act::Logical { .. } = act {
+                    act = Act::Logical {
+                        start: prog.nops,
+                        count: self.rec.nops,
+                    };
+                    for i in 0..usize::from(self.rec.nops) {
+                        prog.ops[usize::from(prog.nops) + i] = self.rec.ops[i];
+                    }
+                    prog.nops += self.rec.nops;
+                }
+                let cmd = Command::from_code(frame[at]).ok();
+                prog.acts[k] = DgAct {
+                    act,
+                    adp_inc: matches!(
+                        cmd.map(|c| c.address_mode()),
+                        Some(
+                            ecsync_wire::AddressMode::Position
+                                | ecsync_wire::AddressMode::Broadcast
+                        )
+                    ),
+                    wkc_inc: wkc_after.wrapping_sub(wkc_before),
+                };
+            }
+        }
+        self.rec = Recorder::default();
+        if ok && self.generation == generation {
+            self.program = prog;
+        }
+        out
+    }
+
+    fn replay(&mut self, frame: &mut [u8], offsets: &[u16], t_ps: u64) {
+        self.stats.replayed_frames += 1;
+        let prog = self.program;
+        for (k, &at) in offsets.iter().enumerate() {
+            let a = prog.acts[k];
+            let at = usize::from(at);
+            let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
+            let dg = &mut frame[at..at + ecsync_wire::DATAGRAM_OVERHEAD + n];
+            if a.adp_inc {
+                let adp = u16::from_le_bytes([dg[2], dg[3]]).wrapping_add(1);
+                dg[2..4].copy_from_slice(&adp.to_le_bytes());
+            }
+            let (_, rest) = dg.split_at_mut(DATAGRAM_HEADER_LEN);
+            let (data, wkc_bytes) = rest.split_at_mut(n);
+            match a.act {
+                Act::None => {}
+                Act::SysTimeRead { or } => {
+                    if let Some(dc) = &mut self.dc {
+                        dc.read_fast(reg::DC_SYSTEM_TIME, data, or, t_ps);
+                    }
+                }
+                Act::DiffRead { or } => {
+                    if let Some(dc) = &mut self.dc {
+                        dc.read_fast(reg::DC_SYSTEM_TIME_DIFF, data, or, t_ps);
+                    }
+                }
+                Act::SysTimeWrite => {
+                    if let Some(dc) = &mut self.dc {
+                        let r = usize::from(reg::DC_SYSTEM_TIME);
+                        self.regs[r..r + data.len()].copy_from_slice(data);
+                        dc.write(reg::DC_SYSTEM_TIME, data, t_ps);
+                    }
+                }
+                Act::Logical { start, count } => {
+                    for op in &prog.ops[usize::from(start)..usize::from(start + count)] {
+                        match *op {
+                            LogicalOp::Write {
+                                data_off,
+                                ram_off,
+                                len,
+                            } => {
+                                let (d, r, l) = (
+                                    usize::from(data_off),
+                                    usize::from(ram_off),
+                                    usize::from(len),
+                                );
+                                self.ram[r..r + l].copy_from_slice(&data[d..d + l]);
+                            }
+                            LogicalOp::Refresh => self.app_refresh_inputs(),
+                            LogicalOp::Read {
+                                data_off,
+                                ram_off,
+                                len,
+                            } => {
+                                let (d, r, l) = (
+                                    usize::from(data_off),
+                                    usize::from(ram_off),
+                                    usize::from(len),
+                                );
+                                data[d..d + l].copy_from_slice(&self.ram[r..r + l]);
+                            }
+                        }
+                    }
+                }
+            }
+            if a.wkc_inc != 0 {
+                self.stats.datagrams_counted += 1;
+                let w = u16::from_le_bytes([wkc_bytes[0], wkc_bytes[1]]).wrapping_add(a.wkc_inc);
+                wkc_bytes.copy_from_slice(&w.to_le_bytes());
+            }
         }
     }
 

@@ -196,11 +196,18 @@ pub struct Segment {
     frames: u64,
     malformed: u64,
     lost: u64,
+    /// Datagram headers of the last frame shape seen, and its id (see `Esc::process_frame`).
+    shape_headers: Vec<u8>,
+    shape_id: u32,
+    replay: bool,
 }
 
 fn ps(ns: f64) -> u64 {
     (ns * PS_PER_NS as f64).round() as u64
 }
+
+/// Frames with more datagrams than this are never replayed (see `Esc::process_frame`).
+const MAX_SHAPE_DATAGRAMS: usize = 8;
 
 /// The processing order after port `p`: 0 -> PU -> 3 -> 1 -> 2 -> 0. `None` stands for the
 /// processing unit.
@@ -353,6 +360,9 @@ impl Segment {
             frames: 0,
             malformed: 0,
             lost: 0,
+            shape_headers: Vec::with_capacity(MAX_SHAPE_DATAGRAMS * 10 + 2),
+            shape_id: 0,
+            replay: true,
         })
     }
 
@@ -381,6 +391,12 @@ impl Segment {
         self.spec_index[pos]
     }
 
+    /// Turns the replay of recorded frame shapes on or off (on by default; off runs every
+    /// datagram through the full decoding, for equivalence tests).
+    pub fn set_replay(&mut self, on: bool) {
+        self.replay = on;
+    }
+
     /// Ground truth of the last processed frame, per network position.
     pub fn trace(&self) -> &[SlaveFrameTrace] {
         &self.trace
@@ -407,10 +423,27 @@ impl Segment {
                 processed: false,
             };
         }
-        let valid = frame_is_processable(frame);
+        let mut offsets = [0u16; MAX_SHAPE_DATAGRAMS];
+        let (valid, n, shape) = match datagram_offsets(frame, &mut offsets) {
+            Some(n) if n <= MAX_SHAPE_DATAGRAMS => {
+                let shape = if self.replay {
+                    self.shape_of(frame, &offsets[..n])
+                } else {
+                    0
+                };
+                (true, n, shape)
+            }
+            Some(_) => (true, 0, 0),
+            None => (false, 0, 0),
+        };
         if !valid {
             self.malformed += 1;
         }
+        let ctx = FrameCtx {
+            offsets,
+            n: n as u8,
+            shape,
+        };
         let first = usize::from(self.first);
         let entry = usize::from(self.nodes[first].entry_port);
         let Some(master_link) = self.nodes[first].links[entry] else {
@@ -421,7 +454,7 @@ impl Segment {
             };
         };
         let t_in = t_send_ps + master_link.delay_ps;
-        let out = self.traverse(first, entry, t_in, frame, valid);
+        let out = self.traverse(first, entry, t_in, frame, valid.then_some(&ctx));
         match out {
             Some(t_out) => FrameOutcome {
                 returned_sof_ps: Some(t_out + master_link.delay_ps),
@@ -437,13 +470,35 @@ impl Segment {
         }
     }
 
+    /// The id of a frame's shape: its datagram headers as sent (0: too many datagrams to cache).
+    fn shape_of(&mut self, frame: &[u8], offsets: &[u16]) -> u32 {
+        let mut same = self.shape_headers.len() == offsets.len() * 10 + 2;
+        if same {
+            same = frame[14..16] == self.shape_headers[..2]
+                && offsets.iter().enumerate().all(|(k, &at)| {
+                    let at = usize::from(at);
+                    frame[at..at + 10] == self.shape_headers[2 + 10 * k..12 + 10 * k]
+                });
+        }
+        if !same {
+            self.shape_headers.clear();
+            self.shape_headers.extend_from_slice(&frame[14..16]);
+            for &at in offsets {
+                let at = usize::from(at);
+                self.shape_headers.extend_from_slice(&frame[at..at + 10]);
+            }
+            self.shape_id = self.shape_id.wrapping_add(1).max(1);
+        }
+        self.shape_id
+    }
+
     fn traverse(
         &mut self,
         idx: usize,
         in_port: usize,
         t_in: u64,
         frame: &mut [u8],
-        valid: bool,
+        ctx: Option<&FrameCtx>,
     ) -> Option<u64> {
         let node = &self.nodes[idx];
         let plan = if in_port == usize::from(node.entry_port) {
@@ -465,12 +520,35 @@ impl Segment {
                     pu_time = Some(t_cur);
                     self.trace[idx].pu_ps = Some(t_cur);
                     let node = &mut self.nodes[idx];
-                    node.esc.count_frame();
                     // Every processing unit sets the locally administered bit of the source MAC
                     // (forwarding rule of DL control bit 0).
                     frame[6] |= 0x02;
-                    if valid {
-                        fx = process_datagrams(&mut node.esc, frame, t_cur);
+                    match ctx {
+                        Some(c) if c.n > 0 || c.shape == 0 => {
+                            let offs = &c.offsets[..usize::from(c.n)];
+                            if c.n == 0 {
+                                // More datagrams than the replay handles: walk the chain here.
+                                let mut all = [0u16; 128];
+                                let m = datagram_offsets(frame, &mut all).unwrap_or(0);
+                                if m > all.len() {
+                                    node.esc.count_frame();
+                                    fx = process_datagrams(&mut node.esc, frame, t_cur);
+                                } else {
+                                    let e = node.esc.process_frame(frame, &all[..m], 0, t_cur);
+                                    fx = FrameEffects {
+                                        latch: e.latch_receive_times,
+                                        loops_changed: e.loops_changed,
+                                    };
+                                }
+                            } else {
+                                let e = node.esc.process_frame(frame, offs, c.shape, t_cur);
+                                fx = FrameEffects {
+                                    latch: e.latch_receive_times,
+                                    loops_changed: e.loops_changed,
+                                };
+                            }
+                        }
+                        _ => node.esc.count_frame(),
                     }
                 }
                 Step::Lost => return None,
@@ -483,7 +561,7 @@ impl Segment {
                             usize::from(link.peer_port),
                             t_cur + d + link.delay_ps,
                             frame,
-                            valid,
+                            ctx,
                         )?,
                         // A second cable to the master (redundancy) is not modelled.
                         Peer::Master => return None,
@@ -592,6 +670,37 @@ pub fn frame_is_processable(frame: &[u8]) -> bool {
         return false;
     };
     f.datagrams().all(|d| d.is_ok())
+}
+
+/// What the segment knows about a frame before it enters the first ESC.
+#[derive(Debug, Clone, Copy)]
+struct FrameCtx {
+    offsets: [u16; MAX_SHAPE_DATAGRAMS],
+    /// Datagrams in `offsets`; 0 with `shape` 0 means more than fit (walked per ESC).
+    n: u8,
+    shape: u32,
+}
+
+/// Offsets of the datagrams of a well-formed EtherCAT command frame; `None` if malformed.
+/// Returns the number of datagrams, which may exceed `out.len()` (then `out` is partial).
+fn datagram_offsets(frame: &[u8], out: &mut [u16]) -> Option<usize> {
+    let f = EcatFrame::new_checked(frame).ok()?;
+    let mut n = 0;
+    let mut iter = f.datagrams();
+    loop {
+        let at = EcatFrame::<&[u8]>::first_datagram_offset() + iter.offset();
+        match iter.next() {
+            None => break,
+            Some(Err(_)) => return None,
+            Some(Ok(_)) => {
+                if n < out.len() {
+                    out[n] = at as u16;
+                }
+                n += 1;
+            }
+        }
+    }
+    Some(n)
 }
 
 #[derive(Debug, Clone, Copy, Default)]

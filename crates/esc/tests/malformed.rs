@@ -35,10 +35,8 @@ fn valid_cyclic_frame() -> Vec<u8> {
 /// Everything the parsers and the segment do with a frame; must not panic.
 fn exercise(seg: &mut Segment, bytes: &mut [u8], t_ps: u64) {
     if let Ok(f) = EcatFrame::new_checked(&bytes[..]) {
-        for d in f.datagrams() {
-            if let Ok(d) = d {
-                let _ = (d.command(), d.address(), d.data(), d.wkc(), d.irq());
-            }
+        for d in f.datagrams().flatten() {
+            let _ = (d.command(), d.address(), d.data(), d.wkc(), d.irq());
         }
     }
     let _ = seg.process(bytes, t_ps);
