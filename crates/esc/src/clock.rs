@@ -222,9 +222,10 @@ impl LocalClock {
             return;
         }
         let dt_ns = (t_ps - self.anchor_ps) as f64 * 1e-3;
-        let d = self.delta_from_anchor(dt_ns);
+        let mut d = dt_ns * (1.0 + self.oscillator_error() + self.c_drift);
         if self.slew_rate != 0.0 {
             let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
+            d += slewed.copysign(self.slew_rate);
             self.slew_remaining_ns -= slewed;
             if self.slew_remaining_ns <= 0.0 {
                 self.slew_remaining_ns = 0.0;
@@ -233,6 +234,20 @@ impl LocalClock {
         }
         self.anchor_local = self.anchor_local.add(d);
         self.anchor_ps = t_ps;
+    }
+
+    /// Sets the drift correction and a new slew at the anchor (the clock must have been
+    /// advanced to the current time): the time control loop's update after a compare.
+    #[inline]
+    pub fn retune_at_anchor(&mut self, drift: f64, slew_amount_ns: f64, slew_rate: f64) {
+        self.c_drift = drift;
+        if slew_amount_ns == 0.0 || slew_rate <= 0.0 {
+            self.slew_rate = 0.0;
+            self.slew_remaining_ns = 0.0;
+        } else {
+            self.slew_rate = slew_rate.copysign(slew_amount_ns);
+            self.slew_remaining_ns = slew_amount_ns.abs();
+        }
     }
 
     /// Sets the frequency correction of the drift compensation (fraction), from `t_ps` on.

@@ -32,7 +32,7 @@
 //! 0x0932 is shown as `c_drift` in units of 2^-24 (0.0596 ppm), an encoding of this model: no
 //! master interprets that register.
 
-use crate::clock::{CrystalParams, LocalClock, PS_PER_NS};
+use crate::clock::{CrystalParams, LocalClock};
 use ecsync_wire::dc_time;
 use ecsync_wire::register as reg;
 
@@ -546,22 +546,23 @@ impl DcUnit {
 
         // (4) Drift estimation from consecutive differences.
         let slew_left = self.clock.slew_remaining_ns();
+        let mut c = self.clock.drift_correction();
         if let Some((t_prev, dt_expected)) = self.last_sample {
-            let elapsed_ns = (t_ps - t_prev) as f64 / PS_PER_NS as f64;
+            let elapsed_ns = (t_ps - t_prev) as f64 * 1e-3;
             if elapsed_ns >= 1_000.0 {
                 // dt_expected is the difference the previous write aimed for once its slew was
                 // complete; slew still pending (signed, opposite to the difference it removes)
                 // is expected to be left over.
                 let residual = (dt - (dt_expected - slew_left)) / elapsed_ns;
                 let residual = residual.clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
-                let c = (self.clock.drift_correction() - residual * self.speed_gain)
+                c = (c - residual * self.speed_gain)
                     .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
-                self.clock.set_drift_correction(t_ps, c);
             }
         }
 
-        // (3) Slew the filtered difference away.
-        self.clock.set_slew(t_ps, -self.dt_filtered, self.slew_rate);
+        // (3) Slew the filtered difference away (the clock is at `t_ps` already).
+        self.clock
+            .retune_at_anchor(c, -self.dt_filtered, self.slew_rate);
         self.last_sample = Some((t_ps, dt - self.dt_filtered));
     }
 }

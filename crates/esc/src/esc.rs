@@ -1168,9 +1168,8 @@ impl Esc {
 
     fn replay(&mut self, frame: &mut [u8], offsets: &[u16], t_ps: u64) {
         self.stats.replayed_frames += 1;
-        let prog = self.program;
         for (k, &at) in offsets.iter().enumerate() {
-            let a = prog.acts[k];
+            let a = self.program.acts[k];
             let at = usize::from(at);
             let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
             let dg = &mut frame[at..at + ecsync_wire::DATAGRAM_OVERHEAD + n];
@@ -1200,8 +1199,8 @@ impl Esc {
                     }
                 }
                 Act::Logical { start, count } => {
-                    for op in &prog.ops[usize::from(start)..usize::from(start + count)] {
-                        match *op {
+                    for i in usize::from(start)..usize::from(start + count) {
+                        match self.program.ops[i] {
                             LogicalOp::Write {
                                 data_off,
                                 ram_off,

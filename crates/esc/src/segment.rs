@@ -501,11 +501,11 @@ impl Segment {
         ctx: Option<&FrameCtx>,
     ) -> Option<u64> {
         let node = &self.nodes[idx];
-        let plan = if in_port == usize::from(node.entry_port) {
-            node.plan
-        } else {
-            build_plan(&node.esc, &node.links, in_port)
-        };
+        // The plan is read step by step from the node (no copy) unless the frame came in
+        // through another port than the entry port.
+        let other = (in_port != usize::from(node.entry_port))
+            .then(|| build_plan(&node.esc, &node.links, in_port));
+        let len = other.as_ref().map_or(node.plan.len, |p| p.len);
         let (fwd, proc) = (node.forwarding_ps, node.processing_ps);
         let mut arrivals: [Option<u64>; 4] = [None; 4];
         arrivals[in_port] = Some(t_in);
@@ -513,8 +513,12 @@ impl Segment {
         let mut through_pu = false;
         let mut fx = FrameEffects::default();
         let mut pu_time = None;
-        for step in &plan.steps[..usize::from(plan.len)] {
-            match *step {
+        for k in 0..usize::from(len) {
+            let step = match &other {
+                Some(p) => p.steps[k],
+                None => self.nodes[idx].plan.steps[k],
+            };
+            match step {
                 Step::Pu => {
                     through_pu = true;
                     pu_time = Some(t_cur);
@@ -524,31 +528,16 @@ impl Segment {
                     // (forwarding rule of DL control bit 0).
                     frame[6] |= 0x02;
                     match ctx {
-                        Some(c) if c.n > 0 || c.shape == 0 => {
+                        Some(c) if c.n > 0 => {
                             let offs = &c.offsets[..usize::from(c.n)];
-                            if c.n == 0 {
-                                // More datagrams than the replay handles: walk the chain here.
-                                let mut all = [0u16; 128];
-                                let m = datagram_offsets(frame, &mut all).unwrap_or(0);
-                                if m > all.len() {
-                                    node.esc.count_frame();
-                                    fx = process_datagrams(&mut node.esc, frame, t_cur);
-                                } else {
-                                    let e = node.esc.process_frame(frame, &all[..m], 0, t_cur);
-                                    fx = FrameEffects {
-                                        latch: e.latch_receive_times,
-                                        loops_changed: e.loops_changed,
-                                    };
-                                }
-                            } else {
-                                let e = node.esc.process_frame(frame, offs, c.shape, t_cur);
-                                fx = FrameEffects {
-                                    latch: e.latch_receive_times,
-                                    loops_changed: e.loops_changed,
-                                };
-                            }
+                            let e = node.esc.process_frame(frame, offs, c.shape, t_cur);
+                            fx = FrameEffects {
+                                latch: e.latch_receive_times,
+                                loops_changed: e.loops_changed,
+                            };
                         }
-                        _ => node.esc.count_frame(),
+                        Some(_) => fx = process_long_frame(&mut node.esc, frame, t_cur),
+                        None => node.esc.count_frame(),
                     }
                 }
                 Step::Lost => return None,
@@ -670,6 +659,26 @@ pub fn frame_is_processable(frame: &[u8]) -> bool {
         return false;
     };
     f.datagrams().all(|d| d.is_ok())
+}
+
+/// A frame with more datagrams than the replay handles: walked at each ESC, never cached.
+#[cold]
+#[inline(never)]
+fn process_long_frame(esc: &mut Esc, frame: &mut [u8], t_ps: u64) -> FrameEffects {
+    let mut all = [0u16; 256];
+    match datagram_offsets(frame, &mut all) {
+        Some(m) if m <= all.len() => {
+            let e = esc.process_frame(frame, &all[..m], 0, t_ps);
+            FrameEffects {
+                latch: e.latch_receive_times,
+                loops_changed: e.loops_changed,
+            }
+        }
+        _ => {
+            esc.count_frame();
+            process_datagrams(esc, frame, t_ps)
+        }
+    }
 }
 
 /// What the segment knows about a frame before it enters the first ESC.
