@@ -12,10 +12,12 @@ extern crate std;
 
 pub mod lock;
 pub mod offset;
+pub mod sync;
 pub mod topology;
 
 pub use lock::LockDetector;
 pub use offset::{sync0_start_time, system_time_offset};
+pub use sync::{BusShift, CycleInput, CycleOutput, MasterSync, MedianSync, PiM2s, Snap, SoemPi};
 pub use topology::{
     SlavePorts, TopologyError, TreeNode, arrival_times, build_tree, propagation_delays,
 };
