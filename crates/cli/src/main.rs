@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 mod bench;
 mod bringup;
+mod compare;
 mod source;
 
 /// EtherCAT Distributed Clocks: bring-up, master synchronization methods, measurement.
@@ -20,6 +21,9 @@ enum Command {
     /// Brings a virtual segment up (scan, SII, topology, delays, offsets, drift compensation,
     /// SYNC0, OP) and compares what the master measured with the segment's ground truth.
     Bringup(bringup::Args),
+    /// Runs every master synchronization method on the same network, host and noise, and
+    /// reports the letter's Table 1 beside ours, ground truth, plots and report.html.
+    Compare(compare::Args),
     /// Measures the simulator's speed.
     Bench(bench::Args),
 }
@@ -28,6 +32,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let r = match cli.command {
         Command::Bringup(a) => bringup::run(a),
+        Command::Compare(a) => compare::run(a),
         Command::Bench(a) => bench::run(a),
     };
     match r {

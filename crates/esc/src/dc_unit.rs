@@ -304,6 +304,16 @@ impl DcUnit {
         }
     }
 
+    /// A write of the System Time register (0x0910, `data` from its first byte): the time
+    /// control loop compares bits 31:0.
+    #[inline]
+    pub fn write_system_time(&mut self, data: &[u8], t_ps: u64) {
+        let mut v = [0u8; 4];
+        let n = data.len().min(4);
+        v[..n].copy_from_slice(&data[..n]);
+        self.compare_system_time(u32::from_le_bytes(v), t_ps);
+    }
+
     /// Applies a write of `data` to the registers at `addr..addr + data.len()` (absolute
     /// addresses within the DC block) at real time `t_ps`.
     pub fn write(&mut self, addr: u16, data: &[u8], t_ps: u64) -> DcWriteEffects {

@@ -95,25 +95,65 @@ enum LogicalOp {
     },
 }
 
+/// One step of a recorded program, with absolute offsets into the frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-struct DgAct {
-    act: Act,
-    adp_inc: bool,
-    wkc_inc: u16,
+enum Op {
+    #[default]
+    Nop,
+    /// Increment the 16-bit ADP at `at`.
+    AdpInc { at: u16 },
+    /// System time read into the data at `at`.
+    SysRead { at: u16, len: u8, or: bool },
+    /// System time write from the data at `at`.
+    SysWrite { at: u16, len: u8 },
+    /// System time difference read into the data at `at`.
+    DiffRead { at: u16, len: u8, or: bool },
+    /// Frame bytes at `at` -> process RAM.
+    ToRam { at: u16, ram: u16, len: u16 },
+    /// Process RAM -> frame bytes at `at`.
+    FromRam { at: u16, ram: u16, len: u16 },
+    /// The application refreshes its inputs.
+    Refresh,
+    /// Add `inc` to the working counter at `at`.
+    Wkc { at: u16, inc: u16 },
 }
 
 const MAX_PROGRAM_DATAGRAMS: usize = 8;
 const MAX_PROGRAM_OPS: usize = 8;
+const MAX_OPS: usize = 32;
 
-/// The recorded actions for one frame shape.
-#[derive(Debug, Clone, Copy, Default)]
+/// The recorded steps for one frame shape.
+#[derive(Debug, Clone, Copy)]
 struct Program {
     shape: u32,
     generation: u64,
-    acts: [DgAct; MAX_PROGRAM_DATAGRAMS],
+    ops: [Op; MAX_OPS],
     n: u8,
-    ops: [LogicalOp; MAX_PROGRAM_OPS],
-    nops: u8,
+    counted: u8,
+}
+
+impl Default for Program {
+    fn default() -> Self {
+        Program {
+            shape: 0,
+            generation: 0,
+            ops: [Op::Nop; MAX_OPS],
+            n: 0,
+            counted: 0,
+        }
+    }
+}
+
+impl Program {
+    fn push(&mut self, op: Op) -> bool {
+        if usize::from(self.n) < MAX_OPS {
+            self.ops[usize::from(self.n)] = op;
+            self.n += 1;
+            true
+        } else {
+            false
+        }
+    }
 }
 
 /// The recorder for the datagram being processed.
@@ -194,6 +234,27 @@ pub struct DatagramEffects {
     pub latch_receive_times: bool,
     /// Loop settings changed (DL control written).
     pub loops_changed: bool,
+}
+
+/// Copies a few dozen bytes without a call into `memcpy` (8-byte words, then bytes): the
+/// process data of one slave in the replayed cyclic frame.
+#[inline]
+fn copy_small(dst: &mut [u8], src: &[u8]) {
+    let n = dst.len().min(src.len());
+    if n > 64 {
+        dst[..n].copy_from_slice(&src[..n]);
+        return;
+    }
+    let mut i = 0;
+    while i + 8 <= n {
+        let w: [u8; 8] = src[i..i + 8].try_into().unwrap_or([0; 8]);
+        dst[i..i + 8].copy_from_slice(&w);
+        i += 8;
+    }
+    while i < n {
+        dst[i] = src[i];
+        i += 1;
+    }
 }
 
 fn ranges_overlap(lo: usize, hi: usize, a: usize, len: usize) -> bool {
@@ -763,9 +824,8 @@ impl Esc {
             && self.attr[usize::from(ado)] & WRITABLE != 0
         {
             if let Some(dc) = &mut self.dc {
-                let a = usize::from(ado);
-                self.regs[a..a + data.len()].copy_from_slice(data);
-                dc.write(ado, data, t_ps);
+                // (The register shadow of 0x0910 is refreshed from the clock on every read.)
+                dc.write_system_time(data, t_ps);
                 self.rec.act = Act::SysTimeWrite;
                 return true;
             }
@@ -878,6 +938,7 @@ impl Esc {
 
     /// The application: refreshes the inputs from the outputs before a read of the input buffer
     /// (a loopback device: statusword, then the outputs echoed, then a cycle counter).
+    #[inline]
     fn app_refresh_inputs(&mut self) {
         let (Some(i), o) = (self.input_sm, self.output_sm) else {
             return;
@@ -900,7 +961,12 @@ impl Esc {
             let n = usize::from(os.len)
                 .min(ilen - 2)
                 .min(self.ram.len().saturating_sub(ob));
-            self.ram.copy_within(ob..ob + n, ib + 2);
+            if ob + n <= ib + 2 {
+                let (a, b) = self.ram.split_at_mut(ib + 2);
+                copy_small(&mut b[..n], &a[ob..ob + n]);
+            } else {
+                self.ram.copy_within(ob..ob + n, ib + 2);
+            }
         }
         self.app_cycles = self.app_cycles.wrapping_add(1);
         let tail = ib + ilen - 2;
@@ -1094,13 +1160,8 @@ impl Esc {
         t_ps: u64,
     ) -> DatagramEffects {
         self.stats.frames += 1;
-        let p = &self.program;
-        if shape != 0
-            && p.shape == shape
-            && p.generation == self.generation
-            && usize::from(p.n) == offsets.len()
-        {
-            self.replay(frame, offsets, t_ps);
+        if shape != 0 && self.program.shape == shape && self.program.generation == self.generation {
+            self.replay(frame, t_ps);
             return DatagramEffects::default();
         }
         let record = shape != 0 && offsets.len() <= MAX_PROGRAM_DATAGRAMS;
@@ -1108,12 +1169,11 @@ impl Esc {
         let mut prog = Program {
             shape,
             generation,
-            n: offsets.len() as u8,
             ..Program::default()
         };
         let mut ok = record;
         let mut out = DatagramEffects::default();
-        for (k, &at) in offsets.iter().enumerate() {
+        for &at in offsets {
             let at = usize::from(at);
             let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
             let total = ecsync_wire::DATAGRAM_OVERHEAD + n;
@@ -1122,42 +1182,69 @@ impl Esc {
                 cacheable: true,
                 ..Recorder::default()
             };
-            let wkc_before = u16::from_le_bytes([frame[at + 10 + n], frame[at + 11 + n]]);
+            let wkc_at = at + DATAGRAM_HEADER_LEN + n;
+            let wkc_before = u16::from_le_bytes([frame[wkc_at], frame[wkc_at + 1]]);
             let fx = self.process_datagram(&mut frame[at..at + total], t_ps);
             out.latch_receive_times |= fx.latch_receive_times;
             out.loops_changed |= fx.loops_changed;
-            if ok {
-                if !self.rec.cacheable
-                    || usize::from(prog.nops) + usize::from(self.rec.nops) > MAX_PROGRAM_OPS
-                {
-                    ok = false;
-                    continue;
-                }
-                let wkc_after = u16::from_le_bytes([frame[at + 10 + n], frame[at + 11 + n]]);
-                let mut act = self.rec.act;
-                if let Act::Logical { .. } = act {
-                    act = Act::Logical {
-                        start: prog.nops,
-                        count: self.rec.nops,
-                    };
-                    for i in 0..usize::from(self.rec.nops) {
-                        prog.ops[usize::from(prog.nops) + i] = self.rec.ops[i];
-                    }
-                    prog.nops += self.rec.nops;
-                }
-                let cmd = Command::from_code(frame[at]).ok();
-                prog.acts[k] = DgAct {
-                    act,
-                    adp_inc: matches!(
-                        cmd.map(|c| c.address_mode()),
-                        Some(
-                            ecsync_wire::AddressMode::Position
-                                | ecsync_wire::AddressMode::Broadcast
-                        )
-                    ),
-                    wkc_inc: wkc_after.wrapping_sub(wkc_before),
-                };
+            if !ok {
+                continue;
             }
+            if !self.rec.cacheable {
+                ok = false;
+                continue;
+            }
+            let wkc_after = u16::from_le_bytes([frame[wkc_at], frame[wkc_at + 1]]);
+            let data = (at + DATAGRAM_HEADER_LEN) as u16;
+            let mode = Command::from_code(frame[at]).ok().map(|c| c.address_mode());
+            let mut pushed = true;
+            if matches!(
+                mode,
+                Some(ecsync_wire::AddressMode::Position | ecsync_wire::AddressMode::Broadcast)
+            ) {
+                pushed &= prog.push(Op::AdpInc { at: at as u16 + 2 });
+            }
+            let len = n.min(8) as u8;
+            match self.rec.act {
+                Act::None => {}
+                Act::SysTimeRead { or } => pushed &= prog.push(Op::SysRead { at: data, len, or }),
+                Act::SysTimeWrite => pushed &= prog.push(Op::SysWrite { at: data, len }),
+                Act::DiffRead { or } => pushed &= prog.push(Op::DiffRead { at: data, len, or }),
+                Act::Logical { .. } => {
+                    for op in &self.rec.ops[..usize::from(self.rec.nops)] {
+                        pushed &= prog.push(match *op {
+                            LogicalOp::Refresh => Op::Refresh,
+                            LogicalOp::Write {
+                                data_off,
+                                ram_off,
+                                len,
+                            } => Op::ToRam {
+                                at: data + data_off,
+                                ram: ram_off,
+                                len,
+                            },
+                            LogicalOp::Read {
+                                data_off,
+                                ram_off,
+                                len,
+                            } => Op::FromRam {
+                                at: data + data_off,
+                                ram: ram_off,
+                                len,
+                            },
+                        });
+                    }
+                }
+            }
+            let inc = wkc_after.wrapping_sub(wkc_before);
+            if inc != 0 {
+                pushed &= prog.push(Op::Wkc {
+                    at: wkc_at as u16,
+                    inc,
+                });
+                prog.counted += 1;
+            }
+            ok &= pushed;
         }
         self.rec = Recorder::default();
         if ok && self.generation == generation {
@@ -1166,74 +1253,59 @@ impl Esc {
         out
     }
 
-    fn replay(&mut self, frame: &mut [u8], offsets: &[u16], t_ps: u64) {
+    fn replay(&mut self, frame: &mut [u8], t_ps: u64) {
         self.stats.replayed_frames += 1;
-        for (k, &at) in offsets.iter().enumerate() {
-            let a = self.program.acts[k];
-            let at = usize::from(at);
-            let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
-            let dg = &mut frame[at..at + ecsync_wire::DATAGRAM_OVERHEAD + n];
-            if a.adp_inc {
-                let adp = u16::from_le_bytes([dg[2], dg[3]]).wrapping_add(1);
-                dg[2..4].copy_from_slice(&adp.to_le_bytes());
-            }
-            let (_, rest) = dg.split_at_mut(DATAGRAM_HEADER_LEN);
-            let (data, wkc_bytes) = rest.split_at_mut(n);
-            match a.act {
-                Act::None => {}
-                Act::SysTimeRead { or } => {
+        self.stats.datagrams_counted += u64::from(self.program.counted);
+        for k in 0..usize::from(self.program.n) {
+            match self.program.ops[k] {
+                Op::Nop => {}
+                Op::AdpInc { at } => {
+                    let at = usize::from(at);
+                    let adp = u16::from_le_bytes([frame[at], frame[at + 1]]).wrapping_add(1);
+                    frame[at..at + 2].copy_from_slice(&adp.to_le_bytes());
+                }
+                Op::SysRead { at, len, or } => {
+                    let at = usize::from(at);
                     if let Some(dc) = &mut self.dc {
-                        dc.read_fast(reg::DC_SYSTEM_TIME, data, or, t_ps);
+                        dc.read_fast(
+                            reg::DC_SYSTEM_TIME,
+                            &mut frame[at..at + usize::from(len)],
+                            or,
+                            t_ps,
+                        );
                     }
                 }
-                Act::DiffRead { or } => {
+                Op::DiffRead { at, len, or } => {
+                    let at = usize::from(at);
                     if let Some(dc) = &mut self.dc {
-                        dc.read_fast(reg::DC_SYSTEM_TIME_DIFF, data, or, t_ps);
+                        dc.read_fast(
+                            reg::DC_SYSTEM_TIME_DIFF,
+                            &mut frame[at..at + usize::from(len)],
+                            or,
+                            t_ps,
+                        );
                     }
                 }
-                Act::SysTimeWrite => {
+                Op::SysWrite { at, len } => {
+                    let (at, len) = (usize::from(at), usize::from(len));
                     if let Some(dc) = &mut self.dc {
-                        let r = usize::from(reg::DC_SYSTEM_TIME);
-                        self.regs[r..r + data.len()].copy_from_slice(data);
-                        dc.write(reg::DC_SYSTEM_TIME, data, t_ps);
+                        dc.write_system_time(&frame[at..at + len], t_ps);
                     }
                 }
-                Act::Logical { start, count } => {
-                    for i in usize::from(start)..usize::from(start + count) {
-                        match self.program.ops[i] {
-                            LogicalOp::Write {
-                                data_off,
-                                ram_off,
-                                len,
-                            } => {
-                                let (d, r, l) = (
-                                    usize::from(data_off),
-                                    usize::from(ram_off),
-                                    usize::from(len),
-                                );
-                                self.ram[r..r + l].copy_from_slice(&data[d..d + l]);
-                            }
-                            LogicalOp::Refresh => self.app_refresh_inputs(),
-                            LogicalOp::Read {
-                                data_off,
-                                ram_off,
-                                len,
-                            } => {
-                                let (d, r, l) = (
-                                    usize::from(data_off),
-                                    usize::from(ram_off),
-                                    usize::from(len),
-                                );
-                                data[d..d + l].copy_from_slice(&self.ram[r..r + l]);
-                            }
-                        }
-                    }
+                Op::ToRam { at, ram, len } => {
+                    let (d, r, l) = (usize::from(at), usize::from(ram), usize::from(len));
+                    copy_small(&mut self.ram[r..r + l], &frame[d..d + l]);
                 }
-            }
-            if a.wkc_inc != 0 {
-                self.stats.datagrams_counted += 1;
-                let w = u16::from_le_bytes([wkc_bytes[0], wkc_bytes[1]]).wrapping_add(a.wkc_inc);
-                wkc_bytes.copy_from_slice(&w.to_le_bytes());
+                Op::FromRam { at, ram, len } => {
+                    let (d, r, l) = (usize::from(at), usize::from(ram), usize::from(len));
+                    copy_small(&mut frame[d..d + l], &self.ram[r..r + l]);
+                }
+                Op::Refresh => self.app_refresh_inputs(),
+                Op::Wkc { at, inc } => {
+                    let at = usize::from(at);
+                    let w = u16::from_le_bytes([frame[at], frame[at + 1]]).wrapping_add(inc);
+                    frame[at..at + 2].copy_from_slice(&w.to_le_bytes());
+                }
             }
         }
     }

@@ -200,6 +200,25 @@ pub struct Segment {
     shape_headers: Vec<u8>,
     shape_id: u32,
     replay: bool,
+    /// The frame's timing through the segment, relative to its send time: the same for every
+    /// frame while the loops do not change (see [`Timing`]).
+    timing: Option<Timing>,
+}
+
+/// Where a frame's first bit is, relative to the moment it left the master: the traversal's
+/// timing depends on the topology, the delays and the loop settings only, never on the frame.
+#[derive(Debug, Clone)]
+struct Timing {
+    /// Slaves in the order their processing units see the frame.
+    order: Vec<u16>,
+    /// Per slave: arrival at the processing unit, ps after the send.
+    pu: Vec<u64>,
+    /// Per slave: arrival at each port, ps after the send.
+    ports: Vec<[Option<u64>; 4]>,
+    /// Per slave: the port the frame came in through.
+    in_port: Vec<u8>,
+    /// Back at the master, ps after the send; `None` if the frame is lost on the way.
+    back: Option<u64>,
 }
 
 fn ps(ns: f64) -> u64 {
@@ -363,6 +382,7 @@ impl Segment {
             shape_headers: Vec::with_capacity(MAX_SHAPE_DATAGRAMS * 10 + 2),
             shape_id: 0,
             replay: true,
+            timing: None,
         })
     }
 
@@ -453,6 +473,18 @@ impl Segment {
                 processed: false,
             };
         };
+        if valid && n > 0 && self.replay {
+            if self.timing.is_none() {
+                self.timing = Some(self.compute_timing());
+            }
+            if let Some(back) = self.timing.as_ref().and_then(|t| t.back) {
+                self.process_flat(frame, &ctx, t_send_ps);
+                return FrameOutcome {
+                    returned_sof_ps: Some(t_send_ps + back),
+                    processed: true,
+                };
+            }
+        }
         let t_in = t_send_ps + master_link.delay_ps;
         let out = self.traverse(first, entry, t_in, frame, valid.then_some(&ctx));
         match out {
@@ -468,6 +500,109 @@ impl Segment {
                 }
             }
         }
+    }
+
+    /// Every processing unit in turn at its precomputed time: what [`Segment::traverse`] does,
+    /// without walking the ports.
+    fn process_flat(&mut self, frame: &mut [u8], ctx: &FrameCtx, t_send: u64) {
+        let Some(timing) = self.timing.take() else {
+            return;
+        };
+        let offs = &ctx.offsets[..usize::from(ctx.n)];
+        let mut loops_changed = false;
+        for &i in &timing.order {
+            let i = usize::from(i);
+            let t = t_send + timing.pu[i];
+            self.trace[i].pu_ps = Some(t);
+            frame[6] |= 0x02;
+            let node = &mut self.nodes[i];
+            let fx = node.esc.process_frame(frame, offs, ctx.shape, t);
+            if fx.latch_receive_times {
+                let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
+                let ports = timing.ports[i].map(|o| o.map(|o| t_send + o));
+                let in_port = timing.in_port[i];
+                if let Some(dc) = node.esc.dc_mut() {
+                    dc.latch(ports, t, in_port == 0, res);
+                }
+            }
+            if fx.loops_changed {
+                loops_changed = true;
+                node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+            }
+        }
+        if !loops_changed {
+            self.timing = Some(timing);
+        }
+    }
+
+    /// The frame's timing, by walking the ports as [`Segment::traverse`] does, without a frame.
+    fn compute_timing(&self) -> Timing {
+        let n = self.nodes.len();
+        let mut t = Timing {
+            order: Vec::with_capacity(n),
+            pu: vec![0; n],
+            ports: vec![[None; 4]; n],
+            in_port: vec![0; n],
+            back: None,
+        };
+        let first = usize::from(self.first);
+        let entry = usize::from(self.nodes[first].entry_port);
+        if let Some(l) = self.nodes[first].links[entry] {
+            t.back = self
+                .timing_rec(first, entry, l.delay_ps, &mut t)
+                .map(|b| b + l.delay_ps);
+        }
+        t
+    }
+
+    fn timing_rec(&self, idx: usize, in_port: usize, t_in: u64, t: &mut Timing) -> Option<u64> {
+        let node = &self.nodes[idx];
+        let plan = if in_port == usize::from(node.entry_port) {
+            node.plan
+        } else {
+            build_plan(&node.esc, &node.links, in_port)
+        };
+        t.ports[idx][in_port] = Some(t_in);
+        t.in_port[idx] = in_port as u8;
+        let mut t_cur = t_in;
+        let mut through_pu = false;
+        for step in &plan.steps[..usize::from(plan.len)] {
+            match *step {
+                Step::Pu => {
+                    through_pu = true;
+                    t.pu[idx] = t_cur;
+                    t.order.push(idx as u16);
+                }
+                Step::Lost => return None,
+                Step::Port(p, link) => {
+                    let d = if through_pu {
+                        node.processing_ps
+                    } else {
+                        node.forwarding_ps
+                    };
+                    through_pu = false;
+                    let Peer::Slave(peer) = link.peer else {
+                        return None;
+                    };
+                    let back = self.timing_rec(
+                        usize::from(peer),
+                        usize::from(link.peer_port),
+                        t_cur + d + link.delay_ps,
+                        t,
+                    )?;
+                    t_cur = back + link.delay_ps;
+                    t.ports[idx][usize::from(p)] = Some(t_cur);
+                }
+            }
+        }
+        Some(
+            t_cur
+                + if through_pu {
+                    node.processing_ps
+                } else {
+                    node.forwarding_ps
+                },
+        )
     }
 
     /// The id of a frame's shape: its datagram headers as sent (0: too many datagrams to cache).

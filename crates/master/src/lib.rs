@@ -6,6 +6,7 @@
 
 pub mod bench;
 pub mod bringup;
+pub mod cyclic;
 mod error;
 pub mod io;
 pub mod sii;

@@ -1,6 +1,7 @@
 //! The in-process transport: drives an [`Engine`] against a virtual [`Segment`] in virtual time.
 
 use crate::io::{Action, Engine, Event};
+use ecsync_esc::clock::{CrystalParams, LocalClock};
 use ecsync_esc::pcap::PcapCapture;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use std::fs::File;
@@ -8,6 +9,54 @@ use std::io::BufWriter;
 
 /// Master clock at simulation start: 2026-11-22 00:00 UTC in DC time (ns since 2000-01-01).
 pub const SIM_EPOCH_NS: u64 = 848_620_800_000_000_000;
+
+/// The master's clock: a crystal (ppm and wander, the same model as the ESCs') mapping real time
+/// to master time, ns since the DC epoch.
+#[derive(Debug, Clone)]
+pub struct MasterClock {
+    clock: LocalClock,
+}
+
+impl MasterClock {
+    /// An ideal clock reading `epoch_ns` at real time 0.
+    pub fn ideal(epoch_ns: u64) -> Self {
+        Self::new(CrystalParams {
+            initial_local_ns: epoch_ns,
+            ..CrystalParams::default()
+        })
+    }
+
+    /// A clock with this crystal (its `initial_local_ns` is the master time at real time 0).
+    pub fn new(crystal: CrystalParams) -> Self {
+        MasterClock {
+            clock: LocalClock::new(crystal),
+        }
+    }
+
+    /// Master time at real time `t_ps`, ns.
+    pub fn master_ns(&mut self, t_ps: u64) -> u64 {
+        self.clock.advance_to(t_ps);
+        self.clock.local_exact_ns(t_ps).0
+    }
+
+    /// Real time (ps) at which the master clock reads `t_ns` (the inverse of
+    /// [`MasterClock::master_ns`], to a picosecond).
+    pub fn real_ps_at(&mut self, t_ns: u64) -> u64 {
+        let anchor = self.clock.anchor_ps();
+        let (a_ns, a_frac) = self.clock.local_exact_ns(anchor);
+        let rate = self.clock.rate();
+        let mut r = anchor as f64 + ((t_ns as i128 - a_ns as i128) as f64 - a_frac) * 1e3 / rate;
+        // The rate is constant from the anchor on (until the next wander step): the estimate is
+        // exact but for rounding; one correction covers a wander step in between.
+        if r > self.clock.anchor_ps() as f64 + 1e10 {
+            let rr = r.max(0.0) as u64;
+            let (n, f) = self.clock.local_exact_ns(rr);
+            let err = (t_ns as i128 - n as i128) as f64 - f;
+            r = rr as f64 + err * 1e3 / rate;
+        }
+        r.max(0.0).round() as u64
+    }
+}
 
 /// A frame exchange as the driver saw it, for observers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -24,8 +73,8 @@ pub struct SimTransport {
     pub segment: Segment,
     /// Real time now, ps since the start of the simulation.
     pub now_ps: u64,
-    /// Master clock at real time 0, ns.
-    pub master_epoch_ns: u64,
+    /// The master's clock.
+    pub master_clock: MasterClock,
     /// Delay from the master's send timestamp to the frame's first bit on the wire, ps.
     pub tx_latency_ps: u64,
     /// Delay from the reply's last bit to the master's receive timestamp, ps.
@@ -49,7 +98,7 @@ impl SimTransport {
         SimTransport {
             segment,
             now_ps: 0,
-            master_epoch_ns: SIM_EPOCH_NS,
+            master_clock: MasterClock::ideal(SIM_EPOCH_NS),
             tx_latency_ps: 2_000_000,
             rx_latency_ps: 3_000_000,
             timeout_ps: 10_000_000_000,
@@ -76,13 +125,14 @@ impl SimTransport {
     }
 
     /// Master clock now, ns.
-    pub fn master_now_ns(&self) -> u64 {
-        self.master_epoch_ns + self.now_ps / 1000
+    pub fn master_now_ns(&mut self) -> u64 {
+        let t = self.now_ps;
+        self.master_clock.master_ns(t)
     }
 
     /// Real time (ps) at master time `t_ns`.
-    pub fn real_ps_at(&self, t_ns: u64) -> u64 {
-        t_ns.saturating_sub(self.master_epoch_ns) * 1000
+    pub fn real_ps_at(&mut self, t_ns: u64) -> u64 {
+        self.master_clock.real_ps_at(t_ns)
     }
 
     /// Runs an engine to completion. `observe` sees the segment after every exchange, with the
@@ -145,4 +195,28 @@ pub mod pcap_file_error {
     #[derive(Debug, thiserror::Error)]
     #[error("pcap capture: {0}")]
     pub struct Error(pub pcap_file::PcapError);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn master_clock_inverts() {
+        let mut c = MasterClock::new(CrystalParams {
+            ppm: -37.5,
+            wander_ppm_per_sqrt_s: 0.1,
+            wander_step_ps: 1_000_000_000,
+            initial_local_ns: SIM_EPOCH_NS,
+            seed: 3,
+        });
+        for k in 1..2_000u64 {
+            let t = k * 7_777_777_777;
+            let m = c.master_ns(t);
+            let back = c.real_ps_at(m);
+            assert!(back.abs_diff(t) <= 1_000, "{t} -> {m} -> {back}");
+        }
+        let m = c.master_ns(1_000_000_000_000);
+        assert!((m - SIM_EPOCH_NS) < 1_000_000_000 && (m - SIM_EPOCH_NS) > 999_900_000);
+    }
 }

@@ -1,0 +1,390 @@
+//! The master host: its crystal, and the letter's jitter sources as seeded random processes.
+//!
+//! * `j_s`: thread scheduling and processing jitter between the theoretical cycle start and the
+//!   send timestamp (eq. 1), never negative;
+//! * `e_m`: execution time of the application and data exchange (eq. 1);
+//! * `j_c`: NIC driver jitter between the send timestamp and the frame's first bit on the wire
+//!   (eq. 2), modelled as pulse noise as the letter does (a Gaussian core plus rare pulses).
+//!
+//! Every sample is a pure function of (seed, source, cycle index): a counter-based generator, so
+//! every method of a comparison sees exactly the same noise in the same cycle whatever it does
+//! (common random numbers), and a run is reproducible bit for bit.
+
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+/// A jitter distribution: a Gaussian core plus, with probability `tail_p`, an exponential pulse
+/// of mean `tail_mean_ns` in the direction `tail_sign`, clamped to `max_abs_ns`. With `folded`,
+/// the core is |N(0, σ)| (a delay that cannot be negative).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Jitter {
+    /// Standard deviation of the Gaussian core, ns.
+    pub sigma_ns: f64,
+    /// Fold the core to non-negative values.
+    #[serde(default)]
+    pub folded: bool,
+    /// Probability of a pulse per cycle.
+    #[serde(default)]
+    pub tail_p: f64,
+    /// Mean pulse size, ns.
+    #[serde(default)]
+    pub tail_mean_ns: f64,
+    /// Direction of pulses: +1 later, -1 earlier.
+    #[serde(default = "one")]
+    pub tail_sign: f64,
+    /// Clamp of |sample|, ns.
+    #[serde(default = "big")]
+    pub max_abs_ns: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+fn big() -> f64 {
+    1e9
+}
+
+impl Jitter {
+    /// No jitter.
+    pub const ZERO: Jitter = Jitter {
+        sigma_ns: 0.0,
+        folded: false,
+        tail_p: 0.0,
+        tail_mean_ns: 0.0,
+        tail_sign: 1.0,
+        max_abs_ns: 1e9,
+    };
+
+    /// A sample from a standard normal `g` and two uniforms for the pulse.
+    fn sample(&self, g: f64, u_pulse: f64, u_size: f64) -> f64 {
+        let mut v = g * self.sigma_ns;
+        if self.folded {
+            v = v.abs();
+        }
+        if self.tail_p > 0.0 && u_pulse < self.tail_p {
+            v += self.tail_sign.signum() * -self.tail_mean_ns * u_size.ln();
+        }
+        v.clamp(-self.max_abs_ns, self.max_abs_ns)
+    }
+
+    /// Checks the numbers; returns the field at fault and why.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        for (f, v) in [
+            ("sigma_ns", self.sigma_ns),
+            ("tail_mean_ns", self.tail_mean_ns),
+            ("max_abs_ns", self.max_abs_ns),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((f, format!("{v} must be a finite number >= 0")));
+            }
+        }
+        if !(0.0..=1.0).contains(&self.tail_p) {
+            return Err(("tail_p", format!("{} is not a probability", self.tail_p)));
+        }
+        Ok(())
+    }
+}
+
+/// The host's parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HostParams {
+    /// Master crystal error, ppm (the master's clock against real time).
+    pub master_ppm: f64,
+    /// Master crystal wander, ppm per sqrt(s).
+    pub master_wander_ppm_per_sqrt_s: f64,
+    /// Scheduling and processing jitter j_s.
+    pub js: Jitter,
+    /// Mean execution time e_m, ns.
+    pub em_ns: f64,
+    /// Variation of the execution time.
+    pub em_jitter: Jitter,
+    /// NIC driver jitter j_c.
+    pub jc: Jitter,
+    /// Mean latency from the send timestamp to the first bit on the wire, ns.
+    pub tx_latency_ns: f64,
+    /// Latency from the reply's last bit to the receive timestamp, ns.
+    pub rx_latency_ns: f64,
+}
+
+impl HostParams {
+    /// A host preset by name.
+    pub fn preset(name: &str) -> Option<HostParams> {
+        Some(match name {
+            "preempt-rt-stress" => HostParams::preempt_rt_stress(),
+            "preempt-rt-idle" => HostParams::preempt_rt_idle(),
+            "vanilla-linux" => HostParams::vanilla_linux(),
+            "ideal" => HostParams::ideal(),
+            _ => return None,
+        })
+    }
+
+    /// The preset names.
+    pub const PRESETS: [&'static str; 4] = [
+        "preempt-rt-stress",
+        "preempt-rt-idle",
+        "vanilla-linux",
+        "ideal",
+    ];
+
+    /// The letter's testbed: PREEMPT_RT 4.4 on an i3-4170 with an RTL8169 NIC, stress-ng
+    /// loading every CPU. Calibrated so that the letter's M-rS standard deviations of `median`
+    /// (0.729 us) and `pi-m2s` (2.609 us) come out (see presets/paper-2024.toml for the
+    /// reasoning behind every number).
+    pub fn preempt_rt_stress() -> HostParams {
+        HostParams {
+            master_ppm: 13.3,
+            master_wander_ppm_per_sqrt_s: 0.005,
+            js: Jitter {
+                sigma_ns: 16_000.0,
+                folded: true,
+                tail_p: 0.01,
+                tail_mean_ns: 8_000.0,
+                tail_sign: 1.0,
+                max_abs_ns: 90_000.0,
+            },
+            // The application's work is nearly constant; its variation is in j_s.
+            em_ns: 20_000.0,
+            em_jitter: Jitter::ZERO,
+            jc: Jitter {
+                sigma_ns: 430.0,
+                folded: false,
+                tail_p: 0.011,
+                tail_mean_ns: 4_000.0,
+                tail_sign: -1.0,
+                max_abs_ns: 12_000.0,
+            },
+            tx_latency_ns: 15_000.0,
+            rx_latency_ns: 10_000.0,
+        }
+    }
+
+    /// PREEMPT_RT without load: a few microseconds of scheduling jitter, a quiet NIC.
+    pub fn preempt_rt_idle() -> HostParams {
+        HostParams {
+            js: Jitter {
+                sigma_ns: 1_500.0,
+                folded: true,
+                tail_p: 0.001,
+                tail_mean_ns: 3_000.0,
+                tail_sign: 1.0,
+                max_abs_ns: 30_000.0,
+            },
+            jc: Jitter {
+                sigma_ns: 250.0,
+                folded: false,
+                tail_p: 0.0005,
+                tail_mean_ns: 1_500.0,
+                tail_sign: -1.0,
+                max_abs_ns: 8_000.0,
+            },
+            ..HostParams::preempt_rt_stress()
+        }
+    }
+
+    /// A stock kernel: tens of microseconds of scheduling jitter with millisecond outliers.
+    pub fn vanilla_linux() -> HostParams {
+        HostParams {
+            js: Jitter {
+                sigma_ns: 25_000.0,
+                folded: true,
+                tail_p: 0.01,
+                tail_mean_ns: 120_000.0,
+                tail_sign: 1.0,
+                max_abs_ns: 900_000.0,
+            },
+            jc: Jitter {
+                sigma_ns: 2_000.0,
+                folded: false,
+                tail_p: 0.005,
+                tail_mean_ns: 8_000.0,
+                tail_sign: -1.0,
+                max_abs_ns: 30_000.0,
+            },
+            ..HostParams::preempt_rt_stress()
+        }
+    }
+
+    /// No jitter at all, a perfect crystal: the methods' behaviour on their own.
+    pub fn ideal() -> HostParams {
+        HostParams {
+            master_ppm: 0.0,
+            master_wander_ppm_per_sqrt_s: 0.0,
+            js: Jitter::ZERO,
+            em_ns: 20_000.0,
+            em_jitter: Jitter::ZERO,
+            jc: Jitter::ZERO,
+            tx_latency_ns: 15_000.0,
+            rx_latency_ns: 10_000.0,
+        }
+    }
+}
+
+/// A SplitMix64 stream: small and fast, enough for noise (the seed is what makes the streams
+/// of different cycles and runs independent).
+struct CycleRng(u64);
+
+impl CycleRng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+}
+
+impl rand::TryRng for CycleRng {
+    type Error = core::convert::Infallible;
+    fn try_next_u32(&mut self) -> Result<u32, Self::Error> {
+        Ok((self.next() >> 32) as u32)
+    }
+    fn try_next_u64(&mut self) -> Result<u64, Self::Error> {
+        Ok(self.next())
+    }
+    fn try_fill_bytes(&mut self, dst: &mut [u8]) -> Result<(), Self::Error> {
+        for c in dst.chunks_mut(8) {
+            let v = self.next().to_le_bytes();
+            c.copy_from_slice(&v[..c.len()]);
+        }
+        Ok(())
+    }
+}
+
+/// SplitMix64: a counter-based generator (the output is a function of the input only).
+fn splitmix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Uniform in (0, 1].
+fn unit(x: u64) -> f64 {
+    ((x >> 11) + 1) as f64 / (1u64 << 53) as f64
+}
+
+/// The host's noise for one run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HostNoise {
+    params: HostParams,
+    seed: u64,
+}
+
+/// One cycle's noise, ns.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CycleNoise {
+    /// Scheduling and processing jitter j_s (>= 0).
+    pub js_ns: f64,
+    /// Execution time e_m (> 0).
+    pub em_ns: f64,
+    /// NIC latency from the timestamp to the wire, tx latency plus j_c (> 0).
+    pub tx_ns: f64,
+}
+
+impl HostNoise {
+    /// The noise of a run.
+    pub fn new(params: HostParams, seed: u64) -> Self {
+        HostNoise { params, seed }
+    }
+
+    /// The noise of cycle `cycle`.
+    pub fn cycle(&self, cycle: u64) -> CycleNoise {
+        let p = &self.params;
+        // A generator seeded by (run seed, cycle): the same draws for every method.
+        let mut rng = CycleRng(splitmix(self.seed ^ splitmix(cycle)));
+        let mut draw = |j: &Jitter| {
+            let g = if j.sigma_ns > 0.0 {
+                StandardNormal.sample(&mut rng)
+            } else {
+                0.0
+            };
+            let (a, b) = if j.tail_p > 0.0 {
+                (unit(rng.next()), unit(rng.next()))
+            } else {
+                (1.0, 1.0)
+            };
+            j.sample(g, a, b)
+        };
+        let js = draw(&p.js).max(0.0);
+        let em = (p.em_ns + draw(&p.em_jitter)).max(0.0);
+        let jc = draw(&p.jc);
+        CycleNoise {
+            js_ns: js,
+            em_ns: em,
+            tx_ns: (p.tx_latency_ns + jc).max(1_000.0),
+        }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &HostParams {
+        &self.params
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn noise_is_a_function_of_seed_and_cycle() {
+        let n = HostNoise::new(HostParams::preempt_rt_stress(), 7);
+        let a = n.cycle(123_456);
+        let _ = n.cycle(5);
+        assert_eq!(n.cycle(123_456), a);
+        assert_ne!(
+            HostNoise::new(HostParams::preempt_rt_stress(), 8).cycle(123_456),
+            a
+        );
+    }
+
+    #[test]
+    fn distributions_have_the_configured_moments() {
+        let p = HostParams {
+            jc: Jitter {
+                sigma_ns: 500.0,
+                ..Jitter::ZERO
+            },
+            js: Jitter {
+                sigma_ns: 1_000.0,
+                folded: true,
+                ..Jitter::ZERO
+            },
+            ..HostParams::ideal()
+        };
+        let n = HostNoise::new(p, 1);
+        let k = 200_000;
+        let (mut s, mut s2, mut js) = (0.0, 0.0, 0.0);
+        for i in 0..k {
+            let c = n.cycle(i);
+            let jc = c.tx_ns - p.tx_latency_ns;
+            s += jc;
+            s2 += jc * jc;
+            js += c.js_ns;
+        }
+        let mean = s / k as f64;
+        let std = (s2 / k as f64 - mean * mean).sqrt();
+        assert!(mean.abs() < 5.0, "{mean}");
+        assert!((std - 500.0).abs() < 5.0, "{std}");
+        // E|N(0, s)| = s sqrt(2/pi).
+        let m = js / k as f64;
+        assert!(
+            (m - 1_000.0 * (2.0 / std::f64::consts::PI).sqrt()).abs() < 8.0,
+            "{m}"
+        );
+    }
+
+    #[test]
+    fn pulses_go_the_configured_way() {
+        let j = Jitter {
+            sigma_ns: 0.0,
+            folded: false,
+            tail_p: 1.0,
+            tail_mean_ns: 100.0,
+            tail_sign: -1.0,
+            max_abs_ns: 1e9,
+        };
+        assert!(j.sample(0.3, 0.0, 0.5) < 0.0);
+    }
+}

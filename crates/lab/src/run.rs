@@ -1,0 +1,407 @@
+//! One run of one method: bring the segment up, run the cyclic phase with the host's noise,
+//! measure what the letter measures and what only the simulator knows.
+
+use crate::host::HostNoise;
+use crate::scenario::Scenario;
+use crate::stats::{Stats, Summary};
+use ecsync_dc::sync::MasterSync;
+use ecsync_dc::{BusShift, MedianSync, PiM2s, Snap, SoemPi};
+use ecsync_esc::clock::CrystalParams;
+use ecsync_esc::{Segment, frame_wire_time_ps};
+use ecsync_master::bringup::{BringupConfig, Stage, bringup};
+use ecsync_master::cyclic::{CycleRecord, CyclicConfig, CyclicEngine};
+use ecsync_master::sim::{MasterClock, SIM_EPOCH_NS, SimTransport};
+use ecsync_master::{Engine, MasterError};
+use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The five methods behind one type (static dispatch, no allocation; the median's window
+/// makes it the large one, and one method lives per run).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[allow(clippy::large_enum_variant)]
+pub enum Method {
+    /// The letter's median-filter drift compensator.
+    Median(MedianSync),
+    /// E-M2S.
+    PiM2s(PiM2s),
+    /// E-S2M.
+    BusShift(BusShift),
+    /// ethercrab's snap.
+    Snap(Snap),
+    /// SOEM's sample PI.
+    SoemPi(SoemPi),
+}
+
+impl Method {
+    /// The method named `name` with the scenario's parameters.
+    pub fn from_scenario(name: &str, s: &Scenario) -> Option<Method> {
+        Some(match name {
+            "median" => Method::Median(MedianSync::new(
+                s.median.window as usize,
+                s.median.gain,
+                s.median.init_frames as u64,
+            )),
+            "pi-m2s" => Method::PiM2s(PiM2s::new(
+                s.pi_m2s.kp,
+                s.pi_m2s.ki,
+                s.pi_m2s.init_frames as u64,
+            )),
+            "bus-shift" => Method::BusShift(BusShift {
+                write_offset_ns: s.bus_shift.write_offset_ns,
+            }),
+            "snap" => Method::Snap(Snap {
+                shift_ns: s.snap.shift_ns.clamp(0, i64::from(u32::MAX)) as u32,
+            }),
+            "soem-pi" => Method::SoemPi(SoemPi::new(s.soem_pi.offset_ns)),
+            _ => return None,
+        })
+    }
+
+    fn inner(&self) -> &dyn MasterSync {
+        match self {
+            Method::Median(m) => m,
+            Method::PiM2s(m) => m,
+            Method::BusShift(m) => m,
+            Method::Snap(m) => m,
+            Method::SoemPi(m) => m,
+        }
+    }
+
+    fn inner_mut(&mut self) -> &mut dyn MasterSync {
+        match self {
+            Method::Median(m) => m,
+            Method::PiM2s(m) => m,
+            Method::BusShift(m) => m,
+            Method::Snap(m) => m,
+            Method::SoemPi(m) => m,
+        }
+    }
+}
+
+impl MasterSync for Method {
+    fn name(&self) -> &'static str {
+        self.inner().name()
+    }
+    fn is_master_shift(&self) -> bool {
+        self.inner().is_master_shift()
+    }
+    fn reference_write(&self, send_ns: u64) -> Option<u64> {
+        self.inner().reference_write(send_ns)
+    }
+    fn init_cycles(&self) -> u64 {
+        self.inner().init_cycles()
+    }
+    fn update(&mut self, input: &ecsync_dc::CycleInput) -> ecsync_dc::CycleOutput {
+        self.inner_mut().update(input)
+    }
+}
+
+/// A point of a time series: min and max of a quantity over a block of cycles, ns.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Envelope {
+    /// First cycle of the block.
+    pub cycle: u64,
+    /// Smallest value.
+    pub min: f32,
+    /// Largest value.
+    pub max: f32,
+}
+
+/// Cycles per time series point.
+pub const SERIES_BLOCK: u64 = 1_000;
+
+/// What one run of one method measured.
+#[derive(Debug, Clone)]
+pub struct RunResult {
+    /// Method.
+    pub method: String,
+    /// Run index.
+    pub run: u32,
+    /// The letter's M-rS error, ns.
+    pub m_rs: Stats,
+    /// The letter's rS-IS error (|BRD of 0x092C|), ns.
+    pub rs_is: Stats,
+    /// Truth: the frame's arrival at the reference against the DC grid point it aims at, ns.
+    pub phase: Stats,
+    /// Truth: the largest |slave - reference| system time difference at the frame's pass, ns.
+    pub slave_diff: Stats,
+    /// Truth: SYNC0 margin at the last slave (SYNC0 time minus the frame's end there), ns.
+    pub margin: Stats,
+    /// Cycles whose frame reached the last slave after its SYNC0 (margin < 0).
+    pub late_frames: u64,
+    /// The latest end of a frame at the last slave after its grid point, ns: the smallest SYNC0
+    /// shift without a late frame.
+    pub latest_end_ns: f64,
+    /// Frames lost.
+    pub lost_frames: u64,
+    /// Cycles whose LRW working counter was not the expected one.
+    pub bad_wkc: u64,
+    /// Time series of M-rS, rS-IS and the true phase.
+    pub series: [Vec<Envelope>; 3],
+    /// Bring-up: DC lock time, ms.
+    pub lock_ms: Option<f64>,
+}
+
+impl RunResult {
+    /// Summaries of the five quantities.
+    pub fn summaries(&self) -> [Summary; 5] {
+        [
+            self.m_rs.summary(),
+            self.rs_is.summary(),
+            self.phase.summary(),
+            self.slave_diff.summary(),
+            self.margin.summary(),
+        ]
+    }
+}
+
+/// Why a run could not complete.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The bring-up failed.
+    #[error("bring-up failed: {0}")]
+    Bringup(#[from] MasterError),
+    /// The scenario names a method that does not exist.
+    #[error("unknown method {0}")]
+    UnknownMethod(String),
+    /// The cyclic frame does not fit.
+    #[error("cyclic frame: {0}")]
+    Frame(ecsync_wire::WireError),
+}
+
+fn splitmix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// The seed of run `run`.
+pub fn run_seed(base: u64, run: u32) -> u64 {
+    splitmix(base ^ splitmix(u64::from(run) + 1))
+}
+
+struct Series {
+    out: Vec<Envelope>,
+    cur: Option<Envelope>,
+}
+
+impl Series {
+    fn new(cap: usize) -> Self {
+        Series {
+            out: Vec::with_capacity(cap),
+            cur: None,
+        }
+    }
+
+    fn add(&mut self, cycle: u64, x: f64) {
+        let block = cycle / SERIES_BLOCK * SERIES_BLOCK;
+        let x = x as f32;
+        match &mut self.cur {
+            Some(e) if e.cycle == block => {
+                e.min = e.min.min(x);
+                e.max = e.max.max(x);
+            }
+            _ => {
+                if let Some(e) = self.cur.take() {
+                    self.out.push(e);
+                }
+                self.cur = Some(Envelope {
+                    cycle: block,
+                    min: x,
+                    max: x,
+                });
+            }
+        }
+    }
+
+    fn finish(mut self) -> Vec<Envelope> {
+        if let Some(e) = self.cur.take() {
+            self.out.push(e);
+        }
+        self.out
+    }
+}
+
+/// Runs method `method_name` in run `run` of the scenario. `progress` counts simulated cycles.
+pub fn run_one(
+    s: &Scenario,
+    method_name: &str,
+    run: u32,
+    progress: &AtomicU64,
+) -> Result<RunResult, RunError> {
+    let seed = run_seed(s.seed, run);
+    // The same hardware in every run; the crystals' wander and the host's noise differ.
+    let mut specs = s.slaves.clone();
+    for (i, sp) in specs.iter_mut().enumerate() {
+        sp.crystal.seed = splitmix(seed ^ (0x5eed_0000 + i as u64) ^ sp.crystal.seed);
+    }
+    let segment = Segment::new(&specs).map_err(|e| MasterError::Config(e.to_string()))?;
+    let mut sim = SimTransport::new(segment);
+    sim.master_clock = MasterClock::new(CrystalParams {
+        ppm: s.host.master_ppm,
+        wander_ppm_per_sqrt_s: s.host.master_wander_ppm_per_sqrt_s,
+        wander_step_ps: 10_000_000_000,
+        initial_local_ns: SIM_EPOCH_NS,
+        seed: splitmix(seed ^ 0x4a57_e700),
+    });
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: s.static_drift_frames,
+        cycle_ns: s.cycle_ns,
+        sync0_shift_ns: s.sync0_shift_ns(),
+        lock_hold_checks: 200,
+        monitor_cycles: 10,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |link| bringup(link, cfg));
+    let net = sim.run(&mut engine, |_, _, _| {})?;
+    let lock_ms = net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6);
+    let reference = usize::from(net.reference);
+    let last = sim.segment.len() - 1;
+    let ref_station = net.slaves[reference].station;
+
+    let method = Method::from_scenario(method_name, s)
+        .ok_or_else(|| RunError::UnknownMethod(method_name.to_string()))?;
+    let noise = HostNoise::new(s.host, seed);
+    let period = u64::from(s.cycle_ns);
+    let cyc_cfg = CyclicConfig {
+        period_ns: s.cycle_ns,
+        reference_station: ref_station,
+        pdi_len: net.pdi_len,
+        measure_init_frames: method.init_cycles().max(10_000).min(s.warmup_cycles.max(1)),
+    };
+    // The first cycle: frames aimed at the reference's grid points. The reference's system time
+    // is close to the master's clock after the bring-up (its offset is the master's time), so
+    // the grid is the master's multiples of P, minus the mean time from the cycle start to the
+    // frame's arrival at the reference (e_m and the NIC latency; j_s's mean too).
+    let now = sim.master_now_ns();
+    let lead = s.host.em_ns + s.host.tx_latency_ns;
+    let first = (now / period + 2) * period - lead as u64;
+    let mut eng = CyclicEngine::new(method, cyc_cfg, first).map_err(RunError::Frame)?;
+
+    let total = s.warmup_cycles + s.cycles;
+    let mut res = RunResult {
+        method: method_name.to_string(),
+        run,
+        m_rs: Stats::new(-60_000.0, 10.0, 12_000),
+        rs_is: Stats::new(0.0, 1.0, 20_000),
+        phase: Stats::new(-200_000.0, 10.0, 40_000),
+        slave_diff: Stats::new(0.0, 1.0, 20_000),
+        margin: Stats::new(-500_000.0, 10.0, 100_000),
+        late_frames: 0,
+        latest_end_ns: f64::NEG_INFINITY,
+        lost_frames: 0,
+        bad_wkc: 0,
+        series: Default::default(),
+        lock_ms,
+    };
+    let cap = (s.cycles / SERIES_BLOCK + 2) as usize;
+    let mut series = [Series::new(cap), Series::new(cap), Series::new(cap)];
+    let shift = f64::from(s.sync0_shift_ns());
+    let mut grid0: Option<(u64, i64)> = None;
+    let mut prev_done_ns = 0u64;
+    let mut work = vec![0u8; ecsync_wire::MAX_FRAME_LEN];
+    let rx_latency_ps = (s.host.rx_latency_ns * 1000.0) as u64;
+    let mut batch = 0u64;
+    for i in 0..total {
+        let noise_i = noise.cycle(i);
+        // The task wakes at the scheduled start (or when the previous cycle is done, if it
+        // overran), late by j_s, and runs e_m before it timestamps and sends.
+        let wake = eng.scheduled_start_ns().max(prev_done_ns);
+        let send_ns = wake + (noise_i.js_ns + noise_i.em_ns) as u64;
+        let n = {
+            let f = eng.frame_to_send(send_ns);
+            let n = f.len();
+            work[..n].copy_from_slice(f);
+            n
+        };
+        let tx_ps = sim.master_clock.real_ps_at(send_ns) + (noise_i.tx_ns * 1000.0) as u64;
+        let out = sim.segment.process(&mut work[..n], tx_ps);
+        let rec: CycleRecord = match out.returned_sof_ps {
+            Some(t) => {
+                let rx_ps = t + frame_wire_time_ps(n) + rx_latency_ps;
+                let rx_ns = sim.master_clock.master_ns(rx_ps);
+                prev_done_ns = rx_ns;
+                eng.complete(Some(&work[..n]), send_ns, rx_ns)
+            }
+            None => {
+                prev_done_ns = send_ns + period / 2;
+                eng.complete(None, send_ns, prev_done_ns)
+            }
+        };
+        batch += 1;
+        if batch == 4096 {
+            progress.fetch_add(batch, Ordering::Relaxed);
+            batch = 0;
+        }
+        if i < s.warmup_cycles {
+            continue;
+        }
+        let k = i - s.warmup_cycles;
+        if rec.receive_ns.is_none() {
+            res.lost_frames += 1;
+            continue;
+        }
+        if rec.lrw_wkc != Some(net.expected_lrw_wkc) && net.pdi_len > 0 {
+            res.bad_wkc += 1;
+        }
+        if let Some(m) = rec.m_rs_ns {
+            res.m_rs.add(m as f64);
+            series[0].add(k, m as f64);
+        }
+        if let Some(v) = rec.rs_is_ns {
+            res.rs_is.add(f64::from(v));
+            series[1].add(k, f64::from(v));
+        }
+        // Ground truth from the segment.
+        let trace = sim.segment.trace();
+        let (Some(pu_ref), Some(pu_last)) = (trace[reference].pu_ps, trace[last].pu_ps) else {
+            continue;
+        };
+        let seg = &sim.segment;
+        let sys = |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
+        let Some(r) = sys(reference, pu_ref) else {
+            continue;
+        };
+        // The grid point this frame aims at: fixed by the first recorded frame, one per cycle.
+        let (g0, k0) = *grid0.get_or_insert_with(|| {
+            let g = ((r.0 as f64 + r.1) / period as f64).round() as u64;
+            (g, k as i64)
+        });
+        let grid = (g0 + (k as i64 - k0) as u64) * period;
+        let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
+        res.phase.add(phase);
+        series[2].add(k, phase);
+        // The slaves' differences move slowly (the loops act once per cycle): every 8th cycle
+        // is sampled.
+        if k % 8 == 0 {
+            let mut worst = 0.0f64;
+            for x in 0..seg.len() {
+                if x == reference {
+                    continue;
+                }
+                if let Some(v) = sys(x, pu_ref) {
+                    let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
+                    worst = worst.max(d.abs());
+                }
+            }
+            res.slave_diff.add(worst);
+        }
+        // The frame has passed the last slave when its last bit has: SYNC0 needs it by then.
+        let end_ps = pu_last + frame_wire_time_ps(n);
+        if let Some(e) = sys(last, end_ps) {
+            let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
+            let margin = shift - end_after_grid;
+            res.margin.add(margin);
+            if margin < 0.0 {
+                res.late_frames += 1;
+            }
+            res.latest_end_ns = res.latest_end_ns.max(end_after_grid);
+        }
+    }
+    progress.fetch_add(batch, Ordering::Relaxed);
+    let [a, b, c] = series;
+    res.series = [a.finish(), b.finish(), c.finish()];
+    Ok(res)
+}
