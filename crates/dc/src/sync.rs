@@ -159,19 +159,32 @@ impl SlidingMedian {
     }
 
     /// Adds a value and returns the median of the window (the lower middle for even counts).
+    /// The outgoing value is replaced in place and the new one bubbled to its rank: O(w) with
+    /// no moves beyond its neighbours.
     pub fn push(&mut self, v: i64) -> i64 {
+        let mut at;
         if self.len == self.w {
             let old = self.ring[self.pos];
-            let at = self.sorted[..self.len].partition_point(|&x| x < old);
-            self.sorted.copy_within(at + 1..self.len, at);
-            self.len -= 1;
+            at = self.sorted[..self.len].partition_point(|&x| x < old);
+            self.sorted[at] = v;
+        } else {
+            at = self.len;
+            self.sorted[at] = v;
+            self.len += 1;
+        }
+        while at > 0 && self.sorted[at - 1] > self.sorted[at] {
+            self.sorted.swap(at - 1, at);
+            at -= 1;
+        }
+        while at + 1 < self.len && self.sorted[at + 1] < self.sorted[at] {
+            self.sorted.swap(at, at + 1);
+            at += 1;
         }
         self.ring[self.pos] = v;
-        self.pos = (self.pos + 1) % self.w;
-        let at = self.sorted[..self.len].partition_point(|&x| x < v);
-        self.sorted.copy_within(at..self.len, at + 1);
-        self.sorted[at] = v;
-        self.len += 1;
+        self.pos += 1;
+        if self.pos == self.w {
+            self.pos = 0;
+        }
         self.sorted[(self.len - 1) / 2]
     }
 }
@@ -489,6 +502,25 @@ mod tests {
             send_ns: send,
             receive_ns: send + 50_000,
             ref_time_ns: t_ra,
+        }
+    }
+
+    #[test]
+    fn sliding_median_matches_sorting() {
+        // Against a sort of the last w values, over a pseudo-random sequence with repeats.
+        let mut m = SlidingMedian::new(11);
+        let mut hist = std::vec::Vec::new();
+        let mut x = 12345u64;
+        for _ in 0..5_000 {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let v = ((x >> 33) % 200) as i64 - 100;
+            hist.push(v);
+            let got = m.push(v);
+            let mut last: std::vec::Vec<i64> = hist.iter().rev().take(11).copied().collect();
+            last.sort();
+            assert_eq!(got, last[(last.len() - 1) / 2]);
         }
     }
 

@@ -54,6 +54,15 @@ pub struct DcParams {
     pub crystal: CrystalParams,
     /// 64-bit system time (feature bit 3); 32-bit units ignore the upper half.
     pub is_64bit: bool,
+    /// Resolution with which the frame's start is seen at port 0, ns (MII 40, EBUS 10): the
+    /// local time latched at SOF for System Time reads and compares has this granularity.
+    pub sof_resolution_ns: u64,
+}
+
+/// The phase of port `p`'s receive clock against the local counter: fixed per port, on the
+/// counter's 10 ns tick grid (the stamp is the counter's value at that edge).
+fn port_phase(clock: &LocalClock, p: usize, res: u64) -> u64 {
+    clock.tick_residue() + 10 * ((clock.params().seed >> (8 * p)) % (res / 10).max(1))
 }
 
 /// Rounds half away from zero without a libm call.
@@ -70,6 +79,8 @@ fn round_fast(x: f64) -> i64 {
 #[derive(Debug, Clone)]
 pub struct DcUnit {
     clock: LocalClock,
+    sof_res: u64,
+    sof_phase: u64,
     is_64bit: bool,
     offset: u64,
     delay: u32,
@@ -108,8 +119,12 @@ pub struct DcWriteEffects {
 impl DcUnit {
     /// A powered-up DC unit with datasheet defaults.
     pub fn new(params: DcParams) -> Self {
+        let clock = LocalClock::new(params.crystal);
+        let res = (params.sof_resolution_ns.max(10) / 10) * 10;
         DcUnit {
-            clock: LocalClock::new(params.crystal),
+            sof_res: res,
+            sof_phase: port_phase(&clock, 0, res),
+            clock,
             is_64bit: params.is_64bit,
             offset: 0,
             delay: 0,
@@ -203,14 +218,11 @@ impl DcUnit {
         pu_is_port0: bool,
         res_ns: [u64; 4],
     ) {
-        let seed = self.clock.params().seed;
         for (p, t) in ports.iter().enumerate() {
             if let Some(t) = t {
                 let v = self.clock.local_ns(*t);
                 let res = res_ns[p].max(10) / 10 * 10;
-                // The receive clock's phase against the counter: fixed per port, on the
-                // counter's 10 ns tick grid (the sample is the counter's value at that edge).
-                let phase = self.clock.tick_residue() + 10 * ((seed >> (8 * p)) % (res / 10));
+                let phase = port_phase(&self.clock, p, res);
                 let q = v - (v.wrapping_sub(phase) % res);
                 self.port_times[p] = q as u32;
                 if p == 0 && pu_is_port0 {
@@ -499,9 +511,17 @@ impl DcUnit {
     /// clock (datasheet section II, 0x0910 "including system time delay").
     pub fn system_time_read_ns(&self, t_ps: u64) -> u64 {
         let v = self
-            .system_time_ns(t_ps)
+            .sof(self.clock.local_ns(t_ps))
+            .wrapping_add(self.offset)
             .wrapping_sub(u64::from(self.delay));
         if self.is_64bit { v } else { v & 0xffff_ffff }
+    }
+
+    /// The local time as latched at a frame's start: the counter at the last edge of port 0's
+    /// receive clock.
+    #[inline]
+    fn sof(&self, local: u64) -> u64 {
+        local - (local.wrapping_sub(self.sof_phase) % self.sof_res)
     }
 
     /// Reads the registers the cyclic frame reads (0x0910 by ARMW/FRMW/FPRD, 0x092C by BRD or
@@ -510,7 +530,9 @@ impl DcUnit {
     pub fn read_fast(&mut self, addr: u16, out: &mut [u8], or: bool, t_ps: u64) -> bool {
         let v: [u8; 8] = if addr == reg::DC_SYSTEM_TIME && out.len() <= 8 {
             self.clock.advance_to(t_ps);
-            let mut s = self.clock.local_ns_at_anchor().wrapping_add(self.offset);
+            let mut s = self
+                .sof(self.clock.local_ns_at_anchor())
+                .wrapping_add(self.offset);
             s = s.wrapping_sub(u64::from(self.delay));
             if !self.is_64bit {
                 s &= 0xffff_ffff;
@@ -524,11 +546,14 @@ impl DcUnit {
         } else {
             return false;
         };
-        if or {
-            out.iter_mut().zip(v).for_each(|(o, b)| *o |= b);
-        } else {
-            let n = out.len();
-            out.copy_from_slice(&v[..n]);
+        match (out.len(), or) {
+            (8, false) => out.copy_from_slice(&v),
+            (4, false) => out.copy_from_slice(&v[..4]),
+            (_, false) => {
+                let n = out.len();
+                out.copy_from_slice(&v[..n]);
+            }
+            (_, true) => out.iter_mut().zip(v).for_each(|(o, b)| *o |= b),
         }
         true
     }
@@ -536,8 +561,7 @@ impl DcUnit {
     fn compare_system_time(&mut self, received: u32, t_ps: u64) {
         self.clock.advance_to(t_ps);
         let read = self
-            .clock
-            .local_ns_at_anchor()
+            .sof(self.clock.local_ns_at_anchor())
             .wrapping_add(self.offset)
             .wrapping_sub(u64::from(self.delay));
         let dt = dc_time::diff_u32(read as u32, received);
@@ -585,6 +609,7 @@ mod tests {
 
     fn unit(ppm: f64, start: u64) -> DcUnit {
         DcUnit::new(DcParams {
+            sof_resolution_ns: 10,
             crystal: CrystalParams {
                 ppm,
                 initial_local_ns: start,

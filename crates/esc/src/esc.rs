@@ -116,6 +116,125 @@ enum Op {
     Refresh,
     /// Add `inc` to the working counter at `at`.
     Wkc { at: u16, inc: u16 },
+    /// Fused: a system time read or write and its working counter.
+    SysFused {
+        at: u16,
+        len: u8,
+        write: bool,
+        wkc: u16,
+        inc: u16,
+    },
+    /// Fused: ADP increment (if `adp` is not 0), difference read, working counter.
+    DiffFused {
+        adp: u16,
+        at: u16,
+        len: u8,
+        or: bool,
+        wkc: u16,
+        inc: u16,
+    },
+    /// Fused: an LRW through one write and one read FMMU with the application in between.
+    LrwFused {
+        w_at: u16,
+        w_ram: u16,
+        w_len: u16,
+        r_at: u16,
+        r_ram: u16,
+        r_len: u16,
+        wkc: u16,
+        inc: u16,
+    },
+}
+
+/// Fuses the common sequences of a recorded program into single steps (fewer dispatches).
+fn fuse(ops: &[Op], out: &mut [Op; MAX_OPS]) -> u8 {
+    let mut n = 0usize;
+    let mut i = 0usize;
+    while i < ops.len() {
+        let rest = &ops[i..];
+        let (op, used) = match rest {
+            [
+                Op::SysRead { at, len, or: false },
+                Op::Wkc { at: w, inc },
+                ..,
+            ] => (
+                Op::SysFused {
+                    at: *at,
+                    len: *len,
+                    write: false,
+                    wkc: *w,
+                    inc: *inc,
+                },
+                2,
+            ),
+            [Op::SysWrite { at, len }, Op::Wkc { at: w, inc }, ..] => (
+                Op::SysFused {
+                    at: *at,
+                    len: *len,
+                    write: true,
+                    wkc: *w,
+                    inc: *inc,
+                },
+                2,
+            ),
+            [
+                Op::AdpInc { at: a },
+                Op::DiffRead { at, len, or },
+                Op::Wkc { at: w, inc },
+                ..,
+            ] => (
+                Op::DiffFused {
+                    adp: *a,
+                    at: *at,
+                    len: *len,
+                    or: *or,
+                    wkc: *w,
+                    inc: *inc,
+                },
+                3,
+            ),
+            [
+                Op::ToRam {
+                    at: wa,
+                    ram: wr,
+                    len: wl,
+                },
+                Op::Refresh,
+                Op::FromRam {
+                    at: ra,
+                    ram: rr,
+                    len: rl,
+                },
+                Op::Wkc { at: w, inc },
+                ..,
+            ] => (
+                Op::LrwFused {
+                    w_at: *wa,
+                    w_ram: *wr,
+                    w_len: *wl,
+                    r_at: *ra,
+                    r_ram: *rr,
+                    r_len: *rl,
+                    wkc: *w,
+                    inc: *inc,
+                },
+                4,
+            ),
+            [op, ..] => (*op, 1),
+            [] => break,
+        };
+        out[n] = op;
+        n += 1;
+        i += used;
+    }
+    n as u8
+}
+
+#[inline]
+fn add_wkc(frame: &mut [u8], at: u16, inc: u16) {
+    let at = usize::from(at);
+    let w = u16::from_le_bytes([frame[at], frame[at + 1]]).wrapping_add(inc);
+    frame[at..at + 2].copy_from_slice(&w.to_le_bytes());
 }
 
 const MAX_PROGRAM_DATAGRAMS: usize = 8;
@@ -184,6 +303,15 @@ impl Recorder {
     }
 }
 
+/// The application's buffers in process RAM (see `Esc::app_layout`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct AppLayout {
+    ib: usize,
+    ob: usize,
+    n: usize,
+    tail: usize,
+}
+
 /// Counters of what an ESC saw, for diagnostics and tests.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct EscStats {
@@ -217,6 +345,7 @@ pub struct Esc {
     loop_mode: [LoopMode; 4],
     output_sm: Option<usize>,
     input_sm: Option<usize>,
+    app: Option<AppLayout>,
     app_cycles: u16,
     stats: EscStats,
     device: DeviceInfo,
@@ -273,6 +402,7 @@ impl Esc {
                 DcUnit::new(DcParams {
                     crystal,
                     is_64bit: model.dc == DcSupport::Full64,
+                    sof_resolution_ns: model.ports[0].stamp_resolution_ns(),
                 })
             }),
             dc_block: Box::new([0; DC_BLOCK_LEN]),
@@ -293,6 +423,7 @@ impl Esc {
             loop_mode: [LoopMode::Auto; 4],
             output_sm: None,
             input_sm: None,
+            app: None,
             app_cycles: 0,
             stats: EscStats::default(),
             model,
@@ -572,6 +703,7 @@ impl Esc {
         if self.al_state < SAFE_OP {
             self.output_sm = None;
             self.input_sm = None;
+            self.app = None;
         }
         self.update_al_registers();
     }
@@ -609,6 +741,7 @@ impl Esc {
         };
         self.output_sm = out;
         self.input_sm = inp;
+        self.app = self.app_layout();
         Ok(())
     }
 
@@ -709,6 +842,7 @@ impl Esc {
     }
 
     fn parse_sms(&mut self) {
+        self.app = None;
         for n in 0..usize::from(self.model.sm_count.min(16)) {
             let b = &self.regs[0x800 + 8 * n..0x800 + 8 * n + 8];
             self.sms[n] = SyncManager {
@@ -717,6 +851,9 @@ impl Esc {
                 ecat_writes: (b[4] >> 2) & 0b11 == 0b01,
                 enabled: b[6] & 1 != 0,
             };
+        }
+        if self.input_sm.is_some() {
+            self.app = self.app_layout();
         }
     }
 
@@ -940,6 +1077,59 @@ impl Esc {
     /// (a loopback device: statusword, then the outputs echoed, then a cycle counter).
     #[inline]
     fn app_refresh_inputs(&mut self) {
+        if let Some(l) = self.app {
+            let status: u16 = if self.al_state == al_state::OP {
+                0x1237
+            } else {
+                0x0231
+            };
+            self.ram[l.ib..l.ib + 2].copy_from_slice(&status.to_le_bytes());
+            if l.n > 0 {
+                let (a, b) = self.ram.split_at_mut(l.ib + 2);
+                copy_small(&mut b[..l.n], &a[l.ob..l.ob + l.n]);
+            }
+            self.app_cycles = self.app_cycles.wrapping_add(1);
+            if l.tail >= l.ib + 2 {
+                self.ram[l.tail..l.tail + 2].copy_from_slice(&self.app_cycles.to_le_bytes());
+            }
+            return;
+        }
+        self.app_refresh_slow();
+    }
+
+    /// Where the application's echo goes, when the buffers allow the fast copy (the output
+    /// buffer before the input buffer, as the SII lays them out).
+    fn app_layout(&self) -> Option<AppLayout> {
+        let i = self.input_sm?;
+        let is = self.sms[i];
+        let ib = usize::from(is.start).checked_sub(REG_SPACE)?;
+        let ilen = usize::from(is.len);
+        if ib + ilen > self.ram.len() || ilen < 2 {
+            return None;
+        }
+        let (ob, n) = match self.output_sm {
+            Some(o) => {
+                let os = self.sms[o];
+                let ob = usize::from(os.start).checked_sub(REG_SPACE)?;
+                let n = usize::from(os.len)
+                    .min(ilen - 2)
+                    .min(self.ram.len().saturating_sub(ob));
+                if ob + n > ib + 2 {
+                    return None;
+                }
+                (ob, n)
+            }
+            None => (0, 0),
+        };
+        Some(AppLayout {
+            ib,
+            ob,
+            n,
+            tail: ib + ilen - 2,
+        })
+    }
+
+    fn app_refresh_slow(&mut self) {
         let (Some(i), o) = (self.input_sm, self.output_sm) else {
             return;
         };
@@ -1248,11 +1438,14 @@ impl Esc {
         }
         self.rec = Recorder::default();
         if ok && self.generation == generation {
+            let raw = prog.ops;
+            prog.n = fuse(&raw[..usize::from(prog.n)], &mut prog.ops);
             self.program = prog;
         }
         out
     }
 
+    #[inline]
     fn replay(&mut self, frame: &mut [u8], t_ps: u64) {
         self.stats.replayed_frames += 1;
         self.stats.datagrams_counted += u64::from(self.program.counted);
@@ -1301,10 +1494,57 @@ impl Esc {
                     copy_small(&mut frame[d..d + l], &self.ram[r..r + l]);
                 }
                 Op::Refresh => self.app_refresh_inputs(),
-                Op::Wkc { at, inc } => {
-                    let at = usize::from(at);
-                    let w = u16::from_le_bytes([frame[at], frame[at + 1]]).wrapping_add(inc);
-                    frame[at..at + 2].copy_from_slice(&w.to_le_bytes());
+                Op::Wkc { at, inc } => add_wkc(frame, at, inc),
+                Op::SysFused {
+                    at,
+                    len,
+                    write,
+                    wkc,
+                    inc,
+                } => {
+                    let (a, l) = (usize::from(at), usize::from(len));
+                    if let Some(dc) = &mut self.dc {
+                        if write {
+                            dc.write_system_time(&frame[a..a + l], t_ps);
+                        } else {
+                            dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
+                        }
+                    }
+                    add_wkc(frame, wkc, inc);
+                }
+                Op::DiffFused {
+                    adp,
+                    at,
+                    len,
+                    or,
+                    wkc,
+                    inc,
+                } => {
+                    let p = usize::from(adp);
+                    let v = u16::from_le_bytes([frame[p], frame[p + 1]]).wrapping_add(1);
+                    frame[p..p + 2].copy_from_slice(&v.to_le_bytes());
+                    let (a, l) = (usize::from(at), usize::from(len));
+                    if let Some(dc) = &mut self.dc {
+                        dc.read_fast(reg::DC_SYSTEM_TIME_DIFF, &mut frame[a..a + l], or, t_ps);
+                    }
+                    add_wkc(frame, wkc, inc);
+                }
+                Op::LrwFused {
+                    w_at,
+                    w_ram,
+                    w_len,
+                    r_at,
+                    r_ram,
+                    r_len,
+                    wkc,
+                    inc,
+                } => {
+                    let (d, r, l) = (usize::from(w_at), usize::from(w_ram), usize::from(w_len));
+                    copy_small(&mut self.ram[r..r + l], &frame[d..d + l]);
+                    self.app_refresh_inputs();
+                    let (d, r, l) = (usize::from(r_at), usize::from(r_ram), usize::from(r_len));
+                    copy_small(&mut frame[d..d + l], &self.ram[r..r + l]);
+                    add_wkc(frame, wkc, inc);
                 }
             }
         }

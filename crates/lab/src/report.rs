@@ -49,6 +49,10 @@ pub struct Truth {
     pub p999: f64,
     /// Largest |x| in any run, ns.
     pub max_abs: f64,
+    /// Smallest value (mean over runs), ns.
+    pub min: f64,
+    /// Largest value (mean over runs), ns.
+    pub max: f64,
 }
 
 impl From<Summary> for Truth {
@@ -60,6 +64,8 @@ impl From<Summary> for Truth {
             p99: s.p99_abs,
             p999: s.p999_abs,
             max_abs: s.max_abs,
+            min: s.min,
+            max: s.max,
         }
     }
 }

@@ -284,7 +284,7 @@ pub fn run_one(
     let mut res = RunResult {
         method: method_name.to_string(),
         run,
-        m_rs: Stats::new(-60_000.0, 10.0, 12_000),
+        m_rs: Stats::new(-200_000.0, 10.0, 40_000),
         rs_is: Stats::new(0.0, 1.0, 20_000),
         phase: Stats::new(-200_000.0, 10.0, 40_000),
         slave_diff: Stats::new(0.0, 1.0, 20_000),
@@ -301,7 +301,6 @@ pub fn run_one(
     let shift = f64::from(s.sync0_shift_ns());
     let mut grid0: Option<(u64, i64)> = None;
     let mut prev_done_ns = 0u64;
-    let mut work = vec![0u8; ecsync_wire::MAX_FRAME_LEN];
     let rx_latency_ps = (s.host.rx_latency_ns * 1000.0) as u64;
     let mut batch = 0u64;
     for i in 0..total {
@@ -310,24 +309,20 @@ pub fn run_one(
         // overran), late by j_s, and runs e_m before it timestamps and sends.
         let wake = eng.scheduled_start_ns().max(prev_done_ns);
         let send_ns = wake + (noise_i.js_ns + noise_i.em_ns) as u64;
-        let n = {
-            let f = eng.frame_to_send(send_ns);
-            let n = f.len();
-            work[..n].copy_from_slice(f);
-            n
-        };
         let tx_ps = sim.master_clock.real_ps_at(send_ns) + (noise_i.tx_ns * 1000.0) as u64;
-        let out = sim.segment.process(&mut work[..n], tx_ps);
+        let frame = eng.frame_to_send(send_ns);
+        let n = frame.len();
+        let out = sim.segment.process(frame, tx_ps);
         let rec: CycleRecord = match out.returned_sof_ps {
             Some(t) => {
                 let rx_ps = t + frame_wire_time_ps(n) + rx_latency_ps;
                 let rx_ns = sim.master_clock.master_ns(rx_ps);
                 prev_done_ns = rx_ns;
-                eng.complete(Some(&work[..n]), send_ns, rx_ns)
+                eng.complete_in_place(true, send_ns, rx_ns)
             }
             None => {
                 prev_done_ns = send_ns + period / 2;
-                eng.complete(None, send_ns, prev_done_ns)
+                eng.complete_in_place(false, send_ns, prev_done_ns)
             }
         };
         batch += 1;

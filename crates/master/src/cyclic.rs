@@ -234,6 +234,20 @@ impl<S: MasterSync> CyclicEngine<S> {
         rec
     }
 
+    /// Completes the cycle whose frame was processed in place in the buffer
+    /// [`CyclicEngine::frame_to_send`] returned (`returned`: it came back).
+    pub fn complete_in_place(
+        &mut self,
+        returned: bool,
+        send_ns: u64,
+        receive_ns: u64,
+    ) -> CycleRecord {
+        let frame = std::mem::take(&mut self.frame);
+        let rec = self.complete(returned.then_some(&frame[..]), send_ns, receive_ns);
+        self.frame = frame;
+        rec
+    }
+
     /// Decodes a 0x092C register value (for callers that read it per slave).
     pub fn decode_092c(raw: u32) -> i32 {
         decode_time_difference(raw)

@@ -1,0 +1,179 @@
+//! `ecsync compare` end to end: reproducibility, what it writes, the letter's figures, the
+//! ground truth, and bad scenarios.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn ecsync() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ecsync"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("ecsync-cmp-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn run(out: &Path, extra: &[&str]) -> serde_json::Value {
+    let o = ecsync()
+        .args(["compare", "--quiet", "--out"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap()
+}
+
+/// summary.json without the lines that measure the machine (wall time, threads).
+fn without_wall_time(p: &Path) -> String {
+    std::fs::read_to_string(p)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.contains("\"wall_s\"") && !l.contains("\"threads\""))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[test]
+fn same_scenario_and_seed_give_byte_identical_summaries() {
+    let a = tmp("det-a");
+    let b = tmp("det-b");
+    let args = ["--runs", "2", "--cycles", "20000", "--warmup-s", "12"];
+    run(&a, &[&args[..], &["--threads", "1"]].concat());
+    run(&b, &[&args[..], &["--threads", "2"]].concat());
+    let (ja, jb) = (
+        without_wall_time(&a.join("summary.json")),
+        without_wall_time(&b.join("summary.json")),
+    );
+    assert!(ja.len() > 1000);
+    assert_eq!(
+        ja, jb,
+        "summary.json differs between two runs of the same seed"
+    );
+    // A different seed gives different noise.
+    let c = tmp("det-c");
+    run(&c, &[&args[..], &["--seed", "7"]].concat());
+    assert_ne!(ja, without_wall_time(&c.join("summary.json")));
+    for f in [
+        "summary.csv",
+        "table1.txt",
+        "report.html",
+        "fig4_histograms.svg",
+        "fig4_histograms.png",
+        "series_m_rs.svg",
+        "series_rs_is.png",
+        "truth_phase.svg",
+    ] {
+        let m = std::fs::metadata(a.join(f)).unwrap_or_else(|_| panic!("{f} missing"));
+        assert!(m.len() > 500, "{f} is empty");
+    }
+    let html = std::fs::read_to_string(a.join("report.html")).unwrap();
+    assert!(html.contains("fig4_histograms.svg") && html.contains("E-S2M"));
+}
+
+/// The letter's figures at a reduced scale (2 runs x 300 000 cycles; CI also checks the full
+/// default comparison, see .ci/run).
+#[test]
+fn preempt_rt_stress_reproduces_the_letters_structure() {
+    let out = tmp("letter");
+    let v = run(
+        &out,
+        &["--runs", "2", "--cycles", "300000", "--warmup-s", "20"],
+    );
+    let m = &v["methods"];
+    let std = |name: &str, q: &str| m[name][q]["std"].as_f64().unwrap();
+    // Calibration (acceptance 1): within 25 % of the letter's 729 ns and 2609 ns.
+    let median = std("median", "m_rs");
+    let pi = std("pi-m2s", "m_rs");
+    assert!(
+        (median / 729.0 - 1.0).abs() < 0.25,
+        "median M-rS std {median}"
+    );
+    assert!((pi / 2609.0 - 1.0).abs() < 0.25, "pi-m2s M-rS std {pi}");
+    // Predictions (acceptance 2).
+    let bus = std("bus-shift", "m_rs");
+    assert!(
+        median < bus && median < pi,
+        "median {median}, bus {bus}, pi {pi}"
+    );
+    let ratio = std("bus-shift", "rs_is") / std("median", "rs_is");
+    assert!(ratio >= 5.0, "bus-shift rS-IS std only {ratio} x median's");
+    // Ground truth (acceptance 3): no late frame at 30 %, the safe shift reported per method.
+    for name in ["median", "pi-m2s", "bus-shift", "snap", "soem-pi"] {
+        let g = &m[name]["ground_truth"];
+        assert!(
+            g["smallest_safe_shift_pct"].as_f64().unwrap() > 0.0,
+            "{name}"
+        );
+        assert_eq!(g["lost_frames"], 0, "{name}");
+        assert_eq!(g["bad_wkc"], 0, "{name}");
+    }
+    assert_eq!(m["median"]["ground_truth"]["late_frames"], 0);
+    assert_eq!(m["median"]["ground_truth"]["sync0_shift_pct"], 30.0);
+    // The slaves stay within tens of nanoseconds of the reference under master shift.
+    assert!(
+        m["median"]["ground_truth"]["slave_ref_diff"]["max_abs"]
+            .as_f64()
+            .unwrap()
+            < 100.0
+    );
+}
+
+#[test]
+fn bad_scenarios_fail_with_a_located_message() {
+    let dir = tmp("bad");
+    let base = ecsync_esc::preset::PAPER_2024_TOML;
+    for (from, to, expect) in [
+        ("cycle_us = 1000", "cycle_us = -1000", "run.cycle_us"),
+        ("window = 11 ", "window = 10 ", "methods.median.window"),
+        ("window = 11 ", "window = 0 ", "methods.median.window"),
+        (
+            "seed = 2024\nmethods",
+            "seed = 2024\nmethodz = 1\nmethods",
+            "methodz",
+        ),
+    ] {
+        let text = base.replacen(from, to, 1);
+        assert_ne!(text, base, "{from}");
+        let f = dir.join("s.toml");
+        std::fs::write(&f, text).unwrap();
+        let o = ecsync()
+            .arg("compare")
+            .arg("--config")
+            .arg(&f)
+            .arg("--quiet")
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(e.contains("s.toml:"), "{e}");
+        assert!(e.contains(expect), "{e}");
+        assert!(e.contains("fix:"), "{e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
+    // More than 65535 slaves.
+    let mut t = String::from("[segment]\n");
+    for i in 0..65_536 {
+        let up = if i == 0 {
+            "master".to_string()
+        } else {
+            format!("s{}", i - 1)
+        };
+        t.push_str(&format!(
+            "[[segment.slave]]\nname = \"s{i}\"\nupstream = \"{up}\"\n"
+        ));
+    }
+    let f = dir.join("big.toml");
+    std::fs::write(&f, t).unwrap();
+    let o = ecsync()
+        .arg("compare")
+        .arg("--config")
+        .arg(&f)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("65535") && e.contains("fix:"), "{e}");
+}

@@ -1,0 +1,55 @@
+//! Every method's update allocates nothing (a counting global allocator).
+
+use ecsync_dc::sync::{CycleInput, MasterSync};
+use ecsync_dc::{BusShift, MedianSync, PiM2s, Snap, SoemPi};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+struct Counting;
+static ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: forwarding to the system allocator with the caller's layout.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from `System.alloc` with this layout.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn run<S: MasterSync>(mut s: S) -> u64 {
+    let before = ALLOCS.load(Ordering::Relaxed);
+    for i in 0..50_000u64 {
+        let t = 1_000_000_000 + i * 1_000_000;
+        let input = CycleInput {
+            cycle: i,
+            period_ns: 1_000_000,
+            nominal_start_ns: t,
+            scheduled_start_ns: t,
+            send_ns: t + 20_000 + (i * 7919) % 3_000,
+            receive_ns: t + 60_000,
+            ref_time_ns: if i % 1000 == 999 {
+                None
+            } else {
+                Some(t + 35_000 + i % 13)
+            },
+        };
+        std::hint::black_box(s.update(&input));
+    }
+    ALLOCS.load(Ordering::Relaxed) - before
+}
+
+#[test]
+fn updates_allocate_nothing() {
+    assert_eq!(run(MedianSync::default()), 0, "median");
+    assert_eq!(run(PiM2s::default()), 0, "pi-m2s");
+    assert_eq!(run(BusShift::default()), 0, "bus-shift");
+    assert_eq!(run(Snap::default()), 0, "snap");
+    assert_eq!(run(SoemPi::new(50_000)), 0, "soem-pi");
+}
