@@ -65,6 +65,16 @@ fn port_phase(clock: &LocalClock, p: usize, res: u64) -> u64 {
     clock.tick_residue() + 10 * ((clock.params().seed >> (8 * p)) % (res / 10).max(1))
 }
 
+#[inline(never)]
+fn rem40(x: u64) -> u64 {
+    x % 40
+}
+
+#[inline(never)]
+fn rem10(x: u64) -> u64 {
+    x % 10
+}
+
 /// Rounds half away from zero without a libm call.
 #[inline]
 fn round_fast(x: f64) -> i64 {
@@ -521,7 +531,16 @@ impl DcUnit {
     /// receive clock.
     #[inline]
     fn sof(&self, local: u64) -> u64 {
-        local - (local.wrapping_sub(self.sof_phase) % self.sof_res)
+        let x = local.wrapping_sub(self.sof_phase);
+        // Constant divisors for the two physical layers (a variable 64-bit division costs tens
+        // of cycles on the hot path). Separate functions keep the optimiser from folding the
+        // constant arms back into one variable division.
+        let r = match self.sof_res {
+            40 => rem40(x),
+            10 => rem10(x),
+            res => x % res,
+        };
+        local - r
     }
 
     /// Reads the registers the cyclic frame reads (0x0910 by ARMW/FRMW/FPRD, 0x092C by BRD or

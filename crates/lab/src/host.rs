@@ -63,9 +63,17 @@ impl Jitter {
             v = v.abs();
         }
         if self.tail_p > 0.0 && u_pulse < self.tail_p {
-            v += self.tail_sign.signum() * -self.tail_mean_ns * u_size.ln();
+            v += self.pulse(u_size);
         }
         v.clamp(-self.max_abs_ns, self.max_abs_ns)
+    }
+
+    /// An exponential pulse. Out of line so that the logarithm is only computed for the rare
+    /// cycles that have one (the optimiser would otherwise compute it every time and select).
+    #[cold]
+    #[inline(never)]
+    fn pulse(&self, u_size: f64) -> f64 {
+        self.tail_sign.signum() * -self.tail_mean_ns * u_size.ln()
     }
 
     /// Checks the numbers; returns the field at fault and why.

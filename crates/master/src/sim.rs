@@ -35,26 +35,25 @@ impl MasterClock {
 
     /// Master time at real time `t_ps`, ns.
     pub fn master_ns(&mut self, t_ps: u64) -> u64 {
-        self.clock.advance_to(t_ps);
-        self.clock.local_exact_ns(t_ps).0
+        self.clock.read_exact_ns(t_ps).0
     }
 
     /// Real time (ps) at which the master clock reads `t_ns` (the inverse of
     /// [`MasterClock::master_ns`], to a picosecond).
     pub fn real_ps_at(&mut self, t_ns: u64) -> u64 {
-        let anchor = self.clock.anchor_ps();
-        let (a_ns, a_frac) = self.clock.local_exact_ns(anchor);
-        let rate = self.clock.rate();
-        let mut r = anchor as f64 + ((t_ns as i128 - a_ns as i128) as f64 - a_frac) * 1e3 / rate;
-        // The rate is constant from the anchor on (until the next wander step): the estimate is
-        // exact but for rounding; one correction covers a wander step in between.
-        if r > self.clock.anchor_ps() as f64 + 1e10 {
-            let rr = r.max(0.0) as u64;
-            let (n, f) = self.clock.local_exact_ns(rr);
-            let err = (t_ns as i128 - n as i128) as f64 - f;
-            r = rr as f64 + err * 1e3 / rate;
+        loop {
+            let anchor = self.clock.anchor_ps();
+            let (a_ns, a_frac) = self.clock.local_exact_ns(anchor);
+            let rate = self.clock.rate();
+            let r = anchor as f64 + ((t_ns as i128 - a_ns as i128) as f64 - a_frac) * 1e3 / rate;
+            let r = r.max(0.0).round() as u64;
+            // The rate is constant up to the next wander step: beyond it, step there first.
+            let next = self.clock.next_wander_ps();
+            if r < next || next <= anchor {
+                return r;
+            }
+            self.clock.advance_to(next);
         }
-        r.max(0.0).round() as u64
     }
 }
 
