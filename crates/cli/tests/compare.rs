@@ -177,3 +177,27 @@ fn bad_scenarios_fail_with_a_located_message() {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("65535") && e.contains("fix:"), "{e}");
 }
+
+#[test]
+fn runs_too_short_to_measure_anything_still_write_their_report() {
+    // One recorded cycle, no warm-up: the M-rS error has no samples yet (the measurement offset
+    // is still being averaged); plots must come out empty, not panic.
+    let out = tmp("tiny");
+    let j = run(
+        &out,
+        &[
+            "--runs",
+            "1",
+            "--cycles",
+            "1",
+            "--warmup-s",
+            "0",
+            "--methods",
+            "median",
+            "bus-shift",
+        ],
+    );
+    assert!(j["methods"]["median"].is_object());
+    assert!(out.join("report.html").exists());
+    assert!(out.join("fig4_histograms.png").exists());
+}

@@ -341,7 +341,7 @@ impl SegmentConfig {
                 crystal: CrystalParams {
                     ppm: s.ppm,
                     wander_ppm_per_sqrt_s: s.wander_ppm_per_sqrt_s,
-                    wander_step_ps: 10_000_000_000,
+                    wander_step_ps: crate::clock::DEFAULT_WANDER_STEP_PS,
                     initial_local_ns: s
                         .power_up_ns
                         .unwrap_or(1_000_000_000 + 123_456_789 * i as u64),

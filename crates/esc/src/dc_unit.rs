@@ -65,14 +65,23 @@ fn port_phase(clock: &LocalClock, p: usize, res: u64) -> u64 {
     clock.tick_residue() + 10 * ((clock.params().seed >> (8 * p)) % (res / 10).max(1))
 }
 
-#[inline(never)]
-fn rem40(x: u64) -> u64 {
-    x % 40
+/// `x / 5` by multiplication with the reciprocal (exact for every u64).
+#[inline(always)]
+fn div5(x: u64) -> u64 {
+    ((u128::from(x) * 0xcccc_cccc_cccc_cccd) >> 66) as u64
 }
 
-#[inline(never)]
+/// `x % 40`, written out so that the optimiser cannot merge it with `x % 10` into a variable
+/// 64-bit division (tens of cycles on the hot path).
+#[inline(always)]
+fn rem40(x: u64) -> u64 {
+    x - div5(x >> 3) * 40
+}
+
+/// `x % 10`, see [`rem40`].
+#[inline(always)]
 fn rem10(x: u64) -> u64 {
-    x % 10
+    x - div5(x >> 1) * 10
 }
 
 /// Rounds half away from zero without a libm call.
@@ -99,6 +108,9 @@ pub struct DcUnit {
     dt_filter_depth: u8,
     speed_filter_depth: u8,
     dt_filtered: f64,
+    /// 0x092C as read: `dt_filtered` rounded, negated and sign-magnitude encoded, kept in step
+    /// with it (the cyclic frame reads it from every slave).
+    diff_register: u32,
     // Derived from the registers above, kept so the hot path divides nothing.
     dt_weight: f64,
     speed_gain: f64,
@@ -117,6 +129,19 @@ pub struct DcUnit {
     sync1_cycle: u32,
     sync0_status_cleared_at: Option<u64>,
     latch_mode: u8,
+}
+
+/// The low 32 bits of a little-endian value of up to 8 bytes (shorter values are zero-extended):
+/// what the time control loop compares of a system time write.
+#[inline]
+fn low_u32(data: &[u8]) -> u32 {
+    match data.get(..4) {
+        Some(w) => u32::from_le_bytes([w[0], w[1], w[2], w[3]]),
+        None => data
+            .iter()
+            .rev()
+            .fold(0u32, |acc, &b| (acc << 8) | u32::from(b)),
+    }
 }
 
 /// What a write to the DC block asks the segment to do beyond the unit itself.
@@ -142,6 +167,7 @@ impl DcUnit {
             dt_filter_depth: 4,
             speed_filter_depth: 12,
             dt_filtered: 0.0,
+            diff_register: 0,
             dt_weight: 1.0 / 16.0,
             speed_gain: 1.0 / 4096.0,
             slew_rate: 1.0 / (10.0 * 4096.0),
@@ -278,8 +304,7 @@ impl DcUnit {
         if overlaps(reg::DC_SYSTEM_TIME_OFFSET, 16) {
             put(reg::DC_SYSTEM_TIME_OFFSET, &self.offset.to_le_bytes());
             put(reg::DC_SYSTEM_TIME_DELAY, &self.delay.to_le_bytes());
-            let diff = dc_time::encode_time_difference(-round_fast(self.dt_filtered));
-            put(reg::DC_SYSTEM_TIME_DIFF, &diff.to_le_bytes());
+            put(reg::DC_SYSTEM_TIME_DIFF, &self.diff_register.to_le_bytes());
         }
         if overlaps(reg::DC_SPEED_COUNTER_START, 7) {
             put(
@@ -330,10 +355,7 @@ impl DcUnit {
     /// control loop compares bits 31:0.
     #[inline]
     pub fn write_system_time(&mut self, data: &[u8], t_ps: u64) {
-        let mut v = [0u8; 4];
-        let n = data.len().min(4);
-        v[..n].copy_from_slice(&data[..n]);
-        self.compare_system_time(u32::from_le_bytes(v), t_ps);
+        self.compare_system_time(low_u32(data), t_ps);
     }
 
     /// Applies a write of `data` to the registers at `addr..addr + data.len()` (absolute
@@ -341,10 +363,7 @@ impl DcUnit {
     pub fn write(&mut self, addr: u16, data: &[u8], t_ps: u64) -> DcWriteEffects {
         // The cyclic hot path: a system time write (FRMW/ARMW of 0x0910) touches nothing else.
         if addr == reg::DC_SYSTEM_TIME && data.len() <= 8 {
-            let mut v = [0u8; 4];
-            let n = data.len().min(4);
-            v[..n].copy_from_slice(&data[..n]);
-            self.compare_system_time(u32::from_le_bytes(v), t_ps);
+            self.compare_system_time(low_u32(data), t_ps);
             return DcWriteEffects::default();
         }
         let mut fx = DcWriteEffects::default();
@@ -403,13 +422,13 @@ impl DcUnit {
             self.slew_rate = 1.0 / (10.0 * f64::from(self.speed_counter_start));
             self.clock.set_drift_correction(t_ps, 0.0);
             self.clock.set_slew(t_ps, 0.0, 0.0);
-            self.dt_filtered = 0.0;
+            self.set_dt_filtered(0.0);
             self.last_sample = None;
         }
         if let Some(b) = byte(reg::DC_TIME_DIFF_FILTER_DEPTH) {
             self.dt_filter_depth = b & 0x0f;
             self.dt_weight = 1.0 / f64::from(1u32 << self.dt_filter_depth);
-            self.dt_filtered = 0.0;
+            self.set_dt_filtered(0.0);
         }
         if let Some(b) = byte(reg::DC_SPEED_COUNTER_FILTER_DEPTH) {
             self.speed_filter_depth = b & 0x0f;
@@ -558,9 +577,8 @@ impl DcUnit {
             }
             s.to_le_bytes()
         } else if addr == reg::DC_SYSTEM_TIME_DIFF && out.len() <= 4 {
-            let d = dc_time::encode_time_difference(-round_fast(self.dt_filtered));
             let mut v = [0u8; 8];
-            v[..4].copy_from_slice(&d.to_le_bytes());
+            v[..4].copy_from_slice(&self.diff_register.to_le_bytes());
             v
         } else {
             return false;
@@ -577,6 +595,12 @@ impl DcUnit {
         true
     }
 
+    #[inline]
+    fn set_dt_filtered(&mut self, v: f64) {
+        self.dt_filtered = v;
+        self.diff_register = dc_time::encode_time_difference(-round_fast(v));
+    }
+
     fn compare_system_time(&mut self, received: u32, t_ps: u64) {
         self.clock.advance_to(t_ps);
         let read = self
@@ -587,7 +611,7 @@ impl DcUnit {
         // The datasheet guarantees stability only for |dt| < 2^30 ns; larger differences (a
         // master writing 0 during its reset sequence, say) are shown but do not steer the clock.
         if dt.unsigned_abs() >= 1 << 30 {
-            self.dt_filtered = f64::from(dt);
+            self.set_dt_filtered(f64::from(dt));
             self.last_sample = None;
             return;
         }
@@ -595,13 +619,13 @@ impl DcUnit {
         self.writes += 1;
 
         // (2) Filtered difference.
-        self.dt_filtered += (dt - self.dt_filtered) * self.dt_weight;
+        self.set_dt_filtered(self.dt_filtered + (dt - self.dt_filtered) * self.dt_weight);
 
         // (4) Drift estimation from consecutive differences.
         let slew_left = self.clock.slew_remaining_ns();
         let mut c = self.clock.drift_correction();
         if let Some((t_prev, dt_expected)) = self.last_sample {
-            let elapsed_ns = (t_ps - t_prev) as f64 * 1e-3;
+            let elapsed_ns = (t_ps - t_prev) as i64 as f64 * 1e-3;
             if elapsed_ns >= 1_000.0 {
                 // dt_expected is the difference the previous write aimed for once its slew was
                 // complete; slew still pending (signed, opposite to the difference it removes)
@@ -636,6 +660,32 @@ mod tests {
             },
             is_64bit: true,
         })
+    }
+
+    #[test]
+    fn constant_remainders_match_the_operator() {
+        let mut x = 0x0123_4567_89ab_cdefu64;
+        let edges = [
+            0,
+            1,
+            9,
+            10,
+            39,
+            40,
+            41,
+            u64::MAX,
+            u64::MAX - 1,
+            u64::MAX - 39,
+        ];
+        for i in 0..100_000u64 {
+            x = x
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            for v in [x, x >> (i % 64), edges[(i % 10) as usize]] {
+                assert_eq!(rem40(v), v % 40, "{v}");
+                assert_eq!(rem10(v), v % 10, "{v}");
+            }
+        }
     }
 
     #[test]

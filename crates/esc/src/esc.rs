@@ -365,24 +365,33 @@ pub struct DatagramEffects {
     pub loops_changed: bool,
 }
 
-/// Copies a few dozen bytes without a call into `memcpy` (8-byte words, then bytes): the
-/// process data of one slave in the replayed cyclic frame.
+/// Copies a few dozen bytes without a call into `memcpy`: the process data of one slave in the
+/// replayed cyclic frame. Lengths up to 32 bytes take two overlapping word copies (the head and
+/// the tail of the range), longer ones `copy_from_slice`.
 #[inline]
 fn copy_small(dst: &mut [u8], src: &[u8]) {
     let n = dst.len().min(src.len());
-    if n > 64 {
-        dst[..n].copy_from_slice(&src[..n]);
+    let (dst, src) = (&mut dst[..n], &src[..n]);
+    macro_rules! two_words {
+        ($w:literal) => {{
+            let head: [u8; $w] = src[..$w].try_into().unwrap_or([0; $w]);
+            let tail: [u8; $w] = src[n - $w..].try_into().unwrap_or([0; $w]);
+            dst[..$w].copy_from_slice(&head);
+            dst[n - $w..].copy_from_slice(&tail);
+        }};
+    }
+    // The process data of a slave (tens of bytes) first: one comparison on the common path.
+    if (16..=32).contains(&n) {
+        two_words!(16);
         return;
     }
-    let mut i = 0;
-    while i + 8 <= n {
-        let w: [u8; 8] = src[i..i + 8].try_into().unwrap_or([0; 8]);
-        dst[i..i + 8].copy_from_slice(&w);
-        i += 8;
-    }
-    while i < n {
-        dst[i] = src[i];
-        i += 1;
+    match n {
+        0 => {}
+        1 => dst[0] = src[0],
+        2..=3 => two_words!(2),
+        4..=7 => two_words!(4),
+        8..=15 => two_words!(8),
+        _ => dst.copy_from_slice(src),
     }
 }
 
@@ -1354,6 +1363,19 @@ impl Esc {
             self.replay(frame, t_ps);
             return DatagramEffects::default();
         }
+        self.process_frame_full(frame, offsets, shape, t_ps)
+    }
+
+    /// Every datagram decoded in full, recording a program for the next frame of this shape.
+    /// Out of line: the replay above is the hot path and stays small.
+    #[inline(never)]
+    fn process_frame_full(
+        &mut self,
+        frame: &mut [u8],
+        offsets: &[u16],
+        shape: u32,
+        t_ps: u64,
+    ) -> DatagramEffects {
         let record = shape != 0 && offsets.len() <= MAX_PROGRAM_DATAGRAMS;
         let generation = self.generation;
         let mut prog = Program {
@@ -1569,6 +1591,20 @@ mod tests {
         );
         e.set_links([true, false, false, false]);
         e
+    }
+
+    #[test]
+    fn copy_small_copies_every_length_exactly() {
+        let src: Vec<u8> = (1..=100u8).collect();
+        for n in 0..=100 {
+            for dst_len in [n, n + 3] {
+                let mut got = vec![0u8; dst_len];
+                copy_small(&mut got, &src[..n]);
+                let mut want = vec![0u8; dst_len];
+                want[..n].copy_from_slice(&src[..n]);
+                assert_eq!(got, want, "n = {n}, dst {dst_len}");
+            }
+        }
     }
 
     fn dg(cmd: Command, adp: u16, ado: u16, data: &[u8]) -> Vec<u8> {

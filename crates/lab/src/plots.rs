@@ -47,6 +47,10 @@ fn err<E: std::fmt::Display>(e: E) -> io::Error {
 fn range(h: &Histogram, tail: f64) -> (f64, f64) {
     let lo = h.quantile(tail);
     let hi = h.quantile(1.0 - tail);
+    if !(lo.is_finite() && hi.is_finite()) {
+        // No samples (a run too short to measure anything): an empty plot around zero.
+        return (-1.0, 1.0);
+    }
     let pad = ((hi - lo) * 0.05).max(1.0);
     (lo - pad, hi + pad)
 }
@@ -172,6 +176,9 @@ fn series<DB: DrawingBackend>(
         for e in s {
             lo = lo.min(f64::from(e.min));
             hi = hi.max(f64::from(e.max));
+        }
+        if !(lo.is_finite() && hi.is_finite()) {
+            continue;
         }
         let pad = ((hi - lo) * 0.05).max(1.0);
         let t_end =

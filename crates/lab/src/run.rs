@@ -241,7 +241,7 @@ pub fn run_one(
     sim.master_clock = MasterClock::new(CrystalParams {
         ppm: s.host.master_ppm,
         wander_ppm_per_sqrt_s: s.host.master_wander_ppm_per_sqrt_s,
-        wander_step_ps: 10_000_000_000,
+        wander_step_ps: ecsync_esc::clock::DEFAULT_WANDER_STEP_PS,
         initial_local_ns: SIM_EPOCH_NS,
         seed: splitmix(seed ^ 0x4a57_e700),
     });

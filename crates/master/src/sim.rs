@@ -45,8 +45,12 @@ impl MasterClock {
             let anchor = self.clock.anchor_ps();
             let (a_ns, a_frac) = self.clock.local_exact_ns(anchor);
             let rate = self.clock.rate();
-            let r = anchor as f64 + ((t_ns as i128 - a_ns as i128) as f64 - a_frac) * 1e3 / rate;
-            let r = r.max(0.0).round() as u64;
+            // Signed 64-bit difference: master times are far apart from the anchor only by
+            // less than 292 years (an i128 conversion costs a libcall on the hot path).
+            let d_ns = t_ns.wrapping_sub(a_ns) as i64 as f64;
+            let r = anchor as f64 + (d_ns - a_frac) * 1e3 / rate;
+            // Rounds half up; `r` is not negative (no libm `round` call).
+            let r = (r.max(0.0) + 0.5) as u64;
             // The rate is constant up to the next wander step: beyond it, step there first.
             let next = self.clock.next_wander_ps();
             if r < next || next <= anchor {
