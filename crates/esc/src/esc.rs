@@ -1084,7 +1084,7 @@ impl Esc {
 
     /// The application: refreshes the inputs from the outputs before a read of the input buffer
     /// (a loopback device: statusword, then the outputs echoed, then a cycle counter).
-    #[inline]
+    #[inline(always)]
     fn app_refresh_inputs(&mut self) {
         if let Some(l) = self.app {
             let status: u16 = if self.al_state == al_state::OP {
@@ -1138,6 +1138,7 @@ impl Esc {
         })
     }
 
+    #[inline(never)]
     fn app_refresh_slow(&mut self) {
         let (Some(i), o) = (self.input_sm, self.output_sm) else {
             return;

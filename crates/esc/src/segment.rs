@@ -535,22 +535,33 @@ impl Segment {
     /// Every processing unit in turn at its precomputed time: what [`Segment::traverse`] does,
     /// without walking the ports.
     fn process_flat(&mut self, frame: &mut [u8], ctx: &FrameCtx, t_send: u64) {
-        let Some(timing) = self.timing.take() else {
+        // Disjoint borrows: the timing is read while the nodes are processed.
+        let Segment {
+            timing,
+            nodes,
+            trace,
+            ..
+        } = self;
+        let Some(tm) = timing.as_ref() else {
             return;
         };
         let offs = &ctx.offsets[..usize::from(ctx.n)];
-        let mut loops_changed = false;
-        for &i in &timing.order {
-            let i = usize::from(i);
-            let t = t_send + timing.pu[i];
-            self.trace[i].pu_ps = Some(t);
+        if !tm.order.is_empty() {
+            // Port 0 of the first ESC marks the source address as locally administered (every
+            // later one sets the same bit again).
             frame[6] |= 0x02;
-            let node = &mut self.nodes[i];
+        }
+        let mut loops_changed = false;
+        for &i in &tm.order {
+            let i = usize::from(i);
+            let t = t_send + tm.pu[i];
+            trace[i].pu_ps = Some(t);
+            let node = &mut nodes[i];
             let fx = node.esc.process_frame(frame, offs, ctx.shape, t);
             if fx.latch_receive_times {
                 let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
-                let ports = timing.ports[i].map(|o| o.map(|o| t_send + o));
-                let in_port = timing.in_port[i];
+                let ports = tm.ports[i].map(|o| o.map(|o| t_send + o));
+                let in_port = tm.in_port[i];
                 if let Some(dc) = node.esc.dc_mut() {
                     dc.latch(ports, t, in_port == 0, res);
                 }
@@ -560,8 +571,8 @@ impl Segment {
                 node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
             }
         }
-        if !loops_changed {
-            self.timing = Some(timing);
+        if loops_changed {
+            *timing = None;
         }
     }
 

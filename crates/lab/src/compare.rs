@@ -1,8 +1,9 @@
 //! A comparison: every method in every run, in parallel across cores, collected in a fixed
 //! order so that the result does not depend on scheduling.
 
-use crate::run::{RunError, RunResult, run_one};
+use crate::run::{BroughtUp, Run, RunError, RunResult, bring_up};
 use crate::scenario::Scenario;
+use std::collections::VecDeque;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::time::Instant;
@@ -22,7 +23,44 @@ pub struct Comparison {
     pub threads: usize,
 }
 
+/// Cycles a worker runs of one run before it takes the next from the queue: long enough that
+/// switching costs nothing (tens of milliseconds), short enough that the cores finish together.
+const SLICE_CYCLES: u64 = 65_536;
+
+/// Runs `f(i)` for every `i < n` on `threads` threads; results in index order.
+fn parallel_map<T: Send>(n: usize, threads: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let next = AtomicUsize::new(0);
+    let slots: Mutex<Vec<Option<T>>> = Mutex::new((0..n).map(|_| None).collect());
+    std::thread::scope(|sc| {
+        for _ in 0..threads.clamp(1, n.max(1)) {
+            sc.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, Ordering::Relaxed);
+                    if i >= n {
+                        break;
+                    }
+                    let v = f(i);
+                    if let Ok(mut s) = slots.lock() {
+                        s[i] = Some(v);
+                    }
+                }
+            });
+        }
+    });
+    slots
+        .into_inner()
+        .unwrap_or_default()
+        .into_iter()
+        .map(|v| v.expect("every index ran"))
+        .collect()
+}
+
 /// Runs the comparison on `threads` threads; `progress` is incremented by simulated cycles.
+///
+/// Each run's network is brought up once and every method continues from a copy of it. The
+/// methods' cyclic phases are then shared out in slices of [`SLICE_CYCLES`] from one queue, so
+/// that all cores stay busy until the end (with whole runs per thread, the last run of an odd
+/// count would run alone). Neither the slicing nor the threads change any result.
 pub fn compare(
     scenario: &Scenario,
     threads: usize,
@@ -31,43 +69,74 @@ pub fn compare(
     let t0 = Instant::now();
     let methods = scenario.methods.clone();
     let runs = scenario.runs as usize;
+    let threads = threads.max(1);
+    let ups = parallel_map(runs, threads, |r| bring_up(scenario, r as u32));
+    let ups: Vec<BroughtUp> = ups.into_iter().collect::<Result<_, _>>()?;
+
     let jobs: Vec<(usize, usize)> = (0..runs)
         .flat_map(|r| (0..methods.len()).map(move |m| (m, r)))
         .collect();
-    let next = AtomicUsize::new(0);
-    type Slot = Option<(Result<RunResult, RunError>, f64)>;
+    let mut queue = VecDeque::with_capacity(jobs.len());
+    for j in 0..jobs.len() {
+        queue.push_back((j, None::<Run>));
+    }
+    let queue = Mutex::new(queue);
+    type Slot = Option<Result<RunResult, RunError>>;
     let slots: Mutex<Vec<Slot>> = Mutex::new((0..jobs.len()).map(|_| None).collect());
-    let threads = threads.clamp(1, jobs.len().max(1));
+    let cpu_s: Mutex<Vec<f64>> = Mutex::new(vec![0.0; jobs.len()]);
+    let store = |j: usize, v: Result<RunResult, RunError>| {
+        if let Ok(mut s) = slots.lock() {
+            s[j] = Some(v);
+        }
+    };
+    let workers = threads.clamp(1, jobs.len().max(1));
     std::thread::scope(|sc| {
-        for _ in 0..threads {
+        for _ in 0..workers {
             sc.spawn(|| {
                 loop {
-                    let j = next.fetch_add(1, Ordering::Relaxed);
-                    let Some(&(m, r)) = jobs.get(j) else { break };
+                    let task = queue.lock().ok().and_then(|mut q| q.pop_front());
+                    let Some((j, state)) = task else { break };
+                    let (m, r) = jobs[j];
                     let t = Instant::now();
-                    let res = run_one(scenario, &methods[m], r as u32, progress);
-                    let dt = t.elapsed().as_secs_f64();
-                    if let Ok(mut s) = slots.lock() {
-                        s[j] = Some((res, dt));
+                    let mut run = match state {
+                        Some(run) => run,
+                        None => match Run::new(scenario, &ups[r], &methods[m]) {
+                            Ok(run) => run,
+                            Err(e) => {
+                                store(j, Err(e));
+                                continue;
+                            }
+                        },
+                    };
+                    let n = run.step(SLICE_CYCLES);
+                    progress.fetch_add(n, Ordering::Relaxed);
+                    if let Ok(mut c) = cpu_s.lock() {
+                        c[j] += t.elapsed().as_secs_f64();
+                    }
+                    if run.remaining() == 0 {
+                        store(j, Ok(run.finish()));
+                    } else if let Ok(mut q) = queue.lock() {
+                        q.push_back((j, Some(run)));
                     }
                 }
             });
         }
     });
     let slots = slots.into_inner().unwrap_or_default();
+    let cpu_s = cpu_s.into_inner().unwrap_or_default();
     let mut results: Vec<Vec<RunResult>> = (0..methods.len()).map(|_| Vec::new()).collect();
     let mut method_wall_s = vec![0.0; methods.len()];
     for (j, slot) in slots.into_iter().enumerate() {
         let (m, _r) = jobs[j];
-        let (res, dt) = slot.expect("every job ran");
+        let res = slot.expect("every job ran");
         results[m].push(res?);
-        method_wall_s[m] += dt;
+        method_wall_s[m] += cpu_s[j];
     }
     Ok(Comparison {
         scenario: scenario.clone(),
         results,
         method_wall_s,
         wall_s: t0.elapsed().as_secs_f64(),
-        threads,
+        threads: workers,
     })
 }

@@ -56,14 +56,15 @@ impl Jitter {
         max_abs_ns: 1e9,
     };
 
-    /// A sample from a standard normal `g` and two uniforms for the pulse.
-    fn sample(&self, g: f64, u_pulse: f64, u_size: f64) -> f64 {
+    /// A sample from a standard normal `g`, a uniform deciding whether a pulse comes and, only
+    /// when one does, a uniform for its size.
+    fn sample(&self, g: f64, u_pulse: f64, u_size: impl FnOnce() -> f64) -> f64 {
         let mut v = g * self.sigma_ns;
         if self.folded {
             v = v.abs();
         }
         if self.tail_p > 0.0 && u_pulse < self.tail_p {
-            v += self.pulse(u_size);
+            v += self.pulse(u_size());
         }
         v.clamp(-self.max_abs_ns, self.max_abs_ns)
     }
@@ -308,12 +309,12 @@ impl HostNoise {
             } else {
                 0.0
             };
-            let (a, b) = if j.tail_p > 0.0 {
-                (unit(rng.next()), unit(rng.next()))
+            let a = if j.tail_p > 0.0 {
+                unit(rng.next())
             } else {
-                (1.0, 1.0)
+                1.0
             };
-            j.sample(g, a, b)
+            j.sample(g, a, || unit(rng.next()))
         };
         let js = draw(&p.js).max(0.0);
         let em = (p.em_ns + draw(&p.em_jitter)).max(0.0);
@@ -393,6 +394,6 @@ mod tests {
             tail_sign: -1.0,
             max_abs_ns: 1e9,
         };
-        assert!(j.sample(0.3, 0.0, 0.5) < 0.0);
+        assert!(j.sample(0.3, 0.0, || 0.5) < 0.0);
     }
 }

@@ -8,7 +8,7 @@ use ecsync_dc::sync::MasterSync;
 use ecsync_dc::{BusShift, MedianSync, PiM2s, Snap, SoemPi};
 use ecsync_esc::clock::CrystalParams;
 use ecsync_esc::{Segment, frame_wire_time_ps};
-use ecsync_master::bringup::{BringupConfig, Stage, bringup};
+use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
 use ecsync_master::cyclic::{CycleRecord, CyclicConfig, CyclicEngine};
 use ecsync_master::sim::{MasterClock, SIM_EPOCH_NS, SimTransport};
 use ecsync_master::{Engine, MasterError};
@@ -223,13 +223,25 @@ impl Series {
     }
 }
 
-/// Runs method `method_name` in run `run` of the scenario. `progress` counts simulated cycles.
-pub fn run_one(
-    s: &Scenario,
-    method_name: &str,
+/// A run's network after its bring-up: every method of the run continues from a copy of it
+/// (the bring-up does not depend on the method, and it is the same hardware and seed).
+#[derive(Debug)]
+pub struct BroughtUp {
+    sim: SimTransport,
+    net: Network,
+    seed: u64,
     run: u32,
-    progress: &AtomicU64,
-) -> Result<RunResult, RunError> {
+}
+
+impl BroughtUp {
+    /// The network as the bring-up found and configured it.
+    pub fn network(&self) -> &Network {
+        &self.net
+    }
+}
+
+/// Brings up the network of run `run` of the scenario.
+pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
     let seed = run_seed(s.seed, run);
     // The same hardware in every run; the crystals' wander and the host's noise differ.
     let mut specs = s.slaves.clone();
@@ -256,147 +268,257 @@ pub fn run_one(
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
     let net = sim.run(&mut engine, |_, _, _| {})?;
-    let lock_ms = net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6);
-    let reference = usize::from(net.reference);
-    let last = sim.segment.len() - 1;
-    let ref_station = net.slaves[reference].station;
-
-    let method = Method::from_scenario(method_name, s)
-        .ok_or_else(|| RunError::UnknownMethod(method_name.to_string()))?;
-    let noise = HostNoise::new(s.host, seed);
-    let period = u64::from(s.cycle_ns);
-    let cyc_cfg = CyclicConfig {
-        period_ns: s.cycle_ns,
-        reference_station: ref_station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: method.init_cycles().max(10_000).min(s.warmup_cycles.max(1)),
-    };
-    // The first cycle: frames aimed at the reference's grid points. The reference's system time
-    // is close to the master's clock after the bring-up (its offset is the master's time), so
-    // the grid is the master's multiples of P, minus the mean time from the cycle start to the
-    // frame's arrival at the reference (e_m and the NIC latency; j_s's mean too).
-    let now = sim.master_now_ns();
-    let lead = s.host.em_ns + s.host.tx_latency_ns;
-    let first = (now / period + 2) * period - lead as u64;
-    let mut eng = CyclicEngine::new(method, cyc_cfg, first).map_err(RunError::Frame)?;
-
-    let total = s.warmup_cycles + s.cycles;
-    let mut res = RunResult {
-        method: method_name.to_string(),
+    Ok(BroughtUp {
+        sim,
+        net,
+        seed,
         run,
-        m_rs: Stats::new(-200_000.0, 10.0, 40_000),
-        rs_is: Stats::new(0.0, 1.0, 20_000),
-        phase: Stats::new(-200_000.0, 10.0, 40_000),
-        slave_diff: Stats::new(0.0, 1.0, 20_000),
-        margin: Stats::new(-500_000.0, 10.0, 100_000),
-        late_frames: 0,
-        latest_end_ns: f64::NEG_INFINITY,
-        lost_frames: 0,
-        bad_wkc: 0,
-        series: Default::default(),
-        lock_ms,
-    };
-    let cap = (s.cycles / SERIES_BLOCK + 2) as usize;
-    let mut series = [Series::new(cap), Series::new(cap), Series::new(cap)];
-    let shift = f64::from(s.sync0_shift_ns());
-    let mut grid0: Option<(u64, i64)> = None;
-    let mut prev_done_ns = 0u64;
-    let rx_latency_ps = (s.host.rx_latency_ns * 1000.0) as u64;
-    let mut batch = 0u64;
-    for i in 0..total {
-        let noise_i = noise.cycle(i);
-        // The task wakes at the scheduled start (or when the previous cycle is done, if it
-        // overran), late by j_s, and runs e_m before it timestamps and sends.
-        let wake = eng.scheduled_start_ns().max(prev_done_ns);
-        let send_ns = wake + (noise_i.js_ns + noise_i.em_ns) as u64;
-        let tx_ps = sim.master_clock.real_ps_at(send_ns) + (noise_i.tx_ns * 1000.0) as u64;
-        let frame = eng.frame_to_send(send_ns);
-        let n = frame.len();
-        let out = sim.segment.process(frame, tx_ps);
-        let rec: CycleRecord = match out.returned_sof_ps {
-            Some(t) => {
-                let rx_ps = t + frame_wire_time_ps(n) + rx_latency_ps;
-                let rx_ns = sim.master_clock.master_ns(rx_ps);
-                prev_done_ns = rx_ns;
-                eng.complete_in_place(true, send_ns, rx_ns)
-            }
-            None => {
-                prev_done_ns = send_ns + period / 2;
-                eng.complete_in_place(false, send_ns, prev_done_ns)
-            }
-        };
-        batch += 1;
-        if batch == 4096 {
-            progress.fetch_add(batch, Ordering::Relaxed);
-            batch = 0;
-        }
-        if i < s.warmup_cycles {
-            continue;
-        }
-        let k = i - s.warmup_cycles;
-        if rec.receive_ns.is_none() {
-            res.lost_frames += 1;
-            continue;
-        }
-        if rec.lrw_wkc != Some(net.expected_lrw_wkc) && net.pdi_len > 0 {
-            res.bad_wkc += 1;
-        }
-        if let Some(m) = rec.m_rs_ns {
-            res.m_rs.add(m as f64);
-            series[0].add(k, m as f64);
-        }
-        if let Some(v) = rec.rs_is_ns {
-            res.rs_is.add(f64::from(v));
-            series[1].add(k, f64::from(v));
-        }
-        // Ground truth from the segment.
-        let trace = sim.segment.trace();
-        let (Some(pu_ref), Some(pu_last)) = (trace[reference].pu_ps, trace[last].pu_ps) else {
-            continue;
-        };
-        let seg = &sim.segment;
-        let sys = |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
-        let Some(r) = sys(reference, pu_ref) else {
-            continue;
-        };
-        // The grid point this frame aims at: fixed by the first recorded frame, one per cycle.
-        let (g0, k0) = *grid0.get_or_insert_with(|| {
-            let g = ((r.0 as f64 + r.1) / period as f64).round() as u64;
-            (g, k as i64)
-        });
-        let grid = (g0 + (k as i64 - k0) as u64) * period;
-        let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
-        res.phase.add(phase);
-        series[2].add(k, phase);
-        // The slaves' differences move slowly (the loops act once per cycle): every 8th cycle
-        // is sampled.
-        if k % 8 == 0 {
-            let mut worst = 0.0f64;
-            for x in 0..seg.len() {
-                if x == reference {
-                    continue;
-                }
-                if let Some(v) = sys(x, pu_ref) {
-                    let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
-                    worst = worst.max(d.abs());
-                }
-            }
-            res.slave_diff.add(worst);
-        }
-        // The frame has passed the last slave when its last bit has: SYNC0 needs it by then.
-        let end_ps = pu_last + frame_wire_time_ps(n);
-        if let Some(e) = sys(last, end_ps) {
-            let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
-            let margin = shift - end_after_grid;
-            res.margin.add(margin);
-            if margin < 0.0 {
-                res.late_frames += 1;
-            }
-            res.latest_end_ns = res.latest_end_ns.max(end_after_grid);
-        }
+    })
+}
+
+/// One method's run in progress: the cyclic phase, resumable in steps of any number of cycles
+/// (so that a scheduler can share the cores fairly between runs; the result does not depend on
+/// the steps).
+pub struct Run {
+    sim: SimTransport,
+    eng: CyclicEngine<Method>,
+    noise: HostNoise,
+    res: RunResult,
+    series: [Series; 3],
+    grid0: Option<(u64, i64)>,
+    prev_done_ns: u64,
+    next_cycle: u64,
+    warmup_cycles: u64,
+    total_cycles: u64,
+    period_ns: u64,
+    shift_ns: f64,
+    rx_latency_ps: u64,
+    reference: usize,
+    last: usize,
+    expected_lrw_wkc: u16,
+    pdi_len: u32,
+}
+
+impl std::fmt::Debug for Run {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Run")
+            .field("method", &self.res.method)
+            .field("run", &self.res.run)
+            .field("next_cycle", &self.next_cycle)
+            .finish_non_exhaustive()
     }
-    progress.fetch_add(batch, Ordering::Relaxed);
-    let [a, b, c] = series;
-    res.series = [a.finish(), b.finish(), c.finish()];
-    Ok(res)
+}
+
+impl Run {
+    /// Method `method_name` from the brought-up network `up` (which it copies).
+    pub fn new(s: &Scenario, up: &BroughtUp, method_name: &str) -> Result<Run, RunError> {
+        let mut sim = up.sim.fork();
+        let net = &up.net;
+        let lock_ms = net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6);
+        let reference = usize::from(net.reference);
+        let last = sim.segment.len() - 1;
+        let ref_station = net.slaves[reference].station;
+
+        let method = Method::from_scenario(method_name, s)
+            .ok_or_else(|| RunError::UnknownMethod(method_name.to_string()))?;
+        let noise = HostNoise::new(s.host, up.seed);
+        let period = u64::from(s.cycle_ns);
+        let cyc_cfg = CyclicConfig {
+            period_ns: s.cycle_ns,
+            reference_station: ref_station,
+            pdi_len: net.pdi_len,
+            measure_init_frames: method.init_cycles().max(10_000).min(s.warmup_cycles.max(1)),
+        };
+        // The first cycle: frames aimed at the reference's grid points. The reference's system
+        // time is close to the master's clock after the bring-up (its offset is the master's
+        // time), so the grid is the master's multiples of P, minus the mean time from the cycle
+        // start to the frame's arrival at the reference (e_m and the NIC latency; j_s's mean
+        // too).
+        let now = sim.master_now_ns();
+        let lead = s.host.em_ns + s.host.tx_latency_ns;
+        let first = (now / period + 2) * period - lead as u64;
+        let eng = CyclicEngine::new(method, cyc_cfg, first).map_err(RunError::Frame)?;
+        let cap = (s.cycles / SERIES_BLOCK + 2) as usize;
+        Ok(Run {
+            sim,
+            eng,
+            noise,
+            res: RunResult {
+                method: method_name.to_string(),
+                run: up.run,
+                m_rs: Stats::new(-200_000.0, 10.0, 40_000),
+                rs_is: Stats::new(0.0, 1.0, 20_000),
+                phase: Stats::new(-200_000.0, 10.0, 40_000),
+                slave_diff: Stats::new(0.0, 1.0, 20_000),
+                margin: Stats::new(-500_000.0, 10.0, 100_000),
+                late_frames: 0,
+                latest_end_ns: f64::NEG_INFINITY,
+                lost_frames: 0,
+                bad_wkc: 0,
+                series: Default::default(),
+                lock_ms,
+            },
+            series: [Series::new(cap), Series::new(cap), Series::new(cap)],
+            grid0: None,
+            prev_done_ns: 0,
+            next_cycle: 0,
+            warmup_cycles: s.warmup_cycles,
+            total_cycles: s.warmup_cycles + s.cycles,
+            period_ns: period,
+            shift_ns: f64::from(s.sync0_shift_ns()),
+            rx_latency_ps: (s.host.rx_latency_ns * 1000.0) as u64,
+            reference,
+            last,
+            expected_lrw_wkc: net.expected_lrw_wkc,
+            pdi_len: net.pdi_len,
+        })
+    }
+
+    /// Cycles still to run (warm-up included).
+    pub fn remaining(&self) -> u64 {
+        self.total_cycles - self.next_cycle
+    }
+
+    /// Runs up to `max_cycles` more cycles; returns how many ran.
+    pub fn step(&mut self, max_cycles: u64) -> u64 {
+        let end = self
+            .total_cycles
+            .min(self.next_cycle.saturating_add(max_cycles));
+        let start = self.next_cycle;
+        let Run {
+            sim,
+            eng,
+            noise,
+            res,
+            series,
+            grid0,
+            prev_done_ns,
+            ..
+        } = self;
+        let (warmup, period, shift, rx_latency_ps) = (
+            self.warmup_cycles,
+            self.period_ns,
+            self.shift_ns,
+            self.rx_latency_ps,
+        );
+        let (reference, last) = (self.reference, self.last);
+        let (expected_wkc, pdi_len) = (self.expected_lrw_wkc, self.pdi_len);
+        for i in start..end {
+            let noise_i = noise.cycle(i);
+            // The task wakes at the scheduled start (or when the previous cycle is done, if it
+            // overran), late by j_s, and runs e_m before it timestamps and sends.
+            let wake = eng.scheduled_start_ns().max(*prev_done_ns);
+            let send_ns = wake + (noise_i.js_ns + noise_i.em_ns) as u64;
+            let tx_ps = sim.master_clock.real_ps_at(send_ns) + (noise_i.tx_ns * 1000.0) as u64;
+            let frame = eng.frame_to_send(send_ns);
+            let n = frame.len();
+            let out = sim.segment.process(frame, tx_ps);
+            let rec: CycleRecord = match out.returned_sof_ps {
+                Some(t) => {
+                    let rx_ps = t + frame_wire_time_ps(n) + rx_latency_ps;
+                    let rx_ns = sim.master_clock.master_ns(rx_ps);
+                    *prev_done_ns = rx_ns;
+                    eng.complete_in_place(true, send_ns, rx_ns)
+                }
+                None => {
+                    *prev_done_ns = send_ns + period / 2;
+                    eng.complete_in_place(false, send_ns, *prev_done_ns)
+                }
+            };
+            if i < warmup {
+                continue;
+            }
+            let k = i - warmup;
+            if rec.receive_ns.is_none() {
+                res.lost_frames += 1;
+                continue;
+            }
+            if rec.lrw_wkc != Some(expected_wkc) && pdi_len > 0 {
+                res.bad_wkc += 1;
+            }
+            if let Some(m) = rec.m_rs_ns {
+                res.m_rs.add(m as f64);
+                series[0].add(k, m as f64);
+            }
+            if let Some(v) = rec.rs_is_ns {
+                res.rs_is.add(f64::from(v));
+                series[1].add(k, f64::from(v));
+            }
+            // Ground truth from the segment.
+            let trace = sim.segment.trace();
+            let (Some(pu_ref), Some(pu_last)) = (trace[reference].pu_ps, trace[last].pu_ps) else {
+                continue;
+            };
+            let seg = &sim.segment;
+            let sys =
+                |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
+            let Some(r) = sys(reference, pu_ref) else {
+                continue;
+            };
+            // The grid point this frame aims at: fixed by the first recorded frame, one per
+            // cycle.
+            let (g0, k0) = *grid0.get_or_insert_with(|| {
+                let g = ((r.0 as f64 + r.1) / period as f64).round() as u64;
+                (g, k as i64)
+            });
+            let grid = (g0 + (k as i64 - k0) as u64) * period;
+            let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
+            res.phase.add(phase);
+            series[2].add(k, phase);
+            // The slaves' differences move slowly (the loops act once per cycle): every 8th
+            // cycle is sampled.
+            if k % 8 == 0 {
+                let mut worst = 0.0f64;
+                for x in 0..seg.len() {
+                    if x == reference {
+                        continue;
+                    }
+                    if let Some(v) = sys(x, pu_ref) {
+                        let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
+                        worst = worst.max(d.abs());
+                    }
+                }
+                res.slave_diff.add(worst);
+            }
+            // The frame has passed the last slave when its last bit has: SYNC0 needs it by
+            // then.
+            let end_ps = pu_last + frame_wire_time_ps(n);
+            if let Some(e) = sys(last, end_ps) {
+                let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
+                let margin = shift - end_after_grid;
+                res.margin.add(margin);
+                if margin < 0.0 {
+                    res.late_frames += 1;
+                }
+                res.latest_end_ns = res.latest_end_ns.max(end_after_grid);
+            }
+        }
+        self.next_cycle = end;
+        end - start
+    }
+
+    /// The result (of the cycles run so far).
+    pub fn finish(self) -> RunResult {
+        let mut res = self.res;
+        let [a, b, c] = self.series;
+        res.series = [a.finish(), b.finish(), c.finish()];
+        res
+    }
+}
+
+/// Runs method `method_name` in run `run` of the scenario, bring-up included. `progress` counts
+/// simulated cycles.
+pub fn run_one(
+    s: &Scenario,
+    method_name: &str,
+    run: u32,
+    progress: &AtomicU64,
+) -> Result<RunResult, RunError> {
+    let up = bring_up(s, run)?;
+    let mut r = Run::new(s, &up, method_name)?;
+    while r.remaining() > 0 {
+        let n = r.step(4096);
+        progress.fetch_add(n, Ordering::Relaxed);
+    }
+    Ok(r.finish())
 }

@@ -32,16 +32,18 @@ impl Histogram {
     #[inline]
     pub fn add(&mut self, x: f64) {
         let k = (x - self.lo) * self.inv_bin;
-        if k < 0.0 || k.is_nan() {
-            self.below += 1;
-            self.counts[0] += 1;
-        } else if k as usize >= self.counts.len() {
+        let n = self.counts.len();
+        if k >= 0.0 && k < n as f64 {
+            // 0 <= k < n: truncation is the floor, and the signed conversion is one
+            // instruction (the unsigned one saturates in several).
+            self.counts[k as i64 as usize] += 1;
+        } else if k >= 0.0 {
             self.above += 1;
-            let n = self.counts.len();
             self.counts[n - 1] += 1;
         } else {
-            // k >= 0: truncation is the floor.
-            self.counts[k as usize] += 1;
+            // Negative or NaN.
+            self.below += 1;
+            self.counts[0] += 1;
         }
     }
 
@@ -123,8 +125,14 @@ impl Stats {
         self.n += 1;
         self.sum += x;
         self.sum_sq += x * x;
-        self.min = self.min.min(x);
-        self.max = self.max.max(x);
+        // Plain comparisons: a NaN sample leaves the extremes alone (and lands in the
+        // histogram's first bin) without the NaN handling of `f64::min`.
+        if x < self.min {
+            self.min = x;
+        }
+        if x > self.max {
+            self.max = x;
+        }
         self.hist.add(x);
     }
 

@@ -12,9 +12,43 @@ pub const SIM_EPOCH_NS: u64 = 848_620_800_000_000_000;
 
 /// The master's clock: a crystal (ppm and wander, the same model as the ESCs') mapping real time
 /// to master time, ns since the DC epoch.
+///
+/// No control loop steers it, so between two wander steps it is one straight line; the line is
+/// cached (its start and slope both ways) so that reading and inverting it every cycle costs a
+/// multiplication each.
 #[derive(Debug, Clone)]
 pub struct MasterClock {
     clock: LocalClock,
+    line: Line,
+}
+
+/// The master clock's straight piece from `anchor_ps` up to `next_ps` (the next wander step).
+#[derive(Debug, Clone, Copy)]
+struct Line {
+    anchor_ps: u64,
+    next_ps: u64,
+    /// Master time at the anchor: whole ns and fraction.
+    a_ns: u64,
+    a_frac: f64,
+    /// Master ns per real ps, and real ps per master ns.
+    ns_per_ps: f64,
+    ps_per_ns: f64,
+}
+
+impl Line {
+    fn of(clock: &LocalClock) -> Line {
+        let anchor_ps = clock.anchor_ps();
+        let (a_ns, a_frac) = clock.local_exact_ns(anchor_ps);
+        let rate = clock.rate();
+        Line {
+            anchor_ps,
+            next_ps: clock.next_wander_ps(),
+            a_ns,
+            a_frac,
+            ns_per_ps: rate * 1e-3,
+            ps_per_ns: 1e3 / rate,
+        }
+    }
 }
 
 impl MasterClock {
@@ -28,36 +62,63 @@ impl MasterClock {
 
     /// A clock with this crystal (its `initial_local_ns` is the master time at real time 0).
     pub fn new(crystal: CrystalParams) -> Self {
-        MasterClock {
-            clock: LocalClock::new(crystal),
-        }
+        let clock = LocalClock::new(crystal);
+        let line = Line::of(&clock);
+        MasterClock { clock, line }
     }
 
-    /// Master time at real time `t_ps`, ns.
+    /// Moves to the straight piece that holds real time `t_ps` (forward only).
+    #[cold]
+    #[inline(never)]
+    fn advance(&mut self, t_ps: u64) {
+        self.clock.advance_to(t_ps);
+        self.line = Line::of(&self.clock);
+    }
+
+    /// Master time at real time `t_ps`, ns (the last whole nanosecond).
+    #[inline]
     pub fn master_ns(&mut self, t_ps: u64) -> u64 {
-        self.clock.read_exact_ns(t_ps).0
+        if t_ps >= self.line.next_ps {
+            self.advance(t_ps);
+        }
+        let l = &self.line;
+        // Signed: a time slightly before the anchor reads back along the same line.
+        let d = (t_ps.wrapping_sub(l.anchor_ps) as i64) as f64 * l.ns_per_ps + l.a_frac;
+        let whole = d.floor_fast();
+        l.a_ns.wrapping_add(whole as i64 as u64)
     }
 
     /// Real time (ps) at which the master clock reads `t_ns` (the inverse of
     /// [`MasterClock::master_ns`], to a picosecond).
+    #[inline]
     pub fn real_ps_at(&mut self, t_ns: u64) -> u64 {
         loop {
-            let anchor = self.clock.anchor_ps();
-            let (a_ns, a_frac) = self.clock.local_exact_ns(anchor);
-            let rate = self.clock.rate();
-            // Signed 64-bit difference: master times are far apart from the anchor only by
-            // less than 292 years (an i128 conversion costs a libcall on the hot path).
-            let d_ns = t_ns.wrapping_sub(a_ns) as i64 as f64;
-            let r = anchor as f64 + (d_ns - a_frac) * 1e3 / rate;
+            let l = &self.line;
+            // Signed 64-bit difference: an i128 conversion costs a libcall on the hot path.
+            let d_ns = (t_ns.wrapping_sub(l.a_ns) as i64) as f64 - l.a_frac;
+            let r = l.anchor_ps as f64 + d_ns * l.ps_per_ns;
             // Rounds half up; `r` is not negative (no libm `round` call).
             let r = (r.max(0.0) + 0.5) as u64;
             // The rate is constant up to the next wander step: beyond it, step there first.
-            let next = self.clock.next_wander_ps();
-            if r < next || next <= anchor {
+            if r < l.next_ps || l.next_ps <= l.anchor_ps {
                 return r;
             }
-            self.clock.advance_to(next);
+            let next = l.next_ps;
+            self.advance(next);
         }
+    }
+}
+
+/// `floor` without a libm call (the baseline x86-64 target has no SSE4.1 `roundsd`).
+trait FloorFast {
+    fn floor_fast(self) -> f64;
+}
+
+impl FloorFast for f64 {
+    #[inline]
+    fn floor_fast(self) -> f64 {
+        let t = self as i64 as f64;
+        if t > self { t - 1.0 } else { t }
     }
 }
 
@@ -105,6 +166,20 @@ impl SimTransport {
             tx_latency_ps: 2_000_000,
             rx_latency_ps: 3_000_000,
             timeout_ps: 10_000_000_000,
+            capture: None,
+        }
+    }
+
+    /// A copy of this transport in its current state (segment, clocks, time) without the
+    /// capture: several experiments can continue from one bring-up.
+    pub fn fork(&self) -> SimTransport {
+        SimTransport {
+            segment: self.segment.clone(),
+            now_ps: self.now_ps,
+            master_clock: self.master_clock.clone(),
+            tx_latency_ps: self.tx_latency_ps,
+            rx_latency_ps: self.rx_latency_ps,
+            timeout_ps: self.timeout_ps,
             capture: None,
         }
     }
