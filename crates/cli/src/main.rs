@@ -6,6 +6,8 @@ use std::process::ExitCode;
 mod bench;
 mod bringup;
 mod compare;
+#[cfg(target_os = "linux")]
+mod net;
 mod source;
 
 /// EtherCAT Distributed Clocks: bring-up, master synchronization methods, measurement.
@@ -26,6 +28,14 @@ enum Command {
     Compare(compare::Args),
     /// Measures the simulator's speed.
     Bench(bench::Args),
+    /// Serves the virtual segment on a network interface: any EtherCAT master on the other
+    /// end (ecsync run, ethercrab, SOEM) sees its slaves.
+    #[cfg(target_os = "linux")]
+    Serve(net::ServeArgs),
+    /// Runs the master on a network interface: scan, DC bring-up, SYNC0, and the cyclic loop
+    /// with a synchronization method, in real time.
+    #[cfg(target_os = "linux")]
+    Run(net::RunArgs),
 }
 
 fn main() -> ExitCode {
@@ -34,6 +44,10 @@ fn main() -> ExitCode {
         Command::Bringup(a) => bringup::run(a),
         Command::Compare(a) => compare::run(a),
         Command::Bench(a) => bench::run(a),
+        #[cfg(target_os = "linux")]
+        Command::Serve(a) => net::serve(a),
+        #[cfg(target_os = "linux")]
+        Command::Run(a) => net::run(a),
     };
     match r {
         Ok(code) => code,

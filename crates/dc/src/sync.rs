@@ -377,9 +377,10 @@ impl MasterSync for BusShift {
     }
 }
 
-/// What ethercrab 0.7 ships (`CycleInfo::next_cycle_wait`): after each exchange the task
-/// sleeps `P - (t_ra mod P) + shift` from the moment the reply arrived — a phase snap with gain 1
-/// and no filter.
+/// What ethercrab 0.7 ships (`CycleInfo::next_cycle_wait`): the task takes `now` at the top of
+/// its loop, calls `tx_rx_dc` (which sends at once) and sleeps until `now + P - (t_ra mod P) +
+/// shift` — a phase snap with gain 1 and no filter. `now` is the send timestamp here (ethercrab's
+/// documented loop takes it right before the exchange).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Snap {
     /// ethercrab's `sync0_shift`, ns.
@@ -397,7 +398,7 @@ impl MasterSync for Snap {
             Some(t_ra) => {
                 let phase = t_ra % p;
                 let wait = p - phase + u64::from(self.shift_ns);
-                let next = input.receive_ns.wrapping_add(wait);
+                let next = input.send_ns.wrapping_add(wait);
                 let wrapped = if phase > p / 2 {
                     phase as i64 - p as i64
                 } else {
@@ -410,9 +411,9 @@ impl MasterSync for Snap {
                 }
             }
             None => CycleOutput {
-                next_start_ns: input.receive_ns.wrapping_add(p),
+                next_start_ns: input.send_ns.wrapping_add(p),
                 error_ns: 0,
-                correction_ns: diff_u64(next_nominal(input), input.receive_ns.wrapping_add(p)),
+                correction_ns: diff_u64(next_nominal(input), input.send_ns.wrapping_add(p)),
             },
         }
     }
@@ -631,12 +632,17 @@ mod tests {
     #[test]
     fn snap_waits_to_the_next_grid_point() {
         let mut s = Snap { shift_ns: 0 };
-        // Reference at 123_456 into its cycle; reply at master 10_000_000: wait P - 123_456.
+        // Reference at 123_456 into its cycle; sent at master 9_900_000 (the reply at
+        // 10_000_000 does not matter): wait P - 123_456 from the send.
         let mut i = input(0, 0, 9_900_000, Some(77 * u64::from(P) + 123_456));
         i.receive_ns = 10_000_000;
         let o = s.update(&i);
-        assert_eq!(o.next_start_ns, 10_000_000 + 1_000_000 - 123_456);
+        assert_eq!(o.next_start_ns, 9_900_000 + 1_000_000 - 123_456);
         assert_eq!(o.error_ns, 123_456);
+        // With ethercrab's sync0_shift the wait grows by the shift.
+        let mut s = Snap { shift_ns: 250_000 };
+        let o = s.update(&i);
+        assert_eq!(o.next_start_ns, 9_900_000 + 1_000_000 - 123_456 + 250_000);
     }
 
     #[test]

@@ -1,0 +1,633 @@
+//! `ecsync serve` (the virtual segment on a network interface) and `ecsync run` (the master, its
+//! DC bring-up and a synchronization method on a network interface).
+
+use crate::source::SourceArgs;
+use anyhow::{Context, Result, bail};
+use ecsync_esc::Segment;
+use ecsync_esc::pcap::PcapCapture;
+use ecsync_lab::run::Method;
+use ecsync_lab::stats::{Stats, Summary};
+use ecsync_master::bringup::{DcCapability, Stage};
+use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
+use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
+use ecsync_net::cyclic::{CyclicLimits, RealCycle, Stopped, run_cyclic};
+use ecsync_net::rt::{self, RtReport};
+use ecsync_net::sys::{PacketSocket, TimestampSupport};
+use ecsync_net::{LinkStats, NetError, RealLink};
+use serde::Serialize;
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// Raised by Ctrl-C (SIGINT) and SIGTERM.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+fn install_stop_handler() {
+    // A second installation (tests calling twice in one process) is harmless to ignore.
+    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+}
+
+/// Arguments of `ecsync serve`.
+#[derive(Debug, clap::Args)]
+pub struct ServeArgs {
+    /// Network interface to serve the segment on.
+    #[arg(long)]
+    iface: String,
+    #[command(flatten)]
+    source: SourceArgs,
+    /// Capture every frame in and out to this pcap file.
+    #[arg(long)]
+    pcap: Option<PathBuf>,
+    /// SCHED_FIFO priority of the serving thread (0: normal scheduling).
+    #[arg(long, default_value_t = 70)]
+    priority: i32,
+    /// No status line.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// Opens a socket, turning the OS's refusals into one clear line.
+fn open_socket(iface: &str) -> Result<PacketSocket> {
+    PacketSocket::open(iface).map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+pub fn serve(args: ServeArgs) -> Result<ExitCode> {
+    let (name, specs) = args.source.segment()?;
+    let mut seg = Segment::new(&specs).context("building the segment")?;
+    let sock = open_socket(&args.iface)?;
+    install_stop_handler();
+    let rt = rt::setup(args.priority, rt::Pin::No);
+    for w in &rt.warnings {
+        eprintln!("ecsync serve: warning: {w}");
+    }
+    let mut capture = match &args.pcap {
+        Some(p) => Some(
+            PcapCapture::create(p)
+                .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", p.display()))?,
+        ),
+        None => None,
+    };
+    let reference = (0..seg.len()).find(|&i| seg.esc(i).model().dc.has_system_time());
+    eprintln!(
+        "ecsync serve: {name}, {} slaves, on {} (kernel timestamps: rx {}, promiscuous {}); Ctrl-C stops.",
+        seg.len(),
+        args.iface,
+        if sock.timestamps().rx_software {
+            "yes"
+        } else {
+            "no"
+        },
+        if sock.promiscuous() { "yes" } else { "no" },
+    );
+    if let Some(r) = reference {
+        let truth = seg.true_delays_ns(r);
+        let list: Vec<String> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, d)| match d {
+                Some(d) => format!("{i}: {d:.1}"),
+                None => format!("{i}: -"),
+            })
+            .collect();
+        eprintln!(
+            "true propagation delays from the reference (position {r}), ns: {}",
+            list.join(", ")
+        );
+    }
+    let t0 = Instant::now();
+    let mut last_print = Instant::now();
+    let quiet = args.quiet;
+    let stats = ecsync_net::serve::serve(&sock, &mut seg, capture.as_mut(), &STOP, |s| {
+        if !quiet && last_print.elapsed().as_secs_f64() >= 1.0 {
+            last_print = Instant::now();
+            eprint!(
+                "\r{:>8.1} s: {} frames answered, {} not returned",
+                t0.elapsed().as_secs_f64(),
+                s.answered,
+                s.not_returned
+            );
+        }
+    })
+    .map_err(|e| anyhow::anyhow!("serving on {}: {e}", args.iface))?;
+    if !quiet {
+        eprintln!();
+    }
+    if let Some(c) = capture {
+        let n = c.frames();
+        c.finish().context("writing the pcap file")?;
+        eprintln!("captured {n} frames");
+    }
+    eprintln!(
+        "ecsync serve: stopped after {:.1} s: {} frames received, {} answered, {} not returned, {} skipped as returning frames.",
+        t0.elapsed().as_secs_f64(),
+        stats.received,
+        stats.answered,
+        stats.not_returned,
+        stats.skipped_returning
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Arguments of `ecsync run`.
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Network interface the EtherCAT segment is on.
+    #[arg(long)]
+    iface: String,
+    /// Master synchronization method (median, pi-m2s, bus-shift, snap, soem-pi).
+    #[arg(long, default_value = "median")]
+    method: String,
+    /// Cycle time and SYNC0 period, microseconds.
+    #[arg(long, default_value_t = 1000)]
+    cycle_us: u32,
+    /// How long to run the cyclic phase, s (default: until Ctrl-C).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// SYNC0 shift after the grid point the frames aim at, % of the cycle.
+    #[arg(long, default_value_t = 30.0)]
+    shift_pct: f64,
+    /// Write one row per cycle to this CSV file.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Also write the JSON summary to this file.
+    #[arg(long)]
+    summary: Option<PathBuf>,
+    /// Initialisation of the master-shift methods (h_mr averaged over this long), s.
+    #[arg(long, default_value_t = 1.0)]
+    init_s: f64,
+    /// FRMW frames of static drift compensation in the bring-up.
+    #[arg(long, default_value_t = 15_000)]
+    static_drift: u32,
+    /// A reply not back this long after the send counts as lost, microseconds. Replies later
+    /// than a cycle are counted apart as late (on a host without PREEMPT_RT the process, not the
+    /// network, is usually what was late).
+    #[arg(long, default_value_t = 10_000)]
+    timeout_us: u32,
+    /// SCHED_FIFO priority of the cycle task (0: normal scheduling).
+    #[arg(long, default_value_t = 80)]
+    priority: i32,
+    /// CPU to pin the cycle task to (default: the last).
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Method parameters from a scenario file (its [methods.*] tables) instead of the preset's.
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+#[derive(Debug, Serialize)]
+struct SlaveOut {
+    position: u16,
+    station: u16,
+    name: String,
+    vendor_id: u32,
+    product_code: u32,
+    serial: u32,
+    dc: DcCapability,
+    delay_ns: Option<f64>,
+    offset: Option<u64>,
+}
+
+#[derive(Debug, Serialize)]
+struct BringupOut {
+    reference: u16,
+    slaves: Vec<SlaveOut>,
+    converged: bool,
+    time_to_lock_ms: Option<f64>,
+    max_abs_092c_after_lock_ns: u32,
+    frmw_frames: u64,
+    pdi_bytes: u32,
+    expected_lrw_wkc: u16,
+    sync0_start_ns: Option<u64>,
+    wall_s: f64,
+}
+
+/// Wake-up latency figures, µs.
+#[derive(Debug, Serialize)]
+struct LatencyOut {
+    n: u64,
+    mean_us: f64,
+    p50_us: f64,
+    p99_us: f64,
+    p999_us: f64,
+    max_us: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct RunOut {
+    iface: String,
+    method: String,
+    cycle_ns: u32,
+    sync0_shift_ns: u32,
+    stopped: String,
+    cycles: u64,
+    duration_s: f64,
+    lost_frames: u64,
+    /// Replies that came back later than one cycle after their send.
+    late_replies: u64,
+    bad_wkc: u64,
+    link: LinkStats,
+    timestamps: TimestampSupport,
+    rt: RtReport,
+    bringup: BringupOut,
+    /// The letter's M-rS error, ns (φ for master shift, t_ra - t_ms for bus shift).
+    m_rs: Summary,
+    /// The letter's rS-IS error (|0x092C| by BRD), ns.
+    rs_is: Summary,
+    /// Wake-up latency of the cycle task.
+    wake_latency: LatencyOut,
+    /// From the send timestamp to the kernel's transmit timestamp (the NIC path's j_c), ns.
+    tx_path: Summary,
+    /// From the send timestamp to the reply, ns.
+    round_trip: Summary,
+    csv: Option<String>,
+}
+
+fn latency(s: &Stats) -> LatencyOut {
+    let m = s.summary();
+    LatencyOut {
+        n: m.n,
+        mean_us: m.mean / 1e3,
+        p50_us: s.abs_quantile(0.5) / 1e3,
+        p99_us: m.p99_abs / 1e3,
+        p999_us: m.p999_abs / 1e3,
+        max_us: m.max_abs / 1e3,
+    }
+}
+
+fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<Method> {
+    let (name, text) = match &args.config {
+        Some(p) => (
+            p.display().to_string(),
+            std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?,
+        ),
+        None => (
+            "preset paper-2024".to_string(),
+            ecsync_esc::preset::PAPER_2024_TOML.to_string(),
+        ),
+    };
+    let mut s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
+    if !(args.init_s.is_finite() && args.init_s > 0.0) {
+        bail!("--init-s must be a number of seconds > 0");
+    }
+    let init = ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as i64).max(1);
+    s.median.init_frames = init;
+    s.pi_m2s.init_frames = init;
+    s.cycle_ns = cycle_ns;
+    Method::from_scenario(&args.method, &s).with_context(|| {
+        format!(
+            "unknown method \"{}\"; the methods are: {}",
+            args.method,
+            ecsync_lab::scenario::METHODS.join(", ")
+        )
+    })
+}
+
+/// Writes `v` or nothing, then the separator (no allocation: this runs every cycle).
+fn field<T: std::fmt::Display>(w: &mut impl Write, v: Option<T>, sep: char) -> std::io::Result<()> {
+    if let Some(v) = v {
+        write!(w, "{v}")?;
+    }
+    write!(w, "{sep}")
+}
+
+fn csv_row(w: &mut impl Write, c: &RealCycle) -> std::io::Result<()> {
+    let r = &c.record;
+    write!(w, "{},{},{},", r.cycle, r.scheduled_ns, r.send_ns)?;
+    field(w, r.ref_time_ns, ',')?;
+    write!(w, "{},{},", r.output.error_ns, r.output.correction_ns)?;
+    field(w, r.rs_is_ns, ',')?;
+    field(w, r.lrw_wkc, ',')?;
+    write!(w, "{},", c.wake_latency_ns)?;
+    field(w, c.round_trip_ns, ',')?;
+    writeln!(w, "{}", u8::from(r.receive_ns.is_none()))
+}
+
+const CSV_HEADER: &str = "cycle,scheduled_ns,send_ns,ref_time_ns,error_ns,correction_ns,max_abs_092c_ns,lrw_wkc,wake_latency_ns,round_trip_ns,lost";
+
+pub fn run(args: RunArgs) -> Result<ExitCode> {
+    if !(1..=1_000_000).contains(&args.cycle_us) {
+        bail!("--cycle-us must lie in 1 ..= 1000000");
+    }
+    if !(0.0..100.0).contains(&args.shift_pct) {
+        bail!("--shift-pct must lie in 0 ..< 100");
+    }
+    if let Some(d) = args.duration {
+        if !(d.is_finite() && d > 0.0) {
+            bail!("--duration must be a number of seconds > 0");
+        }
+    }
+    let cycle_ns = args.cycle_us * 1000;
+    let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
+    let method = method_for(&args, cycle_ns)?;
+    let mut csv = match &args.csv {
+        Some(p) => {
+            let f = std::fs::File::create(p)
+                .with_context(|| format!("cannot create {}", p.display()))?;
+            let mut w = std::io::BufWriter::new(f);
+            writeln!(w, "{CSV_HEADER}")?;
+            Some(w)
+        }
+        None => None,
+    };
+    let mut link = RealLink::open(&args.iface).map_err(|e| anyhow::anyhow!("{e}"))?;
+    link.timeout_ns = u64::from(args.timeout_us.max(1)) * 1000;
+    install_stop_handler();
+    let rt = rt::setup(args.priority, args.cpu.map_or(rt::Pin::Last, rt::Pin::Cpu));
+    for w in &rt.warnings {
+        eprintln!("ecsync run: warning: {w}");
+    }
+
+    // Bring-up.
+    let t_up = Instant::now();
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: args.static_drift,
+        cycle_ns,
+        sync0_shift_ns: shift_ns,
+        monitor_cycles: 100,
+        lock_hold_checks: 200,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |l| bringup(l, cfg));
+    let json = args.json;
+    let net: Network = match link.run(&mut engine, |e| {
+        if let (Event::Phase(p), false) = (e, json) {
+            eprintln!("  {p}");
+        }
+    }) {
+        Ok(Ok(n)) => n,
+        Ok(Err(MasterError::FrameLost { what })) => bail!(
+            "no answer on {} during the bring-up ({what}): is a segment (or `ecsync serve`) connected?",
+            args.iface
+        ),
+        Ok(Err(e)) => bail!("bring-up on {} failed: {e}", args.iface),
+        Err(NetError::Open(e)) => bail!("{e}"),
+        Err(e) => bail!("bring-up on {}: {e}", args.iface),
+    };
+    let bring = BringupOut {
+        reference: net.reference,
+        slaves: net
+            .slaves
+            .iter()
+            .map(|s| SlaveOut {
+                position: s.position,
+                station: s.station,
+                name: s.name.clone(),
+                vendor_id: s.vendor_id,
+                product_code: s.product_code,
+                serial: s.serial,
+                dc: s.dc,
+                delay_ns: s.delay_ns,
+                offset: s.offset,
+            })
+            .collect(),
+        converged: net.lock.converged,
+        time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
+        max_abs_092c_after_lock_ns: net.lock.max_abs_092c_after_lock_ns,
+        frmw_frames: net.lock.frmw_frames,
+        pdi_bytes: net.pdi_len,
+        expected_lrw_wkc: net.expected_lrw_wkc,
+        sync0_start_ns: net.sync0.map(|s| s.start_ns),
+        wall_s: t_up.elapsed().as_secs_f64(),
+    };
+    if !json {
+        print_bringup(&bring);
+    }
+
+    // Cyclic phase.
+    let reference = usize::from(net.reference);
+    let ref_station = net
+        .slaves
+        .get(reference)
+        .map(|s| s.station)
+        .context("the bring-up found no reference clock")?;
+    let period = u64::from(cycle_ns);
+    let cyc_cfg = CyclicConfig {
+        period_ns: cycle_ns,
+        reference_station: ref_station,
+        pdi_len: net.pdi_len,
+        measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
+    };
+    // The reference's system time is the master's time after the bring-up: aim at its grid.
+    let now = link.clock().now_ns();
+    let first = (now / period + 2) * period;
+    let mut eng = CyclicEngine::new(method, cyc_cfg, first)
+        .map_err(|e| anyhow::anyhow!("cyclic frame: {e}"))?;
+    let limits = CyclicLimits {
+        duration_ns: args.duration.map(|d| (d * 1e9) as u64),
+        max_cycles: None,
+        lost_in_a_row: 100.max(100_000_000 / period),
+    };
+    // Histogram ranges for a real host: M-rS within ±5 ms (100 ns bins), |0x092C| up to 1 ms
+    // (10 ns), latencies up to 20 ms (100 ns); values outside land in the end bins.
+    let mut m_rs = Stats::new(-5_000_000.0, 100.0, 100_000);
+    let mut rs_is = Stats::new(0.0, 10.0, 100_000);
+    let mut wake = Stats::new(0.0, 100.0, 200_000);
+    let mut tx_path = Stats::new(0.0, 10.0, 100_000);
+    let mut rtt = Stats::new(0.0, 100.0, 200_000);
+    let (mut cycles, mut lost, mut late, mut bad_wkc) = (0u64, 0u64, 0u64, 0u64);
+    let mut csv_err: Option<std::io::Error> = None;
+    let t_cyc = Instant::now();
+    if !json {
+        eprintln!(
+            "cyclic phase: {} with {} at {} us, SYNC0 shift {} us{}; Ctrl-C stops",
+            args.iface,
+            args.method,
+            args.cycle_us,
+            shift_ns / 1000,
+            args.duration
+                .map_or(String::new(), |d| format!(", for {d} s"))
+        );
+    }
+    let stopped = run_cyclic(&mut link, &mut eng, limits, &STOP, |c| {
+        cycles += 1;
+        let r = &c.record;
+        wake.add(c.wake_latency_ns as f64);
+        if r.receive_ns.is_none() {
+            lost += 1;
+        } else {
+            if r.lrw_wkc != Some(net.expected_lrw_wkc) && net.pdi_len > 0 {
+                bad_wkc += 1;
+            }
+            if let Some(m) = r.m_rs_ns {
+                m_rs.add(m as f64);
+            }
+            if let Some(v) = r.rs_is_ns {
+                rs_is.add(f64::from(v));
+            }
+            if let Some(t) = c.round_trip_ns {
+                rtt.add(t as f64);
+                late += u64::from(t > period);
+            }
+            if let Some(tx) = c.kernel_tx_ns {
+                tx_path.add(tx.wrapping_sub(r.send_ns) as i64 as f64);
+            }
+        }
+        if let (Some(w), None) = (csv.as_mut(), csv_err.as_ref()) {
+            if let Err(e) = csv_row(w, c) {
+                csv_err = Some(e);
+            }
+        }
+    });
+    let duration_s = t_cyc.elapsed().as_secs_f64();
+    if let Some(mut w) = csv.take() {
+        w.flush().context("writing the CSV file")?;
+    }
+    if let Some(e) = csv_err {
+        return Err(e).context("writing the CSV file");
+    }
+    let (stopped_str, gone) = match &stopped {
+        Ok(Stopped::Duration) => ("duration".to_string(), None),
+        Ok(Stopped::Cycles) => ("cycles".to_string(), None),
+        Ok(Stopped::Interrupted) => ("interrupted".to_string(), None),
+        Ok(Stopped::NetworkGone {
+            last_good_cycle,
+            lost_in_a_row,
+        }) => (
+            "network-gone".to_string(),
+            Some((*last_good_cycle, *lost_in_a_row)),
+        ),
+        Err(e) => (format!("error: {e}"), None),
+    };
+    let out = RunOut {
+        iface: args.iface.clone(),
+        method: args.method.clone(),
+        cycle_ns,
+        sync0_shift_ns: shift_ns,
+        stopped: stopped_str,
+        cycles,
+        duration_s,
+        lost_frames: lost,
+        late_replies: late,
+        bad_wkc,
+        link: link.stats(),
+        timestamps: link.timestamps(),
+        rt,
+        bringup: bring,
+        m_rs: m_rs.summary(),
+        rs_is: rs_is.summary(),
+        wake_latency: latency(&wake),
+        tx_path: tx_path.summary(),
+        round_trip: rtt.summary(),
+        csv: args.csv.as_ref().map(|p| p.display().to_string()),
+    };
+    let text = serde_json::to_string_pretty(&out)?;
+    if let Some(p) = &args.summary {
+        ecsync_lab::report::write_atomic(p, text.as_bytes())
+            .with_context(|| format!("cannot write {}", p.display()))?;
+    }
+    if json {
+        println!("{text}");
+    } else {
+        print_run(&out);
+    }
+    if let Err(e) = stopped {
+        bail!("cyclic phase on {} stopped: {e}", args.iface);
+    }
+    if let Some((last, n)) = gone {
+        let after = last.map_or("before any frame came back".to_string(), |c| {
+            format!("after cycle {c}")
+        });
+        eprintln!(
+            "ecsync run: error: the network stopped answering {after}: {n} frames in a row lost (is the segment or `ecsync serve` still there?); the summary and CSV hold the {cycles} cycles run"
+        );
+        return Ok(ExitCode::from(3));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn print_bringup(b: &BringupOut) {
+    println!(
+        "bring-up: {} slaves, reference at position {}, {:.2} s",
+        b.slaves.len(),
+        b.reference,
+        b.wall_s
+    );
+    println!(
+        "{:>3}  {:>7}  {:<28} {:>12}  {:>10}",
+        "pos", "station", "name", "delay ns", "DC"
+    );
+    for s in &b.slaves {
+        let mut name = s.name.clone();
+        name.truncate(28);
+        let dc = match s.dc {
+            DcCapability::SystemTime if s.position == b.reference => "reference",
+            DcCapability::SystemTime => "system time",
+            DcCapability::ReceiveTimes => "rx times",
+            DcCapability::None => "none",
+        };
+        println!(
+            "{:>3}  {:#07x}  {:<28} {:>12}  {:>10}",
+            s.position,
+            s.station,
+            name,
+            s.delay_ns.map_or("-".to_string(), |d| format!("{d:.1}")),
+            dc
+        );
+    }
+    match (b.converged, b.time_to_lock_ms) {
+        (true, Some(t)) => println!(
+            "DC locked {t:.1} ms after drift compensation began; largest |0x092C| after lock {} ns.",
+            b.max_abs_092c_after_lock_ns
+        ),
+        _ => println!("DC did NOT lock."),
+    }
+}
+
+fn print_run(o: &RunOut) {
+    let us = |x: f64| x / 1e3;
+    println!();
+    println!(
+        "{} cycles of {} at {} us on {} in {:.1} s ({}); {} frames lost, {} replies later than a cycle, {} bad working counters.",
+        o.cycles,
+        o.method,
+        o.cycle_ns / 1000,
+        o.iface,
+        o.duration_s,
+        o.stopped,
+        o.lost_frames,
+        o.late_replies,
+        o.bad_wkc
+    );
+    println!(
+        "{:<22} {:>10} {:>10} {:>10} {:>10}",
+        "us", "mean", "std", "max", "min"
+    );
+    for (name, s) in [("M-rS", &o.m_rs), ("rS-IS |0x092C|", &o.rs_is)] {
+        println!(
+            "{:<22} {:>10.3} {:>10.3} {:>10.3} {:>10.3}",
+            name,
+            us(s.mean),
+            us(s.std),
+            us(s.max),
+            us(s.min)
+        );
+    }
+    let w = &o.wake_latency;
+    println!(
+        "wake-up latency, us:   p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}",
+        w.p50_us, w.p99_us, w.p999_us, w.max_us
+    );
+    println!(
+        "round trip, us:        mean {:.1}  p99 {:.1}  max {:.1}",
+        us(o.round_trip.mean),
+        us(o.round_trip.p99_abs),
+        us(o.round_trip.max_abs)
+    );
+    if o.tx_path.n > 0 {
+        println!(
+            "send to kernel TX timestamp, us: mean {:.1}  std {:.1}  max {:.1}",
+            us(o.tx_path.mean),
+            us(o.tx_path.std),
+            us(o.tx_path.max)
+        );
+    }
+    if let Some(p) = &o.csv {
+        println!("per-cycle CSV: {p}");
+    }
+}

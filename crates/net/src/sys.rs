@@ -1,0 +1,557 @@
+//! The one module of ecsync that talks to the operating system: AF_PACKET sockets, kernel
+//! timestamps, clocks, sleeping, real-time scheduling, memory locking, CPU affinity and network
+//! namespaces. Everything else is safe Rust on top of the small API below.
+//!
+//! Every `unsafe` block is a single FFI call (or the parsing of what it returned) and says why it
+//! is sound. The invariants are always the same few: pointers come from live Rust references or
+//! buffers whose length is passed alongside, structures are plain C structs zero-initialised
+//! before the kernel fills them, and file descriptors are owned by an [`OwnedFd`] from the moment
+//! the kernel hands them out.
+#![allow(unsafe_code)]
+
+use std::ffi::CString;
+use std::io;
+use std::mem::{MaybeUninit, size_of};
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+
+/// EtherType of EtherCAT frames.
+pub const ETHERTYPE_ETHERCAT: u16 = 0x88a4;
+
+// Kernel ABI values (include/uapi/linux/if_packet.h and net_tstamp.h), written out so that the
+// module does not depend on which of them a given libc version exports.
+const SOL_PACKET: libc::c_int = 263;
+const PACKET_ADD_MEMBERSHIP: libc::c_int = 1;
+const PACKET_MR_PROMISC: libc::c_ushort = 1;
+const PACKET_IGNORE_OUTGOING: libc::c_int = 23;
+const PACKET_OUTGOING: u8 = 4;
+const SOF_TIMESTAMPING_TX_SOFTWARE: libc::c_uint = 1 << 1;
+const SOF_TIMESTAMPING_RX_SOFTWARE: libc::c_uint = 1 << 3;
+const SOF_TIMESTAMPING_SOFTWARE: libc::c_uint = 1 << 4;
+const SOF_TIMESTAMPING_OPT_TSONLY: libc::c_uint = 1 << 11;
+
+/// `struct packet_mreq` of if_packet.h.
+#[repr(C)]
+struct PacketMreq {
+    mr_ifindex: libc::c_int,
+    mr_type: libc::c_ushort,
+    mr_alen: libc::c_ushort,
+    mr_address: [u8; 8],
+}
+
+/// Why a packet socket could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    /// The interface name is not a valid Linux interface name.
+    #[error("`{0}` is not a valid interface name (1 to 15 bytes, no NUL or '/')")]
+    BadName(String),
+    /// No interface of that name.
+    #[error("interface {0} does not exist (`ip link` lists the interfaces)")]
+    NoInterface(String),
+    /// The process may not open raw sockets.
+    #[error(
+        "opening a raw socket on {0} needs CAP_NET_RAW: run as root, or grant it with `setcap cap_net_raw,cap_net_admin=eip <path to ecsync>`"
+    )]
+    Permission(String),
+    /// Anything else the kernel refused.
+    #[error("raw socket on {iface}: {what}: {source}")]
+    Os {
+        /// Interface.
+        iface: String,
+        /// The call that failed.
+        what: &'static str,
+        /// The error.
+        source: io::Error,
+    },
+}
+
+/// Which kernel timestamps a socket gets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct TimestampSupport {
+    /// Software receive timestamps (taken by the kernel when the frame arrived).
+    pub rx_software: bool,
+    /// Software transmit timestamps (taken by the driver as the frame went to the device).
+    pub tx_software: bool,
+}
+
+/// A frame received from a packet socket.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Received {
+    /// Bytes of the frame (the buffer holds `min(len, buffer length)` of them).
+    pub len: usize,
+    /// Whether the frame was longer than the buffer.
+    pub truncated: bool,
+    /// The kernel's software receive timestamp, CLOCK_REALTIME ns.
+    pub kernel_rx_realtime_ns: Option<u64>,
+}
+
+/// An AF_PACKET socket bound to one interface that sends and receives EtherCAT frames
+/// (EtherType 0x88A4) only, non-blocking, with the interface in promiscuous mode.
+#[derive(Debug)]
+pub struct PacketSocket {
+    fd: OwnedFd,
+    ifindex: libc::c_int,
+    timestamps: TimestampSupport,
+    promiscuous: bool,
+}
+
+fn timespec_ns(ts: &libc::timespec) -> Option<u64> {
+    if ts.tv_sec == 0 && ts.tv_nsec == 0 {
+        return None;
+    }
+    let s = u64::try_from(ts.tv_sec).ok()?;
+    let n = u64::try_from(ts.tv_nsec).ok()?;
+    s.checked_mul(1_000_000_000)?.checked_add(n)
+}
+
+/// Sets an integer-sized socket option.
+fn setsockopt<T>(fd: &OwnedFd, level: libc::c_int, name: libc::c_int, value: &T) -> io::Result<()> {
+    // SAFETY: `value` is a live reference to a `T` and its size is passed with it; the kernel
+    // only reads that many bytes. The fd is open (owned by `fd`).
+    let r = unsafe {
+        libc::setsockopt(
+            fd.as_raw_fd(),
+            level,
+            name,
+            (value as *const T).cast(),
+            size_of::<T>() as libc::socklen_t,
+        )
+    };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Walks the control messages of a `recvmsg` result, returning the first software timestamp
+/// (SCM_TIMESTAMPING's first entry, or SCM_TIMESTAMPNS).
+fn control_timestamp(msg: &libc::msghdr) -> Option<u64> {
+    // SAFETY: `msg` was filled by a successful recvmsg whose control buffer is still alive (the
+    // caller keeps it on its stack); CMSG_FIRSTHDR/CMSG_NXTHDR only walk within
+    // `msg_control..msg_control + msg_controllen`, and each header's data is read with an
+    // unaligned read of exactly the size the kernel documents for its type after checking the
+    // header's length.
+    unsafe {
+        let mut c = libc::CMSG_FIRSTHDR(msg);
+        while !c.is_null() {
+            let h = &*c;
+            let data = libc::CMSG_DATA(c);
+            let avail = (h.cmsg_len as usize).saturating_sub(libc::CMSG_LEN(0) as usize);
+            if h.cmsg_level == libc::SOL_SOCKET {
+                if h.cmsg_type == libc::SCM_TIMESTAMPING && avail >= 3 * size_of::<libc::timespec>()
+                {
+                    let ts: [libc::timespec; 3] = std::ptr::read_unaligned(data.cast());
+                    if let Some(t) = timespec_ns(&ts[0]) {
+                        return Some(t);
+                    }
+                } else if h.cmsg_type == libc::SCM_TIMESTAMPNS
+                    && avail >= size_of::<libc::timespec>()
+                {
+                    let ts: libc::timespec = std::ptr::read_unaligned(data.cast());
+                    if let Some(t) = timespec_ns(&ts) {
+                        return Some(t);
+                    }
+                }
+            }
+            c = libc::CMSG_NXTHDR(msg, c);
+        }
+    }
+    None
+}
+
+impl PacketSocket {
+    /// Opens a socket on `iface`.
+    pub fn open(iface: &str) -> Result<PacketSocket, OpenError> {
+        if iface.is_empty() || iface.len() > 15 || iface.contains(['\0', '/']) {
+            return Err(OpenError::BadName(iface.to_string()));
+        }
+        let os = |what, source| OpenError::Os {
+            iface: iface.to_string(),
+            what,
+            source,
+        };
+        let name = CString::new(iface).map_err(|_| OpenError::BadName(iface.to_string()))?;
+        // SAFETY: `name` is a NUL-terminated string that outlives the call.
+        let ifindex = unsafe { libc::if_nametoindex(name.as_ptr()) };
+        if ifindex == 0 {
+            return Err(OpenError::NoInterface(iface.to_string()));
+        }
+        let ifindex = ifindex as libc::c_int;
+        let proto = i32::from(ETHERTYPE_ETHERCAT.to_be());
+        // SAFETY: plain FFI call with constant arguments; the result is checked below.
+        let raw = unsafe {
+            libc::socket(
+                libc::AF_PACKET,
+                libc::SOCK_RAW | libc::SOCK_NONBLOCK | libc::SOCK_CLOEXEC,
+                proto,
+            )
+        };
+        if raw < 0 {
+            let e = io::Error::last_os_error();
+            return Err(match e.raw_os_error() {
+                Some(libc::EPERM) | Some(libc::EACCES) => OpenError::Permission(iface.to_string()),
+                _ => os("socket(AF_PACKET)", e),
+            });
+        }
+        // SAFETY: `raw` is a new file descriptor that nothing else owns.
+        let fd = unsafe { OwnedFd::from_raw_fd(raw) };
+
+        // SAFETY: `sockaddr_ll` is a plain C struct for which all-zero bytes are valid.
+        let mut addr: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
+        addr.sll_family = libc::AF_PACKET as u16;
+        addr.sll_protocol = ETHERTYPE_ETHERCAT.to_be();
+        addr.sll_ifindex = ifindex;
+        // SAFETY: `addr` is a live, initialised sockaddr_ll and its size is passed with it.
+        let r = unsafe {
+            libc::bind(
+                fd.as_raw_fd(),
+                (&addr as *const libc::sockaddr_ll).cast(),
+                size_of::<libc::sockaddr_ll>() as libc::socklen_t,
+            )
+        };
+        if r < 0 {
+            return Err(os("bind", io::Error::last_os_error()));
+        }
+        // Promiscuous: EtherCAT frames go to any destination address.
+        let mreq = PacketMreq {
+            mr_ifindex: ifindex,
+            mr_type: PACKET_MR_PROMISC,
+            mr_alen: 0,
+            mr_address: [0; 8],
+        };
+        let promiscuous = setsockopt(&fd, SOL_PACKET, PACKET_ADD_MEMBERSHIP, &mreq).is_ok();
+        // Our own frames are not to be read back (filtered by packet type as well, for
+        // kernels before 4.20 that lack the option).
+        let _ = setsockopt(&fd, SOL_PACKET, PACKET_IGNORE_OUTGOING, &1 as &libc::c_int);
+        let flags: libc::c_uint = SOF_TIMESTAMPING_RX_SOFTWARE
+            | SOF_TIMESTAMPING_TX_SOFTWARE
+            | SOF_TIMESTAMPING_SOFTWARE
+            | SOF_TIMESTAMPING_OPT_TSONLY;
+        let timestamps = if setsockopt(&fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPING, &flags).is_ok()
+        {
+            TimestampSupport {
+                rx_software: true,
+                tx_software: true,
+            }
+        } else {
+            TimestampSupport {
+                rx_software: setsockopt(&fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPNS, &1i32).is_ok(),
+                tx_software: false,
+            }
+        };
+        Ok(PacketSocket {
+            fd,
+            ifindex,
+            timestamps,
+            promiscuous,
+        })
+    }
+
+    /// Interface index.
+    pub fn ifindex(&self) -> i32 {
+        self.ifindex
+    }
+
+    /// Which kernel timestamps the socket gets.
+    pub fn timestamps(&self) -> TimestampSupport {
+        self.timestamps
+    }
+
+    /// Whether the interface could be put into promiscuous mode.
+    pub fn promiscuous(&self) -> bool {
+        self.promiscuous
+    }
+
+    /// Sends one frame (as is: short frames are not padded). Waits up to a millisecond for
+    /// room in the socket's queue.
+    pub fn send(&self, frame: &[u8]) -> io::Result<()> {
+        for _ in 0..1000 {
+            // SAFETY: `frame` is a live slice and its length is passed with it; the socket is
+            // bound, so no destination address is needed.
+            let r = unsafe {
+                libc::send(
+                    self.fd.as_raw_fd(),
+                    frame.as_ptr().cast(),
+                    frame.len(),
+                    libc::MSG_DONTWAIT,
+                )
+            };
+            if r >= 0 {
+                return if r as usize == frame.len() {
+                    Ok(())
+                } else {
+                    Err(io::Error::other(format!(
+                        "sent {r} of {} bytes",
+                        frame.len()
+                    )))
+                };
+            }
+            let e = io::Error::last_os_error();
+            match e.raw_os_error() {
+                Some(libc::EAGAIN) | Some(libc::ENOBUFS) => self.wait_writable(1_000),
+                Some(libc::EINTR) => {}
+                _ => return Err(e),
+            }
+        }
+        Err(io::Error::new(
+            io::ErrorKind::TimedOut,
+            "the socket's send queue stayed full",
+        ))
+    }
+
+    /// Receives one frame if one is waiting (`None` if none is); frames the host sent itself
+    /// are skipped.
+    pub fn recv(&self, buf: &mut [u8]) -> io::Result<Option<Received>> {
+        loop {
+            // SAFETY: all-zero bytes are valid for these plain C structs.
+            let mut from: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
+            let mut control = [0u64; 32];
+            let mut iov = libc::iovec {
+                iov_base: buf.as_mut_ptr().cast(),
+                iov_len: buf.len(),
+            };
+            // SAFETY: as above.
+            let mut msg: libc::msghdr = unsafe { std::mem::zeroed() };
+            msg.msg_name = (&mut from as *mut libc::sockaddr_ll).cast();
+            msg.msg_namelen = size_of::<libc::sockaddr_ll>() as libc::socklen_t;
+            msg.msg_iov = &mut iov;
+            msg.msg_iovlen = 1;
+            msg.msg_control = control.as_mut_ptr().cast();
+            msg.msg_controllen = size_of::<[u64; 32]>() as _;
+            // SAFETY: every pointer in `msg` refers to a live local (`from`, `iov` -> `buf`,
+            // `control`) with its length alongside; MSG_TRUNC makes the kernel return the
+            // frame's full length without writing beyond `buf`.
+            let r = unsafe {
+                libc::recvmsg(
+                    self.fd.as_raw_fd(),
+                    &mut msg,
+                    libc::MSG_DONTWAIT | libc::MSG_TRUNC,
+                )
+            };
+            if r < 0 {
+                let e = io::Error::last_os_error();
+                return match e.raw_os_error() {
+                    Some(libc::EAGAIN) => Ok(None),
+                    Some(libc::EINTR) => continue,
+                    _ => Err(e),
+                };
+            }
+            if from.sll_pkttype == PACKET_OUTGOING {
+                continue;
+            }
+            let len = r as usize;
+            return Ok(Some(Received {
+                len: len.min(buf.len()),
+                truncated: len > buf.len(),
+                kernel_rx_realtime_ns: control_timestamp(&msg),
+            }));
+        }
+    }
+
+    /// The kernel's software transmit timestamp of a frame sent earlier (CLOCK_REALTIME ns),
+    /// if one is queued.
+    pub fn take_tx_timestamp(&self) -> io::Result<Option<u64>> {
+        if !self.timestamps.tx_software {
+            return Ok(None);
+        }
+        let mut data = [0u8; 64];
+        let mut control = [0u64; 32];
+        let mut iov = libc::iovec {
+            iov_base: data.as_mut_ptr().cast(),
+            iov_len: data.len(),
+        };
+        // SAFETY: all-zero bytes are valid for msghdr.
+        let mut msg: libc::msghdr = unsafe { std::mem::zeroed() };
+        msg.msg_iov = &mut iov;
+        msg.msg_iovlen = 1;
+        msg.msg_control = control.as_mut_ptr().cast();
+        msg.msg_controllen = size_of::<[u64; 32]>() as _;
+        // SAFETY: the pointers in `msg` refer to live locals with their lengths alongside.
+        let r = unsafe {
+            libc::recvmsg(
+                self.fd.as_raw_fd(),
+                &mut msg,
+                libc::MSG_ERRQUEUE | libc::MSG_DONTWAIT,
+            )
+        };
+        if r < 0 {
+            let e = io::Error::last_os_error();
+            return match e.raw_os_error() {
+                Some(libc::EAGAIN) | Some(libc::EINTR) => Ok(None),
+                _ => Err(e),
+            };
+        }
+        Ok(control_timestamp(&msg))
+    }
+
+    /// Waits until a frame can be read, a transmit timestamp is queued, or `timeout_ns` passed.
+    pub fn wait(&self, timeout_ns: u64) -> io::Result<Ready> {
+        let mut p = libc::pollfd {
+            fd: self.fd.as_raw_fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        let ts = libc::timespec {
+            tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+            tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+        };
+        // SAFETY: `p` and `ts` are live locals; one pollfd is passed; no signal mask.
+        let r = unsafe { libc::ppoll(&mut p, 1, &ts, std::ptr::null()) };
+        if r < 0 {
+            let e = io::Error::last_os_error();
+            return if e.raw_os_error() == Some(libc::EINTR) {
+                Ok(Ready::Nothing)
+            } else {
+                Err(e)
+            };
+        }
+        Ok(if p.revents & libc::POLLIN != 0 {
+            Ready::Frame
+        } else if p.revents & libc::POLLERR != 0 {
+            // The error queue holds a transmit timestamp: it must be read, or every poll
+            // returns at once.
+            Ready::ErrorQueue
+        } else {
+            Ready::Nothing
+        })
+    }
+
+    /// Waits up to `timeout_ns` for room to send.
+    fn wait_writable(&self, timeout_ns: u64) {
+        let mut p = libc::pollfd {
+            fd: self.fd.as_raw_fd(),
+            events: libc::POLLOUT,
+            revents: 0,
+        };
+        let ts = libc::timespec {
+            tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+            tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+        };
+        // SAFETY: `p` and `ts` are live locals; one pollfd is passed; no signal mask.
+        unsafe { libc::ppoll(&mut p, 1, &ts, std::ptr::null()) };
+    }
+}
+
+/// What [`PacketSocket::wait`] saw.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ready {
+    /// A frame can be read.
+    Frame,
+    /// The error queue holds something (a transmit timestamp): read it with
+    /// [`PacketSocket::take_tx_timestamp`].
+    ErrorQueue,
+    /// The timeout passed (or a signal came).
+    Nothing,
+}
+
+fn clock_ns(clock: libc::clockid_t) -> u64 {
+    let mut ts = MaybeUninit::<libc::timespec>::uninit();
+    // SAFETY: `ts` is a live, writable timespec; clock_gettime fills it on success, and the
+    // clocks used here (CLOCK_MONOTONIC, CLOCK_REALTIME) always exist on Linux.
+    let ts = unsafe {
+        if libc::clock_gettime(clock, ts.as_mut_ptr()) != 0 {
+            return 0;
+        }
+        ts.assume_init()
+    };
+    (ts.tv_sec as u64)
+        .wrapping_mul(1_000_000_000)
+        .wrapping_add(ts.tv_nsec as u64)
+}
+
+/// CLOCK_MONOTONIC now, ns.
+pub fn monotonic_ns() -> u64 {
+    clock_ns(libc::CLOCK_MONOTONIC)
+}
+
+/// CLOCK_REALTIME now, ns since 1970.
+pub fn realtime_ns() -> u64 {
+    clock_ns(libc::CLOCK_REALTIME)
+}
+
+/// Sleeps until CLOCK_MONOTONIC reads `t_ns` (an absolute deadline, so that wake-ups do not
+/// accumulate the latency of earlier ones). Returns at once if `t_ns` has passed.
+pub fn sleep_until_monotonic(t_ns: u64) {
+    let ts = libc::timespec {
+        tv_sec: (t_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (t_ns % 1_000_000_000) as libc::c_long,
+    };
+    loop {
+        // SAFETY: `ts` is a live timespec; no remaining-time output is requested (absolute).
+        let r = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
+        };
+        if r != libc::EINTR {
+            return;
+        }
+    }
+}
+
+/// Switches the calling thread to SCHED_FIFO at `priority` (1-99).
+pub fn set_fifo(priority: i32) -> io::Result<()> {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: `param` is a live sched_param; pid 0 is the calling thread.
+    let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Locks the process's current and future memory (no page faults in the cycle).
+pub fn lock_memory() -> io::Result<()> {
+    // SAFETY: plain FFI call with constant flags.
+    let r = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Pins the calling thread to CPU `cpu`.
+pub fn pin_to_cpu(cpu: usize) -> io::Result<()> {
+    if cpu >= libc::CPU_SETSIZE as usize {
+        return Err(io::Error::new(io::ErrorKind::InvalidInput, "CPU index"));
+    }
+    // SAFETY: cpu_set_t is a plain bit array for which all-zero bytes are valid; CPU_SET is
+    // given an index below CPU_SETSIZE (checked above); sched_setaffinity reads
+    // size_of::<cpu_set_t>() bytes of the live `set`.
+    let r = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu, &mut set);
+        libc::sched_setaffinity(0, size_of::<libc::cpu_set_t>(), &set)
+    };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Moves the calling thread into the network namespace `name` (as `ip netns` made it, under
+/// /run/netns). Sockets opened afterwards by this thread live in that namespace.
+pub fn enter_netns(name: &str) -> io::Result<()> {
+    if name.is_empty() || name.contains(['/', '\0']) {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "namespace name",
+        ));
+    }
+    let f = std::fs::File::open(format!("/run/netns/{name}"))?;
+    // SAFETY: `f` is an open file (kept alive across the call); setns only reads its fd.
+    let r = unsafe { libc::setns(f.as_raw_fd(), libc::CLONE_NEWNET) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
