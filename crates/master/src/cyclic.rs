@@ -220,10 +220,19 @@ impl<S: MasterSync> CyclicEngine<S> {
                     self.h_mr = self.h_sum as f64 / self.h_n as f64;
                 } else {
                     // φ = t_ra + h_mr - (t_ms + δ̂), δ̂ = nominal - scheduled: the correction
-                    // applied to this cycle.
+                    // applied to this cycle. A phase error is one modulo P: a method that
+                    // drops or doubles a cycle (ethercrab's snap when a frame reaches the
+                    // reference just before its grid point) moves δ̂ by whole periods, which
+                    // are not an error of the phase, so φ is wrapped into [-P/2, P/2).
                     let delta_hat = diff_u64(nominal, self.scheduled_ns) as f64;
                     let phi = diff_u64(t_ra, send_ns) as f64 + self.h_mr - delta_hat;
-                    rec.m_rs_ns = Some(ecsync_dc::offset::round_ns(phi));
+                    let p = f64::from(self.cfg.period_ns.max(1));
+                    let wrapped = if phi.abs() < p / 2.0 {
+                        phi
+                    } else {
+                        phi - p * ((phi + p / 2.0) / p).floor()
+                    };
+                    rec.m_rs_ns = Some(ecsync_dc::offset::round_ns(wrapped));
                 }
             } else {
                 rec.m_rs_ns = Some(diff_u64(t_ra, send_ns));
@@ -282,5 +291,49 @@ mod tests {
         assert_eq!(d0.data(), &0x1122_3344_5566_7788u64.to_le_bytes());
         let m = CyclicEngine::new(MedianSync::default(), cfg, 0).unwrap();
         assert_eq!(m.template.len(), f.len() - 20, "no FPWR for master shift");
+    }
+
+    /// Starts every cycle one period late from cycle 3 on (a dropped cycle, as a snap does when
+    /// a frame reaches the reference just before its grid point).
+    struct DropsACycle;
+
+    impl MasterSync for DropsACycle {
+        fn name(&self) -> &'static str {
+            "drops-a-cycle"
+        }
+        fn update(&mut self, input: &CycleInput) -> CycleOutput {
+            let p = u64::from(input.period_ns);
+            let next = input.nominal_start_ns + p + if input.cycle >= 2 { p } else { 0 };
+            CycleOutput {
+                next_start_ns: next,
+                ..CycleOutput::default()
+            }
+        }
+    }
+
+    #[test]
+    fn a_dropped_cycle_is_no_phase_error() {
+        let p = 1_000_000u64;
+        let cfg = CyclicConfig {
+            period_ns: p as u32,
+            reference_station: 0x1000,
+            pdi_len: 0,
+            measure_init_frames: 2,
+        };
+        let mut e = CyclicEngine::new(DropsACycle, cfg, 10 * p).unwrap();
+        let mut m_rs = Vec::new();
+        for _ in 0..6 {
+            // The frame leaves 20 us after the scheduled start and reaches the reference 7 us
+            // later on its grid (reference time = master time + 3 ns).
+            let send = e.scheduled_start_ns() + 20_000;
+            let mut f = e.frame_to_send(send).to_vec();
+            let at = e.frmw_data_at;
+            f[at..at + 8].copy_from_slice(&(send + 7_003).to_le_bytes());
+            f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
+            m_rs.push(e.complete(Some(&f), send, send + 50_000).m_rs_ns);
+        }
+        // Cycles 0-1 average h_mr; from cycle 3 on every start is a period later than the
+        // nominal grid: still the same phase of the reference's grid, so φ stays 0.
+        assert_eq!(m_rs, [None, None, Some(0), Some(0), Some(0), Some(0)]);
     }
 }
