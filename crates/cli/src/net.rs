@@ -225,6 +225,8 @@ struct RunOut {
     sync0_shift_ns: u32,
     stopped: String,
     cycles: u64,
+    /// Cycles skipped because the task woke after their slots had passed (host stalls).
+    skipped_cycles: u64,
     duration_s: f64,
     lost_frames: u64,
     /// Replies that came back later than one cycle after their send.
@@ -431,6 +433,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let mut tx_path = Stats::new(0.0, 10.0, 100_000);
     let mut rtt = Stats::new(0.0, 100.0, 200_000);
     let (mut cycles, mut lost, mut late, mut bad_wkc) = (0u64, 0u64, 0u64, 0u64);
+    let mut skipped = 0u64;
     let mut csv_err: Option<std::io::Error> = None;
     let t_cyc = Instant::now();
     if !json {
@@ -446,6 +449,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     }
     let stopped = run_cyclic(&mut link, &mut eng, limits, &STOP, |c| {
         cycles += 1;
+        skipped += c.skipped_before;
         let r = &c.record;
         wake.add(c.wake_latency_ns as f64);
         if r.receive_ns.is_none() {
@@ -501,6 +505,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         sync0_shift_ns: shift_ns,
         stopped: stopped_str,
         cycles,
+        skipped_cycles: skipped,
         duration_s,
         lost_frames: lost,
         late_replies: late,
@@ -583,13 +588,14 @@ fn print_run(o: &RunOut) {
     let us = |x: f64| x / 1e3;
     println!();
     println!(
-        "{} cycles of {} at {} us on {} in {:.1} s ({}); {} frames lost, {} replies later than a cycle, {} bad working counters.",
+        "{} cycles of {} at {} us on {} in {:.1} s ({}); {} skipped by host stalls, {} frames lost, {} replies later than a cycle, {} bad working counters.",
         o.cycles,
         o.method,
         o.cycle_ns / 1000,
         o.iface,
         o.duration_s,
         o.stopped,
+        o.skipped_cycles,
         o.lost_frames,
         o.late_replies,
         o.bad_wkc

@@ -21,11 +21,19 @@
 //!    (24.4 ppm for the default 0x1000), until that amount is applied or the next write replaces
 //!    it. This is the datasheet's "local time is incremented by 9 or 11 ns instead of 10 ns".
 //! 4. Drift: the ESC estimates how fast `dt` drifts when no phase slew acts — the residual
-//!    frequency error `r = (dt_k - dt_{k-1} - slew applied) / T` between consecutive writes — and
-//!    integrates it into a frequency correction `c_drift -= r * 2^-depth` (depth = 0x0935 bits
-//!    3:0, the speed counter filter depth). `c_drift` is what the speed counter diff (0x0932)
-//!    represents; it is limited to the range the speed counter can express, `1 / (10 * 0x80)`
-//!    = 781 ppm. Writes less than 1 us apart, or after a reset, only seed the estimator.
+//!    frequency error, the change of `dt` the slew does not explain, per time — and integrates
+//!    it into a frequency correction `c_drift -= r * 2^-depth` per write (depth = 0x0935 bits
+//!    3:0, the speed counter filter depth). The residual is measured over a batch of
+//!    `2^(depth/2)` writes (64 for the default 12), `r = sum(dt_k - expected_k) / sum(T_k)`, and
+//!    applied once per batch with the batch's weight: the sum telescopes, so the arrival jitter
+//!    of the writes enters once per batch instead of once per write. (Measured write by write,
+//!    a master whose frames leave with microseconds of jitter, as a bus shift master on a
+//!    general-purpose host does, makes `c_drift` wander by tens of ppm, beyond what the phase
+//!    slew can hold, and the clock walks away; the averaging of 0x0935 is "of the calculated
+//!    clock period deviations", datasheet section I, 9.1.5.) `c_drift` is what the speed
+//!    counter diff (0x0932) represents; it is limited to the range the speed counter can
+//!    express, `1 / (10 * 0x80)` = 781 ppm. Writes less than 1 us apart, or after a reset, only
+//!    seed the estimator.
 //! 5. Writing 0x0930 resets 0x092C and the drift correction; writing 0x0934 resets 0x092C; writing
 //!    0x0920 or 0x0928 restarts the estimator (the next difference is not a drift).
 //!
@@ -116,6 +124,12 @@ pub struct DcUnit {
     speed_gain: f64,
     slew_rate: f64,
     last_sample: Option<(u64, f64)>,
+    /// The drift residual's batch so far: unexplained change of `dt` (ns), elapsed (ns), writes.
+    batch_change_ns: f64,
+    batch_elapsed_ns: f64,
+    batch_writes: u32,
+    /// Writes per batch, `2^(speed counter filter depth / 2)`.
+    batch_len: u32,
     writes: u64,
     // Latches.
     port_times: [u32; 4],
@@ -172,6 +186,10 @@ impl DcUnit {
             speed_gain: 1.0 / 4096.0,
             slew_rate: 1.0 / (10.0 * 4096.0),
             last_sample: None,
+            batch_change_ns: 0.0,
+            batch_elapsed_ns: 0.0,
+            batch_writes: 0,
+            batch_len: 1 << 6,
             writes: 0,
             port_times: [0; 4],
             pu_time: 0,
@@ -402,7 +420,7 @@ impl DcUnit {
                 reg::DC_SYSTEM_TIME_OFFSET,
                 &byte,
             ));
-            self.last_sample = None;
+            self.restart_estimator();
         }
         if touches(reg::DC_SYSTEM_TIME_DELAY, 4) {
             self.delay = u32::from_le_bytes(merge(
@@ -410,7 +428,7 @@ impl DcUnit {
                 reg::DC_SYSTEM_TIME_DELAY,
                 &byte,
             ));
-            self.last_sample = None;
+            self.restart_estimator();
         }
         if touches(reg::DC_SPEED_COUNTER_START, 2) {
             let v = u16::from_le_bytes(merge(
@@ -423,7 +441,7 @@ impl DcUnit {
             self.clock.set_drift_correction(t_ps, 0.0);
             self.clock.set_slew(t_ps, 0.0, 0.0);
             self.set_dt_filtered(0.0);
-            self.last_sample = None;
+            self.restart_estimator();
         }
         if let Some(b) = byte(reg::DC_TIME_DIFF_FILTER_DEPTH) {
             self.dt_filter_depth = b & 0x0f;
@@ -433,6 +451,8 @@ impl DcUnit {
         if let Some(b) = byte(reg::DC_SPEED_COUNTER_FILTER_DEPTH) {
             self.speed_filter_depth = b & 0x0f;
             self.speed_gain = 1.0 / f64::from(1u32 << self.speed_filter_depth);
+            self.batch_len = 1 << (self.speed_filter_depth / 2);
+            self.restart_estimator();
         }
         if let Some(b) = byte(0x0936) {
             self.latch_mode = b;
@@ -601,6 +621,14 @@ impl DcUnit {
         self.diff_register = dc_time::encode_time_difference(-round_fast(v));
     }
 
+    /// The next write only seeds the drift estimator; the batch restarts.
+    fn restart_estimator(&mut self) {
+        self.last_sample = None;
+        self.batch_change_ns = 0.0;
+        self.batch_elapsed_ns = 0.0;
+        self.batch_writes = 0;
+    }
+
     fn compare_system_time(&mut self, received: u32, t_ps: u64) {
         self.clock.advance_to(t_ps);
         let read = self
@@ -612,7 +640,7 @@ impl DcUnit {
         // master writing 0 during its reset sequence, say) are shown but do not steer the clock.
         if dt.unsigned_abs() >= 1 << 30 {
             self.set_dt_filtered(f64::from(dt));
-            self.last_sample = None;
+            self.restart_estimator();
             return;
         }
         let dt = f64::from(dt);
@@ -630,10 +658,18 @@ impl DcUnit {
                 // dt_expected is the difference the previous write aimed for once its slew was
                 // complete; slew still pending (signed, opposite to the difference it removes)
                 // is expected to be left over.
-                let residual = (dt - (dt_expected - slew_left)) / elapsed_ns;
-                let residual = residual.clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
-                c = (c - residual * self.speed_gain)
-                    .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
+                self.batch_change_ns += dt - (dt_expected - slew_left);
+                self.batch_elapsed_ns += elapsed_ns;
+                self.batch_writes += 1;
+                if self.batch_writes >= self.batch_len {
+                    let residual = (self.batch_change_ns / self.batch_elapsed_ns)
+                        .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
+                    c = (c - residual * self.speed_gain * f64::from(self.batch_writes))
+                        .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
+                    self.batch_change_ns = 0.0;
+                    self.batch_elapsed_ns = 0.0;
+                    self.batch_writes = 0;
+                }
             }
         }
 

@@ -151,6 +151,18 @@ impl<S: MasterSync> CyclicEngine<S> {
         self.cycle
     }
 
+    /// Skips `cycles` whole cycles without a frame: the task woke so late that their slots had
+    /// passed (a host stall). The schedule moves on by whole periods, so every method keeps its
+    /// phase to the grid; sending the missed frames back to back instead would put several
+    /// frames into one SYNC0 period and feed the method instants it never chose.
+    pub fn skip_cycles(&mut self, cycles: u64) {
+        let span = cycles.wrapping_mul(u64::from(self.cfg.period_ns));
+        self.cycle = self.cycle.wrapping_add(cycles);
+        self.scheduled_ns = self.scheduled_ns.wrapping_add(span);
+        // The reference time expected next, for extending a 32-bit reference, moves on too.
+        self.last_ref_ns = self.last_ref_ns.map(|t| t.wrapping_add(span));
+    }
+
     /// The frame to send now; `send_ns` is the timestamp taken right before sending (bus shift
     /// writes it to the reference).
     pub fn frame_to_send(&mut self, send_ns: u64) -> &mut [u8] {
@@ -335,5 +347,48 @@ mod tests {
         // Cycles 0-1 average h_mr; from cycle 3 on every start is a period later than the
         // nominal grid: still the same phase of the reference's grid, so φ stays 0.
         assert_eq!(m_rs, [None, None, Some(0), Some(0), Some(0), Some(0)]);
+    }
+
+    /// A host stall of 3 s: the engine skips the 3000 slots, the median method keeps its phase
+    /// (φ stays at the frames' 3 ns), and a 32-bit reference is still extended right although
+    /// its time moved on by more than half its 4.3 s range between two replies.
+    #[test]
+    fn skipped_cycles_keep_the_phase_and_the_reference_time() {
+        let p = 1_000_000u64;
+        let cfg = CyclicConfig {
+            period_ns: p as u32,
+            reference_station: 0x1000,
+            pdi_len: 0,
+            measure_init_frames: 2,
+        };
+        let median = MedianSync::new(11, 0.01, 2);
+        // The reference's 32-bit time wraps during the stall.
+        let first = (1u64 << 32) * 7 - 6 * p;
+        let mut e = CyclicEngine::new(median, cfg, first).unwrap();
+        let mut seen = Vec::new();
+        for i in 0..8 {
+            if i == 5 {
+                e.skip_cycles(3000);
+                assert_eq!(e.cycle(), 3005);
+                assert_eq!(e.scheduled_start_ns(), first + 3005 * p);
+            }
+            let send = e.scheduled_start_ns() + 20_000;
+            let mut f = e.frame_to_send(send).to_vec();
+            let at = e.frmw_data_at;
+            let t_ra = send + 7_003;
+            // The first reply has the full time; a 32-bit reference's later ones only the low half.
+            let raw = if i == 0 { t_ra } else { u64::from(t_ra as u32) };
+            f[at..at + 8].copy_from_slice(&raw.to_le_bytes());
+            f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
+            let r = e.complete(Some(&f), send, send + 50_000);
+            seen.push((r.cycle, r.ref_time_ns == Some(t_ra), r.m_rs_ns));
+        }
+        let cycles: Vec<u64> = seen.iter().map(|s| s.0).collect();
+        assert_eq!(cycles, [0, 1, 2, 3, 4, 3005, 3006, 3007]);
+        assert!(seen.iter().all(|s| s.1), "{seen:?}");
+        assert!(
+            seen[2..].iter().all(|s| s.2.is_some_and(|m| m.abs() <= 3)),
+            "{seen:?}"
+        );
     }
 }

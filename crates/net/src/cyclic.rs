@@ -35,8 +35,12 @@ pub struct RealCycle {
     pub record: CycleRecord,
     /// When the task woke, master time, ns.
     pub woke_ns: u64,
-    /// Wake-up latency: woke minus scheduled, ns (negative never happens on Linux).
+    /// Wake-up latency: woke minus scheduled, ns (negative never happens on Linux). When the
+    /// task woke a whole period or more late, from the slot it missed first.
     pub wake_latency_ns: i64,
+    /// Cycles skipped right before this one because the task woke after their slots had
+    /// passed: the host stalled for at least a period.
+    pub skipped_before: u64,
     /// The kernel's transmit timestamp, master time, ns.
     pub kernel_tx_ns: Option<u64>,
     /// Send timestamp to reply, ns.
@@ -70,6 +74,7 @@ pub fn run_cyclic<S: MasterSync>(
     mut on_cycle: impl FnMut(&RealCycle),
 ) -> Result<Stopped, NetError> {
     let clock = *link.clock();
+    let period_ns = u64::from(eng.config().period_ns.max(1));
     let start = eng.scheduled_start_ns();
     let mut lost_row = 0u64;
     let mut last_good = None;
@@ -90,6 +95,13 @@ pub fn run_cyclic<S: MasterSync>(
         }
         clock.sleep_until(scheduled);
         let woke = clock.now_ns();
+        // Woke a whole period late or more: those slots are gone. Skip them and run the
+        // cycle whose slot is now (as a PLC task skips an overrun), rather than a burst.
+        let late_ns = woke.saturating_sub(scheduled);
+        let skipped = late_ns / period_ns;
+        if skipped > 0 {
+            eng.skip_cycles(skipped);
+        }
         let send_ns = clock.now_ns();
         let frame = eng.frame_to_send(send_ns);
         let (record, kernel_tx_ns, round_trip_ns) = match link.exchange(frame)? {
@@ -109,6 +121,7 @@ pub fn run_cyclic<S: MasterSync>(
             record,
             woke_ns: woke,
             wake_latency_ns: woke.wrapping_sub(scheduled) as i64,
+            skipped_before: skipped,
             kernel_tx_ns,
             round_trip_ns,
         });
