@@ -176,6 +176,10 @@ fn run_method(pair: &NetPair, method: &str) {
                 "1000",
                 "--duration",
                 "10",
+                // A reply held up by a stall of this shared host is late, not lost: the test
+                // asks whether the path loses frames, and counts the late ones apart.
+                "--timeout-us",
+                "100000",
                 "--csv",
                 csv.to_str().unwrap(),
                 "--json",
@@ -452,7 +456,10 @@ mod ethercrab_raw {
     const MAX_PDU_DATA: usize = PduStorage::element_size(1100);
     const MAX_FRAMES: usize = 16;
     const PDI_LEN: usize = 256;
-    static STORAGE: PduStorage<MAX_FRAMES, MAX_PDU_DATA> = PduStorage::new();
+    type Storage = PduStorage<MAX_FRAMES, MAX_PDU_DATA>;
+    // ethercrab's storage splits once per process: one for each served segment.
+    static STORAGE_MII: Storage = PduStorage::new();
+    static STORAGE_EBUS: Storage = PduStorage::new();
     const CYCLE: Duration = Duration::from_millis(1);
 
     /// The string the SII's general category names at `field` (ethercrab's `name()` is the
@@ -464,18 +471,55 @@ mod ethercrab_raw {
         String::from_utf8(s.to_vec()).unwrap()
     }
 
+    /// The paper-2024 drives with EBUS ports (10 ns receive stamps) instead of MII.
+    fn paper_2024_ebus() -> String {
+        let text =
+            preset::PAPER_2024_TOML.replace("model = \"servo-mii\"", "model = \"ebus-terminal\"");
+        assert!(text.contains("ebus-terminal"));
+        text
+    }
+
+    /// The paper-2024 preset as it is. Its drives stamp receive times on MII ports every 40 ns
+    /// and ethercrab measures each delay from one latch, so its delays can be off by up to
+    /// 40 ns whatever the master does (ecsync's own master averages 64 latches: within 20 ns,
+    /// see the tests above); the bound here is that grid.
     #[test]
-    fn ethercrab_on_its_raw_socket_scans_configures_dc_and_cycles_against_serve() {
+    fn ethercrab_on_its_raw_socket_against_serve_mii_drives() {
+        ethercrab_against_serve("c", &STORAGE_MII, None, 40.0);
+    }
+
+    /// The same drives with EBUS ports (10 ns stamps): ethercrab's single latch within 20 ns.
+    #[test]
+    fn ethercrab_on_its_raw_socket_against_serve_ebus_drives() {
+        ethercrab_against_serve("e", &STORAGE_EBUS, Some(paper_2024_ebus()), 20.0);
+    }
+
+    /// ethercrab's raw socket against `ecsync serve` of the paper-2024 drives (or `config`):
+    /// scan, SII identity, its DC configuration with delays within `bound_ns` of the truth,
+    /// SYNC0, OP, 1000 cycles of `tx_rx_dc`, then the adapter's median loop for 1000 cycles.
+    fn ethercrab_against_serve(
+        tag: &str,
+        storage: &'static Storage,
+        config: Option<String>,
+        bound_ns: f64,
+    ) {
         let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-        let Some(pair) = NetPair::new("c") else {
+        let Some(pair) = NetPair::new(tag) else {
             return;
         };
-        let _served = pair.serve(&[]);
-        let specs =
-            ecsync_esc::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
+        let text = config.unwrap_or_else(|| preset::PAPER_2024_TOML.to_string());
+        let dir = tmp(&format!("ethercrab-{tag}"));
+        let path = dir.join("segment.toml");
+        std::fs::write(&path, &text).unwrap();
+        let _served = pair.serve(&["--config", path.to_str().unwrap()]);
+        let specs = ecsync_esc::config::parse_segment("segment.toml", &text).unwrap();
         let seg = Segment::new(&specs).unwrap();
         let n = seg.len();
-        let truth = true_delays();
+        let truth: Vec<f64> = seg
+            .true_delays_ns(0)
+            .into_iter()
+            .map(|d| d.expect("every drive has a delay"))
+            .collect();
         let expected: Vec<_> = (0..n)
             .map(|i| {
                 let e = seg.esc(i);
@@ -486,7 +530,7 @@ mod ethercrab_raw {
             })
             .collect();
 
-        let (tx, rx, pdu_loop) = STORAGE.try_split().expect("split once");
+        let (tx, rx, pdu_loop) = storage.try_split().expect("split once");
         let stop = std::sync::Arc::new(AtomicBool::new(false));
         let (ns_b, if_b) = (pair.ns_b.clone(), pair.if_b.clone());
         let stop_io = stop.clone();
@@ -530,8 +574,8 @@ mod ethercrab_raw {
                 let d = f64::from(sd.propagation_delay());
                 println!("{i:>5}  {d:>9}  {:>11.1}  {:>+5.1}", truth[i], d - truth[i]);
                 assert!(
-                    (d - truth[i]).abs() <= 20.0,
-                    "drive {i}: ethercrab's delay {d} ns, preset {:.1} ns",
+                    (d - truth[i]).abs() <= bound_ns,
+                    "drive {i}: ethercrab's delay {d} ns, segment's truth {:.1} ns",
                     truth[i]
                 );
             }
