@@ -22,8 +22,8 @@ ip netns exec $A "$B" serve --iface ecsmA --quiet 2>"$OUT/serve.log" &
 sleep 1
 echo "kernel $(uname -r), $(nproc) CPUs, PREEMPT_RT: $(cat /sys/kernel/realtime 2>/dev/null || echo 0); $SECS s per run"
 echo
-echo "| cycle | method | wake-up p50 / p99 / p99.9 / max (us) | M-rS mean / std / max / min (us) | rS-IS max (ns) | lost | late |"
-echo "|---|---|---|---|---|---|---|"
+echo "| cycle | method | wake-up p50 / p99 / p99.9 / max (us) | M-rS mean / std / max / min (us) | rS-IS max (ns) | skipped | lost | late |"
+echo "|---|---|---|---|---|---|---|---|"
 for cyc in 1000 250; do
   for m in median pi-m2s bus-shift snap soem-pi; do
     f="$OUT/run-$cyc-$m.json"
@@ -34,12 +34,12 @@ f, cyc, m = sys.argv[1:]
 try:
     d = json.load(open(f))
 except Exception as e:
-    print(f"| {cyc} us | {m} | run failed ({e}) | | | | |"); sys.exit()
+    print(f"| {cyc} us | {m} | run failed ({e}) | | | | | |"); sys.exit()
 w, r, s = d["wake_latency"], d["m_rs"], d["rs_is"]
 us = lambda x: x / 1e3
 print(f"| {cyc} us | {m} | {w['p50_us']:.1f} / {w['p99_us']:.1f} / {w['p999_us']:.1f} / {w['max_us']:.0f} "
       f"| {us(r['mean']):.2f} / {us(r['std']):.2f} / {us(r['max']):.1f} / {us(r['min']):.1f} "
-      f"| {s['max']:.0f} | {d['lost_frames']} | {d['late_replies']} |")
+      f"| {s['max']:.0f} | {d['skipped_cycles']} | {d['lost_frames']} | {d['late_replies']} |")
 PY
   done
 done
