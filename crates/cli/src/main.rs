@@ -9,6 +9,7 @@ mod compare;
 #[cfg(target_os = "linux")]
 mod net;
 mod source;
+mod tsn;
 
 /// EtherCAT Distributed Clocks: bring-up, master synchronization methods, measurement.
 #[derive(Debug, Parser)]
@@ -36,6 +37,8 @@ enum Command {
     /// with a synchronization method, in real time.
     #[cfg(target_os = "linux")]
     Run(net::RunArgs),
+    /// TSN between master and slaves: the paper's UPPAAL models explored (`tsn models`).
+    Tsn(tsn::Args),
 }
 
 fn main() -> ExitCode {
@@ -48,6 +51,7 @@ fn main() -> ExitCode {
         Command::Serve(a) => net::serve(a),
         #[cfg(target_os = "linux")]
         Command::Run(a) => net::run(a),
+        Command::Tsn(a) => tsn::run(a),
     };
     match r {
         Ok(code) => code,

@@ -201,3 +201,35 @@ fn runs_too_short_to_measure_anything_still_write_their_report() {
     assert!(out.join("report.html").exists());
     assert!(out.join("fig4_histograms.png").exists());
 }
+
+/// `ecsync tsn models --json`: M1/M2/M3 explored; Table I and II equal the paper's, the gate
+/// blocks DC frames in M2 and never in M3, and every worst case is the XML's query bound.
+#[test]
+fn tsn_models_reproduce_the_papers_tables() {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_ecsync"))
+        .args(["tsn", "models", "--json"])
+        .output()
+        .expect("run ecsync tsn models");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
+    assert_eq!(j["tables_match"], true, "{}", j["table_ii"]);
+    let models = j["models"].as_array().unwrap();
+    assert_eq!(models.len(), 3);
+    for m in models {
+        assert_eq!(m["xml_bounds_tight"], true, "{m}");
+    }
+    let blocked = |i: usize, k: &str| models[i]["blocked"][k].as_bool().unwrap();
+    assert!(
+        blocked(1, "sm") && blocked(1, "dm_t") && blocked(1, "dm_c"),
+        "M2 blocks"
+    );
+    assert!(
+        !blocked(2, "sm") && !blocked(2, "dm_t") && !blocked(2, "dm_c"),
+        "M3 never"
+    );
+    assert!(models[0]["blocked"].is_null(), "M1 has no bridge");
+    // Table I, row 1: 100 % and 67 %; row 2: 25 % and 0 %.
+    let t1 = &j["table_i"]["cells"];
+    assert_eq!(t1[0][0]["ours_text"], "100%");
+    assert_eq!(t1[1][1]["ours_text"], "0%");
+}
