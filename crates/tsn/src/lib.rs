@@ -8,6 +8,7 @@
 //! every pairwise clock difference once the slaves are synchronized, whether the bridge's gate
 //! ever blocks a DC frame — and [`paper`] puts Tables I and II of the paper beside ours.
 
+pub mod gptp_msg;
 pub mod ta;
 pub mod uppaal;
 
