@@ -8,7 +8,9 @@
 //! every pairwise clock difference once the slaves are synchronized, whether the bridge's gate
 //! ever blocks a DC frame — and [`paper`] puts Tables I and II of the paper beside ours.
 
+pub mod gptp;
 pub mod gptp_msg;
+pub mod gptp_sim;
 pub mod ta;
 pub mod uppaal;
 

@@ -178,10 +178,7 @@ fn tshark_decodes_every_message_with_our_fields() {
     // majorSdoId 1 (802.1AS) and the message types, in order.
     let types: Vec<&str> = rows.iter().map(|r| r[1]).collect();
     assert_eq!(types, ["0x0b", "0x00", "0x08", "0x02", "0x03", "0x0a"]);
-    assert!(
-        rows.iter().all(|r| r[0] == "0x01"),
-        "{rows:?}"
-    );
+    assert!(rows.iter().all(|r| r[0] == "0x01"), "{rows:?}");
     let seqs: Vec<&str> = rows.iter().map(|r| r[2]).collect();
     assert_eq!(seqs, ["100", "200", "200", "300", "300", "300"]);
     assert!(
