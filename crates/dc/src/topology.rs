@@ -209,6 +209,25 @@ fn back_passes_pu(s: &SlavePorts, entry: u8) -> bool {
     entry == 0 && ports_after(&s.open, entry).next().is_none()
 }
 
+/// Delay from the master's network interface to the first slave's processing unit, ns, for a
+/// master that stamps its frames in hardware: `round_trip_ns` from the first bit leaving (T1)
+/// to the first bit of the returned frame arriving (T4), in the master's time. It is the
+/// formula of the delays above with the master as the ancestor: the master's way out has no
+/// delay of its own (T1 is taken on the wire), the first slave's own loop is removed, and its
+/// way back through its processing (no other port open) or forwarding delay. Whatever lies
+/// between the master and the first slave (cables, PHYs, a bridge that stores and forwards
+/// both directions alike) is measured as half the round trip; an asymmetry (a frame held on
+/// one way only) is not, which is the TSN paper's point. `None` without receive times.
+pub fn master_delay_ns(round_trip_ns: f64, first: &SlavePorts, entry: u8) -> Option<f64> {
+    first.times?;
+    let back = if back_passes_pu(first, entry) {
+        first.processing_ns
+    } else {
+        first.forwarding_ns
+    };
+    Some((round_trip_ns - own_loop(first, entry) - f64::from(back)) / 2.0)
+}
+
 /// Arrival time of the frame at each slave relative to the first slave with receive times, in
 /// ns (`None` for slaves without receive times). `tree` from [`build_tree`].
 pub fn arrival_times(

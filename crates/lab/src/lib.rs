@@ -11,6 +11,7 @@ pub mod report;
 pub mod run;
 pub mod scenario;
 pub mod stats;
+pub mod tsn;
 
 pub use compare::{Comparison, compare};
 pub use scenario::{Scenario, parse};

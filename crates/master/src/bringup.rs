@@ -66,6 +66,11 @@ pub struct BringupConfig {
     pub monitor_cycles: u32,
     /// ESI timing of known ESCs.
     pub esi: Vec<EsiTiming>,
+    /// The master stamps its frames in hardware (send: first bit on the wire; receive: first
+    /// bit of the returned frame) and is itself the DC reference, as in the TSN paper: measure
+    /// its delay to the reference from the latch frames' round trips and set the reference's
+    /// system time to the master's clock at the frame's arrival (instead of at its send).
+    pub master_is_reference: bool,
 }
 
 impl Default for BringupConfig {
@@ -83,6 +88,7 @@ impl Default for BringupConfig {
             sync0_lead_ns: 100_000_000,
             monitor_cycles: 1_000,
             esi: Vec::new(),
+            master_is_reference: false,
         }
     }
 }
@@ -207,6 +213,11 @@ pub struct Network {
     pub expected_lrw_wkc: u16,
     /// Master time when bring-up finished, ns.
     pub done_ns: u64,
+    /// With [`BringupConfig::master_is_reference`]: the master's delay to the reference's
+    /// processing unit, ns (mean over the latch rounds), and its spread (max - min).
+    pub master_delay_ns: Option<f64>,
+    /// Spread of the master delay over the rounds, ns.
+    pub master_delay_spread_ns: Option<f64>,
 }
 
 /// Master time right before the last frame was sent.
@@ -432,6 +443,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     let gap_ns = (20_000_000 / u64::from(rounds)).max(2_000);
     let mut all_ports: Vec<Vec<SlavePorts>> = Vec::with_capacity(rounds as usize);
     let mut sent_at: Vec<u64> = Vec::with_capacity(rounds as usize);
+    let mut round_trips: Vec<f64> = Vec::with_capacity(rounds as usize);
     for round in 0..rounds {
         let dither = u64::from(round) * 40 / u64::from(rounds);
         let t = link.now_ns() + gap_ns + dither;
@@ -445,6 +457,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             )
             .await?;
         let latch_sent = r_sent(&link);
+        round_trips.push(link.last_received_ns().wrapping_sub(latch_sent) as i64 as f64);
         let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
         if r.wkc != expected {
             return Err(MasterError::WorkingCounter {
@@ -537,9 +550,23 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             }
         }
     }
-    for ports in &all_ports {
+    let (mut md_sum, mut md_min, mut md_max) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
+    for (round, ports) in all_ports.iter().enumerate() {
         build_tree(ports, &mut tree)?;
         propagation_delays(ports, &tree, reference, &mut delays)?;
+        if cfg.master_is_reference {
+            // Master -> first slave, then on to the reference (its delay relative to the
+            // first slave is minus the first slave's delay relative to it).
+            if let (Some(d0), Some(first)) = (
+                ecsync_dc::master_delay_ns(round_trips[round], &ports[0], tree[0].entry_port),
+                delays[0],
+            ) {
+                let d = d0 - first;
+                md_sum += d;
+                md_min = md_min.min(d);
+                md_max = md_max.max(d);
+            }
+        }
         for (i, d) in delays.iter().enumerate() {
             if let Some(d) = d {
                 sums[i] += d;
@@ -548,6 +575,12 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             }
         }
     }
+    let (master_delay_ns, master_delay_spread_ns) = if cfg.master_is_reference && md_min.is_finite()
+    {
+        (Some(md_sum / f64::from(rounds)), Some(md_max - md_min))
+    } else {
+        (None, None)
+    };
     for (i, s) in slaves.iter_mut().enumerate() {
         s.parent = tree[i].parent;
         s.entry_port = tree[i].entry_port;
@@ -573,6 +606,8 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             pdi_len: 0,
             expected_lrw_wkc: 0,
             done_ns: link.now_ns(),
+            master_delay_ns,
+            master_delay_spread_ns,
         });
     }
 
@@ -580,8 +615,11 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     // loop filters reset (0x0934: time difference depth 0, speed counter depth 12, as SOEM and
     // ethercrab write; then 0x0930, whose write resets the filters).
     link.event(Event::Phase("offsets"));
-    // The reference's system time takes the master's clock at the latch (SOEM, IgH, ethercrab).
-    let ref_time = latch_sent_ns;
+    // The reference's system time takes the master's clock at the latch (SOEM, IgH, ethercrab);
+    // a master that is the reference itself takes its clock at the frame's arrival there.
+    let ref_time = latch_sent_ns.wrapping_add(
+        master_delay_ns.map_or(0, |d| ecsync_dc::offset::round_ns(d).max(0) as u64),
+    );
     let mut writes = Vec::new();
     for (i, s) in slaves.iter_mut().enumerate() {
         if s.dc != DcCapability::SystemTime {
@@ -749,6 +787,8 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             pdi_len,
             expected_lrw_wkc,
             done_ns: link.now_ns(),
+            master_delay_ns,
+            master_delay_spread_ns,
         });
     }
     {
@@ -907,6 +947,8 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         pdi_len,
         expected_lrw_wkc,
         done_ns: link.now_ns(),
+        master_delay_ns,
+        master_delay_spread_ns,
     })
 }
 

@@ -46,6 +46,7 @@ struct Shared {
     events: Vec<Event>,
     next_index: u8,
     last_sent_ns: u64,
+    last_received_ns: u64,
 }
 
 /// The procedure's handle on the network: frames out, replies in, time.
@@ -136,6 +137,11 @@ impl Link {
     /// Master time right before the last frame that came back was sent (its send timestamp).
     pub fn last_sent_ns(&self) -> u64 {
         self.shared.borrow().last_sent_ns
+    }
+
+    /// Master time when the last frame that came back was received (its receive timestamp).
+    pub fn last_received_ns(&self) -> u64 {
+        self.shared.borrow().last_received_ns
     }
 
     /// Reports an event to the driver.
@@ -426,6 +432,7 @@ impl<T: 'static> Engine<T> {
         let mut s = self.link.shared.borrow_mut();
         s.now_ns = s.now_ns.max(received_ns);
         s.last_sent_ns = sent_ns;
+        s.last_received_ns = received_ns;
         s.reply = Some(Ok(Reply {
             frame: frame.to_vec(),
             sent_ns,

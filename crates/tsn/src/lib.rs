@@ -11,6 +11,7 @@
 pub mod gptp;
 pub mod gptp_msg;
 pub mod gptp_sim;
+pub mod qbv;
 pub mod ta;
 pub mod uppaal;
 

@@ -1,0 +1,571 @@
+//! The TSN scenario file: the EtherCAT segment, the master, the time-aware bridge with its gate
+//! control lists, gPTP, and which variants to run. Every error names the file, the line, the
+//! field and the fix.
+
+use ecsync_esc::config::{ConfigError, SegmentConfig, line_of, toml_error};
+use ecsync_esc::SlaveSpec;
+use ecsync_tsn::qbv::{PortSchedule, ScheduleError, Window};
+use serde::Deserialize;
+
+/// The built-in preset `tsn-2020`.
+pub const TSN_2020_TOML: &str = include_str!("../../../../presets/tsn-2020.toml");
+
+/// The three networks of the paper.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+pub enum Variant {
+    /// No TSN: the master drives the segment directly.
+    M1,
+    /// A time-aware bridge between master and slaves; the master is not synchronized to it.
+    M2,
+    /// The bridge, and the master synchronized to it by gPTP, as the paper proposes.
+    M3,
+}
+
+impl Variant {
+    /// Its name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::M1 => "M1",
+            Variant::M2 => "M2",
+            Variant::M3 => "M3",
+        }
+    }
+
+    /// What it is, in words.
+    pub fn title(self) -> &'static str {
+        match self {
+            Variant::M1 => "no TSN (master wired to the slaves)",
+            Variant::M2 => "TSN bridge, master not synchronized (no gPTP)",
+            Variant::M3 => "TSN bridge, master synchronized by gPTP (the paper's proposal)",
+        }
+    }
+
+    /// Whether a bridge sits between master and slaves.
+    pub fn has_bridge(self) -> bool {
+        self != Variant::M1
+    }
+
+    fn parse(s: &str) -> Option<Variant> {
+        match s {
+            "M1" | "m1" => Some(Variant::M1),
+            "M2" | "m2" => Some(Variant::M2),
+            "M3" | "m3" => Some(Variant::M3),
+            _ => None,
+        }
+    }
+}
+
+/// The master.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MasterParams {
+    /// Crystal error, ppm.
+    pub ppm: f64,
+    /// Crystal wander, ppm per sqrt(s).
+    pub wander_ppm_per_sqrt_s: f64,
+    /// Master clock minus bridge clock at the start, ns.
+    pub clock_offset_ns: i64,
+    /// Hardware timestamp granularity, ns.
+    pub timestamp_ns: u64,
+    /// Standard deviation of the launch instant around the scheduled one, ns.
+    pub launch_jitter_ns: f64,
+    /// Cable from the master to the bridge, m.
+    pub cable_m: f64,
+    /// How far into the EtherCAT window (bridge side) the master aims its frames, ns.
+    pub launch_margin_ns: u64,
+    /// gPTP priority1.
+    pub priority1: u8,
+}
+
+/// The bridge.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BridgeParams {
+    /// Crystal error, ppm.
+    pub ppm: f64,
+    /// Crystal wander, ppm per sqrt(s).
+    pub wander_ppm_per_sqrt_s: f64,
+    /// Bridge clock at the start, ns.
+    pub initial_ns: u64,
+    /// Store-and-forward residence after a frame is received, before its egress, ns.
+    pub residence_ns: u64,
+    /// Gate cycle, ns.
+    pub cycle_ns: u64,
+    /// Local time at which gate cycles start (modulo the cycle), ns.
+    pub base_ns: u64,
+    /// Egress towards the slaves.
+    pub ethercat_port: PortSchedule,
+    /// Egress towards the master.
+    pub master_port: PortSchedule,
+    /// Share of the best-effort time the master-facing wire carries cross traffic.
+    pub cross_traffic_load: f64,
+    /// Size of a cross-traffic frame, bytes.
+    pub cross_traffic_frame_bytes: u64,
+    /// gPTP priority1.
+    pub priority1: u8,
+}
+
+/// gPTP.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GptpParams {
+    /// Sync interval, ns.
+    pub sync_interval_ns: u64,
+    /// Pdelay_Req interval, ns.
+    pub pdelay_interval_ns: u64,
+    /// gPTP runs this long before the EtherCAT bring-up starts (M3), ns.
+    pub settle_ns: u64,
+    /// Servo proportional gain.
+    pub kp: f64,
+    /// Servo integral gain.
+    pub ki: f64,
+}
+
+/// A TSN scenario.
+#[derive(Debug, Clone)]
+pub struct TsnScenario {
+    /// Where it came from.
+    pub name: String,
+    /// The EtherCAT segment.
+    pub slaves: Vec<SlaveSpec>,
+    /// Seed of launch jitter and cross traffic.
+    pub seed: u64,
+    /// EtherCAT cycle and SYNC0 period, ns.
+    pub cycle_ns: u32,
+    /// SYNC0 shift after the cycle's grid point, ns.
+    pub sync0_shift_ns: u32,
+    /// Cycles before recording.
+    pub warmup_cycles: u64,
+    /// Recorded cycles.
+    pub cycles: u64,
+    /// Static drift compensation frames of the bring-up.
+    pub static_drift_frames: u32,
+    /// Variants to run.
+    pub variants: Vec<Variant>,
+    /// The master.
+    pub master: MasterParams,
+    /// The bridge.
+    pub bridge: BridgeParams,
+    /// gPTP.
+    pub gptp: GptpParams,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    tsn: TsnTable,
+    master: MasterTable,
+    bridge: BridgeTable,
+    gptp: GptpTable,
+    #[serde(default)]
+    segment: Option<SegmentConfig>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TsnTable {
+    seed: u64,
+    cycle_ns: i64,
+    sync0_shift_ns: i64,
+    warmup_s: f64,
+    duration_s: f64,
+    #[serde(default = "default_drift_frames")]
+    static_drift_frames: u32,
+    variants: Vec<String>,
+}
+
+fn default_drift_frames() -> u32 {
+    15_000
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MasterTable {
+    ppm: f64,
+    #[serde(default = "default_wander")]
+    wander_ppm_per_sqrt_s: f64,
+    clock_offset_ns: i64,
+    timestamp_ns: i64,
+    launch_jitter_ns: f64,
+    cable_m: f64,
+    launch_margin_ns: i64,
+    priority1: u8,
+}
+
+fn default_wander() -> f64 {
+    ecsync_esc::preset::CRYSTAL_WANDER_PPM_PER_SQRT_S
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PortTable {
+    #[serde(default)]
+    window: Vec<Window>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BridgeTable {
+    ppm: f64,
+    #[serde(default = "default_wander")]
+    wander_ppm_per_sqrt_s: f64,
+    initial_ns: u64,
+    residence_ns: i64,
+    cycle_ns: i64,
+    #[serde(default)]
+    base_ns: u64,
+    cross_traffic_load: f64,
+    cross_traffic_frame_bytes: u64,
+    priority1: u8,
+    ethercat_port: PortTable,
+    master_port: PortTable,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GptpTable {
+    sync_interval_ns: i64,
+    pdelay_interval_ns: i64,
+    settle_s: f64,
+    kp: f64,
+    ki: f64,
+}
+
+/// The line of `key = ...` inside table `table`, if present.
+fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
+    let mut current = String::new();
+    for (i, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if l.starts_with('[') {
+            current = l.trim_matches(['[', ']']).trim().to_string();
+            continue;
+        }
+        if current == table {
+            if let Some((k, _)) = l.split_once('=') {
+                if k.trim() == key {
+                    return Some(i + 1);
+                }
+            }
+        }
+    }
+    None
+}
+
+/// Wire time of the largest EtherCAT frame (1514 bytes without FCS), ns.
+fn max_frame_ns() -> u64 {
+    ecsync_esc::frame_wire_time_ps(1514) / 1000
+}
+
+/// Parses and checks a TSN scenario.
+pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
+    let f: File = toml::from_str(text).map_err(|e| toml_error(file, text, &e))?;
+    let err = |table: &str, key: &str, message: String, fix: &str| ConfigError {
+        file: file.to_string(),
+        line: key_line(text, table, key)
+            .or_else(|| text.find(&format!("[{table}]")).map(|at| line_of(text, at))),
+        field: format!("{table}.{key}"),
+        message,
+        fix: fix.to_string(),
+    };
+    let slaves = match &f.segment {
+        Some(s) => s.to_specs(file, text, "segment")?,
+        None => ecsync_esc::preset::paper_2024(),
+    };
+    let t = &f.tsn;
+    if t.cycle_ns <= 0 || t.cycle_ns > i64::from(u32::MAX) {
+        return Err(err(
+            "tsn",
+            "cycle_ns",
+            format!("{} is not a cycle time", t.cycle_ns),
+            "give the EtherCAT cycle in ns, e.g. 1000000",
+        ));
+    }
+    if t.sync0_shift_ns < 0 || t.sync0_shift_ns >= t.cycle_ns {
+        return Err(err(
+            "tsn",
+            "sync0_shift_ns",
+            format!("{} ns is not within the cycle", t.sync0_shift_ns),
+            "give a shift between 0 and the cycle",
+        ));
+    }
+    let cycle = t.cycle_ns as f64;
+    let secs = |v: f64, key: &str| -> Result<u64, ConfigError> {
+        if !(v.is_finite() && v >= 0.0 && v <= 86_400.0) {
+            return Err(err(
+                "tsn",
+                key,
+                format!("{v} is not a duration"),
+                "give seconds between 0 and 86400",
+            ));
+        }
+        Ok((v * 1e9 / cycle).round() as u64)
+    };
+    let warmup_cycles = secs(t.warmup_s, "warmup_s")?;
+    let cycles = secs(t.duration_s, "duration_s")?;
+    if cycles == 0 {
+        return Err(err(
+            "tsn",
+            "duration_s",
+            "records no cycle".into(),
+            "give at least one cycle's worth of seconds",
+        ));
+    }
+    let mut variants = Vec::new();
+    for v in &t.variants {
+        let Some(x) = Variant::parse(v) else {
+            return Err(err(
+                "tsn",
+                "variants",
+                format!("unknown variant \"{v}\""),
+                "use M1, M2 and M3",
+            ));
+        };
+        if !variants.contains(&x) {
+            variants.push(x);
+        }
+    }
+    if variants.is_empty() {
+        return Err(err(
+            "tsn",
+            "variants",
+            "no variant".into(),
+            "list at least one of M1, M2, M3",
+        ));
+    }
+    let m = &f.master;
+    if !(m.ppm.is_finite() && m.ppm.abs() <= 500.0) {
+        return Err(err(
+            "master",
+            "ppm",
+            format!("{} ppm is not a crystal error", m.ppm),
+            "give a value within +-500",
+        ));
+    }
+    if m.timestamp_ns <= 0 || m.timestamp_ns > 1_000 {
+        return Err(err(
+            "master",
+            "timestamp_ns",
+            format!("{} ns is not a timestamp granularity", m.timestamp_ns),
+            "give 1..1000 (8 for a 125 MHz hardware timestamper)",
+        ));
+    }
+    if !(m.launch_jitter_ns.is_finite() && m.launch_jitter_ns >= 0.0) {
+        return Err(err(
+            "master",
+            "launch_jitter_ns",
+            "must be a non-negative standard deviation".into(),
+            "give 0 or more",
+        ));
+    }
+    if !(m.cable_m.is_finite() && m.cable_m >= 0.0 && m.cable_m <= 100.0) {
+        return Err(err(
+            "master",
+            "cable_m",
+            format!("{} m is not a 100BASE-TX cable", m.cable_m),
+            "give 0..100 m",
+        ));
+    }
+    if m.launch_margin_ns < 0 {
+        return Err(err(
+            "master",
+            "launch_margin_ns",
+            "is negative".into(),
+            "give 0 or more ns",
+        ));
+    }
+    let b = &f.bridge;
+    if !(b.ppm.is_finite() && b.ppm.abs() <= 500.0) {
+        return Err(err(
+            "bridge",
+            "ppm",
+            format!("{} ppm is not a crystal error", b.ppm),
+            "give a value within +-500",
+        ));
+    }
+    if b.residence_ns < 0 {
+        return Err(err(
+            "bridge",
+            "residence_ns",
+            "is negative".into(),
+            "give 0 or more ns",
+        ));
+    }
+    if b.cycle_ns <= 0 || t.cycle_ns % b.cycle_ns != 0 {
+        return Err(err(
+            "bridge",
+            "cycle_ns",
+            format!(
+                "the gate cycle of {} ns does not divide the EtherCAT cycle of {} ns",
+                b.cycle_ns, t.cycle_ns
+            ),
+            "make the gate cycle the EtherCAT cycle (or a divisor of it)",
+        ));
+    }
+    if !(b.cross_traffic_load.is_finite() && (0.0..1.0).contains(&b.cross_traffic_load)) {
+        return Err(err(
+            "bridge",
+            "cross_traffic_load",
+            format!("{} is not a load", b.cross_traffic_load),
+            "give a share of the best-effort time, 0 <= load < 1",
+        ));
+    }
+    if !(64..=1522).contains(&b.cross_traffic_frame_bytes) {
+        return Err(err(
+            "bridge",
+            "cross_traffic_frame_bytes",
+            format!("{} is not an Ethernet frame size", b.cross_traffic_frame_bytes),
+            "give 64..1522",
+        ));
+    }
+    let guard_ns = (8 + b.cross_traffic_frame_bytes + 12) * 80;
+    let schedule = |port: &str, p: &PortTable| -> Result<PortSchedule, ConfigError> {
+        let table = format!("bridge.{port}");
+        let s = PortSchedule::new(b.cycle_ns as u64, b.base_ns, &p.window, guard_ns)
+            .and_then(|s| s.check_fits(max_frame_ns()).map(|()| s))
+            .map_err(|e: ScheduleError| ConfigError {
+                file: file.to_string(),
+                line: text
+                    .find(&format!("[[{table}.window]]"))
+                    .or_else(|| text.find(&format!("[{table}]")))
+                    .map(|at| line_of(text, at)),
+                field: format!("{table}.window"),
+                message: format!("bad gate schedule: {e}"),
+                fix: "each [[bridge.<port>.window]] gives open_ns < close_ns within the gate cycle, windows must not overlap, and the list must not be empty".into(),
+            })?;
+        Ok(s)
+    };
+    let ethercat_port = schedule("ethercat_port", &b.ethercat_port)?;
+    let master_port = schedule("master_port", &b.master_port)?;
+    let g = &f.gptp;
+    let pos = |v: i64, key: &str| -> Result<u64, ConfigError> {
+        if v <= 0 || v > 60_000_000_000 {
+            return Err(err(
+                "gptp",
+                key,
+                format!("{v} ns is not an interval"),
+                "give 1 ns .. 60 s (802.1AS: 125000000 for Sync, 1000000000 for Pdelay)",
+            ));
+        }
+        Ok(v as u64)
+    };
+    let sync_interval_ns = pos(g.sync_interval_ns, "sync_interval_ns")?;
+    let pdelay_interval_ns = pos(g.pdelay_interval_ns, "pdelay_interval_ns")?;
+    if !(g.settle_s.is_finite() && (0.0..=3600.0).contains(&g.settle_s)) {
+        return Err(err(
+            "gptp",
+            "settle_s",
+            format!("{} is not a duration", g.settle_s),
+            "give 0..3600 s",
+        ));
+    }
+    if !(g.kp.is_finite() && g.kp > 0.0 && g.kp < 2.0 && g.ki.is_finite() && g.ki >= 0.0 && g.ki < 1.0)
+    {
+        return Err(err(
+            "gptp",
+            "kp",
+            format!("kp {} and ki {} do not make a stable servo", g.kp, g.ki),
+            "give 0 < kp < 2 and 0 <= ki < 1 (defaults 0.7 and 0.3)",
+        ));
+    }
+    Ok(TsnScenario {
+        name: file.to_string(),
+        slaves,
+        seed: t.seed,
+        cycle_ns: t.cycle_ns as u32,
+        sync0_shift_ns: t.sync0_shift_ns as u32,
+        warmup_cycles,
+        cycles,
+        static_drift_frames: t.static_drift_frames,
+        variants,
+        master: MasterParams {
+            ppm: m.ppm,
+            wander_ppm_per_sqrt_s: m.wander_ppm_per_sqrt_s,
+            clock_offset_ns: m.clock_offset_ns,
+            timestamp_ns: m.timestamp_ns as u64,
+            launch_jitter_ns: m.launch_jitter_ns,
+            cable_m: m.cable_m,
+            launch_margin_ns: m.launch_margin_ns as u64,
+            priority1: m.priority1,
+        },
+        bridge: BridgeParams {
+            ppm: b.ppm,
+            wander_ppm_per_sqrt_s: b.wander_ppm_per_sqrt_s,
+            initial_ns: b.initial_ns,
+            residence_ns: b.residence_ns as u64,
+            cycle_ns: b.cycle_ns as u64,
+            base_ns: b.base_ns,
+            ethercat_port,
+            master_port,
+            cross_traffic_load: b.cross_traffic_load,
+            cross_traffic_frame_bytes: b.cross_traffic_frame_bytes,
+            priority1: b.priority1,
+        },
+        gptp: GptpParams {
+            sync_interval_ns,
+            pdelay_interval_ns,
+            settle_ns: (g.settle_s * 1e9) as u64,
+            kp: g.kp,
+            ki: g.ki,
+        },
+    })
+}
+
+/// The built-in preset.
+pub fn preset() -> TsnScenario {
+    parse("presets/tsn-2020.toml", TSN_2020_TOML).expect("the built-in preset is valid")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_preset_parses() {
+        let s = preset();
+        assert_eq!(s.variants, vec![Variant::M1, Variant::M2, Variant::M3]);
+        assert_eq!(s.slaves.len(), 6);
+        assert!((s.bridge.ethercat_port.open_fraction() - 0.3).abs() < 1e-9);
+    }
+
+    fn with_windows(ecat: &str) -> String {
+        let mut t = TSN_2020_TOML.to_string();
+        let start = t.find("[[bridge.ethercat_port.window]]").unwrap();
+        let end = t.find("[[bridge.master_port.window]]").unwrap();
+        t.replace_range(start..end, ecat);
+        t
+    }
+
+    #[test]
+    fn bad_gate_schedules_name_the_field_and_the_reason() {
+        let overlap = with_windows(
+            "[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 300000\n\n[[bridge.ethercat_port.window]]\nopen_ns = 200000\nclose_ns = 500000\n\n",
+        );
+        let e = parse("x.toml", &overlap).unwrap_err().to_string();
+        assert!(e.contains("bridge.ethercat_port.window"), "{e}");
+        assert!(e.contains("overlap from 200000 to 300000"), "{e}");
+
+        let long = with_windows(
+            "[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 1500000\n\n",
+        );
+        let e = parse("x.toml", &long).unwrap_err().to_string();
+        assert!(e.contains("longer than the gate cycle"), "{e}");
+
+        let empty = with_windows("[bridge.ethercat_port]\n\n");
+        let e = parse("x.toml", &empty).unwrap_err().to_string();
+        assert!(e.contains("empty"), "{e}");
+        assert!(e.starts_with("x.toml:"), "{e}");
+
+        let tiny = with_windows(
+            "[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 50000\n\n",
+        );
+        let e = parse("x.toml", &tiny).unwrap_err().to_string();
+        assert!(e.contains("largest EtherCAT frame"), "{e}");
+    }
+
+    #[test]
+    fn other_bad_fields_are_named() {
+        let t = TSN_2020_TOML.replace("variants = [\"M1\", \"M2\", \"M3\"]", "variants = [\"M4\"]");
+        let e = parse("x.toml", &t).unwrap_err().to_string();
+        assert!(e.contains("tsn.variants") && e.contains("M4"), "{e}");
+        let t = TSN_2020_TOML.replace("[gptp]", "[gptp]\nbogus = 1");
+        let e = parse("x.toml", &t).unwrap_err().to_string();
+        assert!(e.contains("unknown field"), "{e}");
+    }
+}
