@@ -20,6 +20,40 @@ enum TsnCommand {
     /// gPTP) and M3 (bridge, master synchronized by gPTP) and prints Tables I and II of the
     /// paper beside ours.
     Models(ModelsArgs),
+    /// Runs the realistic integrated network in three variants (M1: no bridge; M2: bridge, no
+    /// gPTP; M3: bridge and gPTP, the master as DC reference) and reports blocked DC frames,
+    /// delay measurement errors, precision and master-to-slave differences against the
+    /// simulator's ground truth, with plots and report.html.
+    Run(RunArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct RunArgs {
+    /// Built-in preset (tsn-2020).
+    #[arg(long, conflicts_with = "config")]
+    preset: Option<String>,
+    /// A TOML file describing the network, bridge and gPTP (see presets/tsn-2020.toml).
+    #[arg(long)]
+    config: Option<std::path::PathBuf>,
+    /// Variants to run (default: the scenario's).
+    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    variants: Option<Vec<String>>,
+    /// Recorded seconds of cyclic operation (default: the scenario's).
+    #[arg(long)]
+    duration_s: Option<f64>,
+    /// Output directory for summary.json, summary.csv, table.txt, plots and report.html.
+    #[arg(long, default_value = "out/tsn")]
+    out: std::path::PathBuf,
+    /// Capture each variant's frames at the master's port (EtherCAT and gPTP) into
+    /// DIR/M1.pcap, DIR/M2.pcap, DIR/M3.pcap.
+    #[arg(long)]
+    pcap: Option<std::path::PathBuf>,
+    /// Cyclic seconds to capture after the bring-up (the bring-up is captured whole).
+    #[arg(long, default_value_t = 1.0)]
+    pcap_seconds: f64,
+    /// Print summary.json to standard output instead of the table.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -54,6 +88,7 @@ struct ModelOut {
 pub fn run(args: Args) -> Result<ExitCode> {
     match args.command {
         TsnCommand::Models(a) => models(a),
+        TsnCommand::Run(a) => tsn_run(a),
     }
 }
 
@@ -108,6 +143,93 @@ fn models(args: ModelsArgs) -> Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         print(&out);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn tsn_run(args: RunArgs) -> Result<ExitCode> {
+    use ecsync_lab::tsn::{TsnOptions, report, run_all, scenario};
+    let t0 = Instant::now();
+    let (name, text) = match (&args.preset, &args.config) {
+        (_, Some(path)) => (
+            path.display().to_string(),
+            std::fs::read_to_string(path)
+                .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?,
+        ),
+        (Some(p), None) if p == "tsn-2020" => (
+            "preset tsn-2020".to_string(),
+            scenario::TSN_2020_TOML.to_string(),
+        ),
+        (Some(p), None) => {
+            anyhow::bail!("unknown preset \"{p}\"; the built-in TSN preset is: tsn-2020")
+        }
+        (None, None) => (
+            "preset tsn-2020".to_string(),
+            scenario::TSN_2020_TOML.to_string(),
+        ),
+    };
+    let mut s = scenario::parse(&name, &text).map_err(anyhow::Error::msg)?;
+    if let Some(v) = &args.variants {
+        let mut out = Vec::new();
+        for x in v {
+            let Some(var) = [
+                scenario::Variant::M1,
+                scenario::Variant::M2,
+                scenario::Variant::M3,
+            ]
+            .into_iter()
+            .find(|k| k.name().eq_ignore_ascii_case(x)) else {
+                anyhow::bail!("unknown variant \"{x}\"; the variants are M1, M2, M3");
+            };
+            if !out.contains(&var) {
+                out.push(var);
+            }
+        }
+        s.variants = out;
+    }
+    if let Some(d) = args.duration_s {
+        if !(d.is_finite() && d > 0.0 && d <= 86_400.0) {
+            anyhow::bail!("--duration-s must be between 0 and 86400 s");
+        }
+        s.cycles = ((d * 1e9 / f64::from(s.cycle_ns)).round() as u64).max(1);
+    }
+    if let Some(dir) = &args.pcap {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+    }
+    let opts = TsnOptions {
+        pcap_dir: args.pcap.clone(),
+        pcap_cycles: (args.pcap_seconds.max(0.0) * 1e9 / f64::from(s.cycle_ns)) as u64,
+    };
+    if !args.json {
+        eprintln!(
+            "running {} on {} slaves: {} s of cyclic operation after {} s warm-up...",
+            s.variants
+                .iter()
+                .map(|v| v.name())
+                .collect::<Vec<_>>()
+                .join(", "),
+            s.slaves.len(),
+            s.cycles * u64::from(s.cycle_ns) / 1_000_000_000,
+            s.warmup_cycles * u64::from(s.cycle_ns) / 1_000_000_000,
+        );
+    }
+    let results = run_all(&s, &opts)?;
+    let sum = report::summarize(&s, &results, t0.elapsed().as_secs_f64());
+    report::write_all(&sum, &results, &args.out)
+        .map_err(|e| anyhow::anyhow!("cannot write the report into {}: {e}", args.out.display()))?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&sum)?);
+    } else {
+        print!("{}", report::table_text(&sum));
+        for n in &sum.findings.notes {
+            println!("- {n}");
+        }
+        println!(
+            "Report: {} ({:.1} s)",
+            args.out.join("report.html").display(),
+            t0.elapsed().as_secs_f64()
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

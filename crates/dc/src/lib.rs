@@ -19,5 +19,6 @@ pub use lock::LockDetector;
 pub use offset::{sync0_start_time, system_time_offset};
 pub use sync::{BusShift, CycleInput, CycleOutput, MasterSync, MedianSync, PiM2s, Snap, SoemPi};
 pub use topology::{
-    SlavePorts, TopologyError, TreeNode, arrival_times, build_tree, master_delay_ns, propagation_delays,
+    SlavePorts, TopologyError, TreeNode, arrival_times, build_tree, master_delay_ns,
+    propagation_delays,
 };

@@ -18,7 +18,7 @@ use std::io;
 use std::path::Path;
 use std::sync::Once;
 
-const COLORS: [RGBColor; 5] = [
+pub(crate) const COLORS: [RGBColor; 5] = [
     RGBColor(0x1f, 0x77, 0xb4),
     RGBColor(0xd6, 0x27, 0x28),
     RGBColor(0x2c, 0xa0, 0x2c),
@@ -26,7 +26,7 @@ const COLORS: [RGBColor; 5] = [
     RGBColor(0x94, 0x67, 0xbd),
 ];
 
-fn fonts() {
+pub(crate) fn fonts() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // Bitmaps need a font file; DejaVu Sans is embedded so no system font is needed.
@@ -38,7 +38,7 @@ fn fonts() {
     });
 }
 
-fn err<E: std::fmt::Display>(e: E) -> io::Error {
+pub(crate) fn err<E: std::fmt::Display>(e: E) -> io::Error {
     io::Error::other(e.to_string())
 }
 
@@ -55,7 +55,7 @@ fn range(h: &Histogram, tail: f64) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
-fn draw_hist<DB: DrawingBackend>(
+pub(crate) fn draw_hist<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     h: &Histogram,
     title: &str,
@@ -250,6 +250,58 @@ fn truth_phase<DB: DrawingBackend>(
     root.present().map_err(err)
 }
 
+/// Draws a series of min..max envelopes (one per block of cycles) against seconds.
+pub(crate) fn draw_envelopes<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    s: &[crate::run::Envelope],
+    title: &str,
+    cycle_s: f64,
+    unit_div: f64,
+    unit: &str,
+    col: RGBColor,
+) -> io::Result<()> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for e in s {
+        lo = lo.min(f64::from(e.min));
+        hi = hi.max(f64::from(e.max));
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        (lo, hi) = (-1.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.05).max(1.0);
+    let t_end = s.last().map_or(1.0, |e| e.cycle as f64) * cycle_s;
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 15))
+        .margin(6)
+        .x_label_area_size(28)
+        .y_label_area_size(56)
+        .build_cartesian_2d(
+            0.0..t_end.max(cycle_s),
+            (lo - pad) / unit_div..(hi + pad) / unit_div,
+        )
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("s since the start of recording")
+        .y_desc(unit)
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(s.iter().map(|e| {
+            let t = e.cycle as f64 * cycle_s;
+            PathElement::new(
+                vec![
+                    (t, f64::from(e.min) / unit_div),
+                    (t, f64::from(e.max) / unit_div),
+                ],
+                col.mix(0.6).stroke_width(2),
+            )
+        }))
+        .map_err(err)?;
+    Ok(())
+}
+
 type Plot<'a> = dyn Fn(&Path, bool) -> io::Result<()> + 'a;
 
 /// Writes every plot and report.html into `dir`.
@@ -392,7 +444,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
     crate::report::write_atomic(&dir.join("report.html"), html.as_bytes())
 }
 
-fn esc(s: &str) -> String {
+pub(crate) fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")

@@ -617,9 +617,8 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     link.event(Event::Phase("offsets"));
     // The reference's system time takes the master's clock at the latch (SOEM, IgH, ethercrab);
     // a master that is the reference itself takes its clock at the frame's arrival there.
-    let ref_time = latch_sent_ns.wrapping_add(
-        master_delay_ns.map_or(0, |d| ecsync_dc::offset::round_ns(d).max(0) as u64),
-    );
+    let ref_time = latch_sent_ns
+        .wrapping_add(master_delay_ns.map_or(0, |d| ecsync_dc::offset::round_ns(d).max(0) as u64));
     let mut writes = Vec::new();
     for (i, s) in slaves.iter_mut().enumerate() {
         if s.dc != DcCapability::SystemTime {

@@ -453,8 +453,13 @@ mod tests {
         assert!(matches!(e, ScheduleError::LongerThanCycle { index: 0, .. }));
         assert!(e.to_string().contains("longer than the gate cycle"), "{e}");
 
-        let e = PortSchedule::new(1_000_000, 0, &[w(0, 300_000), w(600_000, 900_000), w(250_000, 400_000)], 0)
-            .unwrap_err();
+        let e = PortSchedule::new(
+            1_000_000,
+            0,
+            &[w(0, 300_000), w(600_000, 900_000), w(250_000, 400_000)],
+            0,
+        )
+        .unwrap_err();
         assert_eq!(
             e,
             ScheduleError::Overlap {
@@ -464,7 +469,10 @@ mod tests {
                 to_ns: 300_000
             }
         );
-        assert!(e.to_string().contains("overlap from 250000 to 300000"), "{e}");
+        assert!(
+            e.to_string().contains("overlap from 250000 to 300000"),
+            "{e}"
+        );
 
         let e = PortSchedule::new(1_000_000, 0, &[w(900_000, 1_100_000)], 0).unwrap_err();
         assert!(matches!(e, ScheduleError::OutsideCycle { .. }), "{e}");

@@ -164,6 +164,8 @@ struct Gptp {
     out: Vec<Outgoing>,
     more: Vec<Outgoing>,
     disciplined: bool,
+    /// The bridge's master-facing egress is busy with a gPTP message until then (real ps).
+    bridge_tx_free_ps: u64,
     messages: u64,
     held_by_cross_traffic: u64,
 }
@@ -470,6 +472,7 @@ impl<'a> Net<'a> {
                 out: Vec::new(),
                 more: Vec::new(),
                 disciplined: false,
+                bridge_tx_free_ps: 0,
                 messages: 0,
                 held_by_cross_traffic: 0,
             }
@@ -492,7 +495,6 @@ impl<'a> Net<'a> {
             in_bringup: true,
         })
     }
-
 
     fn record(&mut self, t_ps: u64, frame: &[u8]) {
         if t_ps > self.capture_until_ps {
@@ -536,8 +538,8 @@ impl<'a> Net<'a> {
     fn trip(&mut self, frame: &mut [u8], launch_ns: u64) -> Trip {
         let len = frame.len();
         let jitter_ps = (self.noise.normal() * self.s.master.launch_jitter_ns * 1000.0) as i64;
-        let t_tx = (self.phc.real_ps_at(launch_ns) as i64 + jitter_ps).max(self.now_ps as i64 + 1)
-            as u64;
+        let t_tx =
+            (self.phc.real_ps_at(launch_ns) as i64 + jitter_ps).max(self.now_ps as i64 + 1) as u64;
         self.advance(t_tx);
         let t1 = stamp(self.s.master.timestamp_ns, self.phc.ns_at(t_tx));
         self.record(t_tx, frame);
@@ -607,11 +609,7 @@ impl<'a> Net<'a> {
             }
             if next_delivery == Some(t) {
                 let g = self.gptp.as_mut().expect("gptp");
-                let i = g
-                    .queue
-                    .iter()
-                    .position(|d| d.t_ps == t)
-                    .expect("delivery");
+                let i = g.queue.iter().position(|d| d.t_ps == t).expect("delivery");
                 let d = g.queue.swap_remove(i);
                 self.deliver(d);
             } else {
@@ -692,7 +690,8 @@ impl<'a> Net<'a> {
                     // Best effort on the master-facing port: outside the EtherCAT window, after
                     // any cross-traffic frame in flight.
                     let sched = &self.s.bridge.master_port;
-                    let ready = self.bridge.master_ns(t_cur);
+                    let free = self.gptp.as_ref().map_or(0, |g| g.bridge_tx_free_ps);
+                    let ready = self.bridge.master_ns(t_cur.max(free));
                     let mut start = sched.best_effort_start(ready, wire / 1000);
                     if self.noise.unit() < self.s.bridge.cross_traffic_load {
                         let be_ps = frame_wire_time_ps(
@@ -707,10 +706,15 @@ impl<'a> Net<'a> {
                 let tx = stamp(self.s.master.timestamp_ns, tx_local);
                 let g = self.gptp.as_mut().expect("gptp");
                 g.messages += 1;
+                if !from_master {
+                    g.bridge_tx_free_ps = start + wire;
+                }
                 if from_master {
-                    g.master.on_tx_timestamp(o.port, &o.header, &o.message, tx, &mut more);
+                    g.master
+                        .on_tx_timestamp(o.port, &o.header, &o.message, tx, &mut more);
                 } else {
-                    g.bridge.on_tx_timestamp(o.port, &o.header, &o.message, tx, &mut more);
+                    g.bridge
+                        .on_tx_timestamp(o.port, &o.header, &o.message, tx, &mut more);
                 }
                 g.queue.push(Delivery {
                     t_ps: start + self.link_ps,
@@ -784,7 +788,8 @@ fn is_latch_frame(frame: &[u8]) -> bool {
     // Ethernet (14) + EtherCAT header (2) + datagram: command, index, ADP, ADO.
     frame.len() >= 22
         && frame[16] == ecsync_wire::Command::Bwr as u8
-        && u16::from_le_bytes([frame[20], frame[21]]) == ecsync_wire::register::DC_RECEIVE_TIME_PORT0
+        && u16::from_le_bytes([frame[20], frame[21]])
+            == ecsync_wire::register::DC_RECEIVE_TIME_PORT0
 }
 
 /// Options of a TSN run.
@@ -887,8 +892,8 @@ pub fn run_variant(
         pdi_len: net_info.pdi_len,
         measure_init_frames: 1,
     };
-    let probe = CyclicEngine::new(BusShift { write_offset_ns: 0 }, cyc_cfg, 0)
-        .map_err(TsnError::Frame)?;
+    let probe =
+        CyclicEngine::new(BusShift { write_offset_ns: 0 }, cyc_cfg, 0).map_err(TsnError::Frame)?;
     let cyc_len = {
         let mut p = probe;
         p.frame_to_send(0).len()
@@ -900,10 +905,7 @@ pub fn run_variant(
     } else {
         0
     };
-    let write_offset_ns = net_info
-        .master_delay_ns
-        .map_or(0, |d| d.round() as i64)
-        + sf_extra_ns;
+    let write_offset_ns = net_info.master_delay_ns.map_or(0, |d| d.round() as i64) + sf_extra_ns;
     let period = u64::from(s.cycle_ns);
     let lead = net.lead_ns(cyc_len);
     let open = s.bridge.ethercat_port.windows()[0].open_ns + s.master.launch_margin_ns;
@@ -914,8 +916,8 @@ pub fn run_variant(
         0
     };
     let first = (now / period + 3) * period + base + open - lead;
-    let mut eng = CyclicEngine::new(BusShift { write_offset_ns }, cyc_cfg, first)
-        .map_err(TsnError::Frame)?;
+    let mut eng =
+        CyclicEngine::new(BusShift { write_offset_ns }, cyc_cfg, first).map_err(TsnError::Frame)?;
 
     let mut m_rs = Stats::new(-2_000_000.0, 10.0, 400_000);
     let mut rs_is = Stats::new(0.0, 2.0, 1_000_000);

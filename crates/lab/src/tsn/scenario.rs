@@ -2,8 +2,8 @@
 //! control lists, gPTP, and which variants to run. Every error names the file, the line, the
 //! field and the fix.
 
-use ecsync_esc::config::{ConfigError, SegmentConfig, line_of, toml_error};
 use ecsync_esc::SlaveSpec;
+use ecsync_esc::config::{ConfigError, SegmentConfig, line_of, toml_error};
 use ecsync_tsn::qbv::{PortSchedule, ScheduleError, Window};
 use serde::Deserialize;
 
@@ -287,7 +287,7 @@ pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
     }
     let cycle = t.cycle_ns as f64;
     let secs = |v: f64, key: &str| -> Result<u64, ConfigError> {
-        if !(v.is_finite() && v >= 0.0 && v <= 86_400.0) {
+        if !(v.is_finite() && (0.0..=86_400.0).contains(&v)) {
             return Err(err(
                 "tsn",
                 key,
@@ -410,7 +410,10 @@ pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
         return Err(err(
             "bridge",
             "cross_traffic_frame_bytes",
-            format!("{} is not an Ethernet frame size", b.cross_traffic_frame_bytes),
+            format!(
+                "{} is not an Ethernet frame size",
+                b.cross_traffic_frame_bytes
+            ),
             "give 64..1522",
         ));
     }
@@ -455,7 +458,12 @@ pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
             "give 0..3600 s",
         ));
     }
-    if !(g.kp.is_finite() && g.kp > 0.0 && g.kp < 2.0 && g.ki.is_finite() && g.ki >= 0.0 && g.ki < 1.0)
+    if !(g.kp.is_finite()
+        && g.kp > 0.0
+        && g.kp < 2.0
+        && g.ki.is_finite()
+        && g.ki >= 0.0
+        && g.ki < 1.0)
     {
         return Err(err(
             "gptp",
@@ -541,9 +549,8 @@ mod tests {
         assert!(e.contains("bridge.ethercat_port.window"), "{e}");
         assert!(e.contains("overlap from 200000 to 300000"), "{e}");
 
-        let long = with_windows(
-            "[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 1500000\n\n",
-        );
+        let long =
+            with_windows("[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 1500000\n\n");
         let e = parse("x.toml", &long).unwrap_err().to_string();
         assert!(e.contains("longer than the gate cycle"), "{e}");
 
@@ -552,9 +559,8 @@ mod tests {
         assert!(e.contains("empty"), "{e}");
         assert!(e.starts_with("x.toml:"), "{e}");
 
-        let tiny = with_windows(
-            "[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 50000\n\n",
-        );
+        let tiny =
+            with_windows("[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 50000\n\n");
         let e = parse("x.toml", &tiny).unwrap_err().to_string();
         assert!(e.contains("largest EtherCAT frame"), "{e}");
     }
