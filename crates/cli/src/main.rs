@@ -37,7 +37,8 @@ enum Command {
     /// with a synchronization method, in real time.
     #[cfg(target_os = "linux")]
     Run(net::RunArgs),
-    /// TSN between master and slaves: the paper's UPPAAL models explored (`tsn models`).
+    /// TSN between master and slaves: the paper's UPPAAL models explored (`tsn models`) and
+    /// its three networks built from real parts and measured (`tsn run`).
     Tsn(tsn::Args),
 }
 
