@@ -138,8 +138,11 @@ struct PortData {
 /// The time carried by the last Sync/Follow_Up pair received on the slave port.
 #[derive(Debug, Clone, Copy)]
 struct SyncInfo {
-    /// Grandmaster time when the Sync left the upstream port (origin + correction), ns.
-    gm_at_upstream_send_ns: f64,
+    /// Grandmaster time when the Sync left the upstream port: the precise origin (whole ns,
+    /// exact at any epoch) plus the correction (a small, fractional amount).
+    gm_origin_ns: u64,
+    /// The correction, ns.
+    gm_correction_ns: f64,
     /// Its arrival, local time.
     rx_ns: u64,
     /// Grandmaster frequency over local frequency.
@@ -233,18 +236,23 @@ impl TimeAwareSystem {
         self.last_sync.map(|s| s.rx_ns)
     }
 
-    /// Grandmaster time at local time `local_ns`, from the last Sync (None before one).
-    pub fn gm_time_at(&self, local_ns: u64) -> Option<f64> {
+    /// Grandmaster time at local time `local_ns`, from the last Sync (None before one): whole
+    /// nanoseconds and the fraction. Absolute times stay integers (a float holds whole
+    /// nanoseconds only up to 2^53, 104 days: PTP's TAI timescale is at 1.8e18); only the
+    /// differences, small, are floating point.
+    pub fn gm_time_at(&self, local_ns: u64) -> Option<(u64, f64)> {
         let s = self.last_sync?;
         let link = self
             .slave_port
             .and_then(|p| self.ports[p].mean_link_delay_ns)
             .unwrap_or(0.0);
-        Some(
-            s.gm_at_upstream_send_ns
-                + link * s.rate_ratio
-                + (local_ns as f64 - s.rx_ns as f64) * s.rate_ratio,
-        )
+        let since_rx = (local_ns.wrapping_sub(s.rx_ns) as i64) as f64;
+        let rest = s.gm_correction_ns + link * s.rate_ratio + since_rx * s.rate_ratio;
+        let whole = rest.floor();
+        Some((
+            s.gm_origin_ns.wrapping_add(whole as i64 as u64),
+            rest - whole,
+        ))
     }
 
     fn header(&self, port: usize, seq: u16, flags: u16, log: i8) -> Header {
@@ -452,13 +460,13 @@ impl TimeAwareSystem {
                     let t3 = response_origin.to_ns();
                     match p.pd_first {
                         Some((t3_0, t4_0)) if t4 > t4_0 => {
-                            p.neighbor_rate_ratio =
-                                (t3 as f64 - t3_0 as f64) / (t4 as f64 - t4_0 as f64);
+                            p.neighbor_rate_ratio = (t3.wrapping_sub(t3_0) as i64) as f64
+                                / (t4.wrapping_sub(t4_0) as i64) as f64;
                         }
                         _ => p.pd_first = Some((t3, t4)),
                     }
-                    let d = ((t4 as f64 - t1 as f64) * p.neighbor_rate_ratio
-                        - (t3 as f64 - t2.to_ns() as f64))
+                    let d = ((t4.wrapping_sub(t1) as i64) as f64 * p.neighbor_rate_ratio
+                        - (t3.wrapping_sub(t2.to_ns()) as i64) as f64)
                         / 2.0;
                     p.mean_link_delay_ns = Some(d);
                 }
@@ -484,10 +492,9 @@ impl TimeAwareSystem {
                 let upstream_rate =
                     1.0 + f64::from(info.cumulative_scaled_rate_offset) / (1u64 << 41) as f64;
                 let rate_ratio = upstream_rate * self.ports[port].neighbor_rate_ratio;
-                let gm_send =
-                    precise_origin.to_ns() as f64 + h.correction_scaled_ns as f64 / 65536.0;
                 self.last_sync = Some(SyncInfo {
-                    gm_at_upstream_send_ns: gm_send,
+                    gm_origin_ns: precise_origin.to_ns(),
+                    gm_correction_ns: h.correction_scaled_ns as f64 / 65536.0,
                     rx_ns: sync_rx,
                     rate_ratio,
                 });
@@ -537,16 +544,12 @@ impl TimeAwareSystem {
                 // Grandmaster time when this Sync left, and the rate to the grandmaster.
                 let (origin_ns, correction_ns, rate) = if self.is_grandmaster() {
                     (tx_ns, 0.0, 1.0)
-                } else if let Some(s) = self.last_sync {
-                    let link = self
-                        .slave_port
-                        .and_then(|p| self.ports[p].mean_link_delay_ns)
-                        .unwrap_or(0.0);
-                    let gm_now = s.gm_at_upstream_send_ns
-                        + link * s.rate_ratio
-                        + (tx_ns as f64 - s.rx_ns as f64) * s.rate_ratio;
-                    let origin = s.gm_at_upstream_send_ns.floor();
-                    (origin as u64, gm_now - origin, s.rate_ratio)
+                } else if let (Some(s), Some((now_ns, now_frac))) =
+                    (self.last_sync, self.gm_time_at(tx_ns))
+                {
+                    // The upstream's precise origin, and everything since in the correction.
+                    let correction = (now_ns.wrapping_sub(s.gm_origin_ns) as i64) as f64 + now_frac;
+                    (s.gm_origin_ns, correction, s.rate_ratio)
                 } else {
                     return;
                 };
@@ -571,17 +574,19 @@ impl TimeAwareSystem {
     }
 
     /// The servo's decision after the last Follow_Up (call once per Sync received), for a
-    /// clock disciplined to the grandmaster that read `clock_at_rx_ns` when that Sync arrived
-    /// and runs at `1 + frequency` times the local oscillator: `None` before the first Sync or
+    /// clock disciplined to the grandmaster that read `clock_at_rx_ns` (and the fraction
+    /// `clock_at_rx_frac`) when that Sync arrived and runs at `1 + frequency` times the local
+    /// oscillator: `None` before the first Sync or
     /// on the grandmaster. The first decision steps the phase and takes the measured rate; the
     /// next ones are a PI on the phase error on top of the rate.
-    pub fn servo(&mut self, clock_at_rx_ns: f64) -> Option<ClockAdjust> {
+    pub fn servo(&mut self, clock_at_rx_ns: u64, clock_at_rx_frac: f64) -> Option<ClockAdjust> {
         if self.is_grandmaster() {
             return None;
         }
         let s = self.last_sync?;
-        let gm_at_rx = self.gm_time_at(s.rx_ns)?;
-        let offset = clock_at_rx_ns - gm_at_rx;
+        let (gm_ns, gm_frac) = self.gm_time_at(s.rx_ns)?;
+        let offset =
+            (clock_at_rx_ns.wrapping_sub(gm_ns) as i64) as f64 + (clock_at_rx_frac - gm_frac);
         self.last_offset_ns = Some(offset);
         if !self.stepped {
             self.stepped = true;

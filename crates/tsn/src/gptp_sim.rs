@@ -246,7 +246,7 @@ fn discipline(node: &mut Node) {
     } else {
         rx_local
     };
-    if let Some(adj) = node.sys.servo(at_rx) {
+    if let Some(adj) = node.sys.servo(at_rx.floor() as u64, at_rx - at_rx.floor()) {
         // Re-anchor at the Sync's arrival with the new rate (and the step, once).
         node.disc_anchor_value = at_rx + adj.step_ns;
         node.disc_anchor_local = rx_local;

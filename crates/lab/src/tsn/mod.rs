@@ -136,12 +136,12 @@ impl Phc {
             .real_ps_at(self.anchor_xtal.wrapping_add(x as i64 as u64))
     }
 
-    /// From now on reads `value` when the crystal reads `at_xtal`, at rate `1 + freq`.
-    fn set(&mut self, at_xtal: u64, value: f64, freq: f64) {
-        let w = value.floor();
+    /// From now on reads `value_ns + value_frac` when the crystal reads `at_xtal`, at rate
+    /// `1 + freq`.
+    fn set(&mut self, at_xtal: u64, value_ns: u64, value_frac: f64, freq: f64) {
         self.anchor_xtal = at_xtal;
-        self.anchor_value = w as u64;
-        self.anchor_frac = value - w;
+        self.anchor_value = value_ns;
+        self.anchor_frac = value_frac;
         self.freq = freq;
     }
 }
@@ -424,7 +424,7 @@ impl<'a> Net<'a> {
             seed: s.seed ^ 0x6272_6467,
         });
         let mut phc = Phc::new(xtal);
-        phc.set(master_initial, master_initial as f64, 0.0);
+        phc.set(master_initial, master_initial, 0.0, 0.0);
         let margin = s.master.launch_margin_ns;
         let ep = &s.bridge.ethercat_port;
         let shrunk: Vec<Window> = ep
@@ -659,10 +659,17 @@ impl<'a> Net<'a> {
             return;
         };
         let (w, f) = self.phc.at_xtal(rx);
-        let at_rx = w as f64 + f;
-        if let Some(adj) = g.master.servo(at_rx) {
+        if let Some(adj) = g.master.servo(w, f) {
             g.disciplined = true;
-            self.phc.set(rx, at_rx + adj.step_ns, adj.frequency);
+            // The step is whole and fractional nanoseconds on top of an integer reading.
+            let step = f + adj.step_ns;
+            let whole = step.floor();
+            self.phc.set(
+                rx,
+                w.wrapping_add(whole as i64 as u64),
+                step - whole,
+                adj.frequency,
+            );
         }
     }
 
@@ -1085,6 +1092,23 @@ pub fn pcap_path(dir: &Path, v: Variant) -> std::path::PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// gPTP on PTP's own timescale (TAI, 1.8e18 ns): absolute times must stay exact integers;
+    /// as floats they would be quantised to 256 ns.
+    #[test]
+    fn gptp_holds_at_the_tai_epoch() {
+        let mut s = scenario::preset();
+        s.bridge.initial_ns = 1_795_000_000_000_000_000;
+        s.warmup_cycles = 1_000;
+        s.cycles = 4_000;
+        s.gptp.settle_ns = 5_000_000_000;
+        let r = run_variant(&s, Variant::M3, &TsnOptions::default()).unwrap();
+        let g = r.gptp.expect("M3 runs gPTP");
+        assert!(g.offset.rms < 20.0, "{g:?}");
+        assert!(g.bridge_is_grandmaster);
+        assert_eq!(r.blocked.total(), 0, "{:?}", r.blocked);
+        assert!(r.max_abs_delay_error_ns <= 20.0, "{:?}", r.delays);
+    }
 
     #[test]
     #[ignore]
