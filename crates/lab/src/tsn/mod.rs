@@ -1110,6 +1110,25 @@ mod tests {
         assert!(r.max_abs_delay_error_ns <= 20.0, "{:?}", r.delays);
     }
 
+    /// Wherever the master's clock stands against the bridge's, M3 holds no DC frame and
+    /// measures every delay within 20 ns; M2 holds frames at every offset (within 30 s its
+    /// frames walk through the whole gate cycle).
+    #[test]
+    fn m3_holds_nothing_at_any_clock_offset() {
+        for k in 0..5u64 {
+            let mut s = scenario::preset();
+            s.master.clock_offset_ns = 77_000_000_000 + (k * 200_000 + 37_000) as i64;
+            s.warmup_cycles = 500;
+            s.cycles = 30_000;
+            s.gptp.settle_ns = 4_000_000_000;
+            let m3 = run_variant(&s, Variant::M3, &TsnOptions::default()).unwrap();
+            assert_eq!(m3.blocked.total(), 0, "offset {k}: {:?}", m3.blocked);
+            assert!(m3.max_abs_delay_error_ns <= 20.0, "offset {k}: {:?}", m3.delays);
+            let m2 = run_variant(&s, Variant::M2, &TsnOptions::default()).unwrap();
+            assert!(m2.blocked.cyclic_forward > 0, "offset {k}: {:?}", m2.blocked);
+        }
+    }
+
     #[test]
     #[ignore]
     fn print_preset_run() {
