@@ -178,6 +178,7 @@ impl Stats {
         }
         let n = self.n as f64;
         let mean = self.sum / n;
+        let max_abs = self.max.abs().max(self.min.abs());
         Summary {
             n: self.n,
             mean,
@@ -185,9 +186,10 @@ impl Stats {
             max: self.max,
             min: self.min,
             rms: (self.sum_sq / n).sqrt(),
-            p99_abs: self.abs_quantile(0.99),
-            p999_abs: self.abs_quantile(0.999),
-            max_abs: self.max.abs().max(self.min.abs()),
+            // The histogram gives a bin's upper edge: never beyond the largest sample.
+            p99_abs: self.abs_quantile(0.99).min(max_abs),
+            p999_abs: self.abs_quantile(0.999).min(max_abs),
+            max_abs,
         }
     }
 }

@@ -1123,9 +1123,17 @@ mod tests {
             s.gptp.settle_ns = 4_000_000_000;
             let m3 = run_variant(&s, Variant::M3, &TsnOptions::default()).unwrap();
             assert_eq!(m3.blocked.total(), 0, "offset {k}: {:?}", m3.blocked);
-            assert!(m3.max_abs_delay_error_ns <= 20.0, "offset {k}: {:?}", m3.delays);
+            assert!(
+                m3.max_abs_delay_error_ns <= 20.0,
+                "offset {k}: {:?}",
+                m3.delays
+            );
             let m2 = run_variant(&s, Variant::M2, &TsnOptions::default()).unwrap();
-            assert!(m2.blocked.cyclic_forward > 0, "offset {k}: {:?}", m2.blocked);
+            assert!(
+                m2.blocked.cyclic_forward > 0,
+                "offset {k}: {:?}",
+                m2.blocked
+            );
         }
     }
 
