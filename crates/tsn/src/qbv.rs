@@ -490,4 +490,59 @@ mod tests {
         // Touching windows are fine.
         assert!(PortSchedule::new(1_000, 0, &[w(0, 100), w(100, 200)], 0).is_ok());
     }
+
+    /// Windows from sorted cut points of a small cycle: disjoint, possibly touching.
+    fn windows_strategy() -> impl proptest::strategy::Strategy<Value = (u64, Vec<Window>)> {
+        use proptest::prelude::*;
+        (20u64..200, proptest::collection::vec(0u64..1000, 2..8)).prop_map(|(cycle, cuts)| {
+            let mut c: Vec<u64> = cuts.iter().map(|x| x % (cycle + 1)).collect();
+            c.sort_unstable();
+            c.dedup();
+            let ws: Vec<Window> = c
+                .chunks(2)
+                .filter(|p| p.len() == 2 && p[1] > p[0])
+                .map(|p| w(p[0], p[1]))
+                .collect();
+            (cycle, ws)
+        })
+    }
+
+    proptest::proptest! {
+        /// Against brute force: the start is the first nanosecond at or after `ready` at which
+        /// the gate is open and stays open for the whole frame.
+        #[test]
+        fn ethercat_start_is_the_first_instant_that_fits(
+            (cycle, ws) in windows_strategy(),
+            base in 0u64..1000,
+            ready in 0u64..5000,
+            frame in 1u64..60,
+        ) {
+            proptest::prop_assume!(!ws.is_empty());
+            let s = PortSchedule::new(cycle, base, &ws, 0).unwrap();
+            let fits = |t: u64| (t..t + frame).all(|x| s.ethercat_open_at(x));
+            let brute = (ready..ready + 3 * cycle).find(|&t| fits(t));
+            proptest::prop_assert_eq!(s.ethercat_start(ready, frame), brute);
+        }
+
+        /// Best effort never overlaps a window (nor the guard band before one) when a gap
+        /// is long enough.
+        #[test]
+        fn best_effort_stays_out_of_the_windows(
+            (cycle, ws) in windows_strategy(),
+            ready in 0u64..5000,
+            frame in 1u64..20,
+            guard in 0u64..10,
+        ) {
+            proptest::prop_assume!(!ws.is_empty());
+            let s = PortSchedule::new(cycle, 0, &ws, guard).unwrap();
+            let t = s.best_effort_start(ready, frame);
+            proptest::prop_assert!(t >= ready);
+            let clear = |t: u64| (t..t + frame + guard).all(|x| !s.ethercat_open_at(x));
+            if (ready..ready + 3 * cycle).any(clear) {
+                proptest::prop_assert!(clear(t), "start {} not clear", t);
+                let first = (ready..ready + 3 * cycle).find(|&x| clear(x)).unwrap_or(t);
+                proptest::prop_assert_eq!(t, first);
+            }
+        }
+    }
 }
