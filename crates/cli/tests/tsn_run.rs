@@ -109,6 +109,13 @@ fn the_preset_shows_what_the_paper_claims_against_ground_truth() {
     assert!(u(&g["offset"]["n"]) >= 59_000);
     assert!((f(&g["measured_link_delay_ns"]) - f(&g["true_link_delay_ns"])).abs() < 20.0);
     assert!(m1["gptp"].is_null() && m2["gptp"].is_null());
+    // Cross traffic towards the master in the best-effort time: about half of it busy.
+    for m in [m2, m3] {
+        let n = u(&m["cross_traffic_frames"]);
+        assert!((150_000..300_000).contains(&n), "{n}");
+    }
+    assert!(m1["cross_traffic_frames"].is_null());
+    assert!(u(&g["held_by_cross_traffic"]) > 0);
 
     let fi = &j["findings"];
     assert_eq!(fi["m2_blocks_dc_frames"], true);

@@ -29,9 +29,9 @@
 //! * The bridge stores and forwards (egress ready `residence_ns` after the last bit arrived),
 //!   forwards an EtherCAT frame only when its gate is open and the frame ends before it closes
 //!   (802.1Qbv), and holds it to the next opening otherwise. Best-effort traffic, gPTP
-//!   included, goes outside the windows with a guard band; cross traffic on the master-facing
-//!   wire is modelled by its effect on gPTP (a message finds a frame in flight with the
-//!   configured probability and waits for its remaining part), not frame by frame.
+//!   included, goes outside the windows with a guard band. Cross traffic on the master-facing
+//!   egress is a Poisson stream of frames of one size, sent one at a time in the best-effort
+//!   time; gPTP goes before queued cross traffic but waits for a frame in flight.
 //! * A store-and-forward hop adds the frame's wire time, so the master's delay (measured with
 //!   short latch frames) differs for the longer cyclic frame; the master, knowing it talks
 //!   through one store-and-forward hop, adds the difference in wire time to its bus shift
@@ -152,6 +152,20 @@ struct Delivery {
     t_ps: u64,
     to_master: bool,
     bytes: Vec<u8>,
+}
+
+/// Best-effort cross traffic on the bridge's master-facing egress (a camera streaming to the
+/// PC): frames of one size arriving as a Poisson stream, queued, and sent one at a time outside
+/// the EtherCAT windows with the guard band. Generated lazily, as far as the simulation needs.
+#[derive(Debug)]
+struct CrossTraffic {
+    noise: Noise,
+    frame_ps: u64,
+    mean_gap_ps: f64,
+    next_arrival_ps: u64,
+    backlog: u64,
+    busy_until_ps: u64,
+    frames: u64,
 }
 
 /// gPTP between the bridge (grandmaster by priority) and the master (M3).
@@ -296,6 +310,8 @@ pub struct VariantResult {
     pub overrun_cycles: u64,
     /// Frames lost.
     pub lost_frames: u64,
+    /// Cross-traffic frames the bridge sent towards the master (M2, M3).
+    pub cross_traffic_frames: Option<u64>,
     /// gPTP (M3).
     pub gptp: Option<GptpOut>,
     /// Wall time of this variant, s.
@@ -389,6 +405,7 @@ struct Net<'a> {
     residence_ps: u64,
     noise: Noise,
     gptp: Option<Gptp>,
+    cross: Option<CrossTraffic>,
     capture: Option<PcapCapture<BufWriter<File>>>,
     capture_until_ps: u64,
     blocked: Blocked,
@@ -477,6 +494,23 @@ impl<'a> Net<'a> {
                 held_by_cross_traffic: 0,
             }
         });
+        let be_frame_ps =
+            frame_wire_time_ps(s.bridge.cross_traffic_frame_bytes.saturating_sub(4) as usize);
+        let busy_share = s.bridge.cross_traffic_load * (1.0 - s.bridge.master_port.open_fraction());
+        let cross = (variant.has_bridge() && busy_share > 0.0).then(|| {
+            let mut noise = Noise(s.seed ^ 0x6372_6f73_7374_7266);
+            let mean_gap_ps = be_frame_ps as f64 / busy_share;
+            let first = (-noise.unit().ln() * mean_gap_ps) as u64;
+            CrossTraffic {
+                noise,
+                frame_ps: be_frame_ps,
+                mean_gap_ps,
+                next_arrival_ps: first,
+                backlog: 0,
+                busy_until_ps: 0,
+                frames: 0,
+            }
+        });
         Ok(Net {
             s,
             variant,
@@ -489,6 +523,7 @@ impl<'a> Net<'a> {
             residence_ps: s.bridge.residence_ns * 1000,
             noise: Noise(s.seed ^ (variant as u64 + 1).wrapping_mul(0x5851_f42d_4c95_7f2d)),
             gptp,
+            cross,
             capture: None,
             capture_until_ps: 0,
             blocked: Blocked::default(),
@@ -673,6 +708,42 @@ impl<'a> Net<'a> {
         }
     }
 
+    /// Sends the cross-traffic frames that start before real time `t_ps`.
+    fn cross_traffic_to(&mut self, t_ps: u64) {
+        let Net {
+            cross, bridge, s, ..
+        } = self;
+        let Some(ct) = cross else { return };
+        let sched = &s.bridge.master_port;
+        loop {
+            let want = if ct.backlog > 0 {
+                ct.busy_until_ps
+            } else {
+                ct.next_arrival_ps.max(ct.busy_until_ps)
+            };
+            if want >= t_ps {
+                return;
+            }
+            let local = bridge.master_ns(want);
+            let s_local = sched.best_effort_start(local, ct.frame_ps / 1000);
+            let start = if s_local == local {
+                want
+            } else {
+                bridge.real_ps_at(s_local).max(want)
+            };
+            if start >= t_ps {
+                return;
+            }
+            while ct.next_arrival_ps <= start {
+                ct.backlog += 1;
+                ct.next_arrival_ps += (-ct.noise.unit().ln() * ct.mean_gap_ps) as u64 + 1;
+            }
+            ct.backlog = ct.backlog.saturating_sub(1);
+            ct.busy_until_ps = start + ct.frame_ps;
+            ct.frames += 1;
+        }
+    }
+
     /// Sends gPTP messages from the master (`from_master`) or the bridge at real time `t_ps`.
     fn send(&mut self, t_ps: u64, from_master: bool, out: &mut Vec<Outgoing>) {
         let mut buf = [0u8; 128];
@@ -696,19 +767,28 @@ impl<'a> Net<'a> {
                 } else {
                     // Best effort on the master-facing port: outside the EtherCAT window, after
                     // any cross-traffic frame in flight.
-                    let sched = &self.s.bridge.master_port;
                     let free = self.gptp.as_ref().map_or(0, |g| g.bridge_tx_free_ps);
-                    let ready = self.bridge.master_ns(t_cur.max(free));
-                    let mut start = sched.best_effort_start(ready, wire / 1000);
-                    if self.noise.unit() < self.s.bridge.cross_traffic_load {
-                        let be_ps = frame_wire_time_ps(
-                            self.s.bridge.cross_traffic_frame_bytes.saturating_sub(4) as usize,
-                        );
-                        let rest = (self.noise.unit() * be_ps as f64) as u64 / 1000;
-                        start = sched.best_effort_start(start + rest, wire / 1000);
-                        self.gptp.as_mut().expect("gptp").held_by_cross_traffic += 1;
+                    let mut ready_ps = t_cur.max(free);
+                    self.cross_traffic_to(ready_ps);
+                    if let Some(ct) = &self.cross {
+                        if ct.busy_until_ps > ready_ps {
+                            ready_ps = ct.busy_until_ps;
+                            self.gptp.as_mut().expect("gptp").held_by_cross_traffic += 1;
+                        }
                     }
-                    (self.bridge.real_ps_at(start).max(t_cur), start)
+                    let sched = &self.s.bridge.master_port;
+                    let ready = self.bridge.master_ns(ready_ps);
+                    let start = sched.best_effort_start(ready, wire / 1000);
+                    let start_ps = if start == ready {
+                        ready_ps
+                    } else {
+                        self.bridge.real_ps_at(start).max(ready_ps)
+                    };
+                    // The message holds the wire: cross traffic waits for its end.
+                    if let Some(ct) = &mut self.cross {
+                        ct.busy_until_ps = ct.busy_until_ps.max(start_ps + wire);
+                    }
+                    (start_ps, start)
                 };
                 let tx = stamp(self.s.master.timestamp_ns, tx_local);
                 let g = self.gptp.as_mut().expect("gptp");
@@ -1029,6 +1109,9 @@ pub fn run_variant(
             message: e.to_string(),
         })?;
     }
+    let now = net.now_ps;
+    net.cross_traffic_to(now);
+    let cross_traffic_frames = net.cross.as_ref().map(|c| c.frames);
     let gptp = net.gptp.as_ref().map(|g| GptpOut {
         offset: gptp_off.summary(),
         measured_link_delay_ns: g.master.mean_link_delay_ns(0).unwrap_or(f64::NAN),
@@ -1056,6 +1139,7 @@ pub fn run_variant(
         late_frames: late,
         overrun_cycles: overruns,
         lost_frames: lost,
+        cross_traffic_frames,
         gptp,
         wall_s: t0.elapsed().as_secs_f64(),
         plots: VariantPlots {

@@ -263,6 +263,14 @@ pub fn table_text(sum: &TsnSummary) -> String {
     t.push_str(&row("late frames (after SYNC0)", &results, |r| {
         r.late_frames.to_string()
     }));
+    t.push_str(&row("cross-traffic frames to the master", &results, |r| {
+        r.cross_traffic_frames.map_or("-".into(), |n| n.to_string())
+    }));
+    t.push_str(&row("gPTP messages held by cross traffic", &results, |r| {
+        r.gptp.map_or("-".into(), |g| {
+            format!("{}/{}", g.held_by_cross_traffic, g.messages)
+        })
+    }));
     t.push_str(&row("gPTP master - grandmaster RMS (ns)", &results, |r| {
         r.gptp
             .map_or("-".into(), |g| format!("{:.1}", g.offset.rms))
