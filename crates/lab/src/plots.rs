@@ -287,16 +287,18 @@ pub(crate) fn draw_envelopes<DB: DrawingBackend>(
         .light_line_style(WHITE)
         .draw()
         .map_err(err)?;
+    let block_s = crate::run::SERIES_BLOCK as f64 * cycle_s;
     chart
         .draw_series(s.iter().map(|e| {
             let t = e.cycle as f64 * cycle_s;
-            PathElement::new(
-                vec![
-                    (t, f64::from(e.min) / unit_div),
-                    (t, f64::from(e.max) / unit_div),
-                ],
-                col.mix(0.6).stroke_width(2),
-            )
+            let (a, b) = (f64::from(e.min) / unit_div, f64::from(e.max) / unit_div);
+            // A block whose values are all equal is drawn across its span, so it shows.
+            let pts = if a == b {
+                vec![(t, a), (t + block_s * 0.8, a)]
+            } else {
+                vec![(t, a), (t, b)]
+            };
+            PathElement::new(pts, col.mix(0.6).stroke_width(2))
         }))
         .map_err(err)?;
     Ok(())
