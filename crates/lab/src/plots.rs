@@ -172,48 +172,15 @@ fn series<DB: DrawingBackend>(
         if s.is_empty() {
             continue;
         }
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for e in s {
-            lo = lo.min(f64::from(e.min));
-            hi = hi.max(f64::from(e.max));
-        }
-        if !(lo.is_finite() && hi.is_finite()) {
-            continue;
-        }
-        let pad = ((hi - lo) * 0.05).max(1.0);
-        let t_end =
-            s.last().map_or(1.0, |e| e.cycle as f64) * f64::from(c.scenario.cycle_ns) * 1e-9;
-        let dt = f64::from(c.scenario.cycle_ns) * 1e-9;
-        let mut chart = ChartBuilder::on(&rows[i])
-            .caption(format!("{name}: {title}"), ("sans-serif", 15))
-            .margin(6)
-            .x_label_area_size(28)
-            .y_label_area_size(56)
-            .build_cartesian_2d(
-                0.0..t_end.max(dt),
-                (lo - pad) / unit_div..(hi + pad) / unit_div,
-            )
-            .map_err(err)?;
-        chart
-            .configure_mesh()
-            .x_desc("s since the start of recording")
-            .y_desc(unit)
-            .light_line_style(WHITE)
-            .draw()
-            .map_err(err)?;
-        let col = COLORS[i % 5];
-        chart
-            .draw_series(s.iter().map(|e| {
-                let t = e.cycle as f64 * dt;
-                PathElement::new(
-                    vec![
-                        (t, f64::from(e.min) / unit_div),
-                        (t, f64::from(e.max) / unit_div),
-                    ],
-                    col.mix(0.5),
-                )
-            }))
-            .map_err(err)?;
+        draw_envelopes(
+            &rows[i],
+            s,
+            &format!("{name}: {title}"),
+            f64::from(c.scenario.cycle_ns) * 1e-9,
+            unit_div,
+            unit,
+            COLORS[i % 5],
+        )?;
     }
     root.present().map_err(err)
 }

@@ -181,20 +181,20 @@ pub fn run_seed(base: u64, run: u32) -> u64 {
     splitmix(base ^ splitmix(u64::from(run) + 1))
 }
 
-struct Series {
+pub(crate) struct Series {
     out: Vec<Envelope>,
     cur: Option<Envelope>,
 }
 
 impl Series {
-    fn new(cap: usize) -> Self {
+    pub(crate) fn new(cap: usize) -> Self {
         Series {
             out: Vec::with_capacity(cap),
             cur: None,
         }
     }
 
-    fn add(&mut self, cycle: u64, x: f64) {
+    pub(crate) fn add(&mut self, cycle: u64, x: f64) {
         let block = cycle / SERIES_BLOCK * SERIES_BLOCK;
         let x = x as f32;
         match &mut self.cur {
@@ -215,7 +215,7 @@ impl Series {
         }
     }
 
-    fn finish(mut self) -> Vec<Envelope> {
+    pub(crate) fn finish(mut self) -> Vec<Envelope> {
         if let Some(e) = self.cur.take() {
             self.out.push(e);
         }

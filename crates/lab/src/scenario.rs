@@ -228,7 +228,7 @@ impl Scenario {
 }
 
 /// The line of `key = ...` inside table `table` (dotted, as in its header), if present.
-fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
+pub(crate) fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
     let mut current = String::new();
     for (i, line) in text.lines().enumerate() {
         let l = line.trim();

@@ -42,7 +42,7 @@
 pub mod report;
 pub mod scenario;
 
-use crate::run::{Envelope, SERIES_BLOCK};
+use crate::run::{Envelope, Series};
 use crate::stats::{Stats, Summary};
 use ecsync_dc::BusShift;
 use ecsync_esc::clock::{CrystalParams, DEFAULT_WANDER_STEP_PS};
@@ -334,46 +334,6 @@ pub struct VariantPlots {
     pub gptp_offset: Stats,
     /// Series: master minus reference, slave spread, gPTP offset, gate hold.
     pub series: [Vec<Envelope>; 4],
-}
-
-struct Series {
-    out: Vec<Envelope>,
-    cur: Option<Envelope>,
-}
-
-impl Series {
-    fn new() -> Self {
-        Series {
-            out: Vec::new(),
-            cur: None,
-        }
-    }
-    fn add(&mut self, cycle: u64, x: f64) {
-        let block = cycle / SERIES_BLOCK * SERIES_BLOCK;
-        let x = x as f32;
-        match &mut self.cur {
-            Some(e) if e.cycle == block => {
-                e.min = e.min.min(x);
-                e.max = e.max.max(x);
-            }
-            _ => {
-                if let Some(e) = self.cur.take() {
-                    self.out.push(e);
-                }
-                self.cur = Some(Envelope {
-                    cycle: block,
-                    min: x,
-                    max: x,
-                });
-            }
-        }
-    }
-    fn finish(mut self) -> Vec<Envelope> {
-        if let Some(e) = self.cur.take() {
-            self.out.push(e);
-        }
-        self.out
-    }
 }
 
 /// One frame's trip.
@@ -1013,7 +973,13 @@ pub fn run_variant(
     let mut margin = Stats::new(-1_000_000.0, 100.0, 20_000);
     let mut wait = Stats::new(0.0, 100.0, 10_000);
     let mut gptp_off = Stats::new(-50_000.0, 0.25, 400_000);
-    let mut series = [Series::new(), Series::new(), Series::new(), Series::new()];
+    let cap = (s.cycles / crate::run::SERIES_BLOCK + 2) as usize;
+    let mut series = [
+        Series::new(cap),
+        Series::new(cap),
+        Series::new(cap),
+        Series::new(cap),
+    ];
     let (mut late, mut overruns, mut lost) = (0u64, 0u64, 0u64);
     let shift = u64::from(s.sync0_shift_ns);
     let last = net.segment.len() - 1;

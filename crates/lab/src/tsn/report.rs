@@ -428,123 +428,82 @@ pub fn write_all(sum: &TsnSummary, results: &[VariantResult], dir: &Path) -> io:
         .filter(|r| r.variant == Variant::M3)
         .cloned()
         .collect();
+    // Draws `$draw(root)` on an SVG or a PNG backend of `$size`.
+    macro_rules! on_backend {
+        ($p:expr, $svg:expr, $size:expr, $draw:expr) => {
+            if $svg {
+                $draw(SVGBackend::new($p, $size).into_drawing_area())
+            } else {
+                $draw(BitMapBackend::new($p, $size).into_drawing_area())
+            }
+        };
+    }
     let mut plots: Vec<(&str, Box<Plot<'_>>)> = Vec::new();
     plots.push((
         "tsn_histograms",
         Box::new(move |p: &Path, svg: bool| {
-            let size = (1100, 240 * n);
-            if svg {
-                histograms(SVGBackend::new(p, size).into_drawing_area(), results)
-            } else {
-                histograms(BitMapBackend::new(p, size).into_drawing_area(), results)
-            }
+            on_backend!(p, svg, (1100, 240 * n), |root| histograms(root, results))
         }),
     ));
-    let specs: [(&'static str, usize, &'static str, f64, &'static str); 2] = [
+    // Time series: name, variants, which series, title, unit divisor, unit, row height.
+    type Spec<'s> = (
+        &'static str,
+        &'s [VariantResult],
+        usize,
+        &'static str,
+        f64,
+        &'static str,
+        u32,
+    );
+    let specs: [Spec<'_>; 4] = [
         (
             "tsn_series_master_minus_reference",
+            results,
             0,
             "master - reference, min..max per 1000 cycles",
             1000.0,
             "us",
+            200,
         ),
         (
             "tsn_series_precision",
+            results,
             1,
             "spread of the slaves' system times, min..max per 1000 cycles",
             1.0,
             "ns",
+            200,
+        ),
+        (
+            "tsn_series_gate_hold",
+            &bridged,
+            3,
+            "hold of the cyclic frame at the gate towards the slaves",
+            1000.0,
+            "us",
+            200,
+        ),
+        (
+            "tsn_gptp_offset",
+            &m3,
+            2,
+            "gPTP: master clock - grandmaster (bridge) clock (truth)",
+            1.0,
+            "ns",
+            220,
         ),
     ];
-    for (name, which, title, div, unit) in specs {
+    for (name, rs, which, title, div, unit, row) in specs {
+        if rs.is_empty() {
+            continue;
+        }
+        let size = (1100, row * rs.len() as u32);
         plots.push((
             name,
             Box::new(move |p: &Path, svg: bool| {
-                let size = (1100, 200 * n);
-                if svg {
-                    series(
-                        SVGBackend::new(p, size).into_drawing_area(),
-                        results,
-                        which,
-                        title,
-                        div,
-                        unit,
-                        cycle_s,
-                    )
-                } else {
-                    series(
-                        BitMapBackend::new(p, size).into_drawing_area(),
-                        results,
-                        which,
-                        title,
-                        div,
-                        unit,
-                        cycle_s,
-                    )
-                }
-            }),
-        ));
-    }
-    if !bridged.is_empty() {
-        let k = bridged.len() as u32;
-        let b = &bridged;
-        plots.push((
-            "tsn_series_gate_hold",
-            Box::new(move |p: &Path, svg: bool| {
-                let size = (1100, 200 * k);
-                let t = "hold of the cyclic frame at the gate towards the slaves";
-                if svg {
-                    series(
-                        SVGBackend::new(p, size).into_drawing_area(),
-                        b,
-                        3,
-                        t,
-                        1000.0,
-                        "us",
-                        cycle_s,
-                    )
-                } else {
-                    series(
-                        BitMapBackend::new(p, size).into_drawing_area(),
-                        b,
-                        3,
-                        t,
-                        1000.0,
-                        "us",
-                        cycle_s,
-                    )
-                }
-            }),
-        ));
-    }
-    if !m3.is_empty() {
-        let m = &m3;
-        plots.push((
-            "tsn_gptp_offset",
-            Box::new(move |p: &Path, svg: bool| {
-                let size = (1100, 220);
-                let t = "gPTP: master clock - grandmaster (bridge) clock (truth)";
-                if svg {
-                    series(
-                        SVGBackend::new(p, size).into_drawing_area(),
-                        m,
-                        2,
-                        t,
-                        1.0,
-                        "ns",
-                        cycle_s,
-                    )
-                } else {
-                    series(
-                        BitMapBackend::new(p, size).into_drawing_area(),
-                        m,
-                        2,
-                        t,
-                        1.0,
-                        "ns",
-                        cycle_s,
-                    )
-                }
+                on_backend!(p, svg, size, |root| series(
+                    root, rs, which, title, div, unit, cycle_s
+                ))
             }),
         ));
     }

@@ -2,6 +2,7 @@
 //! control lists, gPTP, and which variants to run. Every error names the file, the line, the
 //! field and the fix.
 
+use crate::scenario::key_line;
 use ecsync_esc::SlaveSpec;
 use ecsync_esc::config::{ConfigError, SegmentConfig, line_of, toml_error};
 use ecsync_tsn::qbv::{PortSchedule, ScheduleError, Window};
@@ -226,26 +227,6 @@ struct GptpTable {
     settle_s: f64,
     kp: f64,
     ki: f64,
-}
-
-/// The line of `key = ...` inside table `table`, if present.
-fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
-    let mut current = String::new();
-    for (i, line) in text.lines().enumerate() {
-        let l = line.trim();
-        if l.starts_with('[') {
-            current = l.trim_matches(['[', ']']).trim().to_string();
-            continue;
-        }
-        if current == table {
-            if let Some((k, _)) = l.split_once('=') {
-                if k.trim() == key {
-                    return Some(i + 1);
-                }
-            }
-        }
-    }
-    None
 }
 
 /// Wire time of the largest EtherCAT frame (1514 bytes without FCS), ns.
