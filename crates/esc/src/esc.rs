@@ -117,33 +117,102 @@ enum Op {
     /// Add `inc` to the working counter at `at`.
     Wkc { at: u16, inc: u16 },
     /// Fused: a system time read or write and its working counter.
-    SysFused {
-        at: u16,
-        len: u8,
-        write: bool,
-        wkc: u16,
-        inc: u16,
-    },
+    SysFused(SysStep),
     /// Fused: ADP increment (if `adp` is not 0), difference read, working counter.
-    DiffFused {
-        adp: u16,
-        at: u16,
-        len: u8,
-        or: bool,
-        wkc: u16,
-        inc: u16,
-    },
+    DiffFused(DiffStep),
     /// Fused: an LRW through one write and one read FMMU with the application in between.
-    LrwFused {
-        w_at: u16,
-        w_ram: u16,
-        w_len: u16,
-        r_at: u16,
-        r_ram: u16,
-        r_len: u16,
-        wkc: u16,
-        inc: u16,
-    },
+    LrwFused(LrwStep),
+}
+
+/// A system time read or write (FRMW of 0x0910) and its working counter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct SysStep {
+    at: u16,
+    len: u8,
+    write: bool,
+    wkc: u16,
+    inc: u16,
+}
+
+/// An ADP increment (if `adp` is not 0), a difference read (BRD of 0x092C), its working counter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct DiffStep {
+    adp: u16,
+    at: u16,
+    len: u8,
+    or: bool,
+    wkc: u16,
+    inc: u16,
+}
+
+/// An LRW through one write and one read FMMU with the application in between.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct LrwStep {
+    w_at: u16,
+    w_ram: u16,
+    w_len: u16,
+    r_at: u16,
+    r_ram: u16,
+    r_len: u16,
+    wkc: u16,
+    inc: u16,
+}
+
+/// The cyclic frame's whole program at one ESC (system time, process data, time difference, in
+/// this order), replayed straight through: no dispatch per step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct CyclicSteps {
+    sys: SysStep,
+    lrw: LrwStep,
+    diff: DiffStep,
+    /// Where the three working counters and the BRD's position field are, packed (see
+    /// [`Deferred`]).
+    layout: u64,
+}
+
+impl CyclicSteps {
+    fn new(sys: SysStep, lrw: LrwStep, diff: DiffStep) -> Self {
+        let layout = u64::from(sys.wkc)
+            | u64::from(lrw.wkc) << 16
+            | u64::from(diff.wkc) << 32
+            | u64::from(diff.adp) << 48;
+        CyclicSteps {
+            sys,
+            lrw,
+            diff,
+            layout,
+        }
+    }
+}
+
+/// Working counter and position (ADP) increments of cyclic replays, added to the frame once for
+/// a run of consecutive slaves instead of once per slave.
+///
+/// This is exact: a replayed program never reads a working counter or an ADP, so only the sum
+/// matters, and [`Deferred::flush`] runs before any slave that processes the frame in full
+/// (which may read them) and at the end of the frame.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Deferred {
+    layout: u64,
+    sys: u16,
+    lrw: u16,
+    diff: u16,
+    adp: u16,
+}
+
+impl Deferred {
+    /// Adds the pending increments to the frame.
+    #[inline]
+    pub(crate) fn flush(&mut self, frame: &mut [u8]) {
+        if self.sys | self.lrw | self.diff | self.adp != 0 {
+            let l = self.layout;
+            add_wkc(frame, l as u16, self.sys);
+            add_wkc(frame, (l >> 16) as u16, self.lrw);
+            add_wkc(frame, (l >> 32) as u16, self.diff);
+            add_wkc(frame, (l >> 48) as u16, self.adp);
+        }
+        *self = Deferred::default();
+    }
 }
 
 /// Fuses the common sequences of a recorded program into single steps (fewer dispatches).
@@ -158,23 +227,23 @@ fn fuse(ops: &[Op], out: &mut [Op; MAX_OPS]) -> u8 {
                 Op::Wkc { at: w, inc },
                 ..,
             ] => (
-                Op::SysFused {
+                Op::SysFused(SysStep {
                     at: *at,
                     len: *len,
                     write: false,
                     wkc: *w,
                     inc: *inc,
-                },
+                }),
                 2,
             ),
             [Op::SysWrite { at, len }, Op::Wkc { at: w, inc }, ..] => (
-                Op::SysFused {
+                Op::SysFused(SysStep {
                     at: *at,
                     len: *len,
                     write: true,
                     wkc: *w,
                     inc: *inc,
-                },
+                }),
                 2,
             ),
             [
@@ -183,14 +252,14 @@ fn fuse(ops: &[Op], out: &mut [Op; MAX_OPS]) -> u8 {
                 Op::Wkc { at: w, inc },
                 ..,
             ] => (
-                Op::DiffFused {
+                Op::DiffFused(DiffStep {
                     adp: *a,
                     at: *at,
                     len: *len,
                     or: *or,
                     wkc: *w,
                     inc: *inc,
-                },
+                }),
                 3,
             ),
             [
@@ -208,7 +277,7 @@ fn fuse(ops: &[Op], out: &mut [Op; MAX_OPS]) -> u8 {
                 Op::Wkc { at: w, inc },
                 ..,
             ] => (
-                Op::LrwFused {
+                Op::LrwFused(LrwStep {
                     w_at: *wa,
                     w_ram: *wr,
                     w_len: *wl,
@@ -217,7 +286,7 @@ fn fuse(ops: &[Op], out: &mut [Op; MAX_OPS]) -> u8 {
                     r_len: *rl,
                     wkc: *w,
                     inc: *inc,
-                },
+                }),
                 4,
             ),
             [op, ..] => (*op, 1),
@@ -237,6 +306,73 @@ fn add_wkc(frame: &mut [u8], at: u16, inc: u16) {
     frame[at..at + 2].copy_from_slice(&w.to_le_bytes());
 }
 
+#[inline(always)]
+fn sys_step(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
+    let (a, l) = (usize::from(s.at), usize::from(s.len));
+    if s.write {
+        dc.write_system_time(&frame[a..a + l], t_ps);
+    } else {
+        dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
+    }
+    add_wkc(frame, s.wkc, s.inc);
+}
+
+#[inline(always)]
+fn diff_step(dc: &mut DcUnit, frame: &mut [u8], d: &DiffStep, t_ps: u64) {
+    let p = usize::from(d.adp);
+    let v = u16::from_le_bytes([frame[p], frame[p + 1]]).wrapping_add(1);
+    frame[p..p + 2].copy_from_slice(&v.to_le_bytes());
+    let (a, l) = (usize::from(d.at), usize::from(d.len));
+    dc.read_fast(reg::DC_SYSTEM_TIME_DIFF, &mut frame[a..a + l], d.or, t_ps);
+    add_wkc(frame, d.wkc, d.inc);
+}
+
+/// The LRW at a slave whose application has the fast layout (see `Esc::app_refresh_inputs`).
+#[inline(always)]
+fn lrw_step(
+    ram: &mut [u8],
+    app: AppLayout,
+    al_state: u8,
+    app_cycles: &mut u16,
+    frame: &mut [u8],
+    s: &LrwStep,
+) {
+    let (d, r, l) = (
+        usize::from(s.w_at),
+        usize::from(s.w_ram),
+        usize::from(s.w_len),
+    );
+    copy_small(&mut ram[r..r + l], &frame[d..d + l]);
+    refresh_inputs(ram, app, al_state, app_cycles);
+    let (d, r, l) = (
+        usize::from(s.r_at),
+        usize::from(s.r_ram),
+        usize::from(s.r_len),
+    );
+    copy_small(&mut frame[d..d + l], &ram[r..r + l]);
+    add_wkc(frame, s.wkc, s.inc);
+}
+
+/// The application (a loopback device): statusword, then the outputs echoed, then a cycle
+/// counter, laid out as `l` says.
+#[inline(always)]
+fn refresh_inputs(ram: &mut [u8], l: AppLayout, al_state: u8, app_cycles: &mut u16) {
+    let status: u16 = if al_state == al_state::OP {
+        0x1237
+    } else {
+        0x0231
+    };
+    ram[l.ib..l.ib + 2].copy_from_slice(&status.to_le_bytes());
+    if l.n > 0 {
+        let (a, b) = ram.split_at_mut(l.ib + 2);
+        copy_small(&mut b[..l.n], &a[l.ob..l.ob + l.n]);
+    }
+    *app_cycles = app_cycles.wrapping_add(1);
+    if l.tail >= l.ib + 2 {
+        ram[l.tail..l.tail + 2].copy_from_slice(&app_cycles.to_le_bytes());
+    }
+}
+
 const MAX_PROGRAM_DATAGRAMS: usize = 8;
 const MAX_PROGRAM_OPS: usize = 8;
 const MAX_OPS: usize = 32;
@@ -249,6 +385,8 @@ struct Program {
     ops: [Op; MAX_OPS],
     n: u8,
     counted: u8,
+    /// `ops` as one straight-through step, when they are the cyclic frame's three.
+    cyclic: Option<CyclicSteps>,
 }
 
 impl Default for Program {
@@ -259,6 +397,7 @@ impl Default for Program {
             ops: [Op::Nop; MAX_OPS],
             n: 0,
             counted: 0,
+            cyclic: None,
         }
     }
 }
@@ -1087,20 +1226,7 @@ impl Esc {
     #[inline(always)]
     fn app_refresh_inputs(&mut self) {
         if let Some(l) = self.app {
-            let status: u16 = if self.al_state == al_state::OP {
-                0x1237
-            } else {
-                0x0231
-            };
-            self.ram[l.ib..l.ib + 2].copy_from_slice(&status.to_le_bytes());
-            if l.n > 0 {
-                let (a, b) = self.ram.split_at_mut(l.ib + 2);
-                copy_small(&mut b[..l.n], &a[l.ob..l.ob + l.n]);
-            }
-            self.app_cycles = self.app_cycles.wrapping_add(1);
-            if l.tail >= l.ib + 2 {
-                self.ram[l.tail..l.tail + 2].copy_from_slice(&self.app_cycles.to_le_bytes());
-            }
+            refresh_inputs(&mut self.ram, l, self.al_state, &mut self.app_cycles);
             return;
         }
         self.app_refresh_slow();
@@ -1463,6 +1589,12 @@ impl Esc {
         if ok && self.generation == generation {
             let raw = prog.ops;
             prog.n = fuse(&raw[..usize::from(prog.n)], &mut prog.ops);
+            prog.cyclic = match prog.ops[..usize::from(prog.n)] {
+                [Op::SysFused(sys), Op::LrwFused(lrw), Op::DiffFused(diff)] => {
+                    Some(CyclicSteps::new(sys, lrw, diff))
+                }
+                _ => None,
+            };
             self.program = prog;
         }
         out
@@ -1472,6 +1604,27 @@ impl Esc {
     fn replay(&mut self, frame: &mut [u8], t_ps: u64) {
         self.stats.replayed_frames += 1;
         self.stats.datagrams_counted += u64::from(self.program.counted);
+        // Disjoint borrows: the steps are read in place while the DC unit and RAM change.
+        let Esc {
+            program,
+            dc,
+            ram,
+            app,
+            al_state,
+            app_cycles,
+            ..
+        } = self;
+        if let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) {
+            sys_step(dc, frame, &c.sys, t_ps);
+            lrw_step(ram, *app, *al_state, app_cycles, frame, &c.lrw);
+            diff_step(dc, frame, &c.diff, t_ps);
+            return;
+        }
+        self.replay_ops(frame, t_ps);
+    }
+
+    #[inline(never)]
+    fn replay_ops(&mut self, frame: &mut [u8], t_ps: u64) {
         for k in 0..usize::from(self.program.n) {
             match self.program.ops[k] {
                 Op::Nop => {}
@@ -1518,59 +1671,111 @@ impl Esc {
                 }
                 Op::Refresh => self.app_refresh_inputs(),
                 Op::Wkc { at, inc } => add_wkc(frame, at, inc),
-                Op::SysFused {
-                    at,
-                    len,
-                    write,
-                    wkc,
-                    inc,
-                } => {
-                    let (a, l) = (usize::from(at), usize::from(len));
+                Op::SysFused(s) => {
                     if let Some(dc) = &mut self.dc {
-                        if write {
-                            dc.write_system_time(&frame[a..a + l], t_ps);
-                        } else {
-                            dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
-                        }
+                        sys_step(dc, frame, &s, t_ps);
+                    } else {
+                        add_wkc(frame, s.wkc, s.inc);
                     }
-                    add_wkc(frame, wkc, inc);
                 }
-                Op::DiffFused {
-                    adp,
-                    at,
-                    len,
-                    or,
-                    wkc,
-                    inc,
-                } => {
-                    let p = usize::from(adp);
-                    let v = u16::from_le_bytes([frame[p], frame[p + 1]]).wrapping_add(1);
-                    frame[p..p + 2].copy_from_slice(&v.to_le_bytes());
-                    let (a, l) = (usize::from(at), usize::from(len));
+                Op::DiffFused(d) => {
                     if let Some(dc) = &mut self.dc {
-                        dc.read_fast(reg::DC_SYSTEM_TIME_DIFF, &mut frame[a..a + l], or, t_ps);
+                        diff_step(dc, frame, &d, t_ps);
+                    } else {
+                        let p = usize::from(d.adp);
+                        let v = u16::from_le_bytes([frame[p], frame[p + 1]]).wrapping_add(1);
+                        frame[p..p + 2].copy_from_slice(&v.to_le_bytes());
+                        add_wkc(frame, d.wkc, d.inc);
                     }
-                    add_wkc(frame, wkc, inc);
                 }
-                Op::LrwFused {
-                    w_at,
-                    w_ram,
-                    w_len,
-                    r_at,
-                    r_ram,
-                    r_len,
-                    wkc,
-                    inc,
-                } => {
-                    let (d, r, l) = (usize::from(w_at), usize::from(w_ram), usize::from(w_len));
-                    copy_small(&mut self.ram[r..r + l], &frame[d..d + l]);
+                Op::LrwFused(l) => {
+                    let (d, r, n) = (
+                        usize::from(l.w_at),
+                        usize::from(l.w_ram),
+                        usize::from(l.w_len),
+                    );
+                    copy_small(&mut self.ram[r..r + n], &frame[d..d + n]);
                     self.app_refresh_inputs();
-                    let (d, r, l) = (usize::from(r_at), usize::from(r_ram), usize::from(r_len));
-                    copy_small(&mut frame[d..d + l], &self.ram[r..r + l]);
-                    add_wkc(frame, wkc, inc);
+                    let (d, r, n) = (
+                        usize::from(l.r_at),
+                        usize::from(l.r_ram),
+                        usize::from(l.r_len),
+                    );
+                    copy_small(&mut frame[d..d + n], &self.ram[r..r + n]);
+                    add_wkc(frame, l.wkc, l.inc);
                 }
             }
         }
+    }
+
+    /// The cyclic frame at this ESC, if it has the three-step program for `shape` recorded in
+    /// the current generation: the steps run, their working counter and ADP increments go to
+    /// `d` (see [`Deferred`]). Returns false, touching nothing, otherwise; the caller then
+    /// flushes `d` and calls [`Esc::process_frame`].
+    #[inline(always)]
+    pub(crate) fn replay_cyclic(
+        &mut self,
+        frame: &mut [u8],
+        shape: u32,
+        t_ps: u64,
+        d: &mut Deferred,
+    ) -> bool {
+        let Esc {
+            program,
+            dc,
+            ram,
+            app,
+            al_state,
+            app_cycles,
+            stats,
+            generation,
+            ..
+        } = self;
+        if shape == 0 || program.shape != shape || program.generation != *generation {
+            return false;
+        }
+        let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) else {
+            return false;
+        };
+        stats.frames += 1;
+        stats.replayed_frames += 1;
+        stats.datagrams_counted += u64::from(program.counted);
+        if c.layout != d.layout {
+            d.flush(frame);
+            d.layout = c.layout;
+        }
+        let (a, l) = (usize::from(c.sys.at), usize::from(c.sys.len));
+        if c.sys.write {
+            dc.write_system_time(&frame[a..a + l], t_ps);
+        } else {
+            dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
+        }
+        let s = &c.lrw;
+        let (at, r, l) = (
+            usize::from(s.w_at),
+            usize::from(s.w_ram),
+            usize::from(s.w_len),
+        );
+        copy_small(&mut ram[r..r + l], &frame[at..at + l]);
+        refresh_inputs(ram, *app, *al_state, app_cycles);
+        let (at, r, l) = (
+            usize::from(s.r_at),
+            usize::from(s.r_ram),
+            usize::from(s.r_len),
+        );
+        copy_small(&mut frame[at..at + l], &ram[r..r + l]);
+        let (a, l) = (usize::from(c.diff.at), usize::from(c.diff.len));
+        dc.read_fast(
+            reg::DC_SYSTEM_TIME_DIFF,
+            &mut frame[a..a + l],
+            c.diff.or,
+            t_ps,
+        );
+        d.sys = d.sys.wrapping_add(c.sys.inc);
+        d.lrw = d.lrw.wrapping_add(c.lrw.inc);
+        d.diff = d.diff.wrapping_add(c.diff.inc);
+        d.adp = d.adp.wrapping_add(1);
+        true
     }
 
     /// Marks that a frame passed the processing unit.

@@ -10,7 +10,7 @@
 //! time, so cable lengths of centimetres and frame lengths (80 ns per byte) are exact.
 
 use crate::clock::{CrystalParams, PS_PER_NS};
-use crate::esc::Esc;
+use crate::esc::{Deferred, Esc};
 use crate::model::{DeviceInfo, EscModel, PortKind};
 use ecsync_wire::{ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN};
 
@@ -223,6 +223,10 @@ struct Timing {
     in_port: Vec<u8>,
     /// Back at the master, ps after the send; `None` if the frame is lost on the way.
     back: Option<u64>,
+    /// `order` with each slave's `pu`: what the replay walks.
+    flat: Vec<(usize, u64)>,
+    /// Every slave's processing unit sees the frame, so a replay sets every trace entry.
+    all_reached: bool,
 }
 
 fn ps(ns: f64) -> u64 {
@@ -438,6 +442,37 @@ impl Segment {
     /// as the wire would hand it back. `t_send_ps` is when its first bit leaves the master.
     pub fn process(&mut self, frame: &mut [u8], t_send_ps: u64) -> FrameOutcome {
         self.frames += 1;
+        // The cyclic frame repeats: if its headers are those of the last shape, its chain is the
+        // same and already validated (and it is an EtherCAT frame: the shape's first bytes are
+        // the Ethernet type).
+        if self.replay
+            && self.shape_n > 0
+            && frame.len() >= self.shape_min_len
+            && self.same_shape(frame)
+        {
+            if self.timing.is_none() {
+                self.timing = Some(self.compute_timing());
+            }
+            if let Some(tm) = &self.timing
+                && let Some(back) = tm.back
+            {
+                if !tm.all_reached {
+                    for t in self.trace.iter_mut() {
+                        t.pu_ps = None;
+                    }
+                }
+                let ctx = FrameCtx {
+                    offsets: self.shape_offsets,
+                    n: self.shape_n,
+                    shape: self.shape_id,
+                };
+                self.process_flat(frame, &ctx, t_send_ps);
+                return FrameOutcome {
+                    returned_sof_ps: Some(t_send_ps + back),
+                    processed: true,
+                };
+            }
+        }
         for t in self.trace.iter_mut() {
             t.pu_ps = None;
         }
@@ -449,29 +484,6 @@ impl Segment {
                 returned_sof_ps: None,
                 processed: false,
             };
-        }
-        // The cyclic frame repeats: if its headers are those of the last shape, its chain is the
-        // same and already validated.
-        if self.replay
-            && self.shape_n > 0
-            && frame.len() >= self.shape_min_len
-            && self.same_shape(frame)
-        {
-            let ctx = FrameCtx {
-                offsets: self.shape_offsets,
-                n: self.shape_n,
-                shape: self.shape_id,
-            };
-            if self.timing.is_none() {
-                self.timing = Some(self.compute_timing());
-            }
-            if let Some(back) = self.timing.as_ref().and_then(|t| t.back) {
-                self.process_flat(frame, &ctx, t_send_ps);
-                return FrameOutcome {
-                    returned_sof_ps: Some(t_send_ps + back),
-                    processed: true,
-                };
-            }
         }
         let mut offsets = [0u16; MAX_SHAPE_DATAGRAMS];
         let (valid, n, shape) = match datagram_offsets(frame, &mut offsets) {
@@ -552,11 +564,15 @@ impl Segment {
             frame[6] |= 0x02;
         }
         let mut loops_changed = false;
-        for &i in &tm.order {
-            let i = usize::from(i);
-            let t = t_send + tm.pu[i];
+        let mut deferred = Deferred::default();
+        for &(i, pu) in &tm.flat {
+            let t = t_send + pu;
             trace[i].pu_ps = Some(t);
             let node = &mut nodes[i];
+            if node.esc.replay_cyclic(frame, ctx.shape, t, &mut deferred) {
+                continue;
+            }
+            deferred.flush(frame);
             let fx = node.esc.process_frame(frame, offs, ctx.shape, t);
             if fx.latch_receive_times {
                 let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
@@ -571,6 +587,7 @@ impl Segment {
                 node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
             }
         }
+        deferred.flush(frame);
         if loops_changed {
             *timing = None;
         }
@@ -585,6 +602,8 @@ impl Segment {
             ports: vec![[None; 4]; n],
             in_port: vec![0; n],
             back: None,
+            flat: Vec::new(),
+            all_reached: false,
         };
         let first = usize::from(self.first);
         let entry = usize::from(self.nodes[first].entry_port);
@@ -593,6 +612,16 @@ impl Segment {
                 .timing_rec(first, entry, l.delay_ps, &mut t)
                 .map(|b| b + l.delay_ps);
         }
+        t.flat = t
+            .order
+            .iter()
+            .map(|&i| (usize::from(i), t.pu[usize::from(i)]))
+            .collect();
+        let mut seen = vec![false; n];
+        for &i in &t.order {
+            seen[usize::from(i)] = true;
+        }
+        t.all_reached = seen.iter().all(|&x| x);
         t
     }
 
