@@ -582,6 +582,22 @@ impl DcUnit {
         local - r
     }
 
+    /// What [`DcUnit::read_fast`] does for 0x092C: the time difference register into `out` (at
+    /// most 4 bytes; longer reads are left alone), ORed for broadcast reads. The 4-byte BRD of
+    /// the cyclic frame takes one word operation.
+    #[inline]
+    pub fn read_time_difference(&self, out: &mut [u8], or: bool) {
+        if let Ok(word) = <&mut [u8; 4]>::try_from(&mut *out) {
+            let cur = if or { u32::from_le_bytes(*word) } else { 0 };
+            *word = (cur | self.diff_register).to_le_bytes();
+        } else if out.len() < 4 {
+            let v = self.diff_register.to_le_bytes();
+            for (o, b) in out.iter_mut().zip(v) {
+                *o = if or { *o | b } else { b };
+            }
+        }
+    }
+
     /// Reads the registers the cyclic frame reads (0x0910 by ARMW/FRMW/FPRD, 0x092C by BRD or
     /// FPRD) without going through the register shadow. Returns `false` for anything else.
     #[inline]

@@ -159,9 +159,12 @@ struct LrwStep {
 }
 
 /// The cyclic frame's whole program at one ESC (system time, process data, time difference, in
-/// this order), replayed straight through: no dispatch per step.
+/// this order; at the reference under bus shift, a system time write first), replayed straight
+/// through: no dispatch per step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 struct CyclicSteps {
+    /// Bus shift's write of the master's time to the reference, before its FRMW.
+    pre: Option<SysStep>,
     sys: SysStep,
     lrw: LrwStep,
     diff: DiffStep,
@@ -171,12 +174,13 @@ struct CyclicSteps {
 }
 
 impl CyclicSteps {
-    fn new(sys: SysStep, lrw: LrwStep, diff: DiffStep) -> Self {
+    fn new(pre: Option<SysStep>, sys: SysStep, lrw: LrwStep, diff: DiffStep) -> Self {
         let layout = u64::from(sys.wkc)
             | u64::from(lrw.wkc) << 16
             | u64::from(diff.wkc) << 32
             | u64::from(diff.adp) << 48;
         CyclicSteps {
+            pre,
             sys,
             lrw,
             diff,
@@ -1591,8 +1595,14 @@ impl Esc {
             prog.n = fuse(&raw[..usize::from(prog.n)], &mut prog.ops);
             prog.cyclic = match prog.ops[..usize::from(prog.n)] {
                 [Op::SysFused(sys), Op::LrwFused(lrw), Op::DiffFused(diff)] => {
-                    Some(CyclicSteps::new(sys, lrw, diff))
+                    Some(CyclicSteps::new(None, sys, lrw, diff))
                 }
+                [
+                    Op::SysFused(pre),
+                    Op::SysFused(sys),
+                    Op::LrwFused(lrw),
+                    Op::DiffFused(diff),
+                ] => Some(CyclicSteps::new(Some(pre), sys, lrw, diff)),
                 _ => None,
             };
             self.program = prog;
@@ -1615,6 +1625,9 @@ impl Esc {
             ..
         } = self;
         if let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) {
+            if let Some(pre) = &c.pre {
+                sys_step(dc, frame, pre, t_ps);
+            }
             sys_step(dc, frame, &c.sys, t_ps);
             lrw_step(ram, *app, *al_state, app_cycles, frame, &c.lrw);
             diff_step(dc, frame, &c.diff, t_ps);
@@ -1744,6 +1757,9 @@ impl Esc {
             d.flush(frame);
             d.layout = c.layout;
         }
+        if let Some(pre) = &c.pre {
+            sys_step(dc, frame, pre, t_ps);
+        }
         let (a, l) = (usize::from(c.sys.at), usize::from(c.sys.len));
         if c.sys.write {
             dc.write_system_time(&frame[a..a + l], t_ps);
@@ -1765,12 +1781,7 @@ impl Esc {
         );
         copy_small(&mut frame[at..at + l], &ram[r..r + l]);
         let (a, l) = (usize::from(c.diff.at), usize::from(c.diff.len));
-        dc.read_fast(
-            reg::DC_SYSTEM_TIME_DIFF,
-            &mut frame[a..a + l],
-            c.diff.or,
-            t_ps,
-        );
+        dc.read_time_difference(&mut frame[a..a + l], c.diff.or);
         d.sys = d.sys.wrapping_add(c.sys.inc);
         d.lrw = d.lrw.wrapping_add(c.lrw.inc);
         d.diff = d.diff.wrapping_add(c.diff.inc);
