@@ -1,11 +1,12 @@
 //! A comparison: every method in every run, in parallel across cores, collected in a fixed
 //! order so that the result does not depend on scheduling.
 
+use crate::host::{HostNoise, SharedNoise};
 use crate::run::{BroughtUp, Run, RunError, RunResult, bring_up};
 use crate::scenario::Scenario;
 use std::collections::VecDeque;
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 /// All runs of all methods.
@@ -72,6 +73,16 @@ pub fn compare(
     let threads = threads.max(1);
     let ups = parallel_map(runs, threads, |r| bring_up(scenario, r as u32));
     let ups: Vec<BroughtUp> = ups.into_iter().collect::<Result<_, _>>()?;
+    // Every method of a run meets the same noise: drawn once per run.
+    let noises: Vec<Arc<SharedNoise>> = ups
+        .iter()
+        .map(|u| {
+            Arc::new(SharedNoise::new(
+                HostNoise::new(scenario.host, u.seed()),
+                methods.len() as u32,
+            ))
+        })
+        .collect();
 
     let jobs: Vec<(usize, usize)> = (0..runs)
         .flat_map(|r| (0..methods.len()).map(move |m| (m, r)))
@@ -101,7 +112,10 @@ pub fn compare(
                     let mut run = match state {
                         Some(run) => run,
                         None => match Run::new(scenario, &ups[r], &methods[m]) {
-                            Ok(run) => run,
+                            Ok(mut run) => {
+                                run.share_noise(Arc::clone(&noises[r]));
+                                run
+                            }
                             Err(e) => {
                                 store(j, Err(e));
                                 continue;

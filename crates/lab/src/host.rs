@@ -12,6 +12,7 @@
 
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
+use std::sync::{Arc, Mutex};
 
 /// A jitter distribution: a Gaussian core plus, with probability `tail_p`, an exponential pulse
 /// of mean `tail_mean_ns` in the direction `tail_sign`, clamped to `max_abs_ns`. With `folded`,
@@ -332,9 +333,82 @@ impl HostNoise {
     }
 }
 
+/// One run's noise, drawn once in blocks and handed to every method of the run: the methods
+/// see the same noise (common random numbers), so drawing it again for each would only cost
+/// time. A block is dropped once all `users` have taken it, so memory stays at a few blocks
+/// while the methods of a run advance together (as the comparison's scheduler keeps them).
+#[derive(Debug)]
+pub struct SharedNoise {
+    noise: HostNoise,
+    users: u32,
+    /// Blocks not yet taken by every user.
+    blocks: Mutex<Vec<PendingBlock>>,
+}
+
+/// A block of noise: its first cycle, the noise, the users still to take it.
+type PendingBlock = (u64, Arc<[CycleNoise]>, u32);
+
+impl SharedNoise {
+    /// The noise `noise` for `users` methods.
+    pub fn new(noise: HostNoise, users: u32) -> Self {
+        SharedNoise {
+            noise,
+            users: users.max(1),
+            blocks: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The noise of the run.
+    pub fn noise(&self) -> &HostNoise {
+        &self.noise
+    }
+
+    /// The noise of cycles `first..first + len`; every user takes each block once.
+    pub fn block(&self, first: u64, len: u64) -> Arc<[CycleNoise]> {
+        let draw =
+            || -> Arc<[CycleNoise]> { (first..first + len).map(|i| self.noise.cycle(i)).collect() };
+        let Ok(mut blocks) = self.blocks.lock() else {
+            return draw();
+        };
+        if let Some(k) = blocks
+            .iter()
+            .position(|(f, b, _)| *f == first && b.len() as u64 == len)
+        {
+            let b = Arc::clone(&blocks[k].1);
+            blocks[k].2 -= 1;
+            if blocks[k].2 == 0 {
+                blocks.swap_remove(k);
+            }
+            return b;
+        }
+        let b = draw();
+        if self.users > 1 {
+            blocks.push((first, Arc::clone(&b), self.users - 1));
+        }
+        b
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shared_blocks_are_the_cycles_noise_and_are_dropped_after_the_last_user() {
+        let n = HostNoise::new(HostParams::preempt_rt_stress(), 3);
+        let shared = SharedNoise::new(n, 3);
+        for _ in 0..3 {
+            let b = shared.block(1_000, 50);
+            assert_eq!(b.len(), 50);
+            for (k, c) in b.iter().enumerate() {
+                assert_eq!(*c, n.cycle(1_000 + k as u64));
+            }
+        }
+        assert!(shared.blocks.lock().unwrap().is_empty());
+        // A different block is drawn afresh, with the right cycles.
+        assert_eq!(shared.block(1_050, 10)[0], n.cycle(1_050));
+        assert_eq!(shared.blocks.lock().unwrap().len(), 1);
+    }
 
     #[test]
     fn noise_is_a_function_of_seed_and_cycle() {

@@ -1,7 +1,7 @@
 //! One run of one method: bring the segment up, run the cyclic phase with the host's noise,
 //! measure what the letter measures and what only the simulator knows.
 
-use crate::host::HostNoise;
+use crate::host::{CycleNoise, HostNoise, SharedNoise};
 use crate::scenario::Scenario;
 use crate::stats::{Stats, Summary};
 use ecsync_dc::sync::MasterSync;
@@ -13,6 +13,7 @@ use ecsync_master::cyclic::{CycleRecord, CyclicConfig, CyclicEngine};
 use ecsync_master::sim::{MasterClock, SIM_EPOCH_NS, SimTransport};
 use ecsync_master::{Engine, MasterError};
 use serde::Serialize;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The five methods behind one type (static dispatch, no allocation; the median's window
@@ -234,6 +235,11 @@ pub struct BroughtUp {
 }
 
 impl BroughtUp {
+    /// The run's seed (of its noise and crystals).
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
     /// The network as the bring-up found and configured it.
     pub fn network(&self) -> &Network {
         &self.net
@@ -283,6 +289,10 @@ pub struct Run {
     sim: SimTransport,
     eng: CyclicEngine<Method>,
     noise: HostNoise,
+    /// The run's noise drawn once for all methods (see [`SharedNoise`]); without it, each step
+    /// draws its own into `noise_buf`.
+    shared_noise: Option<Arc<SharedNoise>>,
+    noise_buf: Vec<CycleNoise>,
     res: RunResult,
     series: [Series; 3],
     grid0: Option<(u64, i64)>,
@@ -343,6 +353,8 @@ impl Run {
             sim,
             eng,
             noise,
+            shared_noise: None,
+            noise_buf: Vec::new(),
             res: RunResult {
                 method: method_name.to_string(),
                 run: up.run,
@@ -374,6 +386,15 @@ impl Run {
         })
     }
 
+    /// Takes the run's noise from `shared` (drawn once for all methods of the run) instead of
+    /// drawing it; `shared` must hold this run's noise.
+    pub fn share_noise(&mut self, shared: Arc<SharedNoise>) {
+        debug_assert_eq!(*shared.noise(), self.noise);
+        if *shared.noise() == self.noise {
+            self.shared_noise = Some(shared);
+        }
+    }
+
     /// Cycles still to run (warm-up included).
     pub fn remaining(&self) -> u64 {
         self.total_cycles - self.next_cycle
@@ -385,10 +406,23 @@ impl Run {
             .total_cycles
             .min(self.next_cycle.saturating_add(max_cycles));
         let start = self.next_cycle;
+        // The noise of these cycles, drawn in one go (or taken from the other methods' draw).
+        let shared_block;
+        let noise_block: &[CycleNoise] = match &self.shared_noise {
+            Some(sh) => {
+                shared_block = sh.block(start, end - start);
+                &shared_block
+            }
+            None => {
+                let noise = self.noise;
+                self.noise_buf.clear();
+                self.noise_buf.extend((start..end).map(|i| noise.cycle(i)));
+                &self.noise_buf
+            }
+        };
         let Run {
             sim,
             eng,
-            noise,
             res,
             series,
             grid0,
@@ -403,8 +437,7 @@ impl Run {
         );
         let (reference, last) = (self.reference, self.last);
         let (expected_wkc, pdi_len) = (self.expected_lrw_wkc, self.pdi_len);
-        for i in start..end {
-            let noise_i = noise.cycle(i);
+        for (i, noise_i) in (start..end).zip(noise_block) {
             // The task wakes at the scheduled start (or when the previous cycle is done, if it
             // overran), late by j_s, and runs e_m before it timestamps and sends.
             let wake = eng.scheduled_start_ns().max(*prev_done_ns);
