@@ -200,8 +200,13 @@ impl Series {
         let x = x as f32;
         match &mut self.cur {
             Some(e) if e.cycle == block => {
-                e.min = e.min.min(x);
-                e.max = e.max.max(x);
+                // Plain comparisons (no NaN handling: the errors recorded are never NaN).
+                if x < e.min {
+                    e.min = x;
+                }
+                if x > e.max {
+                    e.max = x;
+                }
             }
             _ => {
                 if let Some(e) = self.cur.take() {
