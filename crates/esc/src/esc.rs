@@ -391,6 +391,9 @@ struct Program {
     counted: u8,
     /// `ops` as one straight-through step, when they are the cyclic frame's three.
     cyclic: Option<CyclicSteps>,
+    /// Frames replayed by `cyclic` and not yet in the ESC's counters (one increment per frame
+    /// instead of three; see [`Esc::stats`]).
+    replays: u64,
 }
 
 impl Default for Program {
@@ -402,6 +405,7 @@ impl Default for Program {
             n: 0,
             counted: 0,
             cyclic: None,
+            replays: 0,
         }
     }
 }
@@ -739,7 +743,12 @@ impl Esc {
 
     /// Counters.
     pub fn stats(&self) -> EscStats {
-        self.stats
+        let mut s = self.stats;
+        let p = &self.program;
+        s.frames += p.replays;
+        s.replayed_frames += p.replays;
+        s.datagrams_counted += p.replays * u64::from(p.counted);
+        s
     }
 
     /// Sets which ports have a physical link (done once by the segment).
@@ -1591,6 +1600,8 @@ impl Esc {
         }
         self.rec = Recorder::default();
         if ok && self.generation == generation {
+            // The replays of the program replaced go into the counters.
+            self.stats = self.stats();
             let raw = prog.ops;
             prog.n = fuse(&raw[..usize::from(prog.n)], &mut prog.ops);
             prog.cyclic = match prog.ops[..usize::from(prog.n)] {
@@ -1740,7 +1751,6 @@ impl Esc {
             app,
             al_state,
             app_cycles,
-            stats,
             generation,
             ..
         } = self;
@@ -1750,9 +1760,7 @@ impl Esc {
         let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) else {
             return false;
         };
-        stats.frames += 1;
-        stats.replayed_frames += 1;
-        stats.datagrams_counted += u64::from(program.counted);
+        program.replays += 1;
         if c.layout != d.layout {
             d.flush(frame);
             d.layout = c.layout;
