@@ -645,6 +645,7 @@ impl DcUnit {
         self.batch_writes = 0;
     }
 
+    #[inline(always)]
     fn compare_system_time(&mut self, received: u32, t_ps: u64) {
         self.clock.advance_to(t_ps);
         let read = self
