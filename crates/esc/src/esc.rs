@@ -206,7 +206,7 @@ pub(crate) struct Deferred {
 
 impl Deferred {
     /// Adds the pending increments to the frame.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn flush(&mut self, frame: &mut [u8]) {
         if self.sys | self.lrw | self.diff | self.adp != 0 {
             let l = self.layout;

@@ -196,8 +196,12 @@ pub struct Segment {
     frames: u64,
     malformed: u64,
     lost: u64,
-    /// Datagram headers of the last frame shape seen, and its id (see `Esc::process_frame`).
-    shape_headers: Vec<u8>,
+    /// The last frame shape seen, as words for the comparison every cyclic frame makes: the
+    /// Ethernet type and EtherCAT header, then per datagram its first 8 header bytes and the
+    /// last 2.
+    shape_head: u32,
+    shape_words: [(u64, u16); MAX_SHAPE_DATAGRAMS],
+    /// The shape's id (see `Esc::process_frame`).
     shape_id: u32,
     /// Datagram offsets of the last shape and the frame length they need.
     shape_offsets: [u16; MAX_SHAPE_DATAGRAMS],
@@ -387,7 +391,8 @@ impl Segment {
             frames: 0,
             malformed: 0,
             lost: 0,
-            shape_headers: Vec::with_capacity(MAX_SHAPE_DATAGRAMS * 10 + 4),
+            shape_head: 0,
+            shape_words: [(0, 0); MAX_SHAPE_DATAGRAMS],
             shape_id: 0,
             shape_offsets: [0; MAX_SHAPE_DATAGRAMS],
             shape_n: 0,
@@ -679,14 +684,22 @@ impl Segment {
     /// last shape.
     #[inline]
     fn same_shape(&self, frame: &[u8]) -> bool {
-        frame[12..16] == self.shape_headers[..4]
+        let word = |at: usize| -> Option<(u64, u16)> {
+            let h: &[u8; 10] = frame.get(at..at + 10)?.try_into().ok()?;
+            let (lo, hi) = h.split_at(8);
+            Some((
+                u64::from_le_bytes(lo.try_into().ok()?),
+                u16::from_le_bytes([hi[0], hi[1]]),
+            ))
+        };
+        let head = frame
+            .get(12..16)
+            .map(|h| u32::from_le_bytes([h[0], h[1], h[2], h[3]]));
+        head == Some(self.shape_head)
             && self.shape_offsets[..usize::from(self.shape_n)]
                 .iter()
-                .enumerate()
-                .all(|(k, &at)| {
-                    let at = usize::from(at);
-                    frame[at..at + 10] == self.shape_headers[4 + 10 * k..14 + 10 * k]
-                })
+                .zip(&self.shape_words)
+                .all(|(&at, &w)| word(usize::from(at)) == Some(w))
     }
 
     /// The id of a frame's shape: its datagram headers as sent (0: too many datagrams to cache).
@@ -695,11 +708,13 @@ impl Segment {
             && self.shape_offsets[..offsets.len()] == *offsets
             && self.same_shape(frame);
         if !same {
-            self.shape_headers.clear();
-            self.shape_headers.extend_from_slice(&frame[12..16]);
-            for &at in offsets {
+            self.shape_head = u32::from_le_bytes([frame[12], frame[13], frame[14], frame[15]]);
+            for (k, &at) in offsets.iter().enumerate() {
                 let at = usize::from(at);
-                self.shape_headers.extend_from_slice(&frame[at..at + 10]);
+                let h = &frame[at..at + 10];
+                let mut lo = [0u8; 8];
+                lo.copy_from_slice(&h[..8]);
+                self.shape_words[k] = (u64::from_le_bytes(lo), u16::from_le_bytes([h[8], h[9]]));
             }
             self.shape_offsets[..offsets.len()].copy_from_slice(offsets);
             self.shape_n = offsets.len() as u8;
