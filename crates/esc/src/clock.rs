@@ -115,6 +115,9 @@ pub struct LocalClock {
     tick_residue: u64,
     /// Current wander, as a fraction (not ppm).
     wander: f64,
+    /// `1 + oscillator_error()`, kept up to date with the wander (the rate's part that does
+    /// not change with the control loop; the same operations as computing it every time).
+    one_plus_osc: f64,
     /// Next wander grid point, ps.
     next_wander_ps: u64,
     /// Time control loop corrections currently in force.
@@ -136,6 +139,7 @@ impl LocalClock {
             },
             tick_residue: params.initial_local_ns % 10,
             wander: 0.0,
+            one_plus_osc: 1.0 + (params.ppm * 1e-6 + 0.0),
             next_wander_ps: params.wander_step_ps.max(1),
             c_drift: 0.0,
             slew_rate: 0.0,
@@ -162,7 +166,7 @@ impl LocalClock {
     /// wander grid point.
     #[inline]
     fn delta_from_anchor(&self, dt_ns: f64) -> f64 {
-        let mut d = dt_ns * (1.0 + self.oscillator_error() + self.c_drift);
+        let mut d = dt_ns * (self.one_plus_osc + self.c_drift);
         if self.slew_rate != 0.0 {
             let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
             d += slewed.copysign(self.slew_rate);
@@ -248,6 +252,7 @@ impl LocalClock {
                 let step_s = self.params.wander_step_ps as f64 * 1e-12;
                 let z: f64 = StandardNormal.sample(&mut self.rng);
                 self.wander += z * self.params.wander_ppm_per_sqrt_s * 1e-6 * step_s.sqrt();
+                self.one_plus_osc = 1.0 + self.oscillator_error();
             }
             self.next_wander_ps = at.saturating_add(self.params.wander_step_ps.max(1));
         }
@@ -261,7 +266,7 @@ impl LocalClock {
         }
         // Through i64: one conversion instruction (u64 -> f64 takes several on x86-64).
         let dt_ns = (t_ps - self.anchor_ps) as i64 as f64 * 1e-3;
-        let mut d = dt_ns * (1.0 + self.oscillator_error() + self.c_drift);
+        let mut d = dt_ns * (self.one_plus_osc + self.c_drift);
         if self.slew_rate != 0.0 {
             let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
             d += slewed.copysign(self.slew_rate);
