@@ -9,9 +9,13 @@ use std::time::Instant;
 /// Arguments of `ecsync bench`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Simulated cycles to time.
+    /// Simulated cycles to time, per repeat.
     #[arg(long, default_value_t = 2_000_000)]
     cycles: u64,
+    /// Timed repeats of `--cycles` cycles each: the figure is their median, printed with the
+    /// slowest and the fastest (on a shared machine the neighbours slow single runs down).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    repeats: u32,
     /// Print JSON.
     #[arg(long)]
     json: bool,
@@ -28,10 +32,19 @@ pub struct Args {
 struct Out {
     workload: &'static str,
     slaves: usize,
+    /// Cycles per repeat.
     cycles: u64,
+    repeats: u32,
+    /// Wall time of the median repeat, s.
     wall_s: f64,
+    /// Of the median repeat.
     cycles_per_s: f64,
+    /// Of the median repeat.
     slave_cycles_per_s: f64,
+    /// Of the slowest and the fastest repeat.
+    slave_cycles_per_s_min: f64,
+    slave_cycles_per_s_max: f64,
+    /// Of the median repeat.
     ns_per_slave_cycle: f64,
     /// Wall time of the default `ecsync compare` (paper-2024, 5 runs x 1.8 M cycles after
     /// 2 min of warm-up, five methods), s.
@@ -54,9 +67,16 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let mut work = vec![0u8; 1514];
     // Warm up caches and the branch predictor.
     b.run(10_000, &mut work);
-    let t0 = Instant::now();
-    let wkc = b.run(args.cycles, &mut work);
-    let wall = t0.elapsed().as_secs_f64();
+    let mut walls = Vec::with_capacity(args.repeats as usize);
+    let mut wkc = 0;
+    for _ in 0..args.repeats {
+        let t0 = Instant::now();
+        wkc = b.run(args.cycles, &mut work);
+        walls.push(t0.elapsed().as_secs_f64());
+    }
+    walls.sort_by(f64::total_cmp);
+    let wall = walls[walls.len() / 2];
+    let (fastest, slowest) = (walls[0], walls[walls.len() - 1]);
     ensure!(
         args.part.is_some() || wkc == b.expected_lrw_wkc,
         "the segment answered the LRW with working counter {wkc}, expected {}",
@@ -80,9 +100,12 @@ pub fn run(args: Args) -> Result<ExitCode> {
         workload: "paper-2024: 6 slaves, 1 ms cycle, FRMW 0x0910 + LRW 204 B + BRD 0x092C per frame",
         slaves,
         cycles: args.cycles,
+        repeats: args.repeats,
         wall_s: wall,
         cycles_per_s: args.cycles as f64 / wall,
         slave_cycles_per_s: (args.cycles * slaves as u64) as f64 / wall,
+        slave_cycles_per_s_min: (args.cycles * slaves as u64) as f64 / slowest,
+        slave_cycles_per_s_max: (args.cycles * slaves as u64) as f64 / fastest,
         ns_per_slave_cycle: wall * 1e9 / (args.cycles * slaves as u64) as f64,
         default_compare_wall_s: cmp_wall,
         default_compare_cycles_per_s: cmp_rate,
@@ -93,12 +116,15 @@ pub fn run(args: Args) -> Result<ExitCode> {
     } else {
         println!("{}", out.workload);
         println!(
-            "{} cycles in {:.3} s on one core: {:.2} M cycles/s, {:.2} M slave-cycles/s ({:.1} ns per slave-cycle)",
+            "{} x {} cycles on one core, median {:.3} s: {:.2} M cycles/s, {:.2} M slave-cycles/s ({:.1} ns per slave-cycle); slowest and fastest repeat {:.2} and {:.2} M slave-cycles/s",
+            out.repeats,
             out.cycles,
             out.wall_s,
             out.cycles_per_s / 1e6,
             out.slave_cycles_per_s / 1e6,
-            out.ns_per_slave_cycle
+            out.ns_per_slave_cycle,
+            out.slave_cycles_per_s_min / 1e6,
+            out.slave_cycles_per_s_max / 1e6
         );
         if let (Some(w), Some(r)) = (out.default_compare_wall_s, out.default_compare_cycles_per_s) {
             println!(
