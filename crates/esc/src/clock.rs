@@ -176,7 +176,7 @@ impl LocalClock {
 
     /// The counter value at the last tick at or before local time `ns`.
     #[inline]
-    fn quantise(&self, ns: u64) -> u64 {
+    pub(crate) fn quantise(&self, ns: u64) -> u64 {
         ns - (ns.wrapping_sub(self.tick_residue) % 10)
     }
 
@@ -199,6 +199,12 @@ impl LocalClock {
     #[inline]
     pub fn local_ns_at_anchor(&self) -> u64 {
         self.quantise(self.anchor_local.ns)
+    }
+
+    /// Local time at the anchor, whole nanoseconds, not quantised to the counter's tick.
+    #[inline]
+    pub fn anchor_ns(&self) -> u64 {
+        self.anchor_local.ns
     }
 
     /// Local time at `t_ps` (exact, with fraction), advancing the anchor only when a wander step

@@ -598,15 +598,29 @@ impl DcUnit {
         }
     }
 
+    /// The local time latched at the frame's start, at the clock's anchor: `sof` of the counter
+    /// value. The SOF grid (`sof_phase` modulo `sof_res`) lies on the counter's 10 ns tick grid
+    /// (see `port_phase`), so the latest SOF edge at or before the counter value is the latest
+    /// at or before the unquantised time: the tick quantisation can be skipped whenever no
+    /// subtraction wraps (local time from `sof_phase + 10` on, i.e. always but in the first
+    /// instant after power-up).
+    #[inline]
+    fn sof_at_anchor(&self) -> u64 {
+        let raw = self.clock.anchor_ns();
+        if raw >= self.sof_phase + 10 {
+            self.sof(raw)
+        } else {
+            self.sof(self.clock.local_ns_at_anchor())
+        }
+    }
+
     /// Reads the registers the cyclic frame reads (0x0910 by ARMW/FRMW/FPRD, 0x092C by BRD or
     /// FPRD) without going through the register shadow. Returns `false` for anything else.
     #[inline]
     pub fn read_fast(&mut self, addr: u16, out: &mut [u8], or: bool, t_ps: u64) -> bool {
         let v: [u8; 8] = if addr == reg::DC_SYSTEM_TIME && out.len() <= 8 {
             self.clock.advance_to(t_ps);
-            let mut s = self
-                .sof(self.clock.local_ns_at_anchor())
-                .wrapping_add(self.offset);
+            let mut s = self.sof_at_anchor().wrapping_add(self.offset);
             s = s.wrapping_sub(u64::from(self.delay));
             if !self.is_64bit {
                 s &= 0xffff_ffff;
@@ -649,7 +663,7 @@ impl DcUnit {
     fn compare_system_time(&mut self, received: u32, t_ps: u64) {
         self.clock.advance_to(t_ps);
         let read = self
-            .sof(self.clock.local_ns_at_anchor())
+            .sof_at_anchor()
             .wrapping_add(self.offset)
             .wrapping_sub(u64::from(self.delay));
         let dt = dc_time::diff_u32(read as u32, received);
@@ -713,6 +727,40 @@ mod tests {
             },
             is_64bit: true,
         })
+    }
+
+    #[test]
+    fn sof_skips_the_tick_quantisation_exactly() {
+        let mut x = 0x0bad_cafe_f00d_1234u64;
+        for seed in 0..40u64 {
+            for res in [10, 40, 80, 1_000] {
+                let u = DcUnit::new(DcParams {
+                    sof_resolution_ns: res,
+                    crystal: CrystalParams {
+                        initial_local_ns: seed * 7 + 3,
+                        seed: seed.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+                        ..Default::default()
+                    },
+                    is_64bit: true,
+                });
+                let check = |v: u64| {
+                    assert_eq!(
+                        u.sof(v),
+                        u.sof(u.clock.quantise(v)),
+                        "{v} res {res} seed {seed}"
+                    );
+                };
+                let lo = u.sof_phase + 10;
+                (lo..lo + 2_000).for_each(check);
+                for _ in 0..2_000 {
+                    x = x
+                        .wrapping_mul(6_364_136_223_846_793_005)
+                        .wrapping_add(1_442_695_040_888_963_407);
+                    check(x.max(lo));
+                    check((x >> 20).max(lo));
+                }
+            }
+        }
     }
 
     #[test]
