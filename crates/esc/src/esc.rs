@@ -310,51 +310,57 @@ fn add_wkc(frame: &mut [u8], at: u16, inc: u16) {
     frame[at..at + 2].copy_from_slice(&w.to_le_bytes());
 }
 
+/// The system time read or write of a [`SysStep`], without its working counter.
 #[inline(always)]
-fn sys_step(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
+fn sys_access(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
     let (a, l) = (usize::from(s.at), usize::from(s.len));
     if s.write {
         dc.write_system_time(&frame[a..a + l], t_ps);
     } else {
         dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
     }
+}
+
+#[inline(always)]
+fn sys_step(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
+    sys_access(dc, frame, s, t_ps);
     add_wkc(frame, s.wkc, s.inc);
 }
 
+/// The time difference read of a [`DiffStep`], without its ADP and working counter.
 #[inline(always)]
-fn diff_step(dc: &mut DcUnit, frame: &mut [u8], d: &DiffStep, t_ps: u64) {
-    let p = usize::from(d.adp);
-    let v = u16::from_le_bytes([frame[p], frame[p + 1]]).wrapping_add(1);
-    frame[p..p + 2].copy_from_slice(&v.to_le_bytes());
+fn diff_access(dc: &DcUnit, frame: &mut [u8], d: &DiffStep) {
     let (a, l) = (usize::from(d.at), usize::from(d.len));
-    dc.read_fast(reg::DC_SYSTEM_TIME_DIFF, &mut frame[a..a + l], d.or, t_ps);
+    dc.read_time_difference(&mut frame[a..a + l], d.or);
+}
+
+#[inline(always)]
+fn diff_step(dc: &DcUnit, frame: &mut [u8], d: &DiffStep) {
+    add_wkc(frame, d.adp, 1);
+    diff_access(dc, frame, d);
     add_wkc(frame, d.wkc, d.inc);
 }
 
-/// The LRW at a slave whose application has the fast layout (see `Esc::app_refresh_inputs`).
+/// The outputs of an [`LrwStep`]: frame -> process RAM.
 #[inline(always)]
-fn lrw_step(
-    ram: &mut [u8],
-    app: AppLayout,
-    al_state: u8,
-    app_cycles: &mut u16,
-    frame: &mut [u8],
-    s: &LrwStep,
-) {
+fn lrw_in(ram: &mut [u8], frame: &[u8], s: &LrwStep) {
     let (d, r, l) = (
         usize::from(s.w_at),
         usize::from(s.w_ram),
         usize::from(s.w_len),
     );
     copy_small(&mut ram[r..r + l], &frame[d..d + l]);
-    refresh_inputs(ram, app, al_state, app_cycles);
+}
+
+/// The inputs of an [`LrwStep`]: process RAM -> frame.
+#[inline(always)]
+fn lrw_out(frame: &mut [u8], ram: &[u8], s: &LrwStep) {
     let (d, r, l) = (
         usize::from(s.r_at),
         usize::from(s.r_ram),
         usize::from(s.r_len),
     );
     copy_small(&mut frame[d..d + l], &ram[r..r + l]);
-    add_wkc(frame, s.wkc, s.inc);
 }
 
 /// The application (a loopback device): statusword, then the outputs echoed, then a cycle
@@ -1621,33 +1627,14 @@ impl Esc {
         out
     }
 
-    #[inline]
+    /// Replays the recorded program op by op (the segment's straight-through replay,
+    /// [`Esc::replay_cyclic`], takes the cyclic frame before it gets here).
     fn replay(&mut self, frame: &mut [u8], t_ps: u64) {
         self.stats.replayed_frames += 1;
         self.stats.datagrams_counted += u64::from(self.program.counted);
-        // Disjoint borrows: the steps are read in place while the DC unit and RAM change.
-        let Esc {
-            program,
-            dc,
-            ram,
-            app,
-            al_state,
-            app_cycles,
-            ..
-        } = self;
-        if let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) {
-            if let Some(pre) = &c.pre {
-                sys_step(dc, frame, pre, t_ps);
-            }
-            sys_step(dc, frame, &c.sys, t_ps);
-            lrw_step(ram, *app, *al_state, app_cycles, frame, &c.lrw);
-            diff_step(dc, frame, &c.diff, t_ps);
-            return;
-        }
         self.replay_ops(frame, t_ps);
     }
 
-    #[inline(never)]
     fn replay_ops(&mut self, frame: &mut [u8], t_ps: u64) {
         for k in 0..usize::from(self.program.n) {
             match self.program.ops[k] {
@@ -1703,29 +1690,17 @@ impl Esc {
                     }
                 }
                 Op::DiffFused(d) => {
-                    if let Some(dc) = &mut self.dc {
-                        diff_step(dc, frame, &d, t_ps);
+                    if let Some(dc) = &self.dc {
+                        diff_step(dc, frame, &d);
                     } else {
-                        let p = usize::from(d.adp);
-                        let v = u16::from_le_bytes([frame[p], frame[p + 1]]).wrapping_add(1);
-                        frame[p..p + 2].copy_from_slice(&v.to_le_bytes());
+                        add_wkc(frame, d.adp, 1);
                         add_wkc(frame, d.wkc, d.inc);
                     }
                 }
                 Op::LrwFused(l) => {
-                    let (d, r, n) = (
-                        usize::from(l.w_at),
-                        usize::from(l.w_ram),
-                        usize::from(l.w_len),
-                    );
-                    copy_small(&mut self.ram[r..r + n], &frame[d..d + n]);
+                    lrw_in(&mut self.ram, frame, &l);
                     self.app_refresh_inputs();
-                    let (d, r, n) = (
-                        usize::from(l.r_at),
-                        usize::from(l.r_ram),
-                        usize::from(l.r_len),
-                    );
-                    copy_small(&mut frame[d..d + n], &self.ram[r..r + n]);
+                    lrw_out(frame, &self.ram, &l);
                     add_wkc(frame, l.wkc, l.inc);
                 }
             }
@@ -1768,28 +1743,11 @@ impl Esc {
         if let Some(pre) = &c.pre {
             sys_step(dc, frame, pre, t_ps);
         }
-        let (a, l) = (usize::from(c.sys.at), usize::from(c.sys.len));
-        if c.sys.write {
-            dc.write_system_time(&frame[a..a + l], t_ps);
-        } else {
-            dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
-        }
-        let s = &c.lrw;
-        let (at, r, l) = (
-            usize::from(s.w_at),
-            usize::from(s.w_ram),
-            usize::from(s.w_len),
-        );
-        copy_small(&mut ram[r..r + l], &frame[at..at + l]);
+        sys_access(dc, frame, &c.sys, t_ps);
+        lrw_in(ram, frame, &c.lrw);
         refresh_inputs(ram, *app, *al_state, app_cycles);
-        let (at, r, l) = (
-            usize::from(s.r_at),
-            usize::from(s.r_ram),
-            usize::from(s.r_len),
-        );
-        copy_small(&mut frame[at..at + l], &ram[r..r + l]);
-        let (a, l) = (usize::from(c.diff.at), usize::from(c.diff.len));
-        dc.read_time_difference(&mut frame[a..a + l], c.diff.or);
+        lrw_out(frame, ram, &c.lrw);
+        diff_access(dc, frame, &c.diff);
         d.sys = d.sys.wrapping_add(c.sys.inc);
         d.lrw = d.lrw.wrapping_add(c.lrw.inc);
         d.diff = d.diff.wrapping_add(c.diff.inc);
