@@ -170,6 +170,14 @@ pub struct PortSchedule {
     base_ns: u64,
     /// Windows sorted by opening, disjoint, within the cycle.
     windows: Vec<Window>,
+    /// The gate's open spans over three consecutive cycles, as phases from the first cycle's
+    /// start: windows that touch (also across a cycle's end) are one span, since the gate stays
+    /// open and a frame may run from one into the next.
+    spans: Vec<(u64, u64)>,
+    /// The windows cover the whole cycle: the gate never closes.
+    always_open: bool,
+    /// The longest open span (`u64::MAX` when the gate never closes).
+    longest_open_ns: u64,
     /// Best-effort guard band before each window, ns (the longest best-effort frame).
     guard_ns: u64,
 }
@@ -223,17 +231,45 @@ impl PortSchedule {
                 });
             }
         }
+        let windows: Vec<Window> = order.iter().map(|&i| windows[i]).collect();
+        let open_ns: u64 = windows.iter().map(|w| w.close_ns - w.open_ns).sum();
+        let always_open = open_ns == cycle_ns;
+        let mut spans: Vec<(u64, u64)> = Vec::with_capacity(3 * windows.len());
+        for k in 0..3 {
+            for w in &windows {
+                let (o, c) = (k * cycle_ns + w.open_ns, k * cycle_ns + w.close_ns);
+                match spans.last_mut() {
+                    Some(last) if last.1 == o => last.1 = c,
+                    _ => spans.push((o, c)),
+                }
+            }
+        }
+        // Every distinct span starts once in the middle cycle, and ends within the third (a
+        // span is shorter than the cycle unless the gate never closes).
+        let longest_open_ns = if always_open {
+            u64::MAX
+        } else {
+            spans
+                .iter()
+                .filter(|(o, _)| (cycle_ns..2 * cycle_ns).contains(o))
+                .map(|(o, c)| c - o)
+                .max()
+                .unwrap_or(0)
+        };
         Ok(PortSchedule {
             cycle_ns,
             base_ns,
-            windows: order.iter().map(|&i| windows[i]).collect(),
+            windows,
+            spans,
+            always_open,
+            longest_open_ns,
             guard_ns,
         })
     }
 
     /// Refuses the schedule if a frame of `frame_ns` on the wire fits into no window.
     pub fn check_fits(&self, frame_ns: u64) -> Result<(), ScheduleError> {
-        let longest = self.longest_window_ns();
+        let longest = self.longest_open_ns;
         if frame_ns > longest {
             return Err(ScheduleError::FrameDoesNotFit {
                 frame_ns,
@@ -251,6 +287,12 @@ impl PortSchedule {
     /// The windows, sorted.
     pub fn windows(&self) -> &[Window] {
         &self.windows
+    }
+
+    /// The longest time the EtherCAT gate stays open: windows that touch count as one
+    /// (`u64::MAX` if it never closes).
+    pub fn longest_open_ns(&self) -> u64 {
+        self.longest_open_ns
     }
 
     /// The longest window, ns.
@@ -311,24 +353,24 @@ impl PortSchedule {
     }
 
     /// The earliest local time at or after `ready_ns` at which an EtherCAT frame lasting
-    /// `frame_ns` on the wire may start: inside a window and ending by its close. `None` if it
-    /// fits into no window.
+    /// `frame_ns` on the wire may start: while the gate is open, and ending before it closes
+    /// (the transmission-overrun rule; windows that touch, also across the cycle's end, keep the
+    /// gate open). `None` if it fits into no open span.
     pub fn ethercat_start(&self, ready_ns: u64, frame_ns: u64) -> Option<u64> {
-        if frame_ns > self.longest_window_ns() {
+        if self.always_open {
+            return Some(ready_ns);
+        }
+        if frame_ns > self.longest_open_ns {
             return None;
         }
-        let (mut start, phase) = self.cycle_of(ready_ns);
-        let mut phase = phase;
-        loop {
-            for w in &self.windows {
-                let s = phase.max(w.open_ns);
-                if s + frame_ns <= w.close_ns {
-                    return Some(start.wrapping_add(s));
-                }
-            }
-            start = start.wrapping_add(self.cycle_ns);
-            phase = 0;
-        }
+        let (start, phase) = self.cycle_of(ready_ns);
+        // A span open before `phase` (in this cycle or, across the cycle's start, in the last)
+        // still counts from `phase` on; the first span of the first cycle may be the tail of
+        // one that began in the cycle before, and its close is right.
+        self.spans.iter().find_map(|&(open, close)| {
+            let s = phase.max(open);
+            (s + frame_ns <= close).then(|| start.wrapping_add(s))
+        })
     }
 
     /// The earliest local time at or after `ready_ns` at which a best-effort frame lasting
@@ -489,6 +531,33 @@ mod tests {
         ));
         // Touching windows are fine.
         assert!(PortSchedule::new(1_000, 0, &[w(0, 100), w(100, 200)], 0).is_ok());
+    }
+
+    #[test]
+    fn frames_run_on_through_touching_windows_and_across_the_cycle_end() {
+        // The proptest's find: one window covering the whole cycle, the gate never closes.
+        let s = PortSchedule::new(89, 153, &[w(0, 89)], 0).unwrap();
+        assert_eq!(s.ethercat_start(1_520, 58), Some(1_520));
+        assert_eq!(s.longest_open_ns(), u64::MAX);
+        assert!(s.check_fits(1_000_000).is_ok());
+        // Two touching windows are one open span of 200 ns.
+        let s = PortSchedule::new(1_000, 0, &[w(0, 100), w(100, 200)], 0).unwrap();
+        assert_eq!(s.ethercat_start(50, 120), Some(50));
+        assert_eq!(s.longest_open_ns(), 200);
+        // A window at the cycle's end and one at its start: open from 900 to 1_100.
+        let s = PortSchedule::new(1_000, 0, &[w(0, 100), w(900, 1_000)], 0).unwrap();
+        assert_eq!(s.longest_open_ns(), 200);
+        assert_eq!(s.ethercat_start(950, 120), Some(950));
+        assert_eq!(s.ethercat_start(2_050, 40), Some(2_050));
+        assert_eq!(s.ethercat_start(2_050, 60), Some(2_900));
+        assert_eq!(s.ethercat_start(0, 201), None);
+        assert!(matches!(
+            s.check_fits(201),
+            Err(ScheduleError::FrameDoesNotFit {
+                longest_ns: 200,
+                ..
+            })
+        ));
     }
 
     /// Windows from sorted cut points of a small cycle: disjoint, possibly touching.
