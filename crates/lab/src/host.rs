@@ -233,15 +233,14 @@ impl HostParams {
 
 /// A SplitMix64 stream: small and fast, enough for noise (the seed is what makes the streams
 /// of different cycles and runs independent).
-struct CycleRng(u64);
+pub(crate) struct CycleRng(pub(crate) u64);
 
 impl CycleRng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
+    /// The next output: [`splitmix`] of the state, which then moves on by the golden gamma.
+    pub(crate) fn next(&mut self) -> u64 {
+        let v = splitmix(self.0);
+        self.0 = self.0.wrapping_add(SPLITMIX_GAMMA);
+        v
     }
 }
 
@@ -262,16 +261,18 @@ impl rand::TryRng for CycleRng {
     }
 }
 
+const SPLITMIX_GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
+
 /// SplitMix64: a counter-based generator (the output is a function of the input only).
 fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = z.wrapping_add(SPLITMIX_GAMMA);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
     z ^ (z >> 31)
 }
 
 /// Uniform in (0, 1].
-fn unit(x: u64) -> f64 {
+pub(crate) fn unit(x: u64) -> f64 {
     ((x >> 11) + 1) as f64 / (1u64 << 53) as f64
 }
 

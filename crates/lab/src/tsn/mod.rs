@@ -69,21 +69,20 @@ const CABLE_NS_PER_M: f64 = 5.0;
 /// How long the master waits for a frame before calling it lost, ps.
 const TIMEOUT_PS: u64 = 100_000_000_000;
 
-/// SplitMix64: the seeded noise of launch jitter and cross traffic.
+/// SplitMix64 (the host noise's stream): the seeded noise of launch jitter and cross traffic.
 #[derive(Debug, Clone)]
 struct Noise(u64);
 
 impl Noise {
     fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
+        let mut rng = crate::host::CycleRng(self.0);
+        let v = rng.next();
+        self.0 = rng.0;
+        v
     }
     /// Uniform in (0, 1].
     fn unit(&mut self) -> f64 {
-        ((self.next() >> 11) + 1) as f64 / (1u64 << 53) as f64
+        crate::host::unit(self.next())
     }
     /// Standard normal (Box-Muller).
     fn normal(&mut self) -> f64 {
