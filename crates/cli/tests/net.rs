@@ -534,9 +534,11 @@ mod ethercrab_raw {
         let stop = std::sync::Arc::new(AtomicBool::new(false));
         let (ns_b, if_b) = (pair.ns_b.clone(), pair.if_b.clone());
         let stop_io = stop.clone();
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let io = std::thread::spawn(move || {
             ecsync_net::sys::enter_netns(&ns_b).expect("enter namespace B");
             let task = tx_rx_task(&if_b, tx, rx).expect("ethercrab's raw socket");
+            let _ = ready_tx.send(());
             let stopped = async {
                 while !stop_io.load(Ordering::Relaxed) {
                     async_io::Timer::after(Duration::from_millis(10)).await;
@@ -549,8 +551,20 @@ mod ethercrab_raw {
                 stopped,
             ));
         });
-        let maindevice =
-            MainDevice::new(pdu_loop, Timeouts::default(), MainDeviceConfig::default());
+        // The first PDU's timeout runs from its send: wait until the socket is open.
+        ready_rx
+            .recv_timeout(Duration::from_secs(10))
+            .expect("ethercrab's TX/RX task started");
+        // ethercrab's defaults (30 ms per PDU, 10 ms per EEPROM wait) are for a master with a
+        // core of its own. Here both ends are ordinary processes on a shared VM whose stalls
+        // reach tens of ms; a late reply is no error of the segment, a lost one still is (no
+        // retries).
+        let timeouts = Timeouts {
+            pdu: Duration::from_millis(500),
+            eeprom: Duration::from_millis(500),
+            ..Timeouts::default()
+        };
+        let maindevice = MainDevice::new(pdu_loop, timeouts, MainDeviceConfig::default());
 
         let result: Result<(), Error> = futures_lite::future::block_on(async {
             let group = maindevice

@@ -243,9 +243,17 @@ fn run(storage: &'static Storage, specs: Vec<SlaveSpec>, delay_tolerance_ns: f64
     let (tx, rx, pdu_loop) = storage.try_split().expect("split once");
     let start = Instant::now();
     let wire = Wire::spawn(segment, tx, rx, start);
+    // ethercrab's default timeouts (30 ms per PDU, 10 ms per EEPROM wait) assume a master with
+    // a core of its own; here the wire is a thread on a shared 2-core VM whose stalls reach tens
+    // of ms. A late reply is no error of the segment; a lost one still fails (no retries).
+    let timeouts = Timeouts {
+        pdu: Duration::from_millis(500),
+        eeprom: Duration::from_millis(500),
+        ..Timeouts::default()
+    };
     let maindevice = MainDevice::new(
         pdu_loop,
-        Timeouts::default(),
+        timeouts,
         MainDeviceConfig {
             dc_static_sync_iterations: STATIC_SYNC_ITERATIONS,
             ..Default::default()
