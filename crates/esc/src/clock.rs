@@ -78,9 +78,10 @@ struct Split {
 
 /// `(x.floor() as i64, x.floor())` without a libm call (the baseline x86-64 target has no
 /// SSE4.1 `roundsd`) and with one float-to-integer conversion: truncation, corrected for
-/// negative non-integers. Exact for |x| < 2^63 (from 2^53 on, x is an integer).
+/// negative non-integers. Exact for |x| < 2^63 (from 2^53 on, x is an integer); beyond, the
+/// integer saturates as `as i64` does. Shared with the master's simulated clock.
 #[inline]
-fn floor_split(x: f64) -> (i64, f64) {
+pub fn floor_split(x: f64) -> (i64, f64) {
     let w = x as i64;
     let t = w as f64;
     if t > x {
@@ -428,10 +429,15 @@ mod fast_math_tests {
             10.0,
             12345.678,
             -3e12 - 0.5,
+            9.1e15 + 0.5,
             1.0e17,
             -1.0e17,
         ] {
             assert_eq!(floor_split(x), (x.floor() as i64, x.floor()), "{x}");
+        }
+        // Beyond i64: the integer saturates as `as` does.
+        for x in [1e300, -1e300] {
+            assert_eq!(floor_split(x).0, x.floor() as i64, "{x}");
         }
     }
 }

@@ -84,7 +84,8 @@ impl MasterClock {
         let l = &self.line;
         // Signed: a time slightly before the anchor reads back along the same line.
         let d = (t_ps.wrapping_sub(l.anchor_ps) as i64) as f64 * l.ns_per_ps + l.a_frac;
-        l.a_ns.wrapping_add(floor_i64(d) as u64)
+        l.a_ns
+            .wrapping_add(ecsync_esc::clock::floor_split(d).0 as u64)
     }
 
     /// Real time (ps) at which the master clock reads `t_ns` (the inverse of
@@ -106,14 +107,6 @@ impl MasterClock {
             self.advance(next);
         }
     }
-}
-
-/// `x.floor() as i64` without a libm call (the baseline x86-64 target has no SSE4.1 `roundsd`)
-/// and with one float-to-integer conversion. Exact for |x| < 2^63.
-#[inline]
-fn floor_i64(x: f64) -> i64 {
-    let w = x as i64;
-    if w as f64 > x { w.saturating_sub(1) } else { w }
 }
 
 /// A frame exchange as the driver saw it, for observers.
@@ -272,27 +265,6 @@ pub mod pcap_file_error {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn floor_i64_is_the_floor() {
-        for x in [
-            -10.5,
-            -10.0,
-            -0.25,
-            0.0,
-            0.25,
-            9.999,
-            10.0,
-            -3e12 - 0.5,
-            9.1e15 + 0.5,
-            1.0e17,
-            -1.0e17,
-            1e300,
-            -1e300,
-        ] {
-            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
-        }
-    }
 
     #[test]
     fn master_clock_inverts() {
