@@ -15,7 +15,11 @@
 //!    `dt = (L(t) + offset - delay) - V` (datasheet section I, 9.1.3.3). Differences of 2^30 ns
 //!    or more are shown but do not steer the clock (the datasheet guarantees nothing there).
 //! 2. `dt` is averaged with an exponential filter of weight `2^-depth` (depth = 0x0934 bits 3:0;
-//!    depth 0 means no averaging). 0x092C shows `-dt_filtered` = received - local, sign-magnitude.
+//!    depth 0 means no averaging). 0x092C shows `dt_filtered` = local copy - received,
+//!    sign-magnitude: bits 30:0 the magnitude, bit 31 set when the local copy is smaller than the
+//!    received time (Beckhoff ESC register description as Infineon's XMC4800 reference manual
+//!    reproduces it). The reset value is 0x00000000, and an exact zero difference reads 0 too,
+//!    so the reference clock, which is never compared, reads 0 (as real ones do).
 //! 3. Phase: after each write the clock is slewed by `-dt_filtered`, one nanosecond per
 //!    `speed counter start` (0x0930) ticks of 10 ns, i.e. at a rate of `1 / (10 * start)`
 //!    (24.4 ppm for the default 0x1000), until that amount is applied or the next write replaces
@@ -116,8 +120,8 @@ pub struct DcUnit {
     dt_filter_depth: u8,
     speed_filter_depth: u8,
     dt_filtered: f64,
-    /// 0x092C as read: `dt_filtered` rounded, negated and sign-magnitude encoded, kept in step
-    /// with it (the cyclic frame reads it from every slave).
+    /// 0x092C as read: `dt_filtered` (local - received) rounded and sign-magnitude encoded, kept
+    /// in step with it (the cyclic frame reads it from every slave).
     diff_register: u32,
     // Derived from the registers above, kept so the hot path divides nothing.
     dt_weight: f64,
@@ -249,7 +253,8 @@ impl DcUnit {
         self.delay
     }
 
-    /// Filtered system time difference in ns (what 0x092C shows, signed).
+    /// Filtered system time difference `local copy - received` in ns (what 0x092C shows,
+    /// signed as [`dc_time::decode_time_difference`] decodes it).
     pub fn time_difference_ns(&self) -> f64 {
         self.dt_filtered
     }
@@ -648,7 +653,7 @@ impl DcUnit {
     #[inline]
     fn set_dt_filtered(&mut self, v: f64) {
         self.dt_filtered = v;
-        self.diff_register = dc_time::encode_time_difference(-round_fast(v));
+        self.diff_register = dc_time::encode_time_difference(round_fast(v));
     }
 
     /// The next write only seeds the drift estimator; the batch restarts.
@@ -801,21 +806,41 @@ mod tests {
 
     #[test]
     fn sign_magnitude_difference_after_a_write() {
+        // The register description of 0x092C: bits 30:0 = |local copy - received|, bit 31 = 1
+        // when the local copy is smaller than the received time, 0 when greater or equal; reset
+        // value 0x00000000.
         let mut u = unit(0.0, 0);
+        let read = |u: &mut DcUnit| {
+            let mut block = [0u8; DC_BLOCK_LEN];
+            u.refresh(&mut block, 0x092c, 0x0930, 100 * US);
+            u32::from_le_bytes(block[0x2c..0x30].try_into().unwrap())
+        };
+        assert_eq!(read(&mut u), 0x0000_0000, "reset value");
         u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0], 0);
+        assert_eq!(read(&mut u), 0x0000_0000, "after a filter depth write");
         // Local system time at t = 100 us is 100_000; write 100_300 with delay 0: the local copy
-        // is 300 ns behind the received time, so bit 31 is clear and the magnitude 300.
+        // is 300 ns smaller than the received time, so bit 31 is set and the magnitude 300.
         u.write(reg::DC_SYSTEM_TIME, &100_300u64.to_le_bytes(), 100 * US);
-        let mut block = [0u8; DC_BLOCK_LEN];
-        u.refresh(&mut block, 0x092c, 0x0930, 100 * US);
-        let raw = u32::from_le_bytes(block[0x2c..0x30].try_into().unwrap());
-        assert_eq!(raw, 300);
-        // With a delay of 500 ns the local copy minus the delay is 200 ns ahead: bit 31 set.
+        assert_eq!(read(&mut u), 0x8000_0000 | 300);
+        assert_eq!(u.time_difference_ns(), -300.0);
+        // With a delay of 500 ns the local copy minus the delay (99_500) is 200 ns greater than
+        // the received 99_300: bit 31 clear.
         u.write(reg::DC_SYSTEM_TIME_DELAY, &500u32.to_le_bytes(), 100 * US);
         u.write(reg::DC_SYSTEM_TIME, &99_300u64.to_le_bytes(), 100 * US);
-        u.refresh(&mut block, 0x092c, 0x0930, 100 * US);
-        let raw = u32::from_le_bytes(block[0x2c..0x30].try_into().unwrap());
-        assert_eq!(raw, 0x8000_0000 | 200);
+        assert_eq!(read(&mut u), 200);
+        assert_eq!(u.time_difference_ns(), 200.0);
+        // Equal ("greater than or equal"): bit 31 clear, the register reads 0x00000000.
+        u.write(reg::DC_SYSTEM_TIME, &99_500u64.to_le_bytes(), 100 * US);
+        assert_eq!(read(&mut u), 0x0000_0000);
+        // Writing the speed counter start resets the register to 0.
+        u.write(reg::DC_SYSTEM_TIME, &99_000u64.to_le_bytes(), 100 * US);
+        assert_eq!(read(&mut u), 500);
+        u.write(
+            reg::DC_SPEED_COUNTER_START,
+            &0x1000u16.to_le_bytes(),
+            100 * US,
+        );
+        assert_eq!(read(&mut u), 0x0000_0000);
     }
 
     #[test]

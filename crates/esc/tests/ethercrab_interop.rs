@@ -182,7 +182,9 @@ impl Drop for Wire {
     }
 }
 
-/// 0x092C is sign-magnitude: bit 31 set = negative.
+/// 0x092C is sign-magnitude, `local copy - received`: bits 30:0 the magnitude, bit 31 set when
+/// the local copy is smaller (negative). Written out here rather than taken from ecsync-wire, so
+/// that the test reads the register as a master written against the register description would.
 fn decode_time_difference(raw: u32) -> i64 {
     let mag = i64::from(raw & 0x7fff_ffff);
     if raw & 0x8000_0000 != 0 { -mag } else { mag }
@@ -439,14 +441,19 @@ fn run(storage: &'static Storage, specs: Vec<SlaveSpec>, delay_tolerance_ns: f64
             assert!(echoed / 16 >= 197, "drive {i}: inputs are fresh ({echoed})");
         }
         // 0x092C stays locked while SYNC0 runs.
+        let mut raws = vec![0u32; n];
         for (i, sd) in group.iter(&maindevice).enumerate() {
-            let raw = sd
+            raws[i] = sd
                 .register_read::<u32>(RegisterAddress::DcSystemTimeDifference)
                 .await?;
-            diffs[i] = decode_time_difference(raw);
+            diffs[i] = decode_time_difference(raws[i]);
         }
-        eprintln!("0x092C in OP: {diffs:?}");
+        eprintln!("0x092C in OP: {diffs:?} (raw {raws:08x?})");
         assert!(diffs.iter().all(|d| d.abs() < LOCK_NS), "{diffs:?}");
+        // ethercrab's reference clock (drive 0, the first with DC) is read by FRMW and never
+        // compared: it holds the reset value 0x00000000, as the EK1100 in the real capture
+        // replay-dc.pcapng does (bit 31 set would say "local copy smaller than received").
+        assert_eq!(raws[0], 0x0000_0000, "the reference's 0x092C");
         Ok(())
     });
     let (segment, frames) = wire.finish();

@@ -38,35 +38,43 @@ pub const fn phase_in_period(t: u64, period_ns: u32) -> u32 {
     (t % period_ns as u64) as u32
 }
 
-/// Decodes the System Time Difference register (0x092C) into `received - local copy` in ns.
+/// Bit 31 of the System Time Difference register (0x092C): set when the local copy of the system
+/// time is smaller than the received system time.
+pub const TIME_DIFFERENCE_LOCAL_SMALLER: u32 = 0x8000_0000;
+
+/// Decodes the System Time Difference register (0x092C) into `local copy - received` in ns.
 ///
-/// The register is sign-magnitude: bits 30:0 hold |received system time - local copy of system
-/// time| and bit 31 is set when the local copy is greater than or equal to the received time
-/// (ESC datasheet section II v3.3, register 0x092C; the v2.x text had the polarity reversed and was
-/// corrected in v2.8). Decoding bit 31 as a minus sign therefore yields `received - local`: a
-/// negative value means this clock is ahead of the reference.
+/// The register is sign-magnitude (Beckhoff ESC register description, register 0x092C, as
+/// Infineon's XMC4800 reference manual reproduces it): bits 30:0 hold the mean difference
+/// between the local copy of the system time and the received system time values, |local -
+/// received|; bit 31 is 0 when the local copy is greater than or equal to the received system
+/// time and 1 when it is smaller. Decoding bit 31 as a minus sign therefore yields
+/// `local - received`: a positive value means this clock is ahead of the time written to it (of
+/// the reference, in a synchronised segment), a negative one that it is behind. The reset value
+/// is 0x00000000, so a clock that was never compared (the reference) reads 0.
 #[inline]
 pub const fn decode_time_difference(raw: u32) -> i32 {
     let magnitude = (raw & 0x7fff_ffff) as i32;
-    if raw & 0x8000_0000 != 0 {
+    if raw & TIME_DIFFERENCE_LOCAL_SMALLER != 0 {
         -magnitude
     } else {
         magnitude
     }
 }
 
-/// Encodes `received - local` in ns as the 0x092C value, saturating the magnitude at 2^31 - 1.
-/// Equality sets bit 31 ("local copy greater than or equal").
+/// Encodes `local copy - received` in ns as the 0x092C value (see [`decode_time_difference`]),
+/// saturating the magnitude at 2^31 - 1. Bit 31 is set only when the local copy is smaller than
+/// the received time; an exact zero difference encodes as 0x00000000, the reset value.
 #[inline]
-pub const fn encode_time_difference(received_minus_local_ns: i64) -> u32 {
-    let magnitude = received_minus_local_ns.unsigned_abs();
+pub const fn encode_time_difference(local_minus_received_ns: i64) -> u32 {
+    let magnitude = local_minus_received_ns.unsigned_abs();
     let magnitude = if magnitude > 0x7fff_ffff {
         0x7fff_ffff
     } else {
         magnitude as u32
     };
-    if received_minus_local_ns <= 0 {
-        magnitude | 0x8000_0000
+    if local_minus_received_ns < 0 {
+        magnitude | TIME_DIFFERENCE_LOCAL_SMALLER
     } else {
         magnitude
     }
@@ -94,19 +102,37 @@ mod tests {
 
     #[test]
     fn time_difference_matches_the_register_description() {
-        // Local copy 100 ns behind the received time: bit 31 clear, magnitude 100.
-        assert_eq!(encode_time_difference(100), 0x64);
+        // Hand-worked from the register description of 0x092C: bits 30:0 = |local - received|,
+        // bit 31 = 0 when local >= received, 1 when local < received.
+        //
+        // Local copy 0x1000_0064, received 0x1000_0000: local greater by 100 ns, bit 31 clear.
+        let local_greater = diff_u32(0x1000_0064, 0x1000_0000) as i64;
+        assert_eq!(encode_time_difference(local_greater), 0x0000_0064);
         assert_eq!(decode_time_difference(0x0000_0064), 100);
-        // Local copy 100 ns ahead: bit 31 set.
-        assert_eq!(encode_time_difference(-100), 0x8000_0064);
+        // Local copy 0x1000_0000, received 0x1000_0064: local smaller by 100 ns, bit 31 set.
+        let local_smaller = diff_u32(0x1000_0000, 0x1000_0064) as i64;
+        assert_eq!(encode_time_difference(local_smaller), 0x8000_0064);
         assert_eq!(decode_time_difference(0x8000_0064), -100);
-        // Equal: "greater than or equal" sets bit 31; decodes to 0.
-        assert_eq!(encode_time_difference(0), 0x8000_0000);
+        // Equal: "greater than or equal" keeps bit 31 clear; the register reads 0x00000000.
+        assert_eq!(encode_time_difference(0), 0x0000_0000);
+        assert_eq!(decode_time_difference(0x0000_0000), 0);
+        // The reset value decodes to no difference.
+        assert_eq!(decode_time_difference(0), 0);
+        // A 0x80000000 (bit 31 with magnitude 0) still decodes to 0, but is never produced.
         assert_eq!(decode_time_difference(0x8000_0000), 0);
-        assert_eq!(encode_time_difference(i64::MIN), 0xffff_ffff);
-        assert_eq!(encode_time_difference(1 << 40), 0x7fff_ffff);
-        // Not two's complement: -1 is 0x80000001, not 0xffffffff.
+        // Local smaller by 1 ns: sign-magnitude, not two's complement (0x80000001, not 0xffffffff).
         assert_eq!(encode_time_difference(-1), 0x8000_0001);
+        assert_eq!(encode_time_difference(1), 0x0000_0001);
+        // Saturation of the 31 magnitude bits, either sign.
+        assert_eq!(encode_time_difference(i64::MIN), 0xffff_ffff);
+        assert_eq!(encode_time_difference(-(1 << 40)), 0xffff_ffff);
+        assert_eq!(encode_time_difference(1 << 40), 0x7fff_ffff);
+        // Round trip within the magnitude range; the magnitude bits are always |difference|.
+        for d in [-0x7fff_ffff_i64, -12_345, -1, 0, 1, 40, 0x7fff_ffff] {
+            let raw = encode_time_difference(d);
+            assert_eq!(i64::from(decode_time_difference(raw)), d);
+            assert_eq!(u64::from(raw & 0x7fff_ffff), d.unsigned_abs());
+        }
     }
 
     #[test]

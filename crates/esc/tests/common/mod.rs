@@ -1,0 +1,139 @@
+//! Shared by the integration tests that read the real captures in `../shared/captures/`
+//! (Wireshark captures of real EtherCAT hardware recorded by the ethercrab project; see that
+//! folder's README.md) and by those that drive a segment frame by frame.
+
+#![allow(dead_code)] // each test binary uses its own part
+
+use ecsync_esc::Segment;
+use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
+use pcap_file::pcapng::{Block, PcapNgReader};
+use std::path::PathBuf;
+
+/// The folder of the real captures: `shared/captures` beside the repository (as laid out for
+/// developers and CI). `None` outside CI when it is missing; in CI its absence fails the test.
+pub fn captures_dir() -> Option<PathBuf> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/captures");
+    if dir.join("replay-dc.pcapng").is_file() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{} is missing in CI: the real captures are part of shared/",
+        dir.display()
+    );
+    eprintln!("SKIPPED: {} not found", dir.display());
+    None
+}
+
+/// One Ethernet frame of a capture.
+pub struct CapturedFrame {
+    /// 1-based frame number, as Wireshark numbers it.
+    pub number: usize,
+    /// Capture time since the first frame, ns.
+    pub t_ns: u64,
+    /// The bytes as captured.
+    pub data: Vec<u8>,
+}
+
+/// Every enhanced packet of a pcapng file, in order.
+pub fn read_pcapng(path: &std::path::Path) -> Vec<CapturedFrame> {
+    let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut r = PcapNgReader::new(std::io::BufReader::new(file)).expect("pcapng header");
+    let mut out = Vec::new();
+    let mut t0 = None;
+    while let Some(b) = r.next_block() {
+        if let Block::EnhancedPacket(p) = b.expect("pcapng block") {
+            let t = p.timestamp.as_nanos() as u64;
+            let t0 = *t0.get_or_insert(t);
+            out.push(CapturedFrame {
+                number: out.len() + 1,
+                t_ns: t - t0,
+                data: p.data.into_owned(),
+            });
+        }
+    }
+    out
+}
+
+/// Whether a captured EtherCAT frame has passed the segment: the first ESC sets bit 1 of the
+/// source MAC's first byte on the way through (ESC datasheet section I, "Frame processing").
+pub fn has_returned(frame: &[u8]) -> bool {
+    frame.len() >= 12 && frame[6] & 0x02 != 0
+}
+
+/// One datagram as captured or answered.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Dg {
+    pub command: u8,
+    pub index: u8,
+    pub adp: u16,
+    pub ado: u16,
+    pub data: Vec<u8>,
+    pub wkc: u16,
+}
+
+/// The datagrams of an EtherCAT frame (empty if it is not one).
+pub fn datagrams(frame: &[u8]) -> Vec<Dg> {
+    let Ok(f) = EcatFrame::new_checked(frame) else {
+        return Vec::new();
+    };
+    f.datagrams()
+        .map_while(Result::ok)
+        .map(|d| Dg {
+            command: d.command_code(),
+            index: d.index(),
+            adp: d.adp(),
+            ado: d.ado(),
+            data: d.data().to_vec(),
+            wkc: d.wkc(),
+        })
+        .collect()
+}
+
+/// A segment driven one frame at a time, `step_ps` apart.
+pub struct Bus {
+    pub seg: Segment,
+    pub t_ps: u64,
+}
+
+impl Bus {
+    pub fn new(seg: Segment) -> Self {
+        Bus { seg, t_ps: 0 }
+    }
+
+    /// Sends one frame holding `dgs` (command, address, data) at `t_ps` and returns the answered
+    /// datagrams.
+    pub fn frame(&mut self, t_ps: u64, dgs: &[(Command, DatagramAddress, &[u8])]) -> Vec<Dg> {
+        let mut buf = [0u8; 1514];
+        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0x10; 6]).unwrap();
+        for (i, (c, a, d)) in dgs.iter().enumerate() {
+            b.push(*c, i as u8, *a, d).unwrap();
+        }
+        let n = b.finish();
+        self.t_ps = t_ps;
+        let out = self.seg.process(&mut buf[..n], t_ps);
+        assert!(out.returned_sof_ps.is_some(), "the frame returns");
+        datagrams(&buf[..n])
+    }
+
+    /// One datagram in its own frame, 100 us after the previous frame.
+    pub fn one(&mut self, c: Command, a: DatagramAddress, d: &[u8]) -> Dg {
+        let t = self.t_ps + 100_000_000;
+        self.frame(t, &[(c, a, d)]).remove(0)
+    }
+}
+
+/// Configured-address addressing.
+pub fn fp(station: u16, ado: u16) -> DatagramAddress {
+    DatagramAddress::Configured { adp: station, ado }
+}
+
+/// The little-endian u32 at the start of `d`.
+pub fn u32_of(d: &[u8]) -> u32 {
+    u32::from_le_bytes(d[..4].try_into().unwrap())
+}
+
+/// The little-endian u64 at the start of `d`.
+pub fn u64_of(d: &[u8]) -> u64 {
+    u64::from_le_bytes(d[..8].try_into().unwrap())
+}
