@@ -4,7 +4,8 @@
 //! [segment]
 //! [[segment.slave]]
 //! name = "drive-1"
-//! model = "servo-mii"        # servo-mii | ebus-terminal | ebus-terminal-no-dc | junction-mii
+//! model = "servo-mii"        # servo-mii | servo-mii-dc32 | ebus-terminal | ebus-terminal-no-dc
+//!                            # | junction-mii
 //! device = "servo-drive"     # servo-drive | coupler
 //! upstream = "master"        # "master" or the name of a slave listed before this one
 //! upstream_port = 1          # port of the upstream slave (not used for the master)
@@ -12,6 +13,16 @@
 //! cable_m = 2.0
 //! ppm = 12.4                 # crystal error
 //! ```
+//!
+//! ESC models ([`EscModel`]; 0x0008 as real chips of each class show it, see
+//! [`EscModel::features`]):
+//! - `servo-mii`: ET1100-class servo drive, MII ports 0 and 1 to 100BASE-TX PHYs, 64-bit DC,
+//!   features 0x00FC.
+//! - `servo-mii-dc32`: the same drive with a 32-bit DC unit, as the Kollmorgen AKD (ESC type
+//!   0x04, features 0x0184): its system time wraps every 4.295 s.
+//! - `ebus-terminal`: ET1200-class EBUS terminal, 64-bit DC, features 0x01FC.
+//! - `ebus-terminal-no-dc`: the same without a DC unit (features 0x01F0).
+//! - `junction-mii`: ET1100-class junction with four MII ports, 64-bit DC, features 0x00FC.
 
 use crate::clock::CrystalParams;
 use crate::model::{DcSupport, DeviceInfo, EscModel, PortKind};
@@ -215,6 +226,7 @@ impl SegmentConfig {
             }
             let mut model = match s.model.as_str() {
                 "servo-mii" => EscModel::servo_mii(),
+                "servo-mii-dc32" => EscModel::servo_mii_dc32(),
                 "ebus-terminal" => EscModel::ebus_terminal(DcSupport::Full64),
                 "ebus-terminal-no-dc" => EscModel::ebus_terminal(DcSupport::None),
                 "junction-mii" => EscModel::junction_mii(),
@@ -223,7 +235,7 @@ impl SegmentConfig {
                         line,
                         f("model"),
                         format!("unknown ESC model \"{other}\""),
-                        "use servo-mii, ebus-terminal, ebus-terminal-no-dc or junction-mii",
+                        "use servo-mii, servo-mii-dc32, ebus-terminal, ebus-terminal-no-dc or junction-mii",
                     ));
                 }
             };
@@ -401,6 +413,38 @@ ppm = -3.5
         assert_eq!(specs.len(), 2);
         assert_eq!(specs[1].upstream, Upstream::Slave { index: 0, port: 1 });
         assert_eq!(specs[1].crystal.ppm, -3.5);
+    }
+
+    #[test]
+    fn every_model_name_builds_its_model() {
+        for (name, model) in [
+            ("servo-mii", EscModel::servo_mii()),
+            ("servo-mii-dc32", EscModel::servo_mii_dc32()),
+            ("ebus-terminal", EscModel::ebus_terminal(DcSupport::Full64)),
+            (
+                "ebus-terminal-no-dc",
+                EscModel::ebus_terminal(DcSupport::None),
+            ),
+            ("junction-mii", EscModel::junction_mii()),
+        ] {
+            let text = GOOD.replace("name = \"b\"", &format!("name = \"b\"\nmodel = \"{name}\""));
+            let specs = parse_segment("net.toml", &text).unwrap();
+            assert_eq!(specs[1].model, model, "{name}");
+        }
+        let specs = parse_segment(
+            "net.toml",
+            &GOOD.replace("name = \"b\"", "name = \"b\"\nmodel = \"servo-mii-dc32\""),
+        )
+        .unwrap();
+        assert_eq!(specs[1].model.dc, DcSupport::Full32);
+        assert_eq!(specs[1].model.features(), 0x0184);
+        let e = parse_segment(
+            "net.toml",
+            &GOOD.replace("name = \"b\"", "name = \"b\"\nmodel = \"akd\""),
+        )
+        .unwrap_err();
+        assert_eq!(e.field, "segment.slave[1].model");
+        assert!(e.fix.contains("servo-mii-dc32"), "{e}");
     }
 
     #[test]

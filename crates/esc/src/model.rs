@@ -68,6 +68,19 @@ impl DcSupport {
     }
 }
 
+/// ESC type (0x0000) of the ET1100.
+pub const ESC_TYPE_ET1100: u8 = 0x11;
+/// ESC type (0x0000) of the ET1200.
+pub const ESC_TYPE_ET1200: u8 = 0x12;
+/// ESC type (0x0000) the Kollmorgen AKD reports (soem-sdinfo-akd.pcapng, BRD of 0x0000).
+pub const ESC_TYPE_AKD: u8 = 0x04;
+/// 0x0008 as ET1100-based devices show it (EK1100, EK1914, EL2889 in ../shared/captures/).
+pub const FEATURES_ET1100: u16 = 0x00fc;
+/// 0x0008 as ET1200 terminals show it (EL2828, EL3004, EL1004 in ../shared/captures/).
+pub const FEATURES_ET1200: u16 = 0x01fc;
+/// 0x0008 as the Kollmorgen AKD shows it (soem-sdinfo-akd.pcapng): 32-bit DC.
+pub const FEATURES_AKD: u16 = 0x0184;
+
 /// An ESC model: the silicon and the board around it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EscModel {
@@ -103,12 +116,16 @@ pub struct EscModel {
 
 impl EscModel {
     /// An ET1100-class ESC with MII ports 0 and 1 to 100BASE-TX PHYs, as in a servo drive with
-    /// two RJ45 sockets. Delays: about 485 ns per direction per hop including both PHYs (measured
-    /// EK1100 -> EK1914 over 100BASE-TX in ethercrab's captures), split into 180 ns through the
-    /// ESC and 300 ns for the two PHYs; tDiff = 0 (not published for the ET1100).
+    /// two RJ45 sockets. Delays, assumed (no capture measures an MII hop between two ET1100
+    /// ESCs): 485 ns per direction per hop, 180 ns through the ESC plus 300 ns for the two PHYs
+    /// of the 100BASE-TX link, plus the cable; tDiff = 0 (not published for the ET1100). The one
+    /// measured MII hop at hand, LAN9252 to LAN9252 over 100BASE-TX (SOEM, ../shared/captures/
+    /// README.md), shows about 1440 ns round trip, ~720 ns per direction: real hops may be up to
+    /// ~235 ns longer per direction than this model's, and SYNC0 margins computed on it shrink
+    /// by that much per hop. Kept as it is so that every calibrated figure stays the same.
     pub fn servo_mii() -> Self {
         EscModel {
-            esc_type: 0x11,
+            esc_type: ESC_TYPE_ET1100,
             revision: 0,
             build: 0,
             fmmu_count: 8,
@@ -123,10 +140,26 @@ impl EscModel {
         }
     }
 
-    /// An ET1200-class EBUS terminal (ports 0 and 1), about 150 ns per hop each way.
+    /// A servo drive whose ESC has a 32-bit DC unit, as the Kollmorgen AKD in
+    /// ../shared/captures/soem-sdinfo-akd.pcapng: ESC type 0x04, revision 0x02 (its BRD of
+    /// 0x0000), features 0x0184 (DC without the 64-bit bit). Its system time, 0x0910 and every
+    /// DC time register wrap every 2^32 ns (4.295 s), so masters' 32-bit wrap handling is
+    /// exercised. Ports and delays as [`EscModel::servo_mii`] (two MII ports to 100BASE-TX PHYs;
+    /// the capture has a single drive, so no hop delay is measured).
+    pub fn servo_mii_dc32() -> Self {
+        EscModel {
+            esc_type: ESC_TYPE_AKD,
+            revision: 0x02,
+            dc: DcSupport::Full32,
+            ..Self::servo_mii()
+        }
+    }
+
+    /// An ET1200-class EBUS terminal (ports 0 and 1), about 150 ns per hop each way; 0x0008
+    /// as ET1200 terminals read it (0x01FC with DC, see [`EscModel::features`]).
     pub fn ebus_terminal(dc: DcSupport) -> Self {
         EscModel {
-            esc_type: 0x12,
+            esc_type: ESC_TYPE_ET1200,
             revision: 0,
             build: 0,
             fmmu_count: 3,
@@ -146,10 +179,11 @@ impl EscModel {
         }
     }
 
-    /// An ET1100-class junction with four MII ports (star coupler), receive times only.
+    /// An ET1100-class junction with four MII ports (star coupler), with the ET1100's 64-bit DC
+    /// unit (0x0008 = 0x00FC as on the EK1100).
     pub fn junction_mii() -> Self {
         EscModel {
-            esc_type: 0x11,
+            esc_type: ESC_TYPE_ET1100,
             revision: 0,
             build: 0,
             fmmu_count: 8,
@@ -164,19 +198,42 @@ impl EscModel {
         }
     }
 
-    /// The ESC features register 0x0008 for this model.
+    /// The ESC features register 0x0008 for this model: the value real chips of its ESC type
+    /// show (read from the captures of real devices in ../shared/captures/), with the DC bits
+    /// following the model's [`DcSupport`]:
+    /// - ET1100 (type 0x11): 0x00FC, read from the EK1100 (replay-dc.pcapng,
+    ///   soem-sdinfo-ek1100-el1004.pcapng), the EK1914 (replay-ek1914-el3004-mailbox.pcapng)
+    ///   and the EL2889 (replay-dc.pcapng): byte-oriented FMMU bit 0 clear (bit oriented), DC,
+    ///   64-bit DC, low jitter EBUS, enhanced link detection EBUS and MII, separate FCS error
+    ///   handling; no enhanced DC SYNC activation (bit 8). Models: servo-mii, junction-mii.
+    /// - ET1200 (type 0x12): 0x01FC, read from the EL2828 (replay-dc.pcapng), EL3004
+    ///   (replay-ek1914-el3004-mailbox.pcapng) and EL1004 (soem-sdinfo-ek1100-el1004.pcapng):
+    ///   the ET1100's bits plus enhanced DC SYNC activation. Model: ebus-terminal.
+    /// - The AKD's ESC (type 0x04): 0x0184, read from the Kollmorgen AKD
+    ///   (soem-sdinfo-akd.pcapng): DC (32 bit), separate FCS error handling, enhanced DC SYNC
+    ///   activation. Model: servo-mii-dc32.
+    /// - Any other type (a model built in code): the ET1100's value.
+    ///
+    /// DC (bit 2) is set when the model has a system time, 64-bit DC (bit 3) when it is 64 bits
+    /// wide: ebus-terminal-no-dc reads 0x01F0 (no real ET1200 lacks DC; the other bits are the
+    /// ET1200's), a 32-bit ET1100 model 0x00F4. Real chips differ here in one case: the EL2828
+    /// has receive times but no system time (0x0910 and 0x0918 do not count in
+    /// replay-dc.pcapng) and still reads 0x01FC, bit 2 meaning "at least receive times" as
+    /// ETG1000.4 defines it. A [`DcSupport::ReceiveTimes`] model clears bits 2 and 3 instead,
+    /// because ecsync's bring-up (`ecsync_master::bringup`) reads bit 2 as "has a system time"
+    /// and probes receive times only on slaves without it.
     pub fn features(&self) -> u16 {
         use ecsync_wire::register::features;
-        // Byte-oriented FMMUs are reported as bit 0 = 1; enhanced link detection; separate FCS.
-        let mut f =
-            features::ENHANCED_LINK_EBUS | features::ENHANCED_LINK_MII | features::SEPARATE_FCS;
-        f |= features::LOW_JITTER_EBUS;
+        let observed = match self.esc_type {
+            ESC_TYPE_ET1200 => FEATURES_ET1200,
+            ESC_TYPE_AKD => FEATURES_AKD,
+            _ => FEATURES_ET1100,
+        };
+        let mut f = observed & !(features::DC | features::DC_64BIT);
         match self.dc {
             DcSupport::None | DcSupport::ReceiveTimes => {}
-            DcSupport::Full32 => f |= features::DC | features::ENHANCED_DC_SYNC,
-            DcSupport::Full64 => {
-                f |= features::DC | features::DC_64BIT | features::ENHANCED_DC_SYNC
-            }
+            DcSupport::Full32 => f |= features::DC,
+            DcSupport::Full64 => f |= features::DC | features::DC_64BIT,
         }
         f
     }
@@ -310,14 +367,40 @@ mod tests {
     fn register_values() {
         let m = EscModel::servo_mii();
         assert_eq!(m.port_descriptor(), 0b0000_1111);
+    }
+
+    /// 0x0008 per model against the values real chips of each class show
+    /// (../shared/captures/README.md).
+    #[test]
+    fn features_are_those_of_real_chips() {
+        use ecsync_wire::register::features as f;
+        // ET1100 class (the EK1100 reads 0x00FC).
+        assert_eq!(EscModel::servo_mii().features(), 0x00fc);
+        assert_eq!(EscModel::junction_mii().features(), 0x00fc);
+        // ET1200 terminals (EL2828, EL3004, EL1004 read 0x01FC).
         assert_eq!(
-            m.features() & 0x010c,
-            0x010c,
-            "DC, 64 bit, enhanced SYNC activation"
+            EscModel::ebus_terminal(DcSupport::Full64).features(),
+            0x01fc
         );
+        // The AKD (32-bit DC) reads 0x0184: DC set, 64-bit DC clear.
+        let akd = EscModel::servo_mii_dc32();
+        assert_eq!(akd.features(), 0x0184);
+        assert_eq!(akd.features() & (f::DC | f::DC_64BIT), f::DC);
+        assert_eq!(akd.dc, DcSupport::Full32);
+        assert_eq!((akd.esc_type, akd.revision), (0x04, 0x02));
+        // Without a system time the DC bits are clear, the rest is the class's.
+        assert_eq!(EscModel::ebus_terminal(DcSupport::None).features(), 0x01f0);
         assert_eq!(
-            EscModel::ebus_terminal(DcSupport::None).features() & 0x0004,
-            0
+            EscModel::ebus_terminal(DcSupport::ReceiveTimes).features(),
+            0x01f0
         );
+        let mut et1100_32 = EscModel::servo_mii();
+        et1100_32.dc = DcSupport::Full32;
+        assert_eq!(et1100_32.features(), 0x00f4);
+        // Bit 0 clear on every model: FMMUs are bit oriented, as on every real ESC here.
+        for m in [EscModel::servo_mii(), EscModel::servo_mii_dc32()] {
+            assert_eq!(m.features() & f::FMMU_BYTE_ORIENTED, 0);
+            assert_eq!(m.features() & (f::NO_LRW | f::NO_READ_WRITE), 0);
+        }
     }
 }

@@ -58,6 +58,7 @@ const IFG_PS: u64 = 12 * ecsync_esc::BYTE_TIME_PS;
 type Storage = PduStorage<MAX_FRAMES, MAX_PDU_DATA>;
 static PDU_STORAGE_MII: Storage = PduStorage::new();
 static PDU_STORAGE_EBUS: Storage = PduStorage::new();
+static PDU_STORAGE_DC32: Storage = PduStorage::new();
 
 /// A query run by the TX/RX thread on the segment it owns (the segment is not `Sync`).
 type Query = Box<dyn FnOnce(&mut Segment) + Send>;
@@ -205,6 +206,24 @@ fn ethercrab_brings_the_paper_segment_to_op_with_dc() {
         &PDU_STORAGE_MII,
         preset::paper_2024(),
         MII_DELAY_TOLERANCE_NS,
+        0,
+    );
+}
+
+#[test]
+fn ethercrab_brings_a_segment_with_32_bit_dc_to_op_across_the_wrap() {
+    // The paper-2024 drives, the reference (drive 0) and drive 3 with 32-bit DC units (the
+    // Kollmorgen AKD's ESC, features 0x0184), and ethercrab's EtherCAT time started 250 ms
+    // before a 2^32 ns boundary, so the 32-bit system times wrap while the test runs.
+    let mut specs = preset::paper_2024();
+    for i in [0, 3] {
+        specs[i].model = EscModel::servo_mii_dc32();
+    }
+    run(
+        &PDU_STORAGE_DC32,
+        specs,
+        MII_DELAY_TOLERANCE_NS,
+        (1 << 32) - 250_000_000,
     );
 }
 
@@ -218,12 +237,29 @@ fn ethercrab_brings_an_ebus_segment_to_op_with_dc() {
             s
         })
         .collect();
-    run(&PDU_STORAGE_EBUS, specs, EBUS_DELAY_TOLERANCE_NS);
+    run(&PDU_STORAGE_EBUS, specs, EBUS_DELAY_TOLERANCE_NS, 0);
 }
 
-fn run(storage: &'static Storage, specs: Vec<SlaveSpec>, delay_tolerance_ns: f64) {
+/// `time_offset_ns`: ethercrab's EtherCAT time is the test's real time plus this.
+fn run(
+    storage: &'static Storage,
+    specs: Vec<SlaveSpec>,
+    delay_tolerance_ns: f64,
+    time_offset_ns: u64,
+) {
     let t_test = Instant::now();
     let segment = Segment::new(&specs).expect("segment");
+    // 0x0008 of real chips (../shared/captures/README.md): EK1100 (ET1100) 0x00FC, ET1200
+    // terminals 0x01FC, the Kollmorgen AKD (32-bit DC) 0x0184.
+    let want_features: Vec<u16> = specs
+        .iter()
+        .map(|s| match (s.model.esc_type, s.model.dc) {
+            (0x11, DcSupport::Full64) => 0x00fc,
+            (0x12, DcSupport::Full64) => 0x01fc,
+            (0x04, DcSupport::Full32) => 0x0184,
+            other => panic!("no real chip to compare with: {other:?}"),
+        })
+        .collect();
     let n = segment.len();
     let truth: Vec<f64> = segment
         .true_delays_ns(0)
@@ -268,7 +304,7 @@ fn run(storage: &'static Storage, specs: Vec<SlaveSpec>, delay_tolerance_ns: f64
         let t0 = Instant::now();
         let mut group = maindevice
             .init_single_group::<MAX_SUBDEVICES, PDI_LEN>(|| {
-                u64::try_from(start.elapsed().as_nanos()).unwrap()
+                u64::try_from(start.elapsed().as_nanos()).unwrap() + time_offset_ns
             })
             .await?;
         let init_time = t0.elapsed();
@@ -291,6 +327,11 @@ fn run(storage: &'static Storage, specs: Vec<SlaveSpec>, delay_tolerance_ns: f64
             let descr = sd.description().await?;
             assert_eq!(descr.as_deref(), Some(name.as_str()), "drive {i}: name");
             assert_eq!(name, &dev.name);
+            // 0x0008 as ethercrab reads it: what real chips of the drive's class show.
+            let feats = sd
+                .register_read::<u16>(RegisterAddress::SupportFlags)
+                .await?;
+            assert_eq!(feats, want_features[i], "drive {i}: features");
         }
 
         // 2. Propagation delays: ethercrab's view, what it wrote to 0x0928, the ground truth.
@@ -460,6 +501,13 @@ fn run(storage: &'static Storage, specs: Vec<SlaveSpec>, delay_tolerance_ns: f64
     result.expect("ethercrab against the virtual segment");
     for i in 0..n {
         assert_eq!(segment.esc(i).al_state(), 8, "drive {i} in OP");
+    }
+    if time_offset_ns != 0 {
+        let end = u64::try_from(start.elapsed().as_nanos()).unwrap() + time_offset_ns;
+        assert!(
+            end >> 32 > time_offset_ns >> 32,
+            "ethercrab's time crossed a 2^32 ns boundary"
+        );
     }
     eprintln!("{frames} frames, test runtime {:?}", t_test.elapsed());
 }

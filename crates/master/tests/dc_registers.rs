@@ -3,7 +3,7 @@
 
 use ecsync_esc::model::{DcSupport, EscModel};
 use ecsync_esc::{Segment, SlaveSpec, preset};
-use ecsync_master::sim::SimTransport;
+use ecsync_master::sim::{MasterClock, SIM_EPOCH_NS, SimTransport};
 use ecsync_master::{BringupConfig, Engine, Network, bringup};
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
@@ -85,4 +85,74 @@ fn check_reference_and_signs(specs: &[SlaveSpec]) {
         );
         assert!(dt.abs() < 100, "slave {i} locked: {dt} ns");
     }
+}
+
+/// The paper-2024 drives with the drives at `dc32` replaced by the 32-bit-DC drive model
+/// (servo-mii-dc32, the Kollmorgen AKD's ESC: 0x0008 = 0x0184).
+fn with_dc32(dc32: &[usize]) -> Vec<SlaveSpec> {
+    let mut specs = preset::paper_2024();
+    for &i in dc32 {
+        specs[i].model = EscModel::servo_mii_dc32();
+    }
+    specs
+}
+
+/// Brings `specs` up with the master's clock set so that the low 32 bits of its time, which the
+/// reference's system time takes at the latch, wrap `wrap_after_ns` after the simulation's start;
+/// checks the delays against the ground truth, the lock, and that the wrap fell between the
+/// start of drift compensation and the declared lock.
+fn check_32_bit(specs: &[SlaveSpec], wrap_after_ns: u64) {
+    let mut sim = SimTransport::new(Segment::new(specs).unwrap());
+    let epoch = SIM_EPOCH_NS - (SIM_EPOCH_NS + wrap_after_ns) % (1 << 32);
+    sim.master_clock = MasterClock::ideal(epoch);
+    let cfg = BringupConfig::default();
+    let mut engine = Engine::new(move |link| bringup(link, cfg));
+    let net = sim.run(&mut engine, |_, _, _| {}).expect("bring-up");
+    for s in &net.slaves {
+        let i = usize::from(s.position);
+        let dc32 = specs[i].model.dc == DcSupport::Full32;
+        assert_eq!(s.features, if dc32 { 0x0184 } else { 0x00fc }, "slave {i}");
+    }
+    let truth = sim.segment.true_delays_ns(usize::from(net.reference));
+    for s in &net.slaves {
+        let d = s.delay_ns.unwrap();
+        let t = truth[usize::from(s.position)].unwrap();
+        assert!((d - t).abs() <= 20.0, "slave {}: {d} vs {t}", s.position);
+    }
+    eprintln!("{:?}", net.lock);
+    assert!(net.lock.converged, "DC lock");
+    assert!(net.lock.max_abs_092c_after_lock_ns < 100);
+    let declared = net.lock.declared_ns.unwrap();
+    assert!(
+        net.lock.drift_start_ns >> 32 < declared >> 32,
+        "the 32-bit time wrapped during drift compensation ({:#x} .. {declared:#x})",
+        net.lock.drift_start_ns
+    );
+    let raws = read_092c(&mut sim, &net);
+    assert_eq!(raws[usize::from(net.reference)], 0);
+    assert!(raws.iter().all(|r| r & 0x7fff_ffff < 100), "{raws:08x?}");
+    // The 32-bit units' system time is the low half of the 64-bit ones'.
+    let t = sim.now_ps;
+    let st: Vec<u64> = (0..specs.len())
+        .map(|i| sim.segment.esc(i).dc().unwrap().system_time_ns(t))
+        .collect();
+    for (i, s) in specs.iter().enumerate() {
+        if s.model.dc == DcSupport::Full32 {
+            assert!(st[i] < 1 << 32, "slave {i}: {:#x}", st[i]);
+        }
+        let d = ecsync_wire::dc_time::diff_u32(st[i] as u32, st[0] as u32);
+        assert!(d.abs() < 100, "slave {i}: {d} ns from the reference");
+    }
+}
+
+#[test]
+fn a_32_bit_reference_comes_up_locked_across_the_wrap() {
+    // The first drive, the reference, has a 32-bit DC unit.
+    check_32_bit(&with_dc32(&[0]), 400_000_000);
+}
+
+#[test]
+fn slaves_with_32_bit_dc_come_up_locked_across_the_wrap() {
+    check_32_bit(&with_dc32(&[2, 5]), 400_000_000);
+    check_32_bit(&with_dc32(&[0, 1, 2, 3, 4, 5]), 100_000_000);
 }

@@ -106,8 +106,8 @@ pub const PROCESS_RAM: u16 = 0x1000;
 
 /// Bits of [`FEATURES`] (0x0008).
 pub mod features {
-    /// FMMU operation is bit oriented (0 = byte oriented).
-    pub const FMMU_BIT_OPERATION: u16 = 1 << 0;
+    /// FMMU operation is byte oriented (0 = bit oriented, as on the ET1100 and ET1200).
+    pub const FMMU_BYTE_ORIENTED: u16 = 1 << 0;
     /// Distributed clocks available.
     pub const DC: u16 = 1 << 2;
     /// DC system time is 64 bits wide (0 = 32 bits).
