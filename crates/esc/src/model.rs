@@ -116,13 +116,14 @@ pub struct EscModel {
 
 impl EscModel {
     /// An ET1100-class ESC with MII ports 0 and 1 to 100BASE-TX PHYs, as in a servo drive with
-    /// two RJ45 sockets. Delays, assumed (no capture measures an MII hop between two ET1100
-    /// ESCs): 485 ns per direction per hop, 180 ns through the ESC plus 300 ns for the two PHYs
-    /// of the 100BASE-TX link, plus the cable; tDiff = 0 (not published for the ET1100). The one
-    /// measured MII hop at hand, LAN9252 to LAN9252 over 100BASE-TX (SOEM, ../shared/captures/
-    /// README.md), shows about 1440 ns round trip, ~720 ns per direction: real hops may be up to
-    /// ~235 ns longer per direction than this model's, and SYNC0 margins computed on it shrink
-    /// by that much per hop. Kept as it is so that every calibrated figure stays the same.
+    /// two RJ45 sockets. Delays, assumed: about 485 ns per direction per hop, 180 ns through the
+    /// ESC plus 300 ns for the two PHYs of the 100BASE-TX link plus 5 ns/m of cable; tDiff = 0
+    /// (not published for the ET1100). No capture at hand measures an MII hop between two such
+    /// ESCs. The one measured MII hop available, LAN9252 to LAN9252 over 100BASE-TX (a SOEM
+    /// capture, ../shared/captures/README.md), shows about 1440 ns round trip, ~720 ns per
+    /// direction: real hops may be up to ~235 ns longer per direction than this model's, and
+    /// SYNC0 margins computed on it shrink by that much per hop. The numbers are kept so that
+    /// every calibrated figure stays the same.
     pub fn servo_mii() -> Self {
         EscModel {
             esc_type: ESC_TYPE_ET1100,
