@@ -120,12 +120,12 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
         eprintln!("captured {n} frames");
     }
     eprintln!(
-        "ecsync serve: stopped after {:.1} s: {} frames received, {} answered, {} not returned, {} skipped as returning frames.",
+        "ecsync serve: stopped after {:.1} s: {} frames received, {} answered, {} not returned; {} arrived with bit 0x02 of the source address set (processed as any frame).",
         t0.elapsed().as_secs_f64(),
         stats.received,
         stats.answered,
         stats.not_returned,
-        stats.skipped_returning
+        stats.marked_on_arrival
     );
     Ok(ExitCode::SUCCESS)
 }

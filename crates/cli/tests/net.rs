@@ -661,3 +661,104 @@ mod ethercrab_raw {
         result.expect("ethercrab over its raw socket against ecsync serve");
     }
 }
+
+mod raw_frames {
+    //! Single frames from the crate's own raw socket in namespace B against `ecsync serve` in
+    //! namespace A: what a real ESC answers at its port 0, whatever the master's source address.
+
+    use super::*;
+    use ecsync_net::sys::PacketSocket;
+    use ecsync_wire::{Command as Cmd, DatagramAddress, EcatFrame, FrameBuilder};
+
+    /// A locally administered unicast address (bit 0x02 of the first byte set).
+    const LOCAL_MAC: [u8; 6] = [0x02, 0x00, 0x00, 0x00, 0x00, 0x01];
+    /// A globally unique one.
+    const GLOBAL_MAC: [u8; 6] = [0x00, 0x1b, 0x21, 0xec, 0x00, 0x02];
+
+    /// A BRD of 0x0000 (ESC type, 1 byte) from `src` with datagram index `index`.
+    fn brd(src: [u8; 6], index: u8) -> Vec<u8> {
+        let mut buf = [0u8; 128];
+        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], src).unwrap();
+        b.push_zeroed(Cmd::Brd, index, DatagramAddress::position(0, 0x0000), 1)
+            .unwrap();
+        let n = b.finish();
+        buf[..n].to_vec()
+    }
+
+    /// Sends each frame of `requests` from a raw socket on `iface` in namespace `ns` and
+    /// collects every frame that arrives within 300 ms after each.
+    fn exchange(ns: &str, iface: &str, requests: Vec<Vec<u8>>) -> Vec<Vec<Vec<u8>>> {
+        let (ns, iface) = (ns.to_string(), iface.to_string());
+        std::thread::spawn(move || {
+            ecsync_net::sys::enter_netns(&ns).expect("enter namespace B");
+            let sock = PacketSocket::open(&iface).expect("raw socket");
+            let mut buf = [0u8; 2048];
+            requests
+                .iter()
+                .map(|req| {
+                    sock.send(req).expect("send");
+                    let t0 = Instant::now();
+                    let mut got = Vec::new();
+                    while t0.elapsed() < Duration::from_millis(300) {
+                        match sock.recv(&mut buf).expect("receive") {
+                            Some(r) => got.push(buf[..r.len].to_vec()),
+                            None => {
+                                sock.wait(10_000_000).expect("wait");
+                            }
+                        }
+                    }
+                    got
+                })
+                .collect()
+        })
+        .join()
+        .expect("the raw-socket thread")
+    }
+
+    /// The answer's only datagram: (index, ADP, working counter, data).
+    fn datagram(frame: &[u8]) -> (u8, u16, u16, Vec<u8>) {
+        let f = EcatFrame::new_checked(frame).expect("an EtherCAT frame");
+        let d = f.datagrams().next().unwrap().unwrap();
+        (d.index(), d.adp(), d.wkc(), d.data().to_vec())
+    }
+
+    /// The paper-2024 segment: six ET1100-class drives.
+    const SLAVES: u16 = 6;
+
+    #[test]
+    fn a_master_with_a_locally_administered_address_is_answered() {
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(pair) = NetPair::new("l") else {
+            return;
+        };
+        // The master's NIC has a locally administered address, and the master sends from it.
+        ip(&[
+            "-n",
+            &pair.ns_b,
+            "link",
+            "set",
+            "dev",
+            &pair.if_b,
+            "address",
+            "02:00:00:00:00:01",
+        ])
+        .expect("set the MAC address");
+        let _served = pair.serve(&[]);
+        let answers = exchange(
+            &pair.ns_b,
+            &pair.if_b,
+            vec![brd(LOCAL_MAC, 0x31), brd(GLOBAL_MAC, 0x32)],
+        );
+        for (a, (index, src)) in answers.iter().zip([(0x31, LOCAL_MAC), (0x32, GLOBAL_MAC)]) {
+            // Exactly one answer: the segment processed the request once and did not take its
+            // own answer, which its socket sees leave, for a new request.
+            assert_eq!(a.len(), 1, "request {index:#x} from {src:02x?}: {a:02x?}");
+            let f = &a[0];
+            // The first ESC marks the source address (bit 0x02 of the first byte).
+            assert_eq!(f[6], src[0] | 0x02);
+            assert_eq!(&f[7..12], &src[1..]);
+            // Every drive read: working counter 6, ADP incremented by each, ET1100 type 0x11.
+            assert_eq!(datagram(f), (index, SLAVES, SLAVES, vec![0x11]));
+        }
+    }
+}

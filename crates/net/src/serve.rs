@@ -3,6 +3,12 @@
 //! it. The ESCs' clocks run on CLOCK_MONOTONIC with their configured crystal errors, so a master
 //! on the other end sees drifting slave clocks, propagation delays and a time control loop as on
 //! real hardware.
+//!
+//! As a real ESC does with whatever arrives at its port 0, every EtherCAT frame is processed,
+//! whatever its source address says (a master whose NIC address is locally administered, bit
+//! 0x02 of the first byte set, is answered like any other). The segment's own answers, which a
+//! packet socket would see again on the way out, are told apart by the socket address's packet
+//! type (`PACKET_OUTGOING`, see [`crate::sys::PacketSocket`]), not by the frame's contents.
 
 use crate::link::NetError;
 use crate::sys::{self, PacketSocket, Ready};
@@ -18,9 +24,10 @@ pub struct ServeStats {
     pub received: u64,
     /// Frames processed and sent back.
     pub answered: u64,
-    /// Frames that had passed an ESC already (the source address marked): returning frames of
-    /// another segment, not requests.
-    pub skipped_returning: u64,
+    /// Frames that arrived with bit 0x02 of the source address's first byte set (a locally
+    /// administered master NIC, or a frame that had passed an ESC already): processed as any
+    /// frame, counted for the record.
+    pub marked_on_arrival: u64,
     /// Frames the segment did not return (malformed, or lost in the topology).
     pub not_returned: u64,
     /// Frames too long for the buffer.
@@ -61,8 +68,7 @@ pub fn serve<W: Write>(
         }
         let frame = &mut buf[..r.len];
         if frame.len() > 6 && frame[6] & 0x02 != 0 {
-            stats.skipped_returning += 1;
-            continue;
+            stats.marked_on_arrival += 1;
         }
         // The instant the frame arrived, on the segment's time line (ps since serving began).
         let mono = match r.kernel_rx_realtime_ns {
