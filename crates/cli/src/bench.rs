@@ -47,7 +47,7 @@ struct Out {
     /// Of the median repeat.
     ns_per_slave_cycle: f64,
     /// Wall time of the default `ecsync compare` (paper-2024, 5 runs x 1.8 M cycles after
-    /// 2 min of warm-up, five methods), s.
+    /// 2 min of warm-up, every method), s.
     default_compare_wall_s: Option<f64>,
     /// Simulated cycles per second of the default comparison, all threads.
     default_compare_cycles_per_s: Option<f64>,
@@ -56,6 +56,11 @@ struct Out {
 }
 
 pub fn run(args: Args) -> Result<ExitCode> {
+    if args.cycles == 0 {
+        anyhow::bail!(
+            "--cycles: 0 cycles cannot be timed; fix: give at least 1 (default 2000000; 500000 times in about a second)"
+        );
+    }
     let mut b = CycleBench::paper_2024();
     if let Some(p) = &args.part {
         let which = ["frmw", "lrw", "brd", "nop"]

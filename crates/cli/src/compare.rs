@@ -1,20 +1,46 @@
-//! `ecsync compare`: every master synchronization method on the same network, host and noise.
+//! `ecsync compare`: every master synchronization method on the same network, host and noise,
+//! and which to choose.
 
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
-use ecsync_lab::report::{self, csv, summarize, table1_text, write_atomic};
+use ecsync_lab::compare::Options;
+use ecsync_lab::report::{
+    self, csv, per_slave_text, summarize, table1_text, truth_text, verdict_text, write_atomic,
+};
+use ecsync_lab::scenario::{METHODS, Problem, plural};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
+
+/// What `--help` says after the options: the methods, the host presets, the defaults.
+pub fn after_help() -> String {
+    let mut t = String::from("Methods (default: all, in this order):\n");
+    for m in METHODS {
+        t.push_str(&format!(
+            "  {m:<18} {}\n",
+            ecsync_lab::scenario::method_summary(m)
+        ));
+    }
+    t.push_str("\nHost presets (--host; default preempt-rt-stress, the letter's testbed):\n");
+    for h in ecsync_lab::host::HostParams::PRESETS {
+        t.push_str(&format!("  {h}\n"));
+    }
+    t.push_str(
+        "\nDefaults (from the scenario; the built-in preset paper-2024): 5 runs x 1800000 cycles after a 120 s warm-up, cycle 1000 us, SYNC0 shift 30 %, target phase 0 us, seed 2024.\n\
+Ctrl-C stops within a second and writes the statistics of the cycles done (exit code 130).",
+    );
+    t
+}
 
 /// Arguments of `ecsync compare`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = after_help())]
 pub struct Args {
     #[command(flatten)]
     source: SourceArgs,
-    /// Methods to compare (default: the scenario's; all five in the preset).
+    /// Methods to compare, comma-separated (default: the scenario's; all eight in the preset).
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     methods: Option<Vec<String>>,
     /// Runs with different seeds.
@@ -23,22 +49,31 @@ pub struct Args {
     /// Recorded cycles per run.
     #[arg(long)]
     cycles: Option<u64>,
-    /// Warm-up per run, s.
-    #[arg(long)]
+    /// Warm-up per run, s (it must hold the methods' init frames: 10 s at 1 ms).
+    #[arg(long, allow_negative_numbers = true)]
     warmup_s: Option<f64>,
-    /// Host preset (preempt-rt-stress, preempt-rt-idle, vanilla-linux, ideal).
+    /// Host preset (see below).
     #[arg(long)]
     host: Option<String>,
-    /// SYNC0 shift, % of the cycle.
-    #[arg(long)]
+    /// SYNC0 shift after the DC grid point, % of the cycle (0 ..< 100).
+    #[arg(long, allow_negative_numbers = true)]
     shift_pct: Option<f64>,
+    /// Where every master-shift method aims the frame's arrival at the reference, us after the
+    /// DC grid point (within half a cycle).
+    #[arg(long, allow_negative_numbers = true)]
+    target_phase_us: Option<f64>,
     /// Base seed.
     #[arg(long)]
     seed: Option<u64>,
     /// Output directory for summary.json, summary.csv, plots and report.html.
     #[arg(long, default_value = "out/compare")]
     out: PathBuf,
-    /// Print summary.json to standard output instead of the table.
+    /// Also write every run's per-cycle ground truth and measurements as CSV to this directory
+    /// (`<method>-run<r>.csv`: cycle, true phase, M-rS, rS-IS, slave spread, SYNC0 margins,
+    /// late flag, and the controller's log for DCM).
+    #[arg(long)]
+    samples: Option<PathBuf>,
+    /// Print summary.json to standard output instead of the tables.
     #[arg(long)]
     json: bool,
     /// Worker threads (default: all cores).
@@ -49,64 +84,100 @@ pub struct Args {
     quiet: bool,
 }
 
+/// The command-line flag that set a scenario field, for messages.
+fn flag_of(field: &str) -> Option<&'static str> {
+    Some(match field {
+        "run.warmup_s" => "--warmup-s",
+        "run.sync0_shift_pct" => "--shift-pct",
+        "run.target_phase_us" => "--target-phase-us",
+        "run.runs" => "--runs",
+        "run.cycles" => "--cycles",
+        "run.methods" => "--methods",
+        _ => return None,
+    })
+}
+
+/// The problem as the user should read it: naming the flag if they gave it, else the file.
+fn problem(p: Problem, given: &[&str], file: &str, text: &str) -> anyhow::Error {
+    match flag_of(&p.field()) {
+        Some(flag) if given.contains(&flag) => {
+            anyhow::anyhow!("{flag}: {}; fix: {}", p.message, p.fix)
+        }
+        _ => anyhow::Error::msg(ecsync_lab::scenario::locate(file, text, p)),
+    }
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
 pub fn run(args: Args) -> Result<ExitCode> {
     let (name, text) = args.source.load()?;
     let mut s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
+    let mut given = Vec::new();
     if let Some(m) = &args.methods {
+        given.push("--methods");
         for x in m {
-            if !ecsync_lab::scenario::METHODS.contains(&x.as_str()) {
+            if !METHODS.contains(&x.as_str()) {
                 bail!(
-                    "unknown method \"{x}\"; the methods are: {}",
-                    ecsync_lab::scenario::METHODS.join(", ")
+                    "--methods: unknown method \"{x}\"; fix: use one of: {}",
+                    METHODS.join(", ")
                 );
             }
         }
-        s.methods = ecsync_lab::scenario::METHODS
+        s.methods = METHODS
             .iter()
             .filter(|x| m.iter().any(|y| y == *x))
             .map(|x| x.to_string())
             .collect();
     }
     if let Some(r) = args.runs {
-        if r == 0 {
-            bail!("--runs must be at least 1");
-        }
+        given.push("--runs");
         s.runs = r;
     }
     if let Some(c) = args.cycles {
-        if c == 0 {
-            bail!("--cycles must be at least 1");
-        }
+        given.push("--cycles");
         s.cycles = c;
     }
     if let Some(w) = args.warmup_s {
-        if !(w.is_finite() && w >= 0.0) {
-            bail!("--warmup-s must be a number of seconds >= 0");
+        given.push("--warmup-s");
+        if !(w.is_finite() && (0.0..=86_400.0).contains(&w)) {
+            bail!("--warmup-s: {w} s of warm-up; fix: give between 0 and 86400 s");
         }
         s.warmup_cycles = (w * 1e9 / f64::from(s.cycle_ns)).round() as u64;
     }
     if let Some(h) = &args.host {
         s.host = ecsync_lab::host::HostParams::preset(h).with_context(|| {
             format!(
-                "unknown host preset \"{h}\"; use one of: {}",
+                "--host: unknown host preset \"{h}\"; fix: use one of: {}",
                 ecsync_lab::host::HostParams::PRESETS.join(", ")
             )
         })?;
         s.host_name = h.clone();
     }
     if let Some(p) = args.shift_pct {
-        if !(0.0..100.0).contains(&p) {
-            bail!("--shift-pct must lie in 0 ..< 100");
-        }
+        given.push("--shift-pct");
         s.sync0_shift_pct = p;
+    }
+    if let Some(t) = args.target_phase_us {
+        given.push("--target-phase-us");
+        if !t.is_finite() {
+            bail!("--target-phase-us: {t}; fix: give the target in us after the DC grid point");
+        }
+        s.target_phase_ns = (t * 1000.0).round() as i64;
     }
     if let Some(seed) = args.seed {
         s.seed = seed;
     }
-    // Initialisation frames cannot exceed the warm-up.
-    let w = s.warmup_cycles.max(1);
-    s.median.init_frames = s.median.init_frames.min(w as i64);
-    s.pi_m2s.init_frames = s.pi_m2s.init_frames.min(w as i64);
+    // The same checks as for the file, naming the flag where one set the value.
+    s.check().map_err(|p| problem(p, &given, &name, &text))?;
+    if let Some(t) = args.threads {
+        if t == 0 {
+            bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
+        }
+    }
+    if let Some(dir) = &args.samples {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--samples: cannot create {}", dir.display()))?;
+    }
 
     let threads = args
         .threads
@@ -124,14 +195,25 @@ pub fn run(args: Args) -> Result<ExitCode> {
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> "),
         );
-        b.set_message(format!("{} x {} runs", s.methods.join(", "), s.runs));
+        b.set_message(format!(
+            "{} x {}",
+            s.methods.join(", "),
+            plural(u64::from(s.runs), "run", "runs")
+        ));
         b
     };
+    // Ctrl-C (and SIGTERM) stop the runs after their current slice; what they measured is
+    // written.
+    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    let opts = Options {
+        stop: Some(&STOP),
+        samples_dir: args.samples.clone(),
+    };
     let result = std::thread::scope(|sc| {
-        let handle = sc.spawn(|| ecsync_lab::compare(&s, threads, &progress));
+        let handle = sc.spawn(|| ecsync_lab::compare::compare_with(&s, threads, &progress, &opts));
         while !handle.is_finished() {
             bar.set_position(progress.load(Ordering::Relaxed));
-            std::thread::sleep(Duration::from_millis(100));
+            std::thread::sleep(Duration::from_millis(50));
         }
         handle.join()
     });
@@ -152,25 +234,50 @@ pub fn run(args: Args) -> Result<ExitCode> {
     if args.json {
         println!("{json}");
     } else {
+        if out.interrupted {
+            println!(
+                "Interrupted: the statistics below are of the {} recorded cycles done.\n",
+                out.cycles_done
+            );
+        }
         println!(
-            "{}: {} slaves, host {}, {} runs x {} cycles after {} warm-up cycles, SYNC0 shift {} %",
+            "{}: {} slaves, host {}, {} x {} cycles after {} warm-up cycles, cycle {} us, SYNC0 shift {} %, target phase {:.1} us",
             out.scenario,
             out.slaves,
             out.host,
-            out.runs,
+            plural(u64::from(out.runs), "run", "runs"),
             out.cycles,
             out.warmup_cycles,
-            out.sync0_shift_pct
+            f64::from(out.cycle_ns) / 1000.0,
+            out.sync0_shift_pct,
+            out.target_phase_ns as f64 / 1000.0
         );
+        println!();
+        print!("{}", verdict_text(&out));
+        println!();
+        print!("{}", truth_text(&out, &order));
+        println!();
+        print!("{}", per_slave_text(&out));
         println!();
         print!("{table}");
         println!();
         println!(
-            "Wrote {}/{{summary.json, summary.csv, table1.txt, report.html, *.svg, *.png}} in {:.1} s on {} threads.",
+            "Wrote {}/{{summary.json, summary.csv, table1.txt, report.html, *.svg, *.png}} in {:.1} s on {}.",
             args.out.display(),
             out.wall_s,
-            out.threads
+            plural(out.threads as u64, "thread", "threads")
         );
+        if let Some(d) = &args.samples {
+            println!("Per-cycle samples in {}.", d.display());
+        }
+    }
+    if out.interrupted {
+        eprintln!(
+            "ecsync: interrupted; wrote the statistics of the {} recorded cycles done to {}",
+            out.cycles_done,
+            args.out.display()
+        );
+        return Ok(ExitCode::from(130));
     }
     Ok(ExitCode::SUCCESS)
 }

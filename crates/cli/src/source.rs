@@ -35,10 +35,11 @@ impl SourceArgs {
         }
     }
 
-    /// The segment's slaves.
+    /// The segment's slaves. The whole file is read as `compare` reads it, so an unknown
+    /// section or field, or a value `compare` would refuse, is refused here with the same words.
     pub fn segment(&self) -> Result<(String, Vec<SlaveSpec>)> {
         let (name, text) = self.load()?;
-        let specs = ecsync_esc::config::parse_segment(&name, &text).map_err(anyhow::Error::msg)?;
-        Ok((name, specs))
+        let s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
+        Ok((name, s.slaves))
     }
 }

@@ -10,14 +10,19 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod dcm;
 pub mod lock;
 pub mod offset;
 pub mod sync;
 pub mod topology;
 
+pub use dcm::{Dcm, DcmMode, DcmParams, SetValueRef};
 pub use lock::LockDetector;
 pub use offset::{sync0_start_time, system_time_offset};
-pub use sync::{BusShift, CycleInput, CycleOutput, MasterSync, MedianSync, PiM2s, Snap, SoemPi};
+pub use sync::{
+    BusShift, ControllerLog, CycleInput, CycleOutput, MasterSync, MedianFit, MedianSync, PiM2s,
+    ReferenceWrite, Snap, SoemPi,
+};
 pub use topology::{
     SlavePorts, TopologyError, TreeNode, arrival_times, build_tree, master_delay_ns,
     propagation_delays,

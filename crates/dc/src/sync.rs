@@ -65,6 +65,41 @@ pub struct CycleOutput {
     pub correction_ns: i64,
 }
 
+/// Where a bus-shift method's per-cycle write to the reference clock goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReferenceWrite {
+    /// Nothing is written (master shift).
+    None,
+    /// System Time (0x0910): the value is a master time the reference's time control loop
+    /// compares with its own (the letter's E-S2M).
+    SystemTime,
+    /// System Time Offset (0x0920): the value is an adjustment, ns (two's complement), added to
+    /// the offset the bring-up wrote; the reference's system time moves by it at once, without
+    /// its time control loop.
+    OffsetAdjust,
+}
+
+/// A controller's state after a cycle, for its log (the columns of a vendor DCM log).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ControllerLog {
+    /// The set value: the target phase of the frame's arrival at the reference against the DC
+    /// grid, ns.
+    pub set_value_ns: i64,
+    /// This cycle's controller error, ns.
+    pub error_ns: i64,
+    /// The filtered error the controller acted on, ns.
+    pub filtered_error_ns: f64,
+    /// The accumulated re-adjustment, ns (the master's timer moved earlier by it, or the
+    /// reference's time moved back by it).
+    pub adjustment_ns: i64,
+    /// The drift between the master's clock and the reference the controller has learnt, ppm.
+    pub drift_ppm: f64,
+    /// Whether this cycle's error passed the validity check (the filter against send jitter).
+    pub valid: bool,
+    /// "In sync": the filtered error stayed within the band for the hold time.
+    pub in_sync: bool,
+}
+
 /// A master synchronization method.
 pub trait MasterSync {
     /// Short name (`median`, `pi-m2s`, ...).
@@ -76,9 +111,24 @@ pub trait MasterSync {
         true
     }
 
-    /// The master time to write into the reference's System Time (0x0910) in the frame about to
-    /// be sent at `send_ns`; `None` for master-shift methods.
+    /// Which register of the reference the method writes every cycle (fixed per method).
+    fn reference_write_kind(&self) -> ReferenceWrite {
+        if self.is_master_shift() {
+            ReferenceWrite::None
+        } else {
+            ReferenceWrite::SystemTime
+        }
+    }
+
+    /// The value to write in the frame about to be sent at `send_ns` (see
+    /// [`MasterSync::reference_write_kind`]): a master time for System Time, an adjustment (ns,
+    /// two's complement) for the offset; `None` writes nothing this cycle.
     fn reference_write(&self, _send_ns: u64) -> Option<u64> {
+        None
+    }
+
+    /// The controller's state after the last update, for methods that keep a log.
+    fn controller_log(&self) -> Option<ControllerLog> {
         None
     }
 
@@ -263,6 +313,203 @@ impl MasterSync for MedianSync {
             }
         }
         // Eq. 14.
+        let corr = round_ns(self.delta_hat);
+        CycleOutput {
+            next_start_ns: next_nominal(input).wrapping_sub(corr as u64),
+            error_ns: error,
+            correction_ns: corr,
+        }
+    }
+}
+
+/// Wraps `x` into `[-p/2, p/2)`.
+pub fn wrap_phase(x: i64, period_ns: u32) -> i64 {
+    let p = i64::from(period_ns.max(1));
+    (x + p / 2).rem_euclid(p) - p / 2
+}
+
+/// Where a reference time lies against the DC grid (multiples of the period, on which SYNC0
+/// start times are placed) and a target phase: `t - target` wrapped into `[-P/2, P/2)`, ns.
+pub fn grid_phase(t_ns: u64, target_phase_ns: i64, period_ns: u32) -> i64 {
+    let p = i128::from(period_ns.max(1));
+    let r = (i128::from(t_ns) - i128::from(target_phase_ns)).rem_euclid(p) as i64;
+    wrap_phase(r, period_ns)
+}
+
+/// An online least-squares line `y = a + b x` (Welford's updates: no large sums cancel).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct LineFit {
+    n: f64,
+    mx: f64,
+    my: f64,
+    cxx: f64,
+    cxy: f64,
+}
+
+impl LineFit {
+    fn add(&mut self, x: f64, y: f64) {
+        self.n += 1.0;
+        let dx = x - self.mx;
+        self.mx += dx / self.n;
+        self.my += (y - self.my) / self.n;
+        self.cxx += dx * (x - self.mx);
+        self.cxy += dx * (y - self.my);
+    }
+
+    /// `(a, b)`; with fewer than two distinct x the slope is 0.
+    fn line(&self) -> (f64, f64) {
+        let b = if self.cxx > 0.0 {
+            self.cxy / self.cxx
+        } else {
+            0.0
+        };
+        (self.my - b * self.mx, b)
+    }
+}
+
+/// `median-fit`: the letter's median filter and gain, but `h_mr` and the master-to-reference
+/// drift fitted together over the initialisation frames (least squares), so that it holds the
+/// target phase whatever the crystals.
+///
+/// The letter averages `t_ms - t_ra` over the init frames as if the clocks did not drift
+/// meanwhile (eq. 7): with a drift of `d` ns per cycle, the loop then holds the phase the frames
+/// had on average during init, `d N / 2` from where they started (5 us per ppm over 10 000
+/// frames at 1 ms). Here, during init:
+///
+/// * `y_i = t_ms^i - t_ra^i` is fitted as `a_y + b_y i` (its noise is the NIC's only: the send
+///   timestamp moves with the send);
+/// * the frame's arrival phase at the reference against the grid and the target, `p_i`, is
+///   fitted as `a_p + b_p i` (`b_p = -b_y`: the same drift).
+///
+/// After init the letter's loop runs with `h_mr = a_y + a_p` and the drift fed forward: eq. 13
+/// becomes `δ̂^i = δ̂^{i-1} - b_y + k median(φ)`. Then `φ = 0` means the frame arrives on the
+/// target (the loop holds `p = a_p + a_y - h_mr = 0`), and the drift leaves no lag (the letter's
+/// loop, of type 1, trails a drift of `d` by `d / k`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MedianFit {
+    /// Median window w (the letter: 11).
+    pub window: usize,
+    /// Gain k (the letter: 0.01).
+    pub gain: f64,
+    /// Frames fitted during init.
+    pub init_frames: u64,
+    /// Where the frame should reach the reference against the DC grid, ns.
+    pub target_phase_ns: i64,
+    fit_y: LineFit,
+    fit_p: LineFit,
+    last_p: Option<f64>,
+    ready: bool,
+    h_mr: f64,
+    drift_per_cycle: f64,
+    phase_at_init_end: f64,
+    delta_hat: f64,
+    median: SlidingMedian,
+}
+
+impl MedianFit {
+    /// A fitted compensator with window `w`, gain `k`, `init_frames` fitted frames and a
+    /// target phase.
+    pub const fn new(window: usize, gain: f64, init_frames: u64, target_phase_ns: i64) -> Self {
+        MedianFit {
+            window,
+            gain,
+            init_frames,
+            target_phase_ns,
+            fit_y: LineFit {
+                n: 0.0,
+                mx: 0.0,
+                my: 0.0,
+                cxx: 0.0,
+                cxy: 0.0,
+            },
+            fit_p: LineFit {
+                n: 0.0,
+                mx: 0.0,
+                my: 0.0,
+                cxx: 0.0,
+                cxy: 0.0,
+            },
+            last_p: None,
+            ready: false,
+            h_mr: 0.0,
+            drift_per_cycle: 0.0,
+            phase_at_init_end: 0.0,
+            delta_hat: 0.0,
+            median: SlidingMedian::new(window),
+        }
+    }
+
+    /// The fitted `h_mr`, ns (0 until the init frames are done).
+    pub fn h_mr_ns(&self) -> f64 {
+        self.h_mr
+    }
+
+    /// The fitted drift of the reference against the master, ns per cycle (the reference's
+    /// phase moves by it each cycle when uncorrected).
+    pub fn drift_ns_per_cycle(&self) -> f64 {
+        self.drift_per_cycle
+    }
+
+    /// The phase against the target the uncorrected frames would have had at the end of init,
+    /// ns: what the loop has to pull in.
+    pub fn phase_at_init_end_ns(&self) -> f64 {
+        self.phase_at_init_end
+    }
+
+    /// δ̂, ns.
+    pub fn delta_hat_ns(&self) -> f64 {
+        self.delta_hat
+    }
+
+    fn finish_init(&mut self) {
+        let (a_y, b_y) = self.fit_y.line();
+        let (a_p, b_p) = self.fit_p.line();
+        self.h_mr = a_y + a_p;
+        self.drift_per_cycle = -b_y;
+        self.phase_at_init_end = a_p + b_p * self.init_frames as f64;
+        self.ready = true;
+    }
+}
+
+impl MasterSync for MedianFit {
+    fn name(&self) -> &'static str {
+        "median-fit"
+    }
+
+    fn init_cycles(&self) -> u64 {
+        self.init_frames
+    }
+
+    fn update(&mut self, input: &CycleInput) -> CycleOutput {
+        let mut error = 0;
+        if input.cycle < self.init_frames {
+            if let Some(t_ra) = input.ref_time_ns {
+                let x = input.cycle as f64;
+                self.fit_y.add(x, diff_u64(input.send_ns, t_ra) as f64);
+                // The phase, unwrapped against the previous one so that a phase crossing ±P/2
+                // during init stays one line.
+                let raw = grid_phase(t_ra, self.target_phase_ns, input.period_ns) as f64;
+                let p = match self.last_p {
+                    Some(prev) => prev + wrap_phase(round_ns(raw - prev), input.period_ns) as f64,
+                    None => raw,
+                };
+                self.last_p = Some(p);
+                self.fit_p.add(x, p);
+            }
+        } else {
+            if !self.ready {
+                self.finish_init();
+            }
+            // The drift is fed forward every cycle, a lost frame's included.
+            self.delta_hat += self.drift_per_cycle;
+            if let Some(t_ra) = input.ref_time_ns {
+                let phi = diff_u64(t_ra, input.send_ns) as f64 + self.h_mr - self.delta_hat;
+                let phi = round_ns(phi);
+                let med = self.median.push(phi);
+                self.delta_hat += self.gain * med as f64;
+                error = phi;
+            }
+        }
         let corr = round_ns(self.delta_hat);
         CycleOutput {
             next_start_ns: next_nominal(input).wrapping_sub(corr as u64),
@@ -592,6 +839,57 @@ mod tests {
             let ob = b.update(&input(i, t, t + 20_000, Some(shifted)));
             assert_eq!(oa, ob);
         }
+    }
+
+    /// A noise-free closed loop: the reference drifts 50 ns per cycle (50 ppm) against the
+    /// master, and the frames start 9 us after the grid point. The letter's median holds the
+    /// phase the frames had on average during its 1000 init frames, 50 x 999 / 2 = 24.975 us
+    /// after where they started; median-fit holds the target (3 us) exactly.
+    #[test]
+    fn median_fit_holds_the_target_where_median_drifts_off() {
+        fn run(m: &mut dyn MasterSync) -> i64 {
+            let p = u64::from(P);
+            let base = 1_000_000 * p;
+            let mut sched = base;
+            let mut last_phase = 0;
+            for i in 0..6_000u64 {
+                let send = sched + 20_000;
+                // Reference time at arrival: 9 us after the grid point when sent on the nominal
+                // schedule, later by 50 ns each cycle.
+                let t_ra = send - 20_000 + 9_000 + 50 * i;
+                last_phase = grid_phase(t_ra, 0, P);
+                let o = m.update(&CycleInput {
+                    cycle: i,
+                    period_ns: P,
+                    nominal_start_ns: base + i * p,
+                    scheduled_start_ns: sched,
+                    send_ns: send,
+                    receive_ns: send + 50_000,
+                    ref_time_ns: Some(t_ra),
+                });
+                sched = o.next_start_ns;
+            }
+            last_phase
+        }
+        let median = run(&mut MedianSync::new(11, 0.01, 1000));
+        // The type-1 loop also trails the drift by 50 / 0.01 = 5 us.
+        assert!((median - (9_000 + 24_975 + 5_000)).abs() <= 60, "{median}");
+        let mut fit = MedianFit::new(11, 0.01, 1000, 3_000);
+        let fitted = run(&mut fit);
+        assert!((fitted - 3_000).abs() <= 60, "{fitted}");
+        assert!((fit.drift_ns_per_cycle() - 50.0).abs() < 1e-6);
+        // At the end of init the uncorrected frames were 6 us + 50 ns x 1000 past the target.
+        assert!((fit.phase_at_init_end_ns() - (9_000.0 - 3_000.0 + 50_000.0)).abs() < 1e-3);
+    }
+
+    #[test]
+    fn grid_phase_wraps_around_the_target() {
+        let p = u64::from(P);
+        assert_eq!(grid_phase(7 * p + 10, 0, P), 10);
+        assert_eq!(grid_phase(7 * p - 10, 0, P), -10);
+        assert_eq!(grid_phase(7 * p + 300_000, 250_000, P), 50_000);
+        assert_eq!(grid_phase(7 * p + 100_000, -250_000, P), 350_000);
+        assert_eq!(grid_phase(7 * p + p / 2, 0, P), -(p as i64) / 2);
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! Every method's update allocates nothing (a counting global allocator).
 
 use ecsync_dc::sync::{CycleInput, MasterSync};
-use ecsync_dc::{BusShift, MedianSync, PiM2s, Snap, SoemPi};
+use ecsync_dc::{
+    BusShift, Dcm, DcmMode, DcmParams, MedianFit, MedianSync, PiM2s, SetValueRef, Snap, SoemPi,
+};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -52,4 +54,16 @@ fn updates_allocate_nothing() {
     assert_eq!(run(BusShift::default()), 0, "bus-shift");
     assert_eq!(run(Snap::default()), 0, "snap");
     assert_eq!(run(SoemPi::new(50_000)), 0, "soem-pi");
+    assert_eq!(run(MedianFit::new(11, 0.01, 10_000, 0)), 0, "median-fit");
+    let p = DcmParams::default_for(0, 1_000_000);
+    assert_eq!(run(Dcm::new(DcmMode::BusShift, p)), 0, "dcm-bus-shift");
+    let p = DcmParams {
+        set_value_ref: SetValueRef::CycleStart,
+        ..p
+    };
+    assert_eq!(
+        run(Dcm::new(DcmMode::MasterShift, p)),
+        0,
+        "dcm-master-shift"
+    );
 }

@@ -44,7 +44,7 @@ pub enum Upstream {
 }
 
 /// One slave of a segment description.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SlaveSpec {
     /// The ESC model.
     pub model: EscModel,

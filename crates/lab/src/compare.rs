@@ -5,7 +5,8 @@ use crate::host::{HostNoise, SharedNoise};
 use crate::run::{BroughtUp, Run, RunError, RunResult, bring_up};
 use crate::scenario::Scenario;
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -22,6 +23,17 @@ pub struct Comparison {
     pub wall_s: f64,
     /// Threads used.
     pub threads: usize,
+    /// Stopped before every cycle ran (the results hold the cycles done).
+    pub interrupted: bool,
+}
+
+/// How a comparison runs beyond its scenario.
+#[derive(Debug, Default)]
+pub struct Options<'a> {
+    /// Set to stop: every run ends after its current slice and keeps what it measured.
+    pub stop: Option<&'a AtomicBool>,
+    /// Write each run's per-cycle samples there (`<method>-run<r>.csv`).
+    pub samples_dir: Option<PathBuf>,
 }
 
 /// Cycles a worker runs of one run before it takes the next from the queue: long enough that
@@ -67,7 +79,18 @@ pub fn compare(
     threads: usize,
     progress: &AtomicU64,
 ) -> Result<Comparison, RunError> {
+    compare_with(scenario, threads, progress, &Options::default())
+}
+
+/// [`compare`] with options: an interruption flag, samples.
+pub fn compare_with(
+    scenario: &Scenario,
+    threads: usize,
+    progress: &AtomicU64,
+    opts: &Options<'_>,
+) -> Result<Comparison, RunError> {
     let t0 = Instant::now();
+    let stopped = || opts.stop.is_some_and(|s| s.load(Ordering::Relaxed));
     let methods = scenario.methods.clone();
     let runs = scenario.runs as usize;
     let threads = threads.max(1);
@@ -111,24 +134,33 @@ pub fn compare(
                     let t = Instant::now();
                     let mut run = match state {
                         Some(run) => run,
-                        None => match Run::new(scenario, &ups[r], &methods[m]) {
-                            Ok(mut run) => {
-                                run.share_noise(Arc::clone(&noises[r]));
-                                run
+                        None => {
+                            let made =
+                                Run::new(scenario, &ups[r], &methods[m]).and_then(|mut run| {
+                                    if let Some(dir) = &opts.samples_dir {
+                                        run.write_samples(dir)?;
+                                    }
+                                    run.share_noise(Arc::clone(&noises[r]));
+                                    Ok(run)
+                                });
+                            match made {
+                                Ok(run) => run,
+                                Err(e) => {
+                                    store(j, Err(e));
+                                    continue;
+                                }
                             }
-                            Err(e) => {
-                                store(j, Err(e));
-                                continue;
-                            }
-                        },
+                        }
                     };
-                    let n = run.step(SLICE_CYCLES);
-                    progress.fetch_add(n, Ordering::Relaxed);
+                    if !stopped() {
+                        let n = run.step(SLICE_CYCLES);
+                        progress.fetch_add(n, Ordering::Relaxed);
+                    }
                     if let Ok(mut c) = cpu_s.lock() {
                         c[j] += t.elapsed().as_secs_f64();
                     }
-                    if run.remaining() == 0 {
-                        store(j, Ok(run.finish()));
+                    if run.remaining() == 0 || stopped() {
+                        store(j, run.finish());
                     } else if let Ok(mut q) = queue.lock() {
                         q.push_back((j, Some(run)));
                     }
@@ -146,11 +178,16 @@ pub fn compare(
         results[m].push(res?);
         method_wall_s[m] += cpu_s[j];
     }
+    let interrupted = results
+        .iter()
+        .flatten()
+        .any(|r| r.cycles_done < scenario.cycles);
     Ok(Comparison {
         scenario: scenario.clone(),
         results,
         method_wall_s,
         wall_s: t0.elapsed().as_secs_f64(),
         threads: workers,
+        interrupted,
     })
 }

@@ -1,16 +1,18 @@
-//! Plots (SVG and PNG, drawn with plotters) and report.html.
+//! Plots (SVG and PNG, drawn with plotters) and report.html: the verdict and the tables first,
+//! then the plots, each with a caption in words.
 //!
-//! * `fig4_histograms`: the distributions of the M-rS and rS-IS errors of every method, one row
-//!   per method, laid out like the letter's Fig. 4 (all runs merged);
-//! * `series_<quantity>`: the errors over the recorded cycles of run 0 (the band between the
-//!   minimum and maximum of each block of 1000 cycles);
-//! * `truth_phase`: the distribution of the true arrival phase at the reference against the DC
-//!   grid, with the SYNC0 shift marked.
+//! * `hist_<metric>`: one histogram per metric with every method overlaid on shared axes (all
+//!   runs pooled; log scale of the share of cycles, so the tails show); the phase and the SYNC0
+//!   margin carry the deadline;
+//! * `series_<metric>`: run 0 over time as percentile bands (min..max, 1st..99th percentile,
+//!   median) over at most [`crate::run::BAND_POINTS`] blocks, one panel per method on a shared
+//!   axis: the files are as large at a billion cycles as at a thousand;
+//! * `fig4_histograms`: the letter's Fig. 4 layout (M-rS and rS-IS of each method).
 
 use crate::compare::Comparison;
-use crate::report::SummaryOut;
-use crate::run::RunResult;
-use crate::stats::Histogram;
+use crate::report::{SummaryOut, per_slave_text, table1_text, truth_text, verdict_text};
+use crate::run::{Band, RunResult};
+use crate::stats::{Dist, Stats};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::fmt::Write as _;
@@ -18,10 +20,13 @@ use std::io;
 use std::path::Path;
 use std::sync::Once;
 
-pub(crate) const COLORS: [RGBColor; 5] = [
+pub(crate) const COLORS: [RGBColor; 8] = [
     RGBColor(0x1f, 0x77, 0xb4),
+    RGBColor(0x17, 0xbe, 0xcf),
     RGBColor(0xd6, 0x27, 0x28),
     RGBColor(0x2c, 0xa0, 0x2c),
+    RGBColor(0x8c, 0x56, 0x4b),
+    RGBColor(0xe3, 0x77, 0xc2),
     RGBColor(0xff, 0x7f, 0x0e),
     RGBColor(0x94, 0x67, 0xbd),
 ];
@@ -42,9 +47,8 @@ pub(crate) fn err<E: std::fmt::Display>(e: E) -> io::Error {
     io::Error::other(e.to_string())
 }
 
-/// The range of a histogram that holds all but `tail` of the samples on each side, widened a
-/// little, in bin-centre units.
-fn range(h: &Histogram, tail: f64) -> (f64, f64) {
+/// The range holding all but `tail` of the samples on each side, widened a little.
+fn range(h: &Dist, tail: f64) -> (f64, f64) {
     let lo = h.quantile(tail);
     let hi = h.quantile(1.0 - tail);
     if !(lo.is_finite() && hi.is_finite()) {
@@ -55,23 +59,29 @@ fn range(h: &Histogram, tail: f64) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
+/// `bins` counts of `h` over `[lo, hi)`, values outside added to the end bins.
+fn rebin(h: &Dist, lo: f64, hi: f64, bins: usize) -> Vec<u64> {
+    let width = (hi - lo) / bins as f64;
+    let mut out = vec![0u64; bins];
+    for (x, c) in h.bins() {
+        let k = ((x - lo) / width).floor().clamp(0.0, (bins - 1) as f64) as usize;
+        out[k] += c;
+    }
+    out
+}
+
+/// One distribution as bars (the TSN run's plots).
 pub(crate) fn draw_hist<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
-    h: &Histogram,
+    h: &Dist,
     title: &str,
     unit_div: f64,
     unit: &str,
     color: RGBColor,
 ) -> io::Result<()> {
     let (lo, hi) = range(h, 0.0005);
-    let bins: Vec<(f64, u64)> = h.bins().filter(|(x, _)| *x >= lo && *x <= hi).collect();
-    // Re-bin to at most 200 bars so that every plot reads the same.
+    let bars = rebin(h, lo, hi, 200);
     let width = (hi - lo) / 200.0;
-    let mut bars = vec![0u64; 200];
-    for (x, c) in bins {
-        let k = (((x - lo) / width) as usize).min(199);
-        bars[k] += c;
-    }
     let total: u64 = h.total().max(1);
     let ymax = bars.iter().copied().max().unwrap_or(1) as f64 / total as f64 * 100.0;
     let mut chart = ChartBuilder::on(area)
@@ -101,6 +111,241 @@ pub(crate) fn draw_hist<DB: DrawingBackend>(
     Ok(())
 }
 
+fn pooled(c: &Comparison, m: usize, pick: fn(&RunResult) -> &Stats) -> Stats {
+    let mut s = Stats::new();
+    for r in &c.results[m] {
+        s.merge(pick(r));
+    }
+    s
+}
+
+/// A vertical line on a histogram or series: where, its label.
+struct Mark {
+    at_ns: f64,
+    label: String,
+    color: RGBColor,
+}
+
+/// Every method's distribution of one metric on shared axes, as outlines on a log scale.
+#[allow(clippy::too_many_arguments)]
+fn overlaid<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    c: &Comparison,
+    order: &[String],
+    pick: fn(&RunResult) -> &Stats,
+    title: &str,
+    unit_div: f64,
+    unit: &str,
+    marks: &[Mark],
+) -> io::Result<()> {
+    root.fill(&WHITE).map_err(err)?;
+    let dists: Vec<(usize, &String, Stats)> = order
+        .iter()
+        .enumerate()
+        .filter_map(|(i, name)| {
+            let m = c.scenario.methods.iter().position(|x| x == name)?;
+            Some((i, name, pooled(c, m, pick)))
+        })
+        .collect();
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (_, _, s) in &dists {
+        if s.count() == 0 {
+            continue;
+        }
+        let (a, b) = range(&s.dist, 0.0005);
+        lo = lo.min(a);
+        hi = hi.max(b);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        (lo, hi) = (-1.0, 1.0);
+    }
+    // A deadline near the distributions is drawn inside the axes; one far off is named at the
+    // edge.
+    let width = hi - lo;
+    for mk in marks {
+        if mk.at_ns > hi && mk.at_ns - hi < 2.0 * width {
+            hi = mk.at_ns + 0.05 * width;
+        }
+        if mk.at_ns < lo && lo - mk.at_ns < 2.0 * width {
+            lo = mk.at_ns - 0.05 * width;
+        }
+    }
+    const BINS: usize = 160;
+    let bw = (hi - lo) / BINS as f64;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 18))
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(60)
+        .build_cartesian_2d(lo / unit_div..hi / unit_div, (1e-5f64..100.0).log_scale())
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc(unit)
+        .y_desc("% of cycles (log)")
+        .light_line_style(RGBColor(0xee, 0xee, 0xee))
+        .draw()
+        .map_err(err)?;
+    for (i, name, s) in &dists {
+        let total = s.count().max(1) as f64;
+        let bars = rebin(&s.dist, lo, hi, BINS);
+        let col = COLORS[*i % COLORS.len()];
+        let mut pts = Vec::with_capacity(2 * BINS + 2);
+        for (k, &n) in bars.iter().enumerate() {
+            let y = (n as f64 / total * 100.0).max(1e-5);
+            let x0 = (lo + k as f64 * bw) / unit_div;
+            let x1 = (lo + (k + 1) as f64 * bw) / unit_div;
+            pts.push((x0, y));
+            pts.push((x1, y));
+        }
+        chart
+            .draw_series(std::iter::once(PathElement::new(pts, col.stroke_width(2))))
+            .map_err(err)?
+            .label(name.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(3)));
+    }
+    for mk in marks {
+        let x = mk.at_ns / unit_div;
+        let col = mk.color;
+        if mk.at_ns >= lo && mk.at_ns <= hi {
+            chart
+                .draw_series(std::iter::once(PathElement::new(
+                    vec![(x, 1e-5), (x, 100.0)],
+                    col.stroke_width(2),
+                )))
+                .map_err(err)?
+                .label(mk.label.as_str())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(2))
+                });
+        } else {
+            let edge = if mk.at_ns > hi { hi } else { lo } / unit_div;
+            let text = format!(
+                "{} {} at {:.1} {unit}",
+                if mk.at_ns > hi { "->" } else { "<-" },
+                mk.label,
+                x
+            );
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    text,
+                    (edge, 30.0),
+                    ("sans-serif", 14).into_font().color(&col),
+                )))
+                .map_err(err)?;
+        }
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(0xcc, 0xcc, 0xcc))
+        .draw()
+        .map_err(err)?;
+    root.present().map_err(err)
+}
+
+/// Run 0 of every method over time as percentile bands, one panel each, on a shared y axis.
+#[allow(clippy::too_many_arguments)]
+fn bands<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    c: &Comparison,
+    order: &[String],
+    which: usize,
+    title: &str,
+    unit_div: f64,
+    unit: &str,
+    marks: &[Mark],
+) -> io::Result<()> {
+    root.fill(&WHITE).map_err(err)?;
+    let series: Vec<(usize, &String, &RunResult)> = order
+        .iter()
+        .enumerate()
+        .filter_map(|(i, name)| {
+            let m = c.scenario.methods.iter().position(|x| x == name)?;
+            Some((i, name, c.results[m].first()?))
+        })
+        .collect();
+    // The shared axis holds every method's 1st..99th band, widened; the extremes beyond it are
+    // clipped (they are in the histograms).
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (_, _, r) in &series {
+        for b in &r.series[which] {
+            lo = lo.min(f64::from(b.p01));
+            hi = hi.max(f64::from(b.p99));
+        }
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        (lo, hi) = (-1.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.25).max(1.0);
+    let (lo, hi) = (lo - pad, hi + pad);
+    let cycle_s = f64::from(c.scenario.cycle_ns) * 1e-9;
+    let (head, body) = root.split_vertically(30);
+    head.titled(title, ("sans-serif", 18)).map_err(err)?;
+    let rows = body.split_evenly((series.len().max(1), 1));
+    for (k, (i, name, r)) in series.iter().enumerate() {
+        let s: &[Band] = &r.series[which];
+        let col = COLORS[*i % COLORS.len()];
+        let block = r.series_block.max(1) as f64;
+        let t_end = s.last().map_or(1.0, |b| b.cycle as f64 + block) * cycle_s;
+        let mut chart = ChartBuilder::on(&rows[k])
+            .caption(name.as_str(), ("sans-serif", 14))
+            .margin(4)
+            .x_label_area_size(24)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..t_end.max(cycle_s), lo / unit_div..hi / unit_div)
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .y_desc(unit)
+            .x_labels(8)
+            .light_line_style(RGBColor(0xf0, 0xf0, 0xf0))
+            .draw()
+            .map_err(err)?;
+        let clip = |v: f32| (f64::from(v).clamp(lo, hi)) / unit_div;
+        let t = |b: &Band| b.cycle as f64 * cycle_s;
+        let dt = block * cycle_s;
+        // min..max, light; 1st..99th, darker; the median, a line.
+        chart
+            .draw_series(s.iter().map(|b| {
+                Rectangle::new(
+                    [(t(b), clip(b.min)), (t(b) + dt, clip(b.max))],
+                    col.mix(0.18).filled(),
+                )
+            }))
+            .map_err(err)?;
+        chart
+            .draw_series(s.iter().map(|b| {
+                Rectangle::new(
+                    [(t(b), clip(b.p01)), (t(b) + dt, clip(b.p99))],
+                    col.mix(0.5).filled(),
+                )
+            }))
+            .map_err(err)?;
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                s.iter()
+                    .map(|b| (t(b) + dt / 2.0, clip(b.p50)))
+                    .collect::<Vec<_>>(),
+                col.stroke_width(1),
+            )))
+            .map_err(err)?;
+        for mk in marks {
+            if mk.at_ns >= lo && mk.at_ns <= hi {
+                let y = mk.at_ns / unit_div;
+                chart
+                    .draw_series(std::iter::once(PathElement::new(
+                        vec![(0.0, y), (t_end, y)],
+                        mk.color.stroke_width(1),
+                    )))
+                    .map_err(err)?;
+            }
+        }
+    }
+    root.present().map_err(err)
+}
+
 fn fig4<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     c: &Comparison,
@@ -112,112 +357,35 @@ fn fig4<DB: DrawingBackend>(
         let Some(m) = c.scenario.methods.iter().position(|x| x == name) else {
             continue;
         };
-        let merge = |pick: fn(&RunResult) -> &Histogram| {
-            let mut it = c.results[m].iter();
-            let mut h = pick(it.next()?).clone();
-            for r in it {
-                h.merge(pick(r));
-            }
-            Some(h)
-        };
         let letter = crate::letter::letter_name(name);
         let label = if letter == "-" {
             name.clone()
         } else {
             format!("{letter} ({name})")
         };
-        if let Some(h) = merge(|r| &r.m_rs.hist) {
-            draw_hist(
-                &rows[2 * i],
-                &h,
-                &format!("{label}: M-rS error"),
-                1000.0,
-                "us",
-                COLORS[i % 5],
-            )?;
-        }
-        if let Some(h) = merge(|r| &r.rs_is.hist) {
-            draw_hist(
-                &rows[2 * i + 1],
-                &h,
-                &format!("{label}: rS-IS error |0x092C|"),
-                1.0,
-                "ns",
-                COLORS[i % 5],
-            )?;
-        }
-    }
-    root.present().map_err(err)
-}
-
-fn series<DB: DrawingBackend>(
-    root: DrawingArea<DB, Shift>,
-    c: &Comparison,
-    order: &[String],
-    which: usize,
-    title: &str,
-    unit_div: f64,
-    unit: &str,
-) -> io::Result<()> {
-    root.fill(&WHITE).map_err(err)?;
-    let rows = root.split_evenly((order.len(), 1));
-    for (i, name) in order.iter().enumerate() {
-        let Some(m) = c.scenario.methods.iter().position(|x| x == name) else {
-            continue;
-        };
-        let Some(r) = c.results[m].first() else {
-            continue;
-        };
-        let s = &r.series[which];
-        if s.is_empty() {
-            continue;
-        }
-        draw_envelopes(
-            &rows[i],
-            s,
-            &format!("{name}: {title}"),
-            f64::from(c.scenario.cycle_ns) * 1e-9,
-            unit_div,
-            unit,
-            COLORS[i % 5],
-        )?;
-    }
-    root.present().map_err(err)
-}
-
-fn truth_phase<DB: DrawingBackend>(
-    root: DrawingArea<DB, Shift>,
-    c: &Comparison,
-    order: &[String],
-) -> io::Result<()> {
-    root.fill(&WHITE).map_err(err)?;
-    let rows = root.split_evenly((order.len(), 1));
-    for (i, name) in order.iter().enumerate() {
-        let Some(m) = c.scenario.methods.iter().position(|x| x == name) else {
-            continue;
-        };
-        let mut it = c.results[m].iter();
-        let Some(first) = it.next() else { continue };
-        let mut h = first.phase.hist.clone();
-        for r in it {
-            h.merge(&r.phase.hist);
-        }
+        let col = COLORS[i % COLORS.len()];
         draw_hist(
-            &rows[i],
-            &h,
-            &format!(
-                "{name}: true arrival at the reference after its DC grid point (SYNC0 at +{:.0} us)",
-                c.scenario.sync0_shift_pct * f64::from(c.scenario.cycle_ns) / 1e5
-            ),
+            &rows[2 * i],
+            &pooled(c, m, |r| &r.m_rs).dist,
+            &format!("{label}: M-rS error"),
             1000.0,
             "us",
-            COLORS[i % 5],
+            col,
+        )?;
+        draw_hist(
+            &rows[2 * i + 1],
+            &pooled(c, m, |r| &r.rs_is).dist,
+            &format!("{label}: rS-IS error |0x092C|"),
+            1.0,
+            "ns",
+            col,
         )?;
     }
     root.present().map_err(err)
 }
 
-/// Draws a series of min..max envelopes (one per block of cycles) against seconds.
+/// Draws a series of min..max envelopes (one per block of cycles) against seconds (the TSN
+/// run's series).
 pub(crate) fn draw_envelopes<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     s: &[crate::run::Envelope],
@@ -271,145 +439,230 @@ pub(crate) fn draw_envelopes<DB: DrawingBackend>(
     Ok(())
 }
 
-type Plot<'a> = dyn Fn(&Path, bool) -> io::Result<()> + 'a;
+type Draw<'a> = Box<dyn Fn(&Path, bool) -> io::Result<()> + 'a>;
+
+/// A plot: file stem, caption, size, how to draw it.
+struct Plot<'a> {
+    name: &'static str,
+    caption: String,
+    draw: Draw<'a>,
+}
+
+/// Draws `$body` on an SVG (`$svg`) or PNG of `$size` at `$p`, the drawing area bound to
+/// `$root`.
+macro_rules! plot {
+    ($p:expr, $svg:expr, $size:expr, |$root:ident| $body:expr) => {
+        if $svg {
+            let $root = SVGBackend::new($p, $size).into_drawing_area();
+            $body
+        } else {
+            let $root = BitMapBackend::new($p, $size).into_drawing_area();
+            $body
+        }
+    };
+}
 
 /// Writes every plot and report.html into `dir`.
 pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path) -> io::Result<()> {
     fonts();
-    let rows = order.len() as u32;
-    let plots: Vec<(&str, (u32, u32), Box<Plot<'_>>)> = vec![
-        (
-            "fig4_histograms",
-            (1100, 260 * rows),
-            Box::new(move |p: &Path, svg: bool| {
-                if svg {
-                    fig4(
-                        SVGBackend::new(p, (1100, 260 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                    )
-                } else {
-                    fig4(
-                        BitMapBackend::new(p, (1100, 260 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                    )
-                }
+    let n = order.len().max(1) as u32;
+    let s = &c.scenario;
+    let shift = f64::from(s.sync0_shift_ns());
+    let target = s.target_phase_ns as f64;
+    let deadline = out.margin_budget_ns + target;
+    let red = RGBColor(0xc0, 0x00, 0x00);
+    let grey = RGBColor(0x55, 0x55, 0x55);
+    let phase_marks = || {
+        vec![
+            Mark {
+                at_ns: target,
+                label: "target".into(),
+                color: grey,
+            },
+            Mark {
+                at_ns: deadline,
+                label: "late beyond (SYNC0 minus the frame's transit)".into(),
+                color: red,
+            },
+        ]
+    };
+    let margin_marks = || {
+        vec![Mark {
+            at_ns: 0.0,
+            label: "SYNC0 (late below 0)".into(),
+            color: red,
+        }]
+    };
+    let runs = crate::scenario::plural(u64::from(s.runs), "run", "runs");
+    let block = c
+        .results
+        .iter()
+        .flatten()
+        .next()
+        .map_or(1, |r| r.series_block);
+    let plots: Vec<Plot<'_>> = vec![
+        Plot {
+            name: "hist_phase",
+            caption: format!(
+                "When each frame reached the reference, after the DC grid point (the frames of all {runs} pooled; log scale of the share of cycles). The grey line is the target every method aims at ({:.1} us); a frame to the right of the red line ({:.1} us: SYNC0 at {:.1} us minus the frame's transit to the worst slave) was late. The spread is the host's scheduling jitter, which no master-shift method can remove from the actual send.",
+                target / 1000.0,
+                deadline / 1000.0,
+                shift / 1000.0
+            ),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 520), |r| overlaid(
+                    r,
+                    c,
+                    order,
+                    |x| &x.phase,
+                    "true phase: the frame's arrival at the reference after the DC grid point",
+                    1000.0,
+                    "us",
+                    &phase_marks(),
+                ))
             }),
-        ),
-        (
-            "series_m_rs",
-            (1100, 200 * rows),
-            Box::new(move |p: &Path, svg: bool| {
-                let t = "M-rS error, min..max per 1000 cycles (run 0)";
-                if svg {
-                    series(
-                        SVGBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                        0,
-                        t,
-                        1000.0,
-                        "us",
-                    )
-                } else {
-                    series(
-                        BitMapBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                        0,
-                        t,
-                        1000.0,
-                        "us",
-                    )
-                }
+        },
+        Plot {
+            name: "hist_margin",
+            caption: format!(
+                "SYNC0 minus the instant the frame's last bit passed the worst slave, per cycle: how much earlier than needed the outputs arrived. Below 0 (the red line) a drive met its SYNC0 without this cycle's outputs. SYNC0 is at {:.1} % of the cycle.",
+                s.sync0_shift_pct
+            ),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 520), |r| overlaid(
+                    r,
+                    c,
+                    order,
+                    |x| &x.margin,
+                    "SYNC0 margin at the worst slave",
+                    1000.0,
+                    "us",
+                    &margin_marks(),
+                ))
             }),
-        ),
-        (
-            "series_rs_is",
-            (1100, 200 * rows),
-            Box::new(move |p: &Path, svg: bool| {
-                let t = "rS-IS error |0x092C|, min..max per 1000 cycles (run 0)";
-                if svg {
-                    series(
-                        SVGBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                        1,
-                        t,
-                        1.0,
-                        "ns",
-                    )
-                } else {
-                    series(
-                        BitMapBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                        1,
-                        t,
-                        1.0,
-                        "ns",
-                    )
-                }
+        },
+        Plot {
+            name: "hist_spread",
+            caption: "The largest difference between a drive's system time and the reference's at the same instant (every 8th cycle): how well the drives agree. Bus shift methods move the reference, and the others follow it.".into(),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 480), |r| overlaid(
+                    r,
+                    c,
+                    order,
+                    |x| &x.slave_diff,
+                    "slave spread: largest |drive - reference| system time",
+                    1.0,
+                    "ns",
+                    &[],
+                ))
             }),
-        ),
-        (
-            "series_true_phase",
-            (1100, 200 * rows),
-            Box::new(move |p: &Path, svg: bool| {
-                let t = "true arrival phase at the reference, min..max per 1000 cycles (run 0)";
-                if svg {
-                    series(
-                        SVGBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                        2,
-                        t,
-                        1000.0,
-                        "us",
-                    )
-                } else {
-                    series(
-                        BitMapBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                        2,
-                        t,
-                        1000.0,
-                        "us",
-                    )
-                }
+        },
+        Plot {
+            name: "hist_m_rs",
+            caption: "The letter's M-rS error: its eq. (10) phi for master-shift methods (the reference's time at the frame's arrival against the master's send timestamp, less the set point), t_ra - t_ms for bus shift. It is what the master sees; the true phase above is what happened.".into(),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 480), |r| overlaid(
+                    r,
+                    c,
+                    order,
+                    |x| &x.m_rs,
+                    "M-rS error (the letter's measurement)",
+                    1000.0,
+                    "us",
+                    &[],
+                ))
             }),
-        ),
-        (
-            "truth_phase",
-            (1100, 200 * rows),
-            Box::new(move |p: &Path, svg: bool| {
-                if svg {
-                    truth_phase(
-                        SVGBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                    )
-                } else {
-                    truth_phase(
-                        BitMapBackend::new(p, (1100, 200 * rows)).into_drawing_area(),
-                        c,
-                        order,
-                    )
-                }
+        },
+        Plot {
+            name: "hist_rs_is",
+            caption: "The letter's rS-IS error: the magnitude of a BRD of 0x092C, the OR of every drive's filtered difference to the times it received. Bus shift's writes to the reference show here.".into(),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 480), |r| overlaid(
+                    r,
+                    c,
+                    order,
+                    |x| &x.rs_is,
+                    "rS-IS error |0x092C| (the letter's measurement)",
+                    1.0,
+                    "ns",
+                    &[],
+                ))
             }),
-        ),
+        },
+        Plot {
+            name: "series_true_phase",
+            caption: format!(
+                "Run 0's true phase over time: per block of {block} cycles the extremes (light), the 1st to 99th percentile (dark) and the median (line), with the target (grey) and the late line (red) where they fit the axis. The first seconds show how a method pulls in after its warm-up."
+            ),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 150 * n + 40), |r| bands(
+                    r,
+                    c,
+                    order,
+                    2,
+                    "true phase over time (run 0)",
+                    1000.0,
+                    "us",
+                    &phase_marks(),
+                ))
+            }),
+        },
+        Plot {
+            name: "series_m_rs",
+            caption: format!("Run 0's M-rS error over time, bands as above (blocks of {block} cycles)."),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 150 * n + 40), |r| bands(
+                    r,
+                    c,
+                    order,
+                    0,
+                    "M-rS error over time (run 0)",
+                    1000.0,
+                    "us",
+                    &[],
+                ))
+            }),
+        },
+        Plot {
+            name: "series_rs_is",
+            caption: format!("Run 0's rS-IS error over time, bands as above (blocks of {block} cycles)."),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 150 * n + 40), |r| bands(
+                    r,
+                    c,
+                    order,
+                    1,
+                    "rS-IS error |0x092C| over time (run 0)",
+                    1.0,
+                    "ns",
+                    &[],
+                ))
+            }),
+        },
+        Plot {
+            name: "fig4_histograms",
+            caption: "The letter's Fig. 4 layout: each method's M-rS and rS-IS distributions on their own axes (linear scale).".into(),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 220 * n), |r| fig4(r, c, order))
+            }),
+        },
     ];
-    for (name, _, f) in &plots {
+    for pl in &plots {
         for (ext, svg) in [("svg", true), ("png", false)] {
-            let fin = dir.join(format!("{name}.{ext}"));
-            let tmp = dir.join(format!("{name}.tmp-ecsync.{ext}"));
-            f(&tmp, svg)?;
+            let fin = dir.join(format!("{}.{ext}", pl.name));
+            let tmp = dir.join(format!("{}.tmp-ecsync.{ext}", pl.name));
+            (pl.draw)(&tmp, svg)?;
             std::fs::rename(&tmp, &fin)?;
         }
     }
-    let html = report_html(out, order, &plots.iter().map(|p| p.0).collect::<Vec<_>>());
+    let html = report_html(
+        out,
+        order,
+        &plots
+            .iter()
+            .map(|p| (p.name, p.caption.as_str()))
+            .collect::<Vec<_>>(),
+    );
     crate::report::write_atomic(&dir.join("report.html"), html.as_bytes())
 }
 
@@ -419,115 +672,77 @@ pub(crate) fn esc(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
-fn report_html(out: &SummaryOut, order: &[String], plots: &[&str]) -> String {
+fn report_html(out: &SummaryOut, order: &[String], plots: &[(&str, &str)]) -> String {
     let mut h = String::new();
-    let us = |v: f64| format!("{:.3}", v / 1000.0);
     let _ = write!(
         h,
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>ecsync compare: {}</title>\
-<style>body{{font-family:sans-serif;margin:2em;max-width:1200px}}table{{border-collapse:collapse;margin:1em 0}}\
+<style>body{{font-family:sans-serif;margin:2em;max-width:1200px;color:#222}}table{{border-collapse:collapse;margin:1em 0}}\
 td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}th{{background:#eee}}td.l,th.l{{text-align:left}}\
-.letter{{color:#777}}img{{max-width:100%;border:1px solid #ddd;margin:0.5em 0}}</style></head><body>",
+.verdict{{border:2px solid #2c7a2c;background:#f3faf3;padding:0.8em 1.2em;margin:1em 0}}.verdict h2{{margin-top:0}}\
+.warn{{border-left:4px solid #c77700;background:#fff8ec;padding:0.4em 0.8em;margin:0.4em 0}}\
+.interrupted{{border:2px solid #c00;background:#fff0f0;padding:0.5em 1em}}\
+pre{{background:#f7f7f7;padding:0.6em;overflow-x:auto;font-size:12px}}\
+figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:100%;border:1px solid #ddd}}</style></head><body>",
         esc(&out.scenario)
     );
     let _ = write!(
         h,
-        "<h1>ecsync compare</h1><p>{}: {} slaves, host <b>{}</b>, {} runs &times; {} recorded cycles after {} warm-up cycles, cycle {} us, SYNC0 shift {} %, seed {}. Every method saw the same noise.</p>",
+        "<h1>ecsync compare</h1><p>{}: {} slaves, host <b>{}</b>, {} &times; {} recorded cycles after {} warm-up cycles, cycle {} us, SYNC0 shift {} %, target phase {:.1} us, seed {}. Every method saw the same noise.</p>",
         esc(&out.scenario),
         out.slaves,
         esc(&out.host),
-        out.runs,
+        crate::scenario::plural(u64::from(out.runs), "run", "runs"),
         out.cycles,
         out.warmup_cycles,
         out.cycle_ns / 1000,
         out.sync0_shift_pct,
+        out.target_phase_ns as f64 / 1000.0,
         out.seed
     );
+    if out.interrupted {
+        let _ = write!(
+            h,
+            "<p class=interrupted><b>Interrupted</b>: the figures are of the {} recorded cycles done.</p>",
+            out.cycles_done
+        );
+    }
+    let r = &out.recommendation;
+    let _ = write!(
+        h,
+        "<div class=verdict><h2>Recommendation: {}</h2><p>{}</p><p>Ranking: {}.</p><p><small>Rule: {}.</small></p></div>",
+        esc(&r.method),
+        esc(&r.reason),
+        esc(&r.ranking.join(" &gt; ")).replace("&amp;gt;", "&gt;"),
+        esc(r.rule)
+    );
+    for w in &out.warnings {
+        let _ = write!(h, "<p class=warn>{}</p>", esc(&w.message));
+    }
+    let _ = write!(
+        h,
+        "<h2>Ground truth</h2><pre>{}</pre><pre>{}</pre><h2>The letter's measurements</h2><pre>{}</pre>",
+        esc(&truth_text(out, order)),
+        esc(&per_slave_text(out)),
+        esc(&table1_text(out, order))
+    );
     let _ = write!(h, "<h2>Plots</h2>");
-    for p in plots {
-        let _ = write!(h, "<h3>{p}</h3><img src=\"{p}.svg\" alt=\"{p}\">");
-    }
-    let _ = write!(
-        h,
-        "<h2>Table 1 (us): ecsync beside the letter</h2><table><tr><th class=l>Indicator</th>"
-    );
-    for m in order {
-        let mo = &out.methods[m];
+    for (name, caption) in plots {
         let _ = write!(
             h,
-            "<th colspan=2>{} {}</th>",
-            esc(m),
-            if mo.letter_name == "-" {
-                String::new()
-            } else {
-                format!("({})", mo.letter_name)
-            }
-        );
-    }
-    let _ = write!(h, "</tr><tr><th></th>");
-    for _ in order {
-        let _ = write!(h, "<th>M-rS</th><th>rS-IS</th>");
-    }
-    let _ = write!(h, "</tr>");
-    for (label, k) in [("MMean", 0), ("MStd", 1), ("MMax", 2), ("MMin", 3)] {
-        let pick = |i: &crate::report::Indicators| [i.mean, i.std, i.max, i.min][k];
-        let pickl = |r: &crate::letter::Row| [r.mean, r.std, r.max, r.min][k];
-        let _ = write!(h, "<tr><td class=l>{label} ecsync</td>");
-        for m in order {
-            let mo = &out.methods[m];
-            let _ = write!(
-                h,
-                "<td>{}</td><td>{}</td>",
-                us(pick(&mo.m_rs)),
-                us(pick(&mo.rs_is))
-            );
-        }
-        let _ = write!(h, "</tr><tr class=letter><td class=l>{label} letter</td>");
-        for m in order {
-            match &out.methods[m].letter {
-                Some(l) => {
-                    let _ = write!(
-                        h,
-                        "<td>{}</td><td>{}</td>",
-                        us(pickl(&l.m_rs)),
-                        us(pickl(&l.rs_is))
-                    );
-                }
-                None => {
-                    let _ = write!(h, "<td>-</td><td>-</td>");
-                }
-            }
-        }
-        let _ = write!(h, "</tr>");
-    }
-    let _ = write!(h, "</table>");
-    let _ = write!(
-        h,
-        "<h2>Ground truth</h2><table><tr><th class=l>method</th><th>true phase std (us)</th><th>phase p99.9 |x| (us)</th><th>|slave-ref| p99 (ns)</th><th>|slave-ref| max (ns)</th><th>SYNC0 margin min (us)</th><th>late frames @ {} %</th><th>smallest safe shift (%)</th><th>lost frames</th><th>DC lock (ms)</th></tr>",
-        out.sync0_shift_pct
-    );
-    for m in order {
-        let mo = &out.methods[m];
-        let g = &mo.ground_truth;
-        let _ = write!(
-            h,
-            "<tr><td class=l>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.1}</td><td>{:.1}</td><td>{:.1}</td><td>{}</td><td>{:.1}</td><td>{}</td><td>{:.1}</td></tr>",
-            esc(m),
-            g.phase.std / 1000.0,
-            g.phase.p999 / 1000.0,
-            g.slave_ref_diff.p99,
-            g.slave_ref_diff.max_abs,
-            g.sync0_margin.min / 1000.0,
-            g.late_frames,
-            g.smallest_safe_shift_pct,
-            g.lost_frames,
-            mo.lock_ms
+            "<figure><img src=\"{name}.svg\" alt=\"{name}\"><figcaption>{}</figcaption></figure>",
+            esc(caption)
         );
     }
     let _ = write!(
         h,
-        "</table><p>Definitions: M-rS is the letter's eq. (10) &phi; for master-shift methods and t<sub>ra</sub> &minus; t<sub>ms</sub> for bus shift; rS-IS is the magnitude of a BRD of 0x092C (the OR of every slave's register, as the letter reads it). The true phase is when the frame reached the reference, in its system time, after the DC grid point the master aims at; SYNC0 fires at the shift after it; a frame is late when its last bit passes the last slave after SYNC0. Files: <a href=\"summary.json\">summary.json</a>, <a href=\"summary.csv\">summary.csv</a>, <a href=\"table1.txt\">table1.txt</a>. Wall time {:.1} s on {} threads.</p></body></html>",
-        out.wall_s, out.threads
+        "<p>Quantiles: {} (relative error {:.2e}, absolute {} ns). Files: <a href=\"summary.json\">summary.json</a>, <a href=\"summary.csv\">summary.csv</a>, <a href=\"table1.txt\">table1.txt</a>. Wall time {:.1} s on {}.</p><pre>{}</pre></body></html>",
+        esc(out.quantiles.definition),
+        out.quantiles.rel_error,
+        out.quantiles.abs_error_ns,
+        out.wall_s,
+        crate::scenario::plural(out.threads as u64, "thread", "threads"),
+        esc(&verdict_text(out))
     );
     h
 }

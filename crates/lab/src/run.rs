@@ -4,8 +4,8 @@
 use crate::host::{CycleNoise, HostNoise, SharedNoise};
 use crate::scenario::Scenario;
 use crate::stats::{Stats, Summary};
-use ecsync_dc::sync::MasterSync;
-use ecsync_dc::{BusShift, MedianSync, PiM2s, Snap, SoemPi};
+use ecsync_dc::sync::{ControllerLog, MasterSync, ReferenceWrite};
+use ecsync_dc::{BusShift, Dcm, DcmMode, MedianFit, MedianSync, PiM2s, Snap, SoemPi};
 use ecsync_esc::clock::CrystalParams;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
@@ -13,20 +13,27 @@ use ecsync_master::cyclic::{CycleRecord, CyclicConfig, CyclicEngine};
 use ecsync_master::sim::{MasterClock, SIM_EPOCH_NS, SimTransport};
 use ecsync_master::{Engine, MasterError};
 use serde::Serialize;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// The five methods behind one type (static dispatch, no allocation; the median's window
-/// makes it the large one, and one method lives per run).
+/// The methods behind one type (static dispatch, no allocation; the median's window makes it
+/// the large one, and one method lives per run).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[allow(clippy::large_enum_variant)]
 pub enum Method {
     /// The letter's median-filter drift compensator.
     Median(MedianSync),
+    /// The letter's filter and gain with h_mr and the drift fitted.
+    MedianFit(MedianFit),
     /// E-M2S.
     PiM2s(PiM2s),
     /// E-S2M.
     BusShift(BusShift),
+    /// The vendor note's DCM, bus shift or master shift.
+    Dcm(Dcm),
     /// ethercrab's snap.
     Snap(Snap),
     /// SOEM's sample PI.
@@ -34,13 +41,21 @@ pub enum Method {
 }
 
 impl Method {
-    /// The method named `name` with the scenario's parameters.
+    /// The method named `name` with the scenario's parameters, aiming at its target phase.
     pub fn from_scenario(name: &str, s: &Scenario) -> Option<Method> {
+        let p = i64::from(s.cycle_ns);
+        let target = s.target_phase_ns;
         Some(match name {
             "median" => Method::Median(MedianSync::new(
                 s.median.window as usize,
                 s.median.gain,
                 s.median.init_frames as u64,
+            )),
+            "median-fit" => Method::MedianFit(MedianFit::new(
+                s.median_fit.window as usize,
+                s.median_fit.gain,
+                s.median_fit.init_frames as u64,
+                target,
             )),
             "pi-m2s" => Method::PiM2s(PiM2s::new(
                 s.pi_m2s.kp,
@@ -50,10 +65,20 @@ impl Method {
             "bus-shift" => Method::BusShift(BusShift {
                 write_offset_ns: s.bus_shift.write_offset_ns,
             }),
+            "dcm-bus-shift" => Method::Dcm(Dcm::new(
+                DcmMode::BusShift,
+                s.dcm_bus_shift.to_params(target, s.cycle_ns),
+            )),
+            "dcm-master-shift" => Method::Dcm(Dcm::new(
+                DcmMode::MasterShift,
+                s.dcm_master_shift.to_params(target, s.cycle_ns),
+            )),
+            // ethercrab's sync0_shift: the wait runs to the grid point plus the shift.
             "snap" => Method::Snap(Snap {
-                shift_ns: s.snap.shift_ns.clamp(0, i64::from(u32::MAX)) as u32,
+                shift_ns: target.rem_euclid(p) as u32,
             }),
-            "soem-pi" => Method::SoemPi(SoemPi::new(s.soem_pi.offset_ns)),
+            // SOEM's offset: the task runs that far after the reference's grid.
+            "soem-pi" => Method::SoemPi(SoemPi::new(target)),
             _ => return None,
         })
     }
@@ -61,8 +86,10 @@ impl Method {
     fn inner(&self) -> &dyn MasterSync {
         match self {
             Method::Median(m) => m,
+            Method::MedianFit(m) => m,
             Method::PiM2s(m) => m,
             Method::BusShift(m) => m,
+            Method::Dcm(m) => m,
             Method::Snap(m) => m,
             Method::SoemPi(m) => m,
         }
@@ -71,8 +98,10 @@ impl Method {
     fn inner_mut(&mut self) -> &mut dyn MasterSync {
         match self {
             Method::Median(m) => m,
+            Method::MedianFit(m) => m,
             Method::PiM2s(m) => m,
             Method::BusShift(m) => m,
+            Method::Dcm(m) => m,
             Method::Snap(m) => m,
             Method::SoemPi(m) => m,
         }
@@ -86,8 +115,14 @@ impl MasterSync for Method {
     fn is_master_shift(&self) -> bool {
         self.inner().is_master_shift()
     }
+    fn reference_write_kind(&self) -> ReferenceWrite {
+        self.inner().reference_write_kind()
+    }
     fn reference_write(&self, send_ns: u64) -> Option<u64> {
         self.inner().reference_write(send_ns)
+    }
+    fn controller_log(&self) -> Option<ControllerLog> {
+        self.inner().controller_log()
     }
     fn init_cycles(&self) -> u64 {
         self.inner().init_cycles()
@@ -108,80 +143,10 @@ pub struct Envelope {
     pub max: f32,
 }
 
-/// Cycles per time series point.
+/// Cycles per time series point of [`Series`].
 pub const SERIES_BLOCK: u64 = 1_000;
 
-/// What one run of one method measured.
-#[derive(Debug, Clone)]
-pub struct RunResult {
-    /// Method.
-    pub method: String,
-    /// Run index.
-    pub run: u32,
-    /// The letter's M-rS error, ns.
-    pub m_rs: Stats,
-    /// The letter's rS-IS error (|BRD of 0x092C|), ns.
-    pub rs_is: Stats,
-    /// Truth: the frame's arrival at the reference against the DC grid point it aims at, ns.
-    pub phase: Stats,
-    /// Truth: the largest |slave - reference| system time difference at the frame's pass, ns.
-    pub slave_diff: Stats,
-    /// Truth: SYNC0 margin at the last slave (SYNC0 time minus the frame's end there), ns.
-    pub margin: Stats,
-    /// Cycles whose frame reached the last slave after its SYNC0 (margin < 0).
-    pub late_frames: u64,
-    /// The latest end of a frame at the last slave after its grid point, ns: the smallest SYNC0
-    /// shift without a late frame.
-    pub latest_end_ns: f64,
-    /// Frames lost.
-    pub lost_frames: u64,
-    /// Cycles whose LRW working counter was not the expected one.
-    pub bad_wkc: u64,
-    /// Time series of M-rS, rS-IS and the true phase.
-    pub series: [Vec<Envelope>; 3],
-    /// Bring-up: DC lock time, ms.
-    pub lock_ms: Option<f64>,
-}
-
-impl RunResult {
-    /// Summaries of the five quantities.
-    pub fn summaries(&self) -> [Summary; 5] {
-        [
-            self.m_rs.summary(),
-            self.rs_is.summary(),
-            self.phase.summary(),
-            self.slave_diff.summary(),
-            self.margin.summary(),
-        ]
-    }
-}
-
-/// Why a run could not complete.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// The bring-up failed.
-    #[error("bring-up failed: {0}")]
-    Bringup(#[from] MasterError),
-    /// The scenario names a method that does not exist.
-    #[error("unknown method {0}")]
-    UnknownMethod(String),
-    /// The cyclic frame does not fit.
-    #[error("cyclic frame: {0}")]
-    Frame(ecsync_wire::WireError),
-}
-
-fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-/// The seed of run `run`.
-pub fn run_seed(base: u64, run: u32) -> u64 {
-    splitmix(base ^ splitmix(u64::from(run) + 1))
-}
-
+/// Min..max envelopes per block of [`SERIES_BLOCK`] cycles (the TSN run's series).
 pub(crate) struct Series {
     out: Vec<Envelope>,
     cur: Option<Envelope>,
@@ -229,6 +194,251 @@ impl Series {
     }
 }
 
+/// Points of a comparison's time series whatever the number of cycles: the output stays the
+/// same size at a thousand cycles and at a billion.
+pub const BAND_POINTS: u64 = 600;
+
+/// A point of a time series of percentile bands: the block's extremes, its 1st, 50th and 99th
+/// percentiles (exact, from the block's samples), ns.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Band {
+    /// First cycle of the block.
+    pub cycle: u64,
+    /// Cycles in the block with a sample.
+    pub n: u32,
+    /// Smallest value.
+    pub min: f32,
+    /// 1st percentile.
+    pub p01: f32,
+    /// Median.
+    pub p50: f32,
+    /// 99th percentile.
+    pub p99: f32,
+    /// Largest value.
+    pub max: f32,
+}
+
+/// Percentile bands over blocks of a fixed number of cycles.
+#[derive(Debug, Clone)]
+pub struct Bands {
+    block: u64,
+    start: u64,
+    buf: Vec<f32>,
+    out: Vec<Band>,
+}
+
+impl Bands {
+    /// Bands for `cycles` recorded cycles, [`BAND_POINTS`] blocks at most.
+    pub fn new(cycles: u64) -> Self {
+        let block = cycles.div_ceil(BAND_POINTS).max(1);
+        Bands {
+            block,
+            start: 0,
+            buf: Vec::with_capacity(block.min(1 << 20) as usize),
+            out: Vec::with_capacity(BAND_POINTS as usize + 1),
+        }
+    }
+
+    /// Cycles per point.
+    pub fn block_cycles(&self) -> u64 {
+        self.block
+    }
+
+    /// Adds the value of recorded cycle `k` (cycles come in order).
+    #[inline]
+    pub fn add(&mut self, k: u64, x: f64) {
+        if k >= self.start + self.block {
+            self.flush();
+            self.start = k / self.block * self.block;
+        }
+        self.buf.push(x as f32);
+    }
+
+    fn flush(&mut self) {
+        let n = self.buf.len();
+        if n == 0 {
+            return;
+        }
+        let at = |q: f64| ((q * n as f64).ceil() as usize).clamp(1, n) - 1;
+        let b = &mut self.buf;
+        let (i50, i01, i99) = (at(0.5), at(0.01), at(0.99));
+        let (lo, med, hi) = b.select_nth_unstable_by(i50, f32::total_cmp);
+        let med = *med;
+        let p01 = if i01 < i50 {
+            *lo.select_nth_unstable_by(i01, f32::total_cmp).1
+        } else {
+            med
+        };
+        let min = lo.iter().copied().fold(med, f32::min);
+        let p99 = if i99 > i50 {
+            *hi.select_nth_unstable_by(i99 - i50 - 1, f32::total_cmp).1
+        } else {
+            med
+        };
+        let max = hi.iter().copied().fold(med, f32::max);
+        self.out.push(Band {
+            cycle: self.start,
+            n: n as u32,
+            min,
+            p01,
+            p50: med,
+            p99,
+            max,
+        });
+        self.buf.clear();
+    }
+
+    /// The points.
+    pub fn finish(mut self) -> Vec<Band> {
+        self.flush();
+        self.out
+    }
+}
+
+/// What one slave's frames did against its SYNC0.
+#[derive(Debug, Clone)]
+pub struct SlaveTruth {
+    /// Auto-increment position.
+    pub position: u16,
+    /// SYNC0 minus the instant the frame's last bit (its outputs, checked by the FCS) passed
+    /// the slave, ns.
+    pub margin: Stats,
+    /// The latest end of a frame at this slave after its grid point, ns: the smallest SYNC0
+    /// shift this slave needs.
+    pub latest_end_ns: f64,
+    /// Cycles whose frame passed it after its SYNC0.
+    pub late_frames: u64,
+}
+
+/// The drift the frames underwent while a method averaged its init frames, from the true
+/// phase of those frames (least squares).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct InitDrift {
+    /// Init frames.
+    pub frames: u64,
+    /// The phase's drift, ns per cycle (ppm when the cycle is 1 ms).
+    pub drift_ns_per_cycle: f64,
+    /// How far the init frames' mean phase lies from the first frame's, ns: where the
+    /// letter's averaging puts its set point against where the frames were aimed.
+    pub offset_ns: f64,
+}
+
+/// What a controller with a log reported (DCM).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct ControllerTruth {
+    /// Recorded cycles reported in sync.
+    pub in_sync_cycles: u64,
+    /// Times the controller left "in sync" during the recorded cycles.
+    pub sync_losses: u64,
+    /// The first cycle of the cyclic phase (warm-up included) reported in sync.
+    pub first_in_sync_cycle: Option<u64>,
+    /// Whether it was in sync at the last cycle.
+    pub in_sync_at_end: bool,
+    /// Recorded cycles whose error the filter did not use.
+    pub invalid_errors: u64,
+    /// The drift the controller had learnt at the end, ppm.
+    pub drift_ppm_at_end: f64,
+}
+
+/// What one run of one method measured.
+#[derive(Debug, Clone)]
+pub struct RunResult {
+    /// Method.
+    pub method: String,
+    /// Run index.
+    pub run: u32,
+    /// Recorded cycles run (fewer than the scenario's when interrupted).
+    pub cycles_done: u64,
+    /// The letter's M-rS error, ns.
+    pub m_rs: Stats,
+    /// The letter's rS-IS error (|BRD of 0x092C|), ns.
+    pub rs_is: Stats,
+    /// Truth: the frame's arrival at the reference against its DC grid point, ns (the target
+    /// is the scenario's).
+    pub phase: Stats,
+    /// Truth: the phase minus the target, ns.
+    pub phase_error: Stats,
+    /// Truth: the largest |slave - reference| system time difference at the frame's pass, ns
+    /// (every 8th cycle).
+    pub slave_diff: Stats,
+    /// Truth: the worst slave's SYNC0 margin each cycle, ns.
+    pub margin: Stats,
+    /// Truth per slave with a DC unit.
+    pub per_slave: Vec<SlaveTruth>,
+    /// Cycles whose frame reached some slave after its SYNC0 (margin < 0).
+    pub late_frames: u64,
+    /// The latest end of a frame at any slave after its grid point, ns: the smallest SYNC0
+    /// shift without a late frame.
+    pub latest_end_ns: f64,
+    /// Frames lost.
+    pub lost_frames: u64,
+    /// Cycles whose LRW working counter was not the expected one.
+    pub bad_wkc: u64,
+    /// Time series of M-rS, rS-IS and the true phase.
+    pub series: [Vec<Band>; 3],
+    /// Cycles per series point.
+    pub series_block: u64,
+    /// Bring-up: DC lock time, ms.
+    pub lock_ms: Option<f64>,
+    /// The drift during the method's init frames (methods with init frames).
+    pub init_drift: Option<InitDrift>,
+    /// A controller's own report (methods with a log).
+    pub controller: Option<ControllerTruth>,
+    /// The cyclic frame's length on the wire, ns.
+    pub frame_wire_ns: f64,
+    /// The longest time from the frame's send to its reply, ns.
+    pub max_round_trip_ns: f64,
+    /// Why `--samples` could not be written (the run went on).
+    pub samples_error: Option<String>,
+}
+
+impl RunResult {
+    /// Summaries of the five quantities: M-rS, rS-IS, phase, slave spread, worst margin.
+    pub fn summaries(&self) -> [Summary; 5] {
+        [
+            self.m_rs.summary(),
+            self.rs_is.summary(),
+            self.phase.summary(),
+            self.slave_diff.summary(),
+            self.margin.summary(),
+        ]
+    }
+}
+
+/// Why a run could not complete.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The bring-up failed.
+    #[error("bring-up failed: {0}")]
+    Bringup(#[from] MasterError),
+    /// The scenario names a method that does not exist.
+    #[error("unknown method {0}")]
+    UnknownMethod(String),
+    /// The cyclic frame does not fit.
+    #[error("cyclic frame: {0}")]
+    Frame(ecsync_wire::WireError),
+    /// The per-cycle samples could not be written.
+    #[error("writing the samples to {path}: {err}")]
+    Samples {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        err: std::io::Error,
+    },
+}
+
+fn splitmix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// The seed of run `run`.
+pub fn run_seed(base: u64, run: u32) -> u64 {
+    splitmix(base ^ splitmix(u64::from(run) + 1))
+}
+
 /// A run's network after its bring-up: every method of the run continues from a copy of it
 /// (the bring-up does not depend on the method, and it is the same hardware and seed).
 #[derive(Debug)]
@@ -251,14 +461,20 @@ impl BroughtUp {
     }
 }
 
-/// Brings up the network of run `run` of the scenario.
-pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
+/// The crystals of run `run` (the same hardware in every run; the wander differs).
+pub fn run_specs(s: &Scenario, run: u32) -> Vec<ecsync_esc::SlaveSpec> {
     let seed = run_seed(s.seed, run);
-    // The same hardware in every run; the crystals' wander and the host's noise differ.
     let mut specs = s.slaves.clone();
     for (i, sp) in specs.iter_mut().enumerate() {
         sp.crystal.seed = splitmix(seed ^ (0x5eed_0000 + i as u64) ^ sp.crystal.seed);
     }
+    specs
+}
+
+/// Brings up the network of run `run` of the scenario.
+pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
+    let seed = run_seed(s.seed, run);
+    let specs = run_specs(s, run);
     let segment = Segment::new(&specs).map_err(|e| MasterError::Config(e.to_string()))?;
     let mut sim = SimTransport::new(segment);
     sim.master_clock = MasterClock::new(CrystalParams {
@@ -287,6 +503,56 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
     })
 }
 
+/// An online least-squares line (Welford's updates).
+#[derive(Debug, Clone, Copy, Default)]
+struct LineFit {
+    n: f64,
+    mx: f64,
+    my: f64,
+    cxx: f64,
+    cxy: f64,
+}
+
+impl LineFit {
+    fn add(&mut self, x: f64, y: f64) {
+        self.n += 1.0;
+        let dx = x - self.mx;
+        self.mx += dx / self.n;
+        self.my += (y - self.my) / self.n;
+        self.cxx += dx * (x - self.mx);
+        self.cxy += dx * (y - self.my);
+    }
+
+    fn slope(&self) -> f64 {
+        if self.cxx > 0.0 {
+            self.cxy / self.cxx
+        } else {
+            0.0
+        }
+    }
+}
+
+/// `--samples`: one CSV row per recorded cycle.
+struct SampleSink {
+    path: String,
+    out: std::io::BufWriter<std::fs::File>,
+    line: String,
+    failed: Option<String>,
+}
+
+impl SampleSink {
+    fn write_line(&mut self) {
+        if self.failed.is_some() {
+            return;
+        }
+        self.line.push('\n');
+        if let Err(e) = self.out.write_all(self.line.as_bytes()) {
+            self.failed = Some(format!("{}: {e}", self.path));
+        }
+        self.line.clear();
+    }
+}
+
 /// One method's run in progress: the cyclic phase, resumable in steps of any number of cycles
 /// (so that a scheduler can share the cores fairly between runs; the result does not depend on
 /// the steps).
@@ -299,19 +565,28 @@ pub struct Run {
     shared_noise: Option<Arc<SharedNoise>>,
     noise_buf: Vec<CycleNoise>,
     res: RunResult,
-    series: [Series; 3],
+    series: [Bands; 3],
     grid0: Option<(u64, i64)>,
+    init_fit: LineFit,
+    init_last: Option<f64>,
+    init_frames: u64,
     prev_done_ns: u64,
     next_cycle: u64,
     warmup_cycles: u64,
     total_cycles: u64,
     period_ns: u64,
     shift_ns: f64,
+    target_ns: i64,
     rx_latency_ps: u64,
     reference: usize,
-    last: usize,
+    /// Slaves with a DC unit (SYNC0), by position.
+    dc_slaves: Vec<usize>,
     expected_lrw_wkc: u16,
     pdi_len: u32,
+    samples: Option<SampleSink>,
+    was_in_sync: bool,
+    /// This cycle's margin per DC slave (NaN: none), for the samples.
+    margins: Vec<f64>,
 }
 
 impl std::fmt::Debug for Run {
@@ -331,29 +606,45 @@ impl Run {
         let net = &up.net;
         let lock_ms = net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6);
         let reference = usize::from(net.reference);
-        let last = sim.segment.len() - 1;
         let ref_station = net.slaves[reference].station;
 
         let method = Method::from_scenario(method_name, s)
             .ok_or_else(|| RunError::UnknownMethod(method_name.to_string()))?;
         let noise = HostNoise::new(s.host, up.seed);
         let period = u64::from(s.cycle_ns);
+        let init_frames = method.init_cycles().min(s.warmup_cycles);
         let cyc_cfg = CyclicConfig {
             period_ns: s.cycle_ns,
             reference_station: ref_station,
             pdi_len: net.pdi_len,
             measure_init_frames: method.init_cycles().max(10_000).min(s.warmup_cycles.max(1)),
+            reference_offset_ns: net.slaves[reference].offset.unwrap_or(0),
         };
-        // The first cycle: frames aimed at the reference's grid points. The reference's system
-        // time is close to the master's clock after the bring-up (its offset is the master's
-        // time), so the grid is the master's multiples of P, minus the mean time from the cycle
-        // start to the frame's arrival at the reference (e_m and the NIC latency; j_s's mean
-        // too).
+        // The first cycle: frames aimed at the target phase of the reference's grid. The
+        // reference's system time is close to the master's clock after the bring-up (its offset
+        // is the master's time), so the grid is the master's multiples of P, plus the target,
+        // minus the mean time from the cycle start to the frame's arrival at the reference that
+        // the master knows of its own host (e_m and the NIC latency; j_s's mean it does not).
         let now = sim.master_now_ns();
         let lead = s.host.em_ns + s.host.tx_latency_ns;
-        let first = (now / period + 2) * period - lead as u64;
+        let first = ((now / period + 2) * period)
+            .wrapping_add(s.target_phase_ns as u64)
+            .wrapping_sub(lead as u64);
         let eng = CyclicEngine::new(method, cyc_cfg, first).map_err(RunError::Frame)?;
-        let cap = (s.cycles / SERIES_BLOCK + 2) as usize;
+        let dc_slaves: Vec<usize> = (0..sim.segment.len())
+            .filter(|&x| sim.segment.esc(x).dc().is_some())
+            .collect();
+        let per_slave = dc_slaves
+            .iter()
+            .map(|&x| SlaveTruth {
+                position: x as u16,
+                margin: Stats::new(),
+                latest_end_ns: f64::NEG_INFINITY,
+                late_frames: 0,
+            })
+            .collect();
+        let has_log = method.controller_log().is_some();
+        let n_dc = dc_slaves.len();
         Ok(Run {
             sim,
             eng,
@@ -363,32 +654,80 @@ impl Run {
             res: RunResult {
                 method: method_name.to_string(),
                 run: up.run,
-                m_rs: Stats::new(-200_000.0, 10.0, 40_000),
-                rs_is: Stats::new(0.0, 1.0, 20_000),
-                phase: Stats::new(-200_000.0, 10.0, 40_000),
-                slave_diff: Stats::new(0.0, 1.0, 20_000),
-                margin: Stats::new(-500_000.0, 10.0, 100_000),
+                cycles_done: 0,
+                m_rs: Stats::new(),
+                rs_is: Stats::new(),
+                phase: Stats::new(),
+                phase_error: Stats::new(),
+                slave_diff: Stats::new(),
+                margin: Stats::new(),
+                per_slave,
                 late_frames: 0,
                 latest_end_ns: f64::NEG_INFINITY,
                 lost_frames: 0,
                 bad_wkc: 0,
                 series: Default::default(),
+                series_block: Bands::new(s.cycles).block_cycles(),
                 lock_ms,
+                init_drift: None,
+                controller: has_log.then(ControllerTruth::default),
+                frame_wire_ns: 0.0,
+                max_round_trip_ns: 0.0,
+                samples_error: None,
             },
-            series: [Series::new(cap), Series::new(cap), Series::new(cap)],
+            series: [
+                Bands::new(s.cycles),
+                Bands::new(s.cycles),
+                Bands::new(s.cycles),
+            ],
             grid0: None,
+            init_fit: LineFit::default(),
+            init_last: None,
+            init_frames,
             prev_done_ns: 0,
             next_cycle: 0,
             warmup_cycles: s.warmup_cycles,
             total_cycles: s.warmup_cycles + s.cycles,
             period_ns: period,
             shift_ns: f64::from(s.sync0_shift_ns()),
+            target_ns: s.target_phase_ns,
             rx_latency_ps: (s.host.rx_latency_ns * 1000.0) as u64,
             reference,
-            last,
+            dc_slaves,
             expected_lrw_wkc: net.expected_lrw_wkc,
             pdi_len: net.pdi_len,
+            samples: None,
+            was_in_sync: false,
+            margins: Vec::with_capacity(n_dc),
         })
+    }
+
+    /// Writes one CSV row per recorded cycle to `dir/<method>-run<r>.csv` (`--samples`).
+    pub fn write_samples(&mut self, dir: &Path) -> Result<(), RunError> {
+        let path = dir.join(format!("{}-run{}.csv", self.res.method, self.res.run));
+        let p = path.display().to_string();
+        let file = std::fs::File::create(&path).map_err(|err| RunError::Samples {
+            path: p.clone(),
+            err,
+        })?;
+        let mut line = String::from(
+            "cycle,lost,true_phase_ns,m_rs_ns,rs_is_ns,slave_spread_ns,worst_margin_ns,worst_slave,late",
+        );
+        for x in &self.dc_slaves {
+            let _ = write!(line, ",margin_{x}_ns");
+        }
+        if self.res.controller.is_some() {
+            line.push_str(",set_value_ns,ctl_error_ns,ctl_filtered_error_ns,ctl_adjustment_ns,ctl_drift_ppm,ctl_valid,ctl_in_sync");
+        }
+        let mut sink = SampleSink {
+            path: p,
+            out: std::io::BufWriter::with_capacity(1 << 16, file),
+            line,
+            failed: None,
+        };
+        sink.write_line();
+        self.samples = Some(sink);
+        Ok(())
     }
 
     /// Takes the run's noise from `shared` (drawn once for all methods of the run) instead of
@@ -403,6 +742,11 @@ impl Run {
     /// Cycles still to run (warm-up included).
     pub fn remaining(&self) -> u64 {
         self.total_cycles - self.next_cycle
+    }
+
+    /// Recorded cycles run so far.
+    pub fn recorded(&self) -> u64 {
+        self.next_cycle.saturating_sub(self.warmup_cycles)
     }
 
     /// Runs up to `max_cycles` more cycles; returns how many ran.
@@ -431,17 +775,25 @@ impl Run {
             res,
             series,
             grid0,
+            init_fit,
+            init_last,
             prev_done_ns,
+            samples,
+            was_in_sync,
+            dc_slaves,
+            margins,
             ..
         } = self;
-        let (warmup, period, shift, rx_latency_ps) = (
+        let (warmup, period, shift, rx_latency_ps, target) = (
             self.warmup_cycles,
             self.period_ns,
             self.shift_ns,
             self.rx_latency_ps,
+            self.target_ns,
         );
-        let (reference, last) = (self.reference, self.last);
+        let (reference, init_frames) = (self.reference, self.init_frames);
         let (expected_wkc, pdi_len) = (self.expected_lrw_wkc, self.pdi_len);
+        let p = period as f64;
         for (i, noise_i) in (start..end).zip(noise_block) {
             // The task wakes at the scheduled start (or when the previous cycle is done, if it
             // overran), late by j_s, and runs e_m before it timestamps and sends.
@@ -451,11 +803,16 @@ impl Run {
             let frame = eng.frame_to_send(send_ns);
             let n = frame.len();
             let out = sim.segment.process(frame, tx_ps);
+            let wire_ps = frame_wire_time_ps(n);
             let rec: CycleRecord = match out.returned_sof_ps {
                 Some(t) => {
-                    let rx_ps = t + frame_wire_time_ps(n) + rx_latency_ps;
+                    let rx_ps = t + wire_ps + rx_latency_ps;
                     let rx_ns = sim.master_clock.master_ns(rx_ps);
                     *prev_done_ns = rx_ns;
+                    if i >= warmup {
+                        res.max_round_trip_ns =
+                            res.max_round_trip_ns.max(rx_ns as f64 - send_ns as f64);
+                    }
                     eng.complete_in_place(true, send_ns, rx_ns)
                 }
                 None => {
@@ -463,14 +820,55 @@ impl Run {
                     eng.complete_in_place(false, send_ns, *prev_done_ns)
                 }
             };
+            let ctl = eng.sync().controller_log();
+            if let (Some(c), Some(t)) = (ctl, res.controller.as_mut()) {
+                if c.in_sync && t.first_in_sync_cycle.is_none() {
+                    t.first_in_sync_cycle = Some(i);
+                }
+            }
+            let seg = &sim.segment;
+            let sys =
+                |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
             if i < warmup {
+                // The init frames' drift, from their true phase.
+                if i < init_frames && rec.receive_ns.is_some() {
+                    if let Some(r) = seg.trace()[reference].pu_ps.and_then(|t| sys(reference, t)) {
+                        let raw = (r.0 as i64).wrapping_sub(target) as f64 + r.1;
+                        let raw = raw - p * (raw / p).round();
+                        let ph = match *init_last {
+                            Some(prev) => prev + (raw - prev) - p * ((raw - prev) / p).round(),
+                            None => raw,
+                        };
+                        *init_last = Some(ph);
+                        init_fit.add(i as f64, ph);
+                    }
+                }
                 continue;
             }
             let k = i - warmup;
+            res.cycles_done = k + 1;
+            if let (Some(c), Some(t)) = (ctl, res.controller.as_mut()) {
+                if c.in_sync {
+                    t.in_sync_cycles += 1;
+                } else if *was_in_sync {
+                    t.sync_losses += 1;
+                }
+                if !c.valid && rec.receive_ns.is_some() {
+                    t.invalid_errors += 1;
+                }
+                t.in_sync_at_end = c.in_sync;
+                t.drift_ppm_at_end = c.drift_ppm;
+                *was_in_sync = c.in_sync;
+            }
             if rec.receive_ns.is_none() {
                 res.lost_frames += 1;
+                if let Some(sk) = samples.as_mut() {
+                    let _ = write!(sk.line, "{k},1");
+                    sk.write_line();
+                }
                 continue;
             }
+            res.frame_wire_ns = wire_ps as f64 / 1000.0;
             if rec.lrw_wkc != Some(expected_wkc) && pdi_len > 0 {
                 res.bad_wkc += 1;
             }
@@ -483,52 +881,110 @@ impl Run {
                 series[1].add(k, f64::from(v));
             }
             // Ground truth from the segment.
-            let trace = sim.segment.trace();
-            let (Some(pu_ref), Some(pu_last)) = (trace[reference].pu_ps, trace[last].pu_ps) else {
+            let trace = seg.trace();
+            let Some(r) = trace[reference].pu_ps.and_then(|t| sys(reference, t)) else {
                 continue;
             };
-            let seg = &sim.segment;
-            let sys =
-                |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
-            let Some(r) = sys(reference, pu_ref) else {
-                continue;
-            };
-            // The grid point this frame aims at: fixed by the first recorded frame, one per
-            // cycle.
+            // The grid point this frame aims at: the one nearest the target at the first
+            // recorded frame, one per cycle from there.
             let (g0, k0) = *grid0.get_or_insert_with(|| {
-                let g = ((r.0 as f64 + r.1) / period as f64).round() as u64;
+                let g = ((r.0 as f64 + r.1 - target as f64) / p).round() as u64;
                 (g, k as i64)
             });
             let grid = (g0 + (k as i64 - k0) as u64) * period;
             let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
             res.phase.add(phase);
+            res.phase_error.add(phase - target as f64);
             series[2].add(k, phase);
             // The slaves' differences move slowly (the loops act once per cycle): every 8th
             // cycle is sampled.
+            let mut spread = None;
             if k % 8 == 0 {
                 let mut worst = 0.0f64;
-                for x in 0..seg.len() {
+                for &x in dc_slaves.iter() {
                     if x == reference {
                         continue;
                     }
-                    if let Some(v) = sys(x, pu_ref) {
+                    if let Some(v) = sys(x, trace[reference].pu_ps.unwrap_or(0)) {
                         let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
                         worst = worst.max(d.abs());
                     }
                 }
                 res.slave_diff.add(worst);
+                spread = Some(worst);
             }
-            // The frame has passed the last slave when its last bit has: SYNC0 needs it by
-            // then.
-            let end_ps = pu_last + frame_wire_time_ps(n);
-            if let Some(e) = sys(last, end_ps) {
+            // The frame has passed a slave when its last bit has: its outputs take effect
+            // after the FCS check, and SYNC0 needs them by then.
+            let mut worst_margin = f64::INFINITY;
+            let mut worst_slave = 0u16;
+            margins.clear();
+            for (st, &x) in res.per_slave.iter_mut().zip(dc_slaves.iter()) {
+                let Some(e) = trace[x].pu_ps.and_then(|pu| sys(x, pu + wire_ps)) else {
+                    margins.push(f64::NAN);
+                    continue;
+                };
                 let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
                 let margin = shift - end_after_grid;
-                res.margin.add(margin);
+                margins.push(margin);
+                st.margin.add(margin);
                 if margin < 0.0 {
+                    st.late_frames += 1;
+                }
+                if end_after_grid > st.latest_end_ns {
+                    st.latest_end_ns = end_after_grid;
+                }
+                if margin < worst_margin {
+                    worst_margin = margin;
+                    worst_slave = st.position;
+                }
+            }
+            let late = worst_margin < 0.0;
+            if worst_margin.is_finite() {
+                res.margin.add(worst_margin);
+                if late {
                     res.late_frames += 1;
                 }
-                res.latest_end_ns = res.latest_end_ns.max(end_after_grid);
+                res.latest_end_ns = res.latest_end_ns.max(shift - worst_margin);
+            }
+            if let Some(sk) = samples.as_mut() {
+                let l = &mut sk.line;
+                let _ = write!(l, "{k},0,{phase:.3},");
+                if let Some(m) = rec.m_rs_ns {
+                    let _ = write!(l, "{m}");
+                }
+                l.push(',');
+                if let Some(v) = rec.rs_is_ns {
+                    let _ = write!(l, "{v}");
+                }
+                l.push(',');
+                if let Some(v) = spread {
+                    let _ = write!(l, "{v:.3}");
+                }
+                if worst_margin.is_finite() {
+                    let _ = write!(l, ",{worst_margin:.3},{worst_slave},{}", u8::from(late));
+                } else {
+                    l.push_str(",,,0");
+                }
+                for m in margins.iter() {
+                    l.push(',');
+                    if m.is_finite() {
+                        let _ = write!(l, "{m:.3}");
+                    }
+                }
+                if let Some(c) = ctl {
+                    let _ = write!(
+                        l,
+                        ",{},{},{:.3},{},{:.6},{},{}",
+                        c.set_value_ns,
+                        c.error_ns,
+                        c.filtered_error_ns,
+                        c.adjustment_ns,
+                        c.drift_ppm,
+                        u8::from(c.valid),
+                        u8::from(c.in_sync)
+                    );
+                }
+                sk.write_line();
             }
         }
         self.next_cycle = end;
@@ -536,11 +992,27 @@ impl Run {
     }
 
     /// The result (of the cycles run so far).
-    pub fn finish(self) -> RunResult {
+    pub fn finish(self) -> Result<RunResult, RunError> {
         let mut res = self.res;
         let [a, b, c] = self.series;
         res.series = [a.finish(), b.finish(), c.finish()];
-        res
+        if self.init_frames >= 2 && self.next_cycle >= self.init_frames {
+            let d = self.init_fit.slope();
+            res.init_drift = Some(InitDrift {
+                frames: self.init_frames,
+                drift_ns_per_cycle: d,
+                offset_ns: d * (self.init_frames - 1) as f64 / 2.0,
+            });
+        }
+        if let Some(mut sk) = self.samples {
+            if sk.failed.is_none() {
+                if let Err(e) = sk.out.flush() {
+                    sk.failed = Some(format!("{}: {e}", sk.path));
+                }
+            }
+            res.samples_error = sk.failed;
+        }
+        Ok(res)
     }
 }
 
@@ -558,5 +1030,5 @@ pub fn run_one(
         let n = r.step(4096);
         progress.fetch_add(n, Ordering::Relaxed);
     }
-    Ok(r.finish())
+    r.finish()
 }

@@ -1,139 +1,232 @@
-//! Streaming statistics: mean, standard deviation, extremes (the letter's), RMS and quantiles of
-//! the absolute value from a fixed-bin histogram (p99, p99.9), without keeping the samples.
+//! Streaming statistics without ceilings: count, mean, standard deviation, RMS, the exact
+//! minimum and maximum, and quantiles of bounded error, without keeping the samples.
+//!
+//! Quantiles come from two HDR histograms (the `hdrhistogram` crate, 3 significant digits), one
+//! for the magnitudes of negative values and one for the rest, on a grid of
+//! [`RESOLUTION_NS`]. Every value lands in a bucket whose width is at most 2^-10 of the
+//! values it holds (exact below 2048 grid steps, 32 ns); a quantile is read as the middle of
+//! its bucket and clamped to the exact extremes, so it lies within [`quantile_error_bound`] of
+//! the sample of that rank: 2^-11 of its magnitude plus one grid step. The histograms grow
+//! with the values (no range to choose, nothing clamped): a value of any size is kept.
+//!
+//! A quantile `q` is the sample of rank `max(1, ceil(q n))` in ascending order (the lower,
+//! "inverted CDF" definition): sort the samples and take index `ceil(q n) - 1` to recompute it.
 
+use hdrhistogram::Histogram as Hdr;
 use serde::Serialize;
 
-/// A histogram of signed values with fixed bins; values outside the range land in the first
-/// or last bin (and are counted as such).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Histogram {
-    lo: f64,
-    bin: f64,
-    inv_bin: f64,
-    counts: Vec<u64>,
-    below: u64,
-    above: u64,
+/// The grid values are recorded on, ns.
+pub const RESOLUTION_NS: f64 = 1.0 / 64.0;
+const SCALE: f64 = 64.0;
+/// Relative part of the error bound of every quantile.
+pub const QUANTILE_REL_ERROR: f64 = 1.0 / 2048.0;
+/// Largest magnitude kept exactly in the histograms, in grid steps (about 7e16 ns, two years);
+/// larger ones land in the last bucket (the extremes stay exact).
+const MAX_STEPS: u64 = 1 << 62;
+
+/// How far a reported quantile can be from the sample of its rank, ns.
+pub fn quantile_error_bound(value_ns: f64) -> f64 {
+    value_ns.abs() * QUANTILE_REL_ERROR + RESOLUTION_NS
 }
 
-impl Histogram {
-    /// `bins` bins of width `bin` starting at `lo`.
-    pub fn new(lo: f64, bin: f64, bins: usize) -> Self {
-        Histogram {
-            lo,
-            bin,
-            inv_bin: 1.0 / bin,
-            counts: vec![0; bins.max(1)],
-            below: 0,
-            above: 0,
+fn hdr() -> Hdr<u64> {
+    // 3 significant digits; auto-resizing from a small initial range.
+    Hdr::new(3).expect("3 significant digits is a valid HDR configuration")
+}
+
+/// The distribution of a signed quantity: two HDR histograms, negatives by magnitude and the
+/// rest.
+#[derive(Debug, Clone)]
+pub struct Dist {
+    pos: Hdr<u64>,
+    neg: Hdr<u64>,
+}
+
+impl Default for Dist {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[inline]
+fn steps(magnitude_ns: f64) -> u64 {
+    let m = magnitude_ns * SCALE + 0.5;
+    if m < MAX_STEPS as f64 {
+        m as u64
+    } else {
+        MAX_STEPS
+    }
+}
+
+/// The value (grid steps, middle of its bucket) of rank `r` (1-based, ascending) in `h`.
+fn at_rank(h: &Hdr<u64>, r: u64) -> u64 {
+    let mut acc = 0;
+    for v in h.iter_recorded() {
+        acc += v.count_at_value();
+        if acc >= r {
+            return h.median_equivalent(v.value_iterated_to());
+        }
+    }
+    h.max()
+}
+
+impl Dist {
+    /// An empty distribution.
+    pub fn new() -> Self {
+        Dist {
+            pos: hdr(),
+            neg: hdr(),
         }
     }
 
-    /// Adds a value.
+    /// Adds a value, ns (NaN is not counted).
     #[inline]
     pub fn add(&mut self, x: f64) {
-        let k = (x - self.lo) * self.inv_bin;
-        let n = self.counts.len();
-        if k >= 0.0 && k < n as f64 {
-            // 0 <= k < n: truncation is the floor, and the signed conversion is one
-            // instruction (the unsigned one saturates in several).
-            self.counts[k as i64 as usize] += 1;
-        } else if k >= 0.0 {
-            self.above += 1;
-            self.counts[n - 1] += 1;
-        } else {
-            // Negative or NaN.
-            self.below += 1;
-            self.counts[0] += 1;
+        if x < 0.0 {
+            let _ = self.neg.record(steps(-x));
+        } else if x >= 0.0 {
+            let _ = self.pos.record(steps(x));
         }
     }
 
-    /// Adds another histogram of the same shape.
-    pub fn merge(&mut self, o: &Histogram) {
-        for (a, b) in self.counts.iter_mut().zip(&o.counts) {
-            *a += b;
-        }
-        self.below += o.below;
-        self.above += o.above;
+    /// Adds another distribution.
+    pub fn merge(&mut self, o: &Dist) {
+        // Both auto-resize, so an addition cannot run out of range.
+        let _ = self.pos.add(&o.pos);
+        let _ = self.neg.add(&o.neg);
     }
 
-    /// Total count.
+    /// Number of values.
     pub fn total(&self) -> u64 {
-        self.counts.iter().sum()
+        self.pos.len() + self.neg.len()
     }
 
-    /// The value below which a fraction `q` of the samples lie (upper edge of the bin).
-    pub fn quantile(&self, q: f64) -> f64 {
-        let n = self.total();
+    /// The value of rank `r` (1-based, ascending), ns; NaN when empty.
+    pub fn at_rank(&self, r: u64) -> f64 {
+        let n_neg = self.neg.len();
+        let n = n_neg + self.pos.len();
         if n == 0 {
             return f64::NAN;
         }
-        let target = (q * n as f64).ceil().max(1.0) as u64;
-        let mut acc = 0;
-        for (i, c) in self.counts.iter().enumerate() {
-            acc += c;
-            if acc >= target {
-                return self.lo + (i as f64 + 1.0) * self.bin;
-            }
+        let r = r.clamp(1, n);
+        if r <= n_neg {
+            -(at_rank(&self.neg, n_neg - r + 1) as f64) / SCALE
+        } else {
+            at_rank(&self.pos, r - n_neg) as f64 / SCALE
         }
-        self.lo + self.counts.len() as f64 * self.bin
     }
 
-    /// Bin centres and counts.
-    pub fn bins(&self) -> impl Iterator<Item = (f64, u64)> + '_ {
-        self.counts
-            .iter()
-            .enumerate()
-            .map(|(i, &c)| (self.lo + (i as f64 + 0.5) * self.bin, c))
+    /// Quantile `q` of the values, ns (see the module documentation for the definition).
+    pub fn quantile(&self, q: f64) -> f64 {
+        let n = self.total();
+        self.at_rank(((q * n as f64).ceil() as u64).max(1))
     }
 
-    /// Samples outside the range (below, above).
-    pub fn outside(&self) -> (u64, u64) {
-        (self.below, self.above)
+    /// Quantile `q` of |x|, ns.
+    pub fn abs_quantile(&self, q: f64) -> f64 {
+        let mut m = self.pos.clone();
+        let _ = m.add(&self.neg);
+        let n = m.len();
+        if n == 0 {
+            return f64::NAN;
+        }
+        at_rank(&m, ((q * n as f64).ceil() as u64).clamp(1, n)) as f64 / SCALE
+    }
+
+    /// The recorded values in ascending order as (value ns, count), one per bucket (the
+    /// bucket's middle).
+    pub fn bins(&self) -> Vec<(f64, u64)> {
+        let mut v: Vec<(f64, u64)> = self
+            .neg
+            .iter_recorded()
+            .map(|x| {
+                (
+                    -(self.neg.median_equivalent(x.value_iterated_to()) as f64) / SCALE,
+                    x.count_at_value(),
+                )
+            })
+            .collect();
+        v.reverse();
+        v.extend(self.pos.iter_recorded().map(|x| {
+            (
+                self.pos.median_equivalent(x.value_iterated_to()) as f64 / SCALE,
+                x.count_at_value(),
+            )
+        }));
+        v
     }
 }
 
-/// Mean, standard deviation, extremes, RMS and the histogram of one quantity. The histogram's
-/// range should be symmetric around 0 (or start at 0 for magnitudes): quantiles of |x| are read
-/// from it by folding.
-#[derive(Debug, Clone, PartialEq)]
+/// Count, mean, standard deviation, exact extremes, RMS and the distribution of one quantity.
+#[derive(Debug, Clone, Default)]
 pub struct Stats {
     n: u64,
-    sum: f64,
-    sum_sq: f64,
+    /// The first sample: sums are of `x - shift`, so that a large mean does not cancel the
+    /// variance away.
+    shift: f64,
+    s1: f64,
+    s2: f64,
     min: f64,
     max: f64,
-    /// Histogram of the values.
-    pub hist: Histogram,
+    /// The distribution of the values.
+    pub dist: Dist,
 }
 
 impl Stats {
-    /// Statistics with a histogram of `bins` bins of width `bin` from `lo`.
-    pub fn new(lo: f64, bin: f64, bins: usize) -> Self {
+    /// No samples yet.
+    pub fn new() -> Self {
         Stats {
             n: 0,
-            sum: 0.0,
-            sum_sq: 0.0,
+            shift: 0.0,
+            s1: 0.0,
+            s2: 0.0,
             min: f64::INFINITY,
             max: f64::NEG_INFINITY,
-            hist: Histogram::new(lo, bin, bins),
+            dist: Dist::new(),
         }
     }
 
-    /// Adds a sample.
+    /// Adds a sample, ns (NaN is ignored).
     #[inline]
     pub fn add(&mut self, x: f64) {
+        if x.is_nan() {
+            return;
+        }
+        if self.n == 0 {
+            self.shift = x;
+        }
         self.n += 1;
-        self.sum += x;
-        self.sum_sq += x * x;
-        // Plain comparisons: a NaN sample leaves the extremes alone (and lands in the
-        // histogram's first bin) without the NaN handling of `f64::min`.
+        let d = x - self.shift;
+        self.s1 += d;
+        self.s2 += d * d;
+        // Plain comparisons (NaN is excluded above).
         if x < self.min {
             self.min = x;
         }
         if x > self.max {
             self.max = x;
         }
-        self.hist.add(x);
+        self.dist.add(x);
+    }
+
+    /// Adds another set of samples.
+    pub fn merge(&mut self, o: &Stats) {
+        if o.n == 0 {
+            return;
+        }
+        if self.n == 0 {
+            *self = o.clone();
+            return;
+        }
+        // Re-centre o's sums on our shift: sum (x - a) = sum (x - b) + n (b - a).
+        let k = o.shift - self.shift;
+        let n = o.n as f64;
+        self.s1 += o.s1 + n * k;
+        self.s2 += o.s2 + 2.0 * k * o.s1 + n * k * k;
+        self.n += o.n;
+        self.min = self.min.min(o.min);
+        self.max = self.max.max(o.max);
+        self.dist.merge(&o.dist);
     }
 
     /// Samples so far.
@@ -141,107 +234,156 @@ impl Stats {
         self.n
     }
 
-    /// Quantile `q` of |x|, from the histogram folded at 0 (upper edge of the bin).
-    pub fn abs_quantile(&self, q: f64) -> f64 {
-        let h = &self.hist;
-        let n = h.total();
-        if n == 0 {
-            return f64::NAN;
-        }
-        // Bin i covers [lo + i b, lo + (i+1) b); its |x| is at most max(|edges|).
-        let mut mags: Vec<(f64, u64)> = h
-            .counts
-            .iter()
-            .enumerate()
-            .filter(|(_, c)| **c > 0)
-            .map(|(i, &c)| {
-                let a = h.lo + i as f64 * h.bin;
-                (a.abs().max((a + h.bin).abs()), c)
-            })
-            .collect();
-        mags.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let target = (q * n as f64).ceil().max(1.0) as u64;
-        let mut acc = 0;
-        for (m, c) in mags {
-            acc += c;
-            if acc >= target {
-                return m;
-            }
-        }
-        f64::NAN
+    /// Quantile `q` of the values, clamped to the exact extremes, ns.
+    pub fn quantile(&self, q: f64) -> f64 {
+        self.dist.quantile(q).clamp(self.min, self.max)
     }
 
-    /// The summary.
+    /// Quantile `q` of |x|, clamped to the largest |x|, ns.
+    pub fn abs_quantile(&self, q: f64) -> f64 {
+        let max_abs = self.max.abs().max(self.min.abs());
+        let lo = if self.min <= 0.0 && self.max >= 0.0 {
+            0.0
+        } else {
+            self.min.abs().min(self.max.abs())
+        };
+        self.dist.abs_quantile(q).clamp(lo, max_abs)
+    }
+
+    /// The summary (all NaN but `n` when there are no samples).
     pub fn summary(&self) -> Summary {
         if self.n == 0 {
-            return Summary::default();
+            return Summary::empty();
         }
         let n = self.n as f64;
-        let mean = self.sum / n;
+        let m = self.s1 / n;
+        let var = (self.s2 / n - m * m).max(0.0);
+        let mean = self.shift + m;
         let max_abs = self.max.abs().max(self.min.abs());
         Summary {
             n: self.n,
             mean,
-            std: (self.sum_sq / n - mean * mean).max(0.0).sqrt(),
-            max: self.max,
+            std: var.sqrt(),
+            rms: (var + mean * mean).sqrt(),
             min: self.min,
-            rms: (self.sum_sq / n).sqrt(),
-            // The histogram gives a bin's upper edge: never beyond the largest sample.
-            p99_abs: self.abs_quantile(0.99).min(max_abs),
-            p999_abs: self.abs_quantile(0.999).min(max_abs),
+            max: self.max,
             max_abs,
+            p001: self.quantile(0.001),
+            p01: self.quantile(0.01),
+            p50: self.quantile(0.5),
+            p99: self.quantile(0.99),
+            p999: self.quantile(0.999),
+            p99_abs: self.abs_quantile(0.99),
+            p999_abs: self.abs_quantile(0.999),
         }
     }
 }
 
-/// What a run reports for one quantity.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+/// What is reported of one quantity, ns. Quantiles are of the signed values unless named
+/// `_abs`; each lies within [`quantile_error_bound`] of the sample of its rank.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Summary {
     /// Samples.
     pub n: u64,
-    /// Mean, ns.
+    /// Mean.
     pub mean: f64,
-    /// Standard deviation, ns.
+    /// Standard deviation (population).
     pub std: f64,
-    /// Maximum, ns.
-    pub max: f64,
-    /// Minimum, ns.
-    pub min: f64,
-    /// Root mean square, ns.
+    /// Root mean square: sqrt(mean of x^2) = sqrt(std^2 + mean^2).
     pub rms: f64,
-    /// 99th percentile of |x|, ns.
-    pub p99_abs: f64,
-    /// 99.9th percentile of |x|, ns.
-    pub p999_abs: f64,
-    /// Largest |x|, ns.
+    /// Smallest value (exact).
+    pub min: f64,
+    /// Largest value (exact).
+    pub max: f64,
+    /// Largest |x| (exact).
     pub max_abs: f64,
+    /// 0.1th percentile.
+    pub p001: f64,
+    /// 1st percentile.
+    pub p01: f64,
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// 99.9th percentile.
+    pub p999: f64,
+    /// 99th percentile of |x|.
+    pub p99_abs: f64,
+    /// 99.9th percentile of |x|.
+    pub p999_abs: f64,
 }
 
-/// The mean of each statistic over runs (the letter's MMean, MStd, MMax, MMin, and the same for
-/// the ground-truth figures).
+impl Default for Summary {
+    fn default() -> Self {
+        Summary::empty()
+    }
+}
+
+impl Summary {
+    /// No samples: every figure NaN (written as null in JSON).
+    pub fn empty() -> Self {
+        let x = f64::NAN;
+        Summary {
+            n: 0,
+            mean: x,
+            std: x,
+            rms: x,
+            min: x,
+            max: x,
+            max_abs: x,
+            p001: x,
+            p01: x,
+            p50: x,
+            p99: x,
+            p999: x,
+            p99_abs: x,
+            p999_abs: x,
+        }
+    }
+}
+
+/// The mean of each statistic over runs (the letter's MMean, MStd, MMax, MMin); `n` is the sum
+/// and `max_abs` the largest. Runs without samples are left out.
 pub fn mean_of(summaries: &[Summary]) -> Summary {
-    let k = summaries.len().max(1) as f64;
-    let f = |g: fn(&Summary) -> f64| summaries.iter().map(g).sum::<f64>() / k;
+    let some: Vec<&Summary> = summaries.iter().filter(|s| s.n > 0).collect();
+    if some.is_empty() {
+        return Summary::empty();
+    }
+    let k = some.len() as f64;
+    let f = |g: fn(&Summary) -> f64| some.iter().map(|s| g(s)).sum::<f64>() / k;
     Summary {
-        n: summaries.iter().map(|s| s.n).sum(),
+        n: some.iter().map(|s| s.n).sum(),
         mean: f(|s| s.mean),
         std: f(|s| s.std),
-        max: f(|s| s.max),
-        min: f(|s| s.min),
         rms: f(|s| s.rms),
+        min: f(|s| s.min),
+        max: f(|s| s.max),
+        max_abs: some.iter().map(|s| s.max_abs).fold(0.0, f64::max),
+        p001: f(|s| s.p001),
+        p01: f(|s| s.p01),
+        p50: f(|s| s.p50),
+        p99: f(|s| s.p99),
+        p999: f(|s| s.p999),
         p99_abs: f(|s| s.p99_abs),
         p999_abs: f(|s| s.p999_abs),
-        max_abs: summaries.iter().map(|s| s.max_abs).fold(0.0, f64::max),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// The exact quantile by the module's definition.
+    fn exact(sorted: &[f64], q: f64) -> f64 {
+        let n = sorted.len();
+        let r = ((q * n as f64).ceil() as usize).clamp(1, n);
+        sorted[r - 1]
+    }
 
     #[test]
     fn moments_and_quantiles_by_hand() {
-        let mut s = Stats::new(-100.0, 1.0, 200);
+        let mut s = Stats::new();
         for x in [1.0, 2.0, 3.0, 4.0, -10.0] {
             s.add(x);
         }
@@ -251,40 +393,124 @@ mod tests {
         assert!((m.std - 26f64.sqrt()).abs() < 1e-12);
         assert_eq!((m.min, m.max, m.max_abs), (-10.0, 4.0, 10.0));
         assert!((m.rms - 26f64.sqrt()).abs() < 1e-12);
-        // |x| = 1, 2, 3, 4, 10: the 99th percentile is -10's bin [-10, -9), whose largest |x|
-        // is 10; the 50th is 3's bin [3, 4): 4.
+        // Sorted: -10, 1, 2, 3, 4. p50: rank ceil(2.5) = 3 -> 2; p99: rank 5 -> 4; p001: -10.
+        assert_eq!((m.p50, m.p99, m.p001), (2.0, 4.0, -10.0));
+        // |x| sorted: 1, 2, 3, 4, 10: the 99th percentile of |x| is 10, the 50th 3.
         assert_eq!(m.p99_abs, 10.0);
-        assert_eq!(s.abs_quantile(0.5), 4.0);
+        assert_eq!(s.abs_quantile(0.5), 3.0);
     }
 
     #[test]
-    fn out_of_range_values_are_kept() {
-        let mut h = Histogram::new(0.0, 1.0, 10);
-        h.add(-5.0);
-        h.add(50.0);
-        h.add(3.5);
-        assert_eq!(h.total(), 3);
-        assert_eq!(h.outside(), (1, 1));
-        assert_eq!(h.quantile(0.5), 4.0);
+    fn rms_is_not_the_standard_deviation() {
+        // A constant offset: std 0, RMS the offset.
+        let mut s = Stats::new();
+        for _ in 0..1000 {
+            s.add(27_000.0);
+        }
+        let m = s.summary();
+        assert!(m.std.abs() < 1e-9, "{m:?}");
+        assert!((m.rms - 27_000.0).abs() < 1e-9, "{m:?}");
+    }
+
+    #[test]
+    fn no_ceiling() {
+        // Values far beyond any fixed range are kept and read back within the bound.
+        let mut s = Stats::new();
+        for x in [807_000.0, 5.0e9, -3.0e12, 12.5] {
+            s.add(x);
+        }
+        let m = s.summary();
+        assert_eq!((m.min, m.max), (-3.0e12, 5.0e9));
+        assert_eq!(m.p99, 5.0e9, "clamped to the exact maximum");
+        let p50 = s.quantile(0.5);
+        assert!((p50 - 12.5).abs() <= quantile_error_bound(12.5), "{p50}");
+        let p75 = s.quantile(0.75);
+        assert!(
+            (p75 - 807_000.0).abs() <= quantile_error_bound(807_000.0),
+            "{p75}"
+        );
+    }
+
+    #[test]
+    fn empty_is_nan() {
+        let m = Stats::new().summary();
+        assert_eq!(m.n, 0);
+        assert!(m.mean.is_nan() && m.p99.is_nan() && m.min.is_nan());
+    }
+
+    #[test]
+    fn merging_equals_adding_all() {
+        let mut a = Stats::new();
+        let mut b = Stats::new();
+        let mut all = Stats::new();
+        for i in 0..5000 {
+            let x = (i as f64 * 0.37).sin() * 1e5 + 3e6;
+            if i % 3 == 0 {
+                a.add(x);
+            } else {
+                b.add(x);
+            }
+            all.add(x);
+        }
+        a.merge(&b);
+        let (m, n) = (a.summary(), all.summary());
+        assert_eq!(m.n, n.n);
+        assert!((m.mean - n.mean).abs() < 1e-6 && (m.std - n.std).abs() < 1e-6);
+        assert_eq!((m.min, m.max, m.p99, m.p001), (n.min, n.max, n.p99, n.p001));
     }
 
     #[test]
     fn mean_over_runs() {
         let a = Summary {
+            n: 1,
             mean: 1.0,
             std: 2.0,
             max: 3.0,
             min: -4.0,
-            ..Summary::default()
+            ..Summary::empty()
         };
         let b = Summary {
+            n: 1,
             mean: 3.0,
             std: 4.0,
             max: 5.0,
             min: -6.0,
-            ..Summary::default()
+            ..Summary::empty()
         };
-        let m = mean_of(&[a, b]);
-        assert_eq!((m.mean, m.std, m.max, m.min), (2.0, 3.0, 4.0, -5.0));
+        let m = mean_of(&[a, b, Summary::empty()]);
+        assert_eq!((m.mean, m.std, m.max, m.min, m.n), (2.0, 3.0, 4.0, -5.0, 2));
+    }
+
+    proptest! {
+        /// Every quantile, signed and of |x|, within the stated bound of the exact one, over
+        /// values spanning nine decades with both signs.
+        #[test]
+        fn quantiles_within_the_bound(
+            xs in prop::collection::vec(
+                (any::<bool>(), -3.0f64..9.0, 0.0f64..1.0).prop_map(|(neg, e, f)| {
+                    let v = 10f64.powf(e) * (1.0 + f);
+                    if neg { -v } else { v }
+                }),
+                1..400,
+            ),
+            q in 0.0f64..1.0,
+        ) {
+            let mut s = Stats::new();
+            for &x in &xs {
+                s.add(x);
+            }
+            let mut sorted = xs.clone();
+            sorted.sort_by(f64::total_cmp);
+            for q in [q, 0.001, 0.01, 0.5, 0.99, 0.999] {
+                let e = exact(&sorted, q);
+                let got = s.quantile(q);
+                prop_assert!((got - e).abs() <= quantile_error_bound(e), "q {} exact {} got {}", q, e, got);
+            }
+            let mut mags: Vec<f64> = xs.iter().map(|x| x.abs()).collect();
+            mags.sort_by(f64::total_cmp);
+            let e = exact(&mags, q);
+            let got = s.abs_quantile(q);
+            prop_assert!((got - e).abs() <= quantile_error_bound(e), "|x| q {} exact {} got {}", q, e, got);
+        }
     }
 }

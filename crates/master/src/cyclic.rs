@@ -10,7 +10,7 @@
 //! socket.
 
 use crate::io::MASTER_MAC;
-use ecsync_dc::sync::{CycleInput, CycleOutput, MasterSync, extend_reference_time};
+use ecsync_dc::sync::{CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time};
 use ecsync_wire::dc_time::{decode_time_difference, diff_u64};
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, WireError};
@@ -27,6 +27,9 @@ pub struct CyclicConfig {
     /// Frames averaged at the start for the measurement offset `h_mr` of the letter's M-rS
     /// error (eq. 5-7); the methods keep their own.
     pub measure_init_frames: u64,
+    /// The System Time Offset (0x0920) the bring-up wrote to the reference: a method that
+    /// adjusts the offset ([`ReferenceWrite::OffsetAdjust`]) writes this plus its adjustment.
+    pub reference_offset_ns: u64,
 }
 
 /// Everything one cycle produced.
@@ -84,10 +87,22 @@ impl<S: MasterSync> CyclicEngine<S> {
             adp: cfg.reference_station,
             ado: reg::DC_SYSTEM_TIME,
         };
-        let bus_write_at = if sync.is_master_shift() {
-            None
-        } else {
-            Some(b.push_zeroed(Command::Fpwr, 0, system_time, 8)? + DATAGRAM_HEADER_LEN)
+        // A bus-shift method's write to the reference goes first, so that the same frame's
+        // FRMW already reads (and distributes) the reference's time it set.
+        let bus_register = match sync.reference_write_kind() {
+            ReferenceWrite::None => None,
+            ReferenceWrite::SystemTime => Some(reg::DC_SYSTEM_TIME),
+            ReferenceWrite::OffsetAdjust => Some(reg::DC_SYSTEM_TIME_OFFSET),
+        };
+        let bus_write_at = match bus_register {
+            None => None,
+            Some(ado) => {
+                let at = DatagramAddress::Configured {
+                    adp: cfg.reference_station,
+                    ado,
+                };
+                Some(b.push_zeroed(Command::Fpwr, 0, at, 8)? + DATAGRAM_HEADER_LEN)
+            }
         };
         let frmw_data_at = b.push_zeroed(Command::Frmw, 1, system_time, 8)? + DATAGRAM_HEADER_LEN;
         let lrw_wkc_at = if cfg.pdi_len > 0 {
@@ -168,6 +183,10 @@ impl<S: MasterSync> CyclicEngine<S> {
     pub fn frame_to_send(&mut self, send_ns: u64) -> &mut [u8] {
         self.frame.copy_from_slice(&self.template);
         if let (Some(at), Some(v)) = (self.bus_write_at, self.sync.reference_write(send_ns)) {
+            let v = match self.sync.reference_write_kind() {
+                ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
+                _ => v,
+            };
             self.frame[at..at + 8].copy_from_slice(&v.to_le_bytes());
         }
         &mut self.frame
@@ -287,6 +306,7 @@ mod tests {
             reference_station: 0x1000,
             pdi_len: 204,
             measure_init_frames: 10,
+            reference_offset_ns: 0,
         };
         let mut e = CyclicEngine::new(BusShift::default(), cfg, 0).unwrap();
         let f = e.frame_to_send(0x1122_3344_5566_7788).to_vec();
@@ -331,6 +351,7 @@ mod tests {
             reference_station: 0x1000,
             pdi_len: 0,
             measure_init_frames: 2,
+            reference_offset_ns: 0,
         };
         let mut e = CyclicEngine::new(DropsACycle, cfg, 10 * p).unwrap();
         let mut m_rs = Vec::new();
@@ -360,6 +381,7 @@ mod tests {
             reference_station: 0x1000,
             pdi_len: 0,
             measure_init_frames: 2,
+            reference_offset_ns: 0,
         };
         let median = MedianSync::new(11, 0.01, 2);
         // The reference's 32-bit time wraps during the stall.

@@ -9,9 +9,17 @@
 //! 0x02 of the first byte set, is answered like any other). The segment's own answers, which a
 //! packet socket would see again on the way out, are told apart by the socket address's packet
 //! type (`PACKET_OUTGOING`, see [`crate::sys::PacketSocket`]), not by the frame's contents.
+//!
+//! A request in a VLAN tag (IEEE 802.1Q or 802.1ad) is answered in the same tag, as ESCs
+//! process tagged EtherCAT frames and leave the tag as it is. Serve on a socket opened with
+//! [`PacketSocket::open_vlan_aware`]: Linux takes the tag off every received frame and tells it
+//! only to sockets that listen to every EtherType. The segment processes the frame without its
+//! tag (its timing model does not count the tag's 4 bytes on the wire: 320 ns later data, for
+//! the slaves, that no register shows) and the tag is put back in front of the EtherType on
+//! the way out.
 
 use crate::link::NetError;
-use crate::sys::{self, PacketSocket, Ready};
+use crate::sys::{self, PacketSocket, Ready, TPID_8021AD, TPID_8021Q, VlanTag};
 use ecsync_esc::Segment;
 use ecsync_esc::pcap::PcapCapture;
 use std::io::Write;
@@ -24,14 +32,76 @@ pub struct ServeStats {
     pub received: u64,
     /// Frames processed and sent back.
     pub answered: u64,
+    /// Of the answered frames, those answered in the VLAN tag they arrived in.
+    pub answered_tagged: u64,
     /// Frames that arrived with bit 0x02 of the source address's first byte set (a locally
     /// administered master NIC, or a frame that had passed an ESC already): processed as any
     /// frame, counted for the record.
     pub marked_on_arrival: u64,
-    /// Frames the segment did not return (malformed, or lost in the topology).
+    /// Frames the segment did not return (malformed, not EtherCAT behind a tag, or lost in the
+    /// topology).
     pub not_returned: u64,
     /// Frames too long for the buffer.
     pub truncated: u64,
+}
+
+/// Most VLAN tags a frame may carry (802.1ad S-tag outside, 802.1Q C-tag inside).
+const MAX_TAGS: usize = 2;
+
+/// The VLAN tags a frame arrived in, outermost first.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct Tags {
+    tags: [Option<VlanTag>; MAX_TAGS],
+}
+
+impl Tags {
+    fn len(&self) -> usize {
+        self.tags.iter().flatten().count()
+    }
+
+    fn push(&mut self, t: VlanTag) -> bool {
+        match self.tags.iter_mut().find(|s| s.is_none()) {
+            Some(slot) => {
+                *slot = Some(t);
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// Takes the frame's VLAN tags off: the one the kernel took off already (`stripped`), then those
+/// still in the bytes, in place. Returns the untagged length and the tags, or `None` when there
+/// are more tags than [`MAX_TAGS`].
+fn untag(frame: &mut [u8], mut len: usize, stripped: Option<VlanTag>) -> Option<(usize, Tags)> {
+    let mut tags = Tags::default();
+    if let Some(t) = stripped {
+        tags.push(t);
+    }
+    while len >= 18 {
+        let tpid = u16::from_be_bytes([frame[12], frame[13]]);
+        if tpid != TPID_8021Q && tpid != TPID_8021AD {
+            break;
+        }
+        let tci = u16::from_be_bytes([frame[14], frame[15]]);
+        if !tags.push(VlanTag { tpid, tci }) {
+            return None;
+        }
+        frame.copy_within(16..len, 12);
+        len -= 4;
+    }
+    Some((len, tags))
+}
+
+/// Puts `tags` back after the source address of the untagged frame `frame[..len]`; `frame` has
+/// room for them. Returns the tagged length.
+fn retag(frame: &mut [u8], len: usize, tags: &Tags) -> usize {
+    let n = 4 * tags.len();
+    frame.copy_within(12..len, 12 + n);
+    for (i, t) in tags.tags.iter().flatten().enumerate() {
+        frame[12 + 4 * i..16 + 4 * i].copy_from_slice(&t.to_bytes());
+    }
+    len + n
 }
 
 /// Serves `segment` on `sock` until `stop` is raised. `capture` records every frame in and out.
@@ -46,10 +116,12 @@ pub fn serve<W: Write>(
     let io = |what| move |source| NetError::Io { what, source };
     let t0_mono = sys::monotonic_ns();
     let mut stats = ServeStats::default();
+    // Room for the longest frame and its tags.
     let mut buf = vec![0u8; 2048];
+    let room = buf.len() - 4 * MAX_TAGS;
     let mut last_ps = 0u64;
     while !stop.load(Ordering::Relaxed) {
-        let Some(r) = sock.recv(&mut buf).map_err(io("receive"))? else {
+        let Some(r) = sock.recv(&mut buf[..room]).map_err(io("receive"))? else {
             if sock.wait(50_000_000).map_err(io("wait for a frame"))? == Ready::ErrorQueue {
                 // Transmit timestamps of the replies: not needed here, but they must be read
                 // or every wait returns at once.
@@ -66,8 +138,7 @@ pub fn serve<W: Write>(
             stats.truncated += 1;
             continue;
         }
-        let frame = &mut buf[..r.len];
-        if frame.len() > 6 && frame[6] & 0x02 != 0 {
+        if r.len > 6 && buf[6] & 0x02 != 0 {
             stats.marked_on_arrival += 1;
         }
         // The instant the frame arrived, on the segment's time line (ps since serving began).
@@ -79,16 +150,26 @@ pub fn serve<W: Write>(
             .saturating_mul(1000)
             .max(last_ps);
         last_ps = t_ps;
+        let Some((len, tags)) = untag(&mut buf, r.len, r.vlan) else {
+            stats.not_returned += 1;
+            on_frame(&stats);
+            continue;
+        };
         if let Some(c) = capture.as_deref_mut() {
-            let _ = c.record(t_ps, frame);
+            // As it was on the wire, tags included.
+            let mut wire = buf[..len + 4 * tags.len()].to_vec();
+            retag(&mut wire, len, &tags);
+            let _ = c.record(t_ps, &wire);
         }
-        let out = segment.process(frame, t_ps);
+        let out = segment.process(&mut buf[..len], t_ps);
         match out.returned_sof_ps {
             Some(back_ps) => {
-                sock.send(frame).map_err(io("send"))?;
+                let n = retag(&mut buf, len, &tags);
+                sock.send(&buf[..n]).map_err(io("send"))?;
                 stats.answered += 1;
+                stats.answered_tagged += u64::from(tags.len() > 0);
                 if let Some(c) = capture.as_deref_mut() {
-                    let _ = c.record(back_ps, frame);
+                    let _ = c.record(back_ps, &buf[..n]);
                 }
             }
             None => stats.not_returned += 1,
@@ -96,4 +177,70 @@ pub fn serve<W: Write>(
         on_frame(&stats);
     }
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(tags: &[[u8; 4]]) -> Vec<u8> {
+        let mut f = vec![0xff; 6];
+        f.extend_from_slice(&[0x02, 0, 0, 0, 0, 1]);
+        for t in tags {
+            f.extend_from_slice(t);
+        }
+        f.extend_from_slice(&[0x88, 0xa4, 0x0c, 0x10, 7, 0x5a]);
+        f.resize(f.len() + 32, 0);
+        f
+    }
+
+    #[test]
+    fn tags_come_off_and_go_back_where_they_were() {
+        // 802.1Q, PCP 5, VID 0x123: TCI 0xa123.
+        let q = VlanTag {
+            tpid: TPID_8021Q,
+            tci: 0xa123,
+        };
+        assert_eq!((q.vid(), q.pcp()), (0x123, 5));
+        let tagged = frame(&[q.to_bytes()]);
+        assert_eq!(&tagged[12..18], &[0x81, 0x00, 0xa1, 0x23, 0x88, 0xa4]);
+        let plain = frame(&[]);
+        // In the bytes.
+        let mut buf = tagged.clone();
+        buf.resize(tagged.len() + 8, 0);
+        let (len, tags) = untag(&mut buf, tagged.len(), None).unwrap();
+        assert_eq!(&buf[..len], &plain[..]);
+        assert_eq!(tags.len(), 1);
+        assert_eq!(retag(&mut buf, len, &tags), tagged.len());
+        assert_eq!(&buf[..tagged.len()], &tagged[..]);
+        // Taken off by the kernel (auxiliary data): the bytes are untagged.
+        let mut buf = plain.clone();
+        buf.resize(plain.len() + 8, 0);
+        let (len, tags) = untag(&mut buf, plain.len(), Some(q)).unwrap();
+        assert_eq!(len, plain.len());
+        let n = retag(&mut buf, len, &tags);
+        assert_eq!(&buf[..n], &tagged[..]);
+        // 802.1ad outside (from the kernel), 802.1Q inside (in the bytes).
+        let s = VlanTag {
+            tpid: TPID_8021AD,
+            tci: 0x0007,
+        };
+        let qinq = frame(&[s.to_bytes(), q.to_bytes()]);
+        let mut buf = frame(&[q.to_bytes()]);
+        buf.resize(buf.len() + 8, 0);
+        let (len, tags) = untag(&mut buf, qinq.len() - 4, Some(s)).unwrap();
+        assert_eq!(&buf[..len], &plain[..]);
+        let n = retag(&mut buf, len, &tags);
+        assert_eq!(&buf[..n], &qinq[..]);
+        // Untagged frames stay as they are.
+        let mut buf = plain.clone();
+        let (len, tags) = untag(&mut buf, plain.len(), None).unwrap();
+        assert_eq!((len, tags.len()), (plain.len(), 0));
+        assert_eq!(retag(&mut buf, len, &tags), plain.len());
+        assert_eq!(buf, plain);
+        // Three tags: refused.
+        let mut buf = frame(&[q.to_bytes(), q.to_bytes(), q.to_bytes()]);
+        let n = buf.len();
+        assert!(untag(&mut buf, n, None).is_none());
+    }
 }

@@ -23,7 +23,16 @@ const SOL_PACKET: libc::c_int = 263;
 const PACKET_ADD_MEMBERSHIP: libc::c_int = 1;
 const PACKET_MR_PROMISC: libc::c_ushort = 1;
 const PACKET_IGNORE_OUTGOING: libc::c_int = 23;
+const PACKET_AUXDATA: libc::c_int = 8;
 const PACKET_OUTGOING: u8 = 4;
+const TP_STATUS_VLAN_VALID: u32 = 1 << 4;
+const TP_STATUS_VLAN_TPID_VALID: u32 = 1 << 6;
+const ETH_P_ALL: u16 = 0x0003;
+const SO_ATTACH_FILTER: libc::c_int = 26;
+/// TPID of an IEEE 802.1Q (C-VLAN) tag.
+pub const TPID_8021Q: u16 = 0x8100;
+/// TPID of an IEEE 802.1ad (S-VLAN) tag.
+pub const TPID_8021AD: u16 = 0x88a8;
 const SOF_TIMESTAMPING_TX_SOFTWARE: libc::c_uint = 1 << 1;
 const SOF_TIMESTAMPING_RX_SOFTWARE: libc::c_uint = 1 << 3;
 const SOF_TIMESTAMPING_SOFTWARE: libc::c_uint = 1 << 4;
@@ -36,6 +45,125 @@ struct PacketMreq {
     mr_type: libc::c_ushort,
     mr_alen: libc::c_ushort,
     mr_address: [u8; 8],
+}
+
+/// `struct tpacket_auxdata` of if_packet.h: what the kernel knows of a received frame beyond
+/// its bytes, among it the VLAN tag it took off (VLAN offload, or the stack's own untagging).
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct TpacketAuxdata {
+    tp_status: u32,
+    tp_len: u32,
+    tp_snaplen: u32,
+    tp_mac: u16,
+    tp_net: u16,
+    tp_vlan_tci: u16,
+    tp_vlan_tpid: u16,
+}
+
+/// `struct sock_filter` of filter.h: one classic BPF instruction.
+#[repr(C)]
+struct SockFilter {
+    code: u16,
+    jt: u8,
+    jf: u8,
+    k: u32,
+}
+
+/// `struct sock_fprog` of filter.h.
+#[repr(C)]
+struct SockFprog {
+    len: libc::c_ushort,
+    filter: *const SockFilter,
+}
+
+/// The classic BPF program of a VLAN-aware socket: accepts EtherCAT frames, untagged or with
+/// one 802.1Q or 802.1ad tag in the bytes (the kernel usually takes the tag off before packet
+/// sockets see the frame, leaving EtherType 0x88A4 at offset 12 and the tag in the auxiliary
+/// data; a frame that kept its tag has 0x88A4 at offset 16), and nothing else.
+const VLAN_ECAT_FILTER: [SockFilter; 8] = [
+    // A = EtherType at offset 12.
+    SockFilter {
+        code: 0x28,
+        jt: 0,
+        jf: 0,
+        k: 12,
+    },
+    // EtherCAT: accept (instruction 6).
+    SockFilter {
+        code: 0x15,
+        jt: 4,
+        jf: 0,
+        k: ETHERTYPE_ETHERCAT as u32,
+    },
+    // 802.1Q or 802.1ad: look behind the tag (instruction 4); anything else: reject (7).
+    SockFilter {
+        code: 0x15,
+        jt: 1,
+        jf: 0,
+        k: TPID_8021Q as u32,
+    },
+    SockFilter {
+        code: 0x15,
+        jt: 0,
+        jf: 3,
+        k: TPID_8021AD as u32,
+    },
+    // A = EtherType behind the tag.
+    SockFilter {
+        code: 0x28,
+        jt: 0,
+        jf: 0,
+        k: 16,
+    },
+    SockFilter {
+        code: 0x15,
+        jt: 0,
+        jf: 1,
+        k: ETHERTYPE_ETHERCAT as u32,
+    },
+    // Accept the whole frame.
+    SockFilter {
+        code: 0x06,
+        jt: 0,
+        jf: 0,
+        k: 0x0004_0000,
+    },
+    // Reject.
+    SockFilter {
+        code: 0x06,
+        jt: 0,
+        jf: 0,
+        k: 0,
+    },
+];
+
+/// An IEEE 802.1Q (or 802.1ad) VLAN tag.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct VlanTag {
+    /// Tag protocol identifier: [`TPID_8021Q`] or [`TPID_8021AD`].
+    pub tpid: u16,
+    /// Tag control information: PCP (bits 15:13), DEI (bit 12), VID (bits 11:0).
+    pub tci: u16,
+}
+
+impl VlanTag {
+    /// VLAN identifier.
+    pub const fn vid(self) -> u16 {
+        self.tci & 0x0fff
+    }
+
+    /// Priority code point.
+    pub const fn pcp(self) -> u8 {
+        (self.tci >> 13) as u8
+    }
+
+    /// The 4 bytes of the tag as they stand in a frame after the source address.
+    pub const fn to_bytes(self) -> [u8; 4] {
+        let [a, b] = self.tpid.to_be_bytes();
+        let [c, d] = self.tci.to_be_bytes();
+        [a, b, c, d]
+    }
 }
 
 /// Why a packet socket could not be opened.
@@ -82,10 +210,15 @@ pub struct Received {
     pub truncated: bool,
     /// The kernel's software receive timestamp, CLOCK_REALTIME ns.
     pub kernel_rx_realtime_ns: Option<u64>,
+    /// The VLAN tag the kernel took off the frame before the socket saw it (only on sockets
+    /// opened with [`PacketSocket::open_vlan_aware`]; a tag still in the bytes is not here).
+    pub vlan: Option<VlanTag>,
 }
 
 /// An AF_PACKET socket bound to one interface that sends and receives EtherCAT frames
-/// (EtherType 0x88A4) only, non-blocking, with the interface in promiscuous mode.
+/// (EtherType 0x88A4) only, non-blocking, with the interface in promiscuous mode. The frames
+/// the host sends itself are never received (`PACKET_IGNORE_OUTGOING`, and the packet type
+/// `PACKET_OUTGOING` of the sender's address where a kernel lacks that option).
 #[derive(Debug)]
 pub struct PacketSocket {
     fd: OwnedFd,
@@ -123,9 +256,18 @@ fn setsockopt<T>(fd: &OwnedFd, level: libc::c_int, name: libc::c_int, value: &T)
     }
 }
 
-/// Walks the control messages of a `recvmsg` result, returning the first software timestamp
-/// (SCM_TIMESTAMPING's first entry, or SCM_TIMESTAMPNS).
-fn control_timestamp(msg: &libc::msghdr) -> Option<u64> {
+/// What the control messages of a `recvmsg` result carry.
+#[derive(Default)]
+struct Control {
+    /// The first software timestamp (SCM_TIMESTAMPING's first entry, or SCM_TIMESTAMPNS).
+    timestamp: Option<u64>,
+    /// The VLAN tag of PACKET_AUXDATA, when the kernel marks it valid.
+    vlan: Option<VlanTag>,
+}
+
+/// Walks the control messages of a `recvmsg` result.
+fn control_messages(msg: &libc::msghdr) -> Control {
+    let mut out = Control::default();
     // SAFETY: `msg` was filled by a successful recvmsg whose control buffer is still alive (the
     // caller keeps it on its stack); CMSG_FIRSTHDR/CMSG_NXTHDR only walk within
     // `msg_control..msg_control + msg_controllen`, and each header's data is read with an
@@ -137,31 +279,59 @@ fn control_timestamp(msg: &libc::msghdr) -> Option<u64> {
             let h = &*c;
             let data = libc::CMSG_DATA(c);
             let avail = (h.cmsg_len as usize).saturating_sub(libc::CMSG_LEN(0) as usize);
-            if h.cmsg_level == libc::SOL_SOCKET {
+            if h.cmsg_level == libc::SOL_SOCKET && out.timestamp.is_none() {
                 if h.cmsg_type == libc::SCM_TIMESTAMPING && avail >= 3 * size_of::<libc::timespec>()
                 {
                     let ts: [libc::timespec; 3] = std::ptr::read_unaligned(data.cast());
-                    if let Some(t) = timespec_ns(&ts[0]) {
-                        return Some(t);
-                    }
+                    out.timestamp = timespec_ns(&ts[0]);
                 } else if h.cmsg_type == libc::SCM_TIMESTAMPNS
                     && avail >= size_of::<libc::timespec>()
                 {
                     let ts: libc::timespec = std::ptr::read_unaligned(data.cast());
-                    if let Some(t) = timespec_ns(&ts) {
-                        return Some(t);
-                    }
+                    out.timestamp = timespec_ns(&ts);
+                }
+            } else if h.cmsg_level == SOL_PACKET
+                && h.cmsg_type == PACKET_AUXDATA
+                && avail >= size_of::<TpacketAuxdata>()
+            {
+                let aux: TpacketAuxdata = std::ptr::read_unaligned(data.cast());
+                if aux.tp_status & TP_STATUS_VLAN_VALID != 0 {
+                    out.vlan = Some(VlanTag {
+                        tpid: if aux.tp_status & TP_STATUS_VLAN_TPID_VALID != 0 {
+                            aux.tp_vlan_tpid
+                        } else {
+                            TPID_8021Q
+                        },
+                        tci: aux.tp_vlan_tci,
+                    });
                 }
             }
             c = libc::CMSG_NXTHDR(msg, c);
         }
     }
-    None
+    out
 }
 
 impl PacketSocket {
-    /// Opens a socket on `iface`.
+    /// Opens a socket on `iface` that sees EtherCAT frames (EtherType 0x88A4). A frame that
+    /// arrived with a VLAN tag reaches it too, but without its tag and without word of it: the
+    /// kernel takes the tag off and clears it before it hands a frame to sockets bound to one
+    /// EtherType. [`PacketSocket::open_vlan_aware`] keeps it.
     pub fn open(iface: &str) -> Result<PacketSocket, OpenError> {
+        Self::open_with(iface, false)
+    }
+
+    /// Opens a socket on `iface` that sees EtherCAT frames untagged and in one VLAN tag, and
+    /// tells which tag each had ([`Received::vlan`] when the kernel took it off, as Linux does
+    /// on receive whether or not the NIC offloads it; otherwise the tag is still in the bytes).
+    /// It listens to every EtherType (the only way to see the tag, which the kernel reports to
+    /// such sockets only) behind a BPF filter that lets EtherCAT frames through and nothing
+    /// else, attached before the socket is bound so that nothing else is ever queued.
+    pub fn open_vlan_aware(iface: &str) -> Result<PacketSocket, OpenError> {
+        Self::open_with(iface, true)
+    }
+
+    fn open_with(iface: &str, vlan_aware: bool) -> Result<PacketSocket, OpenError> {
         if iface.is_empty() || iface.len() > 15 || iface.contains(['\0', '/']) {
             return Err(OpenError::BadName(iface.to_string()));
         }
@@ -177,7 +347,18 @@ impl PacketSocket {
             return Err(OpenError::NoInterface(iface.to_string()));
         }
         let ifindex = ifindex as libc::c_int;
-        let proto = i32::from(ETHERTYPE_ETHERCAT.to_be());
+        let ethertype = if vlan_aware {
+            ETH_P_ALL
+        } else {
+            ETHERTYPE_ETHERCAT
+        };
+        // A VLAN-aware socket is created receiving nothing (protocol 0) and starts receiving
+        // when it is bound, after its filter is attached.
+        let proto = if vlan_aware {
+            0
+        } else {
+            i32::from(ethertype.to_be())
+        };
         // SAFETY: plain FFI call with constant arguments; the result is checked below.
         let raw = unsafe {
             libc::socket(
@@ -195,11 +376,23 @@ impl PacketSocket {
         }
         // SAFETY: `raw` is a new file descriptor that nothing else owns.
         let fd = unsafe { OwnedFd::from_raw_fd(raw) };
+        if vlan_aware {
+            let prog = SockFprog {
+                len: VLAN_ECAT_FILTER.len() as libc::c_ushort,
+                filter: VLAN_ECAT_FILTER.as_ptr(),
+            };
+            // The kernel copies the program during the call; `VLAN_ECAT_FILTER` is a constant
+            // that outlives it anyway.
+            setsockopt(&fd, libc::SOL_SOCKET, SO_ATTACH_FILTER, &prog)
+                .map_err(|e| os("attach the EtherCAT filter", e))?;
+            setsockopt(&fd, SOL_PACKET, PACKET_AUXDATA, &1 as &libc::c_int)
+                .map_err(|e| os("PACKET_AUXDATA", e))?;
+        }
 
         // SAFETY: `sockaddr_ll` is a plain C struct for which all-zero bytes are valid.
         let mut addr: libc::sockaddr_ll = unsafe { std::mem::zeroed() };
         addr.sll_family = libc::AF_PACKET as u16;
-        addr.sll_protocol = ETHERTYPE_ETHERCAT.to_be();
+        addr.sll_protocol = ethertype.to_be();
         addr.sll_ifindex = ifindex;
         // SAFETY: `addr` is a live, initialised sockaddr_ll and its size is passed with it.
         let r = unsafe {
@@ -336,14 +529,18 @@ impl PacketSocket {
                     _ => Err(e),
                 };
             }
+            // The host's own frames, looped back to packet sockets, are not received (on
+            // kernels from 4.20 on, PACKET_IGNORE_OUTGOING keeps them away already).
             if from.sll_pkttype == PACKET_OUTGOING {
                 continue;
             }
             let len = r as usize;
+            let control = control_messages(&msg);
             return Ok(Some(Received {
                 len: len.min(buf.len()),
                 truncated: len > buf.len(),
-                kernel_rx_realtime_ns: control_timestamp(&msg),
+                kernel_rx_realtime_ns: control.timestamp,
+                vlan: control.vlan,
             }));
         }
     }
@@ -381,7 +578,7 @@ impl PacketSocket {
                 _ => Err(e),
             };
         }
-        Ok(control_timestamp(&msg))
+        Ok(control_messages(&msg).timestamp)
     }
 
     /// Waits until a frame can be read, a transmit timestamp is queued, or `timeout_ns` passed.

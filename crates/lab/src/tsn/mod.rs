@@ -937,6 +937,7 @@ pub fn run_variant(
         reference_station: net_info.slaves[reference].station,
         pdi_len: net_info.pdi_len,
         measure_init_frames: 1,
+        reference_offset_ns: net_info.slaves[reference].offset.unwrap_or(0),
     };
     let probe =
         CyclicEngine::new(BusShift { write_offset_ns: 0 }, cyc_cfg, 0).map_err(TsnError::Frame)?;
@@ -965,13 +966,13 @@ pub fn run_variant(
     let mut eng =
         CyclicEngine::new(BusShift { write_offset_ns }, cyc_cfg, first).map_err(TsnError::Frame)?;
 
-    let mut m_rs = Stats::new(-2_000_000.0, 10.0, 400_000);
-    let mut rs_is = Stats::new(0.0, 2.0, 1_000_000);
-    let mut mref = Stats::new(-2_000_000.0, 5.0, 800_000);
-    let mut spread = Stats::new(0.0, 0.5, 400_000);
-    let mut margin = Stats::new(-1_000_000.0, 100.0, 20_000);
-    let mut wait = Stats::new(0.0, 100.0, 10_000);
-    let mut gptp_off = Stats::new(-50_000.0, 0.25, 400_000);
+    let mut m_rs = Stats::new();
+    let mut rs_is = Stats::new();
+    let mut mref = Stats::new();
+    let mut spread = Stats::new();
+    let mut margin = Stats::new();
+    let mut wait = Stats::new();
+    let mut gptp_off = Stats::new();
     let cap = (s.cycles / crate::run::SERIES_BLOCK + 2) as usize;
     let mut series = [
         Series::new(cap),

@@ -359,7 +359,7 @@ fn histograms<DB: DrawingBackend>(
         let p = &r.plots;
         draw_hist(
             &rows[2 * i],
-            &p.master_minus_reference.hist,
+            &p.master_minus_reference.dist,
             &format!("{}: master - reference (truth)", r.variant.name()),
             1000.0,
             "us",
@@ -367,7 +367,7 @@ fn histograms<DB: DrawingBackend>(
         )?;
         draw_hist(
             &rows[2 * i + 1],
-            &p.slave_spread.hist,
+            &p.slave_spread.dist,
             &format!(
                 "{}: precision, spread of the slaves (truth)",
                 r.variant.name()

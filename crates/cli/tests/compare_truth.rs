@@ -1,0 +1,437 @@
+//! `ecsync compare` tells the truth: every figure of summary.json recomputed from the per-cycle
+//! samples (`--samples`), the verdict's schema and rule, the letter's rows only on its testbed,
+//! Ctrl-C, and the command line's refusals.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+fn ecsync() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ecsync"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("ecsync-truth-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn json(p: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+}
+
+/// The exact quantile as summary.json defines it: rank ceil(q n), ascending.
+fn exact(sorted: &[f64], q: f64) -> f64 {
+    let n = sorted.len();
+    let r = ((q * n as f64).ceil() as usize).clamp(1, n);
+    sorted[r - 1]
+}
+
+fn bound(j: &serde_json::Value, v: f64) -> f64 {
+    let q = &j["quantiles"];
+    q["rel_error"].as_f64().unwrap() * v.abs() + q["abs_error_ns"].as_f64().unwrap()
+}
+
+/// Columns of a samples file by name.
+fn read_samples(p: &Path) -> BTreeMap<String, Vec<Option<f64>>> {
+    let text = std::fs::read_to_string(p).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<String> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let mut cols: BTreeMap<String, Vec<Option<f64>>> =
+        head.iter().map(|h| (h.clone(), Vec::new())).collect();
+    for l in lines {
+        let cells: Vec<&str> = l.split(',').collect();
+        for (i, h) in head.iter().enumerate() {
+            let v = cells.get(i).and_then(|c| c.parse::<f64>().ok());
+            cols.get_mut(h).unwrap().push(v);
+        }
+    }
+    cols
+}
+
+fn check_summary(j: &serde_json::Value, what: &str, s: &serde_json::Value, xs: &mut [f64]) {
+    xs.sort_by(f64::total_cmp);
+    assert_eq!(s["n"].as_u64().unwrap() as usize, xs.len(), "{what} n");
+    let n = xs.len() as f64;
+    let mean = xs.iter().sum::<f64>() / n;
+    let rms = (xs.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    let std = (xs.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n).sqrt();
+    let f = |k: &str| s[k].as_f64().unwrap_or(f64::NAN);
+    // The samples are written with 3 decimals.
+    let close = |a: f64, b: f64| (a - b).abs() <= 0.001 + 1e-9 * b.abs();
+    assert!(
+        close(f("min"), xs[0]),
+        "{what} min {} vs {}",
+        f("min"),
+        xs[0]
+    );
+    assert!(close(f("max"), xs[xs.len() - 1]), "{what} max");
+    assert!(
+        (f("mean") - mean).abs() <= 0.001,
+        "{what} mean {} vs {mean}",
+        f("mean")
+    );
+    assert!(
+        (f("rms") - rms).abs() <= 0.001,
+        "{what} rms {} vs {rms}",
+        f("rms")
+    );
+    assert!(
+        (f("std") - std).abs() <= 0.01,
+        "{what} std {} vs {std}",
+        f("std")
+    );
+    for (k, q) in [
+        ("p001", 0.001),
+        ("p01", 0.01),
+        ("p50", 0.5),
+        ("p99", 0.99),
+        ("p999", 0.999),
+    ] {
+        let e = exact(xs, q);
+        let got = f(k);
+        assert!(
+            (got - e).abs() <= bound(j, e) + 0.001,
+            "{what} {k}: reported {got}, exact {e}"
+        );
+    }
+    let mut mags: Vec<f64> = xs.iter().map(|x| x.abs()).collect();
+    mags.sort_by(f64::total_cmp);
+    for (k, q) in [("p99_abs", 0.99), ("p999_abs", 0.999)] {
+        let e = exact(&mags, q);
+        assert!((f(k) - e).abs() <= bound(j, e) + 0.001, "{what} {k}");
+    }
+}
+
+/// Acceptance 2: the schema, the rule, and every percentile recomputed from `--samples`
+/// within the stated bound, on a network that is not the letter's testbed (its rows absent).
+#[test]
+fn every_figure_is_recomputed_from_the_samples() {
+    let out = tmp("samples");
+    let samples = out.join("samples");
+    let cfg = out.join("net.toml");
+    // The preset with its reference drive's crystal moved: another network.
+    let text = ecsync_esc::preset::PAPER_2024_TOML.replacen("ppm = 12.4", "ppm = -20.5", 1);
+    std::fs::write(&cfg, text).unwrap();
+    let o = ecsync()
+        .args(["compare", "--quiet", "--runs", "2", "--cycles", "6000"])
+        .args(["--warmup-s", "11", "--out"])
+        .arg(&out)
+        .arg("--config")
+        .arg(&cfg)
+        .arg("--samples")
+        .arg(&samples)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j = json(&out.join("summary.json"));
+    // The verdict.
+    let rec = &j["recommendation"];
+    let ranking: Vec<&str> = rec["ranking"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    assert_eq!(ranking.len(), ecsync_lab::scenario::METHODS.len());
+    assert_eq!(rec["method"].as_str().unwrap(), ranking[0]);
+    assert!(rec["reason"].as_str().unwrap().len() > 80, "{rec}");
+    let late = |m: &str| {
+        j["methods"][m]["ground_truth"]["late_frames"]
+            .as_u64()
+            .unwrap()
+    };
+    let fewest = ranking.iter().map(|m| late(m)).min().unwrap();
+    assert_eq!(
+        late(ranking[0]),
+        fewest,
+        "the pick has the fewest late frames"
+    );
+    // Not the letter's testbed: no letter rows anywhere.
+    assert_eq!(j["letter_testbed"], false);
+    assert!(j["methods"]["median"]["letter"].is_null());
+    let t1 = std::fs::read_to_string(out.join("table1.txt")).unwrap();
+    assert!(!t1.contains("letter  "), "{t1}");
+    assert!(!t1.contains("MMean letter"), "{t1}");
+
+    for (name, m) in j["methods"].as_object().unwrap() {
+        let g = &m["ground_truth"];
+        for k in ["mean", "std", "rms", "p99", "p999", "min", "max", "max_abs"] {
+            assert!(g["phase"][k].is_number(), "{name} phase.{k}");
+        }
+        assert!(g["target_phase_ns"].is_number() && g["smallest_safe_shift_pct"].is_number());
+        // Pool both runs' samples.
+        let mut cols: BTreeMap<String, Vec<Option<f64>>> = BTreeMap::new();
+        for r in 0..2 {
+            for (k, v) in read_samples(&samples.join(format!("{name}-run{r}.csv"))) {
+                cols.entry(k).or_default().extend(v);
+            }
+        }
+        let col = |k: &str| -> Vec<f64> { cols[k].iter().flatten().copied().collect() };
+        assert_eq!(
+            cols["cycle"].len(),
+            12_000,
+            "{name}: one row per recorded cycle"
+        );
+        check_summary(
+            &j,
+            &format!("{name} phase"),
+            &g["phase"],
+            &mut col("true_phase_ns"),
+        );
+        check_summary(
+            &j,
+            &format!("{name} m_rs"),
+            &m["m_rs_pooled"],
+            &mut col("m_rs_ns"),
+        );
+        check_summary(
+            &j,
+            &format!("{name} rs_is"),
+            &m["rs_is_pooled"],
+            &mut col("rs_is_ns"),
+        );
+        check_summary(
+            &j,
+            &format!("{name} spread"),
+            &g["slave_ref_diff"],
+            &mut col("slave_spread_ns"),
+        );
+        check_summary(
+            &j,
+            &format!("{name} margin"),
+            &g["sync0_margin"],
+            &mut col("worst_margin_ns"),
+        );
+        let lates = col("late").iter().filter(|&&x| x == 1.0).count() as u64;
+        assert_eq!(g["late_frames"].as_u64().unwrap(), lates, "{name} late");
+        // Per slave: margin min and p0.1, and the shift each needs.
+        let slaves = g["per_slave"].as_array().unwrap();
+        assert_eq!(slaves.len(), 6);
+        for s in slaves {
+            let pos = s["position"].as_u64().unwrap();
+            let mut xs = col(&format!("margin_{pos}_ns"));
+            xs.sort_by(f64::total_cmp);
+            let min = s["margin_min_ns"].as_f64().unwrap();
+            assert!((min - xs[0]).abs() <= 0.001, "{name} slave {pos} min");
+            let p = s["margin_p001_ns"].as_f64().unwrap();
+            let e = exact(&xs, 0.001);
+            assert!(
+                (p - e).abs() <= bound(&j, e) + 0.001,
+                "{name} slave {pos} p0.1"
+            );
+            let shift = s["smallest_safe_shift_pct"].as_f64().unwrap();
+            // The shift needed: the latest end after the grid point, rounded up to 0.1 % (0
+            // when every frame passed before the grid point).
+            let latest = 300_000.0 - xs[0];
+            if latest <= 0.0 {
+                assert_eq!(shift, 0.0, "{name} slave {pos}");
+            } else {
+                assert!(
+                    shift * 10_000.0 >= latest - 0.01 && (shift - 0.1) * 10_000.0 < latest,
+                    "{name} slave {pos}: {shift} % for {latest} ns"
+                );
+            }
+        }
+        if let Some(ctl) = m["controller"].as_object() {
+            assert!(ctl["in_sync_fraction"].is_number());
+            let adj = col("ctl_adjustment_ns");
+            assert_eq!(
+                adj.len(),
+                12_000,
+                "{name}: the controller's log every cycle"
+            );
+        }
+    }
+}
+
+/// Acceptance 4: SIGINT two seconds into a long comparison stops it: exit 130, summary.json
+/// with `interrupted: true` and the cycles done.
+#[test]
+fn ctrl_c_stops_and_keeps_what_was_measured() {
+    let out = tmp("sigint");
+    let child = ecsync()
+        .args(["compare", "--quiet", "--runs", "2", "--cycles", "50000000"])
+        .arg("--out")
+        .arg(&out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let t0 = std::time::Instant::now();
+    // SAFETY: sending a signal to our own child process, whose pid is valid until waited for.
+    let rc = unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    assert_eq!(rc, 0);
+    let o = child.wait_with_output().unwrap();
+    let took = t0.elapsed();
+    assert_eq!(
+        o.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("interrupted"), "{e}");
+    let j = json(&out.join("summary.json"));
+    assert_eq!(j["interrupted"], true);
+    let done = j["cycles_done"].as_u64().unwrap();
+    assert!(done > 0 && done < 8 * 2 * 50_000_000, "{done}");
+    assert!(
+        j["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w["kind"] == "interrupted")
+    );
+    assert!(out.join("report.html").exists());
+    // It stopped promptly (the report is written after the stop; generous for a loaded VM).
+    assert!(took.as_secs() < 30, "{took:?}");
+}
+
+fn refused(args: &[&str]) -> String {
+    let o = ecsync().args(args).output().unwrap();
+    assert!(!o.status.success(), "{args:?} was accepted");
+    let e = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!e.contains("panicked"), "{e}");
+    e
+}
+
+/// Item 8: the command line.
+#[test]
+fn the_command_line_refuses_with_a_hint() {
+    // A negative number is a value, refused by its range.
+    let e = refused(&["compare", "--shift-pct", "-10", "--quiet"]);
+    assert!(!e.contains("unexpected argument"), "{e}");
+    assert!(e.contains("--shift-pct") && e.contains("fix:"), "{e}");
+    // --help lists the methods, the host presets and the defaults.
+    let o = ecsync().args(["compare", "--help"]).output().unwrap();
+    let h = String::from_utf8_lossy(&o.stdout);
+    for m in ecsync_lab::scenario::METHODS {
+        assert!(h.contains(m), "{m} in --help");
+    }
+    for p in ecsync_lab::host::HostParams::PRESETS {
+        assert!(h.contains(p), "{p} in --help");
+    }
+    assert!(
+        h.contains("SYNC0 shift 30 %") && h.contains("1800000"),
+        "{h}"
+    );
+    // Warm-up shorter than an init: the same words on the command line and in the file.
+    let cli = refused(&["compare", "--warmup-s", "5", "--quiet"]);
+    assert!(cli.contains("--warmup-s"), "{cli}");
+    let dir = tmp("cli");
+    let f = dir.join("short.toml");
+    std::fs::write(
+        &f,
+        ecsync_esc::preset::PAPER_2024_TOML.replace("warmup_s = 120", "warmup_s = 5"),
+    )
+    .unwrap();
+    let file = refused(&["compare", "--config", f.to_str().unwrap(), "--quiet"]);
+    assert!(
+        file.contains("short.toml:") && file.contains("run.warmup_s"),
+        "{file}"
+    );
+    let words = "shorter than median's 10000 initialisation frames";
+    assert!(cli.contains(words) && file.contains(words), "{cli}\n{file}");
+    // Implausible values.
+    let f = dir.join("cycle.toml");
+    std::fs::write(
+        &f,
+        ecsync_esc::preset::PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 1000000"),
+    )
+    .unwrap();
+    let e = refused(&["compare", "--config", f.to_str().unwrap()]);
+    assert!(
+        e.contains("run.cycle_us") && e.contains("did you mean 1000 us"),
+        "{e}"
+    );
+    let f = dir.join("jitter.toml");
+    std::fs::write(
+        &f,
+        ecsync_esc::preset::PAPER_2024_TOML.replace(
+            "preset = \"preempt-rt-stress\"",
+            "preset = \"preempt-rt-stress\"\njs = { sigma_ns = 1e9 }",
+        ),
+    )
+    .unwrap();
+    let e = refused(&["compare", "--config", f.to_str().unwrap()]);
+    assert!(e.contains("host.js.sigma_ns") && e.contains("fix:"), "{e}");
+    // bench --cycles 0.
+    let e = refused(&["bench", "--cycles", "0", "--skip-compare"]);
+    assert!(e.contains("--cycles") && e.contains("fix:"), "{e}");
+    // bringup (and serve, which reads the file the same way) refuse unknown sections and
+    // fields exactly as compare does.
+    let f = dir.join("unknown.toml");
+    std::fs::write(
+        &f,
+        format!("{}\n[extra]\nx = 1\n", ecsync_esc::preset::PAPER_2024_TOML),
+    )
+    .unwrap();
+    let c = refused(&["compare", "--config", f.to_str().unwrap()]);
+    let b = refused(&["bringup", "--config", f.to_str().unwrap()]);
+    assert!(c.contains("unknown field") && c.contains("extra"), "{c}");
+    assert_eq!(c, b, "compare and bringup refuse with the same words");
+    let f = dir.join("typo.toml");
+    std::fs::write(
+        &f,
+        ecsync_esc::preset::PAPER_2024_TOML.replacen("cable_m = 2.0", "cable_mm = 2.0", 1),
+    )
+    .unwrap();
+    let c = refused(&["compare", "--config", f.to_str().unwrap()]);
+    let b = refused(&["bringup", "--config", f.to_str().unwrap()]);
+    assert!(c.contains("cable_mm"), "{c}");
+    assert_eq!(c, b);
+    #[cfg(target_os = "linux")]
+    {
+        let s = refused(&["serve", "--iface", "lo", "--config", f.to_str().unwrap()]);
+        assert_eq!(c, s, "serve refuses like compare");
+    }
+}
+
+/// The template documents every [host] field.
+#[test]
+fn the_template_documents_every_host_field() {
+    let t = ecsync_esc::preset::PAPER_2024_TOML;
+    let host = &t[t.find("[host]").unwrap()..t.find("[run]").unwrap()];
+    for f in [
+        "preset",
+        "master_ppm",
+        "master_wander_ppm_per_sqrt_s",
+        "js",
+        "em_ns",
+        "em_jitter",
+        "jc",
+        "tx_latency_ns",
+        "rx_latency_ns",
+        "sigma_ns",
+        "folded",
+        "tail_p",
+        "tail_mean_ns",
+        "tail_sign",
+        "max_abs_ns",
+    ] {
+        assert!(
+            host.contains(&format!("{f} =")),
+            "[host] does not document {f}"
+        );
+    }
+    // The documented values are the preset's own: uncommented, they change nothing.
+    let uncommented: String = t
+        .lines()
+        .map(|l| match l.strip_prefix("# ") {
+            Some(r) if host.contains(l) && r.contains(" = ") && !r.contains(':') => r,
+            _ => l,
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let a = ecsync_lab::parse("a", t).unwrap();
+    let b = ecsync_lab::parse("b", &uncommented).unwrap();
+    assert_eq!(a.host, b.host);
+}
