@@ -74,7 +74,7 @@ pub const ESC_TYPE_ET1100: u8 = 0x11;
 pub const ESC_TYPE_ET1200: u8 = 0x12;
 /// ESC type (0x0000) the Kollmorgen AKD reports (soem-sdinfo-akd.pcapng, BRD of 0x0000).
 pub const ESC_TYPE_AKD: u8 = 0x04;
-/// 0x0008 as ET1100-based devices show it (EK1100, EK1914, EL2889 in ../shared/captures/).
+/// 0x0008 as ET1100-based devices show it (EK1100, EK1914 in ../shared/captures/).
 pub const FEATURES_ET1100: u16 = 0x00fc;
 /// 0x0008 as ET1200 terminals show it (EL2828, EL3004, EL1004 in ../shared/captures/).
 pub const FEATURES_ET1200: u16 = 0x01fc;
@@ -203,13 +203,15 @@ impl EscModel {
     /// show (read from the captures of real devices in ../shared/captures/), with the DC bits
     /// following the model's [`DcSupport`]:
     /// - ET1100 (type 0x11): 0x00FC, read from the EK1100 (replay-dc.pcapng,
-    ///   soem-sdinfo-ek1100-el1004.pcapng), the EK1914 (replay-ek1914-el3004-mailbox.pcapng)
-    ///   and the EL2889 (replay-dc.pcapng): byte-oriented FMMU bit 0 clear (bit oriented), DC,
-    ///   64-bit DC, low jitter EBUS, enhanced link detection EBUS and MII, separate FCS error
-    ///   handling; no enhanced DC SYNC activation (bit 8). Models: servo-mii, junction-mii.
+    ///   soem-sdinfo-ek1100-el1004.pcapng) and the EK1914 (replay-ek1914-el3004-mailbox.pcapng;
+    ///   both have 8 FMMUs, so ET1100s): FMMU bit 0 clear (bit oriented), DC, 64-bit DC, low
+    ///   jitter EBUS, enhanced link detection EBUS and MII, separate FCS error handling; no
+    ///   enhanced DC SYNC activation (bit 8). Models: servo-mii, junction-mii.
     /// - ET1200 (type 0x12): 0x01FC, read from the EL2828 (replay-dc.pcapng), EL3004
     ///   (replay-ek1914-el3004-mailbox.pcapng) and EL1004 (soem-sdinfo-ek1100-el1004.pcapng):
-    ///   the ET1100's bits plus enhanced DC SYNC activation. Model: ebus-terminal.
+    ///   the ET1100's bits plus enhanced DC SYNC activation. Model: ebus-terminal. Not every
+    ///   ET1200 device shows bit 8: the EL2889 in replay-dc.pcapng (3 FMMUs and 4
+    ///   SyncManagers, as an ET1200 has) reads 0x00FC.
     /// - The AKD's ESC (type 0x04): 0x0184, read from the Kollmorgen AKD
     ///   (soem-sdinfo-akd.pcapng): DC (32 bit), separate FCS error handling, enhanced DC SYNC
     ///   activation. Model: servo-mii-dc32.
