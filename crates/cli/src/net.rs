@@ -248,7 +248,18 @@ struct RunOut {
     tx_path: Summary,
     /// From the send timestamp to the reply, ns.
     round_trip: Summary,
+    /// A controller's state at the end (DCM): in sync, the drift it learnt, its error.
+    controller: Option<ControllerOut>,
     csv: Option<String>,
+}
+
+/// The last cycle's controller log.
+#[derive(Debug, Serialize)]
+struct ControllerOut {
+    in_sync: bool,
+    drift_ppm: f64,
+    filtered_error_ns: f64,
+    adjustment_ns: i64,
 }
 
 fn latency(s: &Stats) -> LatencyOut {
@@ -263,7 +274,8 @@ fn latency(s: &Stats) -> LatencyOut {
     }
 }
 
-fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<Method> {
+/// The method with the scenario's parameters, and the scenario's target phase, ns.
+fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64)> {
     let (name, text) = match &args.config {
         Some(p) => (
             p.display().to_string(),
@@ -280,15 +292,17 @@ fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<Method> {
     }
     let init = ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as i64).max(1);
     s.median.init_frames = init;
+    s.median_fit.init_frames = init;
     s.pi_m2s.init_frames = init;
     s.cycle_ns = cycle_ns;
-    Method::from_scenario(&args.method, &s).with_context(|| {
+    let m = Method::from_scenario(&args.method, &s).with_context(|| {
         format!(
             "unknown method \"{}\"; the methods are: {}",
             args.method,
             ecsync_lab::scenario::METHODS.join(", ")
         )
-    })
+    })?;
+    Ok((m, s.target_phase_ns))
 }
 
 /// Writes `v` or nothing, then the separator (no allocation: this runs every cycle).
@@ -327,7 +341,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     }
     let cycle_ns = args.cycle_us * 1000;
     let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
-    let method = method_for(&args, cycle_ns)?;
+    let (method, target_phase_ns) = method_for(&args, cycle_ns)?;
     let mut csv = match &args.csv {
         Some(p) => {
             let f = std::fs::File::create(p)
@@ -418,9 +432,10 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
         reference_offset_ns: net.slaves[reference].offset.unwrap_or(0),
     };
-    // The reference's system time is the master's time after the bring-up: aim at its grid.
+    // The reference's system time is the master's time after the bring-up: aim at its grid,
+    // at the target phase.
     let now = link.clock().now_ns();
-    let first = (now / period + 2) * period;
+    let first = ((now / period + 2) * period).wrapping_add(target_phase_ns as u64);
     let mut eng = CyclicEngine::new(method, cyc_cfg, first)
         .map_err(|e| anyhow::anyhow!("cyclic frame: {e}"))?;
     let limits = CyclicLimits {
@@ -481,6 +496,13 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         }
     });
     let duration_s = t_cyc.elapsed().as_secs_f64();
+    use ecsync_dc::MasterSync as _;
+    let controller = eng.sync().controller_log().map(|c| ControllerOut {
+        in_sync: c.in_sync,
+        drift_ppm: c.drift_ppm,
+        filtered_error_ns: c.filtered_error_ns,
+        adjustment_ns: c.adjustment_ns,
+    });
     if let Some(mut w) = csv.take() {
         w.flush().context("writing the CSV file")?;
     }
@@ -521,6 +543,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         wake_latency: latency(&wake),
         tx_path: tx_path.summary(),
         round_trip: rtt.summary(),
+        controller,
         csv: args.csv.as_ref().map(|p| p.display().to_string()),
     };
     let text = serde_json::to_string_pretty(&out)?;

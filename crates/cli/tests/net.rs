@@ -261,11 +261,23 @@ fn run_method(pair: &NetPair, method: &str) {
     } else {
         // The lock threshold (100 ns) in 99% of the cycles, never beyond a microsecond. (The
         // frames come at the host's irregular instants and every compare meets the MII ports'
-        // 40 ns receive clock at another phase: single cycles show 80-120 ns.)
+        // 40 ns receive clock at another phase: single cycles show 80-120 ns.) DCM's bus shift
+        // moves the reference's time while it pulls in (10 s here, from the tens of
+        // microseconds the host's send latency puts the first frames off), which the slaves
+        // follow within a hundred ns or so: twice the threshold.
+        let p99_bound = if method == "dcm-bus-shift" {
+            200.0
+        } else {
+            100.0
+        };
         assert!(
-            rs_is["p99_abs"].as_f64().unwrap() <= 100.0,
+            rs_is["p99_abs"].as_f64().unwrap() <= p99_bound,
             "{method}: {rs_is}"
         );
+        if method == "dcm-bus-shift" {
+            let c = &j["controller"];
+            assert!(c["drift_ppm"].as_f64().unwrap().abs() < 100.0, "{c}");
+        }
         assert!(
             rs_is["max"].as_f64().unwrap() < 1_000.0,
             "{method}: {rs_is}"
@@ -316,7 +328,14 @@ fn serve_and_run_with_every_other_method() {
         return;
     };
     let _served = pair.serve(&[]);
-    for m in ["pi-m2s", "bus-shift", "snap", "soem-pi"] {
+    for m in [
+        "median-fit",
+        "pi-m2s",
+        "bus-shift",
+        "dcm-bus-shift",
+        "snap",
+        "soem-pi",
+    ] {
         run_method(&pair, m);
     }
 }

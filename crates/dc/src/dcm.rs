@@ -32,7 +32,11 @@
 //!   `2^-filter_depth`.
 //! * PI on the rate: each cycle the re-adjustment grows by `kp e_f + ki sum(e_f)`, so the
 //!   integral learns the drift between the master's clock and the reference (the "PI drift
-//!   controller"; its ppm is logged) and a constant drift leaves no error.
+//!   controller"; its ppm is logged) and a constant drift leaves no error. The proportional
+//!   part is limited to `max_slew_ppm` of the cycle (bus shift: the other slaves must be able
+//!   to follow the reference); while it is at the limit the learnt drift ramps towards the error
+//!   at [`DRIFT_RAMP_PPM_PER_S`] instead of integrating (no wind-up, and a drift beyond the
+//!   limit is learnt all the same).
 //! * Master shift moves the master's next cycle start earlier by the re-adjustment. Bus shift
 //!   moves the reference's system time back by it: the note's register 0x0910 is the system time
 //!   the reference reads and distributes, and the re-adjustment reaches it through the
@@ -89,6 +93,11 @@ pub struct DcmParams {
     pub in_sync_limit_ns: i64,
     /// Cycles the filtered error must stay in the band before "in sync".
     pub in_sync_hold_cycles: u64,
+    /// The most the proportional part moves the re-adjustment per cycle, as a rate in ppm of
+    /// the cycle (0: no limit). Bus shift needs one: the other slaves follow the reference's
+    /// time with a slew of at most 24 ppm (their speed counter's 0x1000), so a re-adjustment
+    /// that moves faster leaves them behind by microseconds while it pulls in.
+    pub max_slew_ppm: f64,
 }
 
 impl DcmParams {
@@ -110,6 +119,16 @@ impl DcmParams {
             max_valid_ns: 50_000,
             in_sync_limit_ns: 5_000,
             in_sync_hold_cycles: round_ns(1.5e9 / p).max(1) as u64,
+            max_slew_ppm: 0.0,
+        }
+    }
+
+    /// The defaults for bus shift: as [`DcmParams::default_for`] with the pull-in limited to
+    /// 5 ppm, a fifth of what the slaves' time control loops can follow.
+    pub fn default_bus_shift(target_phase_ns: i64, period_ns: u32) -> Self {
+        DcmParams {
+            max_slew_ppm: 5.0,
+            ..Self::default_for(target_phase_ns, period_ns)
         }
     }
 }
@@ -172,6 +191,12 @@ impl Dcm {
 /// Consecutive invalid errors after which the controller takes them as a real step.
 const MAX_INVALID_RUN: u32 = 64;
 
+/// How fast the learnt drift moves while the proportional part is at its limit, ppm per
+/// second: the slaves' own drift estimate (0x0935's depth 12, about 4 s) trails a reference
+/// whose rate ramps by `r` ppm/s by about `4 r` ppm, which with the 5 ppm limit stays well
+/// within the 24 ppm their phase slew holds.
+pub const DRIFT_RAMP_PPM_PER_S: f64 = 2.0;
+
 impl MasterSync for Dcm {
     fn name(&self) -> &'static str {
         match self.mode {
@@ -233,8 +258,22 @@ impl MasterSync for Dcm {
             if valid {
                 self.invalid_run = 0;
                 self.filtered += (e_f - self.filtered) * self.weight;
-                self.integral += self.filtered;
-                self.rate = prm.kp * self.filtered + prm.ki * self.integral;
+                let mut p_part = prm.kp * self.filtered;
+                let period = f64::from(input.period_ns);
+                let limit = prm.max_slew_ppm * 1e-6 * period;
+                if limit > 0.0 && p_part.abs() > limit {
+                    p_part = p_part.clamp(-limit, limit);
+                    // At the limit the integral would wind up with the pull-in and overshoot;
+                    // it moves the learnt drift towards the error at DRIFT_RAMP_PPM_PER_S
+                    // instead, so a drift beyond the limit is still learnt.
+                    if prm.ki > 0.0 {
+                        let ramp = DRIFT_RAMP_PPM_PER_S * 1e-6 * period * period * 1e-9;
+                        self.integral += self.filtered.signum() * ramp / prm.ki;
+                    }
+                } else {
+                    self.integral += self.filtered;
+                }
+                self.rate = p_part + prm.ki * self.integral;
             } else {
                 self.invalid_run += 1;
             }

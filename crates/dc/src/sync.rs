@@ -378,8 +378,10 @@ impl LineFit {
 ///
 /// * `y_i = t_ms^i - t_ra^i` is fitted as `a_y + b_y i` (its noise is the NIC's only: the send
 ///   timestamp moves with the send);
-/// * the frame's arrival phase at the reference against the grid and the target, `p_i`, is
-///   fitted as `a_p + b_p i` (`b_p = -b_y`: the same drift).
+/// * the frame's arrival phase at the reference against the grid and the target, `p_i`, lies
+///   on `a_p + b_p i` with the same drift, `b_p = -b_y`; `a_p` is their mean less the drift at
+///   their mean cycle (the phases carry the scheduling jitter, whose outliers must not tilt
+///   the line).
 ///
 /// After init the letter's loop runs with `h_mr = a_y + a_p` and the drift fed forward: eq. 13
 /// becomes `δ̂^i = δ̂^{i-1} - b_y + k median(φ)`. Then `φ = 0` means the frame arrives on the
@@ -397,7 +399,8 @@ pub struct MedianFit {
     pub target_phase_ns: i64,
     fit_y: LineFit,
     fit_p: LineFit,
-    last_p: Option<f64>,
+    /// The first init frame's phase, send delay and y.
+    first: Option<(f64, f64, f64)>,
     ready: bool,
     h_mr: f64,
     drift_per_cycle: f64,
@@ -429,7 +432,7 @@ impl MedianFit {
                 cxx: 0.0,
                 cxy: 0.0,
             },
-            last_p: None,
+            first: None,
             ready: false,
             h_mr: 0.0,
             drift_per_cycle: 0.0,
@@ -463,9 +466,14 @@ impl MedianFit {
 
     fn finish_init(&mut self) {
         let (a_y, b_y) = self.fit_y.line();
-        let (a_p, b_p) = self.fit_p.line();
+        // The phase's line has the drift of `y` (reversed): only its level is taken from the
+        // phases, as their mean less the drift at their mean cycle. (A slope fitted to the
+        // phases themselves would carry the scheduling jitter's outliers, a host stall of
+        // milliseconds near either end of the init weighing most.)
+        let b_p = -b_y;
+        let a_p = self.fit_p.my - b_p * self.fit_p.mx;
         self.h_mr = a_y + a_p;
-        self.drift_per_cycle = -b_y;
+        self.drift_per_cycle = b_p;
         self.phase_at_init_end = a_p + b_p * self.init_frames as f64;
         self.ready = true;
     }
@@ -485,16 +493,19 @@ impl MasterSync for MedianFit {
         if input.cycle < self.init_frames {
             if let Some(t_ra) = input.ref_time_ns {
                 let x = input.cycle as f64;
-                self.fit_y.add(x, diff_u64(input.send_ns, t_ra) as f64);
-                // The phase, unwrapped against the previous one so that a phase crossing ±P/2
-                // during init stays one line.
-                let raw = grid_phase(t_ra, self.target_phase_ns, input.period_ns) as f64;
-                let p = match self.last_p {
-                    Some(prev) => prev + wrap_phase(round_ns(raw - prev), input.period_ns) as f64,
-                    None => raw,
-                };
-                self.last_p = Some(p);
-                self.fit_p.add(x, p);
+                let y = diff_u64(input.send_ns, t_ra) as f64;
+                self.fit_y.add(x, y);
+                // The phase, continued from the first one through what moved it: the send's
+                // delay from its cycle's start (the host's jitter, a stall of milliseconds
+                // included, which wrapping at ±P/2 would fold back) and y. The schedule runs on
+                // the nominal grid during init, so nothing else moves it.
+                let s = diff_u64(input.send_ns, input.scheduled_start_ns) as f64;
+                let (p0, s0, y0) = *self.first.get_or_insert((
+                    grid_phase(t_ra, self.target_phase_ns, input.period_ns) as f64,
+                    s,
+                    y,
+                ));
+                self.fit_p.add(x, p0 + (s - s0) - (y - y0));
             }
         } else {
             if !self.ready {

@@ -10,7 +10,7 @@
 //! * `fig4_histograms`: the letter's Fig. 4 layout (M-rS and rS-IS of each method).
 
 use crate::compare::Comparison;
-use crate::report::{SummaryOut, per_slave_text, table1_text, truth_text, verdict_text};
+use crate::report::{SummaryOut, verdict_text};
 use crate::run::{Band, RunResult};
 use crate::stats::{Dist, Stats};
 use plotters::coord::Shift;
@@ -306,22 +306,32 @@ fn bands<DB: DrawingBackend>(
         let clip = |v: f32| (f64::from(v).clamp(lo, hi)) / unit_div;
         let t = |b: &Band| b.cycle as f64 * cycle_s;
         let dt = block * cycle_s;
-        // min..max, light; 1st..99th, darker; the median, a line.
+        // min..max, light; 1st..99th, darker; the median, a line. Each band is one polygon
+        // (steps along its upper edge, back along its lower one): a few kilobytes whatever the
+        // cycles.
+        let band = |lo_of: fn(&Band) -> f32, hi_of: fn(&Band) -> f32| {
+            let mut pts = Vec::with_capacity(4 * s.len());
+            for b in s {
+                pts.push((t(b), clip(hi_of(b))));
+                pts.push((t(b) + dt, clip(hi_of(b))));
+            }
+            for b in s.iter().rev() {
+                pts.push((t(b) + dt, clip(lo_of(b))));
+                pts.push((t(b), clip(lo_of(b))));
+            }
+            pts
+        };
         chart
-            .draw_series(s.iter().map(|b| {
-                Rectangle::new(
-                    [(t(b), clip(b.min)), (t(b) + dt, clip(b.max))],
-                    col.mix(0.18).filled(),
-                )
-            }))
+            .draw_series(std::iter::once(Polygon::new(
+                band(|b| b.min, |b| b.max),
+                col.mix(0.18).filled(),
+            )))
             .map_err(err)?;
         chart
-            .draw_series(s.iter().map(|b| {
-                Rectangle::new(
-                    [(t(b), clip(b.p01)), (t(b) + dt, clip(b.p99))],
-                    col.mix(0.5).filled(),
-                )
-            }))
+            .draw_series(std::iter::once(Polygon::new(
+                band(|b| b.p01, |b| b.p99),
+                col.mix(0.5).filled(),
+            )))
             .map_err(err)?;
         chart
             .draw_series(std::iter::once(PathElement::new(
@@ -600,7 +610,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
                     c,
                     order,
                     2,
-                    "true phase over time (run 0)",
+                    "true phase over time (run 0; s since recording started)",
                     1000.0,
                     "us",
                     &phase_marks(),
@@ -616,7 +626,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
                     c,
                     order,
                     0,
-                    "M-rS error over time (run 0)",
+                    "M-rS error over time (run 0; s since recording started)",
                     1000.0,
                     "us",
                     &[],
@@ -632,7 +642,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
                     c,
                     order,
                     1,
-                    "rS-IS error |0x092C| over time (run 0)",
+                    "rS-IS error |0x092C| over time (run 0; s since recording started)",
                     1.0,
                     "ns",
                     &[],
@@ -678,10 +688,10 @@ fn report_html(out: &SummaryOut, order: &[String], plots: &[(&str, &str)]) -> St
         h,
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>ecsync compare: {}</title>\
 <style>body{{font-family:sans-serif;margin:2em;max-width:1200px;color:#222}}table{{border-collapse:collapse;margin:1em 0}}\
-td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}th{{background:#eee}}td.l,th.l{{text-align:left}}\
+td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}td.l{{white-space:nowrap}}th{{background:#eee}}td.l,th.l{{text-align:left}}\
 .verdict{{border:2px solid #2c7a2c;background:#f3faf3;padding:0.8em 1.2em;margin:1em 0}}.verdict h2{{margin-top:0}}\
 .warn{{border-left:4px solid #c77700;background:#fff8ec;padding:0.4em 0.8em;margin:0.4em 0}}\
-.interrupted{{border:2px solid #c00;background:#fff0f0;padding:0.5em 1em}}\
+.interrupted{{border:2px solid #c00;background:#fff0f0;padding:0.5em 1em}}tr.letter td{{color:#888}}\
 pre{{background:#f7f7f7;padding:0.6em;overflow-x:auto;font-size:12px}}\
 figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:100%;border:1px solid #ddd}}</style></head><body>",
         esc(&out.scenario)
@@ -719,13 +729,9 @@ figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:
     for w in &out.warnings {
         let _ = write!(h, "<p class=warn>{}</p>", esc(&w.message));
     }
-    let _ = write!(
-        h,
-        "<h2>Ground truth</h2><pre>{}</pre><pre>{}</pre><h2>The letter's measurements</h2><pre>{}</pre>",
-        esc(&truth_text(out, order)),
-        esc(&per_slave_text(out)),
-        esc(&table1_text(out, order))
-    );
+    truth_table(&mut h, out, order);
+    per_slave_table(&mut h, out);
+    letter_table(&mut h, out, order);
     let _ = write!(h, "<h2>Plots</h2>");
     for (name, caption) in plots {
         let _ = write!(
@@ -745,4 +751,130 @@ figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:
         esc(&verdict_text(out))
     );
     h
+}
+
+fn us3(ns: f64) -> String {
+    if ns.is_finite() {
+        format!("{:.3}", ns / 1000.0)
+    } else {
+        "-".into()
+    }
+}
+
+fn truth_table(h: &mut String, out: &SummaryOut, order: &[String]) {
+    let _ = write!(
+        h,
+        "<h2>Ground truth</h2><p>Only a simulator has it; all runs pooled. The phase is when the frame reached the reference, after the DC grid point; every method aims at the target ({:.1} us) and SYNC0 fires at {:.1} us. A frame is late when its last bit passes a drive after that drive's SYNC0.</p>\
+<table><tr><th class=l>method</th><th>mean phase &minus; target (us)</th><th>phase std (us)</th><th>RMS about the target (us)</th><th>p99.9 &minus; target (us)</th><th>|phase &minus; target| p99.9 (us)</th><th>slave spread p99.9 (ns)</th><th>late frames</th><th>smallest safe SYNC0 shift (%)</th><th>SYNC0 margin min (us)</th><th>init drift offset (us)</th><th>in sync</th><th>lost frames</th><th>DC lock (ms)</th></tr>",
+        out.target_phase_ns as f64 / 1000.0,
+        out.sync0_shift_pct * f64::from(out.cycle_ns) / 1e5
+    );
+    for m in order {
+        let Some(mo) = out.methods.get(m) else {
+            continue;
+        };
+        let g = &mo.ground_truth;
+        let pick = if *m == out.recommendation.method {
+            " style=\"background:#eef8ee\""
+        } else {
+            ""
+        };
+        let _ = write!(
+            h,
+            "<tr{pick}><td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td><td>{}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
+            esc(m),
+            us3(g.offset_from_target_ns),
+            us3(g.phase.std),
+            us3(g.phase_error.rms),
+            us3(g.phase.p999 - g.target_phase_ns as f64),
+            us3(g.phase_error.p999_abs),
+            g.slave_ref_diff.p999_abs,
+            g.late_frames,
+            g.smallest_safe_shift_pct,
+            us3(g.sync0_margin.min),
+            mo.init_drift.map_or("-".to_string(), |d| us3(d.offset_ns)),
+            mo.controller.map_or("-".to_string(), |c| format!(
+                "{:.1} %",
+                c.in_sync_fraction * 100.0
+            )),
+            g.lost_frames,
+            mo.lock_ms
+        );
+    }
+    let _ = write!(h, "</table>");
+}
+
+fn per_slave_table(h: &mut String, out: &SummaryOut) {
+    let m = &out.recommendation.method;
+    let Some(mo) = out.methods.get(m) else { return };
+    let _ = write!(
+        h,
+        "<h3>Per drive, with {}</h3><p>SYNC0 minus the instant the frame's last bit passed the drive, and the smallest SYNC0 shift each drive needs.</p><table><tr><th>position</th><th>margin min (us)</th><th>margin p0.1 (us)</th><th>margin mean (us)</th><th>late frames</th><th>smallest safe shift (%)</th></tr>",
+        esc(m)
+    );
+    for s in &mo.ground_truth.per_slave {
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
+            s.position,
+            us3(s.margin_min_ns),
+            us3(s.margin_p001_ns),
+            us3(s.margin_mean_ns),
+            s.late_frames,
+            s.smallest_safe_shift_pct
+        );
+    }
+    let _ = write!(h, "</table>");
+}
+
+fn letter_table(h: &mut String, out: &SummaryOut, order: &[String]) {
+    let _ = write!(
+        h,
+        "<h2>The letter's measurements</h2><p>Table 1's statistics (us): the means over {} of each run's mean, standard deviation, maximum and minimum. M-rS is the letter's eq. (10) &phi; for master shift and t<sub>ra</sub> &minus; t<sub>ms</sub> for bus shift; rS-IS the magnitude of a BRD of 0x092C (the OR of every drive's). {}</p><table><tr><th class=l rowspan=2>method</th><th colspan=4>M-rS</th><th colspan=4>rS-IS</th></tr><tr><th>MMean</th><th>MStd</th><th>MMax</th><th>MMin</th><th>MMean</th><th>MStd</th><th>MMax</th><th>MMin</th></tr>",
+        crate::scenario::plural(u64::from(out.runs), "run", "runs"),
+        if out.letter_testbed {
+            "This is the letter's testbed: its values are shown in grey below ours."
+        } else {
+            "This is not the letter's testbed, so its values are not shown: they are no comparison here."
+        }
+    );
+    for m in order {
+        let Some(mo) = out.methods.get(m) else {
+            continue;
+        };
+        let name = if mo.letter_name == "-" {
+            esc(m)
+        } else {
+            format!("{} ({})", esc(m), mo.letter_name)
+        };
+        let (a, b) = (&mo.m_rs, &mo.rs_is);
+        let _ = write!(
+            h,
+            "<tr><td class=l>{name}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            us3(a.mean),
+            us3(a.std),
+            us3(a.max),
+            us3(a.min),
+            us3(b.mean),
+            us3(b.std),
+            us3(b.max),
+            us3(b.min)
+        );
+        if let Some(l) = &mo.letter {
+            let (a, b) = (&l.m_rs, &l.rs_is);
+            let _ = write!(
+                h,
+                "<tr class=letter><td class=l>the letter</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                us3(a.mean),
+                us3(a.std),
+                us3(a.max),
+                us3(a.min),
+                us3(b.mean),
+                us3(b.std),
+                us3(b.max),
+                us3(b.min)
+            );
+        }
+    }
+    let _ = write!(h, "</table>");
 }

@@ -12,9 +12,11 @@
 //!    (early or late, by the sign of the master-to-reference drift `d`), and its frames being
 //!    early would otherwise win the next key;
 //! 3. the smallest SYNC0 shift without a late frame in any run (smaller first): the margin the
-//!    method leaves for the application;
+//!    method leaves for the application. It is the latest of millions of frames, which moves
+//!    by microseconds from seed to seed, so it is compared in steps of [`SHIFT_TIE_PCT`] of the
+//!    cycle above the best method's;
 //! 4. the slaves' spread around the reference, p99.9 (smaller first): how well the drives
-//!    agree with each other;
+//!    agree with each other, in steps of [`SPREAD_TIE`] of the best (at least 2 ns);
 //! 5. the true phase's deviation from the target, p99.9 of |phase - target| (smaller first).
 //!
 //! The first is the pick. Warnings are raised where a figure is at risk: a master-to-reference
@@ -206,7 +208,7 @@ pub struct Recommendation {
 }
 
 /// The ranking rule, in words.
-pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame, then the smallest slave spread p99.9, then the smallest p99.9 of |true phase - target|";
+pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|";
 
 /// A figure at risk.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -416,18 +418,47 @@ fn keys(m: &MethodOut) -> [f64; 5] {
     ]
 }
 
+/// Differences of the smallest safe shift below this many % of the cycle are noise: the
+/// shift comes from the latest frame of millions, which moves by microseconds between seeds.
+pub const SHIFT_TIE_PCT: f64 = 0.5;
+/// Differences of the slave spread's p99.9 below this share of the best (and 2 ns) are noise.
+pub const SPREAD_TIE: f64 = 0.1;
+
+/// The keys as compared: the shift and the spread in steps of their noise above the best
+/// method's (a strict comparison of maxima over millions of cycles would rank noise).
+fn ranked_keys(methods: &BTreeMap<String, MethodOut>, names: &[&String]) -> Vec<[f64; 5]> {
+    let raw: Vec<[f64; 5]> = names.iter().map(|m| keys(&methods[*m])).collect();
+    let best = |i: usize| raw.iter().map(|k| k[i]).fold(f64::INFINITY, f64::min);
+    let (b2, b3) = (best(2), best(3));
+    let spread_step = (SPREAD_TIE * b3).max(2.0);
+    raw.iter()
+        .map(|k| {
+            let mut k = *k;
+            if k[2].is_finite() && b2.is_finite() {
+                k[2] = ((k[2] - b2) / SHIFT_TIE_PCT).floor();
+            }
+            if k[3].is_finite() && b3.is_finite() {
+                k[3] = ((k[3] - b3) / spread_step).floor();
+            }
+            k
+        })
+        .collect()
+}
+
 fn rank(methods: &BTreeMap<String, MethodOut>, order: &[String]) -> Vec<String> {
-    let mut v: Vec<&String> = order.iter().filter(|m| methods.contains_key(*m)).collect();
+    let names: Vec<&String> = order.iter().filter(|m| methods.contains_key(*m)).collect();
+    let keys = ranked_keys(methods, &names);
+    let mut idx: Vec<usize> = (0..names.len()).collect();
     // A stable sort keeps the report order among exact ties.
-    v.sort_by(|a, b| {
-        let (ka, kb) = (keys(&methods[*a]), keys(&methods[*b]));
-        ka.iter()
-            .zip(kb.iter())
+    idx.sort_by(|&a, &b| {
+        keys[a]
+            .iter()
+            .zip(keys[b].iter())
             .map(|(x, y)| x.total_cmp(y))
             .find(|o| o.is_ne())
             .unwrap_or(std::cmp::Ordering::Equal)
     });
-    v.into_iter().cloned().collect()
+    idx.into_iter().map(|i| names[i].clone()).collect()
 }
 
 fn us(ns: f64) -> String {
@@ -457,24 +488,29 @@ fn reason(methods: &BTreeMap<String, MethodOut>, ranking: &[String], s_pct: f64)
         us(g.phase_error.p999_abs),
         g.slave_ref_diff.p999_abs
     );
-    let off: Vec<&str> = ranking
-        .iter()
-        .filter(|m| !methods[*m].ground_truth.holds_target && methods[*m].ground_truth.phase.n > 0)
-        .map(|m| m.as_str())
-        .collect();
-    if !off.is_empty() {
+    if !g.holds_target && g.phase.n > 0 {
         let _ = write!(
             r,
-            " {} {} not hold {} target on this network (see the warnings) and {} ranked after the methods that do.",
-            off.join(", "),
-            if off.len() == 1 { "does" } else { "do" },
-            if off.len() == 1 { "its" } else { "their" },
-            if off.len() == 1 { "is" } else { "are" }
+            " It does not hold its target: its frames sit {} {} it, which is what {} here; on a network whose crystals drift the other way they would sit as far on the other side.",
+            us(g.offset_from_target_ns.abs()),
+            if g.offset_from_target_ns < 0.0 {
+                "before"
+            } else {
+                "after"
+            },
+            if g.offset_from_target_ns < 0.0 {
+                "keeps them clear of SYNC0"
+            } else {
+                "the shift has to make up for"
+            }
         );
     }
     if let Some(second) = ranking.get(1) {
         let q = &methods[second];
+        let names: Vec<&String> = ranking.iter().collect();
+        let compared = ranked_keys(methods, &names);
         let (ka, kb) = (keys(p), keys(q));
+        let decided = (0..5).find(|&i| compared[0][i] != compared[1][i]);
         let what = [
             "late frames",
             "holding its target",
@@ -482,7 +518,18 @@ fn reason(methods: &BTreeMap<String, MethodOut>, ranking: &[String], s_pct: f64)
             "the slave spread",
             "the true phase's deviation from the target",
         ];
-        if let Some(i) = (0..5).find(|&i| ka[i] != kb[i]) {
+        let tied: Vec<&str> = (0..decided.unwrap_or(5))
+            .filter(|&i| i >= 2 && ka[i] != kb[i])
+            .map(|i| what[i])
+            .collect();
+        if !tied.is_empty() {
+            let _ = write!(
+                r,
+                " It and {second} are within noise of each other on {}.",
+                tied.join(" and ")
+            );
+        }
+        if let Some(i) = decided {
             let fmt = |i: usize, v: f64, m: &MethodOut| match i {
                 0 => format!("{v:.0}"),
                 1 => format!(
@@ -511,6 +558,22 @@ fn reason(methods: &BTreeMap<String, MethodOut>, ranking: &[String], s_pct: f64)
         } else {
             let _ = write!(r, " {second} ties with it on every key.");
         }
+    }
+    let off: Vec<&str> = ranking
+        .iter()
+        .filter(|m| *m != pick)
+        .filter(|m| !methods[*m].ground_truth.holds_target && methods[*m].ground_truth.phase.n > 0)
+        .map(|m| m.as_str())
+        .collect();
+    if !off.is_empty() {
+        let _ = write!(
+            r,
+            " {} {} not hold {} target on this network (see the warnings) and {} ranked after the methods that do, late frames permitting.",
+            off.join(", "),
+            if off.len() == 1 { "does" } else { "do" },
+            if off.len() == 1 { "its" } else { "their" },
+            if off.len() == 1 { "is" } else { "are" }
+        );
     }
     if p.rs_is.std > 0.0 {
         let best_rs = ranking
@@ -833,12 +896,13 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
     );
     let _ = writeln!(
         t,
-        "{:<18}{:>14}{:>11}{:>11}{:>15}{:>15}{:>11}{:>13}{:>12}{:>10}",
+        "{:<18}{:>13}{:>11}{:>11}{:>14}{:>14}{:>14}{:>8}{:>12}{:>12}{:>9}",
         "method",
         "mean-target",
         "phase std",
-        "phase RMS",
+        "RMS about",
         "p99.9-target",
+        "|p-t| p99.9",
         "spread p99.9",
         "late",
         "safe shift",
@@ -847,8 +911,8 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
     );
     let _ = writeln!(
         t,
-        "{:<18}{:>14}{:>11}{:>11}{:>15}{:>15}{:>11}{:>13}{:>12}{:>10}",
-        "", "us", "us", "us", "us", "ns", "frames", "%", "us", ""
+        "{:<18}{:>13}{:>11}{:>11}{:>14}{:>14}{:>14}{:>8}{:>12}{:>12}{:>9}",
+        "", "us", "us", "target us", "us", "us", "ns", "frames", "%", "us", ""
     );
     for m in order {
         let mo = &out.methods[m];
@@ -859,12 +923,13 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
         };
         let _ = writeln!(
             t,
-            "{:<18}{:>14.3}{:>11.3}{:>11.3}{:>15.3}{:>15.1}{:>11}{:>13.1}{:>12.1}{:>10}",
+            "{:<18}{:>13.3}{:>11.3}{:>11.3}{:>14.3}{:>14.3}{:>14.1}{:>8}{:>12.1}{:>12.1}{:>9}",
             m,
             g.offset_from_target_ns / 1000.0,
             g.phase.std / 1000.0,
-            g.phase.rms / 1000.0,
+            g.phase_error.rms / 1000.0,
             (g.phase.p999 - g.target_phase_ns as f64) / 1000.0,
+            g.phase_error.p999_abs / 1000.0,
             g.slave_ref_diff.p999_abs,
             g.late_frames,
             g.smallest_safe_shift_pct,

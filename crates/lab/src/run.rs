@@ -67,11 +67,11 @@ impl Method {
             }),
             "dcm-bus-shift" => Method::Dcm(Dcm::new(
                 DcmMode::BusShift,
-                s.dcm_bus_shift.to_params(target, s.cycle_ns),
+                s.dcm_bus_shift.to_params(target, s.cycle_ns, true),
             )),
             "dcm-master-shift" => Method::Dcm(Dcm::new(
                 DcmMode::MasterShift,
-                s.dcm_master_shift.to_params(target, s.cycle_ns),
+                s.dcm_master_shift.to_params(target, s.cycle_ns, false),
             )),
             // ethercrab's sync0_shift: the wait runs to the grid point plus the shift.
             "snap" => Method::Snap(Snap {
@@ -310,8 +310,9 @@ pub struct SlaveTruth {
     pub late_frames: u64,
 }
 
-/// The drift the frames underwent while a method averaged its init frames, from the true
-/// phase of those frames (least squares).
+/// The drift the frames underwent while a method averaged its init frames: the reference's
+/// system time against the master's clock over those frames (least squares on the clocks'
+/// truth).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct InitDrift {
     /// Init frames.
@@ -568,7 +569,6 @@ pub struct Run {
     series: [Bands; 3],
     grid0: Option<(u64, i64)>,
     init_fit: LineFit,
-    init_last: Option<f64>,
     init_frames: u64,
     prev_done_ns: u64,
     next_cycle: u64,
@@ -682,7 +682,6 @@ impl Run {
             ],
             grid0: None,
             init_fit: LineFit::default(),
-            init_last: None,
             init_frames,
             prev_done_ns: 0,
             next_cycle: 0,
@@ -776,7 +775,6 @@ impl Run {
             series,
             grid0,
             init_fit,
-            init_last,
             prev_done_ns,
             samples,
             was_in_sync,
@@ -830,17 +828,15 @@ impl Run {
             let sys =
                 |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
             if i < warmup {
-                // The init frames' drift, from their true phase.
-                if i < init_frames && rec.receive_ns.is_some() {
-                    if let Some(r) = seg.trace()[reference].pu_ps.and_then(|t| sys(reference, t)) {
-                        let raw = (r.0 as i64).wrapping_sub(target) as f64 + r.1;
-                        let raw = raw - p * (raw / p).round();
-                        let ph = match *init_last {
-                            Some(prev) => prev + (raw - prev) - p * ((raw - prev) / p).round(),
-                            None => raw,
-                        };
-                        *init_last = Some(ph);
-                        init_fit.add(i as f64, ph);
+                // The init frames' drift: how the reference's system time runs against the
+                // master's clock, read at the frame's arrival (the clocks' truth, free of the
+                // host's jitter).
+                if i < init_frames {
+                    if let Some(pu) = seg.trace()[reference].pu_ps {
+                        if let Some(r) = sys(reference, pu) {
+                            let m = sim.master_clock.master_ns(pu);
+                            init_fit.add(i as f64, (r.0.wrapping_sub(m) as i64) as f64 + r.1);
+                        }
                     }
                 }
                 continue;

@@ -281,6 +281,10 @@ pub struct DcmFileParams {
     /// How long the filtered error must stay in the band, ms.
     #[serde(default = "d_dcm_hold")]
     pub in_sync_hold_ms: f64,
+    /// The most the re-adjustment's proportional part moves per cycle, ppm of the cycle (0: no
+    /// limit; bus shift's default 5, master shift's 0).
+    #[serde(default)]
+    pub max_slew_ppm: Option<f64>,
 }
 fn d_svr() -> SetValueRefFile {
     SetValueRefFile::FrameSend
@@ -318,14 +322,26 @@ impl Default for DcmFileParams {
             max_valid_us: d_dcm_valid(),
             in_sync_limit_us: d_dcm_band(),
             in_sync_hold_ms: d_dcm_hold(),
+            max_slew_ppm: None,
         }
     }
 }
 
 impl DcmFileParams {
-    /// The controller's parameters at a cycle and target.
-    pub fn to_params(&self, target_phase_ns: i64, cycle_ns: u32) -> ecsync_dc::DcmParams {
+    /// The controller's parameters at a cycle and target, for bus shift or master shift.
+    pub fn to_params(
+        &self,
+        target_phase_ns: i64,
+        cycle_ns: u32,
+        bus_shift: bool,
+    ) -> ecsync_dc::DcmParams {
+        let default_slew = if bus_shift {
+            ecsync_dc::DcmParams::default_bus_shift(0, 1_000_000).max_slew_ppm
+        } else {
+            0.0
+        };
         ecsync_dc::DcmParams {
+            max_slew_ppm: self.max_slew_ppm.unwrap_or(default_slew),
             set_value_ref: match self.set_value_ref {
                 SetValueRefFile::FrameSend => ecsync_dc::SetValueRef::FrameSend,
                 SetValueRefFile::CycleStart => ecsync_dc::SetValueRef::CycleStart,
@@ -668,6 +684,16 @@ fn check_dcm(table: &str, d: &DcmFileParams, cycle_ns: u32) -> Result<(), Proble
                 k,
                 format!("{v} us"),
                 format!("give a time above 0 and at most the cycle ({cycle_us} us)"),
+            ));
+        }
+    }
+    if let Some(v) = d.max_slew_ppm {
+        if !(v.is_finite() && (0.0..=1000.0).contains(&v)) {
+            return Err(Problem::new(
+                table,
+                "max_slew_ppm",
+                format!("{v} ppm"),
+                "give between 0 (no limit) and 1000 ppm; bus shift's default is 5",
             ));
         }
     }
