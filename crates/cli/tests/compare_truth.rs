@@ -435,3 +435,47 @@ fn the_template_documents_every_host_field() {
     let b = ecsync_lab::parse("b", &uncommented).unwrap();
     assert_eq!(a.host, b.host);
 }
+
+/// The README's own-network example: the twelve-drive file runs, and the comparison warns
+/// about the crystals and about median's offset, while median-fit holds its target.
+#[test]
+fn the_twelve_drive_example_warns_about_median() {
+    let out = tmp("twelve");
+    let cfg = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/twelve-drives.toml");
+    let o = ecsync()
+        .args(["compare", "--quiet", "--runs", "1", "--cycles", "3000"])
+        .args([
+            "--warmup-s",
+            "11",
+            "--methods",
+            "median,median-fit",
+            "--out",
+        ])
+        .arg(&out)
+        .arg("--config")
+        .arg(&cfg)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j = json(&out.join("summary.json"));
+    assert_eq!(j["slaves"], 12);
+    let kinds: Vec<(&str, &str)> = j["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| {
+            (
+                w["kind"].as_str().unwrap(),
+                w["method"].as_str().unwrap_or(""),
+            )
+        })
+        .collect();
+    assert!(kinds.contains(&("crystal_difference", "")), "{kinds:?}");
+    assert!(kinds.contains(&("off_target", "median")), "{kinds:?}");
+    assert!(!kinds.iter().any(|k| k.1 == "median-fit"), "{kinds:?}");
+    assert_eq!(j["recommendation"]["method"], "median-fit");
+    let off = j["methods"]["median"]["ground_truth"]["offset_from_target_ns"]
+        .as_f64()
+        .unwrap();
+    assert!((200_000.0..300_000.0).contains(&off.abs()), "{off}");
+}
