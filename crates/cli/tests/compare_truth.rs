@@ -479,3 +479,181 @@ fn the_twelve_drive_example_warns_about_median() {
         .unwrap();
     assert!((200_000.0..300_000.0).contains(&off.abs()), "{off}");
 }
+
+fn compare_json(out: &Path, args: &[&str], config: Option<&str>) -> (serde_json::Value, String) {
+    let mut c = ecsync();
+    c.args(["compare", "--out"]).arg(out).args(args);
+    if let Some(text) = config {
+        let f = out.join("net.toml");
+        std::fs::write(&f, text).unwrap();
+        c.arg("--config").arg(f);
+    }
+    let o = c.output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    (
+        json(&out.join("summary.json")),
+        String::from_utf8_lossy(&o.stdout).to_string(),
+    )
+}
+
+fn warning_kinds(j: &serde_json::Value) -> Vec<String> {
+    j["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w["kind"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// The warnings where a figure is at risk, each where it should come: a cycle shorter than the
+/// frame's round trip, jitter eating the margin, late frames; and "1 run", "1 thread".
+#[test]
+fn warnings_come_where_the_figures_are_at_risk() {
+    let base = ecsync_esc::preset::PAPER_2024_TOML;
+    // A 45 us cycle: the frame needs about 52 us from its send to its reply.
+    let out = tmp("short-cycle");
+    let text = base.replace("cycle_us = 1000", "cycle_us = 45");
+    let (j, stdout) = compare_json(
+        &out,
+        &["--quiet", "--runs", "1", "--cycles", "2000", "--warmup-s", "0"],
+        Some(&text.replace(
+            "methods = [\"median\", \"median-fit\", \"pi-m2s\", \"bus-shift\", \"dcm-bus-shift\", \"dcm-master-shift\", \"snap\", \"soem-pi\"]",
+            "methods = [\"bus-shift\"]",
+        )),
+    );
+    assert!(
+        warning_kinds(&j).contains(&"cycle_too_short".into()),
+        "{}",
+        j["warnings"]
+    );
+    assert!(
+        stdout.contains("1 run x") && stdout.contains("on 1 thread")
+            || stdout.contains("on 2 threads"),
+        "{stdout}"
+    );
+    // A shift of 3 %: the loaded host's jitter takes the frames past SYNC0.
+    let out = tmp("small-shift");
+    let (j, _) = compare_json(
+        &out,
+        &[
+            "--quiet",
+            "--runs",
+            "1",
+            "--cycles",
+            "20000",
+            "--warmup-s",
+            "3",
+            "--shift-pct",
+            "3",
+            "--methods",
+            "dcm-master-shift",
+            "--threads",
+            "1",
+        ],
+        None,
+    );
+    let k = warning_kinds(&j);
+    assert!(k.contains(&"late_frames".into()), "{k:?}");
+    // A shift of 9 %: no late frame, but the tail takes over half the margin.
+    let out = tmp("tight-shift");
+    let (j, stdout) = compare_json(
+        &out,
+        &[
+            "--runs",
+            "1",
+            "--cycles",
+            "20000",
+            "--warmup-s",
+            "3",
+            "--shift-pct",
+            "9",
+            "--methods",
+            "dcm-master-shift",
+            "--threads",
+            "1",
+        ],
+        None,
+    );
+    let k = warning_kinds(&j);
+    let late = j["methods"]["dcm-master-shift"]["ground_truth"]["late_frames"]
+        .as_u64()
+        .unwrap();
+    assert!(
+        k.contains(&"jitter_eats_margin".into()) || (late > 0 && k.contains(&"late_frames".into())),
+        "{k:?}"
+    );
+    assert!(
+        stdout.contains("1 run x") && stdout.contains("on 1 thread."),
+        "{stdout}"
+    );
+}
+
+/// The vendor's enhanced set value (the cycle's start) holds the target too and reports in
+/// sync; the controller's log comes with the samples.
+#[test]
+fn dcm_with_the_cycle_start_set_value() {
+    let text = ecsync_esc::preset::PAPER_2024_TOML.replace(
+        "[methods.dcm-master-shift]\nset_value_ref = \"frame-send\"",
+        "[methods.dcm-master-shift]\nset_value_ref = \"cycle-start\"",
+    );
+    assert_ne!(text, ecsync_esc::preset::PAPER_2024_TOML);
+    let out = tmp("cycle-start");
+    let (j, _) = compare_json(
+        &out,
+        &[
+            "--quiet",
+            "--runs",
+            "1",
+            "--cycles",
+            "30000",
+            "--warmup-s",
+            "5",
+            "--methods",
+            "dcm-master-shift,dcm-bus-shift",
+        ],
+        Some(&text),
+    );
+    for m in ["dcm-master-shift", "dcm-bus-shift"] {
+        let mo = &j["methods"][m];
+        let off = mo["ground_truth"]["offset_from_target_ns"]
+            .as_f64()
+            .unwrap();
+        assert!(off.abs() < 2_000.0, "{m}: {off} ns off its target");
+        assert_eq!(
+            mo["controller"]["in_sync_at_end"], true,
+            "{m}: {}",
+            mo["controller"]
+        );
+    }
+}
+
+/// The output stays the same size whatever the cycle count: series of at most 600 points.
+#[test]
+fn output_size_is_bounded() {
+    let size = |cycles: &str| {
+        let out = tmp(&format!("size-{cycles}"));
+        compare_json(
+            &out,
+            &[
+                "--quiet",
+                "--runs",
+                "1",
+                "--cycles",
+                cycles,
+                "--warmup-s",
+                "0",
+                "--methods",
+                "bus-shift,snap",
+            ],
+            None,
+        );
+        std::fs::metadata(out.join("series_true_phase.svg"))
+            .unwrap()
+            .len()
+    };
+    let (small, large) = (size("6000"), size("600000"));
+    assert!(
+        (large as f64) < 1.3 * small as f64 && large < 2_000_000,
+        "series_true_phase.svg: {small} bytes at 6000 cycles, {large} at 600000"
+    );
+}
