@@ -1,10 +1,12 @@
 //! Master synchronization: keeping the master's cycle in step with the DC reference clock.
 //!
-//! One trait, [`MasterSync`], and the five methods the SPEC names:
+//! One trait, [`MasterSync`], and the methods the SPEC names (the vendor note's DCM is in
+//! [`crate::dcm`]):
 //!
 //! | type | name | what it is |
 //! |---|---|---|
 //! | [`MedianSync`] | `median` | the letter's method (Xu et al. 2024, eq. 5-14): master shift, error from the send timestamp, median filter, gain k |
+//! | [`MedianFit`] | `median-fit` | the letter's filter and gain, h_mr and the drift fitted over the init frames: it holds a target phase on any crystals |
 //! | [`PiM2s`] | `pi-m2s` | the letter's E-M2S baseline: master shift with a PI controller whose error is taken from the theoretical cycle start |
 //! | [`BusShift`] | `bus-shift` | the letter's E-S2M baseline and the vendor's default: the master's time is written to the reference clock every cycle |
 //! | [`Snap`] | `snap` | what ethercrab ships: every cycle the wait is set so the next cycle starts on the reference's grid, gain 1, no filter |

@@ -234,13 +234,19 @@ impl Stats {
         self.n
     }
 
-    /// Quantile `q` of the values, clamped to the exact extremes, ns.
+    /// Quantile `q` of the values, clamped to the exact extremes, ns (NaN without samples).
     pub fn quantile(&self, q: f64) -> f64 {
+        if self.n == 0 {
+            return f64::NAN;
+        }
         self.dist.quantile(q).clamp(self.min, self.max)
     }
 
-    /// Quantile `q` of |x|, clamped to the largest |x|, ns.
+    /// Quantile `q` of |x|, clamped to the largest |x|, ns (NaN without samples).
     pub fn abs_quantile(&self, q: f64) -> f64 {
+        if self.n == 0 {
+            return f64::NAN;
+        }
         let max_abs = self.max.abs().max(self.min.abs());
         let lo = if self.min <= 0.0 && self.max >= 0.0 {
             0.0
@@ -433,9 +439,11 @@ mod tests {
 
     #[test]
     fn empty_is_nan() {
-        let m = Stats::new().summary();
+        let s = Stats::new();
+        let m = s.summary();
         assert_eq!(m.n, 0);
         assert!(m.mean.is_nan() && m.p99.is_nan() && m.min.is_nan());
+        assert!(s.quantile(0.5).is_nan() && s.abs_quantile(0.5).is_nan());
     }
 
     #[test]

@@ -9,19 +9,31 @@ use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
 use pcap_file::pcapng::{Block, PcapNgReader};
 use std::path::PathBuf;
 
-/// The folder of the real captures: `shared/captures` beside the repository (as laid out for
-/// developers and CI). `None` outside CI when it is missing; in CI its absence fails the test.
+/// The folder of the real captures: `$ECSYNC_SHARED/captures` if set, else `shared/captures`
+/// beside the repository (as laid out for developers), else the workplace's
+/// `/work/shared/captures` (a clone elsewhere, as CI makes one). `None` outside CI when none
+/// is there; in CI their absence fails the test.
 pub fn captures_dir() -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/captures");
-    if dir.join("replay-dc.pcapng").is_file() {
-        return Some(dir);
+    let mut tried = Vec::new();
+    let candidates = std::env::var_os("ECSYNC_SHARED")
+        .map(|d| PathBuf::from(d).join("captures"))
+        .into_iter()
+        .chain([
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/captures"),
+            PathBuf::from("/work/shared/captures"),
+        ]);
+    for dir in candidates {
+        if dir.join("replay-dc.pcapng").is_file() {
+            return Some(dir);
+        }
+        tried.push(dir.display().to_string());
     }
     assert!(
         std::env::var_os("CI").is_none(),
-        "{} is missing in CI: the real captures are part of shared/",
-        dir.display()
+        "the real captures are missing in CI (tried {}): they are part of shared/",
+        tried.join(", ")
     );
-    eprintln!("SKIPPED: {} not found", dir.display());
+    eprintln!("SKIPPED: the real captures are not at {}", tried.join(", "));
     None
 }
 
