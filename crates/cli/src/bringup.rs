@@ -109,13 +109,14 @@ pub fn run(args: Args) -> Result<ExitCode> {
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
-    let n = sim.segment.len();
+    let n = sim.segment().len();
     let mut offset_error: Vec<Option<i64>> = vec![None; n];
     // (real time, worst true |slave - reference|) after the offsets are written.
     let mut samples: Vec<(u64, f64)> = Vec::new();
     let mut after_offsets = false;
     let mut frames = 0u64;
-    let result = sim.run(&mut engine, |seg, ex, events| {
+    let result = sim.run_procedure(&mut engine, |tr, _, events| {
+        let (seg, ex) = (tr.segment(), tr.last_exchange());
         frames += 1;
         if events.contains(&Event::OffsetsWritten) {
             after_offsets = true;
@@ -134,7 +135,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     });
     let pcap_frames = sim.finish_capture().context("writing the pcap file")?;
     let net = result.map_err(|e| anyhow::anyhow!("bring-up failed: {e}"))?;
-    let truth = sim.segment.true_delays_ns(usize::from(net.reference));
+    let truth = sim.segment().true_delays_ns(usize::from(net.reference));
     let max_after = |t0: Option<u64>| match t0 {
         Some(t0) => samples
             .iter()
@@ -187,7 +188,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         sync0_start_ns: net.sync0.map(|s| s.start_ns),
         pdi_bytes: net.pdi_len,
         expected_lrw_wkc: net.expected_lrw_wkc,
-        bringup_ms: sim.now_ps as f64 / 1e9,
+        bringup_ms: sim.now_ps() as f64 / 1e9,
         frames,
         pcap: args.pcap.as_ref().map(|p| p.display().to_string()),
         pcap_frames,

@@ -9,11 +9,14 @@ use ecsync_lab::run::Method;
 use ecsync_lab::stats::{Stats, Summary};
 use ecsync_master::bringup::{DcCapability, Stage};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
+use ecsync_master::driver::{
+    CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, Stopped, run_procedure,
+};
+use ecsync_master::transport::Transport as _;
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
-use ecsync_net::cyclic::{CyclicLimits, RealCycle, Stopped, run_cyclic};
 use ecsync_net::rt::{self, RtReport};
 use ecsync_net::sys::{PacketSocket, TimestampSupport};
-use ecsync_net::{LinkStats, NetError, RealLink};
+use ecsync_net::{NetError, RealLink};
 use serde::Serialize;
 use std::io::Write;
 use std::path::PathBuf;
@@ -234,7 +237,9 @@ struct RunOut {
     /// Replies that came back later than one cycle after their send.
     late_replies: u64,
     bad_wkc: u64,
-    link: LinkStats,
+    /// Frames sent, replies matched, lost, stale (replies to nothing pending), truncated; the
+    /// bring-up's and the cyclic phase's.
+    link: ExchangeStats,
     timestamps: TimestampSupport,
     rt: RtReport,
     bringup: BringupOut,
@@ -313,7 +318,7 @@ fn field<T: std::fmt::Display>(w: &mut impl Write, v: Option<T>, sep: char) -> s
     write!(w, "{sep}")
 }
 
-fn csv_row(w: &mut impl Write, c: &RealCycle) -> std::io::Result<()> {
+fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
     let r = &c.record;
     write!(w, "{},{},{},", r.cycle, r.scheduled_ns, r.send_ns)?;
     field(w, r.ref_time_ns, ',')?;
@@ -353,7 +358,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         None => None,
     };
     let mut link = RealLink::open(&args.iface).map_err(|e| anyhow::anyhow!("{e}"))?;
-    link.timeout_ns = u64::from(args.timeout_us.max(1)) * 1000;
+    let mut exchanges = ExchangeStats::default();
     install_stop_handler();
     let rt = rt::setup(args.priority, args.cpu.map_or(rt::Pin::Last, rt::Pin::Cpu));
     for w in &rt.warnings {
@@ -373,11 +378,26 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
     let json = args.json;
-    let net: Network = match link.run(&mut engine, |e| {
-        if let (Event::Phase(p), false) = (e, json) {
-            eprintln!("  {p}");
-        }
-    }) {
+    // The first frames on a real network meet cold caches and page faults on both ends: a
+    // procedure waits 20 ms for a reply and sends a lost frame up to three times more, as SOEM
+    // and ethercrab do.
+    let procedure = ProcedureConfig {
+        reply_timeout_ns: 20_000_000,
+        retries: 3,
+    };
+    let net: Network = match run_procedure(
+        &mut link,
+        &mut engine,
+        procedure,
+        &mut exchanges,
+        |_, _, events| {
+            for e in events {
+                if let (Event::Phase(p), false) = (e, json) {
+                    eprintln!("  {p}");
+                }
+            }
+        },
+    ) {
         Ok(Ok(n)) => n,
         Ok(Err(MasterError::FrameLost { what })) => bail!(
             "no answer on {} during the bring-up ({what}): is a segment (or `ecsync serve`) connected?",
@@ -434,7 +454,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     };
     // The reference's system time is the master's time after the bring-up: aim at its grid,
     // at the target phase.
-    let now = link.clock().now_ns();
+    let now = link.now_ns();
     let first = ((now / period + 2) * period).wrapping_add(target_phase_ns as u64);
     let mut eng = CyclicEngine::new(method, cyc_cfg, first)
         .map_err(|e| anyhow::anyhow!("cyclic frame: {e}"))?;
@@ -442,7 +462,9 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         duration_ns: args.duration.map(|d| (d * 1e9) as u64),
         max_cycles: None,
         lost_in_a_row: 100.max(100_000_000 / period),
+        reply_timeout_ns: u64::from(args.timeout_us.max(1)) * 1000,
     };
+    let mut driver = CyclicDriver::new(limits);
     // Statistics without ranges: quantiles of bounded error however large a stall.
     let mut m_rs = Stats::new();
     let mut rs_is = Stats::new();
@@ -464,7 +486,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 .map_or(String::new(), |d| format!(", for {d} s"))
         );
     }
-    let stopped = run_cyclic(&mut link, &mut eng, limits, &STOP, |c| {
+    let stopped = driver.run(&mut link, &mut eng, u64::MAX, Some(&STOP), |_, c| {
         cycles += 1;
         skipped += c.skipped_before;
         let r = &c.record;
@@ -485,7 +507,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 rtt.add(t as f64);
                 late += u64::from(t > period);
             }
-            if let Some(tx) = c.kernel_tx_ns {
+            if let Some(tx) = c.tx_stamp_ns {
                 tx_path.add(tx.wrapping_sub(r.send_ns) as i64 as f64);
             }
         }
@@ -510,18 +532,24 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         return Err(e).context("writing the CSV file");
     }
     let (stopped_str, gone) = match &stopped {
-        Ok(Stopped::Duration) => ("duration".to_string(), None),
-        Ok(Stopped::Cycles) => ("cycles".to_string(), None),
-        Ok(Stopped::Interrupted) => ("interrupted".to_string(), None),
-        Ok(Stopped::NetworkGone {
+        Ok(Some(Stopped::Duration)) => ("duration".to_string(), None),
+        Ok(Some(Stopped::Cycles)) | Ok(None) => ("cycles".to_string(), None),
+        Ok(Some(Stopped::Interrupted)) => ("interrupted".to_string(), None),
+        Ok(Some(Stopped::NetworkGone {
             last_good_cycle,
             lost_in_a_row,
-        }) => (
+        })) => (
             "network-gone".to_string(),
             Some((*last_good_cycle, *lost_in_a_row)),
         ),
         Err(e) => (format!("error: {e}"), None),
     };
+    let d = driver.stats();
+    exchanges.sent += d.sent;
+    exchanges.replies += d.replies;
+    exchanges.lost += d.lost;
+    exchanges.stale += d.stale;
+    exchanges.truncated += d.truncated;
     let out = RunOut {
         iface: args.iface.clone(),
         method: args.method.clone(),
@@ -534,7 +562,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         lost_frames: lost,
         late_replies: late,
         bad_wkc,
-        link: link.stats(),
+        link: exchanges,
         timestamps: link.timestamps(),
         rt,
         bringup: bring,

@@ -725,6 +725,20 @@ fn warnings(
             ),
         });
     }
+    for m in order {
+        let Some(mo) = methods.get(m) else { continue };
+        let lost = mo.ground_truth.lost_frames;
+        if lost > 0 {
+            w.push(Warning {
+                kind: "lost_frames",
+                method: Some(m.clone()),
+                message: format!(
+                    "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle) or not at all",
+                    mo.cycles_done
+                ),
+            });
+        }
+    }
     for r in c.results.iter().flatten() {
         if let Some(e) = &r.samples_error {
             w.push(Warning {

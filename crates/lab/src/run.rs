@@ -9,8 +9,9 @@ use ecsync_dc::{BusShift, Dcm, DcmMode, MedianFit, MedianSync, PiM2s, Snap, Soem
 use ecsync_esc::clock::CrystalParams;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
-use ecsync_master::cyclic::{CycleRecord, CyclicConfig, CyclicEngine};
-use ecsync_master::sim::{MasterClock, SIM_EPOCH_NS, SimTransport};
+use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
+use ecsync_master::driver::{CycleReport, CyclicDriver, CyclicLimits};
+use ecsync_master::sim::{HostDelays, HostModel, MasterClock, SIM_EPOCH_NS, SimTransport};
 use ecsync_master::{Engine, MasterError};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -387,7 +388,8 @@ pub struct RunResult {
     pub controller: Option<ControllerTruth>,
     /// The cyclic frame's length on the wire, ns.
     pub frame_wire_ns: f64,
-    /// The longest time from the frame's send to its reply, ns.
+    /// The longest time from the frame's send timestamp to its reply, ns (late replies
+    /// included).
     pub max_round_trip_ns: f64,
     /// Why `--samples` could not be written (the run went on).
     pub samples_error: Option<String>,
@@ -478,13 +480,13 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
     let specs = run_specs(s, run);
     let segment = Segment::new(&specs).map_err(|e| MasterError::Config(e.to_string()))?;
     let mut sim = SimTransport::new(segment);
-    sim.master_clock = MasterClock::new(CrystalParams {
+    sim.set_master_clock(MasterClock::new(CrystalParams {
         ppm: s.host.master_ppm,
         wander_ppm_per_sqrt_s: s.host.master_wander_ppm_per_sqrt_s,
         wander_step_ps: ecsync_esc::clock::DEFAULT_WANDER_STEP_PS,
         initial_local_ns: SIM_EPOCH_NS,
         seed: splitmix(seed ^ 0x4a57_e700),
-    });
+    }));
     let cfg = BringupConfig {
         until: Stage::Op,
         static_drift_frames: s.static_drift_frames,
@@ -495,7 +497,7 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
-    let net = sim.run(&mut engine, |_, _, _| {})?;
+    let net = sim.run_procedure(&mut engine, |_, _, _| {})?;
     Ok(BroughtUp {
         sim,
         net,
@@ -533,6 +535,27 @@ impl LineFit {
     }
 }
 
+/// The host's noise of a block of cycles as the simulated host's timing (cycles outside the
+/// block are drawn on the spot).
+struct NoiseHost {
+    first: u64,
+    block: Arc<[CycleNoise]>,
+    noise: HostNoise,
+}
+
+impl HostModel for NoiseHost {
+    fn cycle(&self, cycle: u64) -> HostDelays {
+        let n = cycle
+            .checked_sub(self.first)
+            .and_then(|k| self.block.get(k as usize).copied())
+            .unwrap_or_else(|| self.noise.cycle(cycle));
+        HostDelays {
+            wake_to_send_ns: n.js_ns + n.em_ns,
+            tx_ns: n.tx_ns,
+        }
+    }
+}
+
 /// `--samples`: one CSV row per recorded cycle.
 struct SampleSink {
     path: String,
@@ -560,24 +583,22 @@ impl SampleSink {
 pub struct Run {
     sim: SimTransport,
     eng: CyclicEngine<Method>,
+    driver: CyclicDriver,
     noise: HostNoise,
     /// The run's noise drawn once for all methods (see [`SharedNoise`]); without it, each step
-    /// draws its own into `noise_buf`.
+    /// draws its own.
     shared_noise: Option<Arc<SharedNoise>>,
-    noise_buf: Vec<CycleNoise>,
     res: RunResult,
     series: [Bands; 3],
     grid0: Option<(u64, i64)>,
     init_fit: LineFit,
     init_frames: u64,
-    prev_done_ns: u64,
     next_cycle: u64,
     warmup_cycles: u64,
     total_cycles: u64,
     period_ns: u64,
     shift_ns: f64,
     target_ns: i64,
-    rx_latency_ps: u64,
     reference: usize,
     /// Slaves with a DC unit (SYNC0), by position.
     dc_slaves: Vec<usize>,
@@ -631,8 +652,8 @@ impl Run {
             .wrapping_add(s.target_phase_ns as u64)
             .wrapping_sub(lead as u64);
         let eng = CyclicEngine::new(method, cyc_cfg, first).map_err(RunError::Frame)?;
-        let dc_slaves: Vec<usize> = (0..sim.segment.len())
-            .filter(|&x| sim.segment.esc(x).dc().is_some())
+        let dc_slaves: Vec<usize> = (0..sim.segment().len())
+            .filter(|&x| sim.segment().esc(x).dc().is_some())
             .collect();
         let per_slave = dc_slaves
             .iter()
@@ -645,12 +666,20 @@ impl Run {
             .collect();
         let has_log = method.controller_log().is_some();
         let n_dc = dc_slaves.len();
+        // The cyclic phase's host: its receive latency; a lost frame is given up half a cycle
+        // after its send.
+        sim.set_rx_latency_ps((s.host.rx_latency_ns * 1000.0) as u64);
+        let driver = CyclicDriver::new(CyclicLimits {
+            reply_timeout_ns: period / 2,
+            lost_in_a_row: u64::MAX,
+            ..CyclicLimits::default()
+        });
         Ok(Run {
             sim,
             eng,
+            driver,
             noise,
             shared_noise: None,
-            noise_buf: Vec::new(),
             res: RunResult {
                 method: method_name.to_string(),
                 run: up.run,
@@ -683,14 +712,12 @@ impl Run {
             grid0: None,
             init_fit: LineFit::default(),
             init_frames,
-            prev_done_ns: 0,
             next_cycle: 0,
             warmup_cycles: s.warmup_cycles,
             total_cycles: s.warmup_cycles + s.cycles,
             period_ns: period,
             shift_ns: f64::from(s.sync0_shift_ns()),
             target_ns: s.target_phase_ns,
-            rx_latency_ps: (s.host.rx_latency_ns * 1000.0) as u64,
             reference,
             dc_slaves,
             expected_lrw_wkc: net.expected_lrw_wkc,
@@ -740,7 +767,7 @@ impl Run {
 
     /// Cycles still to run (warm-up included).
     pub fn remaining(&self) -> u64 {
-        self.total_cycles - self.next_cycle
+        self.total_cycles.saturating_sub(self.next_cycle)
     }
 
     /// Recorded cycles run so far.
@@ -750,100 +777,89 @@ impl Run {
 
     /// Runs up to `max_cycles` more cycles; returns how many ran.
     pub fn step(&mut self, max_cycles: u64) -> u64 {
-        let end = self
-            .total_cycles
-            .min(self.next_cycle.saturating_add(max_cycles));
         let start = self.next_cycle;
-        // The noise of these cycles, drawn in one go (or taken from the other methods' draw).
-        let shared_block;
-        let noise_block: &[CycleNoise] = match &self.shared_noise {
-            Some(sh) => {
-                shared_block = sh.block(start, end - start);
-                &shared_block
-            }
-            None => {
-                let noise = self.noise;
-                self.noise_buf.clear();
-                self.noise_buf.extend((start..end).map(|i| noise.cycle(i)));
-                &self.noise_buf
-            }
+        let end = self.total_cycles.min(start.saturating_add(max_cycles));
+        if end <= start {
+            return 0;
+        }
+        // The noise of these cycles, drawn in one go (or taken from the other methods' draw),
+        // is the simulated host's timing.
+        let block: Arc<[CycleNoise]> = match &self.shared_noise {
+            Some(sh) => sh.block(start, end - start),
+            None => (start..end).map(|i| self.noise.cycle(i)).collect(),
         };
+        self.sim.set_host(Box::new(NoiseHost {
+            first: start,
+            block,
+            noise: self.noise,
+        }));
         let Run {
             sim,
             eng,
+            driver,
             res,
             series,
             grid0,
             init_fit,
-            prev_done_ns,
             samples,
             was_in_sync,
             dc_slaves,
             margins,
             ..
         } = self;
-        let (warmup, period, shift, rx_latency_ps, target) = (
+        let (warmup, period, shift, target) = (
             self.warmup_cycles,
             self.period_ns,
             self.shift_ns,
-            self.rx_latency_ps,
             self.target_ns,
         );
-        let (reference, init_frames) = (self.reference, self.init_frames);
+        let (reference, init_frames, total) = (self.reference, self.init_frames, self.total_cycles);
         let (expected_wkc, pdi_len) = (self.expected_lrw_wkc, self.pdi_len);
         let p = period as f64;
-        for (i, noise_i) in (start..end).zip(noise_block) {
-            // The task wakes at the scheduled start (or when the previous cycle is done, if it
-            // overran), late by j_s, and runs e_m before it timestamps and sends.
-            let wake = eng.scheduled_start_ns().max(*prev_done_ns);
-            let send_ns = wake + (noise_i.js_ns + noise_i.em_ns) as u64;
-            let tx_ps = sim.master_clock.real_ps_at(send_ns) + (noise_i.tx_ns * 1000.0) as u64;
-            let frame = eng.frame_to_send(send_ns);
-            let n = frame.len();
-            let out = sim.segment.process(frame, tx_ps);
-            let wire_ps = frame_wire_time_ps(n);
-            let rec: CycleRecord = match out.returned_sof_ps {
-                Some(t) => {
-                    let rx_ps = t + wire_ps + rx_latency_ps;
-                    let rx_ns = sim.master_clock.master_ns(rx_ps);
-                    *prev_done_ns = rx_ns;
-                    if i >= warmup {
-                        res.max_round_trip_ns =
-                            res.max_round_trip_ns.max(rx_ns as f64 - send_ns as f64);
-                    }
-                    eng.complete_in_place(true, send_ns, rx_ns)
-                }
-                None => {
-                    *prev_done_ns = send_ns + period / 2;
-                    eng.complete_in_place(false, send_ns, *prev_done_ns)
-                }
-            };
-            let ctl = eng.sync().controller_log();
-            if let (Some(c), Some(t)) = (ctl, res.controller.as_mut()) {
+        let observe = |tr: &mut SimTransport, rep: &CycleReport| {
+            let rec = &rep.record;
+            let i = rec.cycle;
+            if i >= total {
+                return;
+            }
+            let wire_ps = frame_wire_time_ps(rep.frame_len);
+            if let (Some(c), Some(t)) = (rec.log, res.controller.as_mut()) {
                 if c.in_sync && t.first_in_sync_cycle.is_none() {
                     t.first_in_sync_cycle = Some(i);
                 }
             }
-            let seg = &sim.segment;
-            let sys =
-                |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
+            if i >= warmup {
+                // From the wire to the reply, late replies included (a reply that came after
+                // its deadline still says how long the frame needs).
+                if let Some(back) = tr.last_exchange().received_ps {
+                    let sent = tr.real_ps_at(rec.send_ns);
+                    let rt = back.saturating_sub(sent) as f64 / 1000.0;
+                    res.max_round_trip_ns = res.max_round_trip_ns.max(rt);
+                }
+                res.frame_wire_ns = wire_ps as f64 / 1000.0;
+            }
             if i < warmup {
                 // The init frames' drift: how the reference's system time runs against the
                 // master's clock, read at the frame's arrival (the clocks' truth, free of the
                 // host's jitter).
                 if i < init_frames {
-                    if let Some(pu) = seg.trace()[reference].pu_ps {
-                        if let Some(r) = sys(reference, pu) {
-                            let m = sim.master_clock.master_ns(pu);
-                            init_fit.add(i as f64, (r.0.wrapping_sub(m) as i64) as f64 + r.1);
-                        }
+                    let at = tr.segment().trace()[reference].pu_ps.and_then(|pu| {
+                        let dc = tr.segment().esc(reference).dc()?;
+                        Some((pu, dc.system_time_split(pu)))
+                    });
+                    if let Some((pu, r)) = at {
+                        let m = tr.master_clock_mut().master_ns(pu);
+                        init_fit.add(i as f64, (r.0.wrapping_sub(m) as i64) as f64 + r.1);
                     }
                 }
-                continue;
+                return;
             }
+            let seg = tr.segment();
+            let sys =
+                |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
             let k = i - warmup;
             res.cycles_done = k + 1;
-            if let (Some(c), Some(t)) = (ctl, res.controller.as_mut()) {
+            if let (Some(c), Some(t)) = (rec.log, res.controller.as_mut()) {
                 if c.in_sync {
                     t.in_sync_cycles += 1;
                 } else if *was_in_sync {
@@ -862,9 +878,8 @@ impl Run {
                     let _ = write!(sk.line, "{k},1");
                     sk.write_line();
                 }
-                continue;
+                return;
             }
-            res.frame_wire_ns = wire_ps as f64 / 1000.0;
             if rec.lrw_wkc != Some(expected_wkc) && pdi_len > 0 {
                 res.bad_wkc += 1;
             }
@@ -879,7 +894,7 @@ impl Run {
             // Ground truth from the segment.
             let trace = seg.trace();
             let Some(r) = trace[reference].pu_ps.and_then(|t| sys(reference, t)) else {
-                continue;
+                return;
             };
             // The grid point this frame aims at: the one nearest the target at the first
             // recorded frame, one per cycle from there.
@@ -967,7 +982,7 @@ impl Run {
                         let _ = write!(l, "{m:.3}");
                     }
                 }
-                if let Some(c) = ctl {
+                if let Some(c) = rec.log {
                     let _ = write!(
                         l,
                         ",{},{},{:.3},{},{:.6},{},{}",
@@ -982,9 +997,14 @@ impl Run {
                 }
                 sk.write_line();
             }
+        };
+        // The simulator cannot fail, and a lab run stops only at its cycle count.
+        match driver.run(sim, eng, end - start, None, observe) {
+            Ok(_) => {}
+            Err(never) => match never {},
         }
-        self.next_cycle = end;
-        end - start
+        self.next_cycle = self.eng.cycle().max(start);
+        self.next_cycle - start
     }
 
     /// The result (of the cycles run so far).

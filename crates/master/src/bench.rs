@@ -40,7 +40,7 @@ impl CycleBench {
         };
         let mut engine = Engine::new(move |link| bringup(link, cfg));
         let net = sim
-            .run(&mut engine, |_, _, _| {})
+            .run_procedure(&mut engine, |_, _, _| {})
             .expect("bring-up of the preset");
         let ref_station = net.slaves[usize::from(net.reference)].station;
         let mut buf = vec![0u8; 1514];
@@ -77,8 +77,8 @@ impl CycleBench {
         buf.truncate(n);
         let cycle_ps = 1_000_000_000;
         CycleBench {
-            start_ps: (sim.now_ps / cycle_ps + 1) * cycle_ps,
-            segment: sim.segment,
+            start_ps: (sim.now_ps() / cycle_ps + 1) * cycle_ps,
+            segment: sim.into_segment(),
             frame: buf,
             cycle_ps,
             lrw_wkc_at: lrw_at + ecsync_wire::DATAGRAM_HEADER_LEN + net.pdi_len as usize,

@@ -10,7 +10,9 @@
 //! socket.
 
 use crate::io::MASTER_MAC;
-use ecsync_dc::sync::{CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time};
+use ecsync_dc::sync::{
+    ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
+};
 use ecsync_wire::dc_time::{decode_time_difference, diff_u64};
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, WireError};
@@ -33,7 +35,7 @@ pub struct CyclicConfig {
 }
 
 /// Everything one cycle produced.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CycleRecord {
     /// Cycle index.
     pub cycle: u64,
@@ -56,6 +58,8 @@ pub struct CycleRecord {
     pub m_rs_ns: Option<i64>,
     /// The method's decision.
     pub output: CycleOutput,
+    /// The method's log after it decided (methods that keep one, DCM).
+    pub log: Option<ControllerLog>,
 }
 
 /// The cyclic engine.
@@ -166,6 +170,17 @@ impl<S: MasterSync> CyclicEngine<S> {
         self.cycle
     }
 
+    /// Length of the cyclic frame, bytes.
+    pub fn frame_len(&self) -> usize {
+        self.template.len()
+    }
+
+    /// The frame as last handed out by [`CyclicEngine::frame_to_send`] (what a reply must
+    /// answer).
+    pub fn frame(&self) -> &[u8] {
+        &self.frame
+    }
+
     /// Skips `cycles` whole cycles without a frame: the task woke so late that their slots had
     /// passed (a host stall). The schedule moves on by whole periods, so every method keeps its
     /// phase to the grid; sending the missed frames back to back instead would put several
@@ -242,6 +257,7 @@ impl<S: MasterSync> CyclicEngine<S> {
             ref_time_ns: rec.ref_time_ns,
         };
         rec.output = self.sync.update(&input);
+        rec.log = self.sync.controller_log();
         // The letter's M-rS error.
         if let Some(t_ra) = rec.ref_time_ns {
             if self.sync.is_master_shift() {

@@ -7,11 +7,14 @@
 pub mod bench;
 pub mod bringup;
 pub mod cyclic;
+pub mod driver;
 mod error;
 pub mod io;
 pub mod sii;
 pub mod sim;
+pub mod transport;
 
 pub use bringup::{BringupConfig, Network, SlaveInfo, Stage, bringup};
 pub use error::MasterError;
 pub use io::{Action, Engine, Event, Link};
+pub use transport::{Received, Transport};

@@ -1,11 +1,19 @@
 //! The in-process transport: drives an [`Engine`] against a virtual [`Segment`] in virtual time.
 
-use crate::io::{Action, Engine, Event};
+use crate::driver::{ExchangeStats, ProcedureConfig, ProcedureExchange};
+use crate::io::{Engine, Event};
+use crate::transport::{Never, Received, Transport};
 use ecsync_esc::clock::{CrystalParams, LocalClock};
 use ecsync_esc::pcap::PcapCapture;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use std::fs::File;
 use std::io::BufWriter;
+
+/// How the simulator's procedures wait for replies: 10 s, no retries.
+pub const SIM_PROCEDURE: ProcedureConfig = ProcedureConfig {
+    reply_timeout_ns: 10_000_000_000,
+    retries: 0,
+};
 
 /// Master clock at simulation start: 2026-11-22 00:00 UTC in DC time (ns since 2000-01-01).
 pub const SIM_EPOCH_NS: u64 = 848_620_800_000_000_000;
@@ -109,8 +117,8 @@ impl MasterClock {
     }
 }
 
-/// A frame exchange as the driver saw it, for observers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// A frame exchange as the segment saw it, in real time (for observers of the ground truth).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Exchange {
     /// Real time the frame left the master, ps.
     pub sent_ps: u64,
@@ -118,20 +126,41 @@ pub struct Exchange {
     pub received_ps: Option<u64>,
 }
 
-/// Runs master procedures against a segment in virtual time.
+/// A simulated host's timing of one cycle: how it delays the cyclic task's wake-up, execution
+/// and send (the letter's j_s + e_m) and the NIC's path to the wire (tx latency + j_c).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct HostDelays {
+    /// From the scheduled start to the send timestamp, ns.
+    pub wake_to_send_ns: f64,
+    /// From the send timestamp to the frame's first bit on the wire, ns.
+    pub tx_ns: f64,
+}
+
+/// Where a simulated host's per-cycle timing comes from (the lab's seeded noise).
+pub trait HostModel: Send + Sync {
+    /// The delays of cycle `cycle`.
+    fn cycle(&self, cycle: u64) -> HostDelays;
+}
+
+/// Runs master procedures against a segment in virtual time: the [`Transport`] of the
+/// simulator. Without a host model the master is ideal: it wakes on time, its send timestamp is
+/// the frame's moment on the wire less `tx_latency_ps`; with one (set for a cyclic phase) each
+/// cycle's task wakes, runs and sends as the model says.
 pub struct SimTransport {
-    /// The segment.
-    pub segment: Segment,
-    /// Real time now, ps since the start of the simulation.
-    pub now_ps: u64,
-    /// The master's clock.
-    pub master_clock: MasterClock,
-    /// Delay from the master's send timestamp to the frame's first bit on the wire, ps.
-    pub tx_latency_ps: u64,
-    /// Delay from the reply's last bit to the master's receive timestamp, ps.
-    pub rx_latency_ps: u64,
-    /// How long the master waits before declaring a frame lost, ps.
-    pub timeout_ps: u64,
+    segment: Segment,
+    now_ps: u64,
+    /// Master time now when a host wake set it exactly (else it is read off `now_ps`).
+    now_master_ns: Option<u64>,
+    master_clock: MasterClock,
+    tx_latency_ps: u64,
+    rx_latency_ps: u64,
+    host: Option<Box<dyn HostModel>>,
+    /// This cycle's host delays, drawn at [`Transport::start_cycle`].
+    delays: Option<HostDelays>,
+    /// The reply in flight: its bytes, when it is complete at the master (real ps).
+    reply: Vec<u8>,
+    reply_at_ps: Option<u64>,
+    last: Exchange,
     capture: Option<PcapCapture<BufWriter<File>>>,
 }
 
@@ -149,26 +178,82 @@ impl SimTransport {
         SimTransport {
             segment,
             now_ps: 0,
+            now_master_ns: None,
             master_clock: MasterClock::ideal(SIM_EPOCH_NS),
             tx_latency_ps: 2_000_000,
             rx_latency_ps: 3_000_000,
-            timeout_ps: 10_000_000_000,
+            host: None,
+            delays: None,
+            reply: Vec::with_capacity(ecsync_wire::MAX_FRAME_LEN),
+            reply_at_ps: None,
+            last: Exchange::default(),
             capture: None,
         }
     }
 
     /// A copy of this transport in its current state (segment, clocks, time) without the
-    /// capture: several experiments can continue from one bring-up.
+    /// capture and the host model: several experiments can continue from one bring-up.
     pub fn fork(&self) -> SimTransport {
         SimTransport {
             segment: self.segment.clone(),
             now_ps: self.now_ps,
+            now_master_ns: self.now_master_ns,
             master_clock: self.master_clock.clone(),
             tx_latency_ps: self.tx_latency_ps,
             rx_latency_ps: self.rx_latency_ps,
-            timeout_ps: self.timeout_ps,
+            host: None,
+            delays: None,
+            reply: Vec::with_capacity(ecsync_wire::MAX_FRAME_LEN),
+            reply_at_ps: self.reply_at_ps,
+            last: self.last,
             capture: None,
         }
+    }
+
+    /// The segment.
+    pub fn segment(&self) -> &Segment {
+        &self.segment
+    }
+
+    /// The segment, to change (a test's direct frames).
+    pub fn segment_mut(&mut self) -> &mut Segment {
+        &mut self.segment
+    }
+
+    /// Real time now, ps since the start of the simulation.
+    pub fn now_ps(&self) -> u64 {
+        self.now_ps
+    }
+
+    /// The master's clock.
+    pub fn master_clock_mut(&mut self) -> &mut MasterClock {
+        &mut self.master_clock
+    }
+
+    /// Replaces the master's clock (before anything ran: the time does not move).
+    pub fn set_master_clock(&mut self, clock: MasterClock) {
+        self.master_clock = clock;
+        self.now_master_ns = None;
+    }
+
+    /// The latency from the reply's last bit to the master's receive timestamp, ps.
+    pub fn set_rx_latency_ps(&mut self, ps: u64) {
+        self.rx_latency_ps = ps;
+    }
+
+    /// The ideal host's latency from the send timestamp to the wire, ps.
+    pub fn set_tx_latency_ps(&mut self, ps: u64) {
+        self.tx_latency_ps = ps;
+    }
+
+    /// Takes each cycle's wake-up, execution and NIC timing from `host` from now on.
+    pub fn set_host(&mut self, host: Box<dyn HostModel>) {
+        self.host = Some(host);
+    }
+
+    /// The last exchange in real time.
+    pub fn last_exchange(&self) -> Exchange {
+        self.last
     }
 
     /// Captures every frame (sent and returned) to a pcap file.
@@ -191,8 +276,13 @@ impl SimTransport {
 
     /// Master clock now, ns.
     pub fn master_now_ns(&mut self) -> u64 {
-        let t = self.now_ps;
-        self.master_clock.master_ns(t)
+        match self.now_master_ns {
+            Some(t) => t,
+            None => {
+                let t = self.now_ps;
+                self.master_clock.master_ns(t)
+            }
+        }
     }
 
     /// Real time (ps) at master time `t_ns`.
@@ -200,57 +290,109 @@ impl SimTransport {
         self.master_clock.real_ps_at(t_ns)
     }
 
-    /// Runs an engine to completion. `observe` sees the segment after every exchange, with the
-    /// events the procedure reported.
-    pub fn run<T: 'static>(
+    /// The segment, the transport consumed.
+    pub fn into_segment(self) -> Segment {
+        self.segment
+    }
+
+    /// Runs a procedure (the bring-up) to completion with the one bring-up driver, in virtual
+    /// time: a reply is waited for 10 s and never sent again (the segment loses a frame only
+    /// when told to). `observe` sees the transport after each exchange.
+    pub fn run_procedure<T: 'static>(
         &mut self,
         engine: &mut Engine<T>,
-        mut observe: impl FnMut(&Segment, &Exchange, &[Event]),
+        observe: impl FnMut(&mut SimTransport, &ProcedureExchange, &[Event]),
     ) -> T {
-        loop {
-            let now = self.master_now_ns();
-            let frame = match engine.poll(now) {
-                Action::Done(v) => return v,
-                Action::WaitUntil(t) => {
-                    let t_ps = self.real_ps_at(t).max(self.now_ps + 1000);
-                    self.now_ps = t_ps;
-                    continue;
-                }
-                Action::Send(f) => f.to_vec(),
-            };
-            let mut frame = frame;
-            let sent_ns = now;
-            let t_tx = self.now_ps + self.tx_latency_ps;
-            if let Some(c) = &mut self.capture {
-                let _ = c.record(t_tx, &frame);
-            }
-            let out = self.segment.process(&mut frame, t_tx);
-            let ex = match out.returned_sof_ps {
-                Some(t) => {
-                    let t_rx = t + frame_wire_time_ps(frame.len()) + self.rx_latency_ps;
-                    if let Some(c) = &mut self.capture {
-                        let _ = c.record(t + frame_wire_time_ps(frame.len()), &frame);
-                    }
-                    self.now_ps = t_rx;
-                    let rx_ns = self.master_now_ns();
-                    engine.handle_reply(&frame, sent_ns, rx_ns);
-                    Exchange {
-                        sent_ps: t_tx,
-                        received_ps: Some(t_rx),
-                    }
-                }
-                None => {
-                    self.now_ps = t_tx + self.timeout_ps;
-                    engine.handle_lost();
-                    Exchange {
-                        sent_ps: t_tx,
-                        received_ps: None,
-                    }
-                }
-            };
-            let events = engine.take_events();
-            observe(&self.segment, &ex, &events);
+        let mut stats = ExchangeStats::default();
+        match crate::driver::run_procedure(self, engine, SIM_PROCEDURE, &mut stats, observe) {
+            Ok(v) => v,
+            Err(never) => match never {},
         }
+    }
+
+    /// Moves to master time `t_ns` exactly (a host's wake-up or a deadline).
+    fn set_master_now(&mut self, t_ns: u64) {
+        self.now_ps = self.master_clock.real_ps_at(t_ns);
+        self.now_master_ns = Some(t_ns);
+    }
+}
+
+impl Transport for SimTransport {
+    type Error = Never;
+
+    fn now_ns(&mut self) -> u64 {
+        self.master_now_ns()
+    }
+
+    fn sleep_until(&mut self, t_ns: u64) {
+        match self.delays {
+            // A host's cyclic task: it wakes at the scheduled start, or when the previous
+            // cycle is done if that is later, late by j_s, and runs e_m before it timestamps.
+            Some(d) => {
+                let wake = t_ns.max(self.master_now_ns());
+                self.set_master_now(wake + d.wake_to_send_ns as u64);
+            }
+            // The ideal master: its clock reaches `t_ns` (time always moves on, by a
+            // nanosecond at least, so a procedure that waits on the present cannot stall it).
+            None => {
+                let t_ps = self.real_ps_at(t_ns).max(self.now_ps + 1000);
+                self.now_ps = t_ps;
+                self.now_master_ns = None;
+            }
+        }
+    }
+
+    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Never> {
+        let tx_ps = match self.delays.take() {
+            Some(d) => self.real_ps_at(at_ns) + (d.tx_ns * 1000.0) as u64,
+            None => self.now_ps + self.tx_latency_ps,
+        };
+        self.reply.clear();
+        self.reply.extend_from_slice(frame);
+        if let Some(c) = &mut self.capture {
+            let _ = c.record(tx_ps, &self.reply);
+        }
+        let out = self.segment.process(&mut self.reply, tx_ps);
+        let n = self.reply.len();
+        self.reply_at_ps = out.returned_sof_ps.map(|t| {
+            if let Some(c) = &mut self.capture {
+                let _ = c.record(t + frame_wire_time_ps(n), &self.reply);
+            }
+            t + frame_wire_time_ps(n) + self.rx_latency_ps
+        });
+        self.last = Exchange {
+            sent_ps: tx_ps,
+            received_ps: self.reply_at_ps,
+        };
+        Ok(at_ns)
+    }
+
+    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Never> {
+        if let Some(t_rx) = self.reply_at_ps {
+            let rx_ns = self.master_clock.master_ns(t_rx);
+            if rx_ns <= deadline_ns {
+                self.reply_at_ps = None;
+                self.now_ps = t_rx;
+                self.now_master_ns = None;
+                let n = self.reply.len().min(buf.len());
+                buf[..n].copy_from_slice(&self.reply[..n]);
+                return Ok(Some(Received {
+                    len: n,
+                    received_ns: rx_ns,
+                    tx_stamp_ns: None,
+                    stamped: true,
+                    truncated: n < self.reply.len(),
+                }));
+            }
+        }
+        if deadline_ns > self.master_now_ns() {
+            self.set_master_now(deadline_ns);
+        }
+        Ok(None)
+    }
+
+    fn start_cycle(&mut self, cycle: u64) {
+        self.delays = self.host.as_ref().map(|h| h.cycle(cycle));
     }
 }
 

@@ -10,8 +10,10 @@ fn paper_2024_comes_up_locked_with_true_delays() {
     let mut sim = SimTransport::new(seg);
     let cfg = BringupConfig::default();
     let mut engine = Engine::new(move |link| bringup(link, cfg));
-    let net = sim.run(&mut engine, |_, _, _| {}).expect("bring-up");
-    let truth = sim.segment.true_delays_ns(usize::from(net.reference));
+    let net = sim
+        .run_procedure(&mut engine, |_, _, _| {})
+        .expect("bring-up");
+    let truth = sim.segment().true_delays_ns(usize::from(net.reference));
     for s in &net.slaves {
         let d = s.delay_ns.unwrap();
         let t = truth[usize::from(s.position)].unwrap();

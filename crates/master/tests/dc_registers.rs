@@ -12,7 +12,9 @@ fn bring_up(specs: &[SlaveSpec]) -> (SimTransport, Network) {
     let mut sim = SimTransport::new(Segment::new(specs).unwrap());
     let cfg = BringupConfig::default();
     let mut engine = Engine::new(move |link| bringup(link, cfg));
-    let net = sim.run(&mut engine, |_, _, _| {}).expect("bring-up");
+    let net = sim
+        .run_procedure(&mut engine, |_, _, _| {})
+        .expect("bring-up");
     (sim, net)
 }
 
@@ -28,8 +30,8 @@ fn read_092c(sim: &mut SimTransport, net: &Network) -> Vec<u32> {
         b.push_zeroed(Command::Fprd, i as u8, a, 4).unwrap();
     }
     let n = b.finish();
-    let t = sim.now_ps + 1_000_000_000;
-    sim.segment.process(&mut buf[..n], t);
+    let t = sim.now_ps() + 1_000_000_000;
+    sim.segment_mut().process(&mut buf[..n], t);
     let f = EcatFrame::new_checked(&buf[..n]).unwrap();
     f.datagrams()
         .map(|d| {
@@ -71,7 +73,7 @@ fn check_reference_and_signs(specs: &[SlaveSpec]) {
         // The model's filtered difference, local copy - received (its own record of the
         // compares), against what the register shows.
         let dt = sim
-            .segment
+            .segment()
             .esc(i)
             .dc()
             .unwrap()
@@ -104,16 +106,18 @@ fn with_dc32(dc32: &[usize]) -> Vec<SlaveSpec> {
 fn check_32_bit(specs: &[SlaveSpec], wrap_after_ns: u64) {
     let mut sim = SimTransport::new(Segment::new(specs).unwrap());
     let epoch = SIM_EPOCH_NS - (SIM_EPOCH_NS + wrap_after_ns) % (1 << 32);
-    sim.master_clock = MasterClock::ideal(epoch);
+    sim.set_master_clock(MasterClock::ideal(epoch));
     let cfg = BringupConfig::default();
     let mut engine = Engine::new(move |link| bringup(link, cfg));
-    let net = sim.run(&mut engine, |_, _, _| {}).expect("bring-up");
+    let net = sim
+        .run_procedure(&mut engine, |_, _, _| {})
+        .expect("bring-up");
     for s in &net.slaves {
         let i = usize::from(s.position);
         let dc32 = specs[i].model.dc == DcSupport::Full32;
         assert_eq!(s.features, if dc32 { 0x0184 } else { 0x00fc }, "slave {i}");
     }
-    let truth = sim.segment.true_delays_ns(usize::from(net.reference));
+    let truth = sim.segment().true_delays_ns(usize::from(net.reference));
     for s in &net.slaves {
         let d = s.delay_ns.unwrap();
         let t = truth[usize::from(s.position)].unwrap();
@@ -132,9 +136,9 @@ fn check_32_bit(specs: &[SlaveSpec], wrap_after_ns: u64) {
     assert_eq!(raws[usize::from(net.reference)], 0);
     assert!(raws.iter().all(|r| r & 0x7fff_ffff < 100), "{raws:08x?}");
     // The 32-bit units' system time is the low half of the 64-bit ones'.
-    let t = sim.now_ps;
+    let t = sim.now_ps();
     let st: Vec<u64> = (0..specs.len())
-        .map(|i| sim.segment.esc(i).dc().unwrap().system_time_ns(t))
+        .map(|i| sim.segment().esc(i).dc().unwrap().system_time_ns(t))
         .collect();
     for (i, s) in specs.iter().enumerate() {
         if s.model.dc == DcSupport::Full32 {

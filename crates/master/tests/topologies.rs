@@ -223,20 +223,20 @@ fn measured_delays_match_the_ground_truth() {
         };
         let mut engine = Engine::new(move |link| bringup(link, cfg));
         let net = sim
-            .run(&mut engine, |_, _, _| {})
+            .run_procedure(&mut engine, |_, _, _| {})
             .expect("bring-up to delays");
-        let truth = sim.segment.true_delays_ns(usize::from(net.reference));
+        let truth = sim.segment().true_delays_ns(usize::from(net.reference));
         prop_assert_eq!(net.slaves.len(), specs.len());
         let mut sh = shapes.get();
         sh[g.shape as usize] += 1;
         shapes.set(sh);
         for s in &net.slaves {
             let pos = usize::from(s.position);
-            let esc = sim.segment.esc(pos);
-            let spec = &specs[sim.segment.spec_index(pos)];
+            let esc = sim.segment().esc(pos);
+            let spec = &specs[sim.segment().spec_index(pos)];
             if let Some(dc) = esc.dc() {
                 // Did this clock's low 32 bits wrap between power-up and the last latch?
-                let now = dc.local_ns(sim.now_ps);
+                let now = dc.local_ns(sim.now_ps());
                 if now >> 32 != spec.crystal.initial_local_ns >> 32 {
                     wrapped.set(wrapped.get() + 1);
                 }

@@ -5,9 +5,9 @@
 //! * [`sys`]: the only code that talks to the OS (sockets, kernel timestamps, clocks, real-time
 //!   scheduling); everything else is safe.
 //! * [`HostClock`]: the master's clock, CLOCK_MONOTONIC shifted to DC time (ns since 2000).
-//! * [`RealLink`]: frames out and replies in with timestamps; drives any sans-IO
-//!   [`ecsync_master::Engine`] procedure (the DC bring-up) in real time.
-//! * [`cyclic`]: the cyclic loop of `ecsync run` with any [`ecsync_dc::MasterSync`] method.
+//! * [`RealLink`]: frames out and frames in with kernel timestamps, the real network's
+//!   [`ecsync_master::Transport`]: the bring-up and the cyclic phase run over it with the same
+//!   drivers as in the simulator ([`ecsync_master::driver`]).
 //! * [`serve`]: the virtual segment answering on an interface.
 //! * [`rt`]: SCHED_FIFO, mlockall and CPU affinity when permitted, with a report of what was not.
 //!
@@ -16,10 +16,9 @@
 #![deny(unsafe_code)]
 #![cfg(target_os = "linux")]
 
-pub mod cyclic;
 mod link;
 pub mod rt;
 pub mod serve;
 pub mod sys;
 
-pub use link::{Exchanged, HostClock, LinkStats, NetError, RealLink};
+pub use link::{HostClock, NetError, RealLink};

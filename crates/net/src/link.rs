@@ -1,7 +1,7 @@
-//! Frames out, replies in, on a raw socket in real time.
+//! Frames out, frames in, on a raw socket in real time: the real network's [`Transport`].
 
 use crate::sys::{self, OpenError, PacketSocket, Ready, TimestampSupport};
-use ecsync_master::{Action, Engine, Event};
+use ecsync_master::transport::{Received, Transport};
 use std::io;
 
 /// Nanoseconds from 1970-01-01 to 2000-01-01, the epoch of DC system time.
@@ -74,63 +74,14 @@ pub enum NetError {
     Bringup(#[from] ecsync_master::MasterError),
 }
 
-/// Counters of a link.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
-pub struct LinkStats {
-    /// Frames sent.
-    pub sent: u64,
-    /// Replies matched to the frame they answer.
-    pub replies: u64,
-    /// Frames whose reply did not come back in time.
-    pub lost: u64,
-    /// EtherCAT frames received that answered nothing pending (late replies to lost frames,
-    /// other masters' traffic).
-    pub unmatched: u64,
-    /// Frames too long for the buffer.
-    pub truncated: u64,
-}
-
-/// A reply and its timestamps.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Exchanged<'a> {
-    /// The frame as it came back.
-    pub reply: &'a [u8],
-    /// Master time taken right before the send call (t_ms), ns.
-    pub sent_ns: u64,
-    /// Master time the reply arrived (the kernel's timestamp when it gives one), ns.
-    pub received_ns: u64,
-    /// The kernel's software transmit timestamp, master time, ns.
-    pub kernel_tx_ns: Option<u64>,
-    /// Whether `received_ns` is the kernel's receive timestamp (else the time `recv` returned).
-    pub kernel_rx: bool,
-}
-
-/// A master's link: one raw socket, the host clock, a reply timeout.
+/// A master's link: one raw socket and the host clock, as a [`Transport`]: the one bring-up
+/// driver and the one cyclic driver of `ecsync-master` run over it.
 #[derive(Debug)]
 pub struct RealLink {
     sock: PacketSocket,
     clock: HostClock,
-    /// How long to wait for a reply before the frame counts as lost, ns.
-    pub timeout_ns: u64,
-    /// In [`RealLink::run`] (the bring-up), how long to wait for a reply, ns, and how often a
-    /// lost frame is sent again before the procedure hears of the loss (as SOEM and ethercrab
-    /// do: the first frames meet cold caches and page faults on both ends).
-    pub procedure_timeout_ns: u64,
-    /// See `procedure_timeout_ns`.
-    pub procedure_retries: u32,
-    buf: Vec<u8>,
-    stats: LinkStats,
-}
-
-/// The frame `reply` answers `sent` if its first datagram has the same command and index and
-/// it is at least as long (a NIC may pad it).
-fn answers(sent: &[u8], reply: &[u8]) -> bool {
-    reply.len() >= sent.len()
-        && reply.len() >= 18
-        && sent.len() >= 18
-        && reply[12..14] == sent[12..14]
-        && reply[16] == sent[16]
-        && reply[17] == sent[17]
+    /// The kernel's transmit timestamp of the last frame sent (CLOCK_REALTIME), once read.
+    tx_rt: Option<u64>,
 }
 
 impl RealLink {
@@ -139,22 +90,13 @@ impl RealLink {
         Ok(RealLink {
             sock: PacketSocket::open(iface)?,
             clock: HostClock::new(),
-            timeout_ns: 2_000_000,
-            procedure_timeout_ns: 20_000_000,
-            procedure_retries: 3,
-            buf: vec![0; 2048],
-            stats: LinkStats::default(),
+            tx_rt: None,
         })
     }
 
     /// The clock.
     pub fn clock(&self) -> &HostClock {
         &self.clock
-    }
-
-    /// Counters so far.
-    pub fn stats(&self) -> LinkStats {
-        self.stats
     }
 
     /// Kernel timestamps available.
@@ -166,112 +108,82 @@ impl RealLink {
     pub fn promiscuous(&self) -> bool {
         self.sock.promiscuous()
     }
+}
 
-    /// Sends `frame` (after dropping whatever arrived late) and waits for its reply until the
-    /// timeout. `None`: lost.
-    pub fn exchange(&mut self, frame: &[u8]) -> Result<Option<Exchanged<'_>>, NetError> {
-        let io = |what| move |source| NetError::Io { what, source };
-        // Late replies of earlier frames must not be taken for this one's.
-        while let Some(r) = self.sock.recv(&mut self.buf).map_err(io("receive"))? {
-            self.stats.unmatched += 1;
-            self.stats.truncated += u64::from(r.truncated);
-        }
-        while self
-            .sock
-            .take_tx_timestamp()
-            .map_err(io("TX timestamp"))?
-            .is_some()
-        {}
-        let sent_ns = self.clock.now_ns();
-        self.sock.send(frame).map_err(io("send"))?;
-        self.stats.sent += 1;
-        let deadline = self.clock.to_monotonic_ns(sent_ns) + self.timeout_ns;
-        let mut tx_rt = None;
-        loop {
-            match self.sock.recv(&mut self.buf).map_err(io("receive"))? {
-                Some(r) if !r.truncated && answers(frame, &self.buf[..r.len]) => {
-                    let now = self.clock.now_ns();
-                    let (received_ns, kernel_rx) = match r.kernel_rx_realtime_ns {
-                        Some(t) => (self.clock.from_realtime_ns(t), true),
-                        None => (now, false),
-                    };
-                    if tx_rt.is_none() {
-                        tx_rt = self.sock.take_tx_timestamp().map_err(io("TX timestamp"))?;
-                    }
-                    self.stats.replies += 1;
-                    return Ok(Some(Exchanged {
-                        reply: &self.buf[..r.len],
-                        sent_ns,
-                        received_ns,
-                        kernel_tx_ns: tx_rt.map(|t| self.clock.from_realtime_ns(t)),
-                        kernel_rx,
-                    }));
-                }
-                Some(r) => {
-                    self.stats.unmatched += 1;
-                    self.stats.truncated += u64::from(r.truncated);
-                }
-                None => {
-                    let now = sys::monotonic_ns();
-                    if now >= deadline {
-                        self.stats.lost += 1;
-                        return Ok(None);
-                    }
-                    match self
-                        .sock
-                        .wait(deadline - now)
-                        .map_err(io("wait for a reply"))?
-                    {
-                        Ready::ErrorQueue => {
-                            // Read it, or the next wait returns at once (a busy loop that
-                            // would starve a peer on the same CPU).
-                            let t = self.sock.take_tx_timestamp().map_err(io("TX timestamp"))?;
-                            if tx_rt.is_none() {
-                                tx_rt = t;
-                            }
-                        }
-                        Ready::Frame | Ready::Nothing => {}
-                    }
-                }
-            }
+fn io_err(what: &'static str) -> impl Fn(io::Error) -> NetError {
+    move |source| NetError::Io { what, source }
+}
+
+impl Transport for RealLink {
+    type Error = NetError;
+
+    fn now_ns(&mut self) -> u64 {
+        self.clock.now_ns()
+    }
+
+    fn sleep_until(&mut self, t_ns: u64) {
+        if t_ns > self.clock.now_ns() {
+            self.clock.sleep_until(t_ns);
         }
     }
 
-    /// Runs a sans-IO procedure (the DC bring-up, say) to completion in real time; `on_event`
-    /// sees what it reports along the way.
-    pub fn run<T: 'static>(
-        &mut self,
-        engine: &mut Engine<T>,
-        mut on_event: impl FnMut(&Event),
-    ) -> Result<T, NetError> {
+    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, NetError> {
+        // The transmit timestamps of earlier frames must not be taken for this one's.
+        while self
+            .sock
+            .take_tx_timestamp()
+            .map_err(io_err("TX timestamp"))?
+            .is_some()
+        {}
+        self.tx_rt = None;
+        self.sock.send(frame).map_err(io_err("send"))?;
+        Ok(at_ns)
+    }
+
+    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, NetError> {
+        let deadline = self.clock.to_monotonic_ns(deadline_ns);
         loop {
-            let now = self.clock.now_ns();
-            let frame = match engine.poll(now) {
-                Action::Done(v) => return Ok(v),
-                Action::WaitUntil(t) => {
-                    if t > now {
-                        self.clock.sleep_until(t);
+            if let Some(r) = self.sock.recv(buf).map_err(io_err("receive"))? {
+                let now = self.clock.now_ns();
+                let (received_ns, stamped) = match r.kernel_rx_realtime_ns {
+                    Some(t) => (self.clock.from_realtime_ns(t), true),
+                    None => (now, false),
+                };
+                if self.tx_rt.is_none() {
+                    self.tx_rt = self
+                        .sock
+                        .take_tx_timestamp()
+                        .map_err(io_err("TX timestamp"))?;
+                }
+                return Ok(Some(Received {
+                    len: r.len.min(buf.len()),
+                    received_ns,
+                    tx_stamp_ns: self.tx_rt.map(|t| self.clock.from_realtime_ns(t)),
+                    stamped,
+                    truncated: r.truncated,
+                }));
+            }
+            let now = sys::monotonic_ns();
+            if now >= deadline {
+                return Ok(None);
+            }
+            match self
+                .sock
+                .wait(deadline - now)
+                .map_err(io_err("wait for a reply"))?
+            {
+                Ready::ErrorQueue => {
+                    // Read it, or the next wait returns at once (a busy loop that would starve a
+                    // peer on the same CPU).
+                    let t = self
+                        .sock
+                        .take_tx_timestamp()
+                        .map_err(io_err("TX timestamp"))?;
+                    if self.tx_rt.is_none() {
+                        self.tx_rt = t;
                     }
-                    continue;
                 }
-                Action::Send(f) => f.to_vec(),
-            };
-            let cyclic_timeout = self.timeout_ns;
-            self.timeout_ns = self.procedure_timeout_ns;
-            let mut got = None;
-            for _ in 0..=self.procedure_retries {
-                if let Some(x) = self.exchange(&frame)? {
-                    got = Some((x.reply.to_vec(), x.sent_ns, x.received_ns));
-                    break;
-                }
-            }
-            self.timeout_ns = cyclic_timeout;
-            match got {
-                Some((reply, sent, received)) => engine.handle_reply(&reply, sent, received),
-                None => engine.handle_lost(),
-            }
-            for e in engine.take_events() {
-                on_event(&e);
+                Ready::Frame | Ready::Nothing => {}
             }
         }
     }

@@ -59,6 +59,17 @@ impl<T: AsRef<[u8]>> EcatFrame<T> {
         self.buffer
     }
 
+    /// The command code and index of the first datagram, if the frame holds one: what tells a
+    /// reply from other frames (the index changes from frame to frame, the command does not
+    /// change on the way).
+    pub fn first_datagram_id(&self) -> Option<(u8, u8)> {
+        let p = self.payload();
+        if p.len() < 2 {
+            return None;
+        }
+        Some((p[0], p[1]))
+    }
+
     fn b(&self) -> &[u8] {
         self.buffer.as_ref()
     }

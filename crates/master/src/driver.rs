@@ -1,0 +1,360 @@
+//! The one bring-up driver and the one cyclic driver: they run the sans-IO engine over any
+//! [`Transport`], with one overrun policy, one reply matching and one loss accounting, in the
+//! simulator and on a real network alike.
+//!
+//! * Reply matching ([`answers`]): a frame answers the one sent if it is an EtherCAT frame at
+//!   least as long (a NIC may pad it) whose first datagram has the command and index sent. Any
+//!   other frame is counted as stale (a late reply of a lost frame, another master's traffic)
+//!   and skipped.
+//! * Loss: no matching reply by the deadline (the send timestamp plus the reply timeout). A
+//!   procedure sends a lost frame again up to its retries before it hears of the loss; the
+//!   cyclic driver counts it and goes on, and stops after `lost_in_a_row` losses in a row.
+//! * Overrun: a cycle whose task woke a whole period or more after its scheduled start has lost
+//!   its slot; the driver skips the slots that passed and runs the cycle whose slot is now (as a
+//!   PLC task skips an overrun), rather than sending the missed frames back to back.
+
+use crate::cyclic::{CycleRecord, CyclicEngine};
+use crate::io::{Action, Engine, Event};
+use crate::transport::{Received, Transport};
+use ecsync_dc::MasterSync;
+use ecsync_wire::EcatFrame;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Whether `reply` answers `sent` (see the module documentation).
+pub fn answers(sent: &[u8], reply: &[u8]) -> bool {
+    if reply.len() < sent.len() {
+        return false;
+    }
+    let (Ok(s), Ok(r)) = (EcatFrame::new_checked(sent), EcatFrame::new_checked(reply)) else {
+        return false;
+    };
+    s.first_datagram_id().is_some() && s.first_datagram_id() == r.first_datagram_id()
+}
+
+/// Counters of what came back.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct ExchangeStats {
+    /// Frames sent (retries included).
+    pub sent: u64,
+    /// Replies matched to the frame they answer.
+    pub replies: u64,
+    /// Frames whose reply did not come by the deadline.
+    pub lost: u64,
+    /// Frames received that answered nothing pending (late replies, other traffic).
+    pub stale: u64,
+    /// Frames too long for the buffer.
+    pub truncated: u64,
+}
+
+/// A matched reply.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Reply {
+    /// The send timestamp, master time, ns.
+    pub sent_ns: u64,
+    /// When it came back, master time, ns.
+    pub received: Received,
+}
+
+/// Sends `frame` and waits for its reply until `timeout_ns` after the send, into `buf`.
+/// `None`: lost.
+pub fn exchange<Tr: Transport>(
+    tr: &mut Tr,
+    frame: &[u8],
+    buf: &mut [u8],
+    timeout_ns: u64,
+    stats: &mut ExchangeStats,
+) -> Result<Option<Reply>, Tr::Error> {
+    let at = tr.send_time_ns(frame.len());
+    let sent_ns = tr.send(frame, at)?;
+    stats.sent += 1;
+    let deadline = sent_ns.saturating_add(timeout_ns);
+    while let Some(r) = tr.recv(buf, deadline)? {
+        if !r.truncated && answers(frame, &buf[..r.len]) {
+            stats.replies += 1;
+            return Ok(Some(Reply {
+                sent_ns,
+                received: r,
+            }));
+        }
+        stats.stale += 1;
+        stats.truncated += u64::from(r.truncated);
+    }
+    stats.lost += 1;
+    Ok(None)
+}
+
+/// How a procedure's frames are waited for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ProcedureConfig {
+    /// How long to wait for a reply, ns.
+    pub reply_timeout_ns: u64,
+    /// How often a lost frame is sent again before the procedure hears of the loss (the first
+    /// frames on a real network meet cold caches and page faults on both ends).
+    pub retries: u32,
+}
+
+impl Default for ProcedureConfig {
+    fn default() -> Self {
+        ProcedureConfig {
+            reply_timeout_ns: 20_000_000,
+            retries: 3,
+        }
+    }
+}
+
+/// One exchange of a procedure, for observers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ProcedureExchange {
+    /// Send timestamp of the last attempt, master time, ns.
+    pub sent_ns: u64,
+    /// When its reply came, master time, ns (`None`: lost every time).
+    pub received_ns: Option<u64>,
+    /// Sends, the first included.
+    pub attempts: u32,
+}
+
+/// Runs a sans-IO procedure (the DC bring-up, say) to completion over `tr`. `observe` sees the
+/// transport after every exchange, with the events the procedure reported.
+pub fn run_procedure<T: 'static, Tr: Transport>(
+    tr: &mut Tr,
+    engine: &mut Engine<T>,
+    cfg: ProcedureConfig,
+    stats: &mut ExchangeStats,
+    mut observe: impl FnMut(&mut Tr, &ProcedureExchange, &[Event]),
+) -> Result<T, Tr::Error> {
+    let mut buf = vec![0u8; 2048];
+    loop {
+        let now = tr.now_ns();
+        let frame = match engine.poll(now) {
+            Action::Done(v) => return Ok(v),
+            Action::WaitUntil(t) => {
+                tr.sleep_until(t);
+                continue;
+            }
+            Action::Send(f) => f.to_vec(),
+        };
+        let mut got = None;
+        let mut attempts = 0;
+        let mut sent_ns = 0;
+        for _ in 0..=cfg.retries {
+            attempts += 1;
+            let r = exchange(tr, &frame, &mut buf, cfg.reply_timeout_ns, stats)?;
+            match r {
+                Some(r) => {
+                    sent_ns = r.sent_ns;
+                    got = Some(r);
+                    break;
+                }
+                None => sent_ns = tr.now_ns(),
+            }
+        }
+        match got {
+            Some(r) => {
+                engine.handle_reply(&buf[..r.received.len], r.sent_ns, r.received.received_ns)
+            }
+            None => engine.handle_lost(),
+        }
+        let events = engine.take_events();
+        observe(
+            tr,
+            &ProcedureExchange {
+                sent_ns,
+                received_ns: got.map(|r| r.received.received_ns),
+                attempts,
+            },
+            &events,
+        );
+    }
+}
+
+/// When the cyclic driver stops by itself, and how long it waits for a reply.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CyclicLimits {
+    /// Stop after this much master time from the first scheduled start, ns.
+    pub duration_ns: Option<u64>,
+    /// Stop after this many cycles.
+    pub max_cycles: Option<u64>,
+    /// Give up when this many frames in a row were lost: the network is gone.
+    pub lost_in_a_row: u64,
+    /// How long to wait for a cycle's reply after its send, ns.
+    pub reply_timeout_ns: u64,
+}
+
+impl Default for CyclicLimits {
+    fn default() -> Self {
+        CyclicLimits {
+            duration_ns: None,
+            max_cycles: None,
+            lost_in_a_row: 100,
+            reply_timeout_ns: 10_000_000,
+        }
+    }
+}
+
+/// One cycle as it happened.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CycleReport {
+    /// What the engine and the method made of it.
+    pub record: CycleRecord,
+    /// When the task woke, master time, ns.
+    pub woke_ns: u64,
+    /// Wake-up latency: woke minus scheduled, ns. When the task woke a whole period or more
+    /// late, from the slot it missed first.
+    pub wake_latency_ns: i64,
+    /// Cycles skipped right before this one because the task woke after their slots had passed.
+    pub skipped_before: u64,
+    /// The transmit timestamp of the transport (kernel or NIC), master time, ns.
+    pub tx_stamp_ns: Option<u64>,
+    /// Send timestamp to reply, ns.
+    pub round_trip_ns: Option<u64>,
+    /// Length of the cyclic frame, bytes.
+    pub frame_len: usize,
+}
+
+/// Why the cyclic driver stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stopped {
+    /// The duration passed.
+    Duration,
+    /// The cycle count was reached.
+    Cycles,
+    /// The stop flag was raised (Ctrl-C).
+    Interrupted,
+    /// Frames stopped coming back.
+    NetworkGone {
+        /// The cycle of the last frame that came back (`None`: none did).
+        last_good_cycle: Option<u64>,
+        /// Frames lost in a row.
+        lost_in_a_row: u64,
+    },
+}
+
+/// The cyclic driver: resumable, so a scheduler can run a cyclic phase in slices.
+#[derive(Debug, Clone)]
+pub struct CyclicDriver {
+    limits: CyclicLimits,
+    buf: Vec<u8>,
+    start_ns: Option<u64>,
+    cycles: u64,
+    lost_row: u64,
+    last_good: Option<u64>,
+    stats: ExchangeStats,
+}
+
+impl CyclicDriver {
+    /// A driver with these limits.
+    pub fn new(limits: CyclicLimits) -> Self {
+        CyclicDriver {
+            limits,
+            buf: vec![0u8; 2048],
+            start_ns: None,
+            cycles: 0,
+            lost_row: 0,
+            last_good: None,
+            stats: ExchangeStats::default(),
+        }
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> ExchangeStats {
+        self.stats
+    }
+
+    /// Cycles run so far.
+    pub fn cycles(&self) -> u64 {
+        self.cycles
+    }
+
+    /// Runs up to `slice` more cycles, or until a limit, the stop flag or the network's loss:
+    /// `Some(why)` when the phase ended, `None` when the slice was done. `on_cycle` sees every
+    /// cycle with the transport (a simulator's observer reads its ground truth there).
+    pub fn run<S: MasterSync, Tr: Transport>(
+        &mut self,
+        tr: &mut Tr,
+        eng: &mut CyclicEngine<S>,
+        slice: u64,
+        stop: Option<&AtomicBool>,
+        mut on_cycle: impl FnMut(&mut Tr, &CycleReport),
+    ) -> Result<Option<Stopped>, Tr::Error> {
+        let period_ns = u64::from(eng.config().period_ns.max(1));
+        let start = *self.start_ns.get_or_insert(eng.scheduled_start_ns());
+        for _ in 0..slice {
+            if stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
+                return Ok(Some(Stopped::Interrupted));
+            }
+            if self.limits.max_cycles.is_some_and(|m| self.cycles >= m) {
+                return Ok(Some(Stopped::Cycles));
+            }
+            let scheduled = eng.scheduled_start_ns();
+            if self
+                .limits
+                .duration_ns
+                .is_some_and(|d| scheduled.wrapping_sub(start) >= d)
+            {
+                return Ok(Some(Stopped::Duration));
+            }
+            tr.start_cycle(eng.cycle());
+            tr.sleep_until(scheduled);
+            let woke = tr.now_ns();
+            // Woke a whole period late or more: those slots are gone.
+            let skipped = woke.saturating_sub(scheduled) / period_ns;
+            if skipped > 0 {
+                eng.skip_cycles(skipped);
+            }
+            let len = eng.frame_len();
+            let at = tr.send_time_ns(len);
+            let frame = eng.frame_to_send(at);
+            let sent_ns = tr.send(frame, at)?;
+            self.stats.sent += 1;
+            let deadline = sent_ns.saturating_add(self.limits.reply_timeout_ns);
+            let mut got = None;
+            while let Some(r) = tr.recv(&mut self.buf, deadline)? {
+                if !r.truncated && answers(eng.frame(), &self.buf[..r.len]) {
+                    got = Some(r);
+                    break;
+                }
+                self.stats.stale += 1;
+                self.stats.truncated += u64::from(r.truncated);
+            }
+            let (record, tx_stamp_ns, round_trip_ns) = match got {
+                Some(r) => {
+                    self.stats.replies += 1;
+                    let rec = eng.complete(Some(&self.buf[..r.len]), sent_ns, r.received_ns);
+                    self.lost_row = 0;
+                    self.last_good = Some(rec.cycle);
+                    (
+                        rec,
+                        r.tx_stamp_ns,
+                        Some(r.received_ns.saturating_sub(sent_ns)),
+                    )
+                }
+                None => {
+                    self.stats.lost += 1;
+                    self.lost_row += 1;
+                    let now = tr.now_ns();
+                    (eng.complete(None, sent_ns, now), None, None)
+                }
+            };
+            self.cycles += 1;
+            on_cycle(
+                tr,
+                &CycleReport {
+                    record,
+                    woke_ns: woke,
+                    wake_latency_ns: woke.wrapping_sub(scheduled) as i64,
+                    skipped_before: skipped,
+                    tx_stamp_ns,
+                    round_trip_ns,
+                    frame_len: len,
+                },
+            );
+            if self.lost_row >= self.limits.lost_in_a_row.max(1) {
+                return Ok(Some(Stopped::NetworkGone {
+                    last_good_cycle: self.last_good,
+                    lost_in_a_row: self.lost_row,
+                }));
+            }
+        }
+        Ok(None)
+    }
+}

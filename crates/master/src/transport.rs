@@ -1,0 +1,62 @@
+//! What the master engine needs of a network and a host, and nothing more: a clock, a way to
+//! wait, frames out and frames in with their timestamps. The in-process segment
+//! ([`crate::sim::SimTransport`]), the raw socket (`ecsync-net`) and the TSN network
+//! (`ecsync-tsn`) implement it; the one bring-up driver and the one cyclic driver
+//! ([`crate::driver`]) run the engine over any of them, so the real path differs from the
+//! simulator only here.
+
+/// A frame that arrived.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Received {
+    /// Bytes written into the caller's buffer.
+    pub len: usize,
+    /// Master time the frame arrived (a receive timestamp where the transport has one), ns.
+    pub received_ns: u64,
+    /// The transmit timestamp of the last frame sent, where the transport has one (a kernel or
+    /// NIC stamp, master time), ns.
+    pub tx_stamp_ns: Option<u64>,
+    /// Whether `received_ns` is a receive timestamp of the kernel or NIC (else the time the
+    /// transport saw the frame).
+    pub stamped: bool,
+    /// The frame did not fit the buffer (only the first `len` bytes are there).
+    pub truncated: bool,
+}
+
+/// A network and the host's clock, as the master engine sees them.
+pub trait Transport {
+    /// What can go wrong (the simulator's transports cannot fail).
+    type Error: std::error::Error + 'static;
+
+    /// Master time now, ns.
+    fn now_ns(&mut self) -> u64;
+
+    /// Waits until master time `t_ns` (at once if it has passed). A host wakes late by its
+    /// scheduling latency: read [`Transport::now_ns`] after it.
+    fn sleep_until(&mut self, t_ns: u64);
+
+    /// The master time at which a frame of `len` bytes handed over now leaves: now, for a host
+    /// that sends at once; a later launch time for a NIC that schedules its frames (TSN).
+    fn send_time_ns(&mut self, len: usize) -> u64 {
+        let _ = len;
+        self.now_ns()
+    }
+
+    /// Sends `frame`, to leave at `at_ns` (from [`Transport::send_time_ns`]); returns its send
+    /// timestamp, master time, ns (`at_ns` itself, or the NIC's stamp of the launch).
+    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Self::Error>;
+
+    /// The next frame that arrives before master time `deadline_ns`, into `buf`; `None` once the
+    /// deadline has passed (the transport's time is then at the deadline or later).
+    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Self::Error>;
+
+    /// The cyclic driver is about to run cycle `cycle` (a simulated host draws that cycle's
+    /// noise; a real one has nothing to do).
+    fn start_cycle(&mut self, cycle: u64) {
+        let _ = cycle;
+    }
+}
+
+/// The error of a transport that cannot fail.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("infallible")]
+pub enum Never {}
