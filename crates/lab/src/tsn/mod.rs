@@ -50,9 +50,13 @@ use ecsync_esc::pcap::PcapCapture;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use ecsync_master::bringup::{BringupConfig, EsiTiming, Network, Stage, bringup};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
+use ecsync_master::driver::{
+    CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, run_procedure,
+};
 use ecsync_master::io::MASTER_MAC;
 use ecsync_master::sim::MasterClock;
-use ecsync_master::{Action, Engine, MasterError};
+use ecsync_master::transport::{Never, Received, Transport};
+use ecsync_master::{Engine, MasterError};
 use ecsync_tsn::gptp::{Config as GptpConfig, Outgoing, SystemIdentity, TimeAwareSystem};
 use ecsync_tsn::gptp_msg::{self, ClockQuality, Message};
 use ecsync_tsn::qbv::{PortSchedule, Window};
@@ -369,6 +373,14 @@ struct Net<'a> {
     capture_until_ps: u64,
     blocked: Blocked,
     in_bringup: bool,
+    /// The master's task: the time it woke (the cyclic phase's host is ideal and hands its
+    /// frames to a NIC that launches them at their time, so it waits without real time moving).
+    wake_ns: Option<u64>,
+    /// The last frame's launch time (master clock) and trip, and the frame as it came back.
+    last_launch_ns: u64,
+    last_wait_fwd_ps: u64,
+    last_trip: Option<Trip>,
+    work: Vec<u8>,
 }
 
 /// A hardware timestamp: the clock's reading on the timestamper's grid of `g` ns.
@@ -487,6 +499,11 @@ impl<'a> Net<'a> {
             capture_until_ps: 0,
             blocked: Blocked::default(),
             in_bringup: true,
+            wake_ns: None,
+            last_launch_ns: 0,
+            last_wait_fwd_ps: 0,
+            last_trip: None,
+            work: Vec::with_capacity(ecsync_wire::MAX_FRAME_LEN),
         })
     }
 
@@ -781,31 +798,6 @@ impl<'a> Net<'a> {
         self.gptp.as_mut().expect("gptp").more = more;
     }
 
-    /// Runs a master procedure (the bring-up) over this network.
-    fn run_engine<T: 'static>(&mut self, engine: &mut Engine<T>) -> T {
-        loop {
-            let now = self.phc.ns_at(self.now_ps);
-            let mut frame = match engine.poll(now) {
-                Action::Done(v) => return v,
-                Action::WaitUntil(t) => {
-                    let t_ps = self.phc.real_ps_at(t).max(self.now_ps + 1000);
-                    self.advance(t_ps);
-                    continue;
-                }
-                Action::Send(f) => f.to_vec(),
-            };
-            let is_latch = is_latch_frame(&frame);
-            let launch = self.launch_at(now, frame.len());
-            let trip = self.trip(&mut frame, launch);
-            self.count(&trip, is_latch);
-            self.advance(trip.back_ps);
-            match trip.t4_ns {
-                Some(t4) => engine.handle_reply(&frame, trip.t1_ns, t4),
-                None => engine.handle_lost(),
-            }
-        }
-    }
-
     fn count(&mut self, trip: &Trip, is_latch: bool) {
         let b = &mut self.blocked;
         let fwd = trip.wait_fwd_ps > 0;
@@ -836,6 +828,70 @@ fn is_latch_frame(frame: &[u8]) -> bool {
         && frame[16] == ecsync_wire::Command::Bwr as u8
         && u16::from_le_bytes([frame[20], frame[21]])
             == ecsync_wire::register::DC_RECEIVE_TIME_PORT0
+}
+
+/// The TSN network as the master sees it: its PHC, its NIC launching frames at their time
+/// (gate-aware in M2 and M3), the bridge and the segment behind it.
+impl Transport for Net<'_> {
+    type Error = Never;
+
+    fn now_ns(&mut self) -> u64 {
+        let now = self.phc.ns_at(self.now_ps);
+        self.wake_ns.map_or(now, |w| w.max(now))
+    }
+
+    fn sleep_until(&mut self, t_ns: u64) {
+        if self.in_bringup {
+            // A procedure's wait: time moves (gPTP runs) to `t_ns`, by a nanosecond at least.
+            let t_ps = self.phc.real_ps_at(t_ns).max(self.now_ps + 1000);
+            self.advance(t_ps);
+        } else {
+            // The cyclic task hands its frame to the NIC for its launch time.
+            let now = self.phc.ns_at(self.now_ps);
+            self.wake_ns = Some(t_ns.max(now));
+        }
+    }
+
+    fn send_time_ns(&mut self, len: usize) -> u64 {
+        let now = self.now_ns();
+        self.launch_at(now, len)
+    }
+
+    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Never> {
+        let is_latch = is_latch_frame(frame);
+        let mut work = std::mem::take(&mut self.work);
+        work.clear();
+        work.extend_from_slice(frame);
+        let trip = self.trip(&mut work, at_ns);
+        self.work = work;
+        self.count(&trip, is_latch && self.in_bringup);
+        self.wake_ns = None;
+        self.last_launch_ns = at_ns;
+        self.last_wait_fwd_ps = trip.wait_fwd_ps;
+        self.last_trip = Some(trip);
+        Ok(trip.t1_ns)
+    }
+
+    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Never> {
+        let Some(trip) = self.last_trip.take() else {
+            return Ok(None);
+        };
+        self.advance(trip.back_ps);
+        match trip.t4_ns {
+            Some(t4) if t4 <= deadline_ns => {
+                let n = self.work.len().min(buf.len());
+                buf[..n].copy_from_slice(&self.work[..n]);
+                Ok(Some(Received {
+                    len: n,
+                    received_ns: t4,
+                    tx_stamp_ns: Some(trip.t1_ns),
+                    stamped: true,
+                    truncated: n < self.work.len(),
+                }))
+            }
+            _ => Ok(None),
+        }
+    }
 }
 
 /// Options of a TSN run.
@@ -892,12 +948,25 @@ pub fn run_variant(
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
-    let net_info: Network = net
-        .run_engine(&mut engine)
-        .map_err(|source| TsnError::Bringup {
-            variant: variant.name(),
-            source,
-        })?;
+    let procedure = ProcedureConfig {
+        reply_timeout_ns: TIMEOUT_PS / 1000,
+        retries: 0,
+    };
+    let bring = run_procedure(
+        &mut net,
+        &mut engine,
+        procedure,
+        &mut ExchangeStats::default(),
+        |_, _, _| {},
+    );
+    let net_info: Network = match bring {
+        Ok(r) => r,
+        Err(never) => match never {},
+    }
+    .map_err(|source| TsnError::Bringup {
+        variant: variant.name(),
+        source,
+    })?;
     net.in_bringup = false;
 
     // Delays: measured (master delay + delay from the reference) against the truth for a
@@ -989,35 +1058,31 @@ pub fn run_variant(
     } else {
         0
     };
-    for i in 0..total {
-        let scheduled = eng.scheduled_start_ns();
-        let launch = net.launch_at(scheduled, cyc_len);
-        let frame = eng.frame_to_send(launch);
-        let trip = net.trip(frame, launch);
-        net.count(&trip, false);
-        let rec = match trip.t4_ns {
-            Some(t4) => eng.complete_in_place(true, trip.t1_ns, t4),
-            None => eng.complete_in_place(false, trip.t1_ns, trip.t1_ns + period / 2),
-        };
-        net.advance(trip.back_ps);
-        // A reply after the next cycle's start: that cycle's slot has passed.
-        let rx_ns = net.phc.ns_at(net.now_ps);
-        while eng.scheduled_start_ns() <= rx_ns {
-            eng.skip_cycles(1);
-            overruns += 1;
-        }
+    // One frame per cycle; a reply may take up to a cycle (held at the gates).
+    let mut driver = CyclicDriver::new(CyclicLimits {
+        max_cycles: Some(total),
+        lost_in_a_row: u64::MAX,
+        reply_timeout_ns: period,
+        ..CyclicLimits::default()
+    });
+    let observe = |net: &mut Net<'_>, rep: &CycleReport| {
+        let rec = &rep.record;
+        overruns += rep.skipped_before;
+        let i = rec.cycle;
         if i < s.warmup_cycles {
-            continue;
+            return;
         }
         let k = i - s.warmup_cycles;
         if rec.receive_ns.is_none() {
             lost += 1;
-            continue;
+            return;
         }
-        if trip.wait_fwd_ps > 0 {
-            wait.add(trip.wait_fwd_ps as f64 / 1000.0);
+        let launch = net.last_launch_ns;
+        let wait_fwd_ps = net.last_wait_fwd_ps;
+        if wait_fwd_ps > 0 {
+            wait.add(wait_fwd_ps as f64 / 1000.0);
         }
-        series[3].add(k, trip.wait_fwd_ps as f64 / 1000.0);
+        series[3].add(k, wait_fwd_ps as f64 / 1000.0);
         if let Some(m) = rec.m_rs_ns {
             m_rs.add(m as f64);
         }
@@ -1027,18 +1092,20 @@ pub fn run_variant(
         // Ground truth at the frame's pass at the reference.
         let trace = net.segment.trace();
         let (Some(pu_ref), Some(pu_last)) = (trace[reference].pu_ps, trace[last].pu_ps) else {
-            continue;
+            return;
         };
         let seg = &net.segment;
         let sys = |x: usize, t: u64| seg.esc(x).dc().map(|d| d.system_time_split(t));
         let Some(r) = sys(reference, pu_ref) else {
-            continue;
+            return;
         };
         let xm = net.phc.xtal.master_ns(pu_ref);
         let (pw, pf) = net.phc.at_xtal(xm);
         let d = (pw.wrapping_sub(r.0) as i64) as f64 + (pf - r.1);
         mref.add(d);
         series[0].add(k, d);
+        let seg = &net.segment;
+        let sys = |x: usize, t: u64| seg.esc(x).dc().map(|d| d.system_time_split(t));
         let (mut lo, mut hi) = (0.0f64, 0.0f64);
         for x in 0..seg.len() {
             if let Some(v) = sys(x, pu_ref) {
@@ -1068,6 +1135,10 @@ pub fn run_variant(
             gptp_off.add(off);
             series[2].add(k, off);
         }
+    };
+    match driver.run(&mut net, &mut eng, u64::MAX, None, observe) {
+        Ok(_) => {}
+        Err(never) => match never {},
     }
     if let Some(c) = net.capture.take() {
         c.finish().map_err(|e| TsnError::Pcap {
