@@ -60,3 +60,63 @@ pub trait Transport {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[error("infallible")]
 pub enum Never {}
+
+/// A host stall: the transport `inner`, whose cyclic task wakes `stall_ns` late in cycle
+/// `at_cycle` (a page fault, an interrupt storm, a VM's neighbour). The cyclic driver's overrun
+/// policy meets it the same way over any transport.
+#[derive(Debug)]
+pub struct HostStall<T> {
+    /// The transport.
+    pub inner: T,
+    /// The cycle whose wake-up stalls.
+    pub at_cycle: u64,
+    /// How long, ns.
+    pub stall_ns: u64,
+    armed: bool,
+}
+
+impl<T> HostStall<T> {
+    /// `inner` with a stall of `stall_ns` in cycle `at_cycle`.
+    pub fn new(inner: T, at_cycle: u64, stall_ns: u64) -> Self {
+        HostStall {
+            inner,
+            at_cycle,
+            stall_ns,
+            armed: false,
+        }
+    }
+}
+
+impl<T: Transport> Transport for HostStall<T> {
+    type Error = T::Error;
+
+    fn now_ns(&mut self) -> u64 {
+        self.inner.now_ns()
+    }
+
+    fn sleep_until(&mut self, t_ns: u64) {
+        let extra = if std::mem::take(&mut self.armed) {
+            self.stall_ns
+        } else {
+            0
+        };
+        self.inner.sleep_until(t_ns.saturating_add(extra));
+    }
+
+    fn send_time_ns(&mut self, len: usize) -> u64 {
+        self.inner.send_time_ns(len)
+    }
+
+    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, T::Error> {
+        self.inner.send(frame, at_ns)
+    }
+
+    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, T::Error> {
+        self.inner.recv(buf, deadline_ns)
+    }
+
+    fn start_cycle(&mut self, cycle: u64) {
+        self.armed = cycle == self.at_cycle;
+        self.inner.start_cycle(cycle);
+    }
+}
