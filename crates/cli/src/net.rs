@@ -451,6 +451,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         pdi_len: net.pdi_len,
         measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
         reference_offset_ns: net.slaves[reference].offset.unwrap_or(0),
+        lrw: net.lrw.clone(),
     };
     // The reference's system time is the master's time after the bring-up: aim at its grid,
     // at the target phase.

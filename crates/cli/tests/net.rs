@@ -997,6 +997,7 @@ mod host_stall {
                 pdi_len: net.pdi_len,
                 measure_init_frames: 2,
                 reference_offset_ns: 0,
+                lrw: net.lrw.clone(),
             };
             let first = (link.now_ns() / period + 2) * period;
             let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();

@@ -608,6 +608,8 @@ pub struct Run {
     was_in_sync: bool,
     /// This cycle's margin per DC slave (NaN: none), for the samples.
     margins: Vec<f64>,
+    /// Per DC slave: the frame of a cycle that carries its outputs, and that frame's wire time.
+    out_frames: Vec<(usize, u64)>,
 }
 
 impl std::fmt::Debug for Run {
@@ -640,6 +642,7 @@ impl Run {
             pdi_len: net.pdi_len,
             measure_init_frames: method.init_cycles().max(10_000).min(s.warmup_cycles.max(1)),
             reference_offset_ns: net.slaves[reference].offset.unwrap_or(0),
+            lrw: net.lrw.clone(),
         };
         // The first cycle: frames aimed at the target phase of the reference's grid. The
         // reference's system time is close to the master's clock after the bring-up (its offset
@@ -666,6 +669,20 @@ impl Run {
             .collect();
         let has_log = method.controller_log().is_some();
         let n_dc = dc_slaves.len();
+        // Which frame of a cycle carries each DC slave's outputs (its SYNC0 needs that one),
+        // and how long that frame is on the wire.
+        let out_frames: Vec<(usize, u64)> = dc_slaves
+            .iter()
+            .map(|&x| {
+                let k = net
+                    .slaves
+                    .get(x)
+                    .filter(|s| s.outputs.1 > 0)
+                    .and_then(|s| eng.frame_of_logical(s.outputs.0))
+                    .unwrap_or(0);
+                (k, frame_wire_time_ps(eng.frame_len_of(k)))
+            })
+            .collect();
         // The cyclic phase's host: its receive latency; a lost frame is given up half a cycle
         // after its send.
         sim.set_rx_latency_ps((s.host.rx_latency_ns * 1000.0) as u64);
@@ -725,6 +742,7 @@ impl Run {
             samples: None,
             was_in_sync: false,
             margins: Vec::with_capacity(n_dc),
+            out_frames,
         })
     }
 
@@ -805,6 +823,7 @@ impl Run {
             was_in_sync,
             dc_slaves,
             margins,
+            out_frames,
             ..
         } = self;
         let (warmup, period, shift, target) = (
@@ -843,7 +862,7 @@ impl Run {
                 // master's clock, read at the frame's arrival (the clocks' truth, free of the
                 // host's jitter).
                 if i < init_frames {
-                    let at = tr.segment().trace()[reference].pu_ps.and_then(|pu| {
+                    let at = tr.frame_trace(0)[reference].pu_ps.and_then(|pu| {
                         let dc = tr.segment().esc(reference).dc()?;
                         Some((pu, dc.system_time_split(pu)))
                     });
@@ -891,8 +910,8 @@ impl Run {
                 res.rs_is.add(f64::from(v));
                 series[1].add(k, f64::from(v));
             }
-            // Ground truth from the segment.
-            let trace = seg.trace();
+            // Ground truth from the segment: the cycle's first frame at the reference.
+            let trace = tr.frame_trace(0);
             let Some(r) = trace[reference].pu_ps.and_then(|t| sys(reference, t)) else {
                 return;
             };
@@ -929,8 +948,14 @@ impl Run {
             let mut worst_margin = f64::INFINITY;
             let mut worst_slave = 0u16;
             margins.clear();
-            for (st, &x) in res.per_slave.iter_mut().zip(dc_slaves.iter()) {
-                let Some(e) = trace[x].pu_ps.and_then(|pu| sys(x, pu + wire_ps)) else {
+            for ((st, &x), &(k, out_wire_ps)) in res
+                .per_slave
+                .iter_mut()
+                .zip(dc_slaves.iter())
+                .zip(out_frames.iter())
+            {
+                let pu = tr.frame_trace(k)[x].pu_ps;
+                let Some(e) = pu.and_then(|pu| sys(x, pu + out_wire_ps)) else {
                     margins.push(f64::NAN);
                     continue;
                 };

@@ -54,7 +54,7 @@ pub struct BringupConfig {
     pub lock_threshold_ns: u32,
     /// ... for this many consecutive checks.
     pub lock_hold_checks: u32,
-    /// Give up if not locked this long after drift compensation starts, ns.
+    /// Give up if not locked this long after the static drift compensation, ns.
     pub lock_timeout_ns: u64,
     /// Cycle time of the cyclic phase and SYNC0, ns.
     pub cycle_ns: u32,
@@ -209,6 +209,9 @@ pub struct Network {
     pub sync0: Option<Sync0Config>,
     /// Bytes of the logical process image (outputs then inputs).
     pub pdi_len: u32,
+    /// Its LRWs in the cyclic exchange (one when it fits a frame).
+    #[serde(skip)]
+    pub lrw: Vec<crate::pdi::LrwChunk>,
     /// Expected LRW working counter in OP.
     pub expected_lrw_wkc: u16,
     /// Master time when bring-up finished, ns.
@@ -501,7 +504,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 owners.push((i, true));
             }
         }
-        let replies = link.pdus_batched(&reads, "read receive times").await?;
+        let (replies, _) = link.pdus(&reads, "read receive times").await?;
         for (r, &(i, is_pu)) in replies.iter().zip(&owners) {
             if r.wkc != 1 {
                 return Err(MasterError::WorkingCounter {
@@ -604,6 +607,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             },
             sync0: None,
             pdi_len: 0,
+            lrw: Vec::new(),
             expected_lrw_wkc: 0,
             done_ns: link.now_ns(),
             master_delay_ns,
@@ -733,11 +737,13 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         }
     }
 
-    // Cyclic FRMW until locked.
+    // Cyclic FRMW until locked. The timeout runs from the end of the static drift
+    // compensation, whose length grows with the network (a frame passes every slave).
     let cycle = u64::from(cfg.cycle_ns);
     let mut next = (link.now_ns() / cycle + 1) * cycle;
+    let lock_start = link.now_ns();
     while !synced.is_empty() && !lock.is_locked() {
-        if link.now_ns().saturating_sub(drift_start) > cfg.lock_timeout_ns {
+        if link.now_ns().saturating_sub(lock_start) > cfg.lock_timeout_ns {
             return Err(MasterError::NoLock(cfg.lock_timeout_ns / 1_000_000));
         }
         link.sleep_until(next).await;
@@ -774,6 +780,21 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         }
     }
     let pdi_len = logical;
+    // The LRWs of the cyclic exchange: one when the image fits a frame, else as many as it
+    // needs, split on slave boundaries.
+    let mut ranges: Vec<(u32, u32, u16)> = slaves
+        .iter()
+        .filter(|s| s.outputs.1 > 0)
+        .map(|s| (s.outputs.0, u32::from(s.outputs.1), 2))
+        .chain(
+            slaves
+                .iter()
+                .filter(|s| s.inputs.1 > 0)
+                .map(|s| (s.inputs.0, u32::from(s.inputs.1), 1)),
+        )
+        .collect();
+    ranges.sort_by_key(|r| r.0);
+    let lrw = crate::pdi::lrw_chunks(pdi_len, &ranges);
     let mut expected_lrw_wkc = 0u16;
     let mut sync0 = None;
     let to_op = cfg.until == Stage::Op;
@@ -784,6 +805,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             lock: lock_report,
             sync0,
             pdi_len,
+            lrw,
             expected_lrw_wkc,
             done_ns: link.now_ns(),
             master_delay_ns,
@@ -870,12 +892,14 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     // SAFE-OP and OP with the cyclic frame running, then monitoring.
     let cyclic = |with_lrw: bool| {
         let mut v = vec![frmw()];
-        if with_lrw && pdi_len > 0 {
-            v.push(Pdu::new(
-                Command::Lrw,
-                DatagramAddress::Logical(0),
-                vec![0; pdi_len as usize],
-            ));
+        if with_lrw {
+            v.extend(lrw.iter().map(|c| {
+                Pdu::new(
+                    Command::Lrw,
+                    DatagramAddress::Logical(c.logical),
+                    vec![0; c.len as usize],
+                )
+            }));
         }
         v.extend(
             synced
@@ -884,7 +908,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         );
         v
     };
-    let k = 1 + usize::from(to_op && pdi_len > 0);
+    let k = 1 + if to_op { lrw.len() } else { 0 };
     {
         link.event(Event::Phase("safe-op"));
         for s in &slaves {
@@ -929,12 +953,13 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         let (r, _) = link.pdus(&cyclic(to_op), "cyclic").await?;
         let worst = worst_of(&r[k..])?;
         lock_report.max_abs_092c_after_lock_ns = lock_report.max_abs_092c_after_lock_ns.max(worst);
-        if to_op && pdi_len > 0 && r[1].wkc != expected_lrw_wkc {
+        let got: u16 = r[1..k].iter().map(|p| p.wkc).sum();
+        if to_op && pdi_len > 0 && got != expected_lrw_wkc {
             return Err(MasterError::WorkingCounter {
                 command: Command::Lrw,
                 what: "process data",
                 expected: expected_lrw_wkc,
-                got: r[1].wkc,
+                got,
             });
         }
     }
@@ -944,6 +969,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         lock: lock_report,
         sync0,
         pdi_len,
+        lrw,
         expected_lrw_wkc,
         done_ns: link.now_ns(),
         master_delay_ns,

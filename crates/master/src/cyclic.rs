@@ -10,6 +10,7 @@
 //! socket.
 
 use crate::io::MASTER_MAC;
+use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
 };
@@ -18,7 +19,7 @@ use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, WireError};
 
 /// How the cyclic frame is laid out.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct CyclicConfig {
     /// Cycle time and SYNC0 period, ns.
     pub period_ns: u32,
@@ -32,6 +33,9 @@ pub struct CyclicConfig {
     /// The System Time Offset (0x0920) the bring-up wrote to the reference: a method that
     /// adjusts the offset ([`ReferenceWrite::OffsetAdjust`]) writes this plus its adjustment.
     pub reference_offset_ns: u64,
+    /// The process image's LRWs ([`crate::bringup::Network::lrw`]); empty: one LRW of
+    /// `pdi_len` bytes at logical address 0.
+    pub lrw: Vec<LrwChunk>,
 }
 
 /// Everything one cycle produced.
@@ -62,17 +66,24 @@ pub struct CycleRecord {
     pub log: Option<ControllerLog>,
 }
 
+/// One frame of the cyclic exchange: its template and where its datagrams' fields are.
+#[derive(Debug, Clone)]
+struct FramePlan {
+    template: Vec<u8>,
+    bus_write_at: Option<usize>,
+    frmw_data_at: Option<usize>,
+    /// Working counter offsets of its LRWs.
+    lrw_wkc_at: Vec<usize>,
+    brd_data_at: Option<usize>,
+}
+
 /// The cyclic engine.
 #[derive(Debug, Clone)]
 pub struct CyclicEngine<S> {
     sync: S,
     cfg: CyclicConfig,
-    template: Vec<u8>,
-    frame: Vec<u8>,
-    bus_write_at: Option<usize>,
-    frmw_data_at: usize,
-    lrw_wkc_at: Option<usize>,
-    brd_data_at: usize,
+    plans: Vec<FramePlan>,
+    frames: Vec<Vec<u8>>,
     cycle: u64,
     first_start_ns: u64,
     scheduled_ns: u64,
@@ -82,64 +93,129 @@ pub struct CyclicEngine<S> {
     h_mr: f64,
 }
 
-impl<S: MasterSync> CyclicEngine<S> {
-    /// An engine whose first cycle starts at master time `first_start_ns`.
-    pub fn new(sync: S, cfg: CyclicConfig, first_start_ns: u64) -> Result<Self, WireError> {
-        let mut buf = vec![0u8; ecsync_wire::MAX_FRAME_LEN];
-        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
-        let system_time = DatagramAddress::Configured {
+/// Builds the frames: a bus-shift write and the FRMW first, then the LRWs in as many frames as
+/// they need, the BRD of 0x092C last (the same single frame as always when everything fits).
+fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<FramePlan>, WireError> {
+    let room = crate::pdi::FRAME_PAYLOAD;
+    let over = ecsync_wire::DATAGRAM_OVERHEAD;
+    let chunks: Vec<LrwChunk> = if !cfg.lrw.is_empty() {
+        cfg.lrw.clone()
+    } else if cfg.pdi_len > 0 {
+        vec![LrwChunk {
+            logical: 0,
+            len: cfg.pdi_len,
+            expected_wkc: 0,
+        }]
+    } else {
+        Vec::new()
+    };
+    let system_time = DatagramAddress::Configured {
+        adp: cfg.reference_station,
+        ado: reg::DC_SYSTEM_TIME,
+    };
+    let mut plans = Vec::new();
+    let mut buf = vec![0u8; ecsync_wire::MAX_FRAME_LEN];
+    let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
+    let mut used = 0usize;
+    let mut plan = FramePlan {
+        template: Vec::new(),
+        bus_write_at: None,
+        frmw_data_at: None,
+        lrw_wkc_at: Vec::new(),
+        brd_data_at: None,
+    };
+    // A bus-shift method's write to the reference goes first, so that the same frame's FRMW
+    // already reads (and distributes) the reference's time it set.
+    if let Some(ado) = bus_register {
+        let at = DatagramAddress::Configured {
             adp: cfg.reference_station,
-            ado: reg::DC_SYSTEM_TIME,
+            ado,
         };
-        // A bus-shift method's write to the reference goes first, so that the same frame's
-        // FRMW already reads (and distributes) the reference's time it set.
-        let bus_register = match sync.reference_write_kind() {
-            ReferenceWrite::None => None,
-            ReferenceWrite::SystemTime => Some(reg::DC_SYSTEM_TIME),
-            ReferenceWrite::OffsetAdjust => Some(reg::DC_SYSTEM_TIME_OFFSET),
-        };
-        let bus_write_at = match bus_register {
-            None => None,
-            Some(ado) => {
-                let at = DatagramAddress::Configured {
-                    adp: cfg.reference_station,
-                    ado,
-                };
-                Some(b.push_zeroed(Command::Fpwr, 0, at, 8)? + DATAGRAM_HEADER_LEN)
-            }
-        };
-        let frmw_data_at = b.push_zeroed(Command::Frmw, 1, system_time, 8)? + DATAGRAM_HEADER_LEN;
-        let lrw_wkc_at = if cfg.pdi_len > 0 {
-            let at = b.push_zeroed(
-                Command::Lrw,
-                2,
-                DatagramAddress::Logical(0),
-                cfg.pdi_len as usize,
-            )?;
-            Some(at + DATAGRAM_HEADER_LEN + cfg.pdi_len as usize)
-        } else {
-            None
-        };
-        let brd_data_at = b.push_zeroed(
+        plan.bus_write_at = Some(b.push_zeroed(Command::Fpwr, 0, at, 8)? + DATAGRAM_HEADER_LEN);
+        used += over + 8;
+    }
+    plan.frmw_data_at =
+        Some(b.push_zeroed(Command::Frmw, 1, system_time, 8)? + DATAGRAM_HEADER_LEN);
+    used += over + 8;
+    let mut index = 2u8;
+    for c in &chunks {
+        let need = over + c.len as usize;
+        if used + need > room {
+            let n = b.finish();
+            plan.template = buf[..n].to_vec();
+            plans.push(std::mem::replace(
+                &mut plan,
+                FramePlan {
+                    template: Vec::new(),
+                    bus_write_at: None,
+                    frmw_data_at: None,
+                    lrw_wkc_at: Vec::new(),
+                    brd_data_at: None,
+                },
+            ));
+            b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
+            used = 0;
+        }
+        let at = b.push_zeroed(
+            Command::Lrw,
+            index,
+            DatagramAddress::Logical(c.logical),
+            c.len as usize,
+        )?;
+        plan.lrw_wkc_at
+            .push(at + DATAGRAM_HEADER_LEN + c.len as usize);
+        index = index.wrapping_add(1);
+        used += need;
+    }
+    if used + over + 4 > room {
+        let n = b.finish();
+        plan.template = buf[..n].to_vec();
+        plans.push(std::mem::replace(
+            &mut plan,
+            FramePlan {
+                template: Vec::new(),
+                bus_write_at: None,
+                frmw_data_at: None,
+                lrw_wkc_at: Vec::new(),
+                brd_data_at: None,
+            },
+        ));
+        b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
+    }
+    // The BRD's index follows the LRWs' (3 in the single frame of old).
+    let brd_index = if chunks.len() <= 1 { 3 } else { index };
+    plan.brd_data_at = Some(
+        b.push_zeroed(
             Command::Brd,
-            3,
+            brd_index,
             DatagramAddress::Position {
                 adp: 0,
                 ado: reg::DC_SYSTEM_TIME_DIFF,
             },
             4,
-        )? + DATAGRAM_HEADER_LEN;
-        let n = b.finish();
-        buf.truncate(n);
+        )? + DATAGRAM_HEADER_LEN,
+    );
+    let n = b.finish();
+    plan.template = buf[..n].to_vec();
+    plans.push(plan);
+    Ok(plans)
+}
+
+impl<S: MasterSync> CyclicEngine<S> {
+    /// An engine whose first cycle starts at master time `first_start_ns`.
+    pub fn new(sync: S, cfg: CyclicConfig, first_start_ns: u64) -> Result<Self, WireError> {
+        let bus_register = match sync.reference_write_kind() {
+            ReferenceWrite::None => None,
+            ReferenceWrite::SystemTime => Some(reg::DC_SYSTEM_TIME),
+            ReferenceWrite::OffsetAdjust => Some(reg::DC_SYSTEM_TIME_OFFSET),
+        };
+        let plans = plan_frames(&cfg, bus_register)?;
+        let frames = plans.iter().map(|p| p.template.clone()).collect();
         Ok(CyclicEngine {
             sync,
             cfg,
-            frame: buf.clone(),
-            template: buf,
-            bus_write_at,
-            frmw_data_at,
-            lrw_wkc_at,
-            brd_data_at,
+            plans,
+            frames,
             cycle: 0,
             first_start_ns,
             scheduled_ns: first_start_ns,
@@ -170,15 +246,51 @@ impl<S: MasterSync> CyclicEngine<S> {
         self.cycle
     }
 
-    /// Length of the cyclic frame, bytes.
+    /// Frames per cycle: one, unless the process image needs more.
+    pub fn frame_count(&self) -> usize {
+        self.plans.len()
+    }
+
+    /// Length of the cyclic frame (the first), bytes.
     pub fn frame_len(&self) -> usize {
-        self.template.len()
+        self.plans[0].template.len()
+    }
+
+    /// Length of frame `k`, bytes.
+    pub fn frame_len_of(&self, k: usize) -> usize {
+        self.plans[k].template.len()
+    }
+
+    /// The frame in which the process image's byte `logical` travels (`None`: no LRW holds
+    /// it).
+    pub fn frame_of_logical(&self, logical: u32) -> Option<usize> {
+        let mut k = 0;
+        let chunks = if self.cfg.lrw.is_empty() {
+            return (self.cfg.pdi_len > logical).then_some(0);
+        } else {
+            &self.cfg.lrw
+        };
+        for (f, plan) in self.plans.iter().enumerate() {
+            for _ in &plan.lrw_wkc_at {
+                let c = chunks[k];
+                if logical >= c.logical && logical < c.logical + c.len {
+                    return Some(f);
+                }
+                k += 1;
+            }
+        }
+        None
     }
 
     /// The frame as last handed out by [`CyclicEngine::frame_to_send`] (what a reply must
     /// answer).
     pub fn frame(&self) -> &[u8] {
-        &self.frame
+        &self.frames[0]
+    }
+
+    /// Frame `k` as last handed out.
+    pub fn frame_of(&self, k: usize) -> &[u8] {
+        &self.frames[k]
     }
 
     /// Skips `cycles` whole cycles without a frame: the task woke so late that their slots had
@@ -193,57 +305,101 @@ impl<S: MasterSync> CyclicEngine<S> {
         self.last_ref_ns = self.last_ref_ns.map(|t| t.wrapping_add(span));
     }
 
-    /// The frame to send now; `send_ns` is the timestamp taken right before sending (bus shift
-    /// writes it to the reference).
+    /// The (first) frame to send now; `send_ns` is the timestamp taken right before sending
+    /// (bus shift writes it to the reference).
     pub fn frame_to_send(&mut self, send_ns: u64) -> &mut [u8] {
-        self.frame.copy_from_slice(&self.template);
-        if let (Some(at), Some(v)) = (self.bus_write_at, self.sync.reference_write(send_ns)) {
+        self.frame_to_send_of(0, send_ns)
+    }
+
+    /// Frame `k` to send now (the bus-shift write is in the first).
+    pub fn frame_to_send_of(&mut self, k: usize, send_ns: u64) -> &mut [u8] {
+        let plan = &self.plans[k];
+        let frame = &mut self.frames[k];
+        frame.copy_from_slice(&plan.template);
+        if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns)) {
             let v = match self.sync.reference_write_kind() {
                 ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
                 _ => v,
             };
-            self.frame[at..at + 8].copy_from_slice(&v.to_le_bytes());
+            frame[at..at + 8].copy_from_slice(&v.to_le_bytes());
         }
-        &mut self.frame
+        frame
     }
 
-    /// Completes the cycle with its reply (`None` if the frame was lost): reads the reference
-    /// time, the system time difference and the working counter, runs the method and schedules
-    /// the next cycle.
+    /// Completes a cycle of one frame with its reply (`None` if the frame was lost).
     pub fn complete(&mut self, reply: Option<&[u8]>, send_ns: u64, receive_ns: u64) -> CycleRecord {
-        let n = self.template.len();
-        let reply = reply.filter(|r| r.len() >= n);
+        self.complete_frames(&[reply], send_ns, receive_ns)
+    }
+
+    /// Completes the cycle with the replies of its frames in order (`None` for a lost one):
+    /// reads the reference time, the system time difference and the working counters, runs the
+    /// method and schedules the next cycle. `send_ns` is the first frame's send timestamp.
+    pub fn complete_frames(
+        &mut self,
+        replies: &[Option<&[u8]>],
+        send_ns: u64,
+        receive_ns: u64,
+    ) -> CycleRecord {
+        self.complete_by(|k| replies.get(k).copied().flatten(), send_ns, receive_ns)
+    }
+
+    /// [`CyclicEngine::complete_frames`] with frame `k`'s reply from `reply(k)` (no list to
+    /// build per cycle).
+    pub fn complete_by<'r>(
+        &mut self,
+        reply: impl Fn(usize) -> Option<&'r [u8]>,
+        send_ns: u64,
+        receive_ns: u64,
+    ) -> CycleRecord {
         let mut rec = CycleRecord {
             cycle: self.cycle,
             scheduled_ns: self.scheduled_ns,
             send_ns,
-            receive_ns: reply.map(|_| receive_ns),
             ..CycleRecord::default()
         };
-        if let Some(r) = reply {
-            let at = self.frmw_data_at;
-            let frmw_wkc = u16::from_le_bytes([r[at + 8], r[at + 9]]);
-            if frmw_wkc > 0 {
-                let raw = u64::from_le_bytes(r[at..at + 8].try_into().unwrap_or([0; 8]));
-                // A 32-bit reference reads 0 in the upper half: extend next to the expectation.
-                let t = match self.last_ref_ns {
-                    Some(prev) if raw >> 32 == 0 => extend_reference_time(
-                        prev.wrapping_add(u64::from(self.cfg.period_ns)),
-                        raw as u32,
-                    ),
-                    _ => raw,
-                };
-                rec.ref_time_ns = Some(t);
-                self.last_ref_ns = Some(t);
+        let mut all = true;
+        let mut lrw_wkc: Option<u16> = Some(0);
+        for (k, plan) in self.plans.iter().enumerate() {
+            let n = plan.template.len();
+            let Some(r) = reply(k).filter(|r| r.len() >= n) else {
+                all = false;
+                if !plan.lrw_wkc_at.is_empty() {
+                    lrw_wkc = None;
+                }
+                continue;
+            };
+            if let Some(at) = plan.frmw_data_at {
+                let frmw_wkc = u16::from_le_bytes([r[at + 8], r[at + 9]]);
+                if frmw_wkc > 0 {
+                    let raw = u64::from_le_bytes(r[at..at + 8].try_into().unwrap_or([0; 8]));
+                    // A 32-bit reference reads 0 in the upper half: extend next to the
+                    // expectation.
+                    let t = match self.last_ref_ns {
+                        Some(prev) if raw >> 32 == 0 => extend_reference_time(
+                            prev.wrapping_add(u64::from(self.cfg.period_ns)),
+                            raw as u32,
+                        ),
+                        _ => raw,
+                    };
+                    rec.ref_time_ns = Some(t);
+                    self.last_ref_ns = Some(t);
+                }
             }
-            let b = self.brd_data_at;
-            let raw = u32::from_le_bytes(r[b..b + 4].try_into().unwrap_or([0; 4]));
-            rec.brd_092c_raw = Some(raw);
-            rec.rs_is_ns = Some(raw & 0x7fff_ffff);
-            rec.lrw_wkc = self
-                .lrw_wkc_at
-                .map(|w| u16::from_le_bytes([r[w], r[w + 1]]));
+            if let Some(b) = plan.brd_data_at {
+                let raw = u32::from_le_bytes(r[b..b + 4].try_into().unwrap_or([0; 4]));
+                rec.brd_092c_raw = Some(raw);
+                rec.rs_is_ns = Some(raw & 0x7fff_ffff);
+            }
+            for &w in &plan.lrw_wkc_at {
+                lrw_wkc = lrw_wkc.map(|s| s.wrapping_add(u16::from_le_bytes([r[w], r[w + 1]])));
+            }
         }
+        // Received when every frame came back (a cycle with a lost frame is a lost cycle).
+        rec.receive_ns = all.then_some(receive_ns);
+        if self.plans.iter().all(|p| p.lrw_wkc_at.is_empty()) {
+            lrw_wkc = None;
+        }
+        rec.lrw_wkc = if all { lrw_wkc } else { None };
         let nominal = self
             .first_start_ns
             .wrapping_add(self.cycle.wrapping_mul(u64::from(self.cfg.period_ns)));
@@ -290,7 +446,7 @@ impl<S: MasterSync> CyclicEngine<S> {
         rec
     }
 
-    /// Completes the cycle whose frame was processed in place in the buffer
+    /// Completes the cycle whose (single) frame was processed in place in the buffer
     /// [`CyclicEngine::frame_to_send`] returned (`returned`: it came back).
     pub fn complete_in_place(
         &mut self,
@@ -298,9 +454,9 @@ impl<S: MasterSync> CyclicEngine<S> {
         send_ns: u64,
         receive_ns: u64,
     ) -> CycleRecord {
-        let frame = std::mem::take(&mut self.frame);
+        let frame = std::mem::take(&mut self.frames[0]);
         let rec = self.complete(returned.then_some(&frame[..]), send_ns, receive_ns);
-        self.frame = frame;
+        self.frames[0] = frame;
         rec
     }
 
@@ -323,8 +479,9 @@ mod tests {
             pdi_len: 204,
             measure_init_frames: 10,
             reference_offset_ns: 0,
+            lrw: Vec::new(),
         };
-        let mut e = CyclicEngine::new(BusShift::default(), cfg, 0).unwrap();
+        let mut e = CyclicEngine::new(BusShift::default(), cfg.clone(), 0).unwrap();
         let f = e.frame_to_send(0x1122_3344_5566_7788).to_vec();
         let fr = ecsync_wire::EcatFrame::new_checked(&f[..]).unwrap();
         let cmds: Vec<_> = fr
@@ -338,7 +495,7 @@ mod tests {
         let d0 = fr.datagrams().next().unwrap().unwrap();
         assert_eq!(d0.data(), &0x1122_3344_5566_7788u64.to_le_bytes());
         let m = CyclicEngine::new(MedianSync::default(), cfg, 0).unwrap();
-        assert_eq!(m.template.len(), f.len() - 20, "no FPWR for master shift");
+        assert_eq!(m.frame_len(), f.len() - 20, "no FPWR for master shift");
     }
 
     /// Starts every cycle one period late from cycle 3 on (a dropped cycle, as a snap does when
@@ -368,6 +525,7 @@ mod tests {
             pdi_len: 0,
             measure_init_frames: 2,
             reference_offset_ns: 0,
+            lrw: Vec::new(),
         };
         let mut e = CyclicEngine::new(DropsACycle, cfg, 10 * p).unwrap();
         let mut m_rs = Vec::new();
@@ -376,7 +534,7 @@ mod tests {
             // later on its grid (reference time = master time + 3 ns).
             let send = e.scheduled_start_ns() + 20_000;
             let mut f = e.frame_to_send(send).to_vec();
-            let at = e.frmw_data_at;
+            let at = e.plans[0].frmw_data_at.unwrap();
             f[at..at + 8].copy_from_slice(&(send + 7_003).to_le_bytes());
             f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
             m_rs.push(e.complete(Some(&f), send, send + 50_000).m_rs_ns);
@@ -398,6 +556,7 @@ mod tests {
             pdi_len: 0,
             measure_init_frames: 2,
             reference_offset_ns: 0,
+            lrw: Vec::new(),
         };
         let median = MedianSync::new(11, 0.01, 2);
         // The reference's 32-bit time wraps during the stall.
@@ -412,7 +571,7 @@ mod tests {
             }
             let send = e.scheduled_start_ns() + 20_000;
             let mut f = e.frame_to_send(send).to_vec();
-            let at = e.frmw_data_at;
+            let at = e.plans[0].frmw_data_at.unwrap();
             let t_ra = send + 7_003;
             // The first reply has the full time; a 32-bit reference's later ones only the low half.
             let raw = if i == 0 { t_ra } else { u64::from(t_ra as u32) };
@@ -428,5 +587,66 @@ mod tests {
             seen[2..].iter().all(|s| s.2.is_some_and(|m| m.abs() <= 3)),
             "{seen:?}"
         );
+    }
+
+    /// An image too large for a frame: the LRWs spread over frames after the first (which
+    /// carries the FRMW), the BRD in the last; the working counters add up.
+    #[test]
+    fn a_large_image_takes_several_frames() {
+        let mut ranges = Vec::new();
+        for i in 0..200u32 {
+            ranges.push((34 * i, 34, 3));
+        }
+        let lrw = crate::pdi::lrw_chunks(6800, &ranges);
+        let cfg = CyclicConfig {
+            period_ns: 4_000_000,
+            reference_station: 0x1000,
+            pdi_len: 6800,
+            measure_init_frames: 1,
+            reference_offset_ns: 0,
+            lrw: lrw.clone(),
+        };
+        let mut e = CyclicEngine::new(MedianSync::default(), cfg, 0).unwrap();
+        let n = e.frame_count();
+        assert!(n >= 5, "{n}");
+        let cmds = |k: usize, e: &mut CyclicEngine<MedianSync>| -> Vec<Command> {
+            let f = e.frame_to_send_of(k, 0).to_vec();
+            ecsync_wire::EcatFrame::new_checked(&f[..])
+                .unwrap()
+                .datagrams()
+                .map(|d| d.unwrap().command().unwrap())
+                .collect()
+        };
+        assert_eq!(cmds(0, &mut e)[0], Command::Frmw);
+        assert_eq!(*cmds(n - 1, &mut e).last().unwrap(), Command::Brd);
+        for k in 0..n {
+            assert!(e.frame_len_of(k) <= ecsync_wire::MAX_FRAME_LEN);
+        }
+        // Every logical byte is in the frame that holds its chunk; byte 0 is in the first
+        // frame that has an LRW.
+        let first_lrw = (0..n).find(|&k| !e.plans[k].lrw_wkc_at.is_empty());
+        assert_eq!(e.frame_of_logical(0), first_lrw);
+        assert!(e.frame_of_logical(6799).is_some());
+        assert_eq!(e.frame_of_logical(6800), None);
+        // Replies carry each chunk's expected working counter: the record sums them.
+        let mut replies: Vec<Vec<u8>> = (0..n).map(|k| e.frame_to_send_of(k, 0).to_vec()).collect();
+        let mut k_chunk = 0;
+        for (k, r) in replies.iter_mut().enumerate() {
+            for &w in &e.plans[k].lrw_wkc_at {
+                r[w..w + 2].copy_from_slice(&lrw[k_chunk].expected_wkc.to_le_bytes());
+                k_chunk += 1;
+            }
+        }
+        assert_eq!(k_chunk, lrw.len());
+        let views: Vec<Option<&[u8]>> = replies.iter().map(|r| Some(&r[..])).collect();
+        let rec = e.complete_frames(&views, 10, 20);
+        assert_eq!(rec.lrw_wkc, Some(600));
+        assert_eq!(rec.receive_ns, Some(20));
+        // One frame lost: the cycle is lost.
+        let mut views = views;
+        views[1] = None;
+        let rec = e.complete_frames(&views, 10, 20);
+        assert_eq!(rec.receive_ns, None);
+        assert_eq!(rec.lrw_wkc, None);
     }
 }

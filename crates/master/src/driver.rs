@@ -234,6 +234,8 @@ pub enum Stopped {
 pub struct CyclicDriver {
     limits: CyclicLimits,
     buf: Vec<u8>,
+    /// Each frame's reply buffer and length.
+    replies: Vec<(Vec<u8>, Option<usize>)>,
     start_ns: Option<u64>,
     cycles: u64,
     lost_row: u64,
@@ -247,6 +249,7 @@ impl CyclicDriver {
         CyclicDriver {
             limits,
             buf: vec![0u8; 2048],
+            replies: Vec::new(),
             start_ns: None,
             cycles: 0,
             lost_row: 0,
@@ -301,39 +304,70 @@ impl CyclicDriver {
             if skipped > 0 {
                 eng.skip_cycles(skipped);
             }
+            // The cycle's frames, back to back (one unless the process image needs more);
+            // the first carries the reference's time and is the cycle's send timestamp.
+            let n = eng.frame_count();
             let len = eng.frame_len();
-            let at = tr.send_time_ns(len);
-            let frame = eng.frame_to_send(at);
-            let sent_ns = tr.send(frame, at)?;
-            self.stats.sent += 1;
-            let deadline = sent_ns.saturating_add(self.limits.reply_timeout_ns);
-            let mut got = None;
-            while let Some(r) = tr.recv(&mut self.buf, deadline)? {
-                if !r.truncated && answers(eng.frame(), &self.buf[..r.len]) {
-                    got = Some(r);
-                    break;
+            let mut sent_ns = 0;
+            for k in 0..n {
+                let at = tr.send_time_ns(eng.frame_len_of(k));
+                let frame = eng.frame_to_send_of(k, at);
+                let s = tr.send(frame, at)?;
+                if k == 0 {
+                    sent_ns = s;
                 }
-                self.stats.stale += 1;
-                self.stats.truncated += u64::from(r.truncated);
+                self.stats.sent += 1;
             }
-            let (record, tx_stamp_ns, round_trip_ns) = match got {
-                Some(r) => {
-                    self.stats.replies += 1;
-                    let rec = eng.complete(Some(&self.buf[..r.len]), sent_ns, r.received_ns);
-                    self.lost_row = 0;
-                    self.last_good = Some(rec.cycle);
-                    (
-                        rec,
-                        r.tx_stamp_ns,
-                        Some(r.received_ns.saturating_sub(sent_ns)),
-                    )
+            if self.replies.len() < n {
+                self.replies.resize_with(n, || (vec![0u8; 2048], None));
+            }
+            for r in self.replies.iter_mut() {
+                r.1 = None;
+            }
+            let deadline = sent_ns.saturating_add(self.limits.reply_timeout_ns);
+            let mut pending = n;
+            let mut last: Option<Received> = None;
+            while pending > 0 {
+                let Some(r) = tr.recv(&mut self.buf, deadline)? else {
+                    break;
+                };
+                let k = (0..n).find(|&k| {
+                    self.replies[k].1.is_none()
+                        && !r.truncated
+                        && answers(eng.frame_of(k), &self.buf[..r.len])
+                });
+                match k {
+                    Some(k) => {
+                        // The reply's bytes go to its slot without a copy.
+                        std::mem::swap(&mut self.buf, &mut self.replies[k].0);
+                        self.replies[k].1 = Some(r.len);
+                        self.stats.replies += 1;
+                        pending -= 1;
+                        last = Some(r);
+                    }
+                    None => {
+                        self.stats.stale += 1;
+                        self.stats.truncated += u64::from(r.truncated);
+                    }
                 }
-                None => {
-                    self.stats.lost += 1;
-                    self.lost_row += 1;
-                    let now = tr.now_ns();
-                    (eng.complete(None, sent_ns, now), None, None)
-                }
+            }
+            self.stats.lost += pending as u64;
+            let replies = &self.replies;
+            let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
+            let (record, tx_stamp_ns, round_trip_ns) = if pending == 0 {
+                let r = last.expect("every frame answered");
+                let rec = eng.complete_by(views, sent_ns, r.received_ns);
+                self.lost_row = 0;
+                self.last_good = Some(rec.cycle);
+                (
+                    rec,
+                    r.tx_stamp_ns,
+                    Some(r.received_ns.saturating_sub(sent_ns)),
+                )
+            } else {
+                self.lost_row += 1;
+                let now = tr.now_ns();
+                (eng.complete_by(views, sent_ns, now), None, None)
             };
             self.cycles += 1;
             on_cycle(

@@ -18,7 +18,7 @@ use std::task::{Context, Poll, Waker};
 pub const MASTER_MAC: [u8; 6] = [0x00, 0x1b, 0x21, 0xec, 0x00, 0x01];
 
 /// A reply with the master clock's timestamps.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Reply {
     /// The frame as it came back.
     pub frame: Vec<u8>,
@@ -167,8 +167,44 @@ impl Link {
         .await
     }
 
-    /// Sends the datagrams in one frame and returns their replies in order.
+    /// Sends the datagrams and returns their replies in order: in one frame when they fit, else
+    /// in as many frames as they need (each up to `MAX_FRAME_LEN`, in order, one after the
+    /// other), so that a network of any size can be asked everything at once. The reply is the
+    /// first frame's (its timestamps).
     pub async fn pdus(
+        &self,
+        pdus: &[Pdu],
+        what: &'static str,
+    ) -> Result<(Vec<PduReply>, Reply), MasterError> {
+        let room =
+            ecsync_wire::MAX_FRAME_LEN - ecsync_wire::ETH_HEADER_LEN - ecsync_wire::ECAT_HEADER_LEN;
+        let mut out = Vec::with_capacity(pdus.len());
+        let mut first = None;
+        let mut start = 0;
+        loop {
+            let mut end = start;
+            let mut used = 0;
+            while end < pdus.len() {
+                let need = ecsync_wire::DATAGRAM_OVERHEAD + pdus[end].data.len();
+                if used + need > room && end > start {
+                    break;
+                }
+                used += need;
+                end += 1;
+            }
+            let (r, reply) = self.pdus_in_one_frame(&pdus[start..end], what).await?;
+            out.extend(r);
+            first.get_or_insert(reply);
+            start = end;
+            if start >= pdus.len() {
+                break;
+            }
+        }
+        Ok((out, first.unwrap_or_default()))
+    }
+
+    /// Sends the datagrams in one frame and returns their replies in order.
+    async fn pdus_in_one_frame(
         &self,
         pdus: &[Pdu],
         what: &'static str,
@@ -187,7 +223,9 @@ impl Link {
                     DatagramAddress::Logical(p.address),
                     &p.data,
                 )
-                .map_err(|_| MasterError::Config(format!("{what}: datagrams exceed one frame")))?;
+                .map_err(|_| {
+                    MasterError::Config(format!("{what}: a datagram larger than a frame"))
+                })?;
             }
             s.next_index = first_index.wrapping_add(pdus.len() as u8);
             b.finish()
@@ -219,35 +257,6 @@ impl Link {
             return Err(MasterError::BadReply("missing datagram"));
         }
         Ok((out, reply))
-    }
-
-    /// Sends the datagrams in as many frames as they need (each frame's datagrams up to
-    /// `MAX_FRAME_LEN`), one frame after another; returns the replies in order.
-    pub async fn pdus_batched(
-        &self,
-        pdus: &[Pdu],
-        what: &'static str,
-    ) -> Result<Vec<PduReply>, MasterError> {
-        let room =
-            ecsync_wire::MAX_FRAME_LEN - ecsync_wire::ETH_HEADER_LEN - ecsync_wire::ECAT_HEADER_LEN;
-        let mut out = Vec::with_capacity(pdus.len());
-        let mut start = 0;
-        while start < pdus.len() {
-            let mut end = start;
-            let mut used = 0;
-            while end < pdus.len() {
-                let need = ecsync_wire::DATAGRAM_OVERHEAD + pdus[end].data.len();
-                if used + need > room && end > start {
-                    break;
-                }
-                used += need;
-                end += 1;
-            }
-            let (r, _) = self.pdus(&pdus[start..end], what).await?;
-            out.extend(r);
-            start = end;
-        }
-        Ok(out)
     }
 
     /// One datagram in its own frame.

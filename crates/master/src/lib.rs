@@ -10,6 +10,7 @@ pub mod cyclic;
 pub mod driver;
 mod error;
 pub mod io;
+pub mod pdi;
 pub mod sii;
 pub mod sim;
 pub mod transport;

@@ -5,7 +5,7 @@ use crate::io::{Engine, Event};
 use crate::transport::{Never, Received, Transport};
 use ecsync_esc::clock::{CrystalParams, LocalClock};
 use ecsync_esc::pcap::PcapCapture;
-use ecsync_esc::{Segment, frame_wire_time_ps};
+use ecsync_esc::{Segment, SlaveFrameTrace, frame_wire_time_ps};
 use std::fs::File;
 use std::io::BufWriter;
 
@@ -157,10 +157,17 @@ pub struct SimTransport {
     host: Option<Box<dyn HostModel>>,
     /// This cycle's host delays, drawn at [`Transport::start_cycle`].
     delays: Option<HostDelays>,
-    /// The reply in flight: its bytes, when it is complete at the master (real ps).
-    reply: Vec<u8>,
-    reply_at_ps: Option<u64>,
+    /// Replies in flight, in the order they arrive: when each is complete at the master (real
+    /// ps), its bytes; and spent buffers to reuse.
+    inflight: std::collections::VecDeque<(u64, Vec<u8>)>,
+    spare: Vec<Vec<u8>>,
+    /// The master's wire is busy with its last frame until then (frames leave back to back).
+    wire_free_ps: u64,
     last: Exchange,
+    /// The ground truth of each frame of the current cycle (a cycle of several frames).
+    traces: Vec<Vec<SlaveFrameTrace>>,
+    frame_in_cycle: usize,
+    cycle_mode: bool,
     capture: Option<PcapCapture<BufWriter<File>>>,
 }
 
@@ -184,9 +191,13 @@ impl SimTransport {
             rx_latency_ps: 3_000_000,
             host: None,
             delays: None,
-            reply: Vec::with_capacity(ecsync_wire::MAX_FRAME_LEN),
-            reply_at_ps: None,
+            inflight: std::collections::VecDeque::new(),
+            spare: Vec::new(),
+            wire_free_ps: 0,
             last: Exchange::default(),
+            traces: Vec::new(),
+            frame_in_cycle: 0,
+            cycle_mode: false,
             capture: None,
         }
     }
@@ -203,9 +214,13 @@ impl SimTransport {
             rx_latency_ps: self.rx_latency_ps,
             host: None,
             delays: None,
-            reply: Vec::with_capacity(ecsync_wire::MAX_FRAME_LEN),
-            reply_at_ps: self.reply_at_ps,
+            inflight: self.inflight.clone(),
+            spare: Vec::new(),
+            wire_free_ps: self.wire_free_ps,
             last: self.last,
+            traces: Vec::new(),
+            frame_in_cycle: 0,
+            cycle_mode: false,
             capture: None,
         }
     }
@@ -254,6 +269,15 @@ impl SimTransport {
     /// The last exchange in real time.
     pub fn last_exchange(&self) -> Exchange {
         self.last
+    }
+
+    /// The ground truth of frame `k` of the current cycle (as the segment's trace was right
+    /// after it passed); the last frame's is [`Segment::trace`].
+    pub fn frame_trace(&self, k: usize) -> &[SlaveFrameTrace] {
+        match self.traces.get(k) {
+            Some(t) if k < self.frame_in_cycle => t,
+            _ => self.segment.trace(),
+        }
     }
 
     /// Captures every frame (sent and returned) to a pcap file.
@@ -347,41 +371,65 @@ impl Transport for SimTransport {
             Some(d) => self.real_ps_at(at_ns) + (d.tx_ns * 1000.0) as u64,
             None => self.now_ps + self.tx_latency_ps,
         };
-        self.reply.clear();
-        self.reply.extend_from_slice(frame);
+        let n = frame.len();
+        // Frames leave one after the other.
+        let tx_ps = tx_ps.max(self.wire_free_ps);
+        self.wire_free_ps = tx_ps + frame_wire_time_ps(n);
+        let mut buf = self.spare.pop().unwrap_or_default();
+        buf.clear();
+        buf.extend_from_slice(frame);
         if let Some(c) = &mut self.capture {
-            let _ = c.record(tx_ps, &self.reply);
+            let _ = c.record(tx_ps, &buf);
         }
-        let out = self.segment.process(&mut self.reply, tx_ps);
-        let n = self.reply.len();
-        self.reply_at_ps = out.returned_sof_ps.map(|t| {
+        let out = self.segment.process(&mut buf, tx_ps);
+        let back = out.returned_sof_ps.map(|t| {
             if let Some(c) = &mut self.capture {
-                let _ = c.record(t + frame_wire_time_ps(n), &self.reply);
+                let _ = c.record(t + frame_wire_time_ps(n), &buf);
             }
             t + frame_wire_time_ps(n) + self.rx_latency_ps
         });
+        match back {
+            Some(t) => {
+                // In arrival order (later frames of a cycle come back later).
+                let at = self.inflight.partition_point(|x| x.0 <= t);
+                self.inflight.insert(at, (t, buf));
+            }
+            None => self.spare.push(buf),
+        }
         self.last = Exchange {
             sent_ps: tx_ps,
-            received_ps: self.reply_at_ps,
+            received_ps: back,
         };
+        if self.cycle_mode {
+            let k = self.frame_in_cycle;
+            if self.traces.len() <= k {
+                self.traces.push(Vec::new());
+            }
+            let t = &mut self.traces[k];
+            t.clear();
+            t.extend_from_slice(self.segment.trace());
+            self.frame_in_cycle += 1;
+        }
         Ok(at_ns)
     }
 
     fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Never> {
-        if let Some(t_rx) = self.reply_at_ps {
+        if let Some(&(t_rx, _)) = self.inflight.front() {
             let rx_ns = self.master_clock.master_ns(t_rx);
             if rx_ns <= deadline_ns {
-                self.reply_at_ps = None;
+                let (_, reply) = self.inflight.pop_front().expect("a reply in flight");
                 self.now_ps = t_rx;
                 self.now_master_ns = None;
-                let n = self.reply.len().min(buf.len());
-                buf[..n].copy_from_slice(&self.reply[..n]);
+                let n = reply.len().min(buf.len());
+                buf[..n].copy_from_slice(&reply[..n]);
+                let truncated = n < reply.len();
+                self.spare.push(reply);
                 return Ok(Some(Received {
                     len: n,
                     received_ns: rx_ns,
                     tx_stamp_ns: None,
                     stamped: true,
-                    truncated: n < self.reply.len(),
+                    truncated,
                 }));
             }
         }
@@ -393,6 +441,8 @@ impl Transport for SimTransport {
 
     fn start_cycle(&mut self, cycle: u64) {
         self.delays = self.host.as_ref().map(|h| h.cycle(cycle));
+        self.cycle_mode = true;
+        self.frame_in_cycle = 0;
     }
 }
 

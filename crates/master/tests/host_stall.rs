@@ -29,6 +29,7 @@ fn a_stall_of_two_and_a_half_periods_skips_two_cycles_and_sends_no_burst() {
         pdi_len: net.pdi_len,
         measure_init_frames: 2,
         reference_offset_ns: 0,
+        lrw: net.lrw.clone(),
     };
     let first = (sim.now_ns() / period + 2) * period;
     let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();

@@ -379,8 +379,8 @@ struct Net<'a> {
     /// The last frame's launch time (master clock) and trip, and the frame as it came back.
     last_launch_ns: u64,
     last_wait_fwd_ps: u64,
-    last_trip: Option<Trip>,
-    work: Vec<u8>,
+    /// Frames in flight (a cycle of several frames), in the order sent, with their replies.
+    trips: std::collections::VecDeque<(Trip, Vec<u8>)>,
 }
 
 /// A hardware timestamp: the clock's reading on the timestamper's grid of `g` ns.
@@ -502,8 +502,7 @@ impl<'a> Net<'a> {
             wake_ns: None,
             last_launch_ns: 0,
             last_wait_fwd_ps: 0,
-            last_trip: None,
-            work: Vec::with_capacity(ecsync_wire::MAX_FRAME_LEN),
+            trips: std::collections::VecDeque::new(),
         })
     }
 
@@ -859,34 +858,33 @@ impl Transport for Net<'_> {
 
     fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Never> {
         let is_latch = is_latch_frame(frame);
-        let mut work = std::mem::take(&mut self.work);
-        work.clear();
-        work.extend_from_slice(frame);
+        let mut work = frame.to_vec();
         let trip = self.trip(&mut work, at_ns);
-        self.work = work;
         self.count(&trip, is_latch && self.in_bringup);
         self.wake_ns = None;
-        self.last_launch_ns = at_ns;
-        self.last_wait_fwd_ps = trip.wait_fwd_ps;
-        self.last_trip = Some(trip);
+        if self.trips.is_empty() {
+            self.last_launch_ns = at_ns;
+            self.last_wait_fwd_ps = trip.wait_fwd_ps;
+        }
+        self.trips.push_back((trip, work));
         Ok(trip.t1_ns)
     }
 
     fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Never> {
-        let Some(trip) = self.last_trip.take() else {
+        let Some((trip, work)) = self.trips.pop_front() else {
             return Ok(None);
         };
         self.advance(trip.back_ps);
         match trip.t4_ns {
             Some(t4) if t4 <= deadline_ns => {
-                let n = self.work.len().min(buf.len());
-                buf[..n].copy_from_slice(&self.work[..n]);
+                let n = work.len().min(buf.len());
+                buf[..n].copy_from_slice(&work[..n]);
                 Ok(Some(Received {
                     len: n,
                     received_ns: t4,
                     tx_stamp_ns: Some(trip.t1_ns),
                     stamped: true,
-                    truncated: n < self.work.len(),
+                    truncated: n < work.len(),
                 }))
             }
             _ => Ok(None),
@@ -1007,9 +1005,10 @@ pub fn run_variant(
         pdi_len: net_info.pdi_len,
         measure_init_frames: 1,
         reference_offset_ns: net_info.slaves[reference].offset.unwrap_or(0),
+        lrw: net_info.lrw.clone(),
     };
-    let probe =
-        CyclicEngine::new(BusShift { write_offset_ns: 0 }, cyc_cfg, 0).map_err(TsnError::Frame)?;
+    let probe = CyclicEngine::new(BusShift { write_offset_ns: 0 }, cyc_cfg.clone(), 0)
+        .map_err(TsnError::Frame)?;
     let cyc_len = {
         let mut p = probe;
         p.frame_to_send(0).len()
