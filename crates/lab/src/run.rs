@@ -947,6 +947,8 @@ impl Run {
             // after the FCS check, and SYNC0 needs them by then.
             let mut worst_margin = f64::INFINITY;
             let mut worst_slave = 0u16;
+            // Each slave's margin is kept for the samples file only.
+            let keep = samples.is_some();
             margins.clear();
             for ((st, &x), &(k, out_wire_ps)) in res
                 .per_slave
@@ -954,14 +956,22 @@ impl Run {
                 .zip(dc_slaves.iter())
                 .zip(out_frames.iter())
             {
-                let pu = tr.frame_trace(k)[x].pu_ps;
+                let pu = if k == 0 {
+                    trace[x].pu_ps
+                } else {
+                    tr.frame_trace(k)[x].pu_ps
+                };
                 let Some(e) = pu.and_then(|pu| sys(x, pu + out_wire_ps)) else {
-                    margins.push(f64::NAN);
+                    if keep {
+                        margins.push(f64::NAN);
+                    }
                     continue;
                 };
                 let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
                 let margin = shift - end_after_grid;
-                margins.push(margin);
+                if keep {
+                    margins.push(margin);
+                }
                 st.margin.add(margin);
                 if margin < 0.0 {
                     st.late_frames += 1;

@@ -1,8 +1,9 @@
 //! Streaming statistics without ceilings: count, mean, standard deviation, RMS, the exact
 //! minimum and maximum, and quantiles of bounded error, without keeping the samples.
 //!
-//! Quantiles come from two HDR histograms (the `hdrhistogram` crate, 3 significant digits), one
-//! for the magnitudes of negative values and one for the rest, on a grid of
+//! Quantiles come from two histograms in the layout of HDR histograms of 3 significant digits
+//! (the `hdrhistogram` crate's, which a test holds them to), one for the magnitudes of negative
+//! values and one for the rest, on a grid of
 //! [`RESOLUTION_NS`]. Every value lands in a bucket whose width is at most 2^-10 of the
 //! values it holds (exact below 2048 grid steps, 32 ns); a quantile is read as the middle of
 //! its bucket and clamped to the exact extremes, so it lies within [`quantile_error_bound`] of
@@ -12,7 +13,6 @@
 //! A quantile `q` is the sample of rank `max(1, ceil(q n))` in ascending order (the lower,
 //! "inverted CDF" definition): sort the samples and take index `ceil(q n) - 1` to recompute it.
 
-use hdrhistogram::Histogram as Hdr;
 use serde::Serialize;
 
 /// The grid values are recorded on, ns.
@@ -29,23 +29,110 @@ pub fn quantile_error_bound(value_ns: f64) -> f64 {
     value_ns.abs() * QUANTILE_REL_ERROR + RESOLUTION_NS
 }
 
-fn hdr() -> Hdr<u64> {
-    // 3 significant digits; auto-resizing from a small initial range.
-    Hdr::new(3).expect("3 significant digits is a valid HDR configuration")
+/// Counts in the bucket layout of an HDR histogram of 3 significant digits (HdrHistogram's
+/// layout, as the `hdrhistogram` crate has it): values below 2048 each in their own bucket,
+/// then 1024 buckets per power of two, each 2^b wide.
+///
+/// The crate's `record` keeps extremes, a total and resize checks on every call; here a value
+/// costs an index computation and an increment (the per-cycle hot path records a dozen values
+/// per method), and [`Stats`] keeps the exact extremes itself. The layout, and so every
+/// quantile, is the crate's: a test compares the two on random values.
+#[derive(Debug, Clone, Default)]
+struct Buckets {
+    counts: Vec<u64>,
+    total: u64,
 }
 
-/// The distribution of a signed quantity: two HDR histograms, negatives by magnitude and the
-/// rest.
-#[derive(Debug, Clone)]
-pub struct Dist {
-    pos: Hdr<u64>,
-    neg: Hdr<u64>,
+/// log2 of the half count of sub-buckets (1024).
+const HALF_MAGNITUDE: u32 = 10;
+/// Values below 2048 are exact.
+const SUB_BUCKET_MASK: u64 = 2047;
+/// 64 minus the bits of the sub-bucket count.
+const LEADING_ZERO_BASE: u32 = 53;
+
+/// The bucket holding `v` and its power-of-two exponent.
+#[inline]
+fn bucket_of(v: u64) -> u32 {
+    LEADING_ZERO_BASE - (v | SUB_BUCKET_MASK).leading_zeros()
 }
 
-impl Default for Dist {
-    fn default() -> Self {
-        Self::new()
+/// The index of the bucket holding `v`.
+#[inline]
+fn index_of(v: u64) -> usize {
+    let b = bucket_of(v);
+    ((b as usize) << HALF_MAGNITUDE) + (v >> b) as usize
+}
+
+/// The middle (rounded up) of bucket `i`, the value a quantile in it reads.
+fn median_of(i: usize) -> u64 {
+    let mut b = (i >> HALF_MAGNITUDE) as i64 - 1;
+    let mut sub = (i as u64 & ((1 << HALF_MAGNITUDE) - 1)) + (1 << HALF_MAGNITUDE);
+    if b < 0 {
+        sub -= 1 << HALF_MAGNITUDE;
+        b = 0;
     }
+    let low = sub << b;
+    low + ((1u64 << b) >> 1)
+}
+
+impl Buckets {
+    #[inline]
+    fn record(&mut self, v: u64) {
+        let i = index_of(v);
+        if i >= self.counts.len() {
+            self.grow(i);
+        }
+        self.counts[i] += 1;
+        self.total += 1;
+    }
+
+    /// Room up to the end of the power of two that holds index `i`.
+    #[cold]
+    fn grow(&mut self, i: usize) {
+        let len = ((i >> HALF_MAGNITUDE) + 1) << HALF_MAGNITUDE;
+        self.counts.resize(len, 0);
+    }
+
+    fn add(&mut self, o: &Buckets) {
+        if o.counts.len() > self.counts.len() {
+            self.counts.resize(o.counts.len(), 0);
+        }
+        for (a, &b) in self.counts.iter_mut().zip(&o.counts) {
+            *a += b;
+        }
+        self.total += o.total;
+    }
+
+    /// (middle of the bucket, count) of every bucket that holds values, ascending.
+    fn recorded(&self) -> impl DoubleEndedIterator<Item = (u64, u64)> + '_ {
+        self.counts
+            .iter()
+            .enumerate()
+            .filter(|&(_, &c)| c > 0)
+            .map(|(i, &c)| (median_of(i), c))
+    }
+
+    /// The value (grid steps, middle of its bucket) of rank `r` (1-based, ascending).
+    fn at_rank(&self, r: u64) -> u64 {
+        let mut acc = 0;
+        let mut last = 0;
+        for (v, c) in self.recorded() {
+            acc += c;
+            last = v;
+            if acc >= r {
+                return v;
+            }
+        }
+        last
+    }
+}
+
+/// The distribution of a signed quantity: two HDR-layout histograms, negatives by magnitude
+/// and the rest.
+#[derive(Debug, Clone, Default)]
+pub struct Dist {
+    pos: Buckets,
+    neg: Buckets,
 }
 
 #[inline]
@@ -58,61 +145,45 @@ fn steps(magnitude_ns: f64) -> u64 {
     }
 }
 
-/// The value (grid steps, middle of its bucket) of rank `r` (1-based, ascending) in `h`.
-fn at_rank(h: &Hdr<u64>, r: u64) -> u64 {
-    let mut acc = 0;
-    for v in h.iter_recorded() {
-        acc += v.count_at_value();
-        if acc >= r {
-            return h.median_equivalent(v.value_iterated_to());
-        }
-    }
-    h.max()
-}
-
 impl Dist {
     /// An empty distribution.
     pub fn new() -> Self {
-        Dist {
-            pos: hdr(),
-            neg: hdr(),
-        }
+        Dist::default()
     }
 
     /// Adds a value, ns (NaN is not counted).
     #[inline]
     pub fn add(&mut self, x: f64) {
         if x < 0.0 {
-            let _ = self.neg.record(steps(-x));
+            self.neg.record(steps(-x));
         } else if x >= 0.0 {
-            let _ = self.pos.record(steps(x));
+            self.pos.record(steps(x));
         }
     }
 
     /// Adds another distribution.
     pub fn merge(&mut self, o: &Dist) {
-        // Both auto-resize, so an addition cannot run out of range.
-        let _ = self.pos.add(&o.pos);
-        let _ = self.neg.add(&o.neg);
+        self.pos.add(&o.pos);
+        self.neg.add(&o.neg);
     }
 
     /// Number of values.
     pub fn total(&self) -> u64 {
-        self.pos.len() + self.neg.len()
+        self.pos.total + self.neg.total
     }
 
     /// The value of rank `r` (1-based, ascending), ns; NaN when empty.
     pub fn at_rank(&self, r: u64) -> f64 {
-        let n_neg = self.neg.len();
-        let n = n_neg + self.pos.len();
+        let n_neg = self.neg.total;
+        let n = n_neg + self.pos.total;
         if n == 0 {
             return f64::NAN;
         }
         let r = r.clamp(1, n);
         if r <= n_neg {
-            -(at_rank(&self.neg, n_neg - r + 1) as f64) / SCALE
+            -(self.neg.at_rank(n_neg - r + 1) as f64) / SCALE
         } else {
-            at_rank(&self.pos, r - n_neg) as f64 / SCALE
+            self.pos.at_rank(r - n_neg) as f64 / SCALE
         }
     }
 
@@ -125,12 +196,12 @@ impl Dist {
     /// Quantile `q` of |x|, ns.
     pub fn abs_quantile(&self, q: f64) -> f64 {
         let mut m = self.pos.clone();
-        let _ = m.add(&self.neg);
-        let n = m.len();
+        m.add(&self.neg);
+        let n = m.total;
         if n == 0 {
             return f64::NAN;
         }
-        at_rank(&m, ((q * n as f64).ceil() as u64).clamp(1, n)) as f64 / SCALE
+        m.at_rank(((q * n as f64).ceil() as u64).clamp(1, n)) as f64 / SCALE
     }
 
     /// The recorded values in ascending order as (value ns, count), one per bucket (the
@@ -138,21 +209,11 @@ impl Dist {
     pub fn bins(&self) -> Vec<(f64, u64)> {
         let mut v: Vec<(f64, u64)> = self
             .neg
-            .iter_recorded()
-            .map(|x| {
-                (
-                    -(self.neg.median_equivalent(x.value_iterated_to()) as f64) / SCALE,
-                    x.count_at_value(),
-                )
-            })
+            .recorded()
+            .rev()
+            .map(|(m, c)| (-(m as f64) / SCALE, c))
             .collect();
-        v.reverse();
-        v.extend(self.pos.iter_recorded().map(|x| {
-            (
-                self.pos.median_equivalent(x.value_iterated_to()) as f64 / SCALE,
-                x.count_at_value(),
-            )
-        }));
+        v.extend(self.pos.recorded().map(|(m, c)| (m as f64 / SCALE, c)));
         v
     }
 }
@@ -379,6 +440,114 @@ pub fn mean_of(summaries: &[Summary]) -> Summary {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// The distribution as the `hdrhistogram` crate keeps it (3 significant digits): the
+    /// reference the bucket layout is held to.
+    struct Reference {
+        pos: hdrhistogram::Histogram<u64>,
+        neg: hdrhistogram::Histogram<u64>,
+    }
+
+    impl Reference {
+        fn new() -> Self {
+            Reference {
+                pos: hdrhistogram::Histogram::new(3).unwrap(),
+                neg: hdrhistogram::Histogram::new(3).unwrap(),
+            }
+        }
+        fn add(&mut self, x: f64) {
+            if x < 0.0 {
+                self.neg.record(steps(-x)).unwrap();
+            } else if x >= 0.0 {
+                self.pos.record(steps(x)).unwrap();
+            }
+        }
+        fn rank_of(h: &hdrhistogram::Histogram<u64>, r: u64) -> u64 {
+            let mut acc = 0;
+            for v in h.iter_recorded() {
+                acc += v.count_at_value();
+                if acc >= r {
+                    return h.median_equivalent(v.value_iterated_to());
+                }
+            }
+            h.max()
+        }
+        fn at_rank(&self, r: u64) -> f64 {
+            let n_neg = self.neg.len();
+            let r = r.clamp(1, n_neg + self.pos.len());
+            if r <= n_neg {
+                -(Self::rank_of(&self.neg, n_neg - r + 1) as f64) / SCALE
+            } else {
+                Self::rank_of(&self.pos, r - n_neg) as f64 / SCALE
+            }
+        }
+        fn abs_at_rank(&self, r: u64) -> f64 {
+            let mut m = self.pos.clone();
+            m.add(&self.neg).unwrap();
+            Self::rank_of(&m, r) as f64 / SCALE
+        }
+        fn bins(&self) -> Vec<(f64, u64)> {
+            let mut v: Vec<(f64, u64)> = self
+                .neg
+                .iter_recorded()
+                .map(|x| {
+                    let m = self.neg.median_equivalent(x.value_iterated_to());
+                    (-(m as f64) / SCALE, x.count_at_value())
+                })
+                .collect();
+            v.reverse();
+            v.extend(self.pos.iter_recorded().map(|x| {
+                let m = self.pos.median_equivalent(x.value_iterated_to());
+                (m as f64 / SCALE, x.count_at_value())
+            }));
+            v
+        }
+    }
+
+    /// Every rank, |x| rank and bin reads as the crate's histograms read it, on values from
+    /// zero to 10^15 ns of both signs, and after a merge.
+    #[test]
+    fn the_bucket_layout_is_the_hdr_crates() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        for case in 0..40 {
+            let n = [1usize, 2, 7, 100, 3000][case % 5];
+            let (mut a, mut b, mut r) = (Dist::new(), Dist::new(), Reference::new());
+            for i in 0..n {
+                let mag = 10f64.powf(rng.random_range(-3.0..15.0));
+                let x = match rng.random_range(0..10) {
+                    0 => 0.0,
+                    1 => (mag * 64.0).round() / 64.0,
+                    2..=5 => -mag,
+                    _ => mag,
+                };
+                if i % 2 == 0 {
+                    a.add(x)
+                } else {
+                    b.add(x)
+                }
+                r.add(x);
+            }
+            a.merge(&b);
+            assert_eq!(a.total(), n as u64);
+            for k in 1..=n as u64 {
+                assert_eq!(
+                    a.at_rank(k).to_bits(),
+                    r.at_rank(k).to_bits(),
+                    "case {case} rank {k}"
+                );
+            }
+            for k in [1, n as u64 / 2 + 1, n as u64] {
+                let q = k as f64 / n as f64;
+                assert_eq!(
+                    a.abs_quantile(q).to_bits(),
+                    r.abs_at_rank(k).to_bits(),
+                    "case {case}"
+                );
+            }
+            assert_eq!(a.bins(), r.bins(), "case {case}");
+        }
+    }
 
     /// The exact quantile by the module's definition.
     fn exact(sorted: &[f64], q: f64) -> f64 {

@@ -67,9 +67,11 @@ pub struct CycleRecord {
 }
 
 /// One frame of the cyclic exchange: its template and where its datagrams' fields are.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 struct FramePlan {
     template: Vec<u8>,
+    /// The first datagram's command and index.
+    id: Option<(u8, u8)>,
     bus_write_at: Option<usize>,
     frmw_data_at: Option<usize>,
     /// Working counter offsets of its LRWs.
@@ -117,13 +119,7 @@ fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<Fram
     let mut buf = vec![0u8; ecsync_wire::MAX_FRAME_LEN];
     let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
     let mut used = 0usize;
-    let mut plan = FramePlan {
-        template: Vec::new(),
-        bus_write_at: None,
-        frmw_data_at: None,
-        lrw_wkc_at: Vec::new(),
-        brd_data_at: None,
-    };
+    let mut plan = FramePlan::default();
     // A bus-shift method's write to the reference goes first, so that the same frame's FRMW
     // already reads (and distributes) the reference's time it set.
     if let Some(ado) = bus_register {
@@ -143,16 +139,7 @@ fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<Fram
         if used + need > room {
             let n = b.finish();
             plan.template = buf[..n].to_vec();
-            plans.push(std::mem::replace(
-                &mut plan,
-                FramePlan {
-                    template: Vec::new(),
-                    bus_write_at: None,
-                    frmw_data_at: None,
-                    lrw_wkc_at: Vec::new(),
-                    brd_data_at: None,
-                },
-            ));
+            plans.push(std::mem::take(&mut plan));
             b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
             used = 0;
         }
@@ -170,16 +157,7 @@ fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<Fram
     if used + over + 4 > room {
         let n = b.finish();
         plan.template = buf[..n].to_vec();
-        plans.push(std::mem::replace(
-            &mut plan,
-            FramePlan {
-                template: Vec::new(),
-                bus_write_at: None,
-                frmw_data_at: None,
-                lrw_wkc_at: Vec::new(),
-                brd_data_at: None,
-            },
-        ));
+        plans.push(std::mem::take(&mut plan));
         b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
     }
     // The BRD's index follows the LRWs' (3 in the single frame of old).
@@ -209,7 +187,10 @@ impl<S: MasterSync> CyclicEngine<S> {
             ReferenceWrite::SystemTime => Some(reg::DC_SYSTEM_TIME),
             ReferenceWrite::OffsetAdjust => Some(reg::DC_SYSTEM_TIME_OFFSET),
         };
-        let plans = plan_frames(&cfg, bus_register)?;
+        let mut plans = plan_frames(&cfg, bus_register)?;
+        for p in &mut plans {
+            p.id = ecsync_wire::EcatFrame::new_checked(&p.template[..])?.first_datagram_id();
+        }
         let frames = plans.iter().map(|p| p.template.clone()).collect();
         Ok(CyclicEngine {
             sync,
@@ -288,9 +269,15 @@ impl<S: MasterSync> CyclicEngine<S> {
         &self.frames[0]
     }
 
-    /// Frame `k` as last handed out.
+    /// The command and index of frame `k`'s first datagram (what its reply repeats).
+    pub fn frame_id_of(&self, k: usize) -> Option<(u8, u8)> {
+        self.plans[k].id
+    }
+
+    /// Frame `k`'s template: its datagrams' commands and indices, which a reply must answer
+    /// (the per-cycle values aside, the frame as sent).
     pub fn frame_of(&self, k: usize) -> &[u8] {
-        &self.frames[k]
+        &self.plans[k].template
     }
 
     /// Skips `cycles` whole cycles without a frame: the task woke so late that their slots had
@@ -313,17 +300,24 @@ impl<S: MasterSync> CyclicEngine<S> {
 
     /// Frame `k` to send now (the bus-shift write is in the first).
     pub fn frame_to_send_of(&mut self, k: usize, send_ns: u64) -> &mut [u8] {
+        let mut frame = std::mem::take(&mut self.frames[k]);
+        self.write_frame(k, send_ns, &mut frame);
+        self.frames[k] = frame;
+        &mut self.frames[k]
+    }
+
+    /// Writes frame `k`, sent at `send_ns`, into `out` ([`CyclicEngine::frame_len_of`] bytes):
+    /// the cyclic driver builds it in the transport's buffer.
+    pub fn write_frame(&mut self, k: usize, send_ns: u64, out: &mut [u8]) {
         let plan = &self.plans[k];
-        let frame = &mut self.frames[k];
-        frame.copy_from_slice(&plan.template);
+        out.copy_from_slice(&plan.template);
         if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns)) {
             let v = match self.sync.reference_write_kind() {
                 ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
                 _ => v,
             };
-            frame[at..at + 8].copy_from_slice(&v.to_le_bytes());
+            out[at..at + 8].copy_from_slice(&v.to_le_bytes());
         }
-        frame
     }
 
     /// Completes a cycle of one frame with its reply (`None` if the frame was lost).

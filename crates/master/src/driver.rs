@@ -22,13 +22,19 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Whether `reply` answers `sent` (see the module documentation).
 pub fn answers(sent: &[u8], reply: &[u8]) -> bool {
-    if reply.len() < sent.len() {
+    match EcatFrame::new_checked(sent) {
+        Ok(s) => answers_id(s.first_datagram_id(), sent.len(), reply),
+        Err(_) => false,
+    }
+}
+
+/// Whether `reply` answers a frame of `sent_len` bytes whose first datagram has `sent_id`
+/// (command and index): [`answers`] with the sent frame's part worked out once.
+pub fn answers_id(sent_id: Option<(u8, u8)>, sent_len: usize, reply: &[u8]) -> bool {
+    if reply.len() < sent_len || sent_id.is_none() {
         return false;
     }
-    let (Ok(s), Ok(r)) = (EcatFrame::new_checked(sent), EcatFrame::new_checked(reply)) else {
-        return false;
-    };
-    s.first_datagram_id().is_some() && s.first_datagram_id() == r.first_datagram_id()
+    EcatFrame::new_checked(reply).is_ok_and(|r| r.first_datagram_id() == sent_id)
 }
 
 /// Counters of what came back.
@@ -60,7 +66,7 @@ pub struct Reply {
 pub fn exchange<Tr: Transport>(
     tr: &mut Tr,
     frame: &[u8],
-    buf: &mut [u8],
+    buf: &mut Vec<u8>,
     timeout_ns: u64,
     stats: &mut ExchangeStats,
 ) -> Result<Option<Reply>, Tr::Error> {
@@ -310,9 +316,9 @@ impl CyclicDriver {
             let len = eng.frame_len();
             let mut sent_ns = 0;
             for k in 0..n {
-                let at = tr.send_time_ns(eng.frame_len_of(k));
-                let frame = eng.frame_to_send_of(k, at);
-                let s = tr.send(frame, at)?;
+                let len = eng.frame_len_of(k);
+                let at = tr.send_time_ns(len);
+                let s = tr.send_with(len, at, |buf| eng.write_frame(k, at, buf))?;
                 if k == 0 {
                     sent_ns = s;
                 }
@@ -334,7 +340,7 @@ impl CyclicDriver {
                 let k = (0..n).find(|&k| {
                     self.replies[k].1.is_none()
                         && !r.truncated
-                        && answers(eng.frame_of(k), &self.buf[..r.len])
+                        && answers_id(eng.frame_id_of(k), eng.frame_len_of(k), &self.buf[..r.len])
                 });
                 match k {
                     Some(k) => {

@@ -28,6 +28,9 @@ pub const SIM_EPOCH_NS: u64 = 848_620_800_000_000_000;
 pub struct MasterClock {
     clock: LocalClock,
     line: Line,
+    /// The last inversion (master ns, real ps, the line's anchor it was made on): a cycle asks
+    /// for the real time of its send timestamp more than once.
+    last_inverse: (u64, u64, u64),
 }
 
 /// The master clock's straight piece from `anchor_ps` up to `next_ps` (the next wander step).
@@ -72,7 +75,11 @@ impl MasterClock {
     pub fn new(crystal: CrystalParams) -> Self {
         let clock = LocalClock::new(crystal);
         let line = Line::of(&clock);
-        MasterClock { clock, line }
+        MasterClock {
+            clock,
+            line,
+            last_inverse: (u64::MAX, 0, u64::MAX),
+        }
     }
 
     /// Moves to the straight piece that holds real time `t_ps` (forward only).
@@ -100,6 +107,16 @@ impl MasterClock {
     /// [`MasterClock::master_ns`], to a picosecond).
     #[inline]
     pub fn real_ps_at(&mut self, t_ns: u64) -> u64 {
+        let (memo_ns, memo_ps, memo_anchor) = self.last_inverse;
+        if memo_ns == t_ns && memo_anchor == self.line.anchor_ps {
+            return memo_ps;
+        }
+        let r = self.invert(t_ns);
+        self.last_inverse = (t_ns, r, self.line.anchor_ps);
+        r
+    }
+
+    fn invert(&mut self, t_ns: u64) -> u64 {
         loop {
             let l = &self.line;
             // Signed 64-bit difference: an i128 conversion costs a libcall on the hot path.
@@ -275,7 +292,7 @@ impl SimTransport {
     /// after it passed); the last frame's is [`Segment::trace`].
     pub fn frame_trace(&self, k: usize) -> &[SlaveFrameTrace] {
         match self.traces.get(k) {
-            Some(t) if k < self.frame_in_cycle => t,
+            Some(t) if k + 1 < self.frame_in_cycle => t,
             _ => self.segment.trace(),
         }
     }
@@ -366,18 +383,34 @@ impl Transport for SimTransport {
         }
     }
 
-    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Never> {
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        n: usize,
+        at_ns: u64,
+        fill: F,
+    ) -> Result<u64, Never> {
         let tx_ps = match self.delays.take() {
             Some(d) => self.real_ps_at(at_ns) + (d.tx_ns * 1000.0) as u64,
             None => self.now_ps + self.tx_latency_ps,
         };
-        let n = frame.len();
         // Frames leave one after the other.
         let tx_ps = tx_ps.max(self.wire_free_ps);
         self.wire_free_ps = tx_ps + frame_wire_time_ps(n);
+        // A cycle's earlier frame keeps its ground truth before the segment's trace is
+        // overwritten (one frame per cycle copies nothing).
+        if self.cycle_mode && self.frame_in_cycle > 0 {
+            let k = self.frame_in_cycle - 1;
+            if self.traces.len() <= k {
+                self.traces.resize_with(k + 1, Vec::new);
+            }
+            let t = &mut self.traces[k];
+            t.clear();
+            t.extend_from_slice(self.segment.trace());
+        }
+        // A spare buffer of a cycle's frame has the length already: nothing to clear.
         let mut buf = self.spare.pop().unwrap_or_default();
-        buf.clear();
-        buf.extend_from_slice(frame);
+        buf.resize(n, 0);
+        fill(&mut buf);
         if let Some(c) = &mut self.capture {
             let _ = c.record(tx_ps, &buf);
         }
@@ -391,8 +424,12 @@ impl Transport for SimTransport {
         match back {
             Some(t) => {
                 // In arrival order (later frames of a cycle come back later).
-                let at = self.inflight.partition_point(|x| x.0 <= t);
-                self.inflight.insert(at, (t, buf));
+                if self.inflight.back().is_none_or(|x| x.0 <= t) {
+                    self.inflight.push_back((t, buf));
+                } else {
+                    let at = self.inflight.partition_point(|x| x.0 <= t);
+                    self.inflight.insert(at, (t, buf));
+                }
             }
             None => self.spare.push(buf),
         }
@@ -401,35 +438,27 @@ impl Transport for SimTransport {
             received_ps: back,
         };
         if self.cycle_mode {
-            let k = self.frame_in_cycle;
-            if self.traces.len() <= k {
-                self.traces.push(Vec::new());
-            }
-            let t = &mut self.traces[k];
-            t.clear();
-            t.extend_from_slice(self.segment.trace());
             self.frame_in_cycle += 1;
         }
         Ok(at_ns)
     }
 
-    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Never> {
+    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Never> {
         if let Some(&(t_rx, _)) = self.inflight.front() {
             let rx_ns = self.master_clock.master_ns(t_rx);
             if rx_ns <= deadline_ns {
-                let (_, reply) = self.inflight.pop_front().expect("a reply in flight");
+                let (_, mut reply) = self.inflight.pop_front().expect("a reply in flight");
                 self.now_ps = t_rx;
-                self.now_master_ns = None;
-                let n = reply.len().min(buf.len());
-                buf[..n].copy_from_slice(&reply[..n]);
-                let truncated = n < reply.len();
+                self.now_master_ns = Some(rx_ns);
+                // The reply's buffer goes to the caller; the caller's is spare.
+                std::mem::swap(buf, &mut reply);
                 self.spare.push(reply);
                 return Ok(Some(Received {
-                    len: n,
+                    len: buf.len(),
                     received_ns: rx_ns,
                     tx_stamp_ns: None,
                     stamped: true,
-                    truncated,
+                    truncated: false,
                 }));
             }
         }

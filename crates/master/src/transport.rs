@@ -41,13 +41,34 @@ pub trait Transport {
         self.now_ns()
     }
 
-    /// Sends `frame`, to leave at `at_ns` (from [`Transport::send_time_ns`]); returns its send
-    /// timestamp, master time, ns (`at_ns` itself, or the NIC's stamp of the launch).
-    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Self::Error>;
+    /// Sends a frame of `len` bytes, to leave at `at_ns` (from [`Transport::send_time_ns`]);
+    /// returns its send timestamp, master time, ns (`at_ns` itself, or the NIC's stamp of the
+    /// launch). `fill` writes the whole frame into the transport's own buffer (`len` bytes of
+    /// unspecified content), so that a frame is built where it leaves from, without a copy
+    /// (smoltcp's transmit token works the same way).
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at_ns: u64,
+        fill: F,
+    ) -> Result<u64, Self::Error>;
 
-    /// The next frame that arrives before master time `deadline_ns`, into `buf`; `None` once the
-    /// deadline has passed (the transport's time is then at the deadline or later).
-    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Self::Error>;
+    /// Sends `frame`, to leave at `at_ns`: [`Transport::send_with`] with a copy.
+    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Self::Error> {
+        self.send_with(frame.len(), at_ns, |buf| buf.copy_from_slice(frame))
+    }
+
+    /// The next frame that arrives before master time `deadline_ns`, as `buf[..len]`; `None`
+    /// once the deadline has passed (the transport's time is then at the deadline or later).
+    ///
+    /// A transport that already holds the frame in a buffer of its own (the simulated segment)
+    /// swaps that buffer in instead of copying; one that reads from a device grows `buf` to the
+    /// longest frame it accepts and reads into it.
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline_ns: u64,
+    ) -> Result<Option<Received>, Self::Error>;
 
     /// The cyclic driver is about to run cycle `cycle` (a simulated host draws that cycle's
     /// noise; a real one has nothing to do).
@@ -107,11 +128,16 @@ impl<T: Transport> Transport for HostStall<T> {
         self.inner.send_time_ns(len)
     }
 
-    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, T::Error> {
-        self.inner.send(frame, at_ns)
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at_ns: u64,
+        fill: F,
+    ) -> Result<u64, T::Error> {
+        self.inner.send_with(len, at_ns, fill)
     }
 
-    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, T::Error> {
+    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, T::Error> {
         self.inner.recv(buf, deadline_ns)
     }
 

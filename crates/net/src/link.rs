@@ -7,6 +7,9 @@ use std::io;
 /// Nanoseconds from 1970-01-01 to 2000-01-01, the epoch of DC system time.
 pub const DC_EPOCH_UNIX_NS: u64 = 946_684_800_000_000_000;
 
+/// Receive buffer length: the longest Ethernet frame with a VLAN tag, and room to spare.
+const RECV_BUF_LEN: usize = 2048;
+
 /// The master's clock on a real host: CLOCK_MONOTONIC (steady, never stepped) shifted once, at
 /// start, so that it reads DC time (ns since 2000) the way the wall clock did then.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -82,6 +85,8 @@ pub struct RealLink {
     clock: HostClock,
     /// The kernel's transmit timestamp of the last frame sent (CLOCK_REALTIME), once read.
     tx_rt: Option<u64>,
+    /// The frame being sent.
+    tx_buf: Vec<u8>,
 }
 
 impl RealLink {
@@ -91,6 +96,7 @@ impl RealLink {
             sock: PacketSocket::open(iface)?,
             clock: HostClock::new(),
             tx_rt: None,
+            tx_buf: Vec::with_capacity(RECV_BUF_LEN),
         })
     }
 
@@ -127,7 +133,14 @@ impl Transport for RealLink {
         }
     }
 
-    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, NetError> {
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at_ns: u64,
+        fill: F,
+    ) -> Result<u64, NetError> {
+        self.tx_buf.resize(len, 0);
+        fill(&mut self.tx_buf);
         // The transmit timestamps of earlier frames must not be taken for this one's.
         while self
             .sock
@@ -136,12 +149,17 @@ impl Transport for RealLink {
             .is_some()
         {}
         self.tx_rt = None;
-        self.sock.send(frame).map_err(io_err("send"))?;
+        self.sock.send(&self.tx_buf).map_err(io_err("send"))?;
         Ok(at_ns)
     }
 
-    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, NetError> {
+    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, NetError> {
         let deadline = self.clock.to_monotonic_ns(deadline_ns);
+        // Room for the longest Ethernet frame (and a VLAN tag): a longer one is reported
+        // truncated.
+        if buf.len() < RECV_BUF_LEN {
+            buf.resize(RECV_BUF_LEN, 0);
+        }
         loop {
             if let Some(r) = self.sock.recv(buf).map_err(io_err("receive"))? {
                 let now = self.clock.now_ns();

@@ -856,9 +856,15 @@ impl Transport for Net<'_> {
         self.launch_at(now, len)
     }
 
-    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Never> {
-        let is_latch = is_latch_frame(frame);
-        let mut work = frame.to_vec();
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at_ns: u64,
+        fill: F,
+    ) -> Result<u64, Never> {
+        let mut work = vec![0u8; len];
+        fill(&mut work);
+        let is_latch = is_latch_frame(&work);
         let trip = self.trip(&mut work, at_ns);
         self.count(&trip, is_latch && self.in_bringup);
         self.wake_ns = None;
@@ -870,21 +876,21 @@ impl Transport for Net<'_> {
         Ok(trip.t1_ns)
     }
 
-    fn recv(&mut self, buf: &mut [u8], deadline_ns: u64) -> Result<Option<Received>, Never> {
+    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Never> {
         let Some((trip, work)) = self.trips.pop_front() else {
             return Ok(None);
         };
         self.advance(trip.back_ps);
         match trip.t4_ns {
             Some(t4) if t4 <= deadline_ns => {
-                let n = work.len().min(buf.len());
-                buf[..n].copy_from_slice(&work[..n]);
+                let n = work.len();
+                *buf = work;
                 Ok(Some(Received {
                     len: n,
                     received_ns: t4,
                     tx_stamp_ns: Some(trip.t1_ns),
                     stamped: true,
-                    truncated: n < work.len(),
+                    truncated: false,
                 }))
             }
             _ => Ok(None),
