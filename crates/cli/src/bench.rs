@@ -26,6 +26,107 @@ pub struct Args {
     /// Skip timing the default comparison (`ecsync compare` on paper-2024).
     #[arg(long)]
     skip_compare: bool,
+    /// Time lines of this many drives instead of paper-2024, e.g. `--slaves 6,64,512,1000`:
+    /// the cost per slave-cycle of each and its ratio to the first, in one run. Each line
+    /// runs `--cycles` x 6 / N cycles (the same slave-cycles as six drives), with the cyclic
+    /// engine's frames: as many as the process image needs.
+    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u32).range(1..=65_535))]
+    slaves: Vec<u32>,
+}
+
+/// One line of `--slaves`.
+#[derive(Debug, Serialize)]
+struct LineOut {
+    slaves: usize,
+    /// Frames per cycle.
+    frames: usize,
+    /// Cycle time, us (the whole milliseconds the frames need).
+    cycle_us: u64,
+    cycles: u64,
+    /// Of the median repeat.
+    ns_per_slave_cycle: f64,
+    /// Of the slowest and the fastest repeat.
+    ns_per_slave_cycle_max: f64,
+    ns_per_slave_cycle_min: f64,
+    /// `ns_per_slave_cycle` over the first line's.
+    ratio_to_first: f64,
+    /// Resident memory the brought-up segment took, per slave, KiB (VmRSS before and after;
+    /// `None` where /proc is not there).
+    rss_kib_per_slave: Option<f64>,
+}
+
+/// Resident set size of this process, KiB (Linux /proc).
+fn rss_kib() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let l = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+    l.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// `--slaves`: each line timed the same way, the ratios in one run.
+fn run_lines(args: &Args) -> Result<ExitCode> {
+    let mut out: Vec<LineOut> = Vec::new();
+    for &n in &args.slaves {
+        let n = n as usize;
+        let before = rss_kib();
+        let mut b = CycleBench::line(n);
+        let after = rss_kib();
+        let longest = b.frames.iter().map(Vec::len).max().unwrap_or(0);
+        let mut work = vec![0u8; longest];
+        let cycles = (args.cycles * 6 / n as u64).max(1);
+        b.run((cycles / 10).max(1), &mut work);
+        let mut walls = Vec::with_capacity(args.repeats as usize);
+        let mut wkc = 0;
+        for _ in 0..args.repeats {
+            let t0 = Instant::now();
+            wkc = b.run(cycles, &mut work);
+            walls.push(t0.elapsed().as_secs_f64());
+        }
+        ensure!(
+            wkc == b.expected_lrw_wkc,
+            "{n} drives: the segment answered the LRWs with working counter {wkc}, expected {}",
+            b.expected_lrw_wkc
+        );
+        walls.sort_by(f64::total_cmp);
+        let per = |w: f64| w * 1e9 / (cycles * n as u64) as f64;
+        let ns = per(walls[walls.len() / 2]);
+        let first = out.first().map_or(ns, |f| f.ns_per_slave_cycle);
+        out.push(LineOut {
+            slaves: n,
+            frames: b.frames.len(),
+            cycle_us: b.cycle_ps / 1_000_000,
+            cycles,
+            ns_per_slave_cycle: ns,
+            ns_per_slave_cycle_max: per(walls[walls.len() - 1]),
+            ns_per_slave_cycle_min: per(walls[0]),
+            ratio_to_first: ns / first,
+            rss_kib_per_slave: before
+                .zip(after)
+                .map(|(a, b)| b.saturating_sub(a) as f64 / n as f64),
+        });
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        println!(
+            "lines of servo drives, the cyclic engine's frames back to back; {} repeats, the median:",
+            args.repeats
+        );
+        println!("  drives  frames  cycle  ns/slave-cycle  ratio  memory/slave");
+        for l in &out {
+            let mem = l
+                .rss_kib_per_slave
+                .map_or("-".to_string(), |m| format!("{m:.1} KiB"));
+            println!(
+                "  {:>6}  {:>6}  {:>2} ms  {:>14.1}  {:>5.2}  {mem}",
+                l.slaves,
+                l.frames,
+                l.cycle_us / 1000,
+                l.ns_per_slave_cycle,
+                l.ratio_to_first
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 #[derive(Debug, Serialize)]
@@ -61,13 +162,20 @@ pub fn run(args: Args) -> Result<ExitCode> {
             "--cycles: 0 cycles cannot be timed; fix: give at least 1 (default 2000000; 500000 times in about a second)"
         );
     }
+    if !args.slaves.is_empty() {
+        ensure!(
+            args.part.is_none(),
+            "--part times one datagram of paper-2024's frame; fix: drop --part or --slaves"
+        );
+        return run_lines(&args);
+    }
     let mut b = CycleBench::paper_2024();
     if let Some(p) = &args.part {
         let which = ["frmw", "lrw", "brd", "nop"]
             .iter()
             .position(|x| x == p)
             .unwrap_or(3);
-        b.frame = b.single_datagram_frame(which);
+        b.keep_single_datagram(which);
     }
     let mut work = vec![0u8; 1514];
     // Warm up caches and the branch predictor.

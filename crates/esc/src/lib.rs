@@ -32,6 +32,6 @@ pub mod sii_image;
 
 pub use esc::{DatagramEffects, Esc, EscStats, LoopMode};
 pub use segment::{
-    BYTE_TIME_PS, CABLE_PS_PER_M, FrameOutcome, Segment, SlaveFrameTrace, SlaveSpec, TopologyError,
+    BYTE_TIME_PS, CABLE_PS_PER_M, FrameOutcome, FrameTrace, Segment, SlaveSpec, TopologyError,
     Upstream, frame_is_processable, frame_wire_time_ps,
 };

@@ -13,6 +13,7 @@ use crate::clock::{CrystalParams, PS_PER_NS};
 use crate::esc::{Deferred, Esc};
 use crate::model::{DeviceInfo, EscModel, PortKind};
 use ecsync_wire::{ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN};
+use std::sync::Arc;
 
 /// Wire time of one byte at 100 Mbit/s, ps.
 pub const BYTE_TIME_PS: u64 = 80_000;
@@ -169,11 +170,42 @@ fn build_plan(esc: &Esc, links: &[Option<Link>; 4], entry: usize) -> Plan {
     plan
 }
 
-/// Per-frame ground truth of one slave.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct SlaveFrameTrace {
-    /// Real time the frame's first bit reached the processing unit, ps (`None`: not reached).
-    pub pu_ps: Option<u64>,
+/// The ground truth of one frame's way: when its first bit reached each slave's processing
+/// unit. Cheap to keep (it shares the segment's timing, which every frame of an unchanged
+/// segment follows), so a cycle of several frames keeps each one's.
+#[derive(Debug, Clone)]
+pub struct FrameTrace {
+    sent_ps: u64,
+    timing: Arc<Timing>,
+}
+
+impl FrameTrace {
+    /// Real time the frame's first bit reached the processing unit of the slave at network
+    /// position `pos`, ps (`None`: it did not).
+    #[inline]
+    pub fn pu_ps(&self, pos: usize) -> Option<u64> {
+        self.timing
+            .pu
+            .get(pos)
+            .copied()
+            .flatten()
+            .map(|o| self.sent_ps + o)
+    }
+
+    /// When the frame left the master, ps.
+    pub fn sent_ps(&self) -> u64 {
+        self.sent_ps
+    }
+
+    /// Number of slaves.
+    pub fn len(&self) -> usize {
+        self.timing.pu.len()
+    }
+
+    /// Whether the segment has no slaves.
+    pub fn is_empty(&self) -> bool {
+        self.timing.pu.is_empty()
+    }
 }
 
 /// What happened to a frame.
@@ -190,47 +222,166 @@ pub struct FrameOutcome {
 pub struct Segment {
     nodes: Vec<Node>,
     first: u16,
-    trace: Vec<SlaveFrameTrace>,
+    /// The last frame's way.
+    trace: FrameTrace,
+    /// The way of a frame that reaches no slave (destroyed at the first port).
+    unreached: Arc<Timing>,
     /// Slave index in network (auto-increment) order -> index in the spec.
     spec_index: Vec<usize>,
     frames: u64,
     malformed: u64,
     lost: u64,
-    /// The last frame shape seen, as words for the comparison every cyclic frame makes: the
-    /// Ethernet type and EtherCAT header, then per datagram its first 8 header bytes and the
-    /// last 2.
-    shape_head: u32,
-    shape_words: [(u64, u16); MAX_SHAPE_DATAGRAMS],
-    /// The shape's id (see `Esc::process_frame`).
-    shape_id: u32,
-    /// Datagram offsets of the last shape and the frame length they need.
-    shape_offsets: [u16; MAX_SHAPE_DATAGRAMS],
-    shape_n: u8,
-    shape_min_len: usize,
+    /// The frame shapes seen recently (a cycle's frames each have their own).
+    shapes: ShapeCache,
     replay: bool,
     /// The frame's timing through the segment, relative to its send time: the same for every
     /// frame while the loops do not change (see [`Timing`]).
-    timing: Option<Timing>,
+    timing: Option<Arc<Timing>>,
 }
 
 /// Where a frame's first bit is, relative to the moment it left the master: the traversal's
 /// timing depends on the topology, the delays and the loop settings only, never on the frame.
-#[derive(Debug, Clone)]
+/// One walk of the ports ([`Segment::walk`]) computes it; every frame, replayed or decoded,
+/// then meets the processing units in its order at its times.
+#[derive(Debug)]
 struct Timing {
-    /// Slaves in the order their processing units see the frame.
-    order: Vec<u16>,
-    /// Per slave: arrival at the processing unit, ps after the send.
-    pu: Vec<u64>,
+    /// Per slave: arrival at the processing unit, ps after the send (`None`: not reached).
+    pu: Vec<Option<u64>>,
     /// Per slave: arrival at each port, ps after the send.
     ports: Vec<[Option<u64>; 4]>,
     /// Per slave: the port the frame came in through.
     in_port: Vec<u8>,
     /// Back at the master, ps after the send; `None` if the frame is lost on the way.
     back: Option<u64>,
-    /// `order` with each slave's `pu`: what the replay walks.
+    /// The slaves in the order their processing units see the frame, with their `pu`.
     flat: Vec<(usize, u64)>,
-    /// Every slave's processing unit sees the frame, so a replay sets every trace entry.
-    all_reached: bool,
+}
+
+impl Timing {
+    fn unreached(n: usize) -> Timing {
+        Timing {
+            pu: vec![None; n],
+            ports: vec![[None; 4]; n],
+            in_port: vec![0; n],
+            back: None,
+            flat: Vec::new(),
+        }
+    }
+}
+
+/// A frame shape: the Ethernet type and EtherCAT header, then per datagram its first 8 header
+/// bytes and the last 2 (command, index, address, length and flags, IRQ), as words for the
+/// comparison every cyclic frame makes; where the datagrams are; and the id the ESCs key their
+/// recorded programs on.
+#[derive(Debug, Clone, Copy)]
+struct Shape {
+    head: u32,
+    words: [(u64, u16); MAX_SHAPE_DATAGRAMS],
+    offsets: [u16; MAX_SHAPE_DATAGRAMS],
+    n: u8,
+    /// The frame length the chain needs.
+    min_len: usize,
+    id: u32,
+}
+
+/// Recently seen frame shapes, direct-mapped on the first datagram's command and index (which
+/// the frames of one cycle do not share): a cycle of several frames finds each of its shapes
+/// again without decoding, where one remembered shape would be replaced at every frame.
+#[derive(Debug, Clone)]
+struct ShapeCache {
+    slots: Box<[Option<Shape>; SHAPE_SLOTS]>,
+    last_id: u32,
+}
+
+/// Shapes remembered at once.
+const SHAPE_SLOTS: usize = 64;
+
+impl ShapeCache {
+    fn new() -> Self {
+        ShapeCache {
+            slots: Box::new([None; SHAPE_SLOTS]),
+            last_id: 0,
+        }
+    }
+
+    /// The slot of a frame whose first datagram header starts at byte 16.
+    #[inline]
+    fn slot_of(frame: &[u8]) -> usize {
+        match frame.get(16..18) {
+            Some(h) => (usize::from(h[0]) * 7 + usize::from(h[1])) % SHAPE_SLOTS,
+            None => 0,
+        }
+    }
+
+    /// The remembered shape of `frame`, if its headers are that shape's.
+    #[inline]
+    fn find(&self, frame: &[u8]) -> Option<&Shape> {
+        let s = self.slots[Self::slot_of(frame)].as_ref()?;
+        (frame.len() >= s.min_len && s.matches(frame)).then_some(s)
+    }
+
+    /// Remembers the shape of a valid frame whose datagrams start at `offsets`; its id.
+    fn insert(&mut self, frame: &[u8], offsets: &[u16]) -> u32 {
+        let mut s = Shape {
+            head: u32::from_le_bytes([frame[12], frame[13], frame[14], frame[15]]),
+            words: [(0, 0); MAX_SHAPE_DATAGRAMS],
+            offsets: [0; MAX_SHAPE_DATAGRAMS],
+            n: offsets.len() as u8,
+            // The chain ends at the EtherCAT length; the frame must hold that much.
+            min_len: 16 + usize::from(u16::from_le_bytes([frame[14], frame[15]]) & 0x07ff),
+            id: 0,
+        };
+        for (k, &at) in offsets.iter().enumerate() {
+            let at = usize::from(at);
+            let h = &frame[at..at + 10];
+            let mut lo = [0u8; 8];
+            lo.copy_from_slice(&h[..8]);
+            s.words[k] = (u64::from_le_bytes(lo), u16::from_le_bytes([h[8], h[9]]));
+        }
+        s.offsets[..offsets.len()].copy_from_slice(offsets);
+        let slot = &mut self.slots[Self::slot_of(frame)];
+        if let Some(old) = slot {
+            if old.n == s.n && old.offsets == s.offsets && old.matches(frame) {
+                return old.id;
+            }
+        }
+        self.last_id = self.last_id.wrapping_add(1).max(1);
+        s.id = self.last_id;
+        *slot = Some(s);
+        s.id
+    }
+}
+
+impl Shape {
+    /// Whether the frame's Ethernet type, EtherCAT header and datagram headers are this
+    /// shape's.
+    #[inline]
+    fn matches(&self, frame: &[u8]) -> bool {
+        let word = |at: usize| -> Option<(u64, u16)> {
+            let h: &[u8; 10] = frame.get(at..at + 10)?.try_into().ok()?;
+            let (lo, hi) = h.split_at(8);
+            Some((
+                u64::from_le_bytes(lo.try_into().ok()?),
+                u16::from_le_bytes([hi[0], hi[1]]),
+            ))
+        };
+        let head = frame
+            .get(12..16)
+            .map(|h| u32::from_le_bytes([h[0], h[1], h[2], h[3]]));
+        head == Some(self.head)
+            && self.offsets[..usize::from(self.n)]
+                .iter()
+                .zip(&self.words)
+                .all(|(&at, &w)| word(usize::from(at)) == Some(w))
+    }
+
+    fn ctx(&self) -> FrameCtx {
+        FrameCtx {
+            offsets: self.offsets,
+            n: self.n,
+            shape: self.id,
+        }
+    }
 }
 
 fn ps(ns: f64) -> u64 {
@@ -246,6 +397,17 @@ const RING: [Option<usize>; 5] = [Some(0), None, Some(3), Some(1), Some(2)];
 
 fn ring_pos(port: usize) -> usize {
     RING.iter().position(|x| *x == Some(port)).unwrap_or(0)
+}
+
+/// How the ESCs take a frame.
+#[derive(Debug, Clone, Copy)]
+enum FrameKind {
+    /// A well-formed chain of at most [`MAX_SHAPE_DATAGRAMS`] datagrams.
+    Chain(FrameCtx),
+    /// A well-formed chain of more: each ESC walks it.
+    Long,
+    /// A malformed chain: forwarded untouched (each ESC counts the frame).
+    Malformed,
 }
 
 impl Segment {
@@ -383,20 +545,21 @@ impl Segment {
                 }
             })
             .collect();
+        let n = nodes.len();
+        let unreached = Arc::new(Timing::unreached(n));
         Ok(Segment {
-            trace: vec![SlaveFrameTrace::default(); nodes.len()],
+            trace: FrameTrace {
+                sent_ps: 0,
+                timing: unreached.clone(),
+            },
+            unreached,
             nodes,
             first: 0,
             spec_index: order,
             frames: 0,
             malformed: 0,
             lost: 0,
-            shape_head: 0,
-            shape_words: [(0, 0); MAX_SHAPE_DATAGRAMS],
-            shape_id: 0,
-            shape_offsets: [0; MAX_SHAPE_DATAGRAMS],
-            shape_n: 0,
-            shape_min_len: usize::MAX,
+            shapes: ShapeCache::new(),
             replay: true,
             timing: None,
         })
@@ -417,8 +580,13 @@ impl Segment {
         &self.nodes[pos].esc
     }
 
-    /// Mutable ESC at network position `pos`.
+    /// Mutable ESC at network position `pos`. A change to its loops is seen by the next frame
+    /// (the way through the segment is worked out again).
     pub fn esc_mut(&mut self, pos: usize) -> &mut Esc {
+        let node = &mut self.nodes[pos];
+        // The caller may change anything: the way is walked again, from the plan again.
+        node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+        self.timing = None;
         &mut self.nodes[pos].esc
     }
 
@@ -433,8 +601,8 @@ impl Segment {
         self.replay = on;
     }
 
-    /// Ground truth of the last processed frame, per network position.
-    pub fn trace(&self) -> &[SlaveFrameTrace] {
+    /// Ground truth of the last processed frame.
+    pub fn trace(&self) -> &FrameTrace {
         &self.trace
     }
 
@@ -447,144 +615,133 @@ impl Segment {
     /// as the wire would hand it back. `t_send_ps` is when its first bit leaves the master.
     pub fn process(&mut self, frame: &mut [u8], t_send_ps: u64) -> FrameOutcome {
         self.frames += 1;
-        // The cyclic frame repeats: if its headers are those of the last shape, its chain is the
-        // same and already validated (and it is an EtherCAT frame: the shape's first bytes are
-        // the Ethernet type).
-        if self.replay
-            && self.shape_n > 0
-            && frame.len() >= self.shape_min_len
-            && self.same_shape(frame)
-        {
-            if self.timing.is_none() {
-                self.timing = Some(self.compute_timing());
-            }
-            if let Some(tm) = &self.timing
-                && let Some(back) = tm.back
-            {
-                if !tm.all_reached {
-                    for t in self.trace.iter_mut() {
-                        t.pu_ps = None;
-                    }
+        // The cyclic frames repeat: if the headers are those of a remembered shape, the chain
+        // is the same and already validated (and it is an EtherCAT frame: the shape's first
+        // bytes are the Ethernet type).
+        let kind = match self.shapes.find(frame) {
+            Some(s) if self.replay => FrameKind::Chain(s.ctx()),
+            _ => match self.classify(frame) {
+                Some(k) => k,
+                None => {
+                    // Forwarding rule (DL control bit 0 = 1, the default): non-EtherCAT
+                    // frames are destroyed at the first port.
+                    self.lost += 1;
+                    self.trace = FrameTrace {
+                        sent_ps: t_send_ps,
+                        timing: self.unreached.clone(),
+                    };
+                    return FrameOutcome {
+                        returned_sof_ps: None,
+                        processed: false,
+                    };
                 }
-                let ctx = FrameCtx {
-                    offsets: self.shape_offsets,
-                    n: self.shape_n,
-                    shape: self.shape_id,
-                };
-                self.process_flat(frame, &ctx, t_send_ps);
-                return FrameOutcome {
-                    returned_sof_ps: Some(t_send_ps + back),
-                    processed: true,
-                };
-            }
-        }
-        for t in self.trace.iter_mut() {
-            t.pu_ps = None;
-        }
-        // Forwarding rule (DL control bit 0 = 1, the default): non-EtherCAT frames are
-        // destroyed. A frame whose datagram chain is malformed is forwarded untouched.
-        if frame.len() < 14 || u16::from_be_bytes([frame[12], frame[13]]) != ETHERTYPE_ETHERCAT {
-            self.lost += 1;
-            return FrameOutcome {
-                returned_sof_ps: None,
-                processed: false,
-            };
-        }
-        let mut offsets = [0u16; MAX_SHAPE_DATAGRAMS];
-        let (valid, n, shape) = match datagram_offsets(frame, &mut offsets) {
-            Some(n) if n <= MAX_SHAPE_DATAGRAMS => {
-                let shape = if self.replay {
-                    self.shape_of(frame, &offsets[..n])
-                } else {
-                    0
-                };
-                (true, n, shape)
-            }
-            Some(_) => (true, 0, 0),
-            None => (false, 0, 0),
+            },
         };
-        if !valid {
-            self.malformed += 1;
-        }
-        let ctx = FrameCtx {
-            offsets,
-            n: n as u8,
-            shape,
+        // Taken out while the ESCs run (no reference count moves per frame), put back unless
+        // the frame changed a loop.
+        let tm = match self.timing.take() {
+            Some(t) => t,
+            None => Arc::new(self.walk()),
         };
-        let first = usize::from(self.first);
-        let entry = usize::from(self.nodes[first].entry_port);
-        let Some(master_link) = self.nodes[first].links[entry] else {
-            self.lost += 1;
-            return FrameOutcome {
-                returned_sof_ps: None,
-                processed: false,
-            };
-        };
-        if valid && n > 0 && self.replay {
-            if self.timing.is_none() {
-                self.timing = Some(self.compute_timing());
-            }
-            if let Some(back) = self.timing.as_ref().and_then(|t| t.back) {
-                self.process_flat(frame, &ctx, t_send_ps);
-                return FrameOutcome {
-                    returned_sof_ps: Some(t_send_ps + back),
-                    processed: true,
-                };
-            }
+        self.trace.sent_ps = t_send_ps;
+        if !Arc::ptr_eq(&self.trace.timing, &tm) {
+            self.trace.timing = tm.clone();
         }
-        let t_in = t_send_ps + master_link.delay_ps;
-        let out = self.traverse(first, entry, t_in, frame, valid.then_some(&ctx));
-        match out {
-            Some(t_out) => FrameOutcome {
-                returned_sof_ps: Some(t_out + master_link.delay_ps),
-                processed: valid,
+        let loops_changed = self.process_flat(frame, kind, &tm, t_send_ps);
+        let back = tm.back;
+        if !loops_changed {
+            self.timing = Some(tm);
+        }
+        match back {
+            Some(back) => FrameOutcome {
+                returned_sof_ps: Some(t_send_ps + back),
+                processed: !matches!(kind, FrameKind::Malformed),
             },
             None => {
                 self.lost += 1;
                 FrameOutcome {
                     returned_sof_ps: None,
-                    processed: valid,
+                    processed: !matches!(kind, FrameKind::Malformed),
                 }
             }
         }
     }
 
-    /// Every processing unit in turn at its precomputed time: what [`Segment::traverse`] does,
-    /// without walking the ports.
-    fn process_flat(&mut self, frame: &mut [u8], ctx: &FrameCtx, t_send: u64) {
-        // Disjoint borrows: the timing is read while the nodes are processed.
-        let Segment {
-            timing,
-            nodes,
-            trace,
-            ..
-        } = self;
-        let Some(tm) = timing.as_ref() else {
-            return;
-        };
-        let offs = &ctx.offsets[..usize::from(ctx.n)];
-        if !tm.order.is_empty() {
-            // Port 0 of the first ESC marks the source address as locally administered (every
-            // later one sets the same bit again).
-            frame[6] |= 0x02;
+    /// How the ESCs take a frame that is not of a remembered shape (`None`: not EtherCAT),
+    /// remembering its shape.
+    fn classify(&mut self, frame: &[u8]) -> Option<FrameKind> {
+        if frame.len() < 14 || u16::from_be_bytes([frame[12], frame[13]]) != ETHERTYPE_ETHERCAT {
+            return None;
         }
+        let mut offsets = [0u16; MAX_SHAPE_DATAGRAMS];
+        Some(match datagram_offsets(frame, &mut offsets) {
+            Some(n) if n <= MAX_SHAPE_DATAGRAMS => {
+                let shape = if self.replay && n > 0 {
+                    self.shapes.insert(frame, &offsets[..n])
+                } else {
+                    0
+                };
+                FrameKind::Chain(FrameCtx {
+                    offsets,
+                    n: n as u8,
+                    shape,
+                })
+            }
+            Some(_) => FrameKind::Long,
+            None => {
+                self.malformed += 1;
+                FrameKind::Malformed
+            }
+        })
+    }
+
+    /// Every processing unit the frame reaches, in turn at its time. Loop changes take effect
+    /// after the frame has passed (datasheet section II, 0x0100): the frame follows the way it
+    /// started on, the next one the new way. Returns whether a loop changed.
+    fn process_flat(
+        &mut self,
+        frame: &mut [u8],
+        kind: FrameKind,
+        tm: &Timing,
+        t_send: u64,
+    ) -> bool {
+        if tm.flat.is_empty() {
+            return false;
+        }
+        // Port 0 of the first ESC marks the source address as locally administered (every
+        // later one sets the same bit again).
+        frame[6] |= 0x02;
         let mut loops_changed = false;
         let mut deferred = Deferred::default();
         for &(i, pu) in &tm.flat {
             let t = t_send + pu;
-            trace[i].pu_ps = Some(t);
-            let node = &mut nodes[i];
-            if node.esc.replay_cyclic(frame, ctx.shape, t, &mut deferred) {
-                continue;
-            }
-            deferred.flush(frame);
-            let fx = node.esc.process_frame(frame, offs, ctx.shape, t);
-            if fx.latch_receive_times {
+            let node = &mut self.nodes[i];
+            let fx = match kind {
+                FrameKind::Chain(ctx) => {
+                    if node.esc.replay_cyclic(frame, ctx.shape, t, &mut deferred) {
+                        continue;
+                    }
+                    deferred.flush(frame);
+                    let offs = &ctx.offsets[..usize::from(ctx.n)];
+                    let e = node.esc.process_frame(frame, offs, ctx.shape, t);
+                    FrameEffects {
+                        latch: e.latch_receive_times,
+                        loops_changed: e.loops_changed,
+                    }
+                }
+                FrameKind::Long => process_long_frame(&mut node.esc, frame, t),
+                FrameKind::Malformed => {
+                    node.esc.count_frame();
+                    FrameEffects::default()
+                }
+            };
+            if fx.latch {
                 let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
                 let ports = tm.ports[i].map(|o| o.map(|o| t_send + o));
-                let in_port = tm.in_port[i];
+                // The processing unit's stamp equals port 0's when the frame entered there.
+                let entered_at_0 = tm.in_port[i] == 0;
                 if let Some(dc) = node.esc.dc_mut() {
-                    dc.latch(ports, t, in_port == 0, res);
+                    dc.latch(ports, t, entered_at_0, res);
                 }
             }
             if fx.loops_changed {
@@ -593,44 +750,27 @@ impl Segment {
             }
         }
         deferred.flush(frame);
-        if loops_changed {
-            *timing = None;
-        }
+        loops_changed
     }
 
-    /// The frame's timing, by walking the ports as [`Segment::traverse`] does, without a frame.
-    fn compute_timing(&self) -> Timing {
+    /// The frame's way through the segment, by walking the ports in processing order from the
+    /// master's slave: the one walk every frame's timing and the ground truth come from.
+    fn walk(&self) -> Timing {
         let n = self.nodes.len();
-        let mut t = Timing {
-            order: Vec::with_capacity(n),
-            pu: vec![0; n],
-            ports: vec![[None; 4]; n],
-            in_port: vec![0; n],
-            back: None,
-            flat: Vec::new(),
-            all_reached: false,
-        };
+        let mut t = Timing::unreached(n);
         let first = usize::from(self.first);
         let entry = usize::from(self.nodes[first].entry_port);
         if let Some(l) = self.nodes[first].links[entry] {
             t.back = self
-                .timing_rec(first, entry, l.delay_ps, &mut t)
+                .walk_from(first, entry, l.delay_ps, &mut t)
                 .map(|b| b + l.delay_ps);
         }
-        t.flat = t
-            .order
-            .iter()
-            .map(|&i| (usize::from(i), t.pu[usize::from(i)]))
-            .collect();
-        let mut seen = vec![false; n];
-        for &i in &t.order {
-            seen[usize::from(i)] = true;
-        }
-        t.all_reached = seen.iter().all(|&x| x);
         t
     }
 
-    fn timing_rec(&self, idx: usize, in_port: usize, t_in: u64, t: &mut Timing) -> Option<u64> {
+    /// The walk inside slave `idx`, entered through `in_port` at `t_in`: where it returns the
+    /// frame (`None`: lost in it or below it).
+    fn walk_from(&self, idx: usize, in_port: usize, t_in: u64, t: &mut Timing) -> Option<u64> {
         let node = &self.nodes[idx];
         let plan = if in_port == usize::from(node.entry_port) {
             node.plan
@@ -645,8 +785,8 @@ impl Segment {
             match *step {
                 Step::Pu => {
                     through_pu = true;
-                    t.pu[idx] = t_cur;
-                    t.order.push(idx as u16);
+                    t.pu[idx] = Some(t_cur);
+                    t.flat.push((idx, t_cur));
                 }
                 Step::Lost => return None,
                 Step::Port(p, link) => {
@@ -656,10 +796,11 @@ impl Segment {
                         node.forwarding_ps
                     };
                     through_pu = false;
+                    // A second cable to the master (redundancy) is not modelled.
                     let Peer::Slave(peer) = link.peer else {
                         return None;
                     };
-                    let back = self.timing_rec(
+                    let back = self.walk_from(
                         usize::from(peer),
                         usize::from(link.peer_port),
                         t_cur + d + link.delay_ps,
@@ -680,188 +821,14 @@ impl Segment {
         )
     }
 
-    /// Whether the frame's Ethernet type, EtherCAT header and datagram headers are those of the
-    /// last shape.
-    #[inline]
-    fn same_shape(&self, frame: &[u8]) -> bool {
-        let word = |at: usize| -> Option<(u64, u16)> {
-            let h: &[u8; 10] = frame.get(at..at + 10)?.try_into().ok()?;
-            let (lo, hi) = h.split_at(8);
-            Some((
-                u64::from_le_bytes(lo.try_into().ok()?),
-                u16::from_le_bytes([hi[0], hi[1]]),
-            ))
-        };
-        let head = frame
-            .get(12..16)
-            .map(|h| u32::from_le_bytes([h[0], h[1], h[2], h[3]]));
-        head == Some(self.shape_head)
-            && self.shape_offsets[..usize::from(self.shape_n)]
-                .iter()
-                .zip(&self.shape_words)
-                .all(|(&at, &w)| word(usize::from(at)) == Some(w))
-    }
-
-    /// The id of a frame's shape: its datagram headers as sent (0: too many datagrams to cache).
-    fn shape_of(&mut self, frame: &[u8], offsets: &[u16]) -> u32 {
-        let same = usize::from(self.shape_n) == offsets.len()
-            && self.shape_offsets[..offsets.len()] == *offsets
-            && self.same_shape(frame);
-        if !same {
-            self.shape_head = u32::from_le_bytes([frame[12], frame[13], frame[14], frame[15]]);
-            for (k, &at) in offsets.iter().enumerate() {
-                let at = usize::from(at);
-                let h = &frame[at..at + 10];
-                let mut lo = [0u8; 8];
-                lo.copy_from_slice(&h[..8]);
-                self.shape_words[k] = (u64::from_le_bytes(lo), u16::from_le_bytes([h[8], h[9]]));
-            }
-            self.shape_offsets[..offsets.len()].copy_from_slice(offsets);
-            self.shape_n = offsets.len() as u8;
-            // The chain ends at the EtherCAT length; the frame must hold that much.
-            self.shape_min_len =
-                16 + usize::from(u16::from_le_bytes([frame[14], frame[15]]) & 0x07ff);
-            self.shape_id = self.shape_id.wrapping_add(1).max(1);
-        }
-        self.shape_id
-    }
-
-    fn traverse(
-        &mut self,
-        idx: usize,
-        in_port: usize,
-        t_in: u64,
-        frame: &mut [u8],
-        ctx: Option<&FrameCtx>,
-    ) -> Option<u64> {
-        let node = &self.nodes[idx];
-        // The plan is read step by step from the node (no copy) unless the frame came in
-        // through another port than the entry port.
-        let other = (in_port != usize::from(node.entry_port))
-            .then(|| build_plan(&node.esc, &node.links, in_port));
-        let len = other.as_ref().map_or(node.plan.len, |p| p.len);
-        let (fwd, proc) = (node.forwarding_ps, node.processing_ps);
-        let mut arrivals: [Option<u64>; 4] = [None; 4];
-        arrivals[in_port] = Some(t_in);
-        let mut t_cur = t_in;
-        let mut through_pu = false;
-        let mut fx = FrameEffects::default();
-        let mut pu_time = None;
-        for k in 0..usize::from(len) {
-            let step = match &other {
-                Some(p) => p.steps[k],
-                None => self.nodes[idx].plan.steps[k],
-            };
-            match step {
-                Step::Pu => {
-                    through_pu = true;
-                    pu_time = Some(t_cur);
-                    self.trace[idx].pu_ps = Some(t_cur);
-                    let node = &mut self.nodes[idx];
-                    // Every processing unit sets the locally administered bit of the source MAC
-                    // (forwarding rule of DL control bit 0).
-                    frame[6] |= 0x02;
-                    match ctx {
-                        Some(c) if c.n > 0 => {
-                            let offs = &c.offsets[..usize::from(c.n)];
-                            let e = node.esc.process_frame(frame, offs, c.shape, t_cur);
-                            fx = FrameEffects {
-                                latch: e.latch_receive_times,
-                                loops_changed: e.loops_changed,
-                            };
-                        }
-                        Some(_) => fx = process_long_frame(&mut node.esc, frame, t_cur),
-                        None => node.esc.count_frame(),
-                    }
-                }
-                Step::Lost => return None,
-                Step::Port(p, link) => {
-                    let d = if through_pu { proc } else { fwd };
-                    through_pu = false;
-                    let back = match link.peer {
-                        Peer::Slave(peer) => self.traverse(
-                            usize::from(peer),
-                            usize::from(link.peer_port),
-                            t_cur + d + link.delay_ps,
-                            frame,
-                            ctx,
-                        )?,
-                        // A second cable to the master (redundancy) is not modelled.
-                        Peer::Master => return None,
-                    };
-                    t_cur = back + link.delay_ps;
-                    arrivals[usize::from(p)] = Some(t_cur);
-                }
-            }
-        }
-        let node = &mut self.nodes[idx];
-        if fx.latch {
-            let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
-            if let (Some(dc), Some(pu)) = (node.esc.dc_mut(), pu_time) {
-                // The processing unit's stamp equals port 0's when the frame entered there.
-                dc.latch(arrivals, pu, in_port == 0, res);
-            }
-        }
-        if fx.loops_changed {
-            // Loop changes take effect after the frame has passed (datasheet section II, 0x0100).
-            node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
-        }
-        Some(t_cur + if through_pu { proc } else { fwd })
-    }
-
     /// Time from the master sending a frame to its first bit reaching each slave's processing
-    /// unit, ps: the static ground truth of propagation (the same for every frame).
+    /// unit, ps (`None`: not reached): the static ground truth of propagation (the same for
+    /// every frame while the loops do not change).
     pub fn pu_offsets_ps(&self) -> Vec<Option<u64>> {
-        let mut out = vec![None; self.nodes.len()];
-        let first = usize::from(self.first);
-        let entry = usize::from(self.nodes[first].entry_port);
-        if let Some(l) = self.nodes[first].links[entry] {
-            self.offsets_rec(first, entry, l.delay_ps, &mut out);
+        match &self.timing {
+            Some(t) => t.pu.clone(),
+            None => self.walk().pu,
         }
-        out
-    }
-
-    fn offsets_rec(&self, idx: usize, in_port: usize, t_in: u64, out: &mut [Option<u64>]) -> u64 {
-        let node = &self.nodes[idx];
-        let mut t_cur = t_in;
-        let mut through_pu = false;
-        let start = ring_pos(in_port);
-        for k in 1..5 {
-            match RING[(start + k) % 5] {
-                None => {
-                    through_pu = true;
-                    out[idx] = Some(t_cur);
-                }
-                Some(p) => {
-                    if !matches!(node.esc.port_forwards(p), Ok(true)) {
-                        continue;
-                    }
-                    let Some(link) = node.links[p] else { continue };
-                    let Peer::Slave(peer) = link.peer else {
-                        continue;
-                    };
-                    let d = if through_pu {
-                        node.processing_ps
-                    } else {
-                        node.forwarding_ps
-                    };
-                    through_pu = false;
-                    let back = self.offsets_rec(
-                        usize::from(peer),
-                        usize::from(link.peer_port),
-                        t_cur + d + link.delay_ps,
-                        out,
-                    );
-                    t_cur = back + link.delay_ps;
-                }
-            }
-        }
-        t_cur
-            + if through_pu {
-                node.processing_ps
-            } else {
-                node.forwarding_ps
-            }
     }
 
     /// True propagation delay from the reference's processing unit to each slave's, ns: what

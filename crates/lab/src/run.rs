@@ -862,7 +862,7 @@ impl Run {
                 // master's clock, read at the frame's arrival (the clocks' truth, free of the
                 // host's jitter).
                 if i < init_frames {
-                    let at = tr.frame_trace(0)[reference].pu_ps.and_then(|pu| {
+                    let at = tr.frame_trace(0).pu_ps(reference).and_then(|pu| {
                         let dc = tr.segment().esc(reference).dc()?;
                         Some((pu, dc.system_time_split(pu)))
                     });
@@ -912,7 +912,7 @@ impl Run {
             }
             // Ground truth from the segment: the cycle's first frame at the reference.
             let trace = tr.frame_trace(0);
-            let Some(r) = trace[reference].pu_ps.and_then(|t| sys(reference, t)) else {
+            let Some(r) = trace.pu_ps(reference).and_then(|t| sys(reference, t)) else {
                 return;
             };
             // The grid point this frame aims at: the one nearest the target at the first
@@ -935,7 +935,7 @@ impl Run {
                     if x == reference {
                         continue;
                     }
-                    if let Some(v) = sys(x, trace[reference].pu_ps.unwrap_or(0)) {
+                    if let Some(v) = sys(x, trace.pu_ps(reference).unwrap_or(0)) {
                         let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
                         worst = worst.max(d.abs());
                     }
@@ -957,9 +957,9 @@ impl Run {
                 .zip(out_frames.iter())
             {
                 let pu = if k == 0 {
-                    trace[x].pu_ps
+                    trace.pu_ps(x)
                 } else {
-                    tr.frame_trace(k)[x].pu_ps
+                    tr.frame_trace(k).pu_ps(x)
                 };
                 let Some(e) = pu.and_then(|pu| sys(x, pu + out_wire_ps)) else {
                     if keep {

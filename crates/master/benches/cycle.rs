@@ -22,7 +22,7 @@ fn cycle(c: &mut Criterion) {
         ("nop_only", 3),
     ] {
         let mut part = b.clone();
-        part.frame = part.single_datagram_frame(keep);
+        part.keep_single_datagram(keep);
         g.bench_function(name, |bn| bn.iter(|| black_box(part.run(1, &mut work))));
     }
     g.finish();

@@ -1,47 +1,105 @@
-//! The workload of `ecsync bench` and the criterion benches: the paper-2024 segment brought up
-//! to OP, and the letter's cyclic frame (FRMW of the reference's system time, 204 bytes of LRW
-//! process data, BRD of 0x092C) passed through it once per simulated 1 ms cycle.
+//! The workload of `ecsync bench` and the criterion benches: a segment brought up to OP, and
+//! its cyclic frames passed through it once per simulated cycle. The paper-2024 workload is
+//! the letter's frame (FRMW of the reference's system time, 204 bytes of LRW process data, BRD
+//! of 0x092C) through its six drives every 1 ms; the line workloads are lines of `n` drives
+//! with the cyclic engine's own frames (the FRMW in the first, the process image's LRWs spread
+//! over as many frames as it needs, the BRD in the last), sent back to back.
 
-use crate::bringup::{BringupConfig, Stage, bringup};
+use crate::bringup::{BringupConfig, Network, Stage, bringup};
+use crate::cyclic::{CyclicConfig, CyclicEngine};
 use crate::io::{Engine, MASTER_MAC};
 use crate::sim::SimTransport;
-use ecsync_esc::{Segment, preset};
+use ecsync_esc::frame_wire_time_ps;
+use ecsync_esc::{Segment, SlaveSpec, preset};
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DatagramAddress, FrameBuilder};
 
-/// A segment in OP and the cyclic frame to run through it.
+/// A segment in OP and the cyclic frames to run through it.
 #[derive(Debug, Clone)]
 pub struct CycleBench {
     /// The segment, in OP with DC locked.
     pub segment: Segment,
-    /// The cyclic frame as the master sends it.
-    pub frame: Vec<u8>,
+    /// The cycle's frames as the master sends them, in order.
+    pub frames: Vec<Vec<u8>>,
     /// Real time of the first cycle, ps.
     pub start_ps: u64,
     /// Cycle time, ps.
     pub cycle_ps: u64,
-    /// Offset of the LRW's working counter in the frame.
-    pub lrw_wkc_at: usize,
-    /// The LRW working counter every cycle must return (3 per drive in OP).
+    /// Where the LRWs' working counters are: (frame, offset).
+    pub lrw_wkc_at: Vec<(usize, usize)>,
+    /// The sum of the LRW working counters every cycle must return (3 per drive in OP).
     pub expected_lrw_wkc: u16,
 }
 
+/// The bring-up the benches start from: a short static drift compensation and lock hold (the
+/// benches time the cycle, not the bring-up).
+fn bring_up(specs: &[SlaveSpec], static_drift_frames: u32) -> (Network, SimTransport) {
+    let seg = Segment::new(specs).expect("a valid segment");
+    let mut sim = SimTransport::new(seg);
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames,
+        lock_hold_checks: 100,
+        monitor_cycles: 10,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |link| bringup(link, cfg));
+    let net = sim
+        .run_procedure(&mut engine, |_, _, _| {})
+        .expect("bring-up of the bench segment");
+    (net, sim)
+}
+
 impl CycleBench {
+    /// A line of `n` servo drives (crystals spread over +-50 ppm), in OP, with the cyclic
+    /// engine's frames; the cycle is the shortest whole millisecond the frames fit in.
+    pub fn line(n: usize) -> Self {
+        let (net, sim) = bring_up(
+            &preset::line(n, 11),
+            BringupConfig::default().static_drift_frames,
+        );
+        let cfg = CyclicConfig {
+            period_ns: 1_000_000,
+            reference_station: net.slaves[usize::from(net.reference)].station,
+            pdi_len: net.pdi_len,
+            measure_init_frames: 1,
+            reference_offset_ns: 0,
+            lrw: net.lrw.clone(),
+        };
+        let mut eng = CyclicEngine::new(ecsync_dc::MedianSync::default(), cfg, 0)
+            .expect("the engine plans the frames");
+        let frames: Vec<Vec<u8>> = (0..eng.frame_count())
+            .map(|k| eng.frame_to_send_of(k, 0).to_vec())
+            .collect();
+        let lrw_wkc_at = (0..frames.len())
+            .flat_map(|k| eng.lrw_wkc_offsets(k).iter().map(move |&at| (k, at)))
+            .collect();
+        // Back to back on the wire, then the last frame's way round the line.
+        let wire_ps: u64 = frames.iter().map(|f| frame_wire_time_ps(f.len())).sum();
+        let round_ps = sim
+            .segment()
+            .pu_offsets_ps()
+            .iter()
+            .flatten()
+            .max()
+            .copied()
+            .unwrap_or(0)
+            * 2;
+        let ms = 1_000_000_000;
+        let cycle_ps = (wire_ps + round_ps).div_ceil(ms).max(1) * ms;
+        CycleBench {
+            start_ps: (sim.now_ps() / cycle_ps + 1) * cycle_ps,
+            segment: sim.into_segment(),
+            frames,
+            cycle_ps,
+            lrw_wkc_at,
+            expected_lrw_wkc: net.expected_lrw_wkc,
+        }
+    }
+
     /// Brings paper-2024 up (with a short static drift compensation) and builds the frame.
     pub fn paper_2024() -> Self {
-        let seg = Segment::new(&preset::paper_2024()).expect("preset");
-        let mut sim = SimTransport::new(seg);
-        let cfg = BringupConfig {
-            until: Stage::Op,
-            static_drift_frames: 2_000,
-            lock_hold_checks: 100,
-            monitor_cycles: 10,
-            ..BringupConfig::default()
-        };
-        let mut engine = Engine::new(move |link| bringup(link, cfg));
-        let net = sim
-            .run_procedure(&mut engine, |_, _, _| {})
-            .expect("bring-up of the preset");
+        let (net, sim) = bring_up(&preset::paper_2024(), 2_000);
         let ref_station = net.slaves[usize::from(net.reference)].station;
         let mut buf = vec![0u8; 1514];
         let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC).expect("buffer");
@@ -79,9 +137,12 @@ impl CycleBench {
         CycleBench {
             start_ps: (sim.now_ps() / cycle_ps + 1) * cycle_ps,
             segment: sim.into_segment(),
-            frame: buf,
+            frames: vec![buf],
             cycle_ps,
-            lrw_wkc_at: lrw_at + ecsync_wire::DATAGRAM_HEADER_LEN + net.pdi_len as usize,
+            lrw_wkc_at: vec![(
+                0,
+                lrw_at + ecsync_wire::DATAGRAM_HEADER_LEN + net.pdi_len as usize,
+            )],
             expected_lrw_wkc: net.expected_lrw_wkc,
         }
     }
@@ -89,7 +150,7 @@ impl CycleBench {
     /// A frame holding only datagram `which` of the cyclic frame (0 FRMW, 1 LRW, 2 BRD), or a
     /// 4-byte NOP for `which` = 3: to time the parts.
     pub fn single_datagram_frame(&self, which: usize) -> Vec<u8> {
-        let f = ecsync_wire::EcatFrame::new_checked(&self.frame[..]).expect("valid");
+        let f = ecsync_wire::EcatFrame::new_checked(&self.frames[0][..]).expect("valid");
         let mut buf = vec![0u8; 1514];
         let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC).expect("buffer");
         if let Some(Ok(d)) = f.datagrams().nth(which) {
@@ -114,18 +175,31 @@ impl CycleBench {
         self.segment.len()
     }
 
-    /// Runs `cycles` cycles; returns the working counter of the last LRW as a check.
+    /// Keeps only frame `frame` of the cycle, reduced to datagram `which` (see
+    /// [`CycleBench::single_datagram_frame`]): the LRW check then does not apply.
+    pub fn keep_single_datagram(&mut self, which: usize) {
+        self.frames = vec![self.single_datagram_frame(which)];
+        self.lrw_wkc_at.clear();
+    }
+
+    /// Runs `cycles` cycles; returns the sum of the last cycle's LRW working counters as a
+    /// check. `work` must hold the longest frame.
     pub fn run(&mut self, cycles: u64, work: &mut [u8]) -> u16 {
-        let n = self.frame.len();
         let mut wkc = 0;
         for i in 0..cycles {
-            work[..n].copy_from_slice(&self.frame);
-            let t = self.start_ps + i * self.cycle_ps;
-            let out = self.segment.process(&mut work[..n], t);
-            debug_assert!(out.returned_sof_ps.is_some());
-            let at = self.lrw_wkc_at;
-            if at + 1 < n {
-                wkc = u16::from_le_bytes([work[at], work[at + 1]]);
+            let mut t = self.start_ps + i * self.cycle_ps;
+            wkc = 0;
+            for (k, frame) in self.frames.iter().enumerate() {
+                let n = frame.len();
+                work[..n].copy_from_slice(frame);
+                let out = self.segment.process(&mut work[..n], t);
+                debug_assert!(out.returned_sof_ps.is_some());
+                t += frame_wire_time_ps(n);
+                for &(_, at) in self.lrw_wkc_at.iter().filter(|w| w.0 == k) {
+                    if at + 1 < n {
+                        wkc += u16::from_le_bytes([work[at], work[at + 1]]);
+                    }
+                }
             }
         }
         self.start_ps += cycles * self.cycle_ps;

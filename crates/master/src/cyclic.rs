@@ -237,6 +237,11 @@ impl<S: MasterSync> CyclicEngine<S> {
         self.plans[0].template.len()
     }
 
+    /// Offsets of the working counters of frame `k`'s LRWs.
+    pub fn lrw_wkc_offsets(&self, k: usize) -> &[usize] {
+        &self.plans[k].lrw_wkc_at
+    }
+
     /// Length of frame `k`, bytes.
     pub fn frame_len_of(&self, k: usize) -> usize {
         self.plans[k].template.len()

@@ -5,7 +5,7 @@ use crate::io::{Engine, Event};
 use crate::transport::{Never, Received, Transport};
 use ecsync_esc::clock::{CrystalParams, LocalClock};
 use ecsync_esc::pcap::PcapCapture;
-use ecsync_esc::{Segment, SlaveFrameTrace, frame_wire_time_ps};
+use ecsync_esc::{FrameTrace, Segment, frame_wire_time_ps};
 use std::fs::File;
 use std::io::BufWriter;
 
@@ -182,7 +182,7 @@ pub struct SimTransport {
     wire_free_ps: u64,
     last: Exchange,
     /// The ground truth of each frame of the current cycle (a cycle of several frames).
-    traces: Vec<Vec<SlaveFrameTrace>>,
+    traces: Vec<FrameTrace>,
     frame_in_cycle: usize,
     cycle_mode: bool,
     capture: Option<PcapCapture<BufWriter<File>>>,
@@ -290,7 +290,7 @@ impl SimTransport {
 
     /// The ground truth of frame `k` of the current cycle (as the segment's trace was right
     /// after it passed); the last frame's is [`Segment::trace`].
-    pub fn frame_trace(&self, k: usize) -> &[SlaveFrameTrace] {
+    pub fn frame_trace(&self, k: usize) -> &FrameTrace {
         match self.traces.get(k) {
             Some(t) if k + 1 < self.frame_in_cycle => t,
             _ => self.segment.trace(),
@@ -400,12 +400,12 @@ impl Transport for SimTransport {
         // overwritten (one frame per cycle copies nothing).
         if self.cycle_mode && self.frame_in_cycle > 0 {
             let k = self.frame_in_cycle - 1;
+            let t = self.segment.trace().clone();
             if self.traces.len() <= k {
-                self.traces.resize_with(k + 1, Vec::new);
+                self.traces.push(t);
+            } else {
+                self.traces[k] = t;
             }
-            let t = &mut self.traces[k];
-            t.clear();
-            t.extend_from_slice(self.segment.trace());
         }
         // A spare buffer of a cycle's frame has the length already: nothing to clear.
         let mut buf = self.spare.pop().unwrap_or_default();

@@ -1096,7 +1096,7 @@ pub fn run_variant(
         }
         // Ground truth at the frame's pass at the reference.
         let trace = net.segment.trace();
-        let (Some(pu_ref), Some(pu_last)) = (trace[reference].pu_ps, trace[last].pu_ps) else {
+        let (Some(pu_ref), Some(pu_last)) = (trace.pu_ps(reference), trace.pu_ps(last)) else {
             return;
         };
         let seg = &net.segment;
