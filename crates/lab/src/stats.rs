@@ -39,7 +39,10 @@ pub fn quantile_error_bound(value_ns: f64) -> f64 {
 /// quantile, is the crate's: a test compares the two on random values.
 #[derive(Debug, Clone, Default)]
 struct Buckets {
-    counts: Vec<u64>,
+    /// The counts in chunks of 1024 buckets (a power of two each, but the first two), each
+    /// allocated when a value lands in it: a quantity that spans a few powers of two (a
+    /// drive's SYNC0 margin, 200 to 280 us) takes a few chunks, not all below its values.
+    chunks: Vec<Option<Box<[u64; CHUNK_LEN]>>>,
     total: u64,
 }
 
@@ -47,6 +50,9 @@ struct Buckets {
 const HALF_MAGNITUDE: u32 = 10;
 /// Values below 2048 are exact.
 const SUB_BUCKET_MASK: u64 = 2047;
+/// Buckets per chunk (the half count), and the mask of a bucket's place in its chunk.
+const CHUNK_LEN: usize = 1 << HALF_MAGNITUDE;
+const CHUNK_MASK: usize = CHUNK_LEN - 1;
 /// 64 minus the bits of the sub-bucket count.
 const LEADING_ZERO_BASE: u32 = 53;
 
@@ -79,37 +85,47 @@ impl Buckets {
     #[inline]
     fn record(&mut self, v: u64) {
         let i = index_of(v);
-        if i >= self.counts.len() {
-            self.grow(i);
+        let (c, k) = (i >> HALF_MAGNITUDE, i & CHUNK_MASK);
+        match self.chunks.get_mut(c) {
+            Some(Some(chunk)) => chunk[k] += 1,
+            _ => self.grow(c)[k] += 1,
         }
-        self.counts[i] += 1;
         self.total += 1;
     }
 
-    /// Room up to the end of the power of two that holds index `i`.
+    /// Chunk `c`, allocated.
     #[cold]
-    fn grow(&mut self, i: usize) {
-        let len = ((i >> HALF_MAGNITUDE) + 1) << HALF_MAGNITUDE;
-        self.counts.resize(len, 0);
+    fn grow(&mut self, c: usize) -> &mut [u64; CHUNK_LEN] {
+        if self.chunks.len() <= c {
+            self.chunks.resize_with(c + 1, || None);
+        }
+        self.chunks[c].get_or_insert_with(|| Box::new([0; CHUNK_LEN]))
     }
 
     fn add(&mut self, o: &Buckets) {
-        if o.counts.len() > self.counts.len() {
-            self.counts.resize(o.counts.len(), 0);
-        }
-        for (a, &b) in self.counts.iter_mut().zip(&o.counts) {
-            *a += b;
+        for (c, chunk) in o.chunks.iter().enumerate() {
+            let Some(chunk) = chunk else { continue };
+            let mine = self.grow(c);
+            for (a, &b) in mine.iter_mut().zip(chunk.iter()) {
+                *a += b;
+            }
         }
         self.total += o.total;
     }
 
     /// (middle of the bucket, count) of every bucket that holds values, ascending.
     fn recorded(&self) -> impl DoubleEndedIterator<Item = (u64, u64)> + '_ {
-        self.counts
+        self.chunks
             .iter()
             .enumerate()
-            .filter(|&(_, &c)| c > 0)
-            .map(|(i, &c)| (median_of(i), c))
+            .filter_map(|(c, chunk)| chunk.as_ref().map(|b| (c, b)))
+            .flat_map(|(c, chunk)| {
+                chunk
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &n)| n > 0)
+                    .map(move |(k, &n)| (median_of((c << HALF_MAGNITUDE) + k), n))
+            })
     }
 
     /// The value (grid steps, middle of its bucket) of rank `r` (1-based, ascending).
