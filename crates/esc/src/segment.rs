@@ -12,7 +12,9 @@
 use crate::clock::{CrystalParams, PS_PER_NS};
 use crate::esc::{Deferred, Esc};
 use crate::model::{DeviceInfo, EscModel, PortKind};
-use ecsync_wire::{ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN};
+use ecsync_wire::{
+    ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN, mark_returned_frame,
+};
 
 /// Wire time of one byte at 100 Mbit/s, ps.
 pub const BYTE_TIME_PS: u64 = 80_000;
@@ -483,7 +485,9 @@ impl Segment {
         }
         // Forwarding rule (DL control bit 0 = 1, the default): non-EtherCAT frames are
         // destroyed. A frame whose datagram chain is malformed is forwarded untouched.
-        if frame.len() < 14 || u16::from_be_bytes([frame[12], frame[13]]) != ETHERTYPE_ETHERCAT {
+        if frame.len() < ETH_HEADER_LEN
+            || EcatFrame::new_unchecked(&frame[..]).ethertype() != ETHERTYPE_ETHERCAT
+        {
             self.lost += 1;
             return FrameOutcome {
                 returned_sof_ps: None,
@@ -566,7 +570,7 @@ impl Segment {
         if !tm.order.is_empty() {
             // Port 0 of the first ESC marks the source address as locally administered (every
             // later one sets the same bit again).
-            frame[6] |= 0x02;
+            mark_returned_frame(frame);
         }
         let mut loops_changed = false;
         let mut deferred = Deferred::default();
@@ -719,8 +723,8 @@ impl Segment {
             self.shape_offsets[..offsets.len()].copy_from_slice(offsets);
             self.shape_n = offsets.len() as u8;
             // The chain ends at the EtherCAT length; the frame must hold that much.
-            self.shape_min_len =
-                16 + usize::from(u16::from_le_bytes([frame[14], frame[15]]) & 0x07ff);
+            self.shape_min_len = EcatFrame::<&[u8]>::first_datagram_offset()
+                + EcatFrame::new_unchecked(frame).ecat_len();
             self.shape_id = self.shape_id.wrapping_add(1).max(1);
         }
         self.shape_id
@@ -954,24 +958,9 @@ struct FrameEffects {
 
 /// Processes every datagram of a validated frame at an ESC.
 fn process_datagrams(esc: &mut Esc, frame: &mut [u8], t_ps: u64) -> FrameEffects {
-    let base = EcatFrame::<&[u8]>::first_datagram_offset();
-    let end = base + usize::from(u16::from_le_bytes([frame[14], frame[15]]) & 0x07ff);
-    let mut at = base;
-    let mut out = FrameEffects::default();
-    while at + ecsync_wire::DATAGRAM_OVERHEAD <= end {
-        let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
-        let more = frame[at + 7] & 0x80 != 0;
-        let total = ecsync_wire::DATAGRAM_OVERHEAD + n;
-        if at + total > end {
-            break;
-        }
-        let fx = esc.process_datagram(&mut frame[at..at + total], t_ps);
-        out.latch |= fx.latch_receive_times;
-        out.loops_changed |= fx.loops_changed;
-        at += total;
-        if !more {
-            break;
-        }
+    let fx = esc.process_chain(frame, t_ps);
+    FrameEffects {
+        latch: fx.latch_receive_times,
+        loops_changed: fx.loops_changed,
     }
-    out
 }

@@ -215,21 +215,3 @@ pub mod al_state {
     /// AL status bit 4: error indication; AL control bit 4: error acknowledge.
     pub const ERROR_FLAG: u16 = 1 << 4;
 }
-
-/// AL status codes (0x0134) the virtual ESC reports (ETG.1000.6).
-pub mod al_status_code {
-    /// No error.
-    pub const NO_ERROR: u16 = 0x0000;
-    /// Invalid requested state change.
-    pub const INVALID_STATE_CHANGE: u16 = 0x0011;
-    /// Unknown requested state.
-    pub const UNKNOWN_STATE: u16 = 0x0012;
-    /// Bootstrap not supported.
-    pub const BOOTSTRAP_NOT_SUPPORTED: u16 = 0x0013;
-    /// Invalid output configuration (SyncManager).
-    pub const INVALID_OUTPUT_CONFIG: u16 = 0x001d;
-    /// Invalid input configuration.
-    pub const INVALID_INPUT_CONFIG: u16 = 0x001e;
-    /// Invalid DC SYNC configuration.
-    pub const INVALID_DC_SYNC_CONFIG: u16 = 0x0030;
-}
