@@ -12,8 +12,16 @@
 use crate::clock::{CrystalParams, PS_PER_NS};
 use crate::esc::{Deferred, Esc};
 use crate::model::{DeviceInfo, EscModel, PortKind};
-use ecsync_wire::{ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN};
+use ecsync_wire::{
+    DATAGRAM_HEADER_LEN, ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN,
+    mark_returned_frame,
+};
 use std::sync::Arc;
+
+// A shape is compared byte for byte (never decoded): the Ethernet type and EtherCAT header as
+// one word, then each datagram header.
+const HEAD_AT: usize = ETH_HEADER_LEN - 2;
+const FIRST_DATAGRAM: usize = EcatFrame::<&[u8]>::first_datagram_offset();
 
 /// Wire time of one byte at 100 Mbit/s, ps.
 pub const BYTE_TIME_PS: u64 = 80_000;
@@ -304,10 +312,10 @@ impl ShapeCache {
         }
     }
 
-    /// The slot of a frame whose first datagram header starts at byte 16.
+    /// The slot of a frame: its first datagram's command and index.
     #[inline]
     fn slot_of(frame: &[u8]) -> usize {
-        match frame.get(16..18) {
+        match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + 2) {
             Some(h) => (usize::from(h[0]) * 7 + usize::from(h[1])) % SHAPE_SLOTS,
             None => 0,
         }
@@ -323,17 +331,18 @@ impl ShapeCache {
     /// Remembers the shape of a valid frame whose datagrams start at `offsets`; its id.
     fn insert(&mut self, frame: &[u8], offsets: &[u16]) -> u32 {
         let mut s = Shape {
-            head: u32::from_le_bytes([frame[12], frame[13], frame[14], frame[15]]),
+            head: u32::from_le_bytes(frame[HEAD_AT..FIRST_DATAGRAM].try_into().unwrap_or([0; 4])),
             words: [(0, 0); MAX_SHAPE_DATAGRAMS],
             offsets: [0; MAX_SHAPE_DATAGRAMS],
             n: offsets.len() as u8,
             // The chain ends at the EtherCAT length; the frame must hold that much.
-            min_len: 16 + usize::from(u16::from_le_bytes([frame[14], frame[15]]) & 0x07ff),
+            min_len: EcatFrame::<&[u8]>::first_datagram_offset()
+                + EcatFrame::new_unchecked(frame).ecat_len(),
             id: 0,
         };
         for (k, &at) in offsets.iter().enumerate() {
             let at = usize::from(at);
-            let h = &frame[at..at + 10];
+            let h = &frame[at..at + DATAGRAM_HEADER_LEN];
             let mut lo = [0u8; 8];
             lo.copy_from_slice(&h[..8]);
             s.words[k] = (u64::from_le_bytes(lo), u16::from_le_bytes([h[8], h[9]]));
@@ -358,7 +367,8 @@ impl Shape {
     #[inline]
     fn matches(&self, frame: &[u8]) -> bool {
         let word = |at: usize| -> Option<(u64, u16)> {
-            let h: &[u8; 10] = frame.get(at..at + 10)?.try_into().ok()?;
+            let h: &[u8; DATAGRAM_HEADER_LEN] =
+                frame.get(at..at + DATAGRAM_HEADER_LEN)?.try_into().ok()?;
             let (lo, hi) = h.split_at(8);
             Some((
                 u64::from_le_bytes(lo.try_into().ok()?),
@@ -366,7 +376,7 @@ impl Shape {
             ))
         };
         let head = frame
-            .get(12..16)
+            .get(HEAD_AT..FIRST_DATAGRAM)
             .map(|h| u32::from_le_bytes([h[0], h[1], h[2], h[3]]));
         head == Some(self.head)
             && self.offsets[..usize::from(self.n)]
@@ -670,7 +680,9 @@ impl Segment {
     /// How the ESCs take a frame that is not of a remembered shape (`None`: not EtherCAT),
     /// remembering its shape.
     fn classify(&mut self, frame: &[u8]) -> Option<FrameKind> {
-        if frame.len() < 14 || u16::from_be_bytes([frame[12], frame[13]]) != ETHERTYPE_ETHERCAT {
+        if frame.len() < ETH_HEADER_LEN
+            || EcatFrame::new_unchecked(frame).ethertype() != ETHERTYPE_ETHERCAT
+        {
             return None;
         }
         let mut offsets = [0u16; MAX_SHAPE_DATAGRAMS];
@@ -710,7 +722,7 @@ impl Segment {
         }
         // Port 0 of the first ESC marks the source address as locally administered (every
         // later one sets the same bit again).
-        frame[6] |= 0x02;
+        mark_returned_frame(frame);
         let mut loops_changed = false;
         let mut deferred = Deferred::default();
         for &(i, pu) in &tm.flat {
@@ -921,24 +933,9 @@ struct FrameEffects {
 
 /// Processes every datagram of a validated frame at an ESC.
 fn process_datagrams(esc: &mut Esc, frame: &mut [u8], t_ps: u64) -> FrameEffects {
-    let base = EcatFrame::<&[u8]>::first_datagram_offset();
-    let end = base + usize::from(u16::from_le_bytes([frame[14], frame[15]]) & 0x07ff);
-    let mut at = base;
-    let mut out = FrameEffects::default();
-    while at + ecsync_wire::DATAGRAM_OVERHEAD <= end {
-        let n = usize::from(u16::from_le_bytes([frame[at + 6], frame[at + 7]]) & 0x07ff);
-        let more = frame[at + 7] & 0x80 != 0;
-        let total = ecsync_wire::DATAGRAM_OVERHEAD + n;
-        if at + total > end {
-            break;
-        }
-        let fx = esc.process_datagram(&mut frame[at..at + total], t_ps);
-        out.latch |= fx.latch_receive_times;
-        out.loops_changed |= fx.loops_changed;
-        at += total;
-        if !more {
-            break;
-        }
+    let fx = esc.process_chain(frame, t_ps);
+    FrameEffects {
+        latch: fx.latch_receive_times,
+        loops_changed: fx.loops_changed,
     }
-    out
 }

@@ -500,7 +500,11 @@ fn run(
     let (segment, frames) = wire.finish();
     result.expect("ethercrab against the virtual segment");
     for i in 0..n {
-        assert_eq!(segment.esc(i).al_state(), 8, "drive {i} in OP");
+        assert_eq!(
+            segment.esc(i).al_state(),
+            ecsync_wire::AlState::Op,
+            "drive {i} in OP"
+        );
     }
     if time_offset_ns != 0 {
         let end = u64::try_from(start.elapsed().as_nanos()).unwrap() + time_offset_ns;

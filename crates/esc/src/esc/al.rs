@@ -1,0 +1,181 @@
+//! The AL state machine (ESC datasheet section I, "EtherCAT State Machine"; ETG.1000.6): AL
+//! control requests a state, AL status and the AL status code report the outcome. Every access
+//! goes through the wire crate's views, so the state encoding and the error flag live in one
+//! place ([`ecsync_wire::AlState`]).
+
+use super::Esc;
+use crate::sii_image;
+use ecsync_wire::register as reg;
+use ecsync_wire::{AL_CONTROL_LEN, AL_STATUS_BLOCK_LEN, AlControl, AlState, AlStatus};
+use ecsync_wire::{AlStatusCode, AlStatusRepr};
+
+impl Esc {
+    /// Writes the state, the error flag and the status code to AL status (0x0130-0x0135).
+    pub(super) fn update_al_registers(&mut self) {
+        let status = AlStatusRepr {
+            state: self.al_state,
+            error: self.al_error,
+            id_loaded: false,
+            code: self.al_code,
+        };
+        let regs = self.reg_bytes_mut(reg::AL_STATUS, AL_STATUS_BLOCK_LEN);
+        // The slice has the block's length: the emit cannot fail.
+        let _ = status.emit(&mut AlStatus::new_unchecked(regs));
+    }
+
+    /// AL control was written: the master requests a state.
+    pub(super) fn al_control_written(&mut self) {
+        let control = AlControl::new_unchecked(self.reg_bytes(reg::AL_CONTROL, AL_CONTROL_LEN));
+        let (requested, ack) = (control.requested(), control.error_ack());
+        self.request_state(requested, ack);
+    }
+
+    /// A state request: the transitions of the datasheet's state machine (figure "EtherCAT
+    /// State Machine"), with the status codes of ETG.1020. `requested` is an error for a
+    /// value that names no state; `ack` acknowledges the error indication.
+    fn request_state(&mut self, requested: Result<AlState, ecsync_wire::WireError>, ack: bool) {
+        self.generation += 1;
+        let to_init = requested == Ok(AlState::Init);
+        if self.al_error && !ack && !to_init {
+            return; // an unacknowledged error blocks new requests
+        }
+        if ack || to_init {
+            self.al_error = false;
+            self.al_code = AlStatusCode::NoError;
+        }
+        match requested {
+            Ok(AlState::Bootstrap) => self.fail(AlStatusCode::BootstrapNotSupported),
+            Err(_) => self.fail(AlStatusCode::UnknownRequestedState),
+            Ok(to) => self.transition(to),
+        }
+        self.update_al_registers();
+    }
+
+    /// Sets the error indication with its code; the state stays.
+    fn fail(&mut self, code: AlStatusCode) {
+        self.al_error = true;
+        self.al_code = code;
+    }
+
+    /// A request of INIT, PRE-OP, SAFE-OP or OP from the current state.
+    fn transition(&mut self, to: AlState) {
+        use AlState::{Init, Op, PreOp, SafeOp};
+        let from = self.al_state;
+        let valid = from == to
+            || matches!(
+                (from, to),
+                (Init, PreOp)
+                    | (PreOp, Init)
+                    | (PreOp, SafeOp)
+                    | (SafeOp, PreOp)
+                    | (SafeOp, Init)
+                    | (SafeOp, Op)
+                    | (Op, SafeOp)
+                    | (Op, PreOp)
+                    | (Op, Init)
+            );
+        if !valid {
+            self.fail(AlStatusCode::InvalidStateChange);
+        } else if (from, to) == (PreOp, SafeOp) {
+            match self.check_process_data_config() {
+                Ok(()) => self.al_state = to,
+                Err(code) => self.fail(code),
+            }
+        } else {
+            self.al_state = to;
+        }
+        if !matches!(self.al_state, SafeOp | Op) {
+            // Below SAFE-OP the application has no process data.
+            self.output_sm = None;
+            self.input_sm = None;
+            self.app = None;
+        }
+    }
+
+    /// PRE-OP -> SAFE-OP: the process data SyncManagers must be configured as the SII describes
+    /// (the application's check; a wrong length gives "invalid output/input configuration").
+    fn check_process_data_config(&mut self) -> Result<(), AlStatusCode> {
+        let out_len = self.device.output_bytes() as u16;
+        let in_len = self.device.input_bytes() as u16;
+        let out = if out_len > 0 {
+            let i = self
+                .find_sm(sii_image::SM_OUTPUT_START, true)
+                .ok_or(AlStatusCode::InvalidOutputConfiguration)?;
+            if self.sms[i].len != out_len {
+                return Err(AlStatusCode::InvalidOutputConfiguration);
+            }
+            Some(i)
+        } else {
+            None
+        };
+        let inp = if in_len > 0 {
+            let i = self
+                .find_sm(sii_image::SM_INPUT_START, false)
+                .ok_or(AlStatusCode::InvalidInputConfiguration)?;
+            if self.sms[i].len != in_len {
+                return Err(AlStatusCode::InvalidInputConfiguration);
+            }
+            Some(i)
+        } else {
+            None
+        };
+        self.output_sm = out;
+        self.input_sm = inp;
+        self.app = self.app_layout();
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::testing::{dg, esc};
+    use ecsync_wire::{AlState, Command};
+
+    #[test]
+    fn al_state_machine() {
+        let mut e = esc();
+        let st = |e: &mut super::Esc| {
+            let mut d = dg(Command::Brd, 0, 0x0130, &[0, 0, 0, 0, 0, 0]);
+            e.process_datagram(&mut d, 0);
+            (
+                u16::from_le_bytes([d[10], d[11]]),
+                u16::from_le_bytes([d[14], d[15]]),
+            )
+        };
+        // INIT -> OP is invalid: error flag, code 0x0011, state stays INIT.
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x08, 0]), 0);
+        assert_eq!(st(&mut e), (0x0011, 0x0011));
+        // A new request without acknowledge is ignored...
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x02, 0]), 0);
+        assert_eq!(st(&mut e), (0x0011, 0x0011));
+        // ...with acknowledge it is taken.
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x12, 0]), 0);
+        assert_eq!(st(&mut e), (0x0002, 0));
+        assert_eq!(e.al_state(), AlState::PreOp);
+        // PRE-OP -> SAFE-OP without SyncManagers: invalid output configuration.
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x04, 0]), 0);
+        assert_eq!(st(&mut e), (0x0012, 0x001d));
+    }
+
+    #[test]
+    fn bootstrap_and_unknown_states_are_refused() {
+        let mut e = esc();
+        let st = |e: &mut super::Esc| {
+            let mut d = dg(Command::Brd, 0, 0x0130, &[0, 0, 0, 0, 0, 0]);
+            e.process_datagram(&mut d, 0);
+            (d[10], d[14])
+        };
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x03, 0]), 0);
+        assert_eq!(
+            st(&mut e),
+            (0x11, 0x13),
+            "INIT + error, bootstrap not supported"
+        );
+        // State 5 names no state: unknown requested state (acknowledging the last error).
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x15, 0]), 0);
+        assert_eq!(st(&mut e), (0x11, 0x12));
+        // Requesting INIT clears the error without an acknowledge.
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x01, 0]), 0);
+        assert_eq!(st(&mut e), (0x01, 0x00));
+    }
+}

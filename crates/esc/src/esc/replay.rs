@@ -1,0 +1,521 @@
+//! The replay fast path. The cyclic frame is the same every cycle, and while nothing in the ESC
+//! changes it does the same every cycle: [`super::datagram`] records what a frame of a given
+//! shape did as a program of steps with absolute frame offsets, and the next frame of that shape
+//! runs the program instead of decoding its datagrams again. The cyclic frame's three steps
+//! (system time, process data, time difference) run straight through in
+//! [`Esc::replay_cyclic`], and their working counter increments are summed over a run of slaves
+//! ([`Deferred`]).
+//!
+//! The recorded offsets are positions taken from the datagram headers when they were decoded
+//! (through the wire crate's views); the replay patches those positions without decoding again.
+
+use super::Esc;
+use super::datagram::{LogicalOp, add_u16_at};
+use super::process_data::{copy_small, refresh_inputs};
+use crate::dc_unit::DcUnit;
+use ecsync_wire::register as reg;
+
+/// Frames with more datagrams than this are never recorded.
+pub(super) const MAX_PROGRAM_DATAGRAMS: usize = 8;
+/// Steps a program holds.
+const MAX_OPS: usize = 32;
+
+/// One step of a recorded program, with absolute offsets into the frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) enum Op {
+    #[default]
+    Nop,
+    /// Increment the 16-bit ADP at `at`.
+    AdpInc { at: u16 },
+    /// System time read into the data at `at`.
+    SysRead { at: u16, len: u8, or: bool },
+    /// System time write from the data at `at`.
+    SysWrite { at: u16, len: u8 },
+    /// System time difference read into the data at `at`.
+    DiffRead { at: u16, len: u8, or: bool },
+    /// Frame bytes at `at` -> process RAM.
+    ToRam { at: u16, ram: u16, len: u16 },
+    /// Process RAM -> frame bytes at `at`.
+    FromRam { at: u16, ram: u16, len: u16 },
+    /// The application refreshes its inputs.
+    Refresh,
+    /// Add `inc` to the working counter at `at`.
+    Wkc { at: u16, inc: u16 },
+    /// Fused: a system time read or write and its working counter.
+    SysFused(SysStep),
+    /// Fused: ADP increment (if `adp` is not 0), difference read, working counter.
+    DiffFused(DiffStep),
+    /// Fused: an LRW through one write and one read FMMU with the application in between.
+    LrwFused(LrwStep),
+}
+
+impl Op {
+    /// The step of a logical access whose datagram data starts at frame offset `data`.
+    pub(super) fn from_logical(op: LogicalOp, data: u16) -> Op {
+        match op {
+            LogicalOp::Refresh => Op::Refresh,
+            LogicalOp::Write {
+                data_off,
+                ram_off,
+                len,
+            } => Op::ToRam {
+                at: data + data_off,
+                ram: ram_off,
+                len,
+            },
+            LogicalOp::Read {
+                data_off,
+                ram_off,
+                len,
+            } => Op::FromRam {
+                at: data + data_off,
+                ram: ram_off,
+                len,
+            },
+        }
+    }
+}
+
+/// A system time read or write (FRMW of 0x0910) and its working counter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) struct SysStep {
+    at: u16,
+    len: u8,
+    write: bool,
+    wkc: u16,
+    inc: u16,
+}
+
+/// An ADP increment (if `adp` is not 0), a difference read (BRD of 0x092C), its working counter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) struct DiffStep {
+    adp: u16,
+    at: u16,
+    len: u8,
+    or: bool,
+    wkc: u16,
+    inc: u16,
+}
+
+/// An LRW through one write and one read FMMU with the application in between.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) struct LrwStep {
+    w_at: u16,
+    w_ram: u16,
+    w_len: u16,
+    r_at: u16,
+    r_ram: u16,
+    r_len: u16,
+    wkc: u16,
+    inc: u16,
+}
+
+/// The cyclic frame's whole program at one ESC (system time, process data, time difference, in
+/// this order; at the reference under bus shift, a system time write first), replayed straight
+/// through: no dispatch per step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) struct CyclicSteps {
+    /// Bus shift's write of the master's time to the reference, before its FRMW.
+    pre: Option<SysStep>,
+    sys: SysStep,
+    lrw: LrwStep,
+    diff: DiffStep,
+    /// Where the three working counters and the BRD's position field are, packed (see
+    /// [`Deferred`]).
+    layout: u64,
+}
+
+impl CyclicSteps {
+    fn new(pre: Option<SysStep>, sys: SysStep, lrw: LrwStep, diff: DiffStep) -> Self {
+        let layout = u64::from(sys.wkc)
+            | u64::from(lrw.wkc) << 16
+            | u64::from(diff.wkc) << 32
+            | u64::from(diff.adp) << 48;
+        CyclicSteps {
+            pre,
+            sys,
+            lrw,
+            diff,
+            layout,
+        }
+    }
+}
+
+/// Working counter and position (ADP) increments of cyclic replays, added to the frame once for
+/// a run of consecutive slaves instead of once per slave.
+///
+/// This is exact: a replayed program never reads a working counter or an ADP, so only the sum
+/// matters, and [`Deferred::flush`] runs before any slave that processes the frame in full
+/// (which may read them) and at the end of the frame.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Deferred {
+    layout: u64,
+    sys: u16,
+    lrw: u16,
+    diff: u16,
+    adp: u16,
+}
+
+impl Deferred {
+    /// Adds the pending increments to the frame.
+    #[inline(always)]
+    pub(crate) fn flush(&mut self, frame: &mut [u8]) {
+        if self.sys | self.lrw | self.diff | self.adp != 0 {
+            let l = self.layout;
+            add_wkc(frame, l as u16, self.sys);
+            add_wkc(frame, (l >> 16) as u16, self.lrw);
+            add_wkc(frame, (l >> 32) as u16, self.diff);
+            add_wkc(frame, (l >> 48) as u16, self.adp);
+        }
+        *self = Deferred::default();
+    }
+}
+
+/// Fuses the common sequences of a recorded program into single steps (fewer dispatches).
+/// Inline: its one caller is [`Esc::install`], which the full path inlines.
+#[inline]
+fn fuse(ops: &[Op], out: &mut [Op; MAX_OPS]) -> u8 {
+    let mut n = 0usize;
+    let mut i = 0usize;
+    while i < ops.len() {
+        let rest = &ops[i..];
+        let (op, used) = match rest {
+            [
+                Op::SysRead { at, len, or: false },
+                Op::Wkc { at: w, inc },
+                ..,
+            ] => (
+                Op::SysFused(SysStep {
+                    at: *at,
+                    len: *len,
+                    write: false,
+                    wkc: *w,
+                    inc: *inc,
+                }),
+                2,
+            ),
+            [Op::SysWrite { at, len }, Op::Wkc { at: w, inc }, ..] => (
+                Op::SysFused(SysStep {
+                    at: *at,
+                    len: *len,
+                    write: true,
+                    wkc: *w,
+                    inc: *inc,
+                }),
+                2,
+            ),
+            [
+                Op::AdpInc { at: a },
+                Op::DiffRead { at, len, or },
+                Op::Wkc { at: w, inc },
+                ..,
+            ] => (
+                Op::DiffFused(DiffStep {
+                    adp: *a,
+                    at: *at,
+                    len: *len,
+                    or: *or,
+                    wkc: *w,
+                    inc: *inc,
+                }),
+                3,
+            ),
+            [
+                Op::ToRam {
+                    at: wa,
+                    ram: wr,
+                    len: wl,
+                },
+                Op::Refresh,
+                Op::FromRam {
+                    at: ra,
+                    ram: rr,
+                    len: rl,
+                },
+                Op::Wkc { at: w, inc },
+                ..,
+            ] => (
+                Op::LrwFused(LrwStep {
+                    w_at: *wa,
+                    w_ram: *wr,
+                    w_len: *wl,
+                    r_at: *ra,
+                    r_ram: *rr,
+                    r_len: *rl,
+                    wkc: *w,
+                    inc: *inc,
+                }),
+                4,
+            ),
+            [op, ..] => (*op, 1),
+            [] => break,
+        };
+        out[n] = op;
+        n += 1;
+        i += used;
+    }
+    n as u8
+}
+
+/// Adds `inc` to the working counter (or ADP) at the recorded frame offset `at`.
+#[inline]
+fn add_wkc(frame: &mut [u8], at: u16, inc: u16) {
+    add_u16_at(frame, at, inc);
+}
+
+/// The system time read or write of a [`SysStep`], without its working counter.
+#[inline(always)]
+fn sys_access(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
+    let (a, l) = (usize::from(s.at), usize::from(s.len));
+    if s.write {
+        dc.write_system_time(&frame[a..a + l], t_ps);
+    } else {
+        dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
+    }
+}
+
+#[inline(always)]
+fn sys_step(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
+    sys_access(dc, frame, s, t_ps);
+    add_wkc(frame, s.wkc, s.inc);
+}
+
+/// The time difference read of a [`DiffStep`], without its ADP and working counter.
+#[inline(always)]
+fn diff_access(dc: &DcUnit, frame: &mut [u8], d: &DiffStep) {
+    let (a, l) = (usize::from(d.at), usize::from(d.len));
+    dc.read_time_difference(&mut frame[a..a + l], d.or);
+}
+
+#[inline(always)]
+fn diff_step(dc: &DcUnit, frame: &mut [u8], d: &DiffStep) {
+    add_wkc(frame, d.adp, 1);
+    diff_access(dc, frame, d);
+    add_wkc(frame, d.wkc, d.inc);
+}
+
+/// The outputs of an [`LrwStep`]: frame -> process RAM.
+#[inline(always)]
+fn lrw_in(ram: &mut [u8], frame: &[u8], s: &LrwStep) {
+    let (d, r, l) = (
+        usize::from(s.w_at),
+        usize::from(s.w_ram),
+        usize::from(s.w_len),
+    );
+    copy_small(&mut ram[r..r + l], &frame[d..d + l]);
+}
+
+/// The inputs of an [`LrwStep`]: process RAM -> frame.
+#[inline(always)]
+fn lrw_out(frame: &mut [u8], ram: &[u8], s: &LrwStep) {
+    let (d, r, l) = (
+        usize::from(s.r_at),
+        usize::from(s.r_ram),
+        usize::from(s.r_len),
+    );
+    copy_small(&mut frame[d..d + l], &ram[r..r + l]);
+}
+
+/// The recorded steps for one frame shape.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Program {
+    pub(super) shape: u32,
+    pub(super) generation: u64,
+    ops: [Op; MAX_OPS],
+    n: u8,
+    pub(super) counted: u8,
+    /// `ops` as one straight-through step, when they are the cyclic frame's three.
+    cyclic: Option<CyclicSteps>,
+    /// Frames replayed by `cyclic` and not yet in the ESC's counters (one increment per frame
+    /// instead of three; see [`Esc::stats`]).
+    pub(super) replays: u64,
+}
+
+impl Default for Program {
+    fn default() -> Self {
+        Program {
+            shape: 0,
+            generation: 0,
+            ops: [Op::Nop; MAX_OPS],
+            n: 0,
+            counted: 0,
+            cyclic: None,
+            replays: 0,
+        }
+    }
+}
+
+impl Program {
+    /// An empty program for frames of `shape`, valid in `generation`. Inline, so that the
+    /// full path builds it in place rather than copying it.
+    #[inline]
+    pub(super) fn new(shape: u32, generation: u64) -> Self {
+        Program {
+            shape,
+            generation,
+            ..Program::default()
+        }
+    }
+
+    /// Appends a step; false if the program is full.
+    #[inline]
+    pub(super) fn push(&mut self, op: Op) -> bool {
+        if usize::from(self.n) < MAX_OPS {
+            self.ops[usize::from(self.n)] = op;
+            self.n += 1;
+            true
+        } else {
+            false
+        }
+    }
+}
+
+impl Esc {
+    /// Makes a freshly recorded program the one replayed: its steps fused, the cyclic frame's
+    /// recognised. By reference: the program is large, and it is copied once, into place.
+    #[inline]
+    pub(super) fn install(&mut self, recorded: &Program) {
+        // The replays of the program replaced go into the counters.
+        self.stats = self.stats();
+        self.program = *recorded;
+        let prog = &mut self.program;
+        prog.n = fuse(&recorded.ops[..usize::from(recorded.n)], &mut prog.ops);
+        prog.cyclic = match prog.ops[..usize::from(prog.n)] {
+            [Op::SysFused(sys), Op::LrwFused(lrw), Op::DiffFused(diff)] => {
+                Some(CyclicSteps::new(None, sys, lrw, diff))
+            }
+            [
+                Op::SysFused(pre),
+                Op::SysFused(sys),
+                Op::LrwFused(lrw),
+                Op::DiffFused(diff),
+            ] => Some(CyclicSteps::new(Some(pre), sys, lrw, diff)),
+            _ => None,
+        };
+    }
+
+    /// Replays the recorded program op by op (the segment's straight-through replay,
+    /// [`Esc::replay_cyclic`], takes the cyclic frame before it gets here).
+    #[inline]
+    pub(super) fn replay(&mut self, frame: &mut [u8], t_ps: u64) {
+        self.stats.replayed_frames += 1;
+        self.stats.datagrams_counted += u64::from(self.program.counted);
+        self.replay_ops(frame, t_ps);
+    }
+
+    fn replay_ops(&mut self, frame: &mut [u8], t_ps: u64) {
+        for k in 0..usize::from(self.program.n) {
+            match self.program.ops[k] {
+                Op::Nop => {}
+                Op::AdpInc { at } => add_wkc(frame, at, 1),
+                Op::SysRead { at, len, or } => {
+                    let at = usize::from(at);
+                    if let Some(dc) = &mut self.dc {
+                        dc.read_fast(
+                            reg::DC_SYSTEM_TIME,
+                            &mut frame[at..at + usize::from(len)],
+                            or,
+                            t_ps,
+                        );
+                    }
+                }
+                Op::DiffRead { at, len, or } => {
+                    let at = usize::from(at);
+                    if let Some(dc) = &mut self.dc {
+                        dc.read_fast(
+                            reg::DC_SYSTEM_TIME_DIFF,
+                            &mut frame[at..at + usize::from(len)],
+                            or,
+                            t_ps,
+                        );
+                    }
+                }
+                Op::SysWrite { at, len } => {
+                    let (at, len) = (usize::from(at), usize::from(len));
+                    if let Some(dc) = &mut self.dc {
+                        dc.write_system_time(&frame[at..at + len], t_ps);
+                    }
+                }
+                Op::ToRam { at, ram, len } => {
+                    let (d, r, l) = (usize::from(at), usize::from(ram), usize::from(len));
+                    copy_small(&mut self.ram[r..r + l], &frame[d..d + l]);
+                }
+                Op::FromRam { at, ram, len } => {
+                    let (d, r, l) = (usize::from(at), usize::from(ram), usize::from(len));
+                    copy_small(&mut frame[d..d + l], &self.ram[r..r + l]);
+                }
+                Op::Refresh => self.app_refresh_inputs(),
+                Op::Wkc { at, inc } => add_wkc(frame, at, inc),
+                Op::SysFused(s) => {
+                    if let Some(dc) = &mut self.dc {
+                        sys_step(dc, frame, &s, t_ps);
+                    } else {
+                        add_wkc(frame, s.wkc, s.inc);
+                    }
+                }
+                Op::DiffFused(d) => {
+                    if let Some(dc) = &self.dc {
+                        diff_step(dc, frame, &d);
+                    } else {
+                        add_wkc(frame, d.adp, 1);
+                        add_wkc(frame, d.wkc, d.inc);
+                    }
+                }
+                Op::LrwFused(l) => {
+                    lrw_in(&mut self.ram, frame, &l);
+                    self.app_refresh_inputs();
+                    lrw_out(frame, &self.ram, &l);
+                    add_wkc(frame, l.wkc, l.inc);
+                }
+            }
+        }
+    }
+
+    /// The cyclic frame at this ESC, if it has the three-step program for `shape` recorded in
+    /// the current generation: the steps run, their working counter and ADP increments go to
+    /// `d` (see [`Deferred`]). Returns false, touching nothing, otherwise; the caller then
+    /// flushes `d` and calls [`Esc::process_frame`].
+    #[inline(always)]
+    pub(crate) fn replay_cyclic(
+        &mut self,
+        frame: &mut [u8],
+        shape: u32,
+        t_ps: u64,
+        d: &mut Deferred,
+    ) -> bool {
+        let Esc {
+            program,
+            dc,
+            ram,
+            app,
+            al_state,
+            app_cycles,
+            generation,
+            ..
+        } = self;
+        if shape == 0 || program.shape != shape || program.generation != *generation {
+            return false;
+        }
+        let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) else {
+            return false;
+        };
+        program.replays += 1;
+        if c.layout != d.layout {
+            d.flush(frame);
+            d.layout = c.layout;
+        }
+        if let Some(pre) = &c.pre {
+            sys_step(dc, frame, pre, t_ps);
+        }
+        sys_access(dc, frame, &c.sys, t_ps);
+        lrw_in(ram, frame, &c.lrw);
+        refresh_inputs(ram, *app, *al_state, app_cycles);
+        lrw_out(frame, ram, &c.lrw);
+        diff_access(dc, frame, &c.diff);
+        d.sys = d.sys.wrapping_add(c.sys.inc);
+        d.lrw = d.lrw.wrapping_add(c.lrw.inc);
+        d.diff = d.diff.wrapping_add(c.diff.inc);
+        d.adp = d.adp.wrapping_add(1);
+        true
+    }
+}
