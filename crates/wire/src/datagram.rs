@@ -10,6 +10,7 @@ pub const DATAGRAM_OVERHEAD: usize = DATAGRAM_HEADER_LEN + WKC_LEN;
 pub const MAX_DATAGRAM_DATA: usize = 0x7ff;
 
 const LEN_MASK: u16 = 0x07ff;
+const ADP_AT: usize = 2;
 const CIRCULATING: u16 = 1 << 14;
 const MORE_FOLLOWS: u16 = 1 << 15;
 
@@ -121,7 +122,7 @@ impl<T: AsRef<[u8]>> Datagram<T> {
 
     /// ADP: position or station address (low 16 bits of the address field).
     pub fn adp(&self) -> u16 {
-        self.u16_at(2)
+        self.u16_at(ADP_AT)
     }
 
     /// ADO: register offset (high 16 bits of the address field).
@@ -188,6 +189,22 @@ impl<T: AsRef<[u8]>> Datagram<T> {
     pub fn total_len(&self) -> usize {
         DATAGRAM_OVERHEAD + self.data_len()
     }
+
+    /// Offset of the working counter from the datagram's first byte.
+    pub fn wkc_offset(&self) -> usize {
+        DATAGRAM_HEADER_LEN + self.data_len()
+    }
+
+    /// Offset of ADP from the datagram's first byte: for code that records where a datagram's
+    /// fields are in a frame and patches them later without decoding the header again.
+    pub const fn adp_offset() -> usize {
+        ADP_AT
+    }
+
+    /// Offset of the data from the datagram's first byte.
+    pub const fn data_offset() -> usize {
+        DATAGRAM_HEADER_LEN
+    }
 }
 
 impl<T: AsRef<[u8]> + AsMut<[u8]>> Datagram<T> {
@@ -217,7 +234,7 @@ impl<T: AsRef<[u8]> + AsMut<[u8]>> Datagram<T> {
     /// Sets ADP (what each slave does when it increments the position of auto-increment
     /// commands).
     pub fn set_adp(&mut self, adp: u16) {
-        self.set_u16_at(2, adp);
+        self.set_u16_at(ADP_AT, adp);
     }
 
     /// Sets the circulating bit.

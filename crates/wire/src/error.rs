@@ -34,4 +34,15 @@ pub enum WireError {
     /// maximum-size frame).
     #[error("datagram data of {0} bytes exceeds the 11-bit length field")]
     DataTooLong(usize),
+    /// AL control or AL status bits 3:0 that name no AL state (valid: 1, 2, 3, 4, 8).
+    #[error("unknown AL state {0:#04x}")]
+    UnknownAlState(u8),
+    /// A register field holds a value the datasheet reserves.
+    #[error("reserved value {value:#04x} in the {field}")]
+    Reserved {
+        /// The field (e.g. "SyncManager direction").
+        field: &'static str,
+        /// The value found.
+        value: u8,
+    },
 }

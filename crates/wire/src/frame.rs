@@ -14,6 +14,28 @@ pub const MIN_FRAME_LEN: usize = 60;
 pub const MAX_FRAME_LEN: usize = 1514;
 
 const ECAT_LEN_MASK: u16 = 0x07ff;
+/// The source MAC byte the first ESC marks on frames it sends back, and the mark: bit 1
+/// (locally administered) of the first source MAC byte.
+const RETURNED_MARK_AT: usize = 6;
+const RETURNED_MARK: u8 = 0x02;
+
+/// Whether an Ethernet frame (any EtherType, VLAN-tagged or not: the source MAC comes first)
+/// carries the mark the first ESC sets on every frame it sends back to the master; false if
+/// the buffer does not reach the source MAC.
+pub fn is_returned_frame(frame: &[u8]) -> bool {
+    frame
+        .get(RETURNED_MARK_AT)
+        .is_some_and(|b| b & RETURNED_MARK != 0)
+}
+
+/// Sets the returned mark (see [`is_returned_frame`]) on an Ethernet frame; does nothing to a
+/// buffer that does not reach the source MAC.
+#[inline]
+pub fn mark_returned_frame(frame: &mut [u8]) {
+    if let Some(b) = frame.get_mut(RETURNED_MARK_AT) {
+        *b |= RETURNED_MARK;
+    }
+}
 
 /// A typed view over an Ethernet frame that carries EtherCAT datagrams. `buffer` starts at the
 /// destination MAC; no FCS.
@@ -127,6 +149,11 @@ impl<T: AsRef<[u8]>> EcatFrame<T> {
     pub const fn first_datagram_offset() -> usize {
         ETH_HEADER_LEN + ECAT_HEADER_LEN
     }
+
+    /// Whether the first ESC marked the frame on its way back (see [`is_returned_frame`]).
+    pub fn is_returned(&self) -> bool {
+        is_returned_frame(self.b())
+    }
 }
 
 impl<T: AsRef<[u8]> + AsMut<[u8]>> EcatFrame<T> {
@@ -146,7 +173,7 @@ impl<T: AsRef<[u8]> + AsMut<[u8]>> EcatFrame<T> {
     /// every frame it forwards back to the master, so that the master tells its own sent frames
     /// from returning ones.
     pub fn mark_returned(&mut self) {
-        self.buffer.as_mut()[6] |= 0x02;
+        mark_returned_frame(self.buffer.as_mut());
     }
 }
 
@@ -225,6 +252,17 @@ mod tests {
         assert_eq!(d.command(), Ok(Command::Brd));
         assert_eq!(d.ado(), 0x0130);
         assert_eq!(d.data_len(), 2);
+    }
+
+    #[test]
+    fn returned_mark() {
+        let mut bytes = brd_frame();
+        assert!(!is_returned_frame(&bytes));
+        EcatFrame::new_unchecked(&mut bytes[..]).mark_returned();
+        assert_eq!(bytes[6], 0x02);
+        assert!(EcatFrame::new_checked(&bytes[..]).unwrap().is_returned());
+        assert!(!is_returned_frame(&bytes[..6]));
+        mark_returned_frame(&mut bytes[..6]);
     }
 
     #[test]

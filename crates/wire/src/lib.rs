@@ -1,5 +1,7 @@
 //! EtherCAT on the wire: frame and datagram views and builders, the fifteen command codes,
-//! working-counter rules, register addresses and wrap-safe Distributed Clocks time arithmetic.
+//! working-counter rules, register addresses, typed views of the ESC's structured registers
+//! (FMMU and SyncManager entries, AL control and status with the AL status code, DL status) and
+//! wrap-safe Distributed Clocks time arithmetic.
 //!
 //! The style follows smoltcp's `wire` module: a packet is a typed view over a byte buffer
 //! (`new_checked` validates, accessors read and write fields in place) and a builder emits
@@ -26,22 +28,36 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod al;
 mod builder;
 mod command;
 mod datagram;
 pub mod dc_time;
+pub mod dl;
 mod error;
+pub mod fmmu;
 mod frame;
 pub mod register;
 pub mod sii;
+pub mod sync_manager;
 
+pub use al::{
+    AL_CONTROL_LEN, AL_STATUS_BLOCK_LEN, AL_STATUS_LEN, AlControl, AlControlRepr, AlState,
+    AlStatus, AlStatusCode, AlStatusRepr,
+};
 pub use builder::FrameBuilder;
 pub use command::{AddressMode, Command};
 pub use datagram::{
     DATAGRAM_HEADER_LEN, DATAGRAM_OVERHEAD, Datagram, DatagramAddress, MAX_DATAGRAM_DATA, WKC_LEN,
 };
+pub use dl::{DL_STATUS_LEN, DlStatus, DlStatusRepr, PortStatus};
 pub use error::WireError;
+pub use fmmu::{FMMU_ENTRY_LEN, Fmmu, FmmuRepr};
 pub use frame::{
     DatagramIter, ECAT_HEADER_LEN, ECAT_TYPE_COMMANDS, ETH_HEADER_LEN, ETHERTYPE_ETHERCAT,
-    EcatFrame, MAX_FRAME_LEN, MIN_FRAME_LEN,
+    EcatFrame, MAX_FRAME_LEN, MIN_FRAME_LEN, is_returned_frame, mark_returned_frame,
+};
+pub use sync_manager::{
+    SM_ENTRY_LEN, SmActivate, SmBufferState, SmControl, SmDirection, SmMode, SmPdiControl,
+    SmStatus, SyncManager, SyncManagerRepr,
 };

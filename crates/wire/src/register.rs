@@ -47,14 +47,30 @@ pub const SII_CONTROL: u16 = 0x0502;
 pub const SII_ADDRESS: u16 = 0x0504;
 /// SII EEPROM data (4 or 8 bytes read, 2 bytes written).
 pub const SII_DATA: u16 = 0x0508;
-/// First FMMU; each FMMU occupies [`FMMU_LEN`] bytes.
+/// First FMMU; each FMMU occupies [`FMMU_LEN`] bytes (layout: [`crate::fmmu`]).
 pub const FMMU_BASE: u16 = 0x0600;
 /// Bytes per FMMU.
-pub const FMMU_LEN: u16 = 16;
-/// First SyncManager; each occupies [`SM_LEN`] bytes.
+pub const FMMU_LEN: u16 = crate::fmmu::FMMU_ENTRY_LEN as u16;
+/// FMMUs the register map has room for (0x0600-0x06FF).
+pub const MAX_FMMUS: u8 = 16;
+/// First SyncManager; each occupies [`SM_LEN`] bytes (layout: [`crate::sync_manager`]).
 pub const SM_BASE: u16 = 0x0800;
 /// Bytes per SyncManager.
-pub const SM_LEN: u16 = 8;
+pub const SM_LEN: u16 = crate::sync_manager::SM_ENTRY_LEN as u16;
+/// SyncManagers the register map has room for (0x0800-0x087F).
+pub const MAX_SYNC_MANAGERS: u8 = 16;
+
+/// Address of FMMU `n`'s entry (`0x0600 + 16 n`); `n` is taken modulo [`MAX_FMMUS`], as the
+/// register map holds no more.
+pub const fn fmmu_address(n: u8) -> u16 {
+    FMMU_BASE + (n % MAX_FMMUS) as u16 * FMMU_LEN
+}
+
+/// Address of SyncManager `n`'s entry (`0x0800 + 8 n`); `n` is taken modulo
+/// [`MAX_SYNC_MANAGERS`].
+pub const fn sync_manager_address(n: u8) -> u16 {
+    SM_BASE + (n % MAX_SYNC_MANAGERS) as u16 * SM_LEN
+}
 /// Receive time port 0 (u32). A write to this register latches the receive times on all ports.
 pub const DC_RECEIVE_TIME_PORT0: u16 = 0x0900;
 /// Receive time port 1 (u32).
@@ -181,18 +197,21 @@ pub mod sii_control {
     pub const BUSY: u16 = 1 << 15;
 }
 
-/// AL states as written to [`AL_CONTROL`] and reported in [`AL_STATUS`] bits 3:0.
+/// AL state codes as bytes, for code that writes AL control by hand. They are
+/// [`crate::AlState`]'s encoding (the one place it is defined); prefer the enum and the views
+/// of [`crate::al`].
 pub mod al_state {
+    use crate::AlState;
     /// INIT.
-    pub const INIT: u8 = 1;
+    pub const INIT: u8 = AlState::Init.code();
     /// PRE-OPERATIONAL.
-    pub const PRE_OP: u8 = 2;
+    pub const PRE_OP: u8 = AlState::PreOp.code();
     /// BOOTSTRAP.
-    pub const BOOTSTRAP: u8 = 3;
+    pub const BOOTSTRAP: u8 = AlState::Bootstrap.code();
     /// SAFE-OPERATIONAL.
-    pub const SAFE_OP: u8 = 4;
+    pub const SAFE_OP: u8 = AlState::SafeOp.code();
     /// OPERATIONAL.
-    pub const OP: u8 = 8;
+    pub const OP: u8 = AlState::Op.code();
     /// AL status bit 4: error indication; AL control bit 4: error acknowledge.
     pub const ERROR_FLAG: u16 = 1 << 4;
 }

@@ -212,6 +212,113 @@ pub fn string(strings_category: &[u8], index: u8) -> Option<&[u8]> {
     None
 }
 
+/// Bytes of a category header: type, then size in words.
+pub const CATEGORY_HEADER_LEN: usize = 4;
+
+/// A category header (two words before the category's data).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct CategoryHeader {
+    /// Category type (see [`category`]).
+    pub kind: u16,
+    /// Size of the data in words.
+    pub size_words: u16,
+}
+
+impl CategoryHeader {
+    /// Reads a header from its first byte; an error if fewer than four bytes are given.
+    pub fn parse(bytes: &[u8]) -> Result<Self, WireError> {
+        match bytes {
+            [k0, k1, s0, s1, ..] => Ok(CategoryHeader {
+                kind: u16::from_le_bytes([*k0, *k1]),
+                size_words: u16::from_le_bytes([*s0, *s1]),
+            }),
+            _ => Err(WireError::Truncated {
+                needed: CATEGORY_HEADER_LEN,
+                have: bytes.len(),
+            }),
+        }
+    }
+
+    /// The header's four bytes.
+    pub fn to_bytes(&self) -> [u8; CATEGORY_HEADER_LEN] {
+        let [k0, k1] = self.kind.to_le_bytes();
+        let [s0, s1] = self.size_words.to_le_bytes();
+        [k0, k1, s0, s1]
+    }
+}
+
+/// Bytes of one entry of the SyncManager category.
+pub const SM_CATEGORY_ENTRY_LEN: usize = 8;
+
+/// SyncManager types of the SyncManager category (entry byte 7).
+pub mod sm_type {
+    /// Not used.
+    pub const UNUSED: u8 = 0;
+    /// Mailbox out (master to slave).
+    pub const MAILBOX_OUT: u8 = 1;
+    /// Mailbox in (slave to master).
+    pub const MAILBOX_IN: u8 = 2;
+    /// Process data outputs.
+    pub const OUTPUTS: u8 = 3;
+    /// Process data inputs.
+    pub const INPUTS: u8 = 4;
+}
+
+/// One entry of the SyncManager category (ETG.1000.6 table "Structure category
+/// SyncManager"): the register entry's first five bytes as the slave wants them, then what the
+/// SyncManager is for. Unlike the register entry ([`crate::SyncManagerRepr`]), byte 5 (status)
+/// is don't-care and byte 7 is the SyncManager's type.
+///
+/// The control and enable bytes are kept raw: an EEPROM may hold anything, and the master
+/// decides what to do with a value it cannot use ([`crate::SmControl::from_bits`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct SmCategoryEntry {
+    /// Physical start address of the buffer.
+    pub physical_start: u16,
+    /// Default length in bytes (0: computed from the PDOs).
+    pub length_bytes: u16,
+    /// Control register value.
+    pub control: u8,
+    /// Enable byte: bit 0 enable, bit 1 fixed content, bit 2 virtual, bit 3 OP only.
+    pub enable: u8,
+    /// SyncManager type, see [`sm_type`].
+    pub kind: u8,
+}
+
+impl SmCategoryEntry {
+    /// Reads an entry from its first byte; an error if fewer than eight bytes are given.
+    pub fn parse(bytes: &[u8]) -> Result<Self, WireError> {
+        match bytes {
+            [a0, a1, l0, l1, control, _status, enable, kind, ..] => Ok(SmCategoryEntry {
+                physical_start: u16::from_le_bytes([*a0, *a1]),
+                length_bytes: u16::from_le_bytes([*l0, *l1]),
+                control: *control,
+                enable: *enable,
+                kind: *kind,
+            }),
+            _ => Err(WireError::Truncated {
+                needed: SM_CATEGORY_ENTRY_LEN,
+                have: bytes.len(),
+            }),
+        }
+    }
+
+    /// The entry's eight bytes (status as 0).
+    pub fn to_bytes(&self) -> [u8; SM_CATEGORY_ENTRY_LEN] {
+        let [a0, a1] = self.physical_start.to_le_bytes();
+        let [l0, l1] = self.length_bytes.to_le_bytes();
+        [a0, a1, l0, l1, self.control, 0, self.enable, self.kind]
+    }
+
+    /// The entries of a SyncManager category's data, in SyncManager order (a trailing partial
+    /// entry is ignored).
+    pub fn entries(category_data: &[u8]) -> impl Iterator<Item = SmCategoryEntry> + '_ {
+        category_data
+            .chunks_exact(SM_CATEGORY_ENTRY_LEN)
+            .filter_map(|e| SmCategoryEntry::parse(e).ok())
+    }
+}
+
 /// Byte offsets within the general category.
 pub mod general {
     /// String index of the group.
@@ -287,6 +394,36 @@ mod tests {
         assert_eq!(string(s.data, 2), Some(&b"xy"[..]));
         assert_eq!(string(s.data, 3), None);
         assert_eq!(string(s.data, 0), Some(&b""[..]));
+    }
+
+    #[test]
+    fn sync_manager_entry_of_a_real_el2004() {
+        // The SyncManager category (41, 4 words) of shared/captures/el2004-eeprom-dump.bin:
+        // outputs at 0x0F00, length 0 (from the PDOs), control 0x44 (buffered, EtherCAT
+        // writes, watchdog), enable 0x09 (enabled, OP only), type 3 (outputs).
+        let data = [0x00, 0x0f, 0x00, 0x00, 0x44, 0x00, 0x09, 0x03];
+        let e: std::vec::Vec<_> = SmCategoryEntry::entries(&data).collect();
+        let want = SmCategoryEntry {
+            physical_start: 0x0f00,
+            length_bytes: 0,
+            control: 0x44,
+            enable: 0x09,
+            kind: sm_type::OUTPUTS,
+        };
+        assert_eq!(e, [want]);
+        assert_eq!(want.to_bytes(), data);
+        let c = crate::SmControl::from_bits(want.control).unwrap();
+        assert_eq!(c.direction, crate::SmDirection::Write);
+        assert!(c.watchdog);
+        assert!(SmCategoryEntry::parse(&data[..7]).is_err());
+        assert_eq!(SmCategoryEntry::entries(&data[..7]).count(), 0);
+        let h = CategoryHeader {
+            kind: category::SYNC_MANAGER,
+            size_words: 4,
+        };
+        assert_eq!(h.to_bytes(), [41, 0, 4, 0]);
+        assert_eq!(CategoryHeader::parse(&h.to_bytes()), Ok(h));
+        assert!(CategoryHeader::parse(&[41, 0, 4]).is_err());
     }
 
     #[test]
