@@ -13,9 +13,11 @@ use crate::MasterError;
 use crate::io::{Event, Link, Pdu, PduReply};
 use crate::sii::{SiiReader, pdo_bits_for_sm};
 use ecsync_dc::{LockDetector, SlavePorts, TreeNode, build_tree, propagation_delays};
-use ecsync_wire::register::{self as reg, al_state, dl_status, features};
+use ecsync_wire::register::{self as reg, dl_status, features};
 use ecsync_wire::sii::{self, Identity, category};
-use ecsync_wire::{Command, DatagramAddress, dc_time};
+use ecsync_wire::{
+    AlControlRepr, AlState, AlStatus, AlStatusCode, Command, DatagramAddress, dc_time,
+};
 use std::fmt;
 
 /// First configured station address; slave k gets `STATION_BASE + k`.
@@ -483,7 +485,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     request_all(
         &link,
         &net.slaves,
-        al_state::PRE_OP,
+        AlState::PreOp,
         Phase::PreOp,
         &cfg.timeouts,
     )
@@ -503,7 +505,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     request_all(
         &link,
         &net.slaves,
-        al_state::SAFE_OP,
+        AlState::SafeOp,
         Phase::SafeOp,
         &cfg.timeouts,
     )
@@ -578,10 +580,15 @@ async fn scan(link: &Link) -> Result<Scanned, MasterError> {
 /// [`Phase::Reset`]: INIT with error acknowledge, FMMUs and SyncManagers cleared, SYNC off, in
 /// one exchange of broadcast writes.
 async fn reset(link: &Link) -> Result<(), MasterError> {
+    let init = AlControlRepr {
+        state: AlState::Init,
+        error_ack: true,
+        id_request: false,
+    };
     let mut reset = vec![Pdu::new(
         Command::Bwr,
         position_addr(0, reg::AL_CONTROL),
-        vec![0x11, 0x00],
+        init.to_bytes().to_vec(),
     )];
     for n in 0..16 {
         reset.push(Pdu::new(
@@ -1315,7 +1322,7 @@ fn map_process_image(slaves: &mut [SlaveInfo]) -> ProcessImage {
 async fn request_all(
     link: &Link,
     slaves: &[SlaveInfo],
-    state: u8,
+    state: AlState,
     phase: Phase,
     timeouts: &BringupTimeouts,
 ) -> Result<(), MasterError> {
@@ -1463,8 +1470,9 @@ async fn enter_op(
     cyclic: &CyclicFrame,
     grid: &mut CycleGrid,
 ) -> Result<(), MasterError> {
+    let op = AlControlRepr::request(AlState::Op).to_bytes();
     for s in slaves {
-        link.fpwr(s.station, reg::AL_CONTROL, &[al_state::OP, 0], "request OP")
+        link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
             .await
             .map_err(|e| e.at(Phase::Op, s.id()))?;
     }
@@ -1484,12 +1492,15 @@ async fn enter_op(
                 "AL status",
             )
             .await?;
-        if r[0].wkc == count && r[0].data[0] & 0x1f == al_state::OP {
+        // The slaves' AL status OR-ed: OP, and none shows the error indication.
+        let status = AlStatus::new_checked(&r[0].data[..])
+            .map_err(|_| MasterError::BadReply("AL status"))?;
+        if r[0].wkc == count && status.state() == Ok(AlState::Op) && !status.error() {
             return Ok(());
         }
         if link.now_ns() > deadline {
             return Err(MasterError::NetworkStateTimeout {
-                state: al_state::OP,
+                state: AlState::Op,
                 answered: r[0].wkc,
                 expected: count,
                 status: r[0].data[0],
@@ -1535,23 +1546,34 @@ async fn monitor(
 pub async fn request_state(
     link: &Link,
     station: u16,
-    state: u8,
+    state: AlState,
     timeouts: &BringupTimeouts,
 ) -> Result<(), MasterError> {
-    link.fpwr(station, reg::AL_CONTROL, &[state, 0], "AL control")
+    let request = AlControlRepr::request(state).to_bytes();
+    link.fpwr(station, reg::AL_CONTROL, &request, "AL control")
         .await?;
     let start = link.now_ns();
     loop {
-        let v = link.fprd(station, reg::AL_STATUS, 6, "AL status").await?;
-        let status = u16::from_le_bytes([v[0], v[1]]);
-        if status & al_state::ERROR_FLAG != 0 {
+        // AL status and, four bytes on, the AL status code, in one read.
+        let v = link
+            .fprd(
+                station,
+                reg::AL_STATUS,
+                ecsync_wire::al::AL_STATUS_BLOCK_LEN,
+                "AL status",
+            )
+            .await?;
+        let status =
+            AlStatus::new_checked(&v[..]).map_err(|_| MasterError::BadReply("AL status"))?;
+        if status.error() {
             return Err(MasterError::StateChange {
                 slave: station,
                 state,
-                code: u16::from_le_bytes([v[4], v[5]]),
+                // The read reaches the code (the datagram has the length asked for).
+                code: status.status_code().unwrap_or(AlStatusCode::NoError),
             });
         }
-        if (status & 0x0f) as u8 == state {
+        if status.state_raw() == state.code() {
             return Ok(());
         }
         if link.now_ns().saturating_sub(start) > timeouts.state_timeout_ns {

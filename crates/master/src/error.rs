@@ -1,5 +1,5 @@
 use crate::bringup::{Phase, SlaveId};
-use ecsync_wire::Command;
+use ecsync_wire::{AlState, AlStatusCode, Command};
 
 /// Why the master could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -43,32 +43,32 @@ pub enum MasterError {
     #[error("no DC-capable slave to act as reference clock")]
     NoReferenceClock,
     /// A slave refused a state change.
-    #[error("slave {slave}: could not enter state {state:#x} (AL status code {code:#06x})")]
+    #[error("slave {slave}: could not enter {state}: AL status code {code}")]
     StateChange {
         /// Station address.
         slave: u16,
         /// Requested state.
-        state: u8,
-        /// AL status code.
-        code: u16,
+        state: AlState,
+        /// AL status code: why.
+        code: AlStatusCode,
     },
     /// A slave did not reach a state in time.
-    #[error("slave {slave}: timed out waiting for state {state:#x}")]
+    #[error("slave {slave}: timed out waiting for {state}")]
     StateTimeout {
         /// Station address.
         slave: u16,
         /// Requested state.
-        state: u8,
+        state: AlState,
     },
     /// Not every slave reached a state in time, as a broadcast read of AL status shows (which
     /// cannot tell the slaves apart).
     #[error(
-        "timed out waiting for every slave to report state {state:#x} ({answered} of {expected} \
+        "timed out waiting for every slave to report {state} ({answered} of {expected} \
          answered, their AL status OR-ed {status:#04x})"
     )]
     NetworkStateTimeout {
         /// Requested state.
-        state: u8,
+        state: AlState,
         /// Slaves that answered the last read (its working counter).
         answered: u16,
         /// Slaves in the network.
@@ -150,11 +150,9 @@ impl MasterError {
         match self {
             MasterError::Sii { what, .. } => format!("SII EEPROM {what}"),
             MasterError::StateChange { state, code, .. } => {
-                format!("could not enter state {state:#x} (AL status code {code:#06x})")
+                format!("could not enter {state}: AL status code {code}")
             }
-            MasterError::StateTimeout { state, .. } => {
-                format!("timed out waiting for state {state:#x}")
-            }
+            MasterError::StateTimeout { state, .. } => format!("timed out waiting for {state}"),
             e => e.to_string(),
         }
     }

@@ -9,7 +9,9 @@
 //!   slave has, so that nobody answers it (working counter 0, data as sent) — what the master
 //!   sees of a slave at the end of a line that lost power. Broadcasts still count it and an
 //!   FRMW still reaches it, so the tests kill a slave where its next exchange is addressed to
-//!   it alone.
+//!   it alone;
+//! * a misconfigured slave: the FPWRs of SyncManager entries (0x0800-0x087F) to
+//!   `blank_sync_managers_of` reach it as zeros (every SyncManager off), so it refuses SAFE-OP.
 
 use ecsync_esc::{Segment, preset};
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, run_procedure};
@@ -18,7 +20,7 @@ use ecsync_master::transport::{Never, Received, Transport};
 use ecsync_master::{
     BringupConfig, Engine, Event, MasterError, Network, Phase, SlaveId, Stage, bringup,
 };
-use ecsync_wire::{Command, Datagram, EcatFrame};
+use ecsync_wire::{AlState, AlStatusCode, Command, Datagram, EcatFrame};
 use std::collections::VecDeque;
 
 /// A station address no slave of the bring-up has (they count up from 0x1000).
@@ -41,6 +43,8 @@ struct Faults {
     lose_next: u32,
     /// The slave at this station does not answer its configured-address datagrams.
     dead_station: Option<u16>,
+    /// The SyncManager writes to this station arrive as zeros.
+    blank_sync_managers_of: Option<u16>,
     in_flight: VecDeque<Sent>,
 }
 
@@ -51,13 +55,19 @@ impl Faults {
             lose: false,
             lose_next: 0,
             dead_station: None,
+            blank_sync_managers_of: None,
             in_flight: VecDeque::new(),
         }
     }
 }
 
-/// Payload offsets of the configured-address datagrams to `station`.
-fn datagrams_to(frame: &[u8], station: u16) -> Vec<usize> {
+/// Payload offsets of the FPRD, FPWR and FPRW datagrams to `station` whose register address
+/// lies in `registers`.
+fn datagrams_to(
+    frame: &[u8],
+    station: u16,
+    registers: std::ops::RangeInclusive<u16>,
+) -> Vec<usize> {
     let Ok(f) = EcatFrame::new_checked(frame) else {
         return Vec::new();
     };
@@ -70,7 +80,7 @@ fn datagrams_to(frame: &[u8], station: u16) -> Vec<usize> {
             d.command(),
             Ok(Command::Fprd | Command::Fpwr | Command::Fprw)
         );
-        if configured && d.adp() == station {
+        if configured && d.adp() == station && registers.contains(&d.ado()) {
             out.push(at);
         }
     }
@@ -86,6 +96,21 @@ fn set_adp(frame: &mut [u8], offsets: &[usize], adp: u16) {
     for &at in offsets {
         if let Ok(mut d) = Datagram::new_checked(&mut payload[at..]) {
             d.set_adp(adp);
+        }
+    }
+}
+
+/// Zeroes the data of the `command` datagrams at `offsets` of the frame's payload.
+fn zero_data(frame: &mut [u8], offsets: &[usize], command: Command) {
+    let Ok(mut f) = EcatFrame::new_checked(frame) else {
+        return;
+    };
+    let payload = f.payload_mut();
+    for &at in offsets {
+        if let Ok(mut d) = Datagram::new_checked(&mut payload[at..])
+            && d.command() == Ok(command)
+        {
+            d.data_mut().fill(0);
         }
     }
 }
@@ -113,12 +138,16 @@ impl Transport for Faults {
             lost: self.lose || lost_next,
             readdressed: Vec::new(),
         };
-        let dead = self.dead_station;
+        let (dead, blank) = (self.dead_station, self.blank_sync_managers_of);
         let r = self.inner.send_with(len, at_ns, |buf| {
             fill(buf);
             if let Some(station) = dead {
-                sent.readdressed = datagrams_to(buf, station);
+                sent.readdressed = datagrams_to(buf, station, 0..=u16::MAX);
                 set_adp(buf, &sent.readdressed, NOBODY);
+            }
+            if let Some(station) = blank {
+                let sm = datagrams_to(buf, station, 0x0800..=0x087f);
+                zero_data(buf, &sm, Command::Fpwr);
             }
         });
         self.in_flight.push_back(sent);
@@ -379,5 +408,30 @@ fn a_slave_dead_before_safe_op_is_named() {
     assert_eq!(
         e.to_string(),
         "safe-op: slave 5 (station 0x1005): FPWR AL control: working counter 0, expected 1"
+    );
+}
+
+#[test]
+fn a_slave_that_refuses_safe_op_is_named_with_its_al_status_code() {
+    let e = bring_up(
+        quick(),
+        |tr| tr.blank_sync_managers_of = Some(0x1002),
+        |_, _| {},
+    )
+    .unwrap_err();
+    assert_eq!(e.phase(), Some(Phase::SafeOp));
+    assert_eq!(e.slave(), slave(2));
+    assert_eq!(
+        e.root(),
+        &MasterError::StateChange {
+            slave: 0x1002,
+            state: AlState::SafeOp,
+            code: AlStatusCode::InvalidOutputConfiguration,
+        }
+    );
+    assert_eq!(
+        e.to_string(),
+        "safe-op: slave 2 (station 0x1002): could not enter SAFE-OP: AL status code 0x001d \
+         (Invalid output configuration)"
     );
 }
