@@ -399,11 +399,13 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         },
     ) {
         Ok(Ok(n)) => n,
-        Ok(Err(MasterError::FrameLost { what })) => bail!(
-            "no answer on {} during the bring-up ({what}): is a segment (or `ecsync serve`) connected?",
-            args.iface
-        ),
-        Ok(Err(e)) => bail!("bring-up on {} failed: {e}", args.iface),
+        Ok(Err(e)) => match e.root() {
+            MasterError::FrameLost { .. } => bail!(
+                "no answer on {} during the bring-up ({e}): is a segment (or `ecsync serve`) connected?",
+                args.iface
+            ),
+            _ => bail!("bring-up on {} failed: {e}", args.iface),
+        },
         Err(NetError::Open(e)) => bail!("{e}"),
         Err(e) => bail!("bring-up on {}: {e}", args.iface),
     };

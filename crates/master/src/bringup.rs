@@ -2,14 +2,23 @@
 //! offsets, static drift compensation, lock detection, process data mapping, SYNC0 and the
 //! state machine up to OP — the sequence of the datasheet (section I, 9.1.3.6) as SOEM and IgH
 //! run it, with delays averaged over several latches.
+//!
+//! [`bringup`] is the sequence of [`Phase`]s, one function each; a phase takes what the phases
+//! before it learned (typed results such as the slave count, the reference clock, the last
+//! latch) and returns its own. An error names the phase it happened in and, where the failing
+//! exchange concerned one slave, that slave ([`MasterError::Bringup`]). Every timeout is a
+//! field of [`BringupTimeouts`].
 
 use crate::MasterError;
-use crate::io::{Event, Link, Pdu};
+use crate::io::{Event, Link, Pdu, PduReply};
 use crate::sii::{SiiReader, pdo_bits_for_sm};
 use ecsync_dc::{LockDetector, SlavePorts, TreeNode, build_tree, propagation_delays};
-use ecsync_wire::register::{self as reg, al_state, dl_status, features};
+use ecsync_wire::register::{self as reg, dl_status, features};
 use ecsync_wire::sii::{self, Identity, category};
-use ecsync_wire::{Command, DatagramAddress, dc_time};
+use ecsync_wire::{
+    AlControlRepr, AlState, AlStatus, AlStatusCode, Command, DatagramAddress, dc_time,
+};
+use std::fmt;
 
 /// First configured station address; slave k gets `STATION_BASE + k`.
 pub const STATION_BASE: u16 = 0x1000;
@@ -46,6 +55,14 @@ pub struct BringupConfig {
     pub until: Stage,
     /// Latches of the receive times whose delays are averaged.
     pub latch_rounds: u32,
+    /// The latch rounds are spread over this much master time, ns: long enough that each
+    /// slave's clock rate relative to the master can be measured from its first and last port 0
+    /// stamps (20 ms at 25 ppm is 500 ns of drift, a clear signal over the 40 ns stamp
+    /// resolution) and the spans corrected for it, short against the rest of the bring-up.
+    pub latch_window_ns: u64,
+    /// The least gap between two latch rounds, ns, however many rounds share the window: a
+    /// frame and its read-back must have left the segment before the next latch.
+    pub latch_min_gap_ns: u64,
     /// Separate FRMW frames of static drift compensation (the datasheet recommends ~15000).
     pub static_drift_frames: u32,
     /// Read every slave's 0x092C after this many static drift frames.
@@ -54,8 +71,6 @@ pub struct BringupConfig {
     pub lock_threshold_ns: u32,
     /// ... for this many consecutive checks.
     pub lock_hold_checks: u32,
-    /// Give up if not locked this long after the static drift compensation, ns.
-    pub lock_timeout_ns: u64,
     /// Cycle time of the cyclic phase and SYNC0, ns.
     pub cycle_ns: u32,
     /// SYNC0 shift: SYNC0 fires this long after the cycle's grid point, ns.
@@ -71,6 +86,8 @@ pub struct BringupConfig {
     /// its delay to the reference from the latch frames' round trips and set the reference's
     /// system time to the master's clock at the frame's arrival (instead of at its send).
     pub master_is_reference: bool,
+    /// How long each wait of the bring-up may last.
+    pub timeouts: BringupTimeouts,
 }
 
 impl Default for BringupConfig {
@@ -78,18 +95,166 @@ impl Default for BringupConfig {
         BringupConfig {
             until: Stage::Op,
             latch_rounds: 64,
+            latch_window_ns: 20_000_000,
+            latch_min_gap_ns: 2_000,
             static_drift_frames: 15_000,
             check_every_frames: 100,
             lock_threshold_ns: 100,
             lock_hold_checks: 1_000,
-            lock_timeout_ns: 30_000_000_000,
             cycle_ns: 1_000_000,
             sync0_shift_ns: 300_000,
             sync0_lead_ns: 100_000_000,
             monitor_cycles: 1_000,
             esi: Vec::new(),
             master_is_reference: false,
+            timeouts: BringupTimeouts::default(),
         }
+    }
+}
+
+impl BringupConfig {
+    /// Checks what the bring-up cannot run with (before any frame is sent).
+    fn validate(&self) -> Result<(), MasterError> {
+        if self.cycle_ns == 0 || self.sync0_shift_ns >= self.cycle_ns {
+            return Err(MasterError::Config(format!(
+                "cycle {} ns and SYNC0 shift {} ns: the shift must lie within the cycle",
+                self.cycle_ns, self.sync0_shift_ns
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// How long the bring-up waits for the network, master time. Each wait polls by exchanging
+/// frames, so a timeout bounds both the time and the frames a dead or refusing slave costs.
+/// (How long one frame is waited for, and how often a lost one is sent again, is the driver's
+/// [`crate::driver::ProcedureConfig`].)
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BringupTimeouts {
+    /// How long a slave's SII EEPROM may stay busy with one command, ns. 100 ms: an EEPROM
+    /// read of 8 bytes over I2C takes well under a millisecond, SOEM allows 20 ms and ethercrab
+    /// 10 ms; the margin covers slow EEPROMs and a host that stalls during the poll, and a
+    /// missing EEPROM still fails in a tenth of a second.
+    pub sii_busy_timeout_ns: u64,
+    /// How long one slave may take to report a requested AL state (PRE-OP, SAFE-OP), ns. 5 s:
+    /// a slave's application may take seconds to accept a state (it checks its SyncManagers,
+    /// starts its firmware's tasks); ethercrab waits 5 s, SOEM 2 s.
+    pub state_timeout_ns: u64,
+    /// The pause between two reads of AL status while waiting for a state, ns. 100 us: a state
+    /// reached is seen within a tenth of a millisecond, and the wait costs at most one frame
+    /// per 100 us on the wire.
+    pub state_poll_interval_ns: u64,
+    /// How long the whole network may take to report OP with the cyclic frame running, ns.
+    /// 10 s, twice a single state change: a slave enters OP only once it has seen valid
+    /// process data and its SYNC0 running, and all slaves must get there.
+    pub op_timeout_ns: u64,
+    /// Give up if the network is not locked this long after the static drift compensation,
+    /// ns. 30 s: the time control loops pull in a few ppm of crystal difference in seconds;
+    /// the timeout runs from the end of the static drift compensation, whose length grows with
+    /// the network, so large networks get the same allowance.
+    pub lock_timeout_ns: u64,
+}
+
+impl Default for BringupTimeouts {
+    fn default() -> Self {
+        BringupTimeouts {
+            sii_busy_timeout_ns: crate::sii::BUSY_TIMEOUT_NS,
+            state_timeout_ns: 5_000_000_000,
+            state_poll_interval_ns: 100_000,
+            op_timeout_ns: 10_000_000_000,
+            lock_timeout_ns: 30_000_000_000,
+        }
+    }
+}
+
+/// A phase of the bring-up, in the order [`bringup`] runs them. Its [`Display`](fmt::Display)
+/// is the name progress lines and errors use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Phase {
+    /// Counting the slaves (a broadcast read of the ESC type).
+    Scan,
+    /// Every slave to INIT (errors acknowledged), FMMUs and SyncManagers cleared, SYNC off.
+    Reset,
+    /// Configured station addresses, by auto-increment position.
+    StationAddresses,
+    /// ESC type, features and ports, the SII identity; with [`Stage::Lock`] and beyond also the
+    /// device name and the process data SyncManagers.
+    Identify,
+    /// Which slaves without the DC feature have receive times; the reference clock.
+    DcProbe,
+    /// Receive time latches, topology and propagation delays.
+    Delays,
+    /// System time offsets and delays written, the time control loop filters reset.
+    Offsets,
+    /// Static drift compensation: FRMW frames with lock checks.
+    StaticDrift,
+    /// Cyclic FRMW until every slave's 0x092C holds below the threshold.
+    Lock,
+    /// INIT to PRE-OP.
+    PreOp,
+    /// SyncManagers and FMMUs of the process data.
+    ProcessData,
+    /// SYNC0 programmed on the reference's system time grid.
+    Sync0,
+    /// PRE-OP to SAFE-OP.
+    SafeOp,
+    /// SAFE-OP to OP with the cyclic frame running.
+    Op,
+    /// The cyclic frame in OP, 0x092C and the process data working counter watched.
+    Monitor,
+}
+
+impl Phase {
+    /// The phase's name, as progress lines and errors print it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Scan => "scan",
+            Phase::Reset => "reset",
+            Phase::StationAddresses => "station addresses",
+            Phase::Identify => "identify",
+            Phase::DcProbe => "DC probe",
+            Phase::Delays => "delays",
+            Phase::Offsets => "offsets",
+            Phase::StaticDrift => "drift",
+            Phase::Lock => "lock",
+            Phase::PreOp => "pre-op",
+            Phase::ProcessData => "process data",
+            Phase::Sync0 => "sync0",
+            Phase::SafeOp => "safe-op",
+            Phase::Op => "op",
+            Phase::Monitor => "monitor",
+        }
+    }
+}
+
+impl fmt::Display for Phase {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A slave as errors name it: where it sits and the address the master gave it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct SlaveId {
+    /// Auto-increment position (network order, from 0).
+    pub position: u16,
+    /// Configured station address.
+    pub station: u16,
+}
+
+impl SlaveId {
+    /// The slave at `position`, with the station address this bring-up gives it.
+    fn at_position(position: u16) -> Self {
+        SlaveId {
+            position,
+            station: STATION_BASE + position,
+        }
+    }
+}
+
+impl fmt::Display for SlaveId {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "slave {} (station {:#06x})", self.position, self.station)
     }
 }
 
@@ -150,6 +315,16 @@ pub struct SlaveInfo {
     /// Output and input SyncManager indices and physical starts.
     #[serde(skip)]
     pub sms: Vec<SmConfig>,
+}
+
+impl SlaveInfo {
+    /// Position and station address.
+    pub fn id(&self) -> SlaveId {
+        SlaveId {
+            position: self.position,
+            station: self.station,
+        }
+    }
 }
 
 /// A process data SyncManager as the SII describes it.
@@ -236,15 +411,157 @@ fn fp(station: u16, ado: u16) -> DatagramAddress {
     DatagramAddress::Configured { adp: station, ado }
 }
 
-/// Runs the bring-up on a link.
+/// The delay rounds dither their send instant across this span, ns: the receive time stamps'
+/// resolution, so that the mean over the rounds resolves below it.
+const LATCH_DITHER_NS: u64 = 40;
+
+/// A clock rate (a slave's local time over master time) further than this from 1 is a
+/// misread, not a crystal (crystals are within 100 ppm).
+const PLAUSIBLE_RATE_ERROR: f64 = 1e-3;
+
+/// Runs the bring-up on a link: the phases in order, each fed what the ones before learned,
+/// up to [`BringupConfig::until`].
 pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterError> {
-    if cfg.cycle_ns == 0 || cfg.sync0_shift_ns >= cfg.cycle_ns {
-        return Err(MasterError::Config(format!(
-            "cycle {} ns and SYNC0 shift {} ns: the shift must lie within the cycle",
-            cfg.cycle_ns, cfg.sync0_shift_ns
-        )));
+    cfg.validate()?;
+    // Progress events keep the steps `ecsync run` has always printed: reset and addressing
+    // belong to "scan", the DC probe to "identify", lock, PRE-OP and the mapping to "drift".
+    link.event(Event::Phase(Phase::Scan));
+    let scanned = scan(&link).await.map_err(|e| e.during(Phase::Scan))?;
+    reset(&link).await.map_err(|e| e.during(Phase::Reset))?;
+    let addressed = assign_station_addresses(&link, scanned)
+        .await
+        .map_err(|e| e.during(Phase::StationAddresses))?;
+
+    link.event(Event::Phase(Phase::Identify));
+    let mut slaves = identify(&link, &addressed, &cfg)
+        .await
+        .map_err(|e| e.during(Phase::Identify))?;
+    let reference = probe_dc(&link, &mut slaves)
+        .await
+        .map_err(|e| e.during(Phase::DcProbe))?;
+
+    link.event(Event::Phase(Phase::Delays));
+    let latch = measure_delays(&link, &cfg, &mut slaves, reference.index)
+        .await
+        .map_err(|e| e.during(Phase::Delays))?;
+    let mut net = Network {
+        slaves,
+        reference: reference.index as u16,
+        lock: LockReport::not_run(),
+        sync0: None,
+        pdi_len: 0,
+        lrw: Vec::new(),
+        expected_lrw_wkc: 0,
+        done_ns: 0,
+        master_delay_ns: latch.master_delay_ns,
+        master_delay_spread_ns: latch.master_delay_spread_ns,
+    };
+    if cfg.until == Stage::Delays {
+        return Ok(net.done_at(&link));
     }
-    link.event(Event::Phase("scan"));
+
+    link.event(Event::Phase(Phase::Offsets));
+    write_offsets(&link, &mut net.slaves, &latch)
+        .await
+        .map_err(|e| e.during(Phase::Offsets))?;
+
+    link.event(Event::Phase(Phase::StaticDrift));
+    let dc = DcGroup::of(&net.slaves, reference.id);
+    let drift = static_drift(&link, &cfg, &dc)
+        .await
+        .map_err(|e| e.during(Phase::StaticDrift))?;
+    let locked = wait_for_lock(&link, &cfg, &dc, drift)
+        .await
+        .map_err(|e| e.during(Phase::Lock))?;
+    net.lock = locked.report;
+    let mut grid = locked.grid;
+    let image = map_process_image(&mut net.slaves);
+    net.pdi_len = image.pdi_len;
+    net.lrw = image.lrw;
+    if cfg.until == Stage::Lock {
+        return Ok(net.done_at(&link));
+    }
+
+    request_all(
+        &link,
+        &net.slaves,
+        AlState::PreOp,
+        Phase::PreOp,
+        &cfg.timeouts,
+    )
+    .await
+    .map_err(|e| e.during(Phase::PreOp))?;
+    net.expected_lrw_wkc = configure_process_data(&link, &net.slaves)
+        .await
+        .map_err(|e| e.during(Phase::ProcessData))?;
+
+    link.event(Event::Phase(Phase::Sync0));
+    net.sync0 = start_sync0(&link, &cfg, &net.slaves, &dc)
+        .await
+        .map_err(|e| e.during(Phase::Sync0))?;
+
+    let cyclic = CyclicFrame::new(&dc, &net.lrw);
+    link.event(Event::Phase(Phase::SafeOp));
+    request_all(
+        &link,
+        &net.slaves,
+        AlState::SafeOp,
+        Phase::SafeOp,
+        &cfg.timeouts,
+    )
+    .await
+    .map_err(|e| e.during(Phase::SafeOp))?;
+    link.event(Event::Phase(Phase::Op));
+    enter_op(&link, &cfg.timeouts, &net.slaves, &cyclic, &mut grid)
+        .await
+        .map_err(|e| e.during(Phase::Op))?;
+
+    link.event(Event::Phase(Phase::Monitor));
+    net.lock.max_abs_092c_after_lock_ns = monitor(
+        &link,
+        &cfg,
+        &dc,
+        &cyclic,
+        net.pdi_len,
+        net.expected_lrw_wkc,
+        &mut grid,
+    )
+    .await
+    .map_err(|e| e.during(Phase::Monitor))?;
+    Ok(net.done_at(&link))
+}
+
+impl Network {
+    /// The network as it stands when the bring-up returns.
+    fn done_at(mut self, link: &Link) -> Network {
+        self.done_ns = link.now_ns();
+        self
+    }
+}
+
+impl LockReport {
+    /// The report of a bring-up that stopped before the static drift compensation.
+    fn not_run() -> Self {
+        LockReport {
+            converged: false,
+            time_to_lock_ns: None,
+            drift_start_ns: 0,
+            declared_ns: None,
+            max_abs_092c_after_lock_ns: 0,
+            frmw_frames: 0,
+        }
+    }
+}
+
+/// What [`scan`] found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Scanned {
+    /// Slaves that answered the broadcast (at least one).
+    count: u16,
+}
+
+/// [`Phase::Scan`]: counts the slaves by the working counter of a broadcast read.
+async fn scan(link: &Link) -> Result<Scanned, MasterError> {
     let count = link
         .pdu(
             Command::Brd,
@@ -257,12 +574,21 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     if count == 0 {
         return Err(MasterError::NoSlaves);
     }
+    Ok(Scanned { count })
+}
 
-    // Reset: INIT with error acknowledge, FMMUs and SyncManagers cleared, SYNC off.
+/// [`Phase::Reset`]: INIT with error acknowledge, FMMUs and SyncManagers cleared, SYNC off, in
+/// one exchange of broadcast writes.
+async fn reset(link: &Link) -> Result<(), MasterError> {
+    let init = AlControlRepr {
+        state: AlState::Init,
+        error_ack: true,
+        id_request: false,
+    };
     let mut reset = vec![Pdu::new(
         Command::Bwr,
         position_addr(0, reg::AL_CONTROL),
-        vec![0x11, 0x00],
+        init.to_bytes().to_vec(),
     )];
     for n in 0..16 {
         reset.push(Pdu::new(
@@ -282,134 +608,183 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         vec![0],
     ));
     link.pdus(&reset, "reset").await?;
+    Ok(())
+}
 
-    // Addresses.
-    for pos in 0..count {
+/// What [`assign_station_addresses`] set up: every slave, addressable by station.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Addressed {
+    /// In network order.
+    slaves: Vec<SlaveId>,
+}
+
+/// [`Phase::StationAddresses`]: slave k gets station `STATION_BASE + k`.
+async fn assign_station_addresses(link: &Link, scanned: Scanned) -> Result<Addressed, MasterError> {
+    let slaves: Vec<SlaveId> = (0..scanned.count).map(SlaveId::at_position).collect();
+    for &id in &slaves {
         link.pdu_wkc(
             Command::Apwr,
-            position_addr(pos, reg::STATION_ADDRESS),
-            (STATION_BASE + pos).to_le_bytes().to_vec(),
+            position_addr(id.position, reg::STATION_ADDRESS),
+            id.station.to_le_bytes().to_vec(),
             1,
             "set station address",
         )
+        .await
+        .map_err(|e| e.at(Phase::StationAddresses, id))?;
+    }
+    Ok(Addressed { slaves })
+}
+
+/// [`Phase::Identify`]: what every slave is; see [`identify_slave`].
+async fn identify(
+    link: &Link,
+    addressed: &Addressed,
+    cfg: &BringupConfig,
+) -> Result<Vec<SlaveInfo>, MasterError> {
+    let mut slaves = Vec::with_capacity(addressed.slaves.len());
+    for &id in &addressed.slaves {
+        let s = identify_slave(link, id, cfg)
+            .await
+            .map_err(|e| e.at(Phase::Identify, id))?;
+        slaves.push(s);
+    }
+    Ok(slaves)
+}
+
+/// ESC type, features and open ports, then the SII: identity always; the device name and
+/// the process data SyncManagers (with their PDO sizes) only when the bring-up goes beyond
+/// the delays, since they cost many EEPROM reads.
+async fn identify_slave(
+    link: &Link,
+    id: SlaveId,
+    cfg: &BringupConfig,
+) -> Result<SlaveInfo, MasterError> {
+    let SlaveId {
+        position: pos,
+        station,
+    } = id;
+    let (r, _) = link
+        .pdus(
+            &[
+                Pdu::new(Command::Fprd, fp(station, 0x0000), vec![0; 16]),
+                Pdu::new(Command::Fprd, fp(station, reg::STATION_ALIAS), vec![0; 2]),
+                Pdu::new(Command::Fprd, fp(station, reg::DL_STATUS), vec![0; 2]),
+            ],
+            "read ESC information",
+        )
         .await?;
-    }
-
-    // Identity, features, ports.
-    link.event(Event::Phase("identify"));
-    let mut slaves = Vec::with_capacity(usize::from(count));
-    for pos in 0..count {
-        let station = STATION_BASE + pos;
-        let (r, _) = link
-            .pdus(
-                &[
-                    Pdu::new(Command::Fprd, fp(station, 0x0000), vec![0; 16]),
-                    Pdu::new(Command::Fprd, fp(station, reg::STATION_ALIAS), vec![0; 2]),
-                    Pdu::new(Command::Fprd, fp(station, reg::DL_STATUS), vec![0; 2]),
-                ],
-                "read ESC information",
-            )
-            .await?;
-        for p in &r {
-            if p.wkc != 1 {
-                return Err(MasterError::WorkingCounter {
-                    command: Command::Fprd,
-                    what: "read ESC information",
-                    expected: 1,
-                    got: p.wkc,
-                });
-            }
+    for p in &r {
+        if p.wkc != 1 {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Fprd,
+                what: "read ESC information",
+                expected: 1,
+                got: p.wkc,
+            });
         }
-        let info = &r[0].data;
-        let feats = u16::from_le_bytes([info[8], info[9]]);
-        let dls = u16::from_le_bytes([r[2].data[0], r[2].data[1]]);
-        let open = core::array::from_fn(|p| {
-            dls & dl_status::link(p) != 0 && dls & dl_status::loop_closed(p) == 0
-        });
-        let mut sii = SiiReader::new(&link, station);
-        sii.take_ownership().await?;
-        let id_bytes = sii.read(sii::WORD_VENDOR_ID, 16).await?;
-        let identity = sii::identity(&{
-            let mut img = vec![0u8; 16];
-            img.extend_from_slice(&id_bytes);
-            img
-        })
-        .map_err(|_| MasterError::Sii {
-            slave: station,
-            what: "identity unreadable",
-        })?;
-        let details = cfg.until > Stage::Delays;
-        let name = if !details {
-            String::new()
-        } else {
-            match (
-                sii.category(category::GENERAL).await?,
-                sii.category(category::STRINGS).await?,
-            ) {
-                (Some(g), Some(s)) if g.len() > sii::general::NAME_IDX => {
-                    sii::string(&s, g[sii::general::NAME_IDX])
-                        .map(|b| String::from_utf8_lossy(b).into_owned())
-                        .unwrap_or_default()
-                }
-                _ => String::new(),
-            }
-        };
-        let mut sms = Vec::new();
-        let smcat = if details {
-            sii.category(category::SYNC_MANAGER).await?
-        } else {
-            None
-        };
-        if let Some(smcat) = smcat {
-            let tx = sii.category(category::TXPDO).await?.unwrap_or_default();
-            let rx = sii.category(category::RXPDO).await?.unwrap_or_default();
-            for (i, e) in smcat.chunks_exact(8).enumerate() {
-                let kind = e[7];
-                let bits = match kind {
-                    3 => pdo_bits_for_sm(&rx, i as u8),
-                    4 => pdo_bits_for_sm(&tx, i as u8),
-                    _ => continue,
-                };
-                sms.push(SmConfig {
-                    index: i as u8,
-                    start: u16::from_le_bytes([e[0], e[1]]),
-                    control: e[4],
-                    kind,
-                    len: bits.div_ceil(8) as u16,
-                });
-            }
-        }
-        let dc = if feats & features::DC != 0 {
-            DcCapability::SystemTime
-        } else {
-            DcCapability::None
-        };
-        slaves.push(SlaveInfo {
-            position: pos,
-            station,
-            alias: u16::from_le_bytes([r[1].data[0], r[1].data[1]]),
-            esc_type: info[0],
-            features: feats,
-            identity,
-            vendor_id: identity.vendor_id,
-            product_code: identity.product_code,
-            serial: identity.serial,
-            name,
-            dc,
-            open_ports: open,
-            parent: None,
-            entry_port: 0,
-            delay_ns: None,
-            delay_spread_ns: None,
-            offset: None,
-            outputs: (0, 0),
-            inputs: (0, 0),
-            sms,
-        });
     }
+    let info = &r[0].data;
+    let feats = u16::from_le_bytes([info[8], info[9]]);
+    let dls = u16::from_le_bytes([r[2].data[0], r[2].data[1]]);
+    let open = core::array::from_fn(|p| {
+        dls & dl_status::link(p) != 0 && dls & dl_status::loop_closed(p) == 0
+    });
+    let mut sii =
+        SiiReader::new(link, station).with_busy_timeout_ns(cfg.timeouts.sii_busy_timeout_ns);
+    sii.take_ownership().await?;
+    let id_bytes = sii.read(sii::WORD_VENDOR_ID, 16).await?;
+    let identity = sii::identity(&{
+        let mut img = vec![0u8; 16];
+        img.extend_from_slice(&id_bytes);
+        img
+    })
+    .map_err(|_| MasterError::Sii {
+        slave: station,
+        what: "identity unreadable",
+    })?;
+    let details = cfg.until > Stage::Delays;
+    let name = if !details {
+        String::new()
+    } else {
+        match (
+            sii.category(category::GENERAL).await?,
+            sii.category(category::STRINGS).await?,
+        ) {
+            (Some(g), Some(s)) if g.len() > sii::general::NAME_IDX => {
+                sii::string(&s, g[sii::general::NAME_IDX])
+                    .map(|b| String::from_utf8_lossy(b).into_owned())
+                    .unwrap_or_default()
+            }
+            _ => String::new(),
+        }
+    };
+    let mut sms = Vec::new();
+    let smcat = if details {
+        sii.category(category::SYNC_MANAGER).await?
+    } else {
+        None
+    };
+    if let Some(smcat) = smcat {
+        let tx = sii.category(category::TXPDO).await?.unwrap_or_default();
+        let rx = sii.category(category::RXPDO).await?.unwrap_or_default();
+        for (i, e) in smcat.chunks_exact(8).enumerate() {
+            let kind = e[7];
+            let bits = match kind {
+                3 => pdo_bits_for_sm(&rx, i as u8),
+                4 => pdo_bits_for_sm(&tx, i as u8),
+                _ => continue,
+            };
+            sms.push(SmConfig {
+                index: i as u8,
+                start: u16::from_le_bytes([e[0], e[1]]),
+                control: e[4],
+                kind,
+                len: bits.div_ceil(8) as u16,
+            });
+        }
+    }
+    let dc = if feats & features::DC != 0 {
+        DcCapability::SystemTime
+    } else {
+        DcCapability::None
+    };
+    Ok(SlaveInfo {
+        position: pos,
+        station,
+        alias: u16::from_le_bytes([r[1].data[0], r[1].data[1]]),
+        esc_type: info[0],
+        features: feats,
+        identity,
+        vendor_id: identity.vendor_id,
+        product_code: identity.product_code,
+        serial: identity.serial,
+        name,
+        dc,
+        open_ports: open,
+        parent: None,
+        entry_port: 0,
+        delay_ns: None,
+        delay_spread_ns: None,
+        offset: None,
+        outputs: (0, 0),
+        inputs: (0, 0),
+        sms,
+    })
+}
 
-    // Slaves without the DC feature may still have receive times (junctions must): probe
-    // 0x0900 with a read and see who counts it.
+/// The slave whose system time the others follow.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct ReferenceClock {
+    /// Its index in the slave list (its position).
+    index: usize,
+    /// Its position and station.
+    id: SlaveId,
+}
+
+/// [`Phase::DcProbe`]: slaves without the DC feature may still have receive times (junctions
+/// must): probe 0x0900 with a read and see who counts it. The reference clock is the first
+/// slave with a system time.
+async fn probe_dc(link: &Link, slaves: &mut [SlaveInfo]) -> Result<ReferenceClock, MasterError> {
     for s in slaves.iter_mut().filter(|s| s.dc == DcCapability::None) {
         let r = link
             .pdu(
@@ -418,20 +793,46 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 vec![0; 4],
                 "probe receive times",
             )
-            .await?;
+            .await
+            .map_err(|e| e.at(Phase::DcProbe, s.id()))?;
         if r.wkc == 1 {
             s.dc = DcCapability::ReceiveTimes;
         }
     }
-    let reference = slaves
+    let index = slaves
         .iter()
         .position(|s| s.dc == DcCapability::SystemTime)
         .ok_or(MasterError::NoReferenceClock)?;
-    let ref_station = slaves[reference].station;
+    Ok(ReferenceClock {
+        index,
+        id: slaves[index].id(),
+    })
+}
 
-    // Propagation delays, averaged over latch rounds with the send instant dithered across the
-    // receive stamps' 40 ns resolution.
-    link.event(Event::Phase("delays"));
+/// What the last latch of [`measure_delays`] leaves for the offsets.
+#[derive(Debug, Clone, PartialEq)]
+struct Latch {
+    /// Master time right before the last latch frame was sent, ns.
+    sent_ns: u64,
+    /// Each slave's processing unit receive time (0x0918) of the last latch, ns (0 where the
+    /// slave has no system time).
+    pu_stamps_ns: Vec<u64>,
+    /// With [`BringupConfig::master_is_reference`]: the master's delay to the reference, ns
+    /// (mean over the rounds).
+    master_delay_ns: Option<f64>,
+    /// Its spread (max - min) over the rounds, ns.
+    master_delay_spread_ns: Option<f64>,
+}
+
+/// [`Phase::Delays`]: propagation delays, averaged over latch rounds with the send instant
+/// dithered across the receive stamps' 40 ns resolution. Records each slave's parent, entry
+/// port and delay; returns the last latch for the offsets.
+async fn measure_delays(
+    link: &Link,
+    cfg: &BringupConfig,
+    slaves: &mut [SlaveInfo],
+    reference: usize,
+) -> Result<Latch, MasterError> {
     let n = slaves.len();
     let rounds = cfg.latch_rounds.max(1);
     let mut sums = vec![0.0f64; n];
@@ -441,14 +842,15 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     let mut latch_sent_ns = 0;
     let mut tree = vec![TreeNode::default(); n];
     let mut delays = vec![None; n];
-    // The rounds are spread over ~20 ms so that each slave's clock rate relative to the master
-    // can be measured from its first and last port 0 stamps and the spans corrected for it.
-    let gap_ns = (20_000_000 / u64::from(rounds)).max(2_000);
+    // The rounds are spread over the latch window so that each slave's clock rate relative to
+    // the master can be measured from its first and last port 0 stamps and the spans corrected
+    // for it.
+    let gap_ns = (cfg.latch_window_ns / u64::from(rounds)).max(cfg.latch_min_gap_ns);
     let mut all_ports: Vec<Vec<SlavePorts>> = Vec::with_capacity(rounds as usize);
     let mut sent_at: Vec<u64> = Vec::with_capacity(rounds as usize);
     let mut round_trips: Vec<f64> = Vec::with_capacity(rounds as usize);
     for round in 0..rounds {
-        let dither = u64::from(round) * 40 / u64::from(rounds);
+        let dither = u64::from(round) * LATCH_DITHER_NS / u64::from(rounds);
         let t = link.now_ns() + gap_ns + dither;
         link.sleep_until(t).await;
         let r = link
@@ -459,7 +861,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 "latch receive times",
             )
             .await?;
-        let latch_sent = r_sent(&link);
+        let latch_sent = r_sent(link);
         round_trips.push(link.last_received_ns().wrapping_sub(latch_sent) as i64 as f64);
         let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
         if r.wkc != expected {
@@ -512,7 +914,8 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                     what: "read receive times",
                     expected: 1,
                     got: r.wkc,
-                });
+                }
+                .at(Phase::Delays, slaves[i].id()));
             }
             let t = &r.data;
             if is_pu {
@@ -545,8 +948,8 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             let e = ecsync_dc::topology::entry_port(&all_ports[0][i]).unwrap_or(0);
             let local = f64::from(dc_time::diff_u32(b[usize::from(e)], a[usize::from(e)]));
             let rate = local / master_span;
-            // Only plausible rates (within 0.1 %) are used; anything else is a misread.
-            if (rate - 1.0).abs() < 1e-3 {
+            // Only plausible rates are used; anything else is a misread.
+            if (rate - 1.0).abs() < PLAUSIBLE_RATE_ERROR {
                 for round in all_ports.iter_mut() {
                     round[i].clock_rate = rate;
                 }
@@ -592,44 +995,38 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             s.delay_spread_ns = Some(maxs[i] - mins[i]);
         }
     }
+    Ok(Latch {
+        sent_ns: latch_sent_ns,
+        pu_stamps_ns: last_pu,
+        master_delay_ns,
+        master_delay_spread_ns,
+    })
+}
 
-    if cfg.until == Stage::Delays {
-        return Ok(Network {
-            slaves,
-            reference: reference as u16,
-            lock: LockReport {
-                converged: false,
-                time_to_lock_ns: None,
-                drift_start_ns: 0,
-                declared_ns: None,
-                max_abs_092c_after_lock_ns: 0,
-                frmw_frames: 0,
-            },
-            sync0: None,
-            pdi_len: 0,
-            lrw: Vec::new(),
-            expected_lrw_wkc: 0,
-            done_ns: link.now_ns(),
-            master_delay_ns,
-            master_delay_spread_ns,
-        });
-    }
-
-    // Offsets from the last latch, written together with the delays in one frame, then the
-    // loop filters reset (0x0934: time difference depth 0, speed counter depth 12, as SOEM and
-    // ethercrab write; then 0x0930, whose write resets the filters).
-    link.event(Event::Phase("offsets"));
+/// [`Phase::Offsets`]: offsets from the last latch, written together with the delays in one
+/// frame, then the loop filters reset (0x0934: time difference depth 0, speed counter depth
+/// 12, as SOEM and ethercrab write; then 0x0930, whose write resets the filters). Records
+/// each slave's offset.
+async fn write_offsets(
+    link: &Link,
+    slaves: &mut [SlaveInfo],
+    latch: &Latch,
+) -> Result<(), MasterError> {
     // The reference's system time takes the master's clock at the latch (SOEM, IgH, ethercrab);
     // a master that is the reference itself takes its clock at the frame's arrival there.
-    let ref_time = latch_sent_ns
-        .wrapping_add(master_delay_ns.map_or(0, |d| ecsync_dc::offset::round_ns(d).max(0) as u64));
+    let ref_time = latch.sent_ns.wrapping_add(
+        latch
+            .master_delay_ns
+            .map_or(0, |d| ecsync_dc::offset::round_ns(d).max(0) as u64),
+    );
     let mut writes = Vec::new();
+    let mut owners = Vec::new();
     for (i, s) in slaves.iter_mut().enumerate() {
         if s.dc != DcCapability::SystemTime {
             continue;
         }
         let delay = ecsync_dc::offset::round_ns(s.delay_ns.unwrap_or(0.0)).max(0);
-        let offset = ecsync_dc::system_time_offset(ref_time, delay, last_pu[i]);
+        let offset = ecsync_dc::system_time_offset(ref_time, delay, latch.pu_stamps_ns[i]);
         s.offset = Some(offset);
         writes.push(Pdu::new(
             Command::Fpwr,
@@ -641,15 +1038,17 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             fp(s.station, reg::DC_SYSTEM_TIME_OFFSET),
             offset.to_le_bytes().to_vec(),
         ));
+        owners.extend([s.id(), s.id()]);
     }
     let (r, _) = link.pdus(&writes, "write offsets and delays").await?;
-    if let Some(bad) = r.iter().find(|p| p.wkc != 1) {
+    if let Some((bad, &id)) = r.iter().zip(&owners).find(|(p, _)| p.wkc != 1) {
         return Err(MasterError::WorkingCounter {
             command: Command::Fpwr,
             what: "write offsets and delays",
             expected: 1,
             got: bad.wkc,
-        });
+        }
+        .at(Phase::Offsets, id));
     }
     link.event(Event::OffsetsWritten);
     link.bwr(
@@ -664,61 +1063,113 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         "reset loop filters",
     )
     .await?;
+    Ok(())
+}
 
-    // Static drift compensation, with lock checks.
-    link.event(Event::Phase("drift"));
-    let synced: Vec<u16> = slaves
-        .iter()
-        .filter(|s| s.dc == DcCapability::SystemTime && s.station != ref_station)
-        .map(|s| s.station)
-        .collect();
-    let frmw = || {
+/// The DC slaves as the drift compensation and the cyclic frame address them: the reference,
+/// whose system time an FRMW carries to the others, and the others, whose 0x092C is read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct DcGroup {
+    /// The reference clock.
+    reference: SlaveId,
+    /// Every other slave with a system time, in network order.
+    synced: Vec<SlaveId>,
+}
+
+impl DcGroup {
+    fn of(slaves: &[SlaveInfo], reference: SlaveId) -> Self {
+        DcGroup {
+            reference,
+            synced: slaves
+                .iter()
+                .filter(|s| s.dc == DcCapability::SystemTime && s.station != reference.station)
+                .map(SlaveInfo::id)
+                .collect(),
+        }
+    }
+
+    /// The FRMW that reads the reference's system time and writes it to every later slave.
+    fn frmw(&self) -> Pdu {
         Pdu::new(
             Command::Frmw,
-            fp(ref_station, reg::DC_SYSTEM_TIME),
+            fp(self.reference.station, reg::DC_SYSTEM_TIME),
             vec![0; 8],
         )
-    };
-    let check_pdus = |with_frmw: bool| {
-        let mut v = Vec::with_capacity(synced.len() + 1);
+    }
+
+    /// One FPRD of 0x092C per synced slave.
+    fn difference_reads(&self) -> impl Iterator<Item = Pdu> + '_ {
+        self.synced.iter().map(|s| {
+            Pdu::new(
+                Command::Fprd,
+                fp(s.station, reg::DC_SYSTEM_TIME_DIFF),
+                vec![0; 4],
+            )
+        })
+    }
+
+    /// The reads of every synced slave's 0x092C, after an FRMW when `with_frmw`.
+    fn check_pdus(&self, with_frmw: bool) -> Vec<Pdu> {
+        let mut v = Vec::with_capacity(self.synced.len() + 1);
         if with_frmw {
-            v.push(frmw());
+            v.push(self.frmw());
         }
-        v.extend(
-            synced
-                .iter()
-                .map(|&st| Pdu::new(Command::Fprd, fp(st, reg::DC_SYSTEM_TIME_DIFF), vec![0; 4])),
-        );
+        v.extend(self.difference_reads());
         v
-    };
-    let worst_of = |replies: &[crate::io::PduReply]| -> Result<u32, MasterError> {
+    }
+
+    /// The largest |0x092C| of the replies to [`DcGroup::difference_reads`]; a slave that did
+    /// not answer is named, in `phase`.
+    fn worst_of(&self, replies: &[PduReply], phase: Phase) -> Result<u32, MasterError> {
         let mut worst = 0u32;
-        for p in replies {
+        for (p, &id) in replies.iter().zip(&self.synced) {
             if p.wkc != 1 {
                 return Err(MasterError::WorkingCounter {
                     command: Command::Fprd,
                     what: "read system time difference",
                     expected: 1,
                     got: p.wkc,
-                });
+                }
+                .at(phase, id));
             }
             let raw = u32::from_le_bytes([p.data[0], p.data[1], p.data[2], p.data[3]]);
             worst = worst.max(dc_time::decode_time_difference(raw).unsigned_abs());
         }
         Ok(worst)
-    };
-    let drift_start = link.now_ns();
-    let mut lock = LockDetector::new(cfg.lock_threshold_ns, cfg.lock_hold_checks.max(1));
+    }
+}
+
+/// Where [`static_drift`] leaves the lock detection.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Drift {
+    /// The detector, fed by the checks so far.
+    detector: LockDetector,
+    /// Master time when drift compensation started, ns.
+    start_ns: u64,
+    /// FRMW frames sent.
+    frmw_frames: u64,
+}
+
+/// [`Phase::StaticDrift`]: separate FRMW frames, every slave's 0x092C read after every
+/// [`BringupConfig::check_every_frames`] of them.
+async fn static_drift(
+    link: &Link,
+    cfg: &BringupConfig,
+    dc: &DcGroup,
+) -> Result<Drift, MasterError> {
+    let start_ns = link.now_ns();
+    let mut detector = LockDetector::new(cfg.lock_threshold_ns, cfg.lock_hold_checks.max(1));
     let mut frmw_frames = 0u64;
     for i in 0..cfg.static_drift_frames {
         let r = link
             .pdu(
                 Command::Frmw,
-                fp(ref_station, reg::DC_SYSTEM_TIME),
+                fp(dc.reference.station, reg::DC_SYSTEM_TIME),
                 vec![0; 8],
                 "static drift compensation",
             )
-            .await?;
+            .await
+            .map_err(|e| e.at(Phase::StaticDrift, dc.reference))?;
         frmw_frames += 1;
         if r.wkc == 0 {
             return Err(MasterError::WorkingCounter {
@@ -726,33 +1177,87 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
                 what: "static drift compensation",
                 expected: 1,
                 got: 0,
-            });
+            }
+            .at(Phase::StaticDrift, dc.reference));
         }
-        if cfg.check_every_frames > 0 && (i + 1) % cfg.check_every_frames == 0 && !synced.is_empty()
+        if cfg.check_every_frames > 0
+            && (i + 1) % cfg.check_every_frames == 0
+            && !dc.synced.is_empty()
         {
             let (r, _) = link
-                .pdus(&check_pdus(false), "read system time difference")
+                .pdus(&dc.check_pdus(false), "read system time difference")
                 .await?;
-            lock.update(worst_of(&r)?, link.now_ns());
+            detector.update(dc.worst_of(&r, Phase::StaticDrift)?, link.now_ns());
+        }
+    }
+    Ok(Drift {
+        detector,
+        start_ns,
+        frmw_frames,
+    })
+}
+
+/// The cycle grid of the cyclic frames from the lock wait on: master time, multiples of the
+/// cycle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct CycleGrid {
+    /// Cycle, ns.
+    cycle_ns: u64,
+    /// The next grid point, ns.
+    next_ns: u64,
+}
+
+impl CycleGrid {
+    /// The grid of `cycle_ns` from the first point after now.
+    fn after_now(link: &Link, cycle_ns: u32) -> Self {
+        let cycle_ns = u64::from(cycle_ns);
+        CycleGrid {
+            cycle_ns,
+            next_ns: (link.now_ns() / cycle_ns + 1) * cycle_ns,
         }
     }
 
-    // Cyclic FRMW until locked. The timeout runs from the end of the static drift
-    // compensation, whose length grows with the network (a frame passes every slave).
-    let cycle = u64::from(cfg.cycle_ns);
-    let mut next = (link.now_ns() / cycle + 1) * cycle;
-    let lock_start = link.now_ns();
-    while !synced.is_empty() && !lock.is_locked() {
-        if link.now_ns().saturating_sub(lock_start) > cfg.lock_timeout_ns {
-            return Err(MasterError::NoLock(cfg.lock_timeout_ns / 1_000_000));
-        }
-        link.sleep_until(next).await;
-        next += cycle;
-        let (r, _) = link.pdus(&check_pdus(true), "cyclic DC").await?;
-        frmw_frames += 1;
-        lock.update(worst_of(&r[1..])?, link.now_ns());
+    /// Waits for the next grid point.
+    async fn tick(&mut self, link: &Link) {
+        link.sleep_until(self.next_ns).await;
+        self.next_ns += self.cycle_ns;
     }
-    let mut lock_report = LockReport {
+}
+
+/// What [`wait_for_lock`] leaves: the lock report and the grid the cyclic frames go on on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Locked {
+    report: LockReport,
+    grid: CycleGrid,
+}
+
+/// [`Phase::Lock`]: cyclic FRMW until locked. The timeout runs from the end of the static
+/// drift compensation, whose length grows with the network (a frame passes every slave).
+async fn wait_for_lock(
+    link: &Link,
+    cfg: &BringupConfig,
+    dc: &DcGroup,
+    drift: Drift,
+) -> Result<Locked, MasterError> {
+    let Drift {
+        detector: mut lock,
+        start_ns: drift_start,
+        mut frmw_frames,
+    } = drift;
+    let synced = &dc.synced;
+    let mut grid = CycleGrid::after_now(link, cfg.cycle_ns);
+    let lock_start = link.now_ns();
+    let timeout_ns = cfg.timeouts.lock_timeout_ns;
+    while !synced.is_empty() && !lock.is_locked() {
+        if link.now_ns().saturating_sub(lock_start) > timeout_ns {
+            return Err(MasterError::NoLock(timeout_ns / 1_000_000));
+        }
+        grid.tick(link).await;
+        let (r, _) = link.pdus(&dc.check_pdus(true), "cyclic DC").await?;
+        frmw_frames += 1;
+        lock.update(dc.worst_of(&r[1..], Phase::Lock)?, link.now_ns());
+    }
+    let report = LockReport {
         converged: synced.is_empty() || lock.is_locked(),
         time_to_lock_ns: if synced.is_empty() {
             Some(0)
@@ -764,8 +1269,22 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         max_abs_092c_after_lock_ns: 0,
         frmw_frames,
     };
+    Ok(Locked { report, grid })
+}
 
-    // Process data mapping: outputs of all slaves, then inputs, in the logical image.
+/// The logical process image, as [`map_process_image`] lays it out.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct ProcessImage {
+    /// Bytes (outputs then inputs).
+    pdi_len: u32,
+    /// Its LRWs in the cyclic exchange.
+    lrw: Vec<crate::pdi::LrwChunk>,
+}
+
+/// Process data mapping: outputs of all slaves, then inputs, in the logical image (recorded
+/// in each slave's `outputs` and `inputs`). No frames: the SyncManagers and FMMUs are written
+/// in [`Phase::ProcessData`].
+fn map_process_image(slaves: &mut [SlaveInfo]) -> ProcessImage {
     let mut logical = 0u32;
     for s in slaves.iter_mut() {
         if let Some(sm) = s.sms.iter().find(|m| m.kind == 3) {
@@ -795,166 +1314,221 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         .collect();
     ranges.sort_by_key(|r| r.0);
     let lrw = crate::pdi::lrw_chunks(pdi_len, &ranges);
-    let mut expected_lrw_wkc = 0u16;
-    let mut sync0 = None;
-    let to_op = cfg.until == Stage::Op;
-    if !to_op {
-        return Ok(Network {
-            slaves,
-            reference: reference as u16,
-            lock: lock_report,
-            sync0,
-            pdi_len,
-            lrw,
-            expected_lrw_wkc,
-            done_ns: link.now_ns(),
-            master_delay_ns,
-            master_delay_spread_ns,
-        });
-    }
-    {
-        for s in &slaves {
-            request_state(&link, s.station, al_state::PRE_OP).await?;
-        }
-        for s in &slaves {
-            let mut fmmu_n = 0u16;
-            for sm in &s.sms {
-                let (log, len) = if sm.kind == 3 { s.outputs } else { s.inputs };
-                if len == 0 {
-                    continue;
-                }
-                let mut smr = [0u8; 8];
-                smr[0..2].copy_from_slice(&sm.start.to_le_bytes());
-                smr[2..4].copy_from_slice(&len.to_le_bytes());
-                smr[4] = sm.control;
-                smr[6] = 0x01;
-                link.fpwr(
-                    s.station,
-                    reg::SM_BASE + u16::from(sm.index) * reg::SM_LEN,
-                    &smr,
-                    "configure SyncManager",
-                )
-                .await?;
-                let mut f = [0u8; 16];
-                f[0..4].copy_from_slice(&log.to_le_bytes());
-                f[4..6].copy_from_slice(&len.to_le_bytes());
-                f[7] = 7;
-                f[8..10].copy_from_slice(&sm.start.to_le_bytes());
-                f[11] = if sm.kind == 3 { 0x02 } else { 0x01 };
-                f[12] = 0x01;
-                link.fpwr(
-                    s.station,
-                    reg::FMMU_BASE + fmmu_n * reg::FMMU_LEN,
-                    &f,
-                    "configure FMMU",
-                )
-                .await?;
-                fmmu_n += 1;
-                expected_lrw_wkc += if sm.kind == 3 { 2 } else { 1 };
-            }
-        }
-    }
+    ProcessImage { pdi_len, lrw }
+}
 
-    // SYNC0 on the absolute grid of the reference's system time.
-    link.event(Event::Phase("sync0"));
+/// [`Phase::PreOp`], [`Phase::SafeOp`]: requests `state` from every slave in turn and waits
+/// for each ([`request_state`]).
+async fn request_all(
+    link: &Link,
+    slaves: &[SlaveInfo],
+    state: AlState,
+    phase: Phase,
+    timeouts: &BringupTimeouts,
+) -> Result<(), MasterError> {
+    for s in slaves {
+        request_state(link, s.station, state, timeouts)
+            .await
+            .map_err(|e| e.at(phase, s.id()))?;
+    }
+    Ok(())
+}
+
+/// [`Phase::ProcessData`]: each slave's process data SyncManagers and an FMMU for each, mapped
+/// where [`map_process_image`] placed them; returns the LRW working counter OP must show.
+async fn configure_process_data(link: &Link, slaves: &[SlaveInfo]) -> Result<u16, MasterError> {
+    let mut expected_lrw_wkc = 0u16;
+    for s in slaves {
+        let mut fmmu_n = 0u16;
+        for sm in &s.sms {
+            let (log, len) = if sm.kind == 3 { s.outputs } else { s.inputs };
+            if len == 0 {
+                continue;
+            }
+            let mut smr = [0u8; 8];
+            smr[0..2].copy_from_slice(&sm.start.to_le_bytes());
+            smr[2..4].copy_from_slice(&len.to_le_bytes());
+            smr[4] = sm.control;
+            smr[6] = 0x01;
+            link.fpwr(
+                s.station,
+                reg::SM_BASE + u16::from(sm.index) * reg::SM_LEN,
+                &smr,
+                "configure SyncManager",
+            )
+            .await
+            .map_err(|e| e.at(Phase::ProcessData, s.id()))?;
+            let mut f = [0u8; 16];
+            f[0..4].copy_from_slice(&log.to_le_bytes());
+            f[4..6].copy_from_slice(&len.to_le_bytes());
+            f[7] = 7;
+            f[8..10].copy_from_slice(&sm.start.to_le_bytes());
+            f[11] = if sm.kind == 3 { 0x02 } else { 0x01 };
+            f[12] = 0x01;
+            link.fpwr(
+                s.station,
+                reg::FMMU_BASE + fmmu_n * reg::FMMU_LEN,
+                &f,
+                "configure FMMU",
+            )
+            .await
+            .map_err(|e| e.at(Phase::ProcessData, s.id()))?;
+            fmmu_n += 1;
+            expected_lrw_wkc += if sm.kind == 3 { 2 } else { 1 };
+        }
+    }
+    Ok(expected_lrw_wkc)
+}
+
+/// [`Phase::Sync0`]: SYNC0 on the absolute grid of the reference's system time, programmed in
+/// every slave with a system time. `None` if there is none to program (not reached: the
+/// reference has one).
+async fn start_sync0(
+    link: &Link,
+    cfg: &BringupConfig,
+    slaves: &[SlaveInfo],
+    dc: &DcGroup,
+) -> Result<Option<Sync0Config>, MasterError> {
     let now_sys = link
-        .fprd(ref_station, reg::DC_SYSTEM_TIME, 8, "read system time")
-        .await?;
+        .fprd(
+            dc.reference.station,
+            reg::DC_SYSTEM_TIME,
+            8,
+            "read system time",
+        )
+        .await
+        .map_err(|e| e.at(Phase::Sync0, dc.reference))?;
     let now_sys = u64::from_le_bytes(now_sys[..8].try_into().unwrap_or([0; 8]));
     let start =
         ecsync_dc::sync0_start_time(now_sys, cfg.sync0_lead_ns, cfg.cycle_ns, cfg.sync0_shift_ns);
+    let mut sync0 = None;
     for s in slaves.iter().filter(|s| s.dc == DcCapability::SystemTime) {
+        let at = |e: MasterError| e.at(Phase::Sync0, s.id());
         link.fpwr(s.station, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
-            .await?;
+            .await
+            .map_err(at)?;
         link.fpwr(
             s.station,
             reg::DC_SYNC0_CYCLE,
             &cfg.cycle_ns.to_le_bytes(),
             "SYNC0 cycle",
         )
-        .await?;
+        .await
+        .map_err(at)?;
         link.fpwr(
             s.station,
             reg::DC_START_TIME,
             &start.to_le_bytes(),
             "SYNC0 start",
         )
-        .await?;
+        .await
+        .map_err(at)?;
         link.fpwr(s.station, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
-            .await?;
+            .await
+            .map_err(at)?;
         sync0 = Some(Sync0Config {
             start_ns: start,
             cycle_ns: cfg.cycle_ns,
             shift_ns: cfg.sync0_shift_ns,
         });
     }
+    Ok(sync0)
+}
 
-    // SAFE-OP and OP with the cyclic frame running, then monitoring.
-    let cyclic = |with_lrw: bool| {
-        let mut v = vec![frmw()];
-        if with_lrw {
-            v.extend(lrw.iter().map(|c| {
-                Pdu::new(
-                    Command::Lrw,
-                    DatagramAddress::Logical(c.logical),
-                    vec![0; c.len as usize],
-                )
-            }));
+/// The cyclic frame of OP: the FRMW first (its send is the reference's time), the process
+/// image's LRWs, then every synced slave's 0x092C.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct CyclicFrame {
+    pdus: Vec<Pdu>,
+    /// The LRWs are `pdus[1..lrw_end]`.
+    lrw_end: usize,
+}
+
+impl CyclicFrame {
+    fn new(dc: &DcGroup, lrw: &[crate::pdi::LrwChunk]) -> Self {
+        let mut pdus = vec![dc.frmw()];
+        pdus.extend(lrw.iter().map(|c| {
+            Pdu::new(
+                Command::Lrw,
+                DatagramAddress::Logical(c.logical),
+                vec![0; c.len as usize],
+            )
+        }));
+        let lrw_end = pdus.len();
+        pdus.extend(dc.difference_reads());
+        CyclicFrame { pdus, lrw_end }
+    }
+}
+
+/// [`Phase::Op`]: requests OP from every slave, then runs the cyclic frame until a broadcast
+/// read of AL status shows every slave in OP (a slave goes to OP only with process data
+/// flowing).
+async fn enter_op(
+    link: &Link,
+    timeouts: &BringupTimeouts,
+    slaves: &[SlaveInfo],
+    cyclic: &CyclicFrame,
+    grid: &mut CycleGrid,
+) -> Result<(), MasterError> {
+    let op = AlControlRepr::request(AlState::Op).to_bytes();
+    for s in slaves {
+        link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
+            .await
+            .map_err(|e| e.at(Phase::Op, s.id()))?;
+    }
+    let count = slaves.len() as u16;
+    // Cycle until every slave reports OP.
+    let deadline = link.now_ns() + timeouts.op_timeout_ns;
+    loop {
+        grid.tick(link).await;
+        link.pdus(&cyclic.pdus, "cyclic").await?;
+        let (r, _) = link
+            .pdus(
+                &[Pdu::new(
+                    Command::Brd,
+                    position_addr(0, reg::AL_STATUS),
+                    vec![0; 2],
+                )],
+                "AL status",
+            )
+            .await?;
+        // The slaves' AL status OR-ed: OP, and none shows the error indication.
+        let status = AlStatus::new_checked(&r[0].data[..])
+            .map_err(|_| MasterError::BadReply("AL status"))?;
+        if r[0].wkc == count && status.state() == Ok(AlState::Op) && !status.error() {
+            return Ok(());
         }
-        v.extend(
-            synced
-                .iter()
-                .map(|&st| Pdu::new(Command::Fprd, fp(st, reg::DC_SYSTEM_TIME_DIFF), vec![0; 4])),
-        );
-        v
-    };
-    let k = 1 + if to_op { lrw.len() } else { 0 };
-    {
-        link.event(Event::Phase("safe-op"));
-        for s in &slaves {
-            request_state(&link, s.station, al_state::SAFE_OP).await?;
-        }
-        link.event(Event::Phase("op"));
-        for s in &slaves {
-            link.fpwr(s.station, reg::AL_CONTROL, &[al_state::OP, 0], "request OP")
-                .await?;
-        }
-        // Cycle until every slave reports OP.
-        let deadline = link.now_ns() + 10_000_000_000;
-        loop {
-            link.sleep_until(next).await;
-            next += cycle;
-            link.pdus(&cyclic(true), "cyclic").await?;
-            let (r, _) = link
-                .pdus(
-                    &[Pdu::new(
-                        Command::Brd,
-                        position_addr(0, reg::AL_STATUS),
-                        vec![0; 2],
-                    )],
-                    "AL status",
-                )
-                .await?;
-            if r[0].wkc == count && r[0].data[0] & 0x1f == al_state::OP {
-                break;
-            }
-            if link.now_ns() > deadline {
-                return Err(MasterError::StateTimeout {
-                    slave: 0,
-                    state: al_state::OP,
-                });
-            }
+        if link.now_ns() > deadline {
+            return Err(MasterError::NetworkStateTimeout {
+                state: AlState::Op,
+                answered: r[0].wkc,
+                expected: count,
+                status: r[0].data[0],
+            });
         }
     }
-    link.event(Event::Phase("monitor"));
+}
+
+/// [`Phase::Monitor`]: [`BringupConfig::monitor_cycles`] cycles of the cyclic frame in OP,
+/// the process data's working counter checked; returns the largest |0x092C| seen.
+async fn monitor(
+    link: &Link,
+    cfg: &BringupConfig,
+    dc: &DcGroup,
+    cyclic: &CyclicFrame,
+    pdi_len: u32,
+    expected_lrw_wkc: u16,
+    grid: &mut CycleGrid,
+) -> Result<u32, MasterError> {
+    let k = cyclic.lrw_end;
+    let mut max_abs = 0u32;
     for _ in 0..cfg.monitor_cycles {
-        link.sleep_until(next).await;
-        next += cycle;
-        let (r, _) = link.pdus(&cyclic(to_op), "cyclic").await?;
-        let worst = worst_of(&r[k..])?;
-        lock_report.max_abs_092c_after_lock_ns = lock_report.max_abs_092c_after_lock_ns.max(worst);
+        grid.tick(link).await;
+        let (r, _) = link.pdus(&cyclic.pdus, "cyclic").await?;
+        let worst = dc.worst_of(&r[k..], Phase::Monitor)?;
+        max_abs = max_abs.max(worst);
         let got: u16 = r[1..k].iter().map(|p| p.wkc).sum();
-        if to_op && pdi_len > 0 && got != expected_lrw_wkc {
+        if pdi_len > 0 && got != expected_lrw_wkc {
             return Err(MasterError::WorkingCounter {
                 command: Command::Lrw,
                 what: "process data",
@@ -963,45 +1537,52 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
             });
         }
     }
-    Ok(Network {
-        slaves,
-        reference: reference as u16,
-        lock: lock_report,
-        sync0,
-        pdi_len,
-        lrw,
-        expected_lrw_wkc,
-        done_ns: link.now_ns(),
-        master_delay_ns,
-        master_delay_spread_ns,
-    })
+    Ok(max_abs)
 }
 
-/// Requests an AL state from one slave and waits until it is reached or refused.
-pub async fn request_state(link: &Link, station: u16, state: u8) -> Result<(), MasterError> {
-    link.fpwr(station, reg::AL_CONTROL, &[state, 0], "AL control")
+/// Requests an AL state from one slave and waits until it is reached or refused, polling AL
+/// status every [`BringupTimeouts::state_poll_interval_ns`] for up to
+/// [`BringupTimeouts::state_timeout_ns`].
+pub async fn request_state(
+    link: &Link,
+    station: u16,
+    state: AlState,
+    timeouts: &BringupTimeouts,
+) -> Result<(), MasterError> {
+    let request = AlControlRepr::request(state).to_bytes();
+    link.fpwr(station, reg::AL_CONTROL, &request, "AL control")
         .await?;
     let start = link.now_ns();
     loop {
-        let v = link.fprd(station, reg::AL_STATUS, 6, "AL status").await?;
-        let status = u16::from_le_bytes([v[0], v[1]]);
-        if status & al_state::ERROR_FLAG != 0 {
+        // AL status and, four bytes on, the AL status code, in one read.
+        let v = link
+            .fprd(
+                station,
+                reg::AL_STATUS,
+                ecsync_wire::al::AL_STATUS_BLOCK_LEN,
+                "AL status",
+            )
+            .await?;
+        let status =
+            AlStatus::new_checked(&v[..]).map_err(|_| MasterError::BadReply("AL status"))?;
+        if status.error() {
             return Err(MasterError::StateChange {
                 slave: station,
                 state,
-                code: u16::from_le_bytes([v[4], v[5]]),
+                // The read reaches the code (the datagram has the length asked for).
+                code: status.status_code().unwrap_or(AlStatusCode::NoError),
             });
         }
-        if (status & 0x0f) as u8 == state {
+        if status.state_raw() == state.code() {
             return Ok(());
         }
-        if link.now_ns().saturating_sub(start) > 5_000_000_000 {
+        if link.now_ns().saturating_sub(start) > timeouts.state_timeout_ns {
             return Err(MasterError::StateTimeout {
                 slave: station,
                 state,
             });
         }
-        let t = link.now_ns() + 100_000;
+        let t = link.now_ns() + timeouts.state_poll_interval_ns;
         link.sleep_until(t).await;
     }
 }

@@ -1,4 +1,5 @@
-use ecsync_wire::Command;
+use crate::bringup::{Phase, SlaveId};
+use ecsync_wire::{AlState, AlStatusCode, Command};
 
 /// Why the master could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -42,22 +43,38 @@ pub enum MasterError {
     #[error("no DC-capable slave to act as reference clock")]
     NoReferenceClock,
     /// A slave refused a state change.
-    #[error("slave {slave}: could not enter state {state:#x} (AL status code {code:#06x})")]
+    #[error("slave {slave}: could not enter {state}: AL status code {code}")]
     StateChange {
         /// Station address.
         slave: u16,
         /// Requested state.
-        state: u8,
-        /// AL status code.
-        code: u16,
+        state: AlState,
+        /// AL status code: why.
+        code: AlStatusCode,
     },
     /// A slave did not reach a state in time.
-    #[error("slave {slave}: timed out waiting for state {state:#x}")]
+    #[error("slave {slave}: timed out waiting for {state}")]
     StateTimeout {
         /// Station address.
         slave: u16,
         /// Requested state.
-        state: u8,
+        state: AlState,
+    },
+    /// Not every slave reached a state in time, as a broadcast read of AL status shows (which
+    /// cannot tell the slaves apart).
+    #[error(
+        "timed out waiting for every slave to report {state} ({answered} of {expected} \
+         answered, their AL status OR-ed {status:#04x})"
+    )]
+    NetworkStateTimeout {
+        /// Requested state.
+        state: AlState,
+        /// Slaves that answered the last read (its working counter).
+        answered: u16,
+        /// Slaves in the network.
+        expected: u16,
+        /// The low byte of AL status of the last read, OR-ed over the slaves that answered.
+        status: u8,
     },
     /// The clocks did not lock in the allowed time.
     #[error("DC did not lock within {0} ms")]
@@ -65,4 +82,86 @@ pub enum MasterError {
     /// The configuration is unusable.
     #[error("configuration: {0}")]
     Config(String),
+    /// The bring-up failed in `phase`; `slave` is the one slave the failing exchange concerned,
+    /// where there is one (the frame was addressed to it alone, or its datagram came back with
+    /// a wrong working counter), and `None` for broadcasts and frames to many slaves.
+    #[error("{}", bringup_message(*phase, slave.as_ref(), cause))]
+    Bringup {
+        /// The phase.
+        phase: Phase,
+        /// The slave the failing exchange concerned.
+        slave: Option<SlaveId>,
+        /// What went wrong (never itself a [`MasterError::Bringup`]).
+        cause: Box<MasterError>,
+    },
+}
+
+impl MasterError {
+    /// The bring-up phase the error happened in, if it happened in one.
+    pub fn phase(&self) -> Option<Phase> {
+        match self {
+            MasterError::Bringup { phase, .. } => Some(*phase),
+            _ => None,
+        }
+    }
+
+    /// The slave the failing exchange concerned, if the error names one.
+    pub fn slave(&self) -> Option<SlaveId> {
+        match self {
+            MasterError::Bringup { slave, .. } => *slave,
+            _ => None,
+        }
+    }
+
+    /// What went wrong, without the phase and slave around it.
+    pub fn root(&self) -> &MasterError {
+        match self {
+            MasterError::Bringup { cause, .. } => cause,
+            e => e,
+        }
+    }
+
+    /// The error as one of `phase`, unless it already names its phase.
+    pub(crate) fn during(self, phase: Phase) -> Self {
+        match self {
+            e @ MasterError::Bringup { .. } => e,
+            e => MasterError::Bringup {
+                phase,
+                slave: None,
+                cause: Box::new(e),
+            },
+        }
+    }
+
+    /// The error as one of `phase` at `slave`, unless it already names its phase.
+    pub(crate) fn at(self, phase: Phase, slave: SlaveId) -> Self {
+        match self {
+            e @ MasterError::Bringup { .. } => e,
+            e => MasterError::Bringup {
+                phase,
+                slave: Some(slave),
+                cause: Box::new(e),
+            },
+        }
+    }
+
+    /// The message without the slave the error names itself, for when the context names it.
+    fn without_slave(&self) -> String {
+        match self {
+            MasterError::Sii { what, .. } => format!("SII EEPROM {what}"),
+            MasterError::StateChange { state, code, .. } => {
+                format!("could not enter {state}: AL status code {code}")
+            }
+            MasterError::StateTimeout { state, .. } => format!("timed out waiting for {state}"),
+            e => e.to_string(),
+        }
+    }
+}
+
+/// `phase: slave: cause`, or `phase: cause` when the exchange concerned no one slave.
+fn bringup_message(phase: Phase, slave: Option<&SlaveId>, cause: &MasterError) -> String {
+    match slave {
+        Some(s) => format!("{phase}: {s}: {}", cause.without_slave()),
+        None => format!("{phase}: {cause}"),
+    }
 }

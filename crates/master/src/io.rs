@@ -31,8 +31,9 @@ pub struct Reply {
 /// Something the procedure reports to the driver along the way.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
-    /// A bring-up phase begins.
-    Phase(&'static str),
+    /// A bring-up phase begins (reported for the phases a progress line names, see
+    /// [`crate::bringup::bringup`]).
+    Phase(crate::bringup::Phase),
     /// System time offsets and delays were written (ground truth can be compared now).
     OffsetsWritten,
 }

@@ -15,7 +15,9 @@ pub mod sii;
 pub mod sim;
 pub mod transport;
 
-pub use bringup::{BringupConfig, Network, SlaveInfo, Stage, bringup};
+pub use bringup::{
+    BringupConfig, BringupTimeouts, Network, Phase, SlaveId, SlaveInfo, Stage, bringup,
+};
 pub use error::MasterError;
 pub use io::{Action, Engine, Event, Link};
 pub use transport::{Received, Transport};

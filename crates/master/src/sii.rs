@@ -7,7 +7,8 @@ use crate::io::Link;
 use ecsync_wire::register::{self as reg, sii_control};
 use ecsync_wire::sii::{self, category};
 
-/// How long the EEPROM may stay busy for one command, ns of master time.
+/// How long the EEPROM may stay busy for one command by default, ns of master time (see
+/// [`crate::bringup::BringupTimeouts::sii_busy_timeout_ns`] for why).
 pub const BUSY_TIMEOUT_NS: u64 = 100_000_000;
 
 /// Reads EEPROM words of one slave, remembering what it has read.
@@ -15,17 +16,26 @@ pub const BUSY_TIMEOUT_NS: u64 = 100_000_000;
 pub struct SiiReader<'a> {
     link: &'a Link,
     station: u16,
+    busy_timeout_ns: u64,
     cache: Vec<Option<u8>>,
 }
 
 impl<'a> SiiReader<'a> {
-    /// A reader for the slave at `station`.
+    /// A reader for the slave at `station`, whose EEPROM may stay busy for
+    /// [`BUSY_TIMEOUT_NS`] per command.
     pub fn new(link: &'a Link, station: u16) -> Self {
         SiiReader {
             link,
             station,
+            busy_timeout_ns: BUSY_TIMEOUT_NS,
             cache: vec![None; 8192],
         }
+    }
+
+    /// The reader with another limit on how long the EEPROM may stay busy per command, ns.
+    pub fn with_busy_timeout_ns(mut self, timeout_ns: u64) -> Self {
+        self.busy_timeout_ns = timeout_ns;
+        self
     }
 
     async fn wait_idle(&self) -> Result<u16, MasterError> {
@@ -39,7 +49,7 @@ impl<'a> SiiReader<'a> {
             if c & sii_control::BUSY == 0 {
                 return Ok(c);
             }
-            if self.link.now_ns().saturating_sub(start) > BUSY_TIMEOUT_NS {
+            if self.link.now_ns().saturating_sub(start) > self.busy_timeout_ns {
                 return Err(MasterError::Sii {
                     slave: self.station,
                     what: "stayed busy",
