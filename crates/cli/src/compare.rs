@@ -3,11 +3,12 @@
 
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
+use ecsync_dc::MethodKind;
+use ecsync_esc::config::{ConfigSource, Problem};
 use ecsync_lab::compare::Options;
-use ecsync_lab::report::{
-    self, csv, per_slave_text, summarize, table1_text, truth_text, verdict_text, write_atomic,
-};
-use ecsync_lab::scenario::{METHODS, Problem, plural};
+use ecsync_lab::report::{csv, per_slave_text, summarize, table1_text, truth_text, verdict_text};
+use ecsync_lab::scenario::plural;
+use ecsync_master::output::write_atomic;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -17,11 +18,8 @@ use std::time::Duration;
 /// What `--help` says after the options: the methods, the host presets, the defaults.
 pub fn after_help() -> String {
     let mut t = String::from("Methods (default: all, in this order):\n");
-    for m in METHODS {
-        t.push_str(&format!(
-            "  {m:<18} {}\n",
-            ecsync_lab::scenario::method_summary(m)
-        ));
+    for m in MethodKind::ALL {
+        t.push_str(&format!("  {:<18} {}\n", m.name(), m.summary()));
     }
     t.push_str("\nHost presets (--host; default preempt-rt-stress, the letter's testbed):\n");
     for h in ecsync_lab::host::HostParams::PRESETS {
@@ -103,7 +101,7 @@ fn problem(p: Problem, given: &[&str], file: &str, text: &str) -> anyhow::Error 
         Some(flag) if given.contains(&flag) => {
             anyhow::anyhow!("{flag}: {}; fix: {}", p.message, p.fix)
         }
-        _ => anyhow::Error::msg(ecsync_lab::scenario::locate(file, text, p)),
+        _ => anyhow::Error::msg(ConfigSource::new(file, text).locate(p)),
     }
 }
 
@@ -115,18 +113,20 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let mut given = Vec::new();
     if let Some(m) = &args.methods {
         given.push("--methods");
+        let mut kinds = Vec::with_capacity(m.len());
         for x in m {
-            if !METHODS.contains(&x.as_str()) {
-                bail!(
+            match x.parse::<MethodKind>() {
+                Ok(k) => kinds.push(k),
+                Err(_) => bail!(
                     "--methods: unknown method \"{x}\"; fix: use one of: {}",
-                    METHODS.join(", ")
-                );
+                    MethodKind::list()
+                ),
             }
         }
-        s.methods = METHODS
-            .iter()
-            .filter(|x| m.iter().any(|y| y == *x))
-            .map(|x| x.to_string())
+        // Report order, each once.
+        s.methods = MethodKind::ALL
+            .into_iter()
+            .filter(|k| kinds.contains(k))
             .collect();
     }
     if let Some(r) = args.runs {
@@ -197,7 +197,11 @@ pub fn run(args: Args) -> Result<ExitCode> {
         );
         b.set_message(format!(
             "{} x {}",
-            s.methods.join(", "),
+            s.methods
+                .iter()
+                .map(|m| m.name())
+                .collect::<Vec<_>>()
+                .join(", "),
             plural(u64::from(s.runs), "run", "runs")
         ));
         b
@@ -222,7 +226,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         .map_err(|_| anyhow::anyhow!("a simulation thread panicked"))?
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let out = summarize(&cmp);
-    let order = s.methods.clone();
+    let order: Vec<String> = s.methods.iter().map(|m| m.name().to_string()).collect();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let json = serde_json::to_string_pretty(&out)?;
@@ -230,7 +234,8 @@ pub fn run(args: Args) -> Result<ExitCode> {
     write_atomic(&args.out.join("summary.csv"), csv(&out, &order).as_bytes())?;
     let table = table1_text(&out, &order);
     write_atomic(&args.out.join("table1.txt"), table.as_bytes())?;
-    report::write_report(&cmp, &out, &order, &args.out).context("writing plots and report.html")?;
+    ecsync_lab::plots::write_all(&cmp, &out, &order, &args.out)
+        .context("writing plots and report.html")?;
     if args.json {
         println!("{json}");
     } else {

@@ -3,21 +3,24 @@
 
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
+use ecsync_dc::MasterSync as _;
+use ecsync_dc::method::{Method, MethodContext, MethodKind, MethodParams, ParamError};
 use ecsync_esc::Segment;
+use ecsync_esc::config::{ConfigSource, Problem};
 use ecsync_esc::pcap::PcapCapture;
-use ecsync_lab::run::Method;
-use ecsync_lab::stats::{Stats, Summary};
 use ecsync_master::bringup::{DcCapability, Stage};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{
     CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, Stopped, run_procedure,
 };
+use ecsync_master::output::write_atomic;
+use ecsync_master::stats::{Stats, Summary};
 use ecsync_master::transport::Transport as _;
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
 use ecsync_net::rt::{self, RtReport};
 use ecsync_net::sys::{PacketSocket, TimestampSupport};
 use ecsync_net::{NetError, RealLink};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -135,15 +138,25 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// What `ecsync run --help` says after the options: the methods, from the registry.
+fn run_after_help() -> String {
+    let mut t = String::from("Methods (--method):\n");
+    for m in MethodKind::ALL {
+        t.push_str(&format!("  {:<18} {}\n", m.name(), m.summary()));
+    }
+    t
+}
+
 /// Arguments of `ecsync run`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = run_after_help())]
 pub struct RunArgs {
     /// Network interface the EtherCAT segment is on.
     #[arg(long)]
     iface: String,
-    /// Master synchronization method (median, pi-m2s, bus-shift, snap, soem-pi).
+    /// Master synchronization method (see below).
     #[arg(long, default_value = "median")]
-    method: String,
+    method: MethodKind,
     /// Cycle time and SYNC0 period, microseconds.
     #[arg(long, default_value_t = 1000)]
     cycle_us: u32,
@@ -179,7 +192,9 @@ pub struct RunArgs {
     /// CPU to pin the cycle task to (default: the last).
     #[arg(long)]
     cpu: Option<usize>,
-    /// Method parameters from a scenario file (its [methods.*] tables) instead of the preset's.
+    /// Method parameters from a scenario file instead of the preset's: its [methods.*] tables
+    /// and run.target_phase_us (its segment and host describe a simulated network and are not
+    /// read).
     #[arg(long)]
     config: Option<PathBuf>,
 }
@@ -279,6 +294,43 @@ fn latency(s: &Stats) -> LatencyOut {
     }
 }
 
+/// What `ecsync run` reads of a scenario file: the methods' tables and where the frames aim.
+/// The file's other tables are the simulator's (its segment and host, its comparison's runs),
+/// which a real network does not use: they are allowed and not read, so `ecsync run --config`
+/// takes any `compare` scenario (or a file holding only `[methods.*]` tables). Their order is
+/// the scenario's, so an unknown table is refused with the words `compare` uses.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RunScenario {
+    #[serde(default, rename = "segment")]
+    _segment: serde::de::IgnoredAny,
+    #[serde(default, rename = "host")]
+    _host: serde::de::IgnoredAny,
+    #[serde(default)]
+    run: RunTable,
+    #[serde(default)]
+    methods: MethodParams,
+}
+
+/// The `[run]` table's one value `ecsync run` takes (the cycle and the shift come from its
+/// flags).
+#[derive(Debug, Default, Deserialize)]
+struct RunTable {
+    #[serde(default)]
+    target_phase_us: f64,
+}
+
+/// A refused method parameter, located in the scenario file.
+fn param_error(src: &ConfigSource<'_>, e: ParamError) -> anyhow::Error {
+    let p = Problem::new(
+        e.table.to_string(),
+        e.key,
+        e.message().to_string(),
+        e.fix().to_string(),
+    );
+    anyhow::Error::msg(src.locate(p))
+}
+
 /// The method with the scenario's parameters, and the scenario's target phase, ns.
 fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64)> {
     let (name, text) = match &args.config {
@@ -291,23 +343,26 @@ fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64)> {
             ecsync_esc::preset::PAPER_2024_TOML.to_string(),
         ),
     };
-    let mut s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
+    let src = ConfigSource::new(&name, &text);
+    let file: RunScenario = src.deserialize().map_err(anyhow::Error::msg)?;
+    let ctx = MethodContext {
+        cycle_ns,
+        target_phase_ns: MethodContext::target_phase_from_us(file.run.target_phase_us)
+            .map_err(|e| param_error(&src, e))?,
+    };
+    let mut params = file.methods;
+    params.check().map_err(|e| param_error(&src, e))?;
+    // Against the cycle this run uses (--cycle-us), not the file's.
+    ctx.check().map_err(|e| param_error(&src, e))?;
     if !(args.init_s.is_finite() && args.init_s > 0.0) {
         bail!("--init-s must be a number of seconds > 0");
     }
     let init = ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as i64).max(1);
-    s.median.init_frames = init;
-    s.median_fit.init_frames = init;
-    s.pi_m2s.init_frames = init;
-    s.cycle_ns = cycle_ns;
-    let m = Method::from_scenario(&args.method, &s).with_context(|| {
-        format!(
-            "unknown method \"{}\"; the methods are: {}",
-            args.method,
-            ecsync_lab::scenario::METHODS.join(", ")
-        )
-    })?;
-    Ok((m, s.target_phase_ns))
+    params.set_init_frames(init);
+    params
+        .check_use(args.method, &ctx)
+        .map_err(|e| param_error(&src, e))?;
+    Ok((params.build(args.method, &ctx), ctx.target_phase_ns))
 }
 
 /// Writes `v` or nothing, then the separator (no allocation: this runs every cycle).
@@ -521,7 +576,6 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         }
     });
     let duration_s = t_cyc.elapsed().as_secs_f64();
-    use ecsync_dc::MasterSync as _;
     let controller = eng.sync().controller_log().map(|c| ControllerOut {
         in_sync: c.in_sync,
         drift_ppm: c.drift_ppm,
@@ -555,7 +609,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     exchanges.truncated += d.truncated;
     let out = RunOut {
         iface: args.iface.clone(),
-        method: args.method.clone(),
+        method: args.method.to_string(),
         cycle_ns,
         sync0_shift_ns: shift_ns,
         stopped: stopped_str,
@@ -579,7 +633,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     };
     let text = serde_json::to_string_pretty(&out)?;
     if let Some(p) = &args.summary {
-        ecsync_lab::report::write_atomic(p, text.as_bytes())
+        write_atomic(p, text.as_bytes())
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if json {

@@ -139,7 +139,7 @@ fn every_figure_is_recomputed_from_the_samples() {
         .iter()
         .map(|v| v.as_str().unwrap())
         .collect();
-    assert_eq!(ranking.len(), ecsync_lab::scenario::METHODS.len());
+    assert_eq!(ranking.len(), ecsync_dc::MethodKind::NAMES.len());
     assert_eq!(rec["method"].as_str().unwrap(), ranking[0]);
     assert!(rec["reason"].as_str().unwrap().len() > 80, "{rec}");
     let late = |m: &str| {
@@ -313,7 +313,7 @@ fn the_command_line_refuses_with_a_hint() {
     // --help lists the methods, the host presets and the defaults.
     let o = ecsync().args(["compare", "--help"]).output().unwrap();
     let h = String::from_utf8_lossy(&o.stdout);
-    for m in ecsync_lab::scenario::METHODS {
+    for m in ecsync_dc::MethodKind::NAMES {
         assert!(h.contains(m), "{m} in --help");
     }
     for p in ecsync_lab::host::HostParams::PRESETS {

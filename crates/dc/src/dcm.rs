@@ -49,6 +49,7 @@
 //!   sync as soon as it leaves the band.
 
 use crate::offset::round_ns;
+use crate::registry::MethodKind;
 use crate::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, grid_phase, wrap_phase,
 };
@@ -63,8 +64,13 @@ pub enum DcmMode {
     MasterShift,
 }
 
-/// What the set value is measured from.
+/// What the set value is measured from (in a scenario: `"frame-send"` or `"cycle-start"`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(
+    feature = "serde",
+    derive(serde::Deserialize, serde::Serialize),
+    serde(rename_all = "kebab-case")
+)]
 pub enum SetValueRef {
     /// The cyclic frame's send (the note's default): the error carries the send jitter, which
     /// the filter deals with.
@@ -182,6 +188,14 @@ impl Dcm {
         self.mode
     }
 
+    /// Which method of the registry this is (by its mode).
+    pub fn kind(&self) -> MethodKind {
+        match self.mode {
+            DcmMode::BusShift => MethodKind::DcmBusShift,
+            DcmMode::MasterShift => MethodKind::DcmMasterShift,
+        }
+    }
+
     /// Whether the controller is in sync.
     pub fn in_sync(&self) -> bool {
         self.in_sync
@@ -199,10 +213,7 @@ pub const DRIFT_RAMP_PPM_PER_S: f64 = 2.0;
 
 impl MasterSync for Dcm {
     fn name(&self) -> &'static str {
-        match self.mode {
-            DcmMode::BusShift => "dcm-bus-shift",
-            DcmMode::MasterShift => "dcm-master-shift",
-        }
+        self.kind().name()
     }
 
     fn is_master_shift(&self) -> bool {

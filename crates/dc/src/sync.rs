@@ -33,6 +33,7 @@
 //! reference time is extended to 64 bits with [`crate::sync::extend_reference_time`] first).
 
 use crate::offset::round_ns;
+use crate::registry::MethodKind;
 use ecsync_wire::dc_time::{diff_u64, extend_u32};
 
 /// What the master saw in the cycle that just completed.
@@ -104,7 +105,8 @@ pub struct ControllerLog {
 
 /// A master synchronization method.
 pub trait MasterSync {
-    /// Short name (`median`, `pi-m2s`, ...).
+    /// Short name (`median`, `pi-m2s`, ...): for the methods of this crate, their
+    /// [`MethodKind::name`].
     fn name(&self) -> &'static str;
 
     /// Whether the method moves the master's cycles (master shift) rather than the reference
@@ -290,7 +292,7 @@ impl MedianSync {
 
 impl MasterSync for MedianSync {
     fn name(&self) -> &'static str {
-        "median"
+        MethodKind::Median.name()
     }
 
     fn init_cycles(&self) -> u64 {
@@ -483,7 +485,7 @@ impl MedianFit {
 
 impl MasterSync for MedianFit {
     fn name(&self) -> &'static str {
-        "median-fit"
+        MethodKind::MedianFit.name()
     }
 
     fn init_cycles(&self) -> u64 {
@@ -571,7 +573,7 @@ impl PiM2s {
 
 impl MasterSync for PiM2s {
     fn name(&self) -> &'static str {
-        "pi-m2s"
+        MethodKind::PiM2s.name()
     }
 
     fn init_cycles(&self) -> u64 {
@@ -615,7 +617,7 @@ pub struct BusShift {
 
 impl MasterSync for BusShift {
     fn name(&self) -> &'static str {
-        "bus-shift"
+        MethodKind::BusShift.name()
     }
 
     fn is_master_shift(&self) -> bool {
@@ -649,7 +651,7 @@ pub struct Snap {
 
 impl MasterSync for Snap {
     fn name(&self) -> &'static str {
-        "snap"
+        MethodKind::Snap.name()
     }
 
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
@@ -717,7 +719,7 @@ impl SoemPi {
 
 impl MasterSync for SoemPi {
     fn name(&self) -> &'static str {
-        "soem-pi"
+        MethodKind::SoemPi.name()
     }
 
     fn update(&mut self, input: &CycleInput) -> CycleOutput {

@@ -1,18 +1,26 @@
-//! Every method's update allocates nothing (a counting global allocator).
+//! Every method's update allocates nothing (a counting global allocator), run directly and
+//! through the registry's [`Method`] (the per-cycle path of the lab and the real master).
 
 use ecsync_dc::sync::{CycleInput, MasterSync};
 use ecsync_dc::{
-    BusShift, Dcm, DcmMode, DcmParams, MedianFit, MedianSync, PiM2s, SetValueRef, Snap, SoemPi,
+    BusShift, Dcm, DcmMode, DcmParams, MedianFit, MedianSync, Method, MethodContext, MethodKind,
+    MethodParams, PiM2s, SetValueRef, Snap, SoemPi,
 };
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::cell::Cell;
 
 struct Counting;
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+thread_local! {
+    // Per thread: the test harness's own threads allocate while a test runs (its output
+    // capture, its timers), which a process-wide count took for the method's.
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        // `try_with`: a thread being torn down has no counter left, and is not the test's.
+        let _ = ALLOCS.try_with(|n| n.set(n.get() + 1));
         // SAFETY: forwarding to the system allocator with the caller's layout.
         unsafe { System.alloc(layout) }
     }
@@ -26,7 +34,7 @@ unsafe impl GlobalAlloc for Counting {
 static GLOBAL: Counting = Counting;
 
 fn run<S: MasterSync>(mut s: S) -> u64 {
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = ALLOCS.with(Cell::get);
     for i in 0..50_000u64 {
         let t = 1_000_000_000 + i * 1_000_000;
         let input = CycleInput {
@@ -44,7 +52,7 @@ fn run<S: MasterSync>(mut s: S) -> u64 {
         };
         std::hint::black_box(s.update(&input));
     }
-    ALLOCS.load(Ordering::Relaxed) - before
+    ALLOCS.with(Cell::get) - before
 }
 
 #[test]
@@ -66,4 +74,26 @@ fn updates_allocate_nothing() {
         0,
         "dcm-master-shift"
     );
+}
+
+#[test]
+fn updates_through_the_registry_allocate_nothing() {
+    let ctx = MethodContext {
+        cycle_ns: 1_000_000,
+        target_phase_ns: 0,
+    };
+    let params = MethodParams::default();
+    for kind in MethodKind::ALL {
+        let m: Method = params.build(kind, &ctx);
+        assert_eq!(run(m), 0, "{kind}");
+    }
+}
+
+/// The counter sees an allocation on the test's thread (else the tests above could not fail).
+#[test]
+fn the_counter_sees_this_threads_allocations() {
+    let before = ALLOCS.with(Cell::get);
+    let v = std::hint::black_box(vec![1u8; 16]);
+    assert!(ALLOCS.with(Cell::get) > before);
+    drop(v);
 }

@@ -41,6 +41,11 @@ pub const TICK_NS: f64 = 10.0;
 /// per clock per grid point.
 pub const DEFAULT_WANDER_STEP_PS: u64 = 1_000_000_000_000;
 
+/// Random-walk wander of every crystal the presets and scenario files do not give one, ppm per
+/// sqrt(s): a few parts per billion over seconds, typical of an uncompensated quartz at constant
+/// temperature.
+pub const CRYSTAL_WANDER_PPM_PER_SQRT_S: f64 = 0.005;
+
 /// Crystal parameters of one clock.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CrystalParams {

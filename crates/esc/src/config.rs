@@ -30,7 +30,8 @@ use crate::segment::{SlaveSpec, Upstream};
 use serde::Deserialize;
 use std::fmt;
 
-/// A configuration error located in its file.
+/// A configuration error located in its file: what every parser of a configuration or
+/// scenario file returns (this crate's segment, the lab's scenarios, the CLI's `run`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ConfigError {
     /// File name as given.
@@ -60,6 +61,148 @@ impl fmt::Display for ConfigError {
 }
 
 impl std::error::Error for ConfigError {}
+
+/// A value a file cannot be used with, before it is located: the field (its table, dotted as in
+/// the file, and its key), what is wrong and what to do. [`ConfigSource::locate`] finds its line.
+/// Checks that also run on values the command line changed return it, so a value is refused with
+/// the same words wherever it came from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Problem {
+    /// The table, e.g. `run` or `methods.median`.
+    pub table: String,
+    /// The key in it.
+    pub key: String,
+    /// What is wrong.
+    pub message: String,
+    /// What to do.
+    pub fix: String,
+}
+
+impl Problem {
+    /// A problem with `key` in `table`.
+    pub fn new(
+        table: impl Into<String>,
+        key: impl Into<String>,
+        message: impl Into<String>,
+        fix: impl Into<String>,
+    ) -> Self {
+        Problem {
+            table: table.into(),
+            key: key.into(),
+            message: message.into(),
+            fix: fix.into(),
+        }
+    }
+
+    /// The dotted field.
+    pub fn field(&self) -> String {
+        format!("{}.{}", self.table, self.key)
+    }
+}
+
+impl fmt::Display for Problem {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}; fix: {}", self.field(), self.message, self.fix)
+    }
+}
+
+/// A configuration file being parsed, its name and its text: the one place errors are located
+/// (the TOML parser's, and the checks' [`Problem`]s).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConfigSource<'a> {
+    /// File name as the user gave it (or the preset's name).
+    pub file: &'a str,
+    /// Its text.
+    pub text: &'a str,
+}
+
+impl<'a> ConfigSource<'a> {
+    /// The file `file` with text `text`.
+    pub fn new(file: &'a str, text: &'a str) -> Self {
+        ConfigSource { file, text }
+    }
+
+    /// Deserializes the text; a TOML error comes back located ([`toml_error`]).
+    pub fn deserialize<T: serde::de::DeserializeOwned>(&self) -> Result<T, ConfigError> {
+        toml::from_str(self.text).map_err(|e| toml_error(self.file, self.text, &e))
+    }
+
+    /// An error at a known line (or none), for a field the caller names.
+    pub fn at(
+        &self,
+        line: Option<usize>,
+        field: impl Into<String>,
+        message: impl Into<String>,
+        fix: impl Into<String>,
+    ) -> ConfigError {
+        ConfigError {
+            file: self.file.to_string(),
+            line,
+            field: field.into(),
+            message: message.into(),
+            fix: fix.into(),
+        }
+    }
+
+    /// The problem located in the file: the line of its `key = ...`; else the header of the
+    /// table the key names (`[[table.key]]`, an array of tables, or `[table.key]`); else, for a
+    /// nested table's key (`host.js.sigma_ns`, whose table may be written inline), the line of
+    /// the table's key in its parent; else the table's header; else no line.
+    pub fn locate(&self, p: Problem) -> ConfigError {
+        let text = self.text;
+        let header = |name: &str| text.find(&format!("[{name}]")).map(|at| line_of(text, at));
+        let line = key_line(text, &p.table, &p.key)
+            .or_else(|| {
+                let sub = format!("{}.{}", p.table, p.key);
+                text.find(&format!("[[{sub}]]"))
+                    .map(|at| line_of(text, at))
+                    .or_else(|| header(&sub))
+            })
+            .or_else(|| {
+                let (parent, last) = p.table.rsplit_once('.')?;
+                key_line(text, parent, last)
+            })
+            .or_else(|| header(&p.table));
+        ConfigError {
+            file: self.file.to_string(),
+            line,
+            field: p.field(),
+            message: p.message,
+            fix: p.fix,
+        }
+    }
+
+    /// Shorthand: [`ConfigSource::locate`] of a new [`Problem`].
+    pub fn error(
+        &self,
+        table: &str,
+        key: &str,
+        message: impl Into<String>,
+        fix: impl Into<String>,
+    ) -> ConfigError {
+        self.locate(Problem::new(table, key, message, fix))
+    }
+}
+
+/// The line of `key = ...` inside table `table` (dotted, as in its header), if present.
+pub fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
+    let mut current = String::new();
+    for (i, line) in text.lines().enumerate() {
+        let l = line.trim();
+        if l.starts_with('[') {
+            current = l.trim_matches(['[', ']']).trim().to_string();
+            continue;
+        }
+        if current == table {
+            if let Some((k, _)) = l.split_once('=') {
+                if k.trim() == key {
+                    return Some(i + 1);
+                }
+            }
+        }
+    }
+    None
+}
 
 /// 1-based line of a byte offset.
 pub fn line_of(text: &str, offset: usize) -> usize {
@@ -170,7 +313,7 @@ fn default_cable() -> f64 {
     1.0
 }
 fn default_wander() -> f64 {
-    crate::preset::CRYSTAL_WANDER_PPM_PER_SQRT_S
+    crate::clock::CRYSTAL_WANDER_PPM_PER_SQRT_S
 }
 
 /// Most slaves a segment may have (the 16-bit auto-increment address space).
@@ -184,12 +327,9 @@ impl SegmentConfig {
         text: &str,
         path: &str,
     ) -> Result<Vec<SlaveSpec>, ConfigError> {
-        let err = |line: Option<usize>, field: String, message: String, fix: &str| ConfigError {
-            file: file.to_string(),
-            line,
-            field,
-            message,
-            fix: fix.to_string(),
+        let src = ConfigSource::new(file, text);
+        let err = |line: Option<usize>, field: String, message: String, fix: &str| {
+            src.at(line, field, message, fix)
         };
         if self.slave.is_empty() {
             return Err(err(
@@ -386,7 +526,7 @@ pub struct SegmentFile {
 
 /// Parses a file's segment. Other top-level tables (host, run, ...) are left to their owners.
 pub fn parse_segment(file: &str, text: &str) -> Result<Vec<SlaveSpec>, ConfigError> {
-    let f: SegmentFile = toml::from_str(text).map_err(|e| toml_error(file, text, &e))?;
+    let f: SegmentFile = ConfigSource::new(file, text).deserialize()?;
     f.segment.to_specs(file, text, "segment")
 }
 
@@ -445,6 +585,23 @@ ppm = -3.5
         .unwrap_err();
         assert_eq!(e.field, "segment.slave[1].model");
         assert!(e.fix.contains("servo-mii-dc32"), "{e}");
+    }
+
+    /// Where `locate` puts a problem: the key's line, the header of the table the key names,
+    /// the key of an inline table in its parent, the table's header, or nowhere.
+    #[test]
+    fn problems_are_located_by_key_table_or_parent() {
+        let text = "[run]\ncycle_us = 5\n\n[host]\njs = { sigma_ns = 1e9 }\n\n[[bridge.port.window]]\nopen_ns = 0\n\n[methods.median]\n";
+        let src = ConfigSource::new("s.toml", text);
+        let at = |table: &str, key: &str| src.error(table, key, "m", "f").line;
+        assert_eq!(at("run", "cycle_us"), Some(2));
+        assert_eq!(at("host.js", "sigma_ns"), Some(5), "inline: the parent's key");
+        assert_eq!(at("bridge.port", "window"), Some(7), "an array of tables' header");
+        assert_eq!(at("methods.median", "window"), Some(10), "the table's header");
+        assert_eq!(at("methods", "median"), Some(10), "the table the key names");
+        assert_eq!(at("segment", "slave"), None);
+        let e = src.error("run", "cycle_us", "5 us", "give 1000");
+        assert_eq!(e.to_string(), "s.toml:2: run.cycle_us: 5 us; fix: give 1000");
     }
 
     #[test]

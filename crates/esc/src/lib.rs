@@ -27,6 +27,7 @@ mod esc;
 pub mod model;
 pub mod pcap;
 pub mod preset;
+pub mod rng;
 mod segment;
 pub mod sii_image;
 

@@ -1,15 +1,16 @@
 //! Built-in segment descriptions.
+//!
+//! The built-in scenario files are embedded from this crate's own `presets/` folder, so the
+//! crate builds and packages on its own. They are copies of the repository's top-level
+//! `presets/` files, which users read, copy and edit; a test holds the two byte-identical.
 
+pub use crate::clock::CRYSTAL_WANDER_PPM_PER_SQRT_S;
 use crate::clock::CrystalParams;
 use crate::model::{DeviceInfo, EscModel};
 use crate::segment::{SlaveSpec, Upstream};
 
-/// The `paper-2024` preset file (also in the repository's `presets/` folder for users to copy).
-pub const PAPER_2024_TOML: &str = include_str!("../../../presets/paper-2024.toml");
-
-/// Random-walk wander of every crystal, ppm per sqrt(s): a few parts per billion over seconds,
-/// typical of an uncompensated quartz at constant temperature.
-pub const CRYSTAL_WANDER_PPM_PER_SQRT_S: f64 = 0.005;
+/// The `paper-2024` preset file (the repository's `presets/paper-2024.toml`, for users to copy).
+pub const PAPER_2024_TOML: &str = include_str!("../presets/paper-2024.toml");
 
 /// The letter's testbed: six DC servo drives in a line, 100BASE-TX ports, about 1.5 m of cable
 /// from the reference to the last slave, crystals within +-50 ppm. Read from
@@ -67,6 +68,26 @@ pub fn line(n: usize, seed: u64) -> Vec<SlaveSpec> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The embedded copy is the repository's `presets/paper-2024.toml`, byte for byte. (Where
+    /// the crate is built on its own, from its package, there is no repository to compare
+    /// with.)
+    #[test]
+    fn the_embedded_preset_is_the_repositorys() {
+        let top = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets");
+        if !top.is_dir() {
+            eprintln!("no repository around the crate: nothing to compare");
+            return;
+        }
+        let file = top.join("paper-2024.toml");
+        let text = std::fs::read_to_string(&file)
+            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        assert!(
+            text == PAPER_2024_TOML,
+            "presets/paper-2024.toml and crates/esc/presets/paper-2024.toml differ: copy the one \
+             you edited over the other (users read the first, the binary embeds the second)"
+        );
+    }
 
     #[test]
     fn paper_2024_is_the_letters_testbed() {

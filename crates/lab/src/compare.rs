@@ -136,7 +136,7 @@ pub fn compare_with(
                         Some(run) => run,
                         None => {
                             let made =
-                                Run::new(scenario, &ups[r], &methods[m]).and_then(|mut run| {
+                                Run::new(scenario, &ups[r], methods[m]).and_then(|mut run| {
                                     if let Some(dir) = &opts.samples_dir {
                                         run.write_samples(dir)?;
                                     }

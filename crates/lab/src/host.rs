@@ -10,6 +10,7 @@
 //! every method of a comparison sees exactly the same noise in the same cycle whatever it does
 //! (common random numbers), and a run is reproducible bit for bit.
 
+use ecsync_esc::rng::{SplitMix64, splitmix64};
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
@@ -231,50 +232,8 @@ impl HostParams {
     }
 }
 
-/// A SplitMix64 stream: small and fast, enough for noise (the seed is what makes the streams
-/// of different cycles and runs independent).
-pub(crate) struct CycleRng(pub(crate) u64);
-
-impl CycleRng {
-    /// The next output: [`splitmix`] of the state, which then moves on by the golden gamma.
-    pub(crate) fn next(&mut self) -> u64 {
-        let v = splitmix(self.0);
-        self.0 = self.0.wrapping_add(SPLITMIX_GAMMA);
-        v
-    }
-}
-
-impl rand::TryRng for CycleRng {
-    type Error = core::convert::Infallible;
-    fn try_next_u32(&mut self) -> Result<u32, Self::Error> {
-        Ok((self.next() >> 32) as u32)
-    }
-    fn try_next_u64(&mut self) -> Result<u64, Self::Error> {
-        Ok(self.next())
-    }
-    fn try_fill_bytes(&mut self, dst: &mut [u8]) -> Result<(), Self::Error> {
-        for c in dst.chunks_mut(8) {
-            let v = self.next().to_le_bytes();
-            c.copy_from_slice(&v[..c.len()]);
-        }
-        Ok(())
-    }
-}
-
-const SPLITMIX_GAMMA: u64 = 0x9e37_79b9_7f4a_7c15;
-
-/// SplitMix64: a counter-based generator (the output is a function of the input only).
-fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(SPLITMIX_GAMMA);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-/// Uniform in (0, 1].
-pub(crate) fn unit(x: u64) -> f64 {
-    ((x >> 11) + 1) as f64 / (1u64 << 53) as f64
-}
+// The TSN network's noise (tsn/mod.rs) reaches the stream by these two paths.
+pub(crate) use ecsync_esc::rng::{SplitMix64 as CycleRng, unit_from_bits as unit};
 
 /// The host's noise for one run.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -304,7 +263,7 @@ impl HostNoise {
     pub fn cycle(&self, cycle: u64) -> CycleNoise {
         let p = &self.params;
         // A generator seeded by (run seed, cycle): the same draws for every method.
-        let mut rng = CycleRng(splitmix(self.seed ^ splitmix(cycle)));
+        let mut rng = SplitMix64(splitmix64(self.seed ^ splitmix64(cycle)));
         let mut draw = |j: &Jitter| {
             let g = if j.sigma_ns > 0.0 {
                 StandardNormal.sample(&mut rng)

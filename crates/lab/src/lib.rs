@@ -10,8 +10,11 @@ pub mod plots;
 pub mod report;
 pub mod run;
 pub mod scenario;
-pub mod stats;
 pub mod tsn;
+
+/// The statistics live in ecsync-master, where the real master's `ecsync run` uses them too
+/// without the simulator; the lab's modules keep naming them `crate::stats`.
+pub use ecsync_master::stats;
 
 pub use compare::{Comparison, compare};
 pub use scenario::{Scenario, parse};

@@ -13,6 +13,7 @@ use crate::compare::Comparison;
 use crate::report::{SummaryOut, verdict_text};
 use crate::run::{Band, RunResult};
 use crate::stats::{Dist, Stats};
+use ecsync_master::output::write_atomic;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::fmt::Write as _;
@@ -143,7 +144,11 @@ fn overlaid<DB: DrawingBackend>(
         .iter()
         .enumerate()
         .filter_map(|(i, name)| {
-            let m = c.scenario.methods.iter().position(|x| x == name)?;
+            let m = c
+                .scenario
+                .methods
+                .iter()
+                .position(|x| x.name() == name.as_str())?;
             Some((i, name, pooled(c, m, pick)))
         })
         .collect();
@@ -262,7 +267,11 @@ fn bands<DB: DrawingBackend>(
         .iter()
         .enumerate()
         .filter_map(|(i, name)| {
-            let m = c.scenario.methods.iter().position(|x| x == name)?;
+            let m = c
+                .scenario
+                .methods
+                .iter()
+                .position(|x| x.name() == name.as_str())?;
             Some((i, name, c.results[m].first()?))
         })
         .collect();
@@ -364,10 +373,15 @@ fn fig4<DB: DrawingBackend>(
     root.fill(&WHITE).map_err(err)?;
     let rows = root.split_evenly((order.len(), 2));
     for (i, name) in order.iter().enumerate() {
-        let Some(m) = c.scenario.methods.iter().position(|x| x == name) else {
+        let Some(m) = c
+            .scenario
+            .methods
+            .iter()
+            .position(|x| x.name() == name.as_str())
+        else {
             continue;
         };
-        let letter = crate::letter::letter_name(name);
+        let letter = crate::letter::letter_name(c.scenario.methods[m]);
         let label = if letter == "-" {
             name.clone()
         } else {
@@ -673,7 +687,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
             .map(|p| (p.name, p.caption.as_str()))
             .collect::<Vec<_>>(),
     );
-    crate::report::write_atomic(&dir.join("report.html"), html.as_bytes())
+    write_atomic(&dir.join("report.html"), html.as_bytes())
 }
 
 pub(crate) fn esc(s: &str) -> String {

@@ -31,11 +31,10 @@ use crate::compare::Comparison;
 use crate::letter::{self, Row};
 use crate::run::RunResult;
 use crate::stats::{QUANTILE_REL_ERROR, RESOLUTION_NS, Stats, Summary, mean_of};
+use ecsync_dc::MethodKind;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::io;
-use std::path::Path;
 
 /// The letter's four indicators of one error, means over runs, ns.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -296,7 +295,7 @@ fn shift_pct(latest_ns: f64, period: f64) -> f64 {
     }
 }
 
-fn method_out(c: &Comparison, m: usize, name: &str, letter_testbed: bool) -> MethodOut {
+fn method_out(c: &Comparison, m: usize, kind: MethodKind, letter_testbed: bool) -> MethodOut {
     let s = &c.scenario;
     let period = f64::from(s.cycle_ns);
     let rs = &c.results[m];
@@ -363,14 +362,14 @@ fn method_out(c: &Comparison, m: usize, name: &str, letter_testbed: bool) -> Met
         }
     });
     MethodOut {
-        description: crate::scenario::method_summary(name),
-        letter_name: letter::letter_name(name),
+        description: kind.summary(),
+        letter_name: letter::letter_name(kind),
         m_rs: col(0).into(),
         rs_is: col(1).into(),
         m_rs_pooled: pooled(rs, |r| &r.m_rs).summary(),
         rs_is_pooled: pooled(rs, |r| &r.rs_is).summary(),
         letter: if letter_testbed {
-            letter::table1(name).map(|(m_rs, rs_is)| LetterOut { m_rs, rs_is })
+            letter::table1(kind).map(|(m_rs, rs_is)| LetterOut { m_rs, rs_is })
         } else {
             None
         },
@@ -617,15 +616,19 @@ fn warnings(
         .iter()
         .find(|x| x.model.dc.has_system_time())
         .map(|x| x.crystal.ppm);
-    let init_methods: Vec<&String> = order
+    let init_methods: Vec<MethodKind> = s
+        .methods
         .iter()
-        .filter(|m| matches!(m.as_str(), "median" | "pi-m2s") && methods.contains_key(*m))
+        .copied()
+        .filter(|m| {
+            matches!(m, MethodKind::Median | MethodKind::PiM2s) && methods.contains_key(m.name())
+        })
         .collect();
     if let (Some(r), false) = (reference_ppm, init_methods.is_empty()) {
         let d_ppm = r - s.host.master_ppm;
         let n = init_methods
             .iter()
-            .map(|m| s.init_frames(m))
+            .map(|&m| s.init_frames(m))
             .max()
             .unwrap_or(0);
         let expected = d_ppm.abs() * 1e-6 * period * n as f64 / 2.0;
@@ -639,7 +642,7 @@ fn warnings(
                     us(d_ppm.abs() * 1e-6 * period * n as f64),
                     init_methods
                         .iter()
-                        .map(|m| m.as_str())
+                        .map(|m| m.name())
                         .collect::<Vec<_>>()
                         .join(" and "),
                     us(expected),
@@ -657,13 +660,13 @@ fn warnings(
         }
         let off = g.offset_from_target_ns;
         if off.abs() > 0.1 * budget_ns {
-            let why = match (&mo.init_drift, m.as_str()) {
-                (Some(d), "median" | "pi-m2s") => format!(
+            let why = match (&mo.init_drift, m.parse::<MethodKind>()) {
+                (Some(d), Ok(MethodKind::Median | MethodKind::PiM2s)) => format!(
                     " (the drift over its {} init frames accounts for {})",
                     d.frames,
                     us(d.offset_ns)
                 ),
-                (_, "snap") => " (it counts its wait from the send, so the scheduling jitter and execution time land on the phase)".into(),
+                (_, Ok(MethodKind::Snap)) => " (it counts its wait from the send, so the scheduling jitter and execution time land on the phase)".into(),
                 _ => String::new(),
             };
             w.push(Warning {
@@ -756,9 +759,11 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
     let s = &c.scenario;
     let testbed = s.is_letter_testbed();
     let mut methods = BTreeMap::new();
-    for (m, name) in s.methods.iter().enumerate() {
-        methods.insert(name.clone(), method_out(c, m, name, testbed));
+    for (m, &kind) in s.methods.iter().enumerate() {
+        methods.insert(kind.name().to_string(), method_out(c, m, kind, testbed));
     }
+    // The report's order, by name (the maps of summary.json are keyed by name).
+    let order: Vec<String> = s.methods.iter().map(|m| m.name().to_string()).collect();
     // The margin budget: the shift minus the target minus the frame's mean transit from the
     // reference to its end at the worst slave (shift - margin - phase, the same for every
     // method up to noise: the mean over methods).
@@ -781,14 +786,14 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
         let g = &mut m.ground_truth;
         g.holds_target = g.phase.n > 0 && g.offset_from_target_ns.abs() <= 0.1 * budget;
     }
-    let ranking = rank(&methods, &s.methods);
+    let ranking = rank(&methods, &order);
     let recommendation = Recommendation {
         method: ranking.first().cloned().unwrap_or_default(),
         reason: reason(&methods, &ranking, s.sync0_shift_pct),
         ranking: ranking.clone(),
         rule: RANKING_RULE,
     };
-    let warnings = warnings(c, &methods, &s.methods, budget);
+    let warnings = warnings(c, &methods, &order, budget);
     SummaryOut {
         recommendation,
         warnings,
@@ -1074,21 +1079,4 @@ pub fn csv(out: &SummaryOut, order: &[String]) -> String {
         }
     }
     t
-}
-
-/// Writes `text` to `path` atomically (temporary file, then rename).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
-    let tmp = path.with_extension("tmp-ecsync");
-    std::fs::write(&tmp, bytes)?;
-    std::fs::rename(&tmp, path)
-}
-
-/// Writes the plots and report.html.
-pub fn write_report(
-    c: &Comparison,
-    out: &SummaryOut,
-    order: &[String],
-    dir: &Path,
-) -> io::Result<()> {
-    crate::plots::write_all(c, out, order, dir)
 }

@@ -4,9 +4,10 @@
 use crate::host::{CycleNoise, HostNoise, SharedNoise};
 use crate::scenario::Scenario;
 use crate::stats::{Stats, Summary};
-use ecsync_dc::sync::{ControllerLog, MasterSync, ReferenceWrite};
-use ecsync_dc::{BusShift, Dcm, DcmMode, MedianFit, MedianSync, PiM2s, Snap, SoemPi};
+use ecsync_dc::sync::MasterSync;
+use ecsync_dc::{Method, MethodKind};
 use ecsync_esc::clock::CrystalParams;
+use ecsync_esc::rng::splitmix64;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
@@ -19,119 +20,6 @@ use std::io::Write as _;
 use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-
-/// The methods behind one type (static dispatch, no allocation; the median's window makes it
-/// the large one, and one method lives per run).
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[allow(clippy::large_enum_variant)]
-pub enum Method {
-    /// The letter's median-filter drift compensator.
-    Median(MedianSync),
-    /// The letter's filter and gain with h_mr and the drift fitted.
-    MedianFit(MedianFit),
-    /// E-M2S.
-    PiM2s(PiM2s),
-    /// E-S2M.
-    BusShift(BusShift),
-    /// The vendor note's DCM, bus shift or master shift.
-    Dcm(Dcm),
-    /// ethercrab's snap.
-    Snap(Snap),
-    /// SOEM's sample PI.
-    SoemPi(SoemPi),
-}
-
-impl Method {
-    /// The method named `name` with the scenario's parameters, aiming at its target phase.
-    pub fn from_scenario(name: &str, s: &Scenario) -> Option<Method> {
-        let p = i64::from(s.cycle_ns);
-        let target = s.target_phase_ns;
-        Some(match name {
-            "median" => Method::Median(MedianSync::new(
-                s.median.window as usize,
-                s.median.gain,
-                s.median.init_frames as u64,
-            )),
-            "median-fit" => Method::MedianFit(MedianFit::new(
-                s.median_fit.window as usize,
-                s.median_fit.gain,
-                s.median_fit.init_frames as u64,
-                target,
-            )),
-            "pi-m2s" => Method::PiM2s(PiM2s::new(
-                s.pi_m2s.kp,
-                s.pi_m2s.ki,
-                s.pi_m2s.init_frames as u64,
-            )),
-            "bus-shift" => Method::BusShift(BusShift {
-                write_offset_ns: s.bus_shift.write_offset_ns,
-            }),
-            "dcm-bus-shift" => Method::Dcm(Dcm::new(
-                DcmMode::BusShift,
-                s.dcm_bus_shift.to_params(target, s.cycle_ns, true),
-            )),
-            "dcm-master-shift" => Method::Dcm(Dcm::new(
-                DcmMode::MasterShift,
-                s.dcm_master_shift.to_params(target, s.cycle_ns, false),
-            )),
-            // ethercrab's sync0_shift: the wait runs to the grid point plus the shift.
-            "snap" => Method::Snap(Snap {
-                shift_ns: target.rem_euclid(p) as u32,
-            }),
-            // SOEM's offset: the task runs that far after the reference's grid.
-            "soem-pi" => Method::SoemPi(SoemPi::new(target)),
-            _ => return None,
-        })
-    }
-
-    fn inner(&self) -> &dyn MasterSync {
-        match self {
-            Method::Median(m) => m,
-            Method::MedianFit(m) => m,
-            Method::PiM2s(m) => m,
-            Method::BusShift(m) => m,
-            Method::Dcm(m) => m,
-            Method::Snap(m) => m,
-            Method::SoemPi(m) => m,
-        }
-    }
-
-    fn inner_mut(&mut self) -> &mut dyn MasterSync {
-        match self {
-            Method::Median(m) => m,
-            Method::MedianFit(m) => m,
-            Method::PiM2s(m) => m,
-            Method::BusShift(m) => m,
-            Method::Dcm(m) => m,
-            Method::Snap(m) => m,
-            Method::SoemPi(m) => m,
-        }
-    }
-}
-
-impl MasterSync for Method {
-    fn name(&self) -> &'static str {
-        self.inner().name()
-    }
-    fn is_master_shift(&self) -> bool {
-        self.inner().is_master_shift()
-    }
-    fn reference_write_kind(&self) -> ReferenceWrite {
-        self.inner().reference_write_kind()
-    }
-    fn reference_write(&self, send_ns: u64) -> Option<u64> {
-        self.inner().reference_write(send_ns)
-    }
-    fn controller_log(&self) -> Option<ControllerLog> {
-        self.inner().controller_log()
-    }
-    fn init_cycles(&self) -> u64 {
-        self.inner().init_cycles()
-    }
-    fn update(&mut self, input: &ecsync_dc::CycleInput) -> ecsync_dc::CycleOutput {
-        self.inner_mut().update(input)
-    }
-}
 
 /// A point of a time series: min and max of a quantity over a block of cycles, ns.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -414,9 +302,6 @@ pub enum RunError {
     /// The bring-up failed.
     #[error("bring-up failed: {0}")]
     Bringup(#[from] MasterError),
-    /// The scenario names a method that does not exist.
-    #[error("unknown method {0}")]
-    UnknownMethod(String),
     /// The cyclic frame does not fit.
     #[error("cyclic frame: {0}")]
     Frame(ecsync_wire::WireError),
@@ -430,16 +315,9 @@ pub enum RunError {
     },
 }
 
-fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
 /// The seed of run `run`.
 pub fn run_seed(base: u64, run: u32) -> u64 {
-    splitmix(base ^ splitmix(u64::from(run) + 1))
+    splitmix64(base ^ splitmix64(u64::from(run) + 1))
 }
 
 /// A run's network after its bring-up: every method of the run continues from a copy of it
@@ -469,7 +347,7 @@ pub fn run_specs(s: &Scenario, run: u32) -> Vec<ecsync_esc::SlaveSpec> {
     let seed = run_seed(s.seed, run);
     let mut specs = s.slaves.clone();
     for (i, sp) in specs.iter_mut().enumerate() {
-        sp.crystal.seed = splitmix(seed ^ (0x5eed_0000 + i as u64) ^ sp.crystal.seed);
+        sp.crystal.seed = splitmix64(seed ^ (0x5eed_0000 + i as u64) ^ sp.crystal.seed);
     }
     specs
 }
@@ -485,7 +363,7 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
         wander_ppm_per_sqrt_s: s.host.master_wander_ppm_per_sqrt_s,
         wander_step_ps: ecsync_esc::clock::DEFAULT_WANDER_STEP_PS,
         initial_local_ns: SIM_EPOCH_NS,
-        seed: splitmix(seed ^ 0x4a57_e700),
+        seed: splitmix64(seed ^ 0x4a57_e700),
     }));
     let cfg = BringupConfig {
         until: Stage::Op,
@@ -623,16 +501,15 @@ impl std::fmt::Debug for Run {
 }
 
 impl Run {
-    /// Method `method_name` from the brought-up network `up` (which it copies).
-    pub fn new(s: &Scenario, up: &BroughtUp, method_name: &str) -> Result<Run, RunError> {
+    /// Method `kind` from the brought-up network `up` (which it copies).
+    pub fn new(s: &Scenario, up: &BroughtUp, kind: MethodKind) -> Result<Run, RunError> {
         let mut sim = up.sim.fork();
         let net = &up.net;
         let lock_ms = net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6);
         let reference = usize::from(net.reference);
         let ref_station = net.slaves[reference].station;
 
-        let method = Method::from_scenario(method_name, s)
-            .ok_or_else(|| RunError::UnknownMethod(method_name.to_string()))?;
+        let method: Method = s.params.build(kind, &s.method_context());
         let noise = HostNoise::new(s.host, up.seed);
         let period = u64::from(s.cycle_ns);
         let init_frames = method.init_cycles().min(s.warmup_cycles);
@@ -698,7 +575,7 @@ impl Run {
             noise,
             shared_noise: None,
             res: RunResult {
-                method: method_name.to_string(),
+                method: kind.name().to_string(),
                 run: up.run,
                 cycles_done: 0,
                 m_rs: Stats::new(),
@@ -1067,16 +944,16 @@ impl Run {
     }
 }
 
-/// Runs method `method_name` in run `run` of the scenario, bring-up included. `progress` counts
+/// Runs method `kind` in run `run` of the scenario, bring-up included. `progress` counts
 /// simulated cycles.
 pub fn run_one(
     s: &Scenario,
-    method_name: &str,
+    kind: MethodKind,
     run: u32,
     progress: &AtomicU64,
 ) -> Result<RunResult, RunError> {
     let up = bring_up(s, run)?;
-    let mut r = Run::new(s, &up, method_name)?;
+    let mut r = Run::new(s, &up, kind)?;
     while r.remaining() > 0 {
         let n = r.step(4096);
         progress.fetch_add(n, Ordering::Relaxed);

@@ -1,53 +1,16 @@
 //! Scenarios: a segment, a host, and how to run the comparison, in one TOML file. Errors name
 //! the file, the line, the field and the fix; nothing panics on bad input. The same checks run
 //! on a scenario whose values the command line changed ([`Scenario::check`]), so a value is
-//! refused with the same words wherever it came from.
+//! refused with the same words wherever it came from. The errors are ecsync-esc's
+//! ([`ConfigSource`] locates every one); the methods' tables and their checks are ecsync-dc's
+//! registry ([`MethodParams`]).
 
 use crate::host::{HostParams, Jitter};
+use ecsync_dc::method::{MethodContext, MethodKind, MethodParams, ParamError};
 use ecsync_esc::SlaveSpec;
-use ecsync_esc::config::{ConfigError, SegmentConfig, line_of, toml_error};
+pub use ecsync_esc::config::Problem;
+use ecsync_esc::config::{ConfigError, ConfigSource, SegmentConfig};
 use serde::Deserialize;
-
-/// The methods a comparison can run, in the order reports list them.
-pub const METHODS: [&str; 8] = [
-    "median",
-    "median-fit",
-    "pi-m2s",
-    "bus-shift",
-    "dcm-bus-shift",
-    "dcm-master-shift",
-    "snap",
-    "soem-pi",
-];
-
-/// What each method is, in a few words (for `--help` and reports).
-pub fn method_summary(name: &str) -> &'static str {
-    match name {
-        "median" => {
-            "the letter's method: master shift, median filter w, gain k, h_mr averaged over the init frames (eq. 5-14)"
-        }
-        "median-fit" => {
-            "the letter's filter and gain with h_mr and the drift fitted over the init frames: holds the target on any crystals"
-        }
-        "pi-m2s" => {
-            "the letter's E-M2S baseline: master shift, PI on the error from the cycle start"
-        }
-        "bus-shift" => {
-            "the letter's E-S2M baseline: the send timestamp written to the reference's 0x0910 every cycle"
-        }
-        "dcm-bus-shift" => {
-            "the vendor note's DCM bus shift: filtered PI on the frame's phase, the reference's time moved"
-        }
-        "dcm-master-shift" => {
-            "the vendor note's DCM master shift: the same controller moving the master's timer"
-        }
-        "snap" => {
-            "what ethercrab ships: wait to the reference's next grid point from the send, gain 1, no filter"
-        }
-        "soem-pi" => "SOEM's sample loop: sign-counting integral on the reference time's phase",
-        _ => "",
-    }
-}
 
 /// The cycle times a scenario accepts, us: EtherCAT cycles run from tens of microseconds to
 /// about 100 ms.
@@ -61,8 +24,9 @@ struct File {
     host: HostFile,
     #[serde(default)]
     run: RunFile,
+    /// The methods' tables, read by the registry's names (ecsync-dc).
     #[serde(default)]
-    methods: MethodsFile,
+    methods: MethodParams,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -121,7 +85,7 @@ fn d_seed() -> u64 {
     2024
 }
 fn d_methods() -> Vec<String> {
-    METHODS.iter().map(|s| s.to_string()).collect()
+    MethodKind::NAMES.iter().map(|s| s.to_string()).collect()
 }
 fn d_static() -> i64 {
     15_000
@@ -139,222 +103,6 @@ impl Default for RunFile {
             seed: d_seed(),
             methods: d_methods(),
             static_drift_frames: d_static(),
-        }
-    }
-}
-
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct MethodsFile {
-    median: Option<MedianParams>,
-    #[serde(rename = "median-fit")]
-    median_fit: Option<MedianParams>,
-    #[serde(rename = "pi-m2s")]
-    pi_m2s: Option<PiParams>,
-    #[serde(rename = "bus-shift")]
-    bus_shift: Option<BusShiftParams>,
-    #[serde(rename = "dcm-bus-shift")]
-    dcm_bus_shift: Option<DcmFileParams>,
-    #[serde(rename = "dcm-master-shift")]
-    dcm_master_shift: Option<DcmFileParams>,
-    snap: Option<AimedParams>,
-    #[serde(rename = "soem-pi")]
-    soem_pi: Option<AimedParams>,
-}
-
-/// Parameters of `median` and `median-fit` (the letter's defaults).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct MedianParams {
-    /// Median window w.
-    #[serde(default = "d_w")]
-    pub window: i64,
-    /// Gain k.
-    #[serde(default = "d_k")]
-    pub gain: f64,
-    /// Frames averaged (median) or fitted (median-fit) for h_mr.
-    #[serde(default = "d_init")]
-    pub init_frames: i64,
-}
-fn d_w() -> i64 {
-    11
-}
-fn d_k() -> f64 {
-    0.01
-}
-fn d_init() -> i64 {
-    10_000
-}
-
-impl Default for MedianParams {
-    fn default() -> Self {
-        MedianParams {
-            window: d_w(),
-            gain: d_k(),
-            init_frames: d_init(),
-        }
-    }
-}
-
-/// Parameters of `pi-m2s` (the letter's defaults).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct PiParams {
-    /// Proportional gain.
-    #[serde(default = "d_kp")]
-    pub kp: f64,
-    /// Integral gain.
-    #[serde(default = "d_ki")]
-    pub ki: f64,
-    /// Frames averaged for the offset.
-    #[serde(default = "d_init")]
-    pub init_frames: i64,
-}
-fn d_kp() -> f64 {
-    0.125
-}
-fn d_ki() -> f64 {
-    0.0005
-}
-
-impl Default for PiParams {
-    fn default() -> Self {
-        PiParams {
-            kp: d_kp(),
-            ki: d_ki(),
-            init_frames: d_init(),
-        }
-    }
-}
-
-/// Parameters of `bus-shift`.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct BusShiftParams {
-    /// Added to the written master time, ns.
-    #[serde(default)]
-    pub write_offset_ns: i64,
-}
-
-/// `snap` and `soem-pi` aim at `run.target_phase_us`; their own offsets of earlier versions are
-/// refused with that hint.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct AimedParams {
-    shift_ns: Option<i64>,
-    offset_ns: Option<i64>,
-}
-
-/// The set value's reference of a DCM controller.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum SetValueRefFile {
-    /// The cyclic frame's send (the vendor's default).
-    FrameSend,
-    /// The cycle's start (the vendor's enhanced mode).
-    CycleStart,
-}
-
-/// Parameters of `dcm-bus-shift` and `dcm-master-shift` (see `ecsync_dc::dcm`; defaults from
-/// [`ecsync_dc::DcmParams::default_for`]).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct DcmFileParams {
-    /// What the set value is measured from: "frame-send" or "cycle-start".
-    #[serde(default = "d_svr")]
-    pub set_value_ref: SetValueRefFile,
-    /// Proportional gain.
-    #[serde(default = "d_dcm_kp")]
-    pub kp: f64,
-    /// Integral gain.
-    #[serde(default = "d_dcm_ki")]
-    pub ki: f64,
-    /// Filter weight 2^-depth.
-    #[serde(default = "d_dcm_depth")]
-    pub filter_depth: i64,
-    /// Errors further than this from the filtered error are not used once in sync, us.
-    #[serde(default = "d_dcm_valid")]
-    pub max_valid_us: f64,
-    /// The in-sync band, us.
-    #[serde(default = "d_dcm_band")]
-    pub in_sync_limit_us: f64,
-    /// How long the filtered error must stay in the band, ms.
-    #[serde(default = "d_dcm_hold")]
-    pub in_sync_hold_ms: f64,
-    /// The most the re-adjustment's proportional part moves per cycle, ppm of the cycle (0: no
-    /// limit; bus shift's default 5, master shift's 0).
-    #[serde(default)]
-    pub max_slew_ppm: Option<f64>,
-}
-fn d_svr() -> SetValueRefFile {
-    SetValueRefFile::FrameSend
-}
-fn dcm_defaults() -> ecsync_dc::DcmParams {
-    ecsync_dc::DcmParams::default_for(0, 1_000_000)
-}
-fn d_dcm_kp() -> f64 {
-    dcm_defaults().kp
-}
-fn d_dcm_ki() -> f64 {
-    dcm_defaults().ki
-}
-fn d_dcm_depth() -> i64 {
-    i64::from(dcm_defaults().filter_depth)
-}
-fn d_dcm_valid() -> f64 {
-    dcm_defaults().max_valid_ns as f64 / 1000.0
-}
-fn d_dcm_band() -> f64 {
-    dcm_defaults().in_sync_limit_ns as f64 / 1000.0
-}
-fn d_dcm_hold() -> f64 {
-    // 1.5 s: the default's hold is given in cycles of 1 ms.
-    dcm_defaults().in_sync_hold_cycles as f64
-}
-
-impl Default for DcmFileParams {
-    fn default() -> Self {
-        DcmFileParams {
-            set_value_ref: d_svr(),
-            kp: d_dcm_kp(),
-            ki: d_dcm_ki(),
-            filter_depth: d_dcm_depth(),
-            max_valid_us: d_dcm_valid(),
-            in_sync_limit_us: d_dcm_band(),
-            in_sync_hold_ms: d_dcm_hold(),
-            max_slew_ppm: None,
-        }
-    }
-}
-
-impl DcmFileParams {
-    /// The controller's parameters at a cycle and target, for bus shift or master shift.
-    pub fn to_params(
-        &self,
-        target_phase_ns: i64,
-        cycle_ns: u32,
-        bus_shift: bool,
-    ) -> ecsync_dc::DcmParams {
-        let default_slew = if bus_shift {
-            ecsync_dc::DcmParams::default_bus_shift(0, 1_000_000).max_slew_ppm
-        } else {
-            0.0
-        };
-        ecsync_dc::DcmParams {
-            max_slew_ppm: self.max_slew_ppm.unwrap_or(default_slew),
-            set_value_ref: match self.set_value_ref {
-                SetValueRefFile::FrameSend => ecsync_dc::SetValueRef::FrameSend,
-                SetValueRefFile::CycleStart => ecsync_dc::SetValueRef::CycleStart,
-            },
-            target_phase_ns,
-            kp: self.kp,
-            ki: self.ki,
-            filter_depth: self.filter_depth.clamp(0, 20) as u8,
-            max_valid_ns: (self.max_valid_us * 1000.0).round() as i64,
-            in_sync_limit_ns: (self.in_sync_limit_us * 1000.0).round() as i64,
-            in_sync_hold_cycles: ((self.in_sync_hold_ms * 1e6 / f64::from(cycle_ns.max(1))).round()
-                as u64)
-                .max(1),
         }
     }
 }
@@ -386,57 +134,21 @@ pub struct Scenario {
     /// Base seed.
     pub seed: u64,
     /// Methods to compare, in report order.
-    pub methods: Vec<String>,
+    pub methods: Vec<MethodKind>,
     /// Static drift compensation frames of the bring-up.
     pub static_drift_frames: u32,
-    /// `median` parameters.
-    pub median: MedianParams,
-    /// `median-fit` parameters.
-    pub median_fit: MedianParams,
-    /// `pi-m2s` parameters.
-    pub pi_m2s: PiParams,
-    /// `bus-shift` parameters.
-    pub bus_shift: BusShiftParams,
-    /// `dcm-bus-shift` parameters.
-    pub dcm_bus_shift: DcmFileParams,
-    /// `dcm-master-shift` parameters.
-    pub dcm_master_shift: DcmFileParams,
+    /// Every method's parameters (the `[methods.<name>]` tables; defaults where absent).
+    pub params: MethodParams,
 }
 
-/// A value a scenario cannot run with: the field (dotted, as in the file), what is wrong and
-/// what to do.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Problem {
-    /// The table, e.g. `run` or `methods.median`.
-    pub table: String,
-    /// The key in it.
-    pub key: String,
-    /// What is wrong.
-    pub message: String,
-    /// What to do.
-    pub fix: String,
-}
-
-impl Problem {
-    fn new(table: &str, key: &str, message: String, fix: impl Into<String>) -> Self {
-        Problem {
-            table: table.to_string(),
-            key: key.to_string(),
-            message,
-            fix: fix.into(),
-        }
-    }
-
-    /// The dotted field.
-    pub fn field(&self) -> String {
-        format!("{}.{}", self.table, self.key)
-    }
-}
-
-impl std::fmt::Display for Problem {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}: {}; fix: {}", self.field(), self.message, self.fix)
-    }
+/// The problem a refused method parameter is, located in the scenario like any other.
+pub fn param_problem(e: ParamError) -> Problem {
+    Problem::new(
+        e.table.to_string(),
+        e.key,
+        e.message().to_string(),
+        e.fix().to_string(),
+    )
 }
 
 /// Plural of a count: "1 run", "2 runs".
@@ -460,12 +172,15 @@ impl Scenario {
     }
 
     /// The method's initialisation frames (0 for methods without).
-    pub fn init_frames(&self, method: &str) -> u64 {
-        match method {
-            "median" => self.median.init_frames.max(0) as u64,
-            "median-fit" => self.median_fit.init_frames.max(0) as u64,
-            "pi-m2s" => self.pi_m2s.init_frames.max(0) as u64,
-            _ => 0,
+    pub fn init_frames(&self, method: MethodKind) -> u64 {
+        self.params.init_frames(method)
+    }
+
+    /// What every method of the scenario shares: its cycle and target phase.
+    pub fn method_context(&self) -> MethodContext {
+        MethodContext {
+            cycle_ns: self.cycle_ns,
+            target_phase_ns: self.target_phase_ns,
         }
     }
 
@@ -485,22 +200,8 @@ impl Scenario {
                 "give a percentage from 0 up to (not including) 100: SYNC0 fires that far after the DC grid point",
             ));
         }
-        let half = i64::from(self.cycle_ns / 2);
-        if self.target_phase_ns < -half || self.target_phase_ns >= half {
-            return Err(Problem::new(
-                "run",
-                "target_phase_us",
-                format!(
-                    "{} us is not within half a cycle of the grid point",
-                    self.target_phase_ns as f64 / 1000.0
-                ),
-                format!(
-                    "give a phase from {} up to (not including) {} us; the frames should reach the reference before SYNC0 (run.sync0_shift_pct)",
-                    -half as f64 / 1000.0,
-                    half as f64 / 1000.0
-                ),
-            ));
-        }
+        let ctx = self.method_context();
+        ctx.check().map_err(param_problem)?;
         if !(1..=1000).contains(&self.runs) {
             return Err(Problem::new(
                 "run",
@@ -538,68 +239,23 @@ impl Scenario {
             return Err(Problem::new(
                 "run",
                 "methods",
-                "no methods".into(),
-                format!("name at least one of: {}", METHODS.join(", ")),
+                "no methods",
+                format!("name at least one of: {}", MethodKind::list()),
             ));
         }
-        for m in &self.methods {
-            if !METHODS.contains(&m.as_str()) {
-                return Err(Problem::new(
-                    "run",
-                    "methods",
-                    format!("unknown method \"{m}\""),
-                    format!("use: {}", METHODS.join(", ")),
-                ));
-            }
-        }
-        for (table, p) in [
-            ("methods.median", &self.median),
-            ("methods.median-fit", &self.median_fit),
-        ] {
-            check_median(table, p)?;
-        }
-        for (k, v) in [("kp", self.pi_m2s.kp), ("ki", self.pi_m2s.ki)] {
-            if !(v.is_finite() && (0.0..=2.0).contains(&v)) {
-                return Err(Problem::new(
-                    "methods.pi-m2s",
-                    k,
-                    format!("{v} is not a usable gain"),
-                    "give a gain between 0 and 2 (the letter: kp 0.125, ki 0.0005)",
-                ));
-            }
-        }
-        // The DCM tables are checked against the cycle where they are used.
-        for (name, d) in [
-            ("dcm-bus-shift", &self.dcm_bus_shift),
-            ("dcm-master-shift", &self.dcm_master_shift),
-        ] {
-            if self.methods.iter().any(|m| m == name) {
-                check_dcm(&format!("methods.{name}"), d, self.cycle_ns)?;
-            }
+        self.params.check().map_err(param_problem)?;
+        for &m in &self.methods {
+            self.params.check_use(m, &ctx).map_err(param_problem)?;
         }
         // Initialisation frames happen in the warm-up, which must hold them.
-        for m in &self.methods {
+        for &m in &self.methods {
             let init = self.init_frames(m);
-            let table = match m.as_str() {
-                "median" => "methods.median",
-                "median-fit" => "methods.median-fit",
-                "pi-m2s" => "methods.pi-m2s",
-                _ => continue,
-            };
-            if init < 1 {
-                return Err(Problem::new(
-                    table,
-                    "init_frames",
-                    format!("{init} initialisation frames"),
-                    "give at least 1 (the letter: 10000)",
-                ));
-            }
             if init > self.warmup_cycles {
                 return Err(Problem::new(
                     "run",
                     "warmup_s",
                     format!(
-                        "a warm-up of {} is shorter than {m}'s {} initialisation frames ({table}.init_frames)",
+                        "a warm-up of {} is shorter than {m}'s {} initialisation frames (methods.{m}.init_frames)",
                         plural(self.warmup_cycles, "cycle", "cycles"),
                         init
                     ),
@@ -631,87 +287,6 @@ fn cycle_problem(cycle_us: f64) -> Problem {
         format!("a cycle of {cycle_us} us is not an EtherCAT cycle{hint}"),
         format!("give a cycle time between {lo} and {hi} us, e.g. 1000 for 1 ms"),
     )
-}
-
-fn check_median(table: &str, p: &MedianParams) -> Result<(), Problem> {
-    if p.window <= 0 || p.window % 2 == 0 || p.window as usize > ecsync_dc::sync::MAX_WINDOW {
-        return Err(Problem::new(
-            table,
-            "window",
-            format!(
-                "window w = {} must be odd and between 1 and {}",
-                p.window,
-                ecsync_dc::sync::MAX_WINDOW
-            ),
-            "use an odd width such as 11 (the letter's), so the median is one of the samples",
-        ));
-    }
-    if !(p.gain.is_finite() && p.gain > 0.0 && p.gain <= 1.0) {
-        return Err(Problem::new(
-            table,
-            "gain",
-            format!("gain k = {} must lie in (0, 1]", p.gain),
-            "use a small gain such as 0.01 (the letter's)",
-        ));
-    }
-    Ok(())
-}
-
-fn check_dcm(table: &str, d: &DcmFileParams, cycle_ns: u32) -> Result<(), Problem> {
-    for (k, v, max) in [("kp", d.kp, 1.0), ("ki", d.ki, 0.25)] {
-        if !(v.is_finite() && v >= 0.0 && v <= max) {
-            return Err(Problem::new(
-                table,
-                k,
-                format!("{v} is not a usable gain (0 ..= {max})"),
-                "the defaults are kp 0.004, ki 0.000004 (a loop of about 0.5 s at 1 ms)",
-            ));
-        }
-    }
-    if !(0..=16).contains(&d.filter_depth) {
-        return Err(Problem::new(
-            table,
-            "filter_depth",
-            format!("{}", d.filter_depth),
-            "give a depth between 0 (no filter) and 16 (weight 2^-16); the default is 6",
-        ));
-    }
-    let cycle_us = f64::from(cycle_ns) / 1000.0;
-    for (k, v) in [
-        ("max_valid_us", d.max_valid_us),
-        ("in_sync_limit_us", d.in_sync_limit_us),
-    ] {
-        if !(v.is_finite() && v > 0.0 && v <= cycle_us) {
-            return Err(Problem::new(
-                table,
-                k,
-                format!("{v} us"),
-                format!("give a time above 0 and at most the cycle ({cycle_us} us)"),
-            ));
-        }
-    }
-    if let Some(v) = d.max_slew_ppm {
-        if !(v.is_finite() && (0.0..=1000.0).contains(&v)) {
-            return Err(Problem::new(
-                table,
-                "max_slew_ppm",
-                format!("{v} ppm"),
-                "give between 0 (no limit) and 1000 ppm; bus shift's default is 5",
-            ));
-        }
-    }
-    if !(d.in_sync_hold_ms.is_finite()
-        && d.in_sync_hold_ms >= 0.0
-        && d.in_sync_hold_ms <= 600_000.0)
-    {
-        return Err(Problem::new(
-            table,
-            "in_sync_hold_ms",
-            format!("{} ms", d.in_sync_hold_ms),
-            "give between 0 and 600000 ms",
-        ));
-    }
-    Ok(())
 }
 
 /// Checks the host's numbers against the cycle.
@@ -785,54 +360,12 @@ fn check_host(host: &HostParams, cycle_ns: u32) -> Result<(), Problem> {
     Ok(())
 }
 
-/// The line of `key = ...` inside table `table` (dotted, as in its header), if present.
-pub(crate) fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
-    let mut current = String::new();
-    for (i, line) in text.lines().enumerate() {
-        let l = line.trim();
-        if l.starts_with('[') {
-            current = l.trim_matches(['[', ']']).trim().to_string();
-            continue;
-        }
-        if current == table {
-            if let Some((k, _)) = l.split_once('=') {
-                if k.trim() == key {
-                    return Some(i + 1);
-                }
-            }
-        }
-    }
-    None
-}
-
-/// A problem located in the scenario file `file` with text `text`.
-pub fn locate(file: &str, text: &str, p: Problem) -> ConfigError {
-    // A nested table's key (host.js.sigma_ns) may sit in an inline table: fall back to the
-    // table's key in its parent, then to the table header.
-    let line = key_line(text, &p.table, &p.key)
-        .or_else(|| {
-            let (parent, last) = p.table.rsplit_once('.')?;
-            key_line(text, parent, last)
-        })
-        .or_else(|| {
-            text.find(&format!("[{}]", p.table))
-                .map(|at| line_of(text, at))
-        });
-    ConfigError {
-        file: file.to_string(),
-        line,
-        field: p.field(),
-        message: p.message,
-        fix: p.fix,
-    }
-}
-
 /// Parses and checks a scenario.
 pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
-    let f: File = toml::from_str(text).map_err(|e| toml_error(file, text, &e))?;
-    let err = |table: &str, key: &str, message: String, fix: &str| {
-        locate(file, text, Problem::new(table, key, message, fix))
-    };
+    let src = ConfigSource::new(file, text);
+    let f: File = src.deserialize()?;
+    let err =
+        |table: &str, key: &str, message: String, fix: &str| src.error(table, key, message, fix);
     let slaves = f.segment.to_specs(file, text, "segment")?;
 
     // Host: a preset, then overrides.
@@ -887,17 +420,11 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
     let r = &f.run;
     let (lo, hi) = CYCLE_US_RANGE;
     if !(r.cycle_us.is_finite() && (lo..=hi).contains(&r.cycle_us)) {
-        return Err(locate(file, text, cycle_problem(r.cycle_us)));
+        return Err(src.locate(cycle_problem(r.cycle_us)));
     }
     let cycle_ns = (r.cycle_us * 1000.0).round() as u32;
-    if !r.target_phase_us.is_finite() || r.target_phase_us.abs() > 1e7 {
-        return Err(err(
-            "run",
-            "target_phase_us",
-            format!("{}", r.target_phase_us),
-            "give the target phase in us, within half a cycle of the grid point",
-        ));
-    }
+    let target_phase_ns = MethodContext::target_phase_from_us(r.target_phase_us)
+        .map_err(|e| src.locate(param_problem(e)))?;
     for (key, v, lo, hi) in [
         ("runs", r.runs, 1, 1000),
         ("cycles", r.cycles, 1, 1_000_000_000),
@@ -920,28 +447,16 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
             "give between 0 and 86400 s",
         ));
     }
+    let mut methods = Vec::new();
     for m in &r.methods {
-        if !METHODS.contains(&m.as_str()) {
-            return Err(err(
-                "run",
-                "methods",
-                format!("unknown method \"{m}\""),
-                &format!("use: {}", METHODS.join(", ")),
-            ));
-        }
-    }
-    for (table, a) in [
-        ("methods.snap", f.methods.snap),
-        ("methods.soem-pi", f.methods.soem_pi),
-    ] {
-        let Some(a) = a else { continue };
-        for (key, v) in [("shift_ns", a.shift_ns), ("offset_ns", a.offset_ns)] {
-            if v.is_some() {
+        match m.parse::<MethodKind>() {
+            Ok(k) => methods.push(k),
+            Err(_) => {
                 return Err(err(
-                    table,
-                    key,
-                    "every method now aims at the scenario's target phase".into(),
-                    "remove the field and set run.target_phase_us (us after the DC grid point) instead",
+                    "run",
+                    "methods",
+                    format!("unknown method \"{m}\""),
+                    &format!("use: {}", MethodKind::list()),
                 ));
             }
         }
@@ -957,25 +472,20 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
         host,
         cycle_ns,
         sync0_shift_pct: r.sync0_shift_pct,
-        target_phase_ns: (r.target_phase_us * 1000.0).round() as i64,
+        target_phase_ns,
         runs: r.runs as u32,
         cycles: r.cycles as u64,
         warmup_cycles: (r.warmup_s * 1e9 / f64::from(cycle_ns)).round() as u64,
         seed: r.seed,
-        methods: METHODS
-            .iter()
-            .filter(|m| r.methods.iter().any(|x| x == *m))
-            .map(|s| s.to_string())
+        // Report order, each once, whatever the file's order.
+        methods: MethodKind::ALL
+            .into_iter()
+            .filter(|m| methods.contains(m))
             .collect(),
         static_drift_frames: r.static_drift_frames as u32,
-        median: f.methods.median.unwrap_or_default(),
-        median_fit: f.methods.median_fit.unwrap_or_default(),
-        pi_m2s: f.methods.pi_m2s.unwrap_or_default(),
-        bus_shift: f.methods.bus_shift.unwrap_or_default(),
-        dcm_bus_shift: f.methods.dcm_bus_shift.unwrap_or_default(),
-        dcm_master_shift: f.methods.dcm_master_shift.unwrap_or_default(),
+        params: f.methods,
     };
-    s.check().map_err(|p| locate(file, text, p))?;
+    s.check().map_err(|p| src.locate(p))?;
     Ok(s)
 }
 
@@ -995,8 +505,8 @@ mod tests {
         assert_eq!(s.runs, 5);
         assert_eq!(s.cycles, 1_800_000);
         assert_eq!(s.warmup_cycles, 120_000);
-        assert_eq!(s.methods, METHODS);
-        assert_eq!(s.median.window, 11);
+        assert_eq!(s.methods, MethodKind::ALL);
+        assert_eq!(s.params.median.window, 11);
         assert_eq!(s.target_phase_ns, 0);
         assert!(s.is_letter_testbed());
     }
@@ -1064,7 +574,46 @@ mod tests {
             "methods = [\"bus-shift\", \"snap\"]",
         );
         let s = parse("p.toml", &t).unwrap();
-        assert_eq!(s.methods, ["bus-shift", "snap"]);
+        assert_eq!(s.methods, [MethodKind::BusShift, MethodKind::Snap]);
+    }
+
+    /// The `[methods]` table is read by the registry's names: an unknown method's table, an
+    /// unknown field and a bad enum value are refused, located, naming what is expected.
+    #[test]
+    fn method_tables_are_read_by_the_registrys_names() {
+        let t = preset() + "\n[methods.medain]\nwindow = 5\n";
+        let e = parse("p.toml", &t).unwrap_err();
+        assert!(e.message.contains("unknown field `medain`"), "{e}");
+        assert!(e.message.contains("`median-fit`") && e.message.contains("`soem-pi`"), "{e}");
+        assert!(e.line.is_some() && e.fix.contains("spelling"), "{e}");
+        let e = bad(("kp = 0.125 ", "kpp = 0.125 "));
+        assert!(
+            e.message
+                .contains("unknown field `kpp`, expected one of `kp`, `ki`, `init_frames`"),
+            "{e}"
+        );
+        let e = bad(("set_value_ref = \"frame-send\"", "set_value_ref = \"cycle-end\""));
+        assert!(
+            e.message.contains("`frame-send`") && e.message.contains("`cycle-start`"),
+            "{e}"
+        );
+        // A table's values are its method's parameters; the other tables keep theirs.
+        let t = preset()
+            .replacen("set_value_ref = \"frame-send\"", "set_value_ref = \"cycle-start\"", 1)
+            .replacen("kp = 0.004", "kp = 0.002", 1);
+        let s = parse("p.toml", &t).unwrap();
+        assert_eq!(s.params.dcm_bus_shift.kp, 0.002);
+        assert_eq!(
+            s.params.dcm_bus_shift.set_value_ref,
+            ecsync_dc::SetValueRef::CycleStart
+        );
+        assert_eq!(
+            s.params.dcm_master_shift,
+            ecsync_dc::method::DcmSettings {
+                max_slew_ppm: Some(0.0),
+                ..Default::default()
+            }
+        );
     }
 
     #[test]

@@ -1,7 +1,9 @@
 //! A sans-IO EtherCAT master engine: the DC bring-up (scan, SII identity, topology, propagation
 //! delays, offsets, static drift compensation, SYNC0, state machine) written once as `async`
 //! procedures over a [`Link`], and run by transports that do the I/O: [`sim::SimTransport`]
-//! against the virtual segment in virtual time, a raw socket on a real network.
+//! against the virtual segment in virtual time, a raw socket on a real network. What a run of
+//! the cyclic phase measures is summarised by [`stats`] (the simulator's lab and the real
+//! master alike) and written by [`output`].
 #![forbid(unsafe_code)]
 
 pub mod bench;
@@ -10,9 +12,11 @@ pub mod cyclic;
 pub mod driver;
 mod error;
 pub mod io;
+pub mod output;
 pub mod pdi;
 pub mod sii;
 pub mod sim;
+pub mod stats;
 pub mod transport;
 
 pub use bringup::{

@@ -3,8 +3,8 @@
 
 use super::{TsnScenario, Variant, VariantResult};
 use crate::plots::{COLORS, draw_envelopes, draw_hist, err, esc, fonts};
-use crate::report::write_atomic;
 use crate::stats::Summary;
+use ecsync_master::output::write_atomic;
 use ecsync_tsn::qbv::GateControlEntry;
 use plotters::coord::Shift;
 use plotters::prelude::*;

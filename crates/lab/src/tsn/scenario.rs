@@ -1,15 +1,16 @@
 //! The TSN scenario file: the EtherCAT segment, the master, the time-aware bridge with its gate
 //! control lists, gPTP, and which variants to run. Every error names the file, the line, the
-//! field and the fix.
+//! field and the fix, located by the same [`ConfigSource`] as the compare scenario's.
 
-use crate::scenario::key_line;
 use ecsync_esc::SlaveSpec;
-use ecsync_esc::config::{ConfigError, SegmentConfig, line_of, toml_error};
+use ecsync_esc::config::{ConfigError, ConfigSource, SegmentConfig};
 use ecsync_tsn::qbv::{PortSchedule, ScheduleError, Window};
 use serde::Deserialize;
 
-/// The built-in preset `tsn-2020`.
-pub const TSN_2020_TOML: &str = include_str!("../../../../presets/tsn-2020.toml");
+/// The built-in preset `tsn-2020`: embedded from this crate's `presets/` folder, a copy of the
+/// repository's `presets/tsn-2020.toml` (which users read and edit; a test holds the two
+/// byte-identical).
+pub const TSN_2020_TOML: &str = include_str!("../../presets/tsn-2020.toml");
 
 /// The three networks of the paper.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
@@ -191,7 +192,7 @@ struct MasterTable {
 }
 
 fn default_wander() -> f64 {
-    ecsync_esc::preset::CRYSTAL_WANDER_PPM_PER_SQRT_S
+    ecsync_esc::clock::CRYSTAL_WANDER_PPM_PER_SQRT_S
 }
 
 #[derive(Debug, Deserialize)]
@@ -236,15 +237,10 @@ fn max_frame_ns() -> u64 {
 
 /// Parses and checks a TSN scenario.
 pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
-    let f: File = toml::from_str(text).map_err(|e| toml_error(file, text, &e))?;
-    let err = |table: &str, key: &str, message: String, fix: &str| ConfigError {
-        file: file.to_string(),
-        line: key_line(text, table, key)
-            .or_else(|| text.find(&format!("[{table}]")).map(|at| line_of(text, at))),
-        field: format!("{table}.{key}"),
-        message,
-        fix: fix.to_string(),
-    };
+    let src = ConfigSource::new(file, text);
+    let f: File = src.deserialize()?;
+    let err =
+        |table: &str, key: &str, message: String, fix: &str| src.error(table, key, message, fix);
     let slaves = match &f.segment {
         Some(s) => s.to_specs(file, text, "segment")?,
         None => ecsync_esc::preset::paper_2024(),
@@ -403,15 +399,13 @@ pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
         let table = format!("bridge.{port}");
         let s = PortSchedule::new(b.cycle_ns as u64, b.base_ns, &p.window, guard_ns)
             .and_then(|s| s.check_fits(max_frame_ns()).map(|()| s))
-            .map_err(|e: ScheduleError| ConfigError {
-                file: file.to_string(),
-                line: text
-                    .find(&format!("[[{table}.window]]"))
-                    .or_else(|| text.find(&format!("[{table}]")))
-                    .map(|at| line_of(text, at)),
-                field: format!("{table}.window"),
-                message: format!("bad gate schedule: {e}"),
-                fix: "each [[bridge.<port>.window]] gives open_ns < close_ns within the gate cycle, windows must not overlap, and the list must not be empty".into(),
+            .map_err(|e: ScheduleError| {
+                src.error(
+                    &table,
+                    "window",
+                    format!("bad gate schedule: {e}"),
+                    "each [[bridge.<port>.window]] gives open_ns < close_ns within the gate cycle, windows must not overlap, and the list must not be empty",
+                )
             })?;
         Ok(s)
     };
@@ -505,6 +499,25 @@ pub fn preset() -> TsnScenario {
 mod tests {
     use super::*;
 
+    /// The embedded copy is the repository's `presets/tsn-2020.toml`, byte for byte (where the
+    /// crate is built from its package alone there is nothing to compare with).
+    #[test]
+    fn the_embedded_preset_is_the_repositorys() {
+        let top = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets");
+        if !top.is_dir() {
+            eprintln!("no repository around the crate: nothing to compare");
+            return;
+        }
+        let file = top.join("tsn-2020.toml");
+        let text = std::fs::read_to_string(&file)
+            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        assert!(
+            text == TSN_2020_TOML,
+            "presets/tsn-2020.toml and crates/lab/presets/tsn-2020.toml differ: copy the one you \
+             edited over the other (users read the first, the binary embeds the second)"
+        );
+    }
+
     #[test]
     fn the_preset_parses() {
         let s = preset();
@@ -526,7 +539,11 @@ mod tests {
         let overlap = with_windows(
             "[[bridge.ethercat_port.window]]\nopen_ns = 0\nclose_ns = 300000\n\n[[bridge.ethercat_port.window]]\nopen_ns = 200000\nclose_ns = 500000\n\n",
         );
-        let e = parse("x.toml", &overlap).unwrap_err().to_string();
+        let err = parse("x.toml", &overlap).unwrap_err();
+        // Located at the port's first window.
+        let at = overlap.find("[[bridge.ethercat_port.window]]").unwrap();
+        assert_eq!(err.line, Some(overlap[..at].matches('\n').count() + 1));
+        let e = err.to_string();
         assert!(e.contains("bridge.ethercat_port.window"), "{e}");
         assert!(e.contains("overlap from 200000 to 300000"), "{e}");
 
@@ -549,7 +566,10 @@ mod tests {
     #[test]
     fn other_bad_fields_are_named() {
         let t = TSN_2020_TOML.replace("variants = [\"M1\", \"M2\", \"M3\"]", "variants = [\"M4\"]");
-        let e = parse("x.toml", &t).unwrap_err().to_string();
+        let err = parse("x.toml", &t).unwrap_err();
+        let at = t.find("variants = [\"M4\"]").unwrap();
+        assert_eq!(err.line, Some(t[..at].matches('\n').count() + 1));
+        let e = err.to_string();
         assert!(e.contains("tsn.variants") && e.contains("M4"), "{e}");
         let t = TSN_2020_TOML.replace("[gptp]", "[gptp]\nbogus = 1");
         let e = parse("x.toml", &t).unwrap_err().to_string();
