@@ -599,7 +599,11 @@ mod tests {
         );
         // A table's values are its method's parameters; the other tables keep theirs.
         let t = preset()
-            .replacen("set_value_ref = \"frame-send\"", "set_value_ref = \"cycle-start\"", 1)
+            .replacen(
+                "[methods.dcm-bus-shift]\nset_value_ref = \"frame-send\"",
+                "[methods.dcm-bus-shift]\nset_value_ref = \"cycle-start\"",
+                1,
+            )
             .replacen("kp = 0.004", "kp = 0.002", 1);
         let s = parse("p.toml", &t).unwrap();
         assert_eq!(s.params.dcm_bus_shift.kp, 0.002);
