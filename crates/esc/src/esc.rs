@@ -35,7 +35,7 @@ use ecsync_wire::register::{self as reg, MAX_FMMUS, MAX_SYNC_MANAGERS};
 use ecsync_wire::{AlState, AlStatusCode};
 use process_data::{AppLayout, FmmuMapping, SmBuffer};
 use registers::REG_SPACE;
-use replay::Program;
+use replay::{PROGRAM_SLOTS, Program};
 use sii::SiiState;
 
 pub use datagram::DatagramEffects;
@@ -86,7 +86,11 @@ pub struct Esc {
     /// Bumped by every change that could make a datagram act differently (register writes,
     /// state changes); a recorded program is valid only for the generation it was recorded in.
     generation: u64,
-    program: Program,
+    /// Programs recorded for the last few frame shapes: a cycle of several frames (the
+    /// first with the DC datagrams, the others with process data) keeps each one's.
+    programs: [Program; PROGRAM_SLOTS],
+    /// The slot the next recording replaces when none is free.
+    next_slot: u8,
     rec: Recorder,
 }
 
@@ -124,7 +128,8 @@ impl Esc {
             model,
             device,
             generation: 0,
-            program: Program::default(),
+            programs: [Program::default(); PROGRAM_SLOTS],
+            next_slot: 0,
             rec: Recorder::default(),
         };
         esc.build_attributes();
@@ -170,11 +175,18 @@ impl Esc {
     /// Counters.
     pub fn stats(&self) -> EscStats {
         let mut s = self.stats;
-        let p = &self.program;
-        s.frames += p.replays;
-        s.replayed_frames += p.replays;
-        s.datagrams_counted += p.replays * u64::from(p.counted);
+        for p in &self.programs {
+            s.frames += p.replays;
+            s.replayed_frames += p.replays;
+            s.datagrams_counted += p.replays * u64::from(p.counted);
+        }
         s
+    }
+
+    /// The configuration generation: it changes with everything that could make a datagram
+    /// act differently (the segment's visit plans hold while no ESC's changes).
+    pub(crate) fn generation(&self) -> u64 {
+        self.generation
     }
 
     /// Marks that a frame passed the processing unit.

@@ -10,7 +10,7 @@
 //! time, so cable lengths of centimetres and frame lengths (80 ns per byte) are exact.
 
 use crate::clock::{CrystalParams, PS_PER_NS};
-use crate::esc::{Deferred, Esc};
+use crate::esc::{Deferred, Esc, EscStats};
 use crate::model::{DeviceInfo, EscModel, PortKind};
 use ecsync_wire::{
     DATAGRAM_HEADER_LEN, ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN,
@@ -245,6 +245,41 @@ pub struct Segment {
     /// The frame's timing through the segment, relative to its send time: the same for every
     /// frame while the loops do not change (see [`Timing`]).
     timing: Option<Arc<Timing>>,
+    /// Per shape slot: the ESCs a frame of that shape does something at ([`VisitPlan`]).
+    plans: Box<[Option<VisitPlan>]>,
+    /// Bumped whenever an ESC's configuration generation changes or an ESC is handed out
+    /// mutably: a visit plan holds only in the epoch it was made in.
+    epoch: u64,
+}
+
+/// Which ESCs a frame of one shape does something at. In a large network most of a cycle's
+/// frames carry the process data of a few slaves: the others would only replay an empty
+/// program. The frame passes them by (their timing, and so the ground truth, is the walk's),
+/// and their frame counters are brought up to date when the plan ends
+/// ([`Segment::end_plan`]) or read ([`Segment::esc_stats`]).
+///
+/// A plan is made after a frame of the shape found every ESC with a program for it recorded in
+/// the current generation, and holds while no ESC's generation changes (the [`Segment`]'s
+/// epoch) and the frame follows the same way (the same [`Timing`]): an empty program stays
+/// empty while nothing in its ESC changes, and a frame's data never adds a step (the steps
+/// depend on the datagram headers and the ESC's configuration only).
+#[derive(Debug, Clone)]
+struct VisitPlan {
+    shape: u32,
+    epoch: u64,
+    timing: Arc<Timing>,
+    /// Indices into `timing.flat` of the ESCs the frame does something at, in order.
+    visits: Vec<u32>,
+    /// Per slave: the frame passes by it doing nothing.
+    idle: Vec<bool>,
+    /// Frames passed by the idle ESCs and not yet in their counters.
+    idle_frames: u64,
+}
+
+impl VisitPlan {
+    fn holds(&self, shape: u32, epoch: u64, tm: &Arc<Timing>) -> bool {
+        self.shape == shape && self.epoch == epoch && Arc::ptr_eq(&self.timing, tm)
+    }
 }
 
 /// Where a frame's first bit is, relative to the moment it left the master: the traversal's
@@ -292,44 +327,62 @@ struct Shape {
     id: u32,
 }
 
-/// Recently seen frame shapes, direct-mapped on the first datagram's command and index (which
-/// the frames of one cycle do not share): a cycle of several frames finds each of its shapes
-/// again without decoding, where one remembered shape would be replaced at every frame.
+/// Recently seen frame shapes, two-way set-associative on the first datagram's command and
+/// index (which the frames of one cycle do not share): a cycle of several frames finds each of
+/// its shapes again without decoding, where one remembered shape would be replaced at every
+/// frame; the second way keeps two shapes whose command and index fall in one set (the first
+/// frame's FRMW and an LRW of a 1 000-drive cycle) from replacing each other every cycle.
 #[derive(Debug, Clone)]
 struct ShapeCache {
     slots: Box<[Option<Shape>; SHAPE_SLOTS]>,
+    /// Per set: the way found or filled last (the other one is replaced first).
+    recent: Box<[u8; SHAPE_SETS]>,
     last_id: u32,
 }
 
-/// Shapes remembered at once.
-const SHAPE_SLOTS: usize = 64;
+/// Sets of the shape cache, and the shapes remembered at once.
+const SHAPE_SETS: usize = 64;
+const SHAPE_SLOTS: usize = 2 * SHAPE_SETS;
 
 impl ShapeCache {
     fn new() -> Self {
         ShapeCache {
             slots: Box::new([None; SHAPE_SLOTS]),
+            recent: Box::new([0; SHAPE_SETS]),
             last_id: 0,
         }
     }
 
-    /// The slot of a frame: its first datagram's command and index.
+    /// The set of a frame: its first datagram's command and index.
     #[inline]
-    fn slot_of(frame: &[u8]) -> usize {
+    fn set_of(frame: &[u8]) -> usize {
         match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + 2) {
-            Some(h) => (usize::from(h[0]) * 7 + usize::from(h[1])) % SHAPE_SLOTS,
+            Some(h) => (usize::from(h[0]) * 7 + usize::from(h[1])) % SHAPE_SETS,
             None => 0,
         }
     }
 
-    /// The remembered shape of `frame`, if its headers are that shape's.
+    /// The slot of `frame`'s remembered shape and how its ESCs take it, if its headers are
+    /// that shape's.
     #[inline]
-    fn find(&self, frame: &[u8]) -> Option<&Shape> {
-        let s = self.slots[Self::slot_of(frame)].as_ref()?;
-        (frame.len() >= s.min_len && s.matches(frame)).then_some(s)
+    fn find(&mut self, frame: &[u8]) -> Option<(usize, FrameCtx)> {
+        let set = Self::set_of(frame);
+        for way in 0..2 {
+            let k = 2 * set + way;
+            if let Some(s) = &self.slots[k]
+                && frame.len() >= s.min_len
+                && s.matches(frame)
+            {
+                self.recent[set] = way as u8;
+                return Some((k, s.ctx()));
+            }
+        }
+        None
     }
 
-    /// Remembers the shape of a valid frame whose datagrams start at `offsets`; its id.
-    fn insert(&mut self, frame: &[u8], offsets: &[u16]) -> u32 {
+    /// Remembers the shape of a valid frame whose datagrams start at `offsets`; its slot and
+    /// id. A new shape takes an empty way of its set, else the one used less recently.
+    fn insert(&mut self, frame: &[u8], offsets: &[u16]) -> (usize, u32) {
         let mut s = Shape {
             head: u32::from_le_bytes(frame[HEAD_AT..FIRST_DATAGRAM].try_into().unwrap_or([0; 4])),
             words: [(0, 0); MAX_SHAPE_DATAGRAMS],
@@ -348,16 +401,27 @@ impl ShapeCache {
             s.words[k] = (u64::from_le_bytes(lo), u16::from_le_bytes([h[8], h[9]]));
         }
         s.offsets[..offsets.len()].copy_from_slice(offsets);
-        let slot = &mut self.slots[Self::slot_of(frame)];
-        if let Some(old) = slot {
-            if old.n == s.n && old.offsets == s.offsets && old.matches(frame) {
-                return old.id;
+        let set = Self::set_of(frame);
+        for way in 0..2 {
+            if let Some(old) = &self.slots[2 * set + way]
+                && old.n == s.n
+                && old.offsets == s.offsets
+                && old.matches(frame)
+            {
+                self.recent[set] = way as u8;
+                return (2 * set + way, old.id);
             }
         }
+        let way = match (&self.slots[2 * set], &self.slots[2 * set + 1]) {
+            (None, _) => 0,
+            (_, None) => 1,
+            _ => 1 - usize::from(self.recent[set]),
+        };
+        self.recent[set] = way as u8;
         self.last_id = self.last_id.wrapping_add(1).max(1);
         s.id = self.last_id;
-        *slot = Some(s);
-        s.id
+        self.slots[2 * set + way] = Some(s);
+        (2 * set + way, s.id)
     }
 }
 
@@ -572,6 +636,8 @@ impl Segment {
             shapes: ShapeCache::new(),
             replay: true,
             timing: None,
+            plans: vec![None; SHAPE_SLOTS].into_boxed_slice(),
+            epoch: 0,
         })
     }
 
@@ -597,7 +663,83 @@ impl Segment {
         // The caller may change anything: the way is walked again, from the plan again.
         node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
         self.timing = None;
+        // Its counters are brought up to date first, and no plan holds past this.
+        self.end_plans();
+        self.epoch += 1;
         &mut self.nodes[pos].esc
+    }
+
+    /// The counters of the ESC at network position `pos`, with the frames that passed it by
+    /// (see [`VisitPlan`]).
+    pub fn esc_stats(&self, pos: usize) -> EscStats {
+        let mut s = self.nodes[pos].esc.stats();
+        for p in self.plans.iter().flatten() {
+            if p.idle.get(pos).copied().unwrap_or(false) {
+                s.frames += p.idle_frames;
+                s.replayed_frames += p.idle_frames;
+            }
+        }
+        s
+    }
+
+    /// Ends the plan of shape slot `k`: the frames it passed by its idle ESCs go into their
+    /// counters. Returns it, for its buffers.
+    fn end_plan(&mut self, k: usize) -> Option<VisitPlan> {
+        let mut p = self.plans[k].take()?;
+        if p.idle_frames > 0 {
+            for (node, _) in self
+                .nodes
+                .iter_mut()
+                .zip(&p.idle)
+                .filter(|(_, idle)| **idle)
+            {
+                node.esc.count_passed_frames(p.idle_frames);
+            }
+            p.idle_frames = 0;
+        }
+        Some(p)
+    }
+
+    fn end_plans(&mut self) {
+        for k in 0..self.plans.len() {
+            self.end_plan(k);
+        }
+    }
+
+    /// Makes the visit plan of shape slot `k` for frames of `shape` after one has passed, if
+    /// every ESC on the way has a program for it (see [`VisitPlan`]).
+    fn make_plan(&mut self, k: usize, shape: u32, tm: &Arc<Timing>) {
+        let all_recorded = tm
+            .flat
+            .iter()
+            .all(|&(i, _)| self.nodes[i].esc.replays_nothing(shape).is_some());
+        if !all_recorded {
+            return;
+        }
+        // The old plan's buffers are reused: a plan is remade after every change of
+        // configuration, and the cyclic phase allocates nothing.
+        let mut p = self.end_plan(k).unwrap_or_else(|| VisitPlan {
+            shape,
+            epoch: self.epoch,
+            timing: tm.clone(),
+            visits: Vec::new(),
+            idle: Vec::new(),
+            idle_frames: 0,
+        });
+        p.shape = shape;
+        p.epoch = self.epoch;
+        p.timing = tm.clone();
+        p.visits.clear();
+        p.idle.clear();
+        p.idle.resize(self.nodes.len(), false);
+        for (v, &(i, _)) in tm.flat.iter().enumerate() {
+            if self.nodes[i].esc.replays_nothing(shape) == Some(true) {
+                p.idle[i] = true;
+            } else {
+                p.visits.push(v as u32);
+            }
+        }
+        self.plans[k] = Some(p);
     }
 
     /// Index in the spec of the slave at network position `pos`.
@@ -628,8 +770,8 @@ impl Segment {
         // The cyclic frames repeat: if the headers are those of a remembered shape, the chain
         // is the same and already validated (and it is an EtherCAT frame: the shape's first
         // bytes are the Ethernet type).
-        let kind = match self.shapes.find(frame) {
-            Some(s) if self.replay => FrameKind::Chain(s.ctx()),
+        let (kind, slot) = match self.shapes.find(frame) {
+            Some((k, ctx)) if self.replay => (FrameKind::Chain(ctx), Some(k)),
             _ => match self.classify(frame) {
                 Some(k) => k,
                 None => {
@@ -657,7 +799,7 @@ impl Segment {
         if !Arc::ptr_eq(&self.trace.timing, &tm) {
             self.trace.timing = tm.clone();
         }
-        let loops_changed = self.process_flat(frame, kind, &tm, t_send_ps);
+        let loops_changed = self.process_flat(frame, kind, slot, &tm, t_send_ps);
         let back = tm.back;
         if !loops_changed {
             self.timing = Some(tm);
@@ -678,8 +820,8 @@ impl Segment {
     }
 
     /// How the ESCs take a frame that is not of a remembered shape (`None`: not EtherCAT),
-    /// remembering its shape.
-    fn classify(&mut self, frame: &[u8]) -> Option<FrameKind> {
+    /// remembering its shape (and its slot in the shape cache, whose plan then ends).
+    fn classify(&mut self, frame: &[u8]) -> Option<(FrameKind, Option<usize>)> {
         if frame.len() < ETH_HEADER_LEN
             || EcatFrame::new_unchecked(frame).ethertype() != ETHERTYPE_ETHERCAT
         {
@@ -688,21 +830,26 @@ impl Segment {
         let mut offsets = [0u16; MAX_SHAPE_DATAGRAMS];
         Some(match datagram_offsets(frame, &mut offsets) {
             Some(n) if n <= MAX_SHAPE_DATAGRAMS => {
-                let shape = if self.replay && n > 0 {
-                    self.shapes.insert(frame, &offsets[..n])
+                let (slot, shape) = if self.replay && n > 0 {
+                    let (k, id) = self.shapes.insert(frame, &offsets[..n]);
+                    if self.plans[k].as_ref().is_some_and(|p| p.shape != id) {
+                        self.end_plan(k);
+                    }
+                    (Some(k), id)
                 } else {
-                    0
+                    (None, 0)
                 };
-                FrameKind::Chain(FrameCtx {
+                let ctx = FrameCtx {
                     offsets,
                     n: n as u8,
                     shape,
-                })
+                };
+                (FrameKind::Chain(ctx), slot)
             }
-            Some(_) => FrameKind::Long,
+            Some(_) => (FrameKind::Long, None),
             None => {
                 self.malformed += 1;
-                FrameKind::Malformed
+                (FrameKind::Malformed, None)
             }
         })
     }
@@ -714,7 +861,8 @@ impl Segment {
         &mut self,
         frame: &mut [u8],
         kind: FrameKind,
-        tm: &Timing,
+        slot: Option<usize>,
+        tm: &Arc<Timing>,
         t_send: u64,
     ) -> bool {
         if tm.flat.is_empty() {
@@ -723,46 +871,108 @@ impl Segment {
         // Port 0 of the first ESC marks the source address as locally administered (every
         // later one sets the same bit again).
         mark_returned_frame(frame);
-        let mut loops_changed = false;
-        let mut deferred = Deferred::default();
-        for &(i, pu) in &tm.flat {
-            let t = t_send + pu;
-            let node = &mut self.nodes[i];
-            let fx = match kind {
-                FrameKind::Chain(ctx) => {
-                    if node.esc.replay_cyclic(frame, ctx.shape, t, &mut deferred) {
-                        continue;
-                    }
-                    deferred.flush(frame);
-                    let offs = &ctx.offsets[..usize::from(ctx.n)];
-                    let e = node.esc.process_frame(frame, offs, ctx.shape, t);
-                    FrameEffects {
-                        latch: e.latch_receive_times,
-                        loops_changed: e.loops_changed,
-                    }
+        let shape = match kind {
+            FrameKind::Chain(ctx) => ctx.shape,
+            _ => 0,
+        };
+        let mut pass = Pass::default();
+        // A frame of a shape with a plan that holds visits only the ESCs it does something at.
+        let plan = match slot {
+            Some(k) if shape != 0 => match self.plans[k].take() {
+                Some(p) if p.holds(shape, self.epoch, tm) => Some((k, p)),
+                other => {
+                    self.plans[k] = other;
+                    self.end_plan(k);
+                    None
                 }
-                FrameKind::Long => process_long_frame(&mut node.esc, frame, t),
-                FrameKind::Malformed => {
-                    node.esc.count_frame();
-                    FrameEffects::default()
+            },
+            _ => None,
+        };
+        match plan {
+            Some((k, mut p)) => {
+                for &v in &p.visits {
+                    let (i, pu) = tm.flat[v as usize];
+                    self.visit(i, pu, frame, kind, tm, t_send, &mut pass);
                 }
-            };
-            if fx.latch {
-                let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
-                let ports = tm.ports[i].map(|o| o.map(|o| t_send + o));
-                // The processing unit's stamp equals port 0's when the frame entered there.
-                let entered_at_0 = tm.in_port[i] == 0;
-                if let Some(dc) = node.esc.dc_mut() {
-                    dc.latch(ports, t, entered_at_0, res);
-                }
+                p.idle_frames += 1;
+                self.plans[k] = Some(p);
             }
-            if fx.loops_changed {
-                loops_changed = true;
-                node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+            None => {
+                for &(i, pu) in &tm.flat {
+                    self.visit(i, pu, frame, kind, tm, t_send, &mut pass);
+                }
             }
         }
-        deferred.flush(frame);
-        loops_changed
+        pass.deferred.flush(frame);
+        if pass.generation_changed || pass.loops_changed {
+            // Some ESC acts differently from now on: no plan holds.
+            self.epoch += 1;
+        } else if let Some(k) = slot
+            && shape != 0
+            && self.plans[k].is_none()
+        {
+            self.make_plan(k, shape, tm);
+        }
+        pass.loops_changed
+    }
+
+    /// The frame at the processing unit of slave `i`, `pu` ps after it was sent.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn visit(
+        &mut self,
+        i: usize,
+        pu: u64,
+        frame: &mut [u8],
+        kind: FrameKind,
+        tm: &Timing,
+        t_send: u64,
+        pass: &mut Pass,
+    ) {
+        let t = t_send + pu;
+        let node = &mut self.nodes[i];
+        let fx = match kind {
+            FrameKind::Chain(ctx) => {
+                if node
+                    .esc
+                    .replay_cyclic(frame, ctx.shape, t, &mut pass.deferred)
+                {
+                    return;
+                }
+                pass.deferred.flush(frame);
+                let offs = &ctx.offsets[..usize::from(ctx.n)];
+                let generation = node.esc.generation();
+                let e = node.esc.process_frame(frame, offs, ctx.shape, t);
+                pass.generation_changed |= node.esc.generation() != generation;
+                FrameEffects {
+                    latch: e.latch_receive_times,
+                    loops_changed: e.loops_changed,
+                }
+            }
+            FrameKind::Long => {
+                let generation = node.esc.generation();
+                let fx = process_long_frame(&mut node.esc, frame, t);
+                pass.generation_changed |= node.esc.generation() != generation;
+                fx
+            }
+            FrameKind::Malformed => {
+                node.esc.count_frame();
+                FrameEffects::default()
+            }
+        };
+        if fx.latch {
+            let res = node.esc.model().ports.map(|k| k.stamp_resolution_ns());
+            let ports = tm.ports[i].map(|o| o.map(|o| t_send + o));
+            // The processing unit's stamp equals port 0's when the frame entered there.
+            let entered_at_0 = tm.in_port[i] == 0;
+            if let Some(dc) = node.esc.dc_mut() {
+                dc.latch(ports, t, entered_at_0, res);
+            }
+        }
+        if fx.loops_changed {
+            pass.loops_changed = true;
+            node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+        }
     }
 
     /// The frame's way through the segment, by walking the ports in processing order from the
@@ -923,6 +1133,14 @@ fn datagram_offsets(frame: &[u8], out: &mut [u16]) -> Option<usize> {
         }
     }
     Some(n)
+}
+
+/// What a frame's pass through the segment did so far.
+#[derive(Debug, Default)]
+struct Pass {
+    deferred: Deferred,
+    generation_changed: bool,
+    loops_changed: bool,
 }
 
 #[derive(Debug, Clone, Copy, Default)]

@@ -70,7 +70,7 @@ fn replay_is_exact() {
     );
     for i in 0..on.len() {
         let (a, b) = (on.esc(i), off.esc(i));
-        let (sa, sb) = (a.stats(), b.stats());
+        let (sa, sb) = (on.esc_stats(i), off.esc_stats(i));
         assert_eq!(
             (sa.frames, sa.datagrams_counted),
             (sb.frames, sb.datagrams_counted),
@@ -94,18 +94,60 @@ fn replay_is_exact() {
     let _ = preset::paper_2024;
 }
 
-/// A cycle of several frames (64 drives: the process image's LRWs spread over three frames),
-/// each of its own shape: the replay of every shape changes nothing either, and each frame's
-/// ground truth is the way it took.
+/// A cycle of several frames (160 drives: the process image's LRWs spread over five frames,
+/// outputs first, then inputs, as SOEM maps them), each of its own shape: the replay of every
+/// shape, and the frames passing by the drives they do nothing at, change nothing either, and
+/// each frame's ground truth is the way it took.
 #[test]
 fn replay_of_a_cycle_of_several_frames_is_exact() {
-    let base = CycleBench::line(64);
+    let base = CycleBench::line(160);
     assert!(base.frames.len() > 1, "{} frames", base.frames.len());
     let mut on: Segment = base.segment.clone();
     let mut off: Segment = base.segment.clone();
     off.set_replay(false);
     let mut t = base.start_ps;
-    for _ in 0..300 {
+    let fp = |st: u16, ado: u16| DatagramAddress::Configured { adp: st, ado }.raw();
+    for cycle in 0..300 {
+        // Between runs of cycles, changes of configuration that make an ESC act in a frame it
+        // did nothing in (the frames then visit it again): drive 60's output FMMU set to drive
+        // 150's (read back first), in the second frame's image, which carries neither drive
+        // 60's outputs nor its inputs; then an AL state change at drive 30 and back.
+        let interlude: Vec<Vec<u8>> = match cycle {
+            100 => {
+                let mut read = frame(&[(Command::Fprd, fp(0x1000 + 150, 0x0600), vec![0; 16])]);
+                let mut read_off = read.clone();
+                on.process(&mut read, t);
+                off.process(&mut read_off, t);
+                assert_eq!(read, read_off);
+                let entry = ecsync_wire::EcatFrame::new_checked(&read[..])
+                    .unwrap()
+                    .datagrams()
+                    .next()
+                    .unwrap()
+                    .unwrap()
+                    .data()
+                    .to_vec();
+                assert_ne!(entry[12], 0, "drive 150's FMMU 0 is active");
+                vec![frame(&[(Command::Fpwr, fp(0x1000 + 60, 0x0600), entry)])]
+            }
+            150 => vec![frame(&[(
+                Command::Fpwr,
+                fp(0x1000 + 30, 0x0120),
+                vec![0x04, 0],
+            )])],
+            200 => vec![frame(&[(
+                Command::Fpwr,
+                fp(0x1000 + 30, 0x0120),
+                vec![0x08, 0],
+            )])],
+            _ => Vec::new(),
+        };
+        for f in interlude {
+            let (mut a, mut b) = (f.clone(), f);
+            assert_eq!(on.process(&mut a, t), off.process(&mut b, t));
+            assert_eq!(a, b);
+            t += 10_000_000;
+        }
         let mut t_frame = t;
         for f in &base.frames {
             let (mut a, mut b) = (f.clone(), f.clone());
@@ -123,8 +165,13 @@ fn replay_of_a_cycle_of_several_frames_is_exact() {
         }
         t += base.cycle_ps;
     }
+    // The frames passed drives by: frames not yet in those drives' own counters.
+    assert!(
+        (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
+        "no frame passed a drive by"
+    );
     for i in 0..on.len() {
-        let (sa, sb) = (on.esc(i).stats(), off.esc(i).stats());
+        let (sa, sb) = (on.esc_stats(i), off.esc_stats(i));
         assert_eq!(
             (sa.frames, sa.datagrams_counted),
             (sb.frames, sb.datagrams_counted),

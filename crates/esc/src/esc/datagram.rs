@@ -245,8 +245,8 @@ impl Esc {
         t_ps: u64,
     ) -> DatagramEffects {
         self.stats.frames += 1;
-        if shape != 0 && self.program.shape == shape && self.program.generation == self.generation {
-            self.replay(frame, t_ps);
+        if let Some(k) = self.program_slot(shape) {
+            self.replay(k, frame, t_ps);
             return DatagramEffects::default();
         }
         self.process_frame_full(frame, offsets, shape, t_ps)

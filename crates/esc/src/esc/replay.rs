@@ -19,6 +19,11 @@ use ecsync_wire::register as reg;
 pub(super) const MAX_PROGRAM_DATAGRAMS: usize = 8;
 /// Steps a program holds.
 const MAX_OPS: usize = 32;
+/// Programs an ESC keeps, one per frame shape: in a network whose process image takes
+/// several frames, an ESC sees the first frame (FRMW, BRD of the time difference) and the one
+/// with its process data; the spare slots take a bring-up or diagnostic frame without
+/// replacing either.
+pub(crate) const PROGRAM_SLOTS: usize = 4;
 
 /// One step of a recorded program, with absolute offsets into the frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -118,7 +123,9 @@ pub(super) struct CyclicSteps {
     /// Bus shift's write of the master's time to the reference, before its FRMW.
     pre: Option<SysStep>,
     sys: SysStep,
-    lrw: LrwStep,
+    /// The process data, if the frame carries this ESC's (the first of several frames of a
+    /// large network carries only some slaves').
+    lrw: Option<LrwStep>,
     diff: DiffStep,
     /// Where the three working counters and the BRD's position field are, packed (see
     /// [`Deferred`]).
@@ -126,9 +133,10 @@ pub(super) struct CyclicSteps {
 }
 
 impl CyclicSteps {
-    fn new(pre: Option<SysStep>, sys: SysStep, lrw: LrwStep, diff: DiffStep) -> Self {
+    fn new(pre: Option<SysStep>, sys: SysStep, lrw: Option<LrwStep>, diff: DiffStep) -> Self {
+        // Without process data the LRW's counter slot adds 0 at offset 0: no change.
         let layout = u64::from(sys.wkc)
-            | u64::from(lrw.wkc) << 16
+            | u64::from(lrw.map_or(0, |l| l.wkc)) << 16
             | u64::from(diff.wkc) << 32
             | u64::from(diff.adp) << 48;
         CyclicSteps {
@@ -371,41 +379,95 @@ impl Program {
 }
 
 impl Esc {
-    /// Makes a freshly recorded program the one replayed: its steps fused, the cyclic frame's
-    /// recognised. By reference: the program is large, and it is copied once, into place.
+    /// The slot of the program recorded for frames of `shape` in the current generation.
+    #[inline(always)]
+    pub(super) fn program_slot(&self, shape: u32) -> Option<usize> {
+        if shape == 0 {
+            return None;
+        }
+        self.programs
+            .iter()
+            .position(|p| p.shape == shape && p.generation == self.generation)
+    }
+
+    /// Whether a frame of `shape` would do nothing at this ESC but pass: `Some(true)` if its
+    /// program, recorded in the current generation, is empty (no datagram addresses the ESC),
+    /// `Some(false)` if it has steps, `None` if none is recorded. The segment passes frames by
+    /// ESCs they do nothing at ([`Esc::count_passed_frames`]).
+    #[inline]
+    pub(crate) fn replays_nothing(&self, shape: u32) -> Option<bool> {
+        self.program_slot(shape).map(|k| self.programs[k].n == 0)
+    }
+
+    /// Counts `frames` frames that passed the processing unit and did nothing, as the replay of
+    /// an empty program would (the segment did not hand them to the ESC).
+    pub(crate) fn count_passed_frames(&mut self, frames: u64) {
+        self.stats.frames += frames;
+        self.stats.replayed_frames += frames;
+    }
+
+    /// Makes a freshly recorded program the one replayed for its shape: its steps fused, the
+    /// cyclic frame's recognised. It takes the slot of the same shape, else a slot recorded in
+    /// an older generation (never valid again), else the slots in turn. By reference: the
+    /// program is large, and it is copied once, into place.
     #[inline]
     pub(super) fn install(&mut self, recorded: &Program) {
+        let k = match self
+            .programs
+            .iter()
+            .position(|p| p.shape == recorded.shape)
+            .or_else(|| {
+                self.programs
+                    .iter()
+                    .position(|p| p.shape == 0 || p.generation != self.generation)
+            }) {
+            Some(k) => k,
+            None => {
+                let k = usize::from(self.next_slot);
+                self.next_slot = ((k + 1) % PROGRAM_SLOTS) as u8;
+                k
+            }
+        };
         // The replays of the program replaced go into the counters.
-        self.stats = self.stats();
-        self.program = *recorded;
-        let prog = &mut self.program;
+        let old = &self.programs[k];
+        self.stats.frames += old.replays;
+        self.stats.replayed_frames += old.replays;
+        self.stats.datagrams_counted += old.replays * u64::from(old.counted);
+        self.programs[k] = *recorded;
+        let prog = &mut self.programs[k];
         prog.n = fuse(&recorded.ops[..usize::from(recorded.n)], &mut prog.ops);
         prog.cyclic = match prog.ops[..usize::from(prog.n)] {
             [Op::SysFused(sys), Op::LrwFused(lrw), Op::DiffFused(diff)] => {
-                Some(CyclicSteps::new(None, sys, lrw, diff))
+                Some(CyclicSteps::new(None, sys, Some(lrw), diff))
             }
             [
                 Op::SysFused(pre),
                 Op::SysFused(sys),
                 Op::LrwFused(lrw),
                 Op::DiffFused(diff),
-            ] => Some(CyclicSteps::new(Some(pre), sys, lrw, diff)),
+            ] => Some(CyclicSteps::new(Some(pre), sys, Some(lrw), diff)),
+            [Op::SysFused(sys), Op::DiffFused(diff)] => {
+                Some(CyclicSteps::new(None, sys, None, diff))
+            }
+            [Op::SysFused(pre), Op::SysFused(sys), Op::DiffFused(diff)] => {
+                Some(CyclicSteps::new(Some(pre), sys, None, diff))
+            }
             _ => None,
         };
     }
 
-    /// Replays the recorded program op by op (the segment's straight-through replay,
+    /// Replays the program in slot `k` op by op (the segment's straight-through replay,
     /// [`Esc::replay_cyclic`], takes the cyclic frame before it gets here).
     #[inline]
-    pub(super) fn replay(&mut self, frame: &mut [u8], t_ps: u64) {
+    pub(super) fn replay(&mut self, k: usize, frame: &mut [u8], t_ps: u64) {
         self.stats.replayed_frames += 1;
-        self.stats.datagrams_counted += u64::from(self.program.counted);
-        self.replay_ops(frame, t_ps);
+        self.stats.datagrams_counted += u64::from(self.programs[k].counted);
+        self.replay_ops(k, frame, t_ps);
     }
 
-    fn replay_ops(&mut self, frame: &mut [u8], t_ps: u64) {
-        for k in 0..usize::from(self.program.n) {
-            match self.program.ops[k] {
+    fn replay_ops(&mut self, slot: usize, frame: &mut [u8], t_ps: u64) {
+        for k in 0..usize::from(self.programs[slot].n) {
+            match self.programs[slot].ops[k] {
                 Op::Nop => {}
                 Op::AdpInc { at } => add_wkc(frame, at, 1),
                 Op::SysRead { at, len, or } => {
@@ -483,19 +545,19 @@ impl Esc {
         t_ps: u64,
         d: &mut Deferred,
     ) -> bool {
+        let Some(k) = self.program_slot(shape) else {
+            return false;
+        };
         let Esc {
-            program,
+            programs,
             dc,
             ram,
             app,
             al_state,
             app_cycles,
-            generation,
             ..
         } = self;
-        if shape == 0 || program.shape != shape || program.generation != *generation {
-            return false;
-        }
+        let program = &mut programs[k];
         let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) else {
             return false;
         };
@@ -508,12 +570,14 @@ impl Esc {
             sys_step(dc, frame, pre, t_ps);
         }
         sys_access(dc, frame, &c.sys, t_ps);
-        lrw_in(ram, frame, &c.lrw);
-        refresh_inputs(ram, *app, *al_state, app_cycles);
-        lrw_out(frame, ram, &c.lrw);
+        if let Some(lrw) = &c.lrw {
+            lrw_in(ram, frame, lrw);
+            refresh_inputs(ram, *app, *al_state, app_cycles);
+            lrw_out(frame, ram, lrw);
+            d.lrw = d.lrw.wrapping_add(lrw.inc);
+        }
         diff_access(dc, frame, &c.diff);
         d.sys = d.sys.wrapping_add(c.sys.inc);
-        d.lrw = d.lrw.wrapping_add(c.lrw.inc);
         d.diff = d.diff.wrapping_add(c.diff.inc);
         d.adp = d.adp.wrapping_add(1);
         true
