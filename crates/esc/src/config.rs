@@ -595,13 +595,28 @@ ppm = -3.5
         let src = ConfigSource::new("s.toml", text);
         let at = |table: &str, key: &str| src.error(table, key, "m", "f").line;
         assert_eq!(at("run", "cycle_us"), Some(2));
-        assert_eq!(at("host.js", "sigma_ns"), Some(5), "inline: the parent's key");
-        assert_eq!(at("bridge.port", "window"), Some(7), "an array of tables' header");
-        assert_eq!(at("methods.median", "window"), Some(10), "the table's header");
+        assert_eq!(
+            at("host.js", "sigma_ns"),
+            Some(5),
+            "inline: the parent's key"
+        );
+        assert_eq!(
+            at("bridge.port", "window"),
+            Some(7),
+            "an array of tables' header"
+        );
+        assert_eq!(
+            at("methods.median", "window"),
+            Some(10),
+            "the table's header"
+        );
         assert_eq!(at("methods", "median"), Some(10), "the table the key names");
         assert_eq!(at("segment", "slave"), None);
         let e = src.error("run", "cycle_us", "5 us", "give 1000");
-        assert_eq!(e.to_string(), "s.toml:2: run.cycle_us: 5 us; fix: give 1000");
+        assert_eq!(
+            e.to_string(),
+            "s.toml:2: run.cycle_us: 5 us; fix: give 1000"
+        );
     }
 
     #[test]

@@ -80,8 +80,8 @@ mod tests {
             return;
         }
         let file = top.join("paper-2024.toml");
-        let text = std::fs::read_to_string(&file)
-            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let text =
+            std::fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
         assert!(
             text == PAPER_2024_TOML,
             "presets/paper-2024.toml and crates/esc/presets/paper-2024.toml differ: copy the one \

@@ -584,7 +584,10 @@ mod tests {
         let t = preset() + "\n[methods.medain]\nwindow = 5\n";
         let e = parse("p.toml", &t).unwrap_err();
         assert!(e.message.contains("unknown field `medain`"), "{e}");
-        assert!(e.message.contains("`median-fit`") && e.message.contains("`soem-pi`"), "{e}");
+        assert!(
+            e.message.contains("`median-fit`") && e.message.contains("`soem-pi`"),
+            "{e}"
+        );
         assert!(e.line.is_some() && e.fix.contains("spelling"), "{e}");
         let e = bad(("kp = 0.125 ", "kpp = 0.125 "));
         assert!(
@@ -592,7 +595,10 @@ mod tests {
                 .contains("unknown field `kpp`, expected one of `kp`, `ki`, `init_frames`"),
             "{e}"
         );
-        let e = bad(("set_value_ref = \"frame-send\"", "set_value_ref = \"cycle-end\""));
+        let e = bad((
+            "set_value_ref = \"frame-send\"",
+            "set_value_ref = \"cycle-end\"",
+        ));
         assert!(
             e.message.contains("`frame-send`") && e.message.contains("`cycle-start`"),
             "{e}"

@@ -509,8 +509,8 @@ mod tests {
             return;
         }
         let file = top.join("tsn-2020.toml");
-        let text = std::fs::read_to_string(&file)
-            .unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let text =
+            std::fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
         assert!(
             text == TSN_2020_TOML,
             "presets/tsn-2020.toml and crates/lab/presets/tsn-2020.toml differ: copy the one you \
