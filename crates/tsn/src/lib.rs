@@ -8,8 +8,11 @@
 //! every pairwise clock difference once the slaves are synchronized, whether the bridge's gate
 //! ever blocks a DC frame — and [`paper`] puts Tables I and II of the paper beside ours.
 
+#![warn(missing_docs)]
+
 pub mod gptp;
 pub mod gptp_msg;
+pub mod gptp_net;
 pub mod gptp_sim;
 pub mod qbv;
 pub mod ta;
