@@ -466,6 +466,7 @@ pub fn ethernet_frame(src_mac: [u8; 6], payload: &[u8], out: &mut Vec<u8>) {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
 
     /// MAX_LEN is the longest message: an Announce with a full path trace fits it exactly.
     #[test]
@@ -479,7 +480,6 @@ mod tests {
         let mut buf = [0u8; MAX_LEN];
         assert_eq!(m.encode(&Header::default(), &mut buf), Ok(MAX_LEN));
     }
-    use super::*;
 
     const CLOCK: [u8; 8] = [0x00, 0x1b, 0x21, 0xff, 0xfe, 0x12, 0x34, 0x56];
 
