@@ -456,13 +456,14 @@ pub fn run_all(s: &TsnScenario, opts: &TsnOptions) -> Result<Vec<VariantResult>,
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().expect("variant thread"))
+            // A variant that panicked panics the run with its own message.
+            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
             .collect()
     });
     results.into_iter().collect()
 }
 
-/// Writes a pcap of `path` — helper for tests that want one file.
+/// Where [`run_variant`] writes variant `v`'s capture in `dir`.
 pub fn pcap_path(dir: &Path, v: Variant) -> std::path::PathBuf {
     dir.join(format!("{}.pcap", v.name()))
 }

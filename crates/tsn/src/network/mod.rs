@@ -735,3 +735,119 @@ impl Transport for TsnNetwork<'_> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The parts of the preset `tsn-2020` (the lab's scenario file describes each number).
+    fn parts() -> (Vec<SlaveSpec>, MasterParams, BridgeParams, GptpParams) {
+        let guard_ns = (8 + 1500 + 12) * 80;
+        let window = |close_ns| Window {
+            open_ns: 0,
+            close_ns,
+        };
+        let schedule = |close_ns| {
+            PortSchedule::new(1_000_000, 0, &[window(close_ns)], guard_ns)
+                .expect("a window of 300 us or more in 1 ms is a schedule")
+        };
+        let master = MasterParams {
+            ppm: 25.0,
+            wander_ppm_per_sqrt_s: 0.005,
+            clock_offset_ns: 77_000_450_000,
+            timestamp_ns: 8,
+            launch_jitter_ns: 10.0,
+            cable_m: 2.0,
+            launch_margin_ns: 20_000,
+            priority1: 246,
+        };
+        let bridge = BridgeParams {
+            ppm: -15.0,
+            wander_ppm_per_sqrt_s: 0.005,
+            initial_ns: 1_000_000_000_000,
+            residence_ns: 2_000,
+            cycle_ns: 1_000_000,
+            base_ns: 0,
+            ethercat_port: schedule(300_000),
+            master_port: schedule(350_000),
+            cross_traffic_load: 0.5,
+            cross_traffic_frame_bytes: 1500,
+            priority1: 100,
+        };
+        let gptp = GptpParams {
+            sync_interval_ns: 125_000_000,
+            pdelay_interval_ns: 1_000_000_000,
+            settle_ns: 10_000_000_000,
+            kp: 0.7,
+            ki: 0.3,
+        };
+        (ecsync_esc::preset::paper_2024(), master, bridge, gptp)
+    }
+
+    fn params<'a>(
+        slaves: &'a [SlaveSpec],
+        master: &'a MasterParams,
+        bridge: &'a BridgeParams,
+        gptp: &'a GptpParams,
+    ) -> NetworkParams<'a> {
+        NetworkParams {
+            slaves,
+            seed: 2020,
+            master,
+            bridge,
+            gptp,
+        }
+    }
+
+    /// In M3 the master's PHC follows the bridge by gPTP within 5 s, through cross traffic:
+    /// the bridge is the grandmaster, the link delay is measured within a timestamp's grain,
+    /// every message decodes.
+    #[test]
+    fn gptp_synchronizes_the_master_to_the_bridge() {
+        let (slaves, m, b, g) = parts();
+        let mut net = TsnNetwork::new(params(&slaves, &m, &b, &g), Variant::M3)
+            .expect("the paper's segment builds");
+        let t_ps = 5_000_000_000_000;
+        net.run_to(t_ps);
+        let f = net.gptp_figures().expect("M3 runs gPTP");
+        assert!(f.bridge_is_grandmaster, "{f:?}");
+        let measured = f.measured_link_delay_ns.expect("measured");
+        assert!((measured - f.true_link_delay_ns).abs() < 8.0, "{f:?}");
+        assert_eq!(f.counts.undecodable + f.counts.unencodable, 0, "{f:?}");
+        assert!(f.counts.sent > 100 && f.counts.received > 100, "{f:?}");
+        let (w, frac) = net.phc_exact_at(t_ps);
+        let offset_ns = (w.wrapping_sub(net.bridge_ns_at(t_ps)) as i64) as f64 + frac;
+        assert!(offset_ns.abs() < 50.0, "master - bridge {offset_ns} ns");
+        assert!(net.cross_traffic_frames().is_some_and(|n| n > 1_000));
+    }
+
+    /// M1 has neither bridge nor gPTP: no path, no lead, no cross traffic; M2 has the bridge
+    /// without gPTP.
+    #[test]
+    fn the_variants_have_their_parts() {
+        let (slaves, m, b, g) = parts();
+        let p = params(&slaves, &m, &b, &g);
+        let mut m1 = TsnNetwork::new(p, Variant::M1).expect("builds");
+        assert_eq!((m1.path_ps(60), m1.lead_ns(60)), (0, 0));
+        assert!(!m1.runs_gptp() && m1.gptp_figures().is_none());
+        assert_eq!(m1.cross_traffic_frames(), None);
+        let m2 = TsnNetwork::new(p, Variant::M2).expect("builds");
+        assert!(!m2.runs_gptp());
+        // Cable and PHYs, the frame's wire time (store and forward), the residence.
+        assert_eq!(
+            m2.path_ps(60),
+            m2.link_ps() + frame_wire_time_ps(60) + 2_000_000
+        );
+    }
+
+    /// A segment without slaves is a typed error, not a panic.
+    #[test]
+    fn an_empty_segment_is_an_error() {
+        let (_, m, b, g) = parts();
+        let e = TsnNetwork::new(params(&[], &m, &b, &g), Variant::M1).unwrap_err();
+        assert!(
+            matches!(e, NetworkError::Segment(TopologyError::Empty)),
+            "{e}"
+        );
+    }
+}
