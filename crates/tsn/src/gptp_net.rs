@@ -275,7 +275,6 @@ impl<T: SimTime + core::ops::Add<Output = T>> GptpNetwork<T> {
 mod tests {
     use super::*;
     use crate::gptp::{Config, SystemIdentity};
-    use crate::gptp_msg::ClockQuality;
 
     /// Two systems on one link of 1 us, ideal clocks (true time in ns), timestamps exact.
     struct Pair;
@@ -301,19 +300,9 @@ mod tests {
 
     fn pair() -> GptpNetwork<u64> {
         let sys = |p1: u8, id: u8| {
-            TimeAwareSystem::new(Config::new(
-                SystemIdentity {
-                    priority1: p1,
-                    quality: ClockQuality {
-                        clock_class: 248,
-                        clock_accuracy: 0xfe,
-                        offset_scaled_log_variance: 0x4e5d,
-                    },
-                    priority2: 248,
-                    clock_identity: [0, 0, 0, 0xff, 0xfe, 0, 0, id],
-                },
-                1,
-            ))
+            let identity =
+                SystemIdentity::with_default_quality(p1, [0, 0, 0, 0xff, 0xfe, 0, 0, id]);
+            TimeAwareSystem::new(Config::new(identity, 1))
         };
         GptpNetwork::new(vec![sys(10, 1), sys(200, 2)], 0, 1_000_000)
     }

@@ -8,7 +8,6 @@
 //! network's bridge and master.
 
 use crate::gptp::{Config, SystemIdentity, TimeAwareSystem};
-use crate::gptp_msg::ClockQuality;
 use crate::gptp_net::{GptpMedium, GptpNetwork, Transmission};
 
 /// One system of the line.
@@ -135,16 +134,10 @@ pub fn run_line(spec: &LineSpec) -> LineResult {
     let systems = (0..n)
         .map(|i| {
             let ports = if i == 0 || i == n - 1 { 1 } else { 2 };
-            let identity = SystemIdentity {
-                priority1: spec.nodes[i].priority1,
-                quality: ClockQuality {
-                    clock_class: 248,
-                    clock_accuracy: 0xfe,
-                    offset_scaled_log_variance: 0x4e5d,
-                },
-                priority2: 248,
-                clock_identity: [0x02, 0, 0, 0xff, 0xfe, 0, 0, i as u8],
-            };
+            let identity = SystemIdentity::with_default_quality(
+                spec.nodes[i].priority1,
+                [0x02, 0, 0, 0xff, 0xfe, 0, 0, i as u8],
+            );
             TimeAwareSystem::new(Config::new(identity, ports))
         })
         .collect();

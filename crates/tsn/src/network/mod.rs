@@ -40,7 +40,6 @@ pub use bridge::BRIDGE_MAC;
 pub use phc::Phc;
 
 use crate::gptp::{Config as GptpConfig, SystemIdentity, TimeAwareSystem};
-use crate::gptp_msg::ClockQuality;
 use crate::gptp_net::{ExchangeCounts, GptpNetwork};
 use crate::qbv::{PortSchedule, Window};
 use bridge::{BRIDGE, Bridge, CrossTraffic, GptpWire, MASTER};
@@ -383,15 +382,11 @@ impl<'a> TsnNetwork<'a> {
             .flatten();
         let link_ps = ((m.cable_m * CABLE_NS_PER_M + PHY_PAIR_NS) * 1000.0).round() as u64;
         let gptp = (variant == Variant::M3).then(|| {
-            let identity = |p1: u8, id: u8| SystemIdentity {
-                priority1: p1,
-                quality: ClockQuality {
-                    clock_class: 248,
-                    clock_accuracy: 0xfe,
-                    offset_scaled_log_variance: 0x4e5d,
-                },
-                priority2: 248,
-                clock_identity: [0x00, 0x1b, 0x21, 0xff, 0xfe, 0xec, 0x00, id],
+            let identity = |p1: u8, id: u8| {
+                SystemIdentity::with_default_quality(
+                    p1,
+                    [0x00, 0x1b, 0x21, 0xff, 0xfe, 0xec, 0x00, id],
+                )
             };
             let cfg = |id: SystemIdentity| GptpConfig {
                 sync_interval_ns: g.sync_interval_ns,
