@@ -10,7 +10,7 @@
 //! every method of a comparison sees exactly the same noise in the same cycle whatever it does
 //! (common random numbers), and a run is reproducible bit for bit.
 
-use ecsync_esc::rng::{SplitMix64, splitmix64};
+use ecsync_esc::rng::{SplitMix64, splitmix64, unit_from_bits as unit};
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 use std::sync::{Arc, Mutex};
@@ -231,9 +231,6 @@ impl HostParams {
         }
     }
 }
-
-// The TSN network's noise (tsn/mod.rs) reaches the stream by these two paths.
-pub(crate) use ecsync_esc::rng::{SplitMix64 as CycleRng, unit_from_bits as unit};
 
 /// The host's noise for one run.
 #[derive(Debug, Clone, Copy, PartialEq)]

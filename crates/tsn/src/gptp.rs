@@ -39,6 +39,24 @@ pub struct SystemIdentity {
     pub clock_identity: [u8; 8],
 }
 
+impl SystemIdentity {
+    /// A time-aware system of the default quality (802.1AS 8.6.2: clockClass 248, accuracy
+    /// unknown 0xfe, offsetScaledLogVariance 0x4e5d, priority2 248) with this priority1 and
+    /// clockIdentity.
+    pub fn with_default_quality(priority1: u8, clock_identity: [u8; 8]) -> Self {
+        SystemIdentity {
+            priority1,
+            quality: ClockQuality {
+                clock_class: 248,
+                clock_accuracy: 0xfe,
+                offset_scaled_log_variance: 0x4e5d,
+            },
+            priority2: 248,
+            clock_identity,
+        }
+    }
+}
+
 /// Role of a port.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum PortRole {
@@ -612,16 +630,7 @@ mod tests {
     use super::*;
 
     fn id(p1: u8, last: u8) -> SystemIdentity {
-        SystemIdentity {
-            priority1: p1,
-            quality: ClockQuality {
-                clock_class: 248,
-                clock_accuracy: 0xfe,
-                offset_scaled_log_variance: 0x4e5d,
-            },
-            priority2: 248,
-            clock_identity: [0, 0, 0, 0xff, 0xfe, 0, 0, last],
-        }
+        SystemIdentity::with_default_quality(p1, [0, 0, 0, 0xff, 0xfe, 0, 0, last])
     }
 
     /// Peer delay by hand: the responder's clock runs 100 ppm fast and is 1 ms ahead; the link

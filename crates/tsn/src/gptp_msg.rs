@@ -15,6 +15,9 @@ pub const ETHERTYPE_PTP: u16 = 0x88F7;
 pub const GPTP_MULTICAST: [u8; 6] = [0x01, 0x80, 0xC2, 0x00, 0x00, 0x0E];
 /// Length of the common header.
 pub const HEADER_LEN: usize = 34;
+/// The longest message [`Message::encode`] writes: an Announce with a path trace of eight
+/// clock identities, bytes.
+pub const MAX_LEN: usize = HEADER_LEN + 30 + 4 + 8 * 8;
 
 /// `messageType` values.
 pub mod message_type {
@@ -221,6 +224,7 @@ impl Message {
                 Message::FollowUp { .. } => 10 + 32,
                 Message::PdelayReq => 20,
                 Message::PdelayResp { .. } | Message::PdelayRespFollowUp { .. } => 20,
+                // MAX_LEN is this with a full path.
                 Message::Announce(a) => 30 + 4 + 8 * usize::from(a.path_len.min(8)),
             }
     }
@@ -463,6 +467,19 @@ pub fn ethernet_frame(src_mac: [u8; 6], payload: &[u8], out: &mut Vec<u8>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// MAX_LEN is the longest message: an Announce with a full path trace fits it exactly.
+    #[test]
+    fn max_len_holds_a_full_path_trace() {
+        let a = Announce {
+            path_len: 8,
+            ..Announce::default()
+        };
+        let m = Message::Announce(a);
+        assert_eq!(m.len(), MAX_LEN);
+        let mut buf = [0u8; MAX_LEN];
+        assert_eq!(m.encode(&Header::default(), &mut buf), Ok(MAX_LEN));
+    }
 
     const CLOCK: [u8; 8] = [0x00, 0x1b, 0x21, 0xff, 0xfe, 0x12, 0x34, 0x56];
 

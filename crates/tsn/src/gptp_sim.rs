@@ -4,12 +4,11 @@
 //! bytes (what [`crate::gptp_msg`] writes is what the other end decodes), timestamps are
 //! taken at the wire with a hardware timestamper's granularity, and the ground truth — true
 //! time, every clock's reading — is known, so the disciplined clocks are measured against the
-//! grandmaster exactly.
+//! grandmaster exactly. The exchange of messages is [`crate::gptp_net`]'s, shared with the TSN
+//! network's bridge and master.
 
-use crate::gptp::{Config, Outgoing, SystemIdentity, TimeAwareSystem};
-use crate::gptp_msg::{self, ClockQuality, Message};
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
+use crate::gptp::{Config, SystemIdentity, TimeAwareSystem};
+use crate::gptp_net::{GptpMedium, GptpNetwork, Transmission};
 
 /// One system of the line.
 #[derive(Debug, Clone, Copy)]
@@ -52,8 +51,8 @@ pub struct LineResult {
     pub samples: u64,
 }
 
+/// One system's clocks: its free-running crystal, and the clock the servo disciplines.
 struct Node {
-    sys: TimeAwareSystem,
     ppm: f64,
     initial_ns: f64,
     /// Disciplined clock: reading at the anchor (local ns), and its rate over local.
@@ -72,66 +71,25 @@ impl Node {
     }
 }
 
-/// A delivery: at true time, to node, on its port, the encoded message.
-struct Delivery {
-    t_ns: f64,
-    seq: u64,
-    node: usize,
-    port: usize,
-    bytes: Vec<u8>,
+/// The line as the exchange sees it: true time in float ns, every link the same delay, no
+/// wire occupancy (a system's messages of one instant leave together), hardware timestamps
+/// on the granularity's grid.
+struct LineMedium {
+    nodes: Vec<Node>,
+    link_delay_ns: f64,
+    granularity_ns: f64,
 }
 
-impl PartialEq for Delivery {
-    fn eq(&self, o: &Self) -> bool {
-        self.cmp(o).is_eq()
+impl LineMedium {
+    fn stamp(&self, node: usize, t_ns: f64) -> u64 {
+        let g = self.granularity_ns;
+        ((self.nodes[node].local(t_ns) / g).floor() * g) as u64
     }
-}
-impl Eq for Delivery {}
-impl PartialOrd for Delivery {
-    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for Delivery {
-    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-        self.t_ns.total_cmp(&o.t_ns).then(self.seq.cmp(&o.seq))
-    }
-}
 
-/// Runs the line and measures the end station against the grandmaster.
-pub fn run_line(spec: &LineSpec) -> LineResult {
-    let n = spec.nodes.len();
-    assert!(n >= 2, "a line of at least two systems");
-    let mut nodes: Vec<Node> = spec
-        .nodes
-        .iter()
-        .enumerate()
-        .map(|(i, s)| {
-            let ports = if i == 0 || i == n - 1 { 1 } else { 2 };
-            let identity = SystemIdentity {
-                priority1: s.priority1,
-                quality: ClockQuality {
-                    clock_class: 248,
-                    clock_accuracy: 0xfe,
-                    offset_scaled_log_variance: 0x4e5d,
-                },
-                priority2: 248,
-                clock_identity: [0x02, 0, 0, 0xff, 0xfe, 0, 0, i as u8],
-            };
-            Node {
-                sys: TimeAwareSystem::new(Config::new(identity, ports)),
-                ppm: s.ppm,
-                initial_ns: s.initial_ns,
-                disc_anchor_local: 0.0,
-                disc_anchor_value: 0.0,
-                disc_frequency: 0.0,
-                disciplined: false,
-            }
-        })
-        .collect();
-    // Port p of node i: end points have port 0 towards their only neighbour; a bridge's port 0
-    // faces node i-1, port 1 node i+1.
-    let peer = |i: usize, port: usize| -> (usize, usize) {
+    /// Port `port` of node `i` leads to which node and port: end points have port 0 towards
+    /// their only neighbour; a bridge's port 0 faces node i-1, port 1 node i+1.
+    fn peer(&self, i: usize, port: usize) -> (usize, usize) {
+        let n = self.nodes.len();
         let towards_next = if i == 0 {
             true
         } else if i == n - 1 {
@@ -145,73 +103,75 @@ pub fn run_line(spec: &LineSpec) -> LineResult {
             let j = i - 1;
             (j, if j == 0 { 0 } else { 1 })
         }
+    }
+}
+
+impl GptpMedium<f64> for LineMedium {
+    fn timestamp_ns(&mut self, node: usize, t: f64) -> u64 {
+        self.stamp(node, t)
+    }
+
+    fn transmit(&mut self, node: usize, port: usize, ready: f64, _: &[u8]) -> Transmission<f64> {
+        let (peer, peer_port) = self.peer(node, port);
+        Transmission {
+            tx_ns: self.stamp(node, ready),
+            arrival: ready + self.link_delay_ns,
+            peer,
+            peer_port,
+            next_ready: ready,
+        }
+    }
+
+    fn follow_up(&mut self, node: usize, system: &mut TimeAwareSystem) {
+        discipline(&mut self.nodes[node], system);
+    }
+}
+
+/// Runs the line and measures the end station against the grandmaster.
+pub fn run_line(spec: &LineSpec) -> LineResult {
+    let n = spec.nodes.len();
+    assert!(n >= 2, "a line of at least two systems");
+    let systems = (0..n)
+        .map(|i| {
+            let ports = if i == 0 || i == n - 1 { 1 } else { 2 };
+            let identity = SystemIdentity::with_default_quality(
+                spec.nodes[i].priority1,
+                [0x02, 0, 0, 0xff, 0xfe, 0, 0, i as u8],
+            );
+            TimeAwareSystem::new(Config::new(identity, ports))
+        })
+        .collect();
+    let mut medium = LineMedium {
+        nodes: spec
+            .nodes
+            .iter()
+            .map(|s| Node {
+                ppm: s.ppm,
+                initial_ns: s.initial_ns,
+                disc_anchor_local: 0.0,
+                disc_anchor_value: 0.0,
+                disc_frequency: 0.0,
+                disciplined: false,
+            })
+            .collect(),
+        link_delay_ns: spec.link_delay_ns,
+        granularity_ns: spec.timestamp_granularity_ns.max(1.0),
     };
-    let g = spec.timestamp_granularity_ns.max(1.0);
-    let stamp = |x: f64| (x / g).floor() * g;
-    let mut queue: BinaryHeap<Reverse<Delivery>> = BinaryHeap::new();
-    let mut seq = 0u64;
-    let mut out: Vec<Outgoing> = Vec::new();
-    let mut more: Vec<Outgoing> = Vec::new();
-    let mut buf = [0u8; 128];
-    let (mut sum_sq, mut max_abs, mut samples) = (0.0f64, 0.0f64, 0u64);
     let step_ns = 1_000_000u64;
+    let mut net = GptpNetwork::new(systems, 0.0, step_ns as f64);
+    let (mut sum_sq, mut max_abs, mut samples) = (0.0f64, 0.0f64, 0u64);
     let mut t_tick = 0u64;
-    // Sends `out` from node i at true time t: transmit timestamps back to the sender (which
-    // may produce follow-ups, sent at the same instant), deliveries to the peers.
-    let mut send_all = |nodes: &mut Vec<Node>,
-                        i: usize,
-                        t: f64,
-                        out: &mut Vec<Outgoing>,
-                        more: &mut Vec<Outgoing>,
-                        queue: &mut BinaryHeap<Reverse<Delivery>>| {
-        while !out.is_empty() {
-            for o in out.drain(..) {
-                let len = o.message.encode(&o.header, &mut buf).expect("buffer");
-                let tx = stamp(nodes[i].local(t)) as u64;
-                nodes[i]
-                    .sys
-                    .on_tx_timestamp(o.port, &o.header, &o.message, tx, more);
-                let (j, pj) = peer(i, o.port);
-                seq += 1;
-                queue.push(Reverse(Delivery {
-                    t_ns: t + spec.link_delay_ns,
-                    seq,
-                    node: j,
-                    port: pj,
-                    bytes: buf[..len].to_vec(),
-                }));
-            }
-            std::mem::swap(out, more);
-        }
-    };
     while t_tick <= spec.duration_ns {
-        // Deliveries before the next tick.
-        while let Some(Reverse(d)) = queue.peek() {
-            if d.t_ns > t_tick as f64 {
-                break;
-            }
-            let Reverse(d) = queue.pop().expect("peeked");
-            let Ok((h, m)) = gptp_msg::decode(&d.bytes) else {
-                continue;
-            };
-            let rx = stamp(nodes[d.node].local(d.t_ns)) as u64;
-            nodes[d.node].sys.on_message(d.port, &h, &m, rx, &mut out);
-            if matches!(m, Message::FollowUp { .. }) {
-                discipline(&mut nodes[d.node]);
-            }
-            send_all(&mut nodes, d.node, d.t_ns, &mut out, &mut more, &mut queue);
-        }
+        // Deliveries up to the tick, then every system's timers, then the measurement (with a
+        // link of no delay, what the polls sent arrives after it, at the next tick's turn).
         let t = t_tick as f64;
-        for i in 0..n {
-            let local = stamp(nodes[i].local(t)) as u64;
-            nodes[i].sys.poll(local, &mut out);
-            send_all(&mut nodes, i, t, &mut out, &mut more, &mut queue);
-        }
+        net.deliver_until(t, &mut medium);
+        net.poll_all(t, &mut medium);
         if t_tick >= spec.measure_from_ns {
-            let gm = (0..n).find(|&i| nodes[i].sys.is_grandmaster()).unwrap_or(0);
-            let es = &nodes[n - 1];
+            let gm = grandmaster(net.systems());
+            let es = &medium.nodes[n - 1];
             if es.disciplined && gm != n - 1 {
-                let e = es.disciplined_at_local(es.local(t)) - nodes[gm].local(t);
+                let e = es.disciplined_at_local(es.local(t)) - medium.nodes[gm].local(t);
                 sum_sq += e * e;
                 max_abs = max_abs.max(e.abs());
                 samples += 1;
@@ -219,7 +179,6 @@ pub fn run_line(spec: &LineSpec) -> LineResult {
         }
         t_tick += step_ns;
     }
-    let gm = (0..n).find(|&i| nodes[i].sys.is_grandmaster()).unwrap_or(0);
     LineResult {
         offset_rms_ns: if samples > 0 {
             (sum_sq / samples as f64).sqrt()
@@ -227,17 +186,24 @@ pub fn run_line(spec: &LineSpec) -> LineResult {
             f64::NAN
         },
         offset_max_abs_ns: max_abs,
-        measured_link_delay_ns: nodes[n - 1].sys.mean_link_delay_ns(0).unwrap_or(f64::NAN),
-        grandmaster: gm,
+        measured_link_delay_ns: net.systems()[n - 1]
+            .mean_link_delay_ns(0)
+            .unwrap_or(f64::NAN),
+        grandmaster: grandmaster(net.systems()),
         samples,
     }
 }
 
+/// The index of the system that considers itself grandmaster (the first, if several do).
+fn grandmaster(systems: &[TimeAwareSystem]) -> usize {
+    systems.iter().position(|s| s.is_grandmaster()).unwrap_or(0)
+}
+
 /// Applies the servo's decision to a node's disciplined clock.
-fn discipline(node: &mut Node) {
+fn discipline(node: &mut Node, sys: &mut TimeAwareSystem) {
     // The Sync's arrival in local time is what the servo compares at; the disciplined clock's
     // reading then is computed from its current line.
-    let Some(rx_local) = node.sys.last_sync_rx_ns() else {
+    let Some(rx_local) = sys.last_sync_rx_ns() else {
         return;
     };
     let rx_local = rx_local as f64;
@@ -246,7 +212,7 @@ fn discipline(node: &mut Node) {
     } else {
         rx_local
     };
-    if let Some(adj) = node.sys.servo(at_rx.floor() as u64, at_rx - at_rx.floor()) {
+    if let Some(adj) = sys.servo(at_rx.floor() as u64, at_rx - at_rx.floor()) {
         // Re-anchor at the Sync's arrival with the new rate (and the step, once).
         node.disc_anchor_value = at_rx + adj.step_ns;
         node.disc_anchor_local = rx_local;

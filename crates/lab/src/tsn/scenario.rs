@@ -7,118 +7,12 @@ use ecsync_esc::config::{ConfigError, ConfigSource, SegmentConfig};
 use ecsync_tsn::qbv::{PortSchedule, ScheduleError, Window};
 use serde::Deserialize;
 
+pub use ecsync_tsn::network::{BridgeParams, GptpParams, MasterParams, NetworkParams, Variant};
+
 /// The built-in preset `tsn-2020`: embedded from this crate's `presets/` folder, a copy of the
 /// repository's `presets/tsn-2020.toml` (which users read and edit; a test holds the two
 /// byte-identical).
 pub const TSN_2020_TOML: &str = include_str!("../../presets/tsn-2020.toml");
-
-/// The three networks of the paper.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
-pub enum Variant {
-    /// No TSN: the master drives the segment directly.
-    M1,
-    /// A time-aware bridge between master and slaves; the master is not synchronized to it.
-    M2,
-    /// The bridge, and the master synchronized to it by gPTP, as the paper proposes.
-    M3,
-}
-
-impl Variant {
-    /// Its name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Variant::M1 => "M1",
-            Variant::M2 => "M2",
-            Variant::M3 => "M3",
-        }
-    }
-
-    /// What it is, in words.
-    pub fn title(self) -> &'static str {
-        match self {
-            Variant::M1 => "no TSN (master wired to the slaves)",
-            Variant::M2 => "TSN bridge, master not synchronized (no gPTP)",
-            Variant::M3 => "TSN bridge, master synchronized by gPTP (the paper's proposal)",
-        }
-    }
-
-    /// Whether a bridge sits between master and slaves.
-    pub fn has_bridge(self) -> bool {
-        self != Variant::M1
-    }
-
-    fn parse(s: &str) -> Option<Variant> {
-        match s {
-            "M1" | "m1" => Some(Variant::M1),
-            "M2" | "m2" => Some(Variant::M2),
-            "M3" | "m3" => Some(Variant::M3),
-            _ => None,
-        }
-    }
-}
-
-/// The master.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MasterParams {
-    /// Crystal error, ppm.
-    pub ppm: f64,
-    /// Crystal wander, ppm per sqrt(s).
-    pub wander_ppm_per_sqrt_s: f64,
-    /// Master clock minus bridge clock at the start, ns.
-    pub clock_offset_ns: i64,
-    /// Hardware timestamp granularity, ns.
-    pub timestamp_ns: u64,
-    /// Standard deviation of the launch instant around the scheduled one, ns.
-    pub launch_jitter_ns: f64,
-    /// Cable from the master to the bridge, m.
-    pub cable_m: f64,
-    /// How far into the EtherCAT window (bridge side) the master aims its frames, ns.
-    pub launch_margin_ns: u64,
-    /// gPTP priority1.
-    pub priority1: u8,
-}
-
-/// The bridge.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BridgeParams {
-    /// Crystal error, ppm.
-    pub ppm: f64,
-    /// Crystal wander, ppm per sqrt(s).
-    pub wander_ppm_per_sqrt_s: f64,
-    /// Bridge clock at the start, ns.
-    pub initial_ns: u64,
-    /// Store-and-forward residence after a frame is received, before its egress, ns.
-    pub residence_ns: u64,
-    /// Gate cycle, ns.
-    pub cycle_ns: u64,
-    /// Local time at which gate cycles start (modulo the cycle), ns.
-    pub base_ns: u64,
-    /// Egress towards the slaves.
-    pub ethercat_port: PortSchedule,
-    /// Egress towards the master.
-    pub master_port: PortSchedule,
-    /// Share of the best-effort time the master-facing wire carries cross traffic.
-    pub cross_traffic_load: f64,
-    /// Size of a cross-traffic frame, bytes.
-    pub cross_traffic_frame_bytes: u64,
-    /// gPTP priority1.
-    pub priority1: u8,
-}
-
-/// gPTP.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GptpParams {
-    /// Sync interval, ns.
-    pub sync_interval_ns: u64,
-    /// Pdelay_Req interval, ns.
-    pub pdelay_interval_ns: u64,
-    /// gPTP runs this long before the EtherCAT bring-up starts (M3), ns.
-    pub settle_ns: u64,
-    /// Servo proportional gain.
-    pub kp: f64,
-    /// Servo integral gain.
-    pub ki: f64,
-}
 
 /// A TSN scenario.
 #[derive(Debug, Clone)]
@@ -147,6 +41,19 @@ pub struct TsnScenario {
     pub bridge: BridgeParams,
     /// gPTP.
     pub gptp: GptpParams,
+}
+
+impl TsnScenario {
+    /// The network it describes, for [`ecsync_tsn::network::TsnNetwork`].
+    pub fn network_params(&self) -> NetworkParams<'_> {
+        NetworkParams {
+            slaves: &self.slaves,
+            seed: self.seed,
+            master: &self.master,
+            bridge: &self.bridge,
+            gptp: &self.gptp,
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -286,7 +193,7 @@ pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
     }
     let mut variants = Vec::new();
     for v in &t.variants {
-        let Some(x) = Variant::parse(v) else {
+        let Some(x) = Variant::from_name(v) else {
             return Err(err(
                 "tsn",
                 "variants",
