@@ -89,6 +89,9 @@ pub struct Esc {
     /// Programs recorded for the last few frame shapes: a cycle of several frames (the
     /// first with the DC datagrams, the others with process data) keeps each one's.
     programs: [Program; PROGRAM_SLOTS],
+    /// Each program's shape and generation, side by side: the look-up every frame makes
+    /// reads one cache line, not one per program.
+    program_keys: [(u32, u64); PROGRAM_SLOTS],
     /// The slot the next recording replaces when none is free.
     next_slot: u8,
     rec: Recorder,
@@ -129,6 +132,9 @@ impl Esc {
             device,
             generation: 0,
             programs: [Program::default(); PROGRAM_SLOTS],
+            // No generation is u64::MAX: an empty slot matches no frame, shape 0 (never
+            // recorded) included.
+            program_keys: [(0, u64::MAX); PROGRAM_SLOTS],
             next_slot: 0,
             rec: Recorder::default(),
         };

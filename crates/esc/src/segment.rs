@@ -252,6 +252,11 @@ pub struct Segment {
     epoch: u64,
 }
 
+/// The smallest network whose frames follow visit plans. Below, a cycle's one or few frames do
+/// something at nearly every ESC, and the replay of an empty program costs less than the plan's
+/// upkeep; the results are the same either way.
+const PLAN_MIN_SLAVES: usize = 32;
+
 /// Which ESCs a frame of one shape does something at. In a large network most of a cycle's
 /// frames carry the process data of a few slaves: the others would only replay an empty
 /// program. The frame passes them by (their timing, and so the ground truth, is the walk's),
@@ -274,6 +279,8 @@ struct VisitPlan {
     idle: Vec<bool>,
     /// Frames passed by the idle ESCs and not yet in their counters.
     idle_frames: u64,
+    /// No ESC is idle: the frame visits every one, in the walk's order.
+    all: bool,
 }
 
 impl VisitPlan {
@@ -725,6 +732,7 @@ impl Segment {
             visits: Vec::new(),
             idle: Vec::new(),
             idle_frames: 0,
+            all: false,
         });
         p.shape = shape;
         p.epoch = self.epoch;
@@ -739,6 +747,7 @@ impl Segment {
                 p.visits.push(v as u32);
             }
         }
+        p.all = p.visits.len() == tm.flat.len();
         self.plans[k] = Some(p);
     }
 
@@ -799,6 +808,8 @@ impl Segment {
         if !Arc::ptr_eq(&self.trace.timing, &tm) {
             self.trace.timing = tm.clone();
         }
+        // Visit plans pay where frames pass many ESCs by (see `PLAN_MIN_SLAVES`).
+        let slot = slot.filter(|_| self.nodes.len() >= PLAN_MIN_SLAVES);
         let loops_changed = self.process_flat(frame, kind, slot, &tm, t_send_ps);
         let back = tm.back;
         if !loops_changed {
@@ -875,27 +886,35 @@ impl Segment {
             FrameKind::Chain(ctx) => ctx.shape,
             _ => 0,
         };
-        let mut pass = Pass::default();
+        let mut pass = Pass {
+            deferred: Deferred::default(),
+            generation_changed: false,
+            loops_changed: false,
+        };
         // A frame of a shape with a plan that holds visits only the ESCs it does something at.
+        let mut planned = false;
         let plan = match slot {
-            Some(k) if shape != 0 => match self.plans[k].take() {
-                Some(p) if p.holds(shape, self.epoch, tm) => Some((k, p)),
-                other => {
-                    self.plans[k] = other;
+            Some(k) if shape != 0 => match &mut self.plans[k] {
+                Some(p) if p.holds(shape, self.epoch, tm) => {
+                    planned = true;
+                    p.idle_frames += 1;
+                    // Only the visit list leaves the plan while the ESCs run (no copy of it).
+                    (!p.all).then(|| (k, std::mem::take(&mut p.visits)))
+                }
+                Some(_) => {
                     self.end_plan(k);
                     None
                 }
+                None => None,
             },
             _ => None,
         };
         match plan {
-            Some((k, mut p)) => {
-                for &v in &p.visits {
-                    let (i, pu) = tm.flat[v as usize];
-                    self.visit(i, pu, frame, kind, tm, t_send, &mut pass);
+            Some((k, visits)) => {
+                self.visit_some(&visits, frame, kind, tm, t_send, &mut pass);
+                if let Some(p) = &mut self.plans[k] {
+                    p.visits = visits;
                 }
-                p.idle_frames += 1;
-                self.plans[k] = Some(p);
             }
             None => {
                 for &(i, pu) in &tm.flat {
@@ -907,13 +926,31 @@ impl Segment {
         if pass.generation_changed || pass.loops_changed {
             // Some ESC acts differently from now on: no plan holds.
             self.epoch += 1;
-        } else if let Some(k) = slot
+        } else if !planned
+            && let Some(k) = slot
             && shape != 0
-            && self.plans[k].is_none()
         {
             self.make_plan(k, shape, tm);
         }
         pass.loops_changed
+    }
+
+    /// The frame at the processing units of the ESCs at `visits` (indices into `tm.flat`).
+    /// Out of line: a small network's frames visit every ESC, in the loop above.
+    #[inline(never)]
+    fn visit_some(
+        &mut self,
+        visits: &[u32],
+        frame: &mut [u8],
+        kind: FrameKind,
+        tm: &Timing,
+        t_send: u64,
+        pass: &mut Pass,
+    ) {
+        for &v in visits {
+            let (i, pu) = tm.flat[v as usize];
+            self.visit(i, pu, frame, kind, tm, t_send, pass);
+        }
     }
 
     /// The frame at the processing unit of slave `i`, `pu` ps after it was sent.
@@ -930,15 +967,34 @@ impl Segment {
         pass: &mut Pass,
     ) {
         let t = t_send + pu;
+        if let FrameKind::Chain(ctx) = kind
+            && self.nodes[i]
+                .esc
+                .replay_cyclic(frame, ctx.shape, t, &mut pass.deferred)
+        {
+            return;
+        }
+        self.visit_in_full(i, t, frame, kind, tm, t_send, pass);
+    }
+
+    /// The frame at slave `i`'s processing unit at `t` when no straight-through replay takes
+    /// it: decoded (or replayed op by op), receive times latched, loops changed. Out of line:
+    /// the cyclic frames' visits are the inline part above.
+    #[inline(never)]
+    #[allow(clippy::too_many_arguments)]
+    fn visit_in_full(
+        &mut self,
+        i: usize,
+        t: u64,
+        frame: &mut [u8],
+        kind: FrameKind,
+        tm: &Timing,
+        t_send: u64,
+        pass: &mut Pass,
+    ) {
         let node = &mut self.nodes[i];
         let fx = match kind {
             FrameKind::Chain(ctx) => {
-                if node
-                    .esc
-                    .replay_cyclic(frame, ctx.shape, t, &mut pass.deferred)
-                {
-                    return;
-                }
                 pass.deferred.flush(frame);
                 let offs = &ctx.offsets[..usize::from(ctx.n)];
                 let generation = node.esc.generation();
@@ -1136,7 +1192,7 @@ fn datagram_offsets(frame: &[u8], out: &mut [u16]) -> Option<usize> {
 }
 
 /// What a frame's pass through the segment did so far.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Pass {
     deferred: Deferred,
     generation_changed: bool,

@@ -133,7 +133,23 @@ fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<Fram
     plan.frmw_data_at =
         Some(b.push_zeroed(Command::Frmw, 1, system_time, 8)? + DATAGRAM_HEADER_LEN);
     used += over + 8;
+    let time_difference = DatagramAddress::Position {
+        adp: 0,
+        ado: reg::DC_SYSTEM_TIME_DIFF,
+    };
+    // When the image takes several frames, the BRD of the time difference goes into the first
+    // one with the FRMW: every slave then acts in the first frame only, and in the others only
+    // where they carry its process data (the simulator passes a frame by the slaves it does
+    // nothing at). A cycle of one frame keeps the old order: FRMW, LRW, BRD.
+    let one_frame =
+        used + chunks.iter().map(|c| over + c.len as usize).sum::<usize>() + over + 4 <= room;
     let mut index = 2u8;
+    if !one_frame {
+        plan.brd_data_at =
+            Some(b.push_zeroed(Command::Brd, index, time_difference, 4)? + DATAGRAM_HEADER_LEN);
+        used += over + 4;
+        index += 1;
+    }
     for c in &chunks {
         let need = over + c.len as usize;
         if used + need > room {
@@ -154,25 +170,12 @@ fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<Fram
         index = index.wrapping_add(1);
         used += need;
     }
-    if used + over + 4 > room {
-        let n = b.finish();
-        plan.template = buf[..n].to_vec();
-        plans.push(std::mem::take(&mut plan));
-        b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)?;
+    if one_frame {
+        // The BRD's index follows the LRWs' (3 in the single frame of old).
+        let brd_index = if chunks.len() <= 1 { 3 } else { index };
+        plan.brd_data_at =
+            Some(b.push_zeroed(Command::Brd, brd_index, time_difference, 4)? + DATAGRAM_HEADER_LEN);
     }
-    // The BRD's index follows the LRWs' (3 in the single frame of old).
-    let brd_index = if chunks.len() <= 1 { 3 } else { index };
-    plan.brd_data_at = Some(
-        b.push_zeroed(
-            Command::Brd,
-            brd_index,
-            DatagramAddress::Position {
-                adp: 0,
-                ado: reg::DC_SYSTEM_TIME_DIFF,
-            },
-            4,
-        )? + DATAGRAM_HEADER_LEN,
-    );
     let n = b.finish();
     plan.template = buf[..n].to_vec();
     plans.push(plan);
@@ -616,8 +619,15 @@ mod tests {
                 .map(|d| d.unwrap().command().unwrap())
                 .collect()
         };
-        assert_eq!(cmds(0, &mut e)[0], Command::Frmw);
-        assert_eq!(*cmds(n - 1, &mut e).last().unwrap(), Command::Brd);
+        // The first frame carries the FRMW and the BRD of the time difference; the others
+        // process data only.
+        assert_eq!(cmds(0, &mut e)[..2], [Command::Frmw, Command::Brd]);
+        for k in 1..n {
+            assert!(
+                cmds(k, &mut e).iter().all(|&c| c == Command::Lrw),
+                "frame {k}"
+            );
+        }
         for k in 0..n {
             assert!(e.frame_len_of(k) <= ecsync_wire::MAX_FRAME_LEN);
         }

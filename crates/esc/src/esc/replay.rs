@@ -11,8 +11,9 @@
 
 use super::Esc;
 use super::datagram::{LogicalOp, add_u16_at};
-use super::process_data::{copy_small, refresh_inputs};
+use super::process_data::{AppLayout, copy_small, refresh_inputs};
 use crate::dc_unit::DcUnit;
+use ecsync_wire::AlState;
 use ecsync_wire::register as reg;
 
 /// Frames with more datagrams than this are never recorded.
@@ -52,6 +53,57 @@ pub(super) enum Op {
     DiffFused(DiffStep),
     /// Fused: an LRW through one write and one read FMMU with the application in between.
     LrwFused(LrwStep),
+    /// Fused: outputs written through one FMMU (frame -> RAM) and the working counter: a slave
+    /// whose outputs and inputs are in different frames of a large network's cycle.
+    WriteFused(CopyStep),
+    /// Fused: the application refreshes its inputs, one FMMU reads them (RAM -> frame), and
+    /// the working counter.
+    ReadFused(CopyStep),
+}
+
+/// A copy between frame and process RAM through one FMMU, and its working counter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) struct CopyStep {
+    at: u16,
+    ram: u16,
+    len: u16,
+    wkc: u16,
+    inc: u16,
+}
+
+/// A program of one step replayed straight through by [`Esc::replay_cyclic`]: the process
+/// data of a large network's frames that carry no DC datagram.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Simple {
+    /// The DC steps without process data: the first frame of a large network's cycle at a
+    /// slave whose process data another frame carries (a system time write first at the
+    /// reference under bus shift).
+    Dc {
+        pre: Option<SysStep>,
+        sys: SysStep,
+        diff: DiffStep,
+    },
+    /// An LRW through a write and a read FMMU.
+    Lrw(LrwStep),
+    /// Outputs only.
+    Write(CopyStep),
+    /// Inputs only.
+    Read(CopyStep),
+}
+
+impl Simple {
+    /// Where its working counter is, for [`Deferred`] (in the LRW's place).
+    fn layout(&self) -> u64 {
+        let wkc = match self {
+            // The counters of the system time and difference reads, and the BRD's position.
+            Simple::Dc { sys, diff, .. } => {
+                return u64::from(sys.wkc) | u64::from(diff.wkc) << 32 | u64::from(diff.adp) << 48;
+            }
+            Simple::Lrw(l) => l.wkc,
+            Simple::Write(c) | Simple::Read(c) => c.wkc,
+        };
+        u64::from(wkc) << 16
+    }
 }
 
 impl Op {
@@ -123,9 +175,7 @@ pub(super) struct CyclicSteps {
     /// Bus shift's write of the master's time to the reference, before its FRMW.
     pre: Option<SysStep>,
     sys: SysStep,
-    /// The process data, if the frame carries this ESC's (the first of several frames of a
-    /// large network carries only some slaves').
-    lrw: Option<LrwStep>,
+    lrw: LrwStep,
     diff: DiffStep,
     /// Where the three working counters and the BRD's position field are, packed (see
     /// [`Deferred`]).
@@ -133,10 +183,9 @@ pub(super) struct CyclicSteps {
 }
 
 impl CyclicSteps {
-    fn new(pre: Option<SysStep>, sys: SysStep, lrw: Option<LrwStep>, diff: DiffStep) -> Self {
-        // Without process data the LRW's counter slot adds 0 at offset 0: no change.
+    fn new(pre: Option<SysStep>, sys: SysStep, lrw: LrwStep, diff: DiffStep) -> Self {
         let layout = u64::from(sys.wkc)
-            | u64::from(lrw.map_or(0, |l| l.wkc)) << 16
+            | u64::from(lrw.wkc) << 16
             | u64::from(diff.wkc) << 32
             | u64::from(diff.adp) << 48;
         CyclicSteps {
@@ -255,6 +304,31 @@ fn fuse(ops: &[Op], out: &mut [Op; MAX_OPS]) -> u8 {
                 }),
                 4,
             ),
+            [Op::ToRam { at, ram, len }, Op::Wkc { at: w, inc }, ..] => (
+                Op::WriteFused(CopyStep {
+                    at: *at,
+                    ram: *ram,
+                    len: *len,
+                    wkc: *w,
+                    inc: *inc,
+                }),
+                2,
+            ),
+            [
+                Op::Refresh,
+                Op::FromRam { at, ram, len },
+                Op::Wkc { at: w, inc },
+                ..,
+            ] => (
+                Op::ReadFused(CopyStep {
+                    at: *at,
+                    ram: *ram,
+                    len: *len,
+                    wkc: *w,
+                    inc: *inc,
+                }),
+                3,
+            ),
             [op, ..] => (*op, 1),
             [] => break,
         };
@@ -324,6 +398,20 @@ fn lrw_out(frame: &mut [u8], ram: &[u8], s: &LrwStep) {
     copy_small(&mut frame[d..d + l], &ram[r..r + l]);
 }
 
+/// Outputs of a [`CopyStep`]: frame -> process RAM.
+#[inline(always)]
+fn copy_in(ram: &mut [u8], frame: &[u8], c: &CopyStep) {
+    let (d, r, l) = (usize::from(c.at), usize::from(c.ram), usize::from(c.len));
+    copy_small(&mut ram[r..r + l], &frame[d..d + l]);
+}
+
+/// Inputs of a [`CopyStep`]: process RAM -> frame.
+#[inline(always)]
+fn copy_out(frame: &mut [u8], ram: &[u8], c: &CopyStep) {
+    let (d, r, l) = (usize::from(c.at), usize::from(c.ram), usize::from(c.len));
+    copy_small(&mut frame[d..d + l], &ram[r..r + l]);
+}
+
 /// The recorded steps for one frame shape.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Program {
@@ -332,8 +420,11 @@ pub(super) struct Program {
     ops: [Op; MAX_OPS],
     n: u8,
     pub(super) counted: u8,
-    /// `ops` as one straight-through step, when they are the cyclic frame's three.
+    /// `ops` as one straight-through step, when they are the cyclic frame's DC steps with or
+    /// without the process data.
     cyclic: Option<CyclicSteps>,
+    /// `ops` as one straight-through step of process data.
+    simple: Option<Simple>,
     /// Frames replayed by `cyclic` and not yet in the ESC's counters (one increment per frame
     /// instead of three; see [`Esc::stats`]).
     pub(super) replays: u64,
@@ -348,6 +439,7 @@ impl Default for Program {
             n: 0,
             counted: 0,
             cyclic: None,
+            simple: None,
             replays: 0,
         }
     }
@@ -382,12 +474,11 @@ impl Esc {
     /// The slot of the program recorded for frames of `shape` in the current generation.
     #[inline(always)]
     pub(super) fn program_slot(&self, shape: u32) -> Option<usize> {
-        if shape == 0 {
-            return None;
-        }
-        self.programs
-            .iter()
-            .position(|p| p.shape == shape && p.generation == self.generation)
+        // (Empty slots carry the generation u64::MAX, which no ESC reaches: shape 0 finds
+        // none.)
+        let g = self.generation;
+        // The slots in turn, as a small network's one frame always finds the first.
+        (0..PROGRAM_SLOTS).find(|&k| self.program_keys[k] == (shape, g))
     }
 
     /// Whether a frame of `shape` would do nothing at this ESC but pass: `Some(true)` if its
@@ -412,15 +503,13 @@ impl Esc {
     /// program is large, and it is copied once, into place.
     #[inline]
     pub(super) fn install(&mut self, recorded: &Program) {
+        let g = self.generation;
         let k = match self
-            .programs
+            .program_keys
             .iter()
-            .position(|p| p.shape == recorded.shape)
-            .or_else(|| {
-                self.programs
-                    .iter()
-                    .position(|p| p.shape == 0 || p.generation != self.generation)
-            }) {
+            .position(|&(s, _)| s == recorded.shape)
+            .or_else(|| self.program_keys.iter().position(|&(_, pg)| pg != g))
+        {
             Some(k) => k,
             None => {
                 let k = usize::from(self.next_slot);
@@ -434,24 +523,36 @@ impl Esc {
         self.stats.replayed_frames += old.replays;
         self.stats.datagrams_counted += old.replays * u64::from(old.counted);
         self.programs[k] = *recorded;
+        self.program_keys[k] = (recorded.shape, recorded.generation);
         let prog = &mut self.programs[k];
         prog.n = fuse(&recorded.ops[..usize::from(recorded.n)], &mut prog.ops);
-        prog.cyclic = match prog.ops[..usize::from(prog.n)] {
+        let ops = &prog.ops[..usize::from(prog.n)];
+        prog.cyclic = match *ops {
             [Op::SysFused(sys), Op::LrwFused(lrw), Op::DiffFused(diff)] => {
-                Some(CyclicSteps::new(None, sys, Some(lrw), diff))
+                Some(CyclicSteps::new(None, sys, lrw, diff))
             }
             [
                 Op::SysFused(pre),
                 Op::SysFused(sys),
                 Op::LrwFused(lrw),
                 Op::DiffFused(diff),
-            ] => Some(CyclicSteps::new(Some(pre), sys, Some(lrw), diff)),
-            [Op::SysFused(sys), Op::DiffFused(diff)] => {
-                Some(CyclicSteps::new(None, sys, None, diff))
-            }
-            [Op::SysFused(pre), Op::SysFused(sys), Op::DiffFused(diff)] => {
-                Some(CyclicSteps::new(Some(pre), sys, None, diff))
-            }
+            ] => Some(CyclicSteps::new(Some(pre), sys, lrw, diff)),
+            _ => None,
+        };
+        prog.simple = match *ops {
+            [Op::SysFused(sys), Op::DiffFused(diff)] => Some(Simple::Dc {
+                pre: None,
+                sys,
+                diff,
+            }),
+            [Op::SysFused(pre), Op::SysFused(sys), Op::DiffFused(diff)] => Some(Simple::Dc {
+                pre: Some(pre),
+                sys,
+                diff,
+            }),
+            [Op::LrwFused(lrw)] => Some(Simple::Lrw(lrw)),
+            [Op::WriteFused(w)] => Some(Simple::Write(w)),
+            [Op::ReadFused(r)] => Some(Simple::Read(r)),
             _ => None,
         };
     }
@@ -529,14 +630,23 @@ impl Esc {
                     lrw_out(frame, &self.ram, &l);
                     add_wkc(frame, l.wkc, l.inc);
                 }
+                Op::WriteFused(c) => {
+                    copy_in(&mut self.ram, frame, &c);
+                    add_wkc(frame, c.wkc, c.inc);
+                }
+                Op::ReadFused(c) => {
+                    self.app_refresh_inputs();
+                    copy_out(frame, &self.ram, &c);
+                    add_wkc(frame, c.wkc, c.inc);
+                }
             }
         }
     }
 
-    /// The cyclic frame at this ESC, if it has the three-step program for `shape` recorded in
-    /// the current generation: the steps run, their working counter and ADP increments go to
-    /// `d` (see [`Deferred`]). Returns false, touching nothing, otherwise; the caller then
-    /// flushes `d` and calls [`Esc::process_frame`].
+    /// A cyclic frame at this ESC, if it has a straight-through program for `shape` recorded
+    /// in the current generation ([`CyclicSteps`], [`Simple`]): the steps run, their working
+    /// counter and ADP increments go to `d` (see [`Deferred`]). Returns false, touching
+    /// nothing, otherwise; the caller then flushes `d` and calls [`Esc::process_frame`].
     #[inline(always)]
     pub(crate) fn replay_cyclic(
         &mut self,
@@ -557,9 +667,20 @@ impl Esc {
             app_cycles,
             ..
         } = self;
-        let program = &mut programs[k];
+        // (k is below PROGRAM_SLOTS, a power of two: the mask spares the bounds check.)
+        let program = &mut programs[k & (PROGRAM_SLOTS - 1)];
         let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) else {
-            return false;
+            return replay_simple(
+                program,
+                dc,
+                ram,
+                app.as_ref(),
+                *al_state,
+                app_cycles,
+                frame,
+                t_ps,
+                d,
+            );
         };
         program.replays += 1;
         if c.layout != d.layout {
@@ -570,16 +691,75 @@ impl Esc {
             sys_step(dc, frame, pre, t_ps);
         }
         sys_access(dc, frame, &c.sys, t_ps);
-        if let Some(lrw) = &c.lrw {
-            lrw_in(ram, frame, lrw);
-            refresh_inputs(ram, *app, *al_state, app_cycles);
-            lrw_out(frame, ram, lrw);
-            d.lrw = d.lrw.wrapping_add(lrw.inc);
-        }
+        lrw_in(ram, frame, &c.lrw);
+        refresh_inputs(ram, *app, *al_state, app_cycles);
+        lrw_out(frame, ram, &c.lrw);
         diff_access(dc, frame, &c.diff);
         d.sys = d.sys.wrapping_add(c.sys.inc);
+        d.lrw = d.lrw.wrapping_add(c.lrw.inc);
         d.diff = d.diff.wrapping_add(c.diff.inc);
         d.adp = d.adp.wrapping_add(1);
         true
     }
+}
+
+/// The [`Simple`] program of a frame that carries only process data, if `program` has one
+/// (see [`Esc::replay_cyclic`]). Out of line: the small network's one frame has the DC steps.
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn replay_simple(
+    program: &mut Program,
+    dc: &mut Option<DcUnit>,
+    ram: &mut [u8],
+    app: Option<&AppLayout>,
+    al_state: AlState,
+    app_cycles: &mut u16,
+    frame: &mut [u8],
+    t_ps: u64,
+    d: &mut Deferred,
+) -> bool {
+    let (Some(simple), Some(app)) = (&program.simple, app) else {
+        return false;
+    };
+    let dc = match (simple, dc) {
+        (Simple::Dc { .. }, None) => return false,
+        (_, dc) => dc,
+    };
+    let layout = simple.layout();
+    if layout != d.layout {
+        d.flush(frame);
+        d.layout = layout;
+    }
+    match simple {
+        Simple::Dc { pre, sys, diff } => {
+            let Some(dc) = dc.as_mut() else {
+                return false;
+            };
+            if let Some(pre) = pre {
+                sys_step(dc, frame, pre, t_ps);
+            }
+            sys_access(dc, frame, sys, t_ps);
+            diff_access(dc, frame, diff);
+            d.sys = d.sys.wrapping_add(sys.inc);
+            d.diff = d.diff.wrapping_add(diff.inc);
+            d.adp = d.adp.wrapping_add(1);
+        }
+        Simple::Lrw(l) => {
+            lrw_in(ram, frame, l);
+            refresh_inputs(ram, *app, al_state, app_cycles);
+            lrw_out(frame, ram, l);
+            d.lrw = d.lrw.wrapping_add(l.inc);
+        }
+        Simple::Write(c) => {
+            copy_in(ram, frame, c);
+            d.lrw = d.lrw.wrapping_add(c.inc);
+        }
+        Simple::Read(c) => {
+            refresh_inputs(ram, *app, al_state, app_cycles);
+            copy_out(frame, ram, c);
+            d.lrw = d.lrw.wrapping_add(c.inc);
+        }
+    }
+    program.replays += 1;
+    true
 }

@@ -1,0 +1,60 @@
+#!/usr/bin/env python3
+"""Writes a network of N servo drives in a line as an `ecsync compare --config` file.
+
+The host, run and method sections are presets/twelve-drives.toml's; the drives get cables of
+0.3 to 3 m and crystals drawn uniformly within +-50 ppm (seeded, so the file is the same on
+every machine). A large line needs a later SYNC0 than the letter's 30 %: its frames take
+milliseconds on the wire (25 frames of 1 500 bytes for 1 000 drives), so the cycle and the
+shift are options.
+
+    python3 scripts/line-network.py 1000 --cycle-us 4000 --sync0-shift-pct 85 > line-1000.toml
+"""
+import argparse
+import random
+import re
+import sys
+from pathlib import Path
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("drives", type=int)
+    ap.add_argument("--cycle-us", type=int, default=4000)
+    ap.add_argument("--sync0-shift-pct", type=int, default=85)
+    ap.add_argument("--cycles", type=int, default=5000)
+    ap.add_argument("--runs", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=2024)
+    a = ap.parse_args()
+    if a.drives < 1:
+        sys.exit("line-network.py: drives: at least 1")
+    base = (Path(__file__).resolve().parent.parent / "presets" / "twelve-drives.toml").read_text()
+    # Everything from the host section on is kept; the segment is written anew.
+    rest = base[base.index("# ---------------------------------------------------------------------------------------------\n# The master host"):]
+    for key, value in [("cycle_us", a.cycle_us), ("sync0_shift_pct", a.sync0_shift_pct),
+                       ("cycles", a.cycles), ("runs", a.runs)]:
+        rest, n = re.subn(rf"(?m)^{key} = \S+", f"{key} = {value}", rest, count=1)
+        if n != 1:
+            sys.exit(f"line-network.py: presets/twelve-drives.toml has no [run] {key}")
+    rng = random.Random(a.seed)
+    out = [f"# {a.drives} servo drives in a line, written by scripts/line-network.py "
+           f"{a.drives} --cycle-us {a.cycle_us} --sync0-shift-pct {a.sync0_shift_pct}.\n",
+           "# Host, run and methods: presets/twelve-drives.toml's.\n\n[segment]\nseed = 2024\n"]
+    for k in range(1, a.drives + 1):
+        up = "master" if k == 1 else f"drive-{k - 1}"
+        port = "" if k == 1 else "upstream_port = 1\n"
+        out.append(f"""
+[[segment.slave]]
+name = "drive-{k}"
+model = "servo-mii"
+device = "servo-drive"
+upstream = "{up}"
+{port}cable_m = {rng.uniform(0.3, 3.0):.1f}
+ppm = {rng.uniform(-50.0, 50.0):.1f}
+power_up_ns = {1_000_000_000 + 123_456_789 * (k - 1) % 900_000_000}
+wander_ppm_per_sqrt_s = 0.005
+""")
+    sys.stdout.write("".join(out) + "\n" + rest)
+
+
+if __name__ == "__main__":
+    main()
