@@ -994,7 +994,21 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
         "{:>9}{:>16}{:>16}{:>16}{:>8}{:>14}",
         "position", "margin min us", "margin p0.1 us", "margin mean us", "late", "safe shift %"
     );
-    for s in &mo.ground_truth.per_slave {
+    // A large network lists the slaves that need the largest shift (in position order), the
+    // others are in summary.json.
+    let all = &mo.ground_truth.per_slave;
+    let mut shown: Vec<usize> = (0..all.len()).collect();
+    if all.len() > PER_SLAVE_ROWS {
+        shown.sort_by(|&a, &b| {
+            all[b]
+                .smallest_safe_shift_pct
+                .total_cmp(&all[a].smallest_safe_shift_pct)
+                .then(a.cmp(&b))
+        });
+        shown.truncate(PER_SLAVE_ROWS);
+        shown.sort_unstable();
+    }
+    for s in shown.iter().map(|&k| &all[k]) {
         let _ = writeln!(
             t,
             "{:>9}{:>16.1}{:>16.1}{:>16.1}{:>8}{:>14.1}",
@@ -1006,8 +1020,20 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
             s.smallest_safe_shift_pct
         );
     }
+    if all.len() > shown.len() {
+        let _ = writeln!(
+            t,
+            "({} of {} slaves shown: those that need the largest shift; every slave is in \
+             summary.json, methods.{m}.ground_truth.per_slave)",
+            shown.len(),
+            all.len()
+        );
+    }
     t
 }
+
+/// Rows of the per-slave table a terminal gets at most.
+const PER_SLAVE_ROWS: usize = 24;
 
 fn csv_summary(t: &mut String, m: &str, q: &str, s: &Summary, letter: Option<&Row>) {
     let l = letter.map_or(",,,".to_string(), |r| {
