@@ -16,7 +16,8 @@ use ecsync_dc::{LockDetector, SlavePorts, TreeNode, build_tree, propagation_dela
 use ecsync_wire::register::{self as reg, dl_status, features};
 use ecsync_wire::sii::{self, Identity, category};
 use ecsync_wire::{
-    AlControlRepr, AlState, AlStatus, AlStatusCode, Command, DatagramAddress, dc_time,
+    AlControlRepr, AlState, AlStatus, AlStatusCode, Command, DatagramAddress, FmmuRepr, SmActivate,
+    SmControl, SyncManagerRepr, dc_time,
 };
 use std::fmt;
 
@@ -1345,11 +1346,22 @@ async fn configure_process_data(link: &Link, slaves: &[SlaveInfo]) -> Result<u16
             if len == 0 {
                 continue;
             }
-            let mut smr = [0u8; 8];
-            smr[0..2].copy_from_slice(&sm.start.to_le_bytes());
-            smr[2..4].copy_from_slice(&len.to_le_bytes());
-            smr[4] = sm.control;
-            smr[6] = 0x01;
+            // The SII's control byte, as the slave describes its buffer (a reserved mode or
+            // direction is the slave's error, reported, never written).
+            let control = SmControl::from_bits(sm.control).map_err(|_| {
+                MasterError::BadReply("SII SyncManager control").at(Phase::ProcessData, s.id())
+            })?;
+            let smr = SyncManagerRepr {
+                physical_start: sm.start,
+                length_bytes: len,
+                control,
+                activate: SmActivate {
+                    enable: true,
+                    ..SmActivate::default()
+                },
+                ..SyncManagerRepr::default()
+            }
+            .to_bytes();
             link.fpwr(
                 s.station,
                 reg::SM_BASE + u16::from(sm.index) * reg::SM_LEN,
@@ -1358,13 +1370,19 @@ async fn configure_process_data(link: &Link, slaves: &[SlaveInfo]) -> Result<u16
             )
             .await
             .map_err(|e| e.at(Phase::ProcessData, s.id()))?;
-            let mut f = [0u8; 16];
-            f[0..4].copy_from_slice(&log.to_le_bytes());
-            f[4..6].copy_from_slice(&len.to_le_bytes());
-            f[7] = 7;
-            f[8..10].copy_from_slice(&sm.start.to_le_bytes());
-            f[11] = if sm.kind == 3 { 0x02 } else { 0x01 };
-            f[12] = 0x01;
+            // Whole bytes: start bit 0, end bit 7; outputs (SII type 3) written by the master.
+            let f = FmmuRepr {
+                logical_start: log,
+                length_bytes: len,
+                logical_start_bit: 0,
+                logical_end_bit: 7,
+                physical_start: sm.start,
+                physical_start_bit: 0,
+                read: sm.kind != 3,
+                write: sm.kind == 3,
+                active: true,
+            }
+            .to_bytes();
             link.fpwr(
                 s.station,
                 reg::FMMU_BASE + fmmu_n * reg::FMMU_LEN,

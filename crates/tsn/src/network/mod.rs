@@ -655,11 +655,14 @@ impl<'a> TsnNetwork<'a> {
 
 /// Whether a frame is the delay measurement's latch (a BWR to 0x0900).
 fn is_latch_frame(frame: &[u8]) -> bool {
-    // Ethernet (14) + EtherCAT header (2) + datagram: command, index, ADP, ADO.
-    frame.len() >= 22
-        && frame[16] == ecsync_wire::Command::Bwr as u8
-        && u16::from_le_bytes([frame[20], frame[21]])
-            == ecsync_wire::register::DC_RECEIVE_TIME_PORT0
+    let Ok(f) = ecsync_wire::EcatFrame::new_checked(frame) else {
+        return false;
+    };
+    matches!(
+        f.datagrams().next(),
+        Some(Ok(d)) if d.command() == Ok(ecsync_wire::Command::Bwr)
+            && d.ado() == ecsync_wire::register::DC_RECEIVE_TIME_PORT0
+    )
 }
 
 /// The TSN network as the master sees it: its PHC, its NIC launching frames at their time
