@@ -37,6 +37,7 @@
 //! Bus shift (the master's time written to the reference every cycle) needs a write in the
 //! cyclic frame that `tx_rx_dc` does not send; [`DcLoop::new`] refuses it.
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub use ecsync_dc::sync::{CycleInput, CycleOutput, MasterSync};
 pub use ecsync_dc::{MedianSync, PiM2s, Snap, SoemPi};

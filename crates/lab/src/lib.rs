@@ -2,6 +2,7 @@
 //! synchronization method on the virtual segment with common random numbers, statistics against
 //! the letter's Table 1 and against ground truth, and the report.
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub mod compare;
 pub mod host;

@@ -5,6 +5,7 @@
 //! the cyclic phase measures is summarised by [`stats`] (the simulator's lab and the real
 //! master alike) and written by [`output`].
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub mod bench;
 pub mod bringup;

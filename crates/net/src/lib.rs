@@ -14,6 +14,7 @@
 //! This crate holds what the architecture first placed in `ecsync-master` as its "Linux raw
 //! socket transport": keeping it apart leaves `ecsync-master` sans-IO and free of `unsafe`.
 #![deny(unsafe_code)]
+#![warn(missing_docs)]
 #![cfg(target_os = "linux")]
 
 mod link;
