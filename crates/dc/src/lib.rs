@@ -8,6 +8,31 @@
 //! [`registry`]; [`method`] holds their parameters with defaults and [`Method`], which runs any
 //! of them. With the `serde` feature the parameters deserialize from a scenario's
 //! `[methods.<name>]` tables.
+//!
+//! ```
+//! use ecsync_dc::sync::CycleInput;
+//! use ecsync_dc::{MasterSync, MethodContext, MethodKind, MethodParams};
+//!
+//! // `snap`, what ethercrab ships, at a 1 ms cycle aiming at the grid point itself.
+//! let kind: MethodKind = "snap".parse().unwrap();
+//! let ctx = MethodContext { cycle_ns: 1_000_000, target_phase_ns: 0 };
+//! let mut method = MethodParams::default().build(kind, &ctx);
+//! assert!(method.is_master_shift());
+//!
+//! // The frame sent at 10 ms (master time) read the reference's system time 300 us past one of
+//! // its grid points: the method waits from the send to the next grid point, 700 us.
+//! let out = method.update(&CycleInput {
+//!     cycle: 0,
+//!     period_ns: 1_000_000,
+//!     nominal_start_ns: 10_000_000,
+//!     scheduled_start_ns: 10_000_000,
+//!     send_ns: 10_000_000,
+//!     receive_ns: 10_020_000,
+//!     ref_time_ns: Some(5_000_300_000),
+//! });
+//! assert_eq!(out.error_ns, 300_000);
+//! assert_eq!(out.next_start_ns, 10_700_000);
+//! ```
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]

@@ -15,7 +15,8 @@
 //!   point it takes a Gaussian step with standard deviation `wander_ppm_per_sqrt_s * sqrt(step)`.
 //!   Because the grid depends on real time only, a clock's trajectory is the same whatever frames
 //!   it sees: every sync method run on the same seed meets the same crystals.
-//! * `c_drift`, `c_slew`: the time control loop, see [`TimeControlLoop`].
+//! * `c_drift`, `c_slew`: the time control loop, see
+//!   [its model](crate::dc_unit#time-control-loop-model).
 //!
 //! Registers show the local time at the last 10 ns tick: the ESC's system time counter advances
 //! once per 100 MHz tick. The model quantises the counter's value to a fixed 10 ns grid (the

@@ -19,6 +19,7 @@
 //! assert_eq!(f.datagrams().next().unwrap().unwrap().wkc(), 3, "three slaves counted");
 //! ```
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub mod clock;
 pub mod config;

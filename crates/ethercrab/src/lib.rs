@@ -7,6 +7,40 @@
 //! [`MedianSync`] it is the median-filter drift compensator of Xu et al. (2024), which keeps the
 //! frames at a fixed phase of the DC grid while decoupling the jitter.
 //!
+//! [`DcLoop`] needs no network of its own: it takes what `tx_rx_dc` returned. Here two cycles are
+//! fed by hand, the reference's grid 300 us behind the frame's arrival each time:
+//!
+//! ```
+//! use ecsync_ethercrab::{DcLoop, MedianSync};
+//! use ethercrab::subdevice_group::CycleInfo;
+//! use std::time::{Duration, Instant};
+//!
+//! let period = Duration::from_millis(1);
+//! let mut sync = DcLoop::new(MedianSync::new(11, 0.01, 1000), period).unwrap();
+//! let info = |dc_system_time| CycleInfo {
+//!     dc_system_time,
+//!     cycle_start_offset: Duration::from_micros(300),
+//!     next_cycle_wait: Duration::from_micros(700),
+//! };
+//! let close = |a: Duration, b: Duration| a.abs_diff(b) < Duration::from_micros(1);
+//!
+//! // The first cycle primes the loop: the next starts where ethercrab's own wait puts it.
+//! let sent = Instant::now();
+//! let next = sync.update(sent, sent + Duration::from_micros(50), &info(1_000_000_300_000));
+//! assert!(close(next - sent, Duration::from_micros(700)));
+//! assert_eq!(sync.cycles(), 0);
+//!
+//! // While the median method initialises (its first 1000 frames) it keeps the nominal period.
+//! let after = sync.update(next, next + Duration::from_micros(50), &info(1_000_001_300_000));
+//! assert!(close(after - next, period));
+//! assert_eq!(sync.cycles(), 1);
+//!
+//! // Bus shift writes to the reference, which `tx_rx_dc` cannot: refused.
+//! assert!(DcLoop::new(ecsync_dc::BusShift::default(), period).is_err());
+//! ```
+//!
+//! In ethercrab's cyclic loop (needs a network interface and EtherCAT slaves):
+//!
 //! ```no_run
 //! # async fn cycle<const N: usize, const P: usize>(
 //! #     group: &ethercrab::SubDeviceGroup<
@@ -37,6 +71,7 @@
 //! Bus shift (the master's time written to the reference every cycle) needs a write in the
 //! cyclic frame that `tx_rx_dc` does not send; [`DcLoop::new`] refuses it.
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub use ecsync_dc::sync::{CycleInput, CycleOutput, MasterSync};
 pub use ecsync_dc::{MedianSync, PiM2s, Snap, SoemPi};

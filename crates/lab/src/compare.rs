@@ -71,7 +71,7 @@ fn parallel_map<T: Send>(n: usize, threads: usize, f: impl Fn(usize) -> T + Sync
 /// Runs the comparison on `threads` threads; `progress` is incremented by simulated cycles.
 ///
 /// Each run's network is brought up once and every method continues from a copy of it. The
-/// methods' cyclic phases are then shared out in slices of [`SLICE_CYCLES`] from one queue, so
+/// methods' cyclic phases are then shared out in slices of 65 536 cycles from one queue, so
 /// that all cores stay busy until the end (with whole runs per thread, the last run of an odd
 /// count would run alone). Neither the slicing nor the threads change any result.
 pub fn compare(

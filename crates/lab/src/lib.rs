@@ -1,7 +1,28 @@
 //! The lab: scenarios (network + host + run), the host's noise, runs of every master
 //! synchronization method on the virtual segment with common random numbers, statistics against
 //! the letter's Table 1 and against ground truth, and the report.
+//!
+//! The built-in scenario (the letter's testbed, `paper-2024`) parsed and checked, and a value it
+//! cannot run with refused with the field and the fix:
+//!
+//! ```
+//! use ecsync_dc::MethodKind;
+//! use ecsync_esc::preset::PAPER_2024_TOML;
+//!
+//! let s = ecsync_lab::parse("paper-2024.toml", PAPER_2024_TOML).unwrap();
+//! assert_eq!(s.slaves.len(), 6);
+//! assert_eq!(s.cycle_ns, 1_000_000);
+//! assert_eq!((s.runs, s.cycles, s.seed), (5, 1_800_000, 2024));
+//! assert_eq!(s.methods, MethodKind::ALL);
+//! assert!(s.is_letter_testbed());
+//!
+//! let bad = PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 0.5");
+//! let e = ecsync_lab::parse("bad.toml", &bad).unwrap_err();
+//! assert_eq!(e.field, "run.cycle_us");
+//! assert!(e.line.is_some() && !e.fix.is_empty());
+//! ```
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub mod compare;
 pub mod host;

@@ -32,7 +32,7 @@ pub struct Envelope {
     pub max: f32,
 }
 
-/// Cycles per time series point of [`Series`].
+/// Cycles per point of a run's time series (one min..max [`Envelope`] per block).
 pub const SERIES_BLOCK: u64 = 1_000;
 
 /// Min..max envelopes per block of [`SERIES_BLOCK`] cycles (the TSN run's series).

@@ -114,7 +114,7 @@ pub struct Scenario {
     pub name: String,
     /// The segment.
     pub slaves: Vec<SlaveSpec>,
-    /// Host preset name (or "<preset> (modified)").
+    /// Host preset name (or "`<preset> (modified)`").
     pub host_name: String,
     /// The host.
     pub host: HostParams,

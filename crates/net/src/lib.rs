@@ -13,7 +13,29 @@
 //!
 //! This crate holds what the architecture first placed in `ecsync-master` as its "Linux raw
 //! socket transport": keeping it apart leaves `ecsync-master` sans-IO and free of `unsafe`.
+//!
+//! The master's clock needs neither root nor a network interface:
+//!
+//! ```
+//! use ecsync_net::{HostClock, NetError, RealLink};
+//! use std::time::{SystemTime, UNIX_EPOCH};
+//!
+//! let clock = HostClock::new();
+//! let t0 = clock.now_ns();
+//! // DC time counts ns since 2000-01-01: the wall clock less 946 684 800 s.
+//! let wall_ns = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_nanos() as u64;
+//! assert!((wall_ns - 946_684_800_000_000_000).abs_diff(t0) < 100_000_000, "within 100 ms");
+//! // It is CLOCK_MONOTONIC shifted once: steady, and mapped back onto it for sleeping.
+//! let mono = ecsync_net::sys::monotonic_ns();
+//! let t1 = clock.now_ns();
+//! assert!(t1 >= t0);
+//! assert!(clock.to_monotonic_ns(t1) - mono < 100_000_000);
+//!
+//! // A raw socket on an interface that does not exist (or without CAP_NET_RAW) is refused.
+//! assert!(matches!(RealLink::open("ecsync-none0"), Err(NetError::Open(_))));
+//! ```
 #![deny(unsafe_code)]
+#![warn(missing_docs)]
 #![cfg(target_os = "linux")]
 
 mod link;
