@@ -342,7 +342,7 @@ struct Shape {
 #[derive(Debug, Clone)]
 struct ShapeCache {
     slots: Box<[Option<Shape>; SHAPE_SLOTS]>,
-    /// Per set: the way found or filled last (the other one is replaced first).
+    /// Per set: the way filled last (the other one is replaced first).
     recent: Box<[u8; SHAPE_SETS]>,
     last_id: u32,
 }
@@ -372,7 +372,7 @@ impl ShapeCache {
     /// The slot of `frame`'s remembered shape and how its ESCs take it, if its headers are
     /// that shape's.
     #[inline]
-    fn find(&mut self, frame: &[u8]) -> Option<(usize, FrameCtx)> {
+    fn find(&self, frame: &[u8]) -> Option<(usize, FrameCtx)> {
         let set = Self::set_of(frame);
         for way in 0..2 {
             let k = 2 * set + way;
@@ -380,7 +380,6 @@ impl ShapeCache {
                 && frame.len() >= s.min_len
                 && s.matches(frame)
             {
-                self.recent[set] = way as u8;
                 return Some((k, s.ctx()));
             }
         }
@@ -810,8 +809,12 @@ impl Segment {
             self.trace.timing = tm.clone();
         }
         // Visit plans pay where frames pass many ESCs by (see `PLAN_MIN_SLAVES`).
-        let slot = slot.filter(|_| self.nodes.len() >= PLAN_MIN_SLAVES);
-        let loops_changed = self.process_flat(frame, kind, slot, &tm, t_send_ps);
+        // (Two copies of the pass: the small network's has no plan code at all.)
+        let loops_changed = if self.nodes.len() >= PLAN_MIN_SLAVES {
+            self.process_flat::<true>(frame, kind, slot, &tm, t_send_ps)
+        } else {
+            self.process_flat::<false>(frame, kind, None, &tm, t_send_ps)
+        };
         let back = tm.back;
         if !loops_changed {
             self.timing = Some(tm);
@@ -869,7 +872,7 @@ impl Segment {
     /// Every processing unit the frame reaches, in turn at its time. Loop changes take effect
     /// after the frame has passed (datasheet section II, 0x0100): the frame follows the way it
     /// started on, the next one the new way. Returns whether a loop changed.
-    fn process_flat(
+    fn process_flat<const PLANS: bool>(
         &mut self,
         frame: &mut [u8],
         kind: FrameKind,
@@ -895,7 +898,7 @@ impl Segment {
         // A frame of a shape with a plan that holds visits only the ESCs it does something at.
         let mut planned = false;
         let plan = match slot {
-            Some(k) if shape != 0 => match &mut self.plans[k] {
+            Some(k) if PLANS && shape != 0 => match &mut self.plans[k] {
                 Some(p) if p.holds(shape, self.epoch, tm) => {
                     planned = true;
                     p.idle_frames += 1;
@@ -927,7 +930,8 @@ impl Segment {
         if pass.generation_changed || pass.loops_changed {
             // Some ESC acts differently from now on: no plan holds.
             self.epoch += 1;
-        } else if !planned
+        } else if PLANS
+            && !planned
             && let Some(k) = slot
             && shape != 0
         {
