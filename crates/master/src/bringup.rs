@@ -1286,40 +1286,17 @@ struct ProcessImage {
 /// in each slave's `outputs` and `inputs`). No frames: the SyncManagers and FMMUs are written
 /// in [`Phase::ProcessData`].
 fn map_process_image(slaves: &mut [SlaveInfo]) -> ProcessImage {
-    let len_of = |s: &SlaveInfo, kind: u8| s.sms.iter().find(|m| m.kind == kind).map(|m| m.len);
-    let total: usize = slaves
-        .iter()
-        .map(|s| usize::from(len_of(s, 3).unwrap_or(0)) + usize::from(len_of(s, 4).unwrap_or(0)))
-        .sum();
     let mut logical = 0u32;
-    if total <= crate::pdi::MAX_LRW_DATA {
-        // One LRW: every slave's outputs, then every slave's inputs, as SOEM maps them.
-        for s in slaves.iter_mut() {
-            if let Some(len) = len_of(s, 3) {
-                s.outputs = (logical, len);
-                logical += u32::from(len);
-            }
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 3) {
+            s.outputs = (logical, sm.len);
+            logical += u32::from(sm.len);
         }
-        for s in slaves.iter_mut() {
-            if let Some(len) = len_of(s, 4) {
-                s.inputs = (logical, len);
-                logical += u32::from(len);
-            }
-        }
-    } else {
-        // Several LRWs: each slave's outputs and inputs side by side, so that one frame of the
-        // cycle carries a slave's whole process data (outputs first, then inputs, would put a
-        // slave of a large network in two frames, the one with its outputs and the one with
-        // its inputs).
-        for s in slaves.iter_mut() {
-            if let Some(len) = len_of(s, 3) {
-                s.outputs = (logical, len);
-                logical += u32::from(len);
-            }
-            if let Some(len) = len_of(s, 4) {
-                s.inputs = (logical, len);
-                logical += u32::from(len);
-            }
+    }
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 4) {
+            s.inputs = (logical, sm.len);
+            logical += u32::from(sm.len);
         }
     }
     let pdi_len = logical;

@@ -1,8 +1,7 @@
 //! The logical process image in LRW datagrams of at most a frame each.
 //!
-//! The bring-up maps every slave's outputs, then every slave's inputs, into the logical address
-//! space when the image fits one LRW (as SOEM does), and each slave's outputs and inputs side by
-//! side when it does not (one frame then carries a slave's whole process data). A network whose image is larger than a frame's payload needs
+//! The bring-up maps every slave's outputs, then every slave's inputs, one after the other into
+//! the logical address space. A network whose image is larger than a frame's payload needs
 //! several LRWs: each covers a contiguous range that ends on a slave's boundary, so that no
 //! slave's image is split, and the working counter each must return is known: 2 for every
 //! slave whose outputs it writes, 1 for every slave whose inputs it reads (datasheet: an LRW

@@ -95,7 +95,7 @@ fn replay_is_exact() {
 }
 
 /// A cycle of several frames (160 drives: the process image's LRWs spread over five frames,
-/// each slave's outputs and inputs side by side), each of its own shape: the replay of every
+/// outputs first, then inputs, as SOEM maps them), each of its own shape: the replay of every
 /// shape, and the frames passing by the drives they do nothing at, change nothing either, and
 /// each frame's ground truth is the way it took.
 #[test]
@@ -110,8 +110,8 @@ fn replay_of_a_cycle_of_several_frames_is_exact() {
     for cycle in 0..300 {
         // Between runs of cycles, changes of configuration that make an ESC act in a frame it
         // did nothing in (the frames then visit it again): drive 60's output FMMU set to drive
-        // 150's (read back first), in a later frame's image, which carries no process data of
-        // drive 60; then an AL state change at drive 30 and back.
+        // 150's (read back first), in the second frame's image, which carries neither drive
+        // 60's outputs nor its inputs; then an AL state change at drive 30 and back.
         let interlude: Vec<Vec<u8>> = match cycle {
             100 => {
                 let mut read = frame(&[(Command::Fprd, fp(0x1000 + 150, 0x0600), vec![0; 16])]);
