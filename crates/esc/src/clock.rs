@@ -154,6 +154,15 @@ impl LocalClock {
         }
     }
 
+    /// A clock switched on at real time `t_ps`: it reads `params.initial_local_ns` then (a
+    /// power cycle's restart; [`LocalClock::new`] is the clock switched on at real time 0).
+    pub fn new_at(params: CrystalParams, t_ps: u64) -> Self {
+        let mut c = LocalClock::new(params);
+        c.anchor_ps = t_ps;
+        c.next_wander_ps = t_ps.saturating_add(params.wander_step_ps.max(1));
+        c
+    }
+
     /// The crystal parameters.
     pub fn params(&self) -> &CrystalParams {
         &self.params

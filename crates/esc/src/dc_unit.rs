@@ -172,7 +172,13 @@ pub struct DcWriteEffects {
 impl DcUnit {
     /// A powered-up DC unit with datasheet defaults.
     pub fn new(params: DcParams) -> Self {
-        let clock = LocalClock::new(params.crystal);
+        Self::new_at(params, 0)
+    }
+
+    /// A DC unit switched on at real time `t_ps` (a power cycle): its local time starts from
+    /// the crystal's `initial_local_ns` then.
+    pub fn new_at(params: DcParams, t_ps: u64) -> Self {
+        let clock = LocalClock::new_at(params.crystal, t_ps);
         let res = (params.sof_resolution_ns.max(10) / 10) * 10;
         DcUnit {
             sof_res: res,

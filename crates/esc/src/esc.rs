@@ -100,17 +100,26 @@ pub struct Esc {
 impl Esc {
     /// Powers up an ESC: loads the SII image (identity, alias, pulse length) and starts its clock.
     pub fn new(model: EscModel, device: DeviceInfo, crystal: CrystalParams) -> Self {
+        Self::new_at(model, device, crystal, 0)
+    }
+
+    /// Powers up an ESC at real time `t_ps` (its clock reads the crystal's `initial_local_ns`
+    /// then).
+    pub fn new_at(model: EscModel, device: DeviceInfo, crystal: CrystalParams, t_ps: u64) -> Self {
         let image = sii_image::build(&model, &device);
         let mut esc = Esc {
             regs: Box::new([0; REG_SPACE]),
             attr: Box::new([0; REG_SPACE]),
             ram: vec![0; usize::from(model.ram_kib) * 1024].into_boxed_slice(),
             dc: model.dc.has_receive_times().then(|| {
-                DcUnit::new(DcParams {
-                    crystal,
-                    is_64bit: model.dc == DcSupport::Full64,
-                    sof_resolution_ns: model.ports[0].stamp_resolution_ns(),
-                })
+                DcUnit::new_at(
+                    DcParams {
+                        crystal,
+                        is_64bit: model.dc == DcSupport::Full64,
+                        sof_resolution_ns: model.ports[0].stamp_resolution_ns(),
+                    },
+                    t_ps,
+                )
             }),
             dc_block: Box::new([0; DC_BLOCK_LEN]),
             sii: SiiState::new(image, model.sii_read_busy_us),
@@ -140,6 +149,23 @@ impl Esc {
         };
         esc.build_attributes();
         esc.reset_registers();
+        esc
+    }
+
+    /// This ESC switched off and on again at real time `t_ps`: registers at their reset
+    /// values, AL Init, process RAM cleared, its clock started again from 0 at `t_ps` (the
+    /// same crystal; its wander goes on from another seed), the SII EEPROM's contents kept;
+    /// the links are the segment's to set.
+    pub fn power_cycled(&self, t_ps: u64) -> Esc {
+        let crystal = self.dc.as_ref().map_or_else(CrystalParams::default, |dc| {
+            let mut c = *dc.clock().params();
+            c.initial_local_ns = 0;
+            c.seed = crate::rng::SplitMix64(c.seed ^ t_ps).next();
+            c
+        });
+        let mut esc = Esc::new_at(self.model.clone(), self.device.clone(), crystal, t_ps);
+        esc.sii = self.sii.clone();
+        esc.sii.power_up();
         esc
     }
 

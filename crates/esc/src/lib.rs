@@ -25,6 +25,7 @@ pub mod clock;
 pub mod config;
 pub mod dc_unit;
 mod esc;
+pub mod fault;
 pub mod model;
 pub mod pcap;
 pub mod preset;

@@ -135,6 +135,8 @@ struct Node {
     /// What a frame entering at `entry_port` meets, in processing order (rebuilt when the
     /// master changes the loop settings).
     plan: Plan,
+    /// Switched off (a power cycle in progress): its links are down.
+    off: bool,
 }
 
 /// One element of a frame's way through an ESC.
@@ -320,7 +322,7 @@ impl Timing {
 }
 
 /// A frame shape: the Ethernet type and EtherCAT header, then per datagram its first 8 header
-/// bytes and the last 2 (command, index, address, length and flags, IRQ), as words for the
+/// bytes but the index, and the last 2 (command, address, length and flags, IRQ), as words for the
 /// comparison every cyclic frame makes; where the datagrams are; and the id the ESCs key their
 /// recorded programs on.
 #[derive(Debug, Clone, Copy)]
@@ -335,7 +337,7 @@ struct Shape {
 }
 
 /// Recently seen frame shapes, two-way set-associative on the first datagram's command and
-/// index (which the frames of one cycle do not share): a cycle of several frames finds each of
+/// address (which the frames of one cycle do not share): a cycle of several frames finds each of
 /// its shapes again without decoding, where one remembered shape would be replaced at every
 /// frame; the second way keeps two shapes whose command and index fall in one set (the first
 /// frame's FRMW and an LRW of a 1 000-drive cycle) from replacing each other every cycle.
@@ -346,6 +348,11 @@ struct ShapeCache {
     recent: Box<[u8; SHAPE_SETS]>,
     last_id: u32,
 }
+
+/// A datagram header's first 8 bytes as a little-endian word without the index (byte 1): a
+/// frame whose datagram indices change from cycle to cycle (a master's tags) keeps its shape,
+/// and no ESC reads an index.
+const NOT_INDEX: u64 = !0xff00;
 
 /// Sets of the shape cache, and the shapes remembered at once.
 const SHAPE_SETS: usize = 64;
@@ -360,11 +367,15 @@ impl ShapeCache {
         }
     }
 
-    /// The set of a frame: its first datagram's command and index.
+    /// The set of a frame: its first datagram's command and address (never its index, which
+    /// a master changes every cycle to tell its replies apart).
     #[inline]
     fn set_of(frame: &[u8]) -> usize {
-        match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + 2) {
-            Some(h) => (usize::from(h[0]) * 7 + usize::from(h[1])) % SHAPE_SETS,
+        match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + 6) {
+            Some(h) => {
+                let addr = u32::from_le_bytes([h[2], h[3], h[4], h[5]]);
+                (usize::from(h[0]) * 7 + (addr ^ addr >> 16 ^ addr >> 8) as usize) % SHAPE_SETS
+            }
             None => 0,
         }
     }
@@ -404,7 +415,10 @@ impl ShapeCache {
             let h = &frame[at..at + DATAGRAM_HEADER_LEN];
             let mut lo = [0u8; 8];
             lo.copy_from_slice(&h[..8]);
-            s.words[k] = (u64::from_le_bytes(lo), u16::from_le_bytes([h[8], h[9]]));
+            s.words[k] = (
+                u64::from_le_bytes(lo) & NOT_INDEX,
+                u16::from_le_bytes([h[8], h[9]]),
+            );
         }
         s.offsets[..offsets.len()].copy_from_slice(offsets);
         let set = Self::set_of(frame);
@@ -441,7 +455,7 @@ impl Shape {
                 frame.get(at..at + DATAGRAM_HEADER_LEN)?.try_into().ok()?;
             let (lo, hi) = h.split_at(8);
             Some((
-                u64::from_le_bytes(lo.try_into().ok()?),
+                u64::from_le_bytes(lo.try_into().ok()?) & NOT_INDEX,
                 u16::from_le_bytes([hi[0], hi[1]]),
             ))
         };
@@ -622,6 +636,7 @@ impl Segment {
                     forwarding_ps: ps(s.model.forwarding_delay_ns),
                     processing_ps: ps(s.model.processing_delay_ns),
                     plan,
+                    off: false,
                 }
             })
             .collect();
@@ -673,6 +688,66 @@ impl Segment {
         self.end_plans();
         self.epoch += 1;
         &mut self.nodes[pos].esc
+    }
+
+    /// Pulls (`up` false) or plugs in again the cable at port `port` of the slave at network
+    /// position `pos`: both ends lose or regain their link, and a port in auto mode closes or
+    /// opens (the datasheet's loop control), so the segment behind a pulled cable is gone and
+    /// the port loops frames back. A slave that is switched off keeps its links down. Returns
+    /// false if there is no cable there.
+    pub fn set_link(&mut self, pos: usize, port: usize, up: bool) -> bool {
+        let Some(l) = self
+            .nodes
+            .get(pos)
+            .and_then(|n| n.links.get(port).copied().flatten())
+        else {
+            return false;
+        };
+        let here = up && !self.nodes[pos].off;
+        self.set_port_link(pos, port, here);
+        if let Peer::Slave(q) = l.peer {
+            let q = usize::from(q);
+            let there = up && !self.nodes[q].off;
+            self.set_port_link(q, usize::from(l.peer_port), there);
+        }
+        true
+    }
+
+    fn set_port_link(&mut self, pos: usize, port: usize, up: bool) {
+        let esc = self.esc_mut(pos);
+        let mut links = esc.links();
+        links[port] = up;
+        esc.set_links(links);
+        let node = &mut self.nodes[pos];
+        node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+    }
+
+    /// Switches the slave at network position `pos` off at real time `t_ps`: its links go
+    /// down (the slaves behind it are cut off) until [`Segment::power_on`].
+    pub fn power_off(&mut self, pos: usize, _t_ps: u64) {
+        for port in 0..4 {
+            self.set_link(pos, port, false);
+        }
+        self.nodes[pos].off = true;
+    }
+
+    /// Switches the slave at network position `pos` on again at real time `t_ps`: it starts
+    /// from reset ([`Esc::power_cycled`]) and its cables link again.
+    pub fn power_on(&mut self, pos: usize, t_ps: u64) {
+        self.end_plans();
+        self.epoch += 1;
+        self.timing = None;
+        let node = &mut self.nodes[pos];
+        node.esc = node.esc.power_cycled(t_ps);
+        node.off = false;
+        for port in 0..4 {
+            self.set_link(pos, port, true);
+        }
+    }
+
+    /// Whether the slave at network position `pos` is switched off.
+    pub fn is_powered_off(&self, pos: usize) -> bool {
+        self.nodes[pos].off
     }
 
     /// The counters of the ESC at network position `pos`, with the frames that passed it by
@@ -1043,7 +1118,10 @@ impl Segment {
         let mut t = Timing::unreached(n);
         let first = usize::from(self.first);
         let entry = usize::from(self.nodes[first].entry_port);
-        if let Some(l) = self.nodes[first].links[entry] {
+        // (The master's cable pulled, or the first slave off: every frame is lost.)
+        if let Some(l) = self.nodes[first].links[entry]
+            && self.nodes[first].esc.links()[entry]
+        {
             t.back = self
                 .walk_from(first, entry, l.delay_ps, &mut t)
                 .map(|b| b + l.delay_ps);

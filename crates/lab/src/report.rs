@@ -173,6 +173,9 @@ pub struct MethodOut {
     pub lock_ms: f64,
     /// CPU time of this method's runs, s.
     pub wall_s: f64,
+    /// Per run: the faults played and how the method came through them (`compare --faults`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub faults: Vec<crate::run::FaultsTruth>,
 }
 
 /// The letter's values of a method.
@@ -401,6 +404,7 @@ fn method_out(c: &Comparison, m: usize, kind: MethodKind, letter_testbed: bool) 
         cycles_done: rs.iter().map(|r| r.cycles_done).sum(),
         lock_ms: lock.iter().sum::<f64>() / lock.len().max(1) as f64,
         wall_s: c.method_wall_s[m],
+        faults: rs.iter().filter_map(|r| r.faults.clone()).collect(),
     }
 }
 

@@ -7,6 +7,7 @@ use crate::stats::{Stats, Summary};
 use ecsync_dc::sync::MasterSync;
 use ecsync_dc::{Method, MethodKind};
 use ecsync_esc::clock::CrystalParams;
+use ecsync_esc::fault::{Epoch, FaultCounts, FaultEvent, FaultPlayer};
 use ecsync_esc::rng::splitmix64;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
@@ -281,6 +282,31 @@ pub struct RunResult {
     pub max_round_trip_ns: f64,
     /// Why `--samples` could not be written (the run went on).
     pub samples_error: Option<String>,
+    /// What the fault schedule did and how the master took it (`None`: no faults).
+    pub faults: Option<FaultsTruth>,
+}
+
+/// A run's faults: what the schedule did, what the master saw, and how DC came back.
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
+pub struct FaultsTruth {
+    /// Every fault's start and end, in order.
+    pub events: Vec<FaultEvent>,
+    /// What the player did to frames.
+    pub counts: FaultCounts,
+    /// Replies the driver discarded as late (after their cycle's deadline).
+    pub late_replies: u64,
+    /// Second copies of replies the driver discarded.
+    pub duplicate_replies: u64,
+    /// Cycles skipped by host stalls.
+    pub skipped_cycles: u64,
+    /// Cycles of the whole cyclic phase (warm-up included) whose frame did not come back.
+    pub lost_cycles: u64,
+    /// The largest |0x092C| of a cycle whose frame came back, ns: DC held where it reads
+    /// under 100 ns.
+    pub max_rs_is_ns: u32,
+    /// Per fault start: the time from it to the first cycle from which |0x092C| stayed under
+    /// 100 ns for 100 cycles, ms (`None`: not by the end).
+    pub relock_ms: Vec<Option<f64>>,
 }
 
 impl RunResult {
@@ -375,7 +401,15 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
-    let net = sim.run_procedure(&mut engine, |_, _, _| {})?;
+    // Faults counted from the first frame play on the bring-up too: a lost datagram is then
+    // waited for a few milliseconds and sent again, as on a real network.
+    let net = match &s.faults {
+        Some(f) if f.epoch == Epoch::Start => {
+            sim.set_faults(FaultPlayer::new(f.clone(), seed));
+            sim.run_procedure_with(&mut engine, FAULTY_PROCEDURE, |_, _, _| {})?
+        }
+        _ => sim.run_procedure(&mut engine, |_, _, _| {})?,
+    };
     Ok(BroughtUp {
         sim,
         net,
@@ -383,6 +417,13 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
         run,
     })
 }
+
+/// How the bring-up waits and retries on a segment with faults: 5 ms, ten times.
+pub const FAULTY_PROCEDURE: ecsync_master::driver::ProcedureConfig =
+    ecsync_master::driver::ProcedureConfig {
+        reply_timeout_ns: 5_000_000,
+        retries: 10,
+    };
 
 /// An online least-squares line (Welford's updates).
 #[derive(Debug, Clone, Copy, Default)]
@@ -488,7 +529,24 @@ pub struct Run {
     margins: Vec<f64>,
     /// Per DC slave: the frame of a cycle that carries its outputs, and that frame's wire time.
     out_frames: Vec<(usize, u64)>,
+    /// Per fault start seen: its real time, the good cycles in a row since, the first of
+    /// them (real time), the re-lock time once found (ms).
+    relock: Vec<Relock>,
 }
+
+/// The way back to lock after one fault (see [`FaultsTruth::relock_ms`]).
+#[derive(Debug, Clone, Copy)]
+struct Relock {
+    start_ps: u64,
+    good_in_a_row: u32,
+    first_good_ps: u64,
+    done_ms: Option<f64>,
+}
+
+/// Cycles in a row with |0x092C| under [`RELOCK_NS`] that count as locked again.
+const RELOCK_CYCLES: u32 = 100;
+/// The bound of |0x092C| for "locked", ns.
+const RELOCK_NS: u32 = 100;
 
 impl std::fmt::Debug for Run {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -504,6 +562,11 @@ impl Run {
     /// Method `kind` from the brought-up network `up` (which it copies).
     pub fn new(s: &Scenario, up: &BroughtUp, kind: MethodKind) -> Result<Run, RunError> {
         let mut sim = up.sim.fork();
+        if let Some(f) = &s.faults
+            && f.epoch == Epoch::Cyclic
+        {
+            sim.set_faults(FaultPlayer::new(f.clone(), up.seed));
+        }
         let net = &up.net;
         let lock_ms = net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6);
         let reference = usize::from(net.reference);
@@ -597,6 +660,7 @@ impl Run {
                 frame_wire_ns: 0.0,
                 max_round_trip_ns: 0.0,
                 samples_error: None,
+                faults: s.faults.as_ref().map(|_| FaultsTruth::default()),
             },
             series: [
                 Bands::new(s.cycles),
@@ -620,6 +684,7 @@ impl Run {
             was_in_sync: false,
             margins: Vec::with_capacity(n_dc),
             out_frames,
+            relock: Vec::new(),
         })
     }
 
@@ -701,6 +766,7 @@ impl Run {
             dc_slaves,
             margins,
             out_frames,
+            relock,
             ..
         } = self;
         let (warmup, period, shift, target) = (
@@ -719,6 +785,58 @@ impl Run {
                 return;
             }
             let wire_ps = frame_wire_time_ps(rep.frame_len);
+            if let Some(ft) = res.faults.as_mut() {
+                // Faults are judged over the whole cyclic phase (their times count from its
+                // start): DC held, and how soon it came back after each fault.
+                let sent_ps = tr.last_exchange().sent_ps;
+                if let Some(p) = tr.faults() {
+                    let starts = p.events().iter().filter(|e| e.edge == "start").count();
+                    for e in p
+                        .events()
+                        .iter()
+                        .filter(|e| e.edge == "start")
+                        .skip(relock.len())
+                    {
+                        relock.push(Relock {
+                            start_ps: e.t_ps,
+                            good_in_a_row: 0,
+                            first_good_ps: 0,
+                            done_ms: None,
+                        });
+                    }
+                    debug_assert_eq!(relock.len(), starts);
+                }
+                ft.skipped_cycles += rep.skipped_before;
+                // A lost cycle says nothing of the lock: it neither counts nor breaks a run of
+                // good cycles (random loss would otherwise never let one reach its length).
+                let good = match (rec.receive_ns, rec.rs_is_ns) {
+                    (Some(_), Some(v)) => {
+                        ft.max_rs_is_ns = ft.max_rs_is_ns.max(v);
+                        Some(v < RELOCK_NS)
+                    }
+                    (Some(_), None) => Some(false),
+                    (None, _) => {
+                        ft.lost_cycles += 1;
+                        None
+                    }
+                };
+                for r in relock.iter_mut().filter(|r| r.done_ms.is_none()) {
+                    let Some(good) = good.filter(|_| sent_ps >= r.start_ps) else {
+                        continue;
+                    };
+                    if good {
+                        if r.good_in_a_row == 0 {
+                            r.first_good_ps = sent_ps;
+                        }
+                        r.good_in_a_row += 1;
+                        if r.good_in_a_row >= RELOCK_CYCLES {
+                            r.done_ms = Some((r.first_good_ps - r.start_ps) as f64 / 1e9);
+                        }
+                    } else {
+                        r.good_in_a_row = 0;
+                    }
+                }
+            }
             if let (Some(c), Some(t)) = (rec.log, res.controller.as_mut()) {
                 if c.in_sync && t.first_in_sync_cycle.is_none() {
                     t.first_in_sync_cycle = Some(i);
@@ -922,6 +1040,16 @@ impl Run {
     /// The result (of the cycles run so far).
     pub fn finish(self) -> Result<RunResult, RunError> {
         let mut res = self.res;
+        if let Some(ft) = res.faults.as_mut() {
+            if let Some(p) = self.sim.faults() {
+                ft.events = p.events().to_vec();
+                ft.counts = p.counts();
+            }
+            let d = self.driver.stats();
+            ft.late_replies = d.late;
+            ft.duplicate_replies = d.duplicates;
+            ft.relock_ms = self.relock.iter().map(|r| r.done_ms).collect();
+        }
         let [a, b, c] = self.series;
         res.series = [a.finish(), b.finish(), c.finish()];
         if self.init_frames >= 2 && self.next_cycle >= self.init_frames {

@@ -139,6 +139,8 @@ pub struct Scenario {
     pub static_drift_frames: u32,
     /// Every method's parameters (the `[methods.<name>]` tables; defaults where absent).
     pub params: MethodParams,
+    /// Faults to play on every run (`compare --faults FILE`); `None`: none.
+    pub faults: Option<ecsync_esc::fault::FaultSchedule>,
 }
 
 /// The problem a refused method parameter is, located in the scenario like any other.
@@ -484,6 +486,7 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
             .collect(),
         static_drift_frames: r.static_drift_frames as u32,
         params: f.methods,
+        faults: None,
     };
     s.check().map_err(|p| src.locate(p))?;
     Ok(s)

@@ -277,9 +277,37 @@ impl<S: MasterSync> CyclicEngine<S> {
         &self.frames[0]
     }
 
-    /// The command and index of frame `k`'s first datagram (what its reply repeats).
+    /// The command and index of frame `k`'s first datagram in the current cycle (what its
+    /// reply repeats): the index is the frame's tag ([`CyclicEngine::tag_of`]).
     pub fn frame_id_of(&self, k: usize) -> Option<(u8, u8)> {
-        self.plans[k].id
+        self.plans[k]
+            .id
+            .map(|(cmd, _)| (cmd, self.tag_of(self.cycle, k)))
+    }
+
+    /// The tag of frame `k` of cycle `cycle`: the index its first datagram carries. It changes
+    /// from frame to frame and cycle to cycle (modulo 256), so that a reply names the cycle it
+    /// answers: a late reply of an earlier cycle, or a second copy of one, is told from the
+    /// one awaited (SOEM and ethercrab number their frames the same way).
+    pub fn tag_of(&self, cycle: u64, k: usize) -> u8 {
+        cycle
+            .wrapping_mul(self.plans.len() as u64)
+            .wrapping_add(k as u64) as u8
+    }
+
+    /// Which frame of which of the last cycles a reply with first datagram `id` answers:
+    /// `Some((cycles_ago, k))` (0: the current cycle), looking back over the cycles whose tags
+    /// are still unique; `None` if none of them sent it (another master's frame, noise).
+    pub fn match_tag(&self, id: (u8, u8)) -> Option<(u64, usize)> {
+        let n = self.plans.len() as u64;
+        let window = (256 / n.max(1)).max(1);
+        (0..window.min(self.cycle + 1)).find_map(|ago| {
+            let cycle = self.cycle - ago;
+            (0..self.plans.len()).find_map(|k| {
+                let (cmd, _) = self.plans[k].id?;
+                (id == (cmd, self.tag_of(cycle, k))).then_some((ago, k))
+            })
+        })
     }
 
     /// Frame `k`'s template: its datagrams' commands and indices, which a reply must answer
@@ -317,8 +345,11 @@ impl<S: MasterSync> CyclicEngine<S> {
     /// Writes frame `k`, sent at `send_ns`, into `out` ([`CyclicEngine::frame_len_of`] bytes):
     /// the cyclic driver builds it in the transport's buffer.
     pub fn write_frame(&mut self, k: usize, send_ns: u64, out: &mut [u8]) {
+        let tag = self.tag_of(self.cycle, k);
         let plan = &self.plans[k];
         out.copy_from_slice(&plan.template);
+        // (The template is a valid frame: the view checks only what it reads.)
+        ecsync_wire::EcatFrame::new_unchecked(&mut *out).set_first_datagram_index(tag);
         if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns)) {
             let v = match self.sync.reference_write_kind() {
                 ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),

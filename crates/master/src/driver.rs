@@ -3,12 +3,16 @@
 //! simulator and on a real network alike.
 //!
 //! * Reply matching ([`answers`]): a frame answers the one sent if it is an EtherCAT frame at
-//!   least as long (a NIC may pad it) whose first datagram has the command and index sent. Any
-//!   other frame is counted as stale (a late reply of a lost frame, another master's traffic)
-//!   and skipped.
-//! * Loss: no matching reply by the deadline (the send timestamp plus the reply timeout). A
-//!   procedure sends a lost frame again up to its retries before it hears of the loss; the
-//!   cyclic driver counts it and goes on, and stops after `lost_in_a_row` losses in a row.
+//!   least as long (a NIC may pad it) whose first datagram has the command and index sent. The
+//!   cyclic frames carry a tag in that index that changes every cycle
+//!   ([`CyclicEngine::tag_of`]): a reply of an earlier cycle is counted as late, a second copy
+//!   of a reply as a duplicate (a second responder), anything else as stale, and all of them
+//!   are discarded.
+//! * Loss: no matching reply by the deadline (the send timestamp plus the reply timeout; in the
+//!   cyclic phase the next cycle's slot at the latest, so a lost frame costs its own cycle
+//!   only). A procedure sends a lost frame again up to its retries before it hears of the
+//!   loss; the cyclic driver counts it and goes on, and stops after `lost_in_a_row` losses in
+//!   a row (if set).
 //! * Overrun: a cycle whose task woke a whole period or more after its scheduled start has lost
 //!   its slot; the driver skips the slots that passed and runs the cycle whose slot is now (as a
 //!   PLC task skips an overrun), rather than sending the missed frames back to back.
@@ -46,8 +50,14 @@ pub struct ExchangeStats {
     pub replies: u64,
     /// Frames whose reply did not come by the deadline.
     pub lost: u64,
-    /// Frames received that answered nothing pending (late replies, other traffic).
+    /// Frames received that answer nothing this master sent lately (other traffic, a frame
+    /// too short for the one it names).
     pub stale: u64,
+    /// Replies of an earlier cycle that came after their cycle's deadline: discarded.
+    pub late: u64,
+    /// Second copies of a reply already taken (a second responder on the wire, a looping
+    /// switch): discarded.
+    pub duplicates: u64,
     /// Frames too long for the buffer.
     pub truncated: u64,
 }
@@ -242,6 +252,8 @@ pub struct CyclicDriver {
     buf: Vec<u8>,
     /// Each frame's reply buffer and length.
     replies: Vec<(Vec<u8>, Option<usize>)>,
+    /// Which frames of the last cycle were answered (a copy of one that was is a duplicate).
+    answered_before: Vec<bool>,
     start_ns: Option<u64>,
     cycles: u64,
     lost_row: u64,
@@ -256,6 +268,7 @@ impl CyclicDriver {
             limits,
             buf: vec![0u8; 2048],
             replies: Vec::new(),
+            answered_before: Vec::new(),
             start_ns: None,
             cycles: 0,
             lost_row: 0,
@@ -327,23 +340,39 @@ impl CyclicDriver {
             if self.replies.len() < n {
                 self.replies.resize_with(n, || (vec![0u8; 2048], None));
             }
+            self.answered_before.clear();
+            self.answered_before
+                .extend(self.replies.iter().map(|r| r.1.is_some()));
             for r in self.replies.iter_mut() {
                 r.1 = None;
             }
-            let deadline = sent_ns.saturating_add(self.limits.reply_timeout_ns);
+            // A reply is awaited until the next cycle's slot at the latest: a lost frame costs
+            // its own cycle only, and a reply that comes later is discarded as late.
+            let next_slot = eng.scheduled_start_ns().saturating_add(period_ns);
+            let deadline = sent_ns
+                .saturating_add(self.limits.reply_timeout_ns)
+                .min(next_slot.max(sent_ns));
             let mut pending = n;
             let mut last: Option<Received> = None;
             while pending > 0 {
                 let Some(r) = tr.recv(&mut self.buf, deadline)? else {
                     break;
                 };
-                let k = (0..n).find(|&k| {
-                    self.replies[k].1.is_none()
-                        && !r.truncated
-                        && answers_id(eng.frame_id_of(k), eng.frame_len_of(k), &self.buf[..r.len])
-                });
-                match k {
-                    Some(k) => {
+                if r.truncated {
+                    self.stats.truncated += 1;
+                    self.stats.stale += 1;
+                    continue;
+                }
+                let id = EcatFrame::new_checked(&self.buf[..r.len])
+                    .ok()
+                    .and_then(|f| f.first_datagram_id());
+                match id.and_then(|id| eng.match_tag(id)) {
+                    Some((0, k)) if r.len >= eng.frame_len_of(k) => {
+                        if self.replies[k].1.is_some() {
+                            // The same frame answered twice: a second responder on the wire.
+                            self.stats.duplicates += 1;
+                            continue;
+                        }
                         // The reply's bytes go to its slot without a copy.
                         std::mem::swap(&mut self.buf, &mut self.replies[k].0);
                         self.replies[k].1 = Some(r.len);
@@ -351,10 +380,12 @@ impl CyclicDriver {
                         pending -= 1;
                         last = Some(r);
                     }
-                    None => {
-                        self.stats.stale += 1;
-                        self.stats.truncated += u64::from(r.truncated);
+                    // A second copy of the last cycle's reply, or the reply itself too late.
+                    Some((1, k)) if self.answered_before.get(k) == Some(&true) => {
+                        self.stats.duplicates += 1;
                     }
+                    Some((ago, _)) if ago > 0 => self.stats.late += 1,
+                    _ => self.stats.stale += 1,
                 }
             }
             self.stats.lost += pending as u64;

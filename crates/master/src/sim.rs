@@ -4,6 +4,7 @@ use crate::driver::{ExchangeStats, ProcedureConfig, ProcedureExchange};
 use crate::io::{Engine, Event};
 use crate::transport::{Never, Received, Transport};
 use ecsync_esc::clock::{CrystalParams, LocalClock};
+use ecsync_esc::fault::{FaultPlayer, FrameFate};
 use ecsync_esc::pcap::PcapCapture;
 use ecsync_esc::{FrameTrace, Segment, frame_wire_time_ps};
 use std::fs::File;
@@ -27,6 +28,8 @@ pub const SIM_EPOCH_NS: u64 = 848_620_800_000_000_000;
 #[derive(Debug, Clone)]
 pub struct MasterClock {
     clock: LocalClock,
+    /// Steps of the clock so far (a fault's), ns: added to the crystal's time.
+    step_ns: i64,
     line: Line,
     /// The last inversion (master ns, real ps, the line's anchor it was made on): a cycle asks
     /// for the real time of its send timestamp more than once.
@@ -77,6 +80,7 @@ impl MasterClock {
         let line = Line::of(&clock);
         MasterClock {
             clock,
+            step_ns: 0,
             line,
             last_inverse: (u64::MAX, 0, u64::MAX),
         }
@@ -101,6 +105,14 @@ impl MasterClock {
         let d = (t_ps.wrapping_sub(l.anchor_ps) as i64) as f64 * l.ns_per_ps + l.a_frac;
         l.a_ns
             .wrapping_add(ecsync_esc::clock::floor_split(d).0 as u64)
+            .wrapping_add(self.step_ns as u64)
+    }
+
+    /// Steps the clock by `step_ns` (an NTP step, a careless `date -s`): from now on it reads
+    /// that much more.
+    pub fn step(&mut self, step_ns: i64) {
+        self.step_ns = self.step_ns.wrapping_add(step_ns);
+        self.last_inverse = (u64::MAX, 0, u64::MAX);
     }
 
     /// Real time (ps) at which the master clock reads `t_ns` (the inverse of
@@ -111,7 +123,7 @@ impl MasterClock {
         if memo_ns == t_ns && memo_anchor == self.line.anchor_ps {
             return memo_ps;
         }
-        let r = self.invert(t_ns);
+        let r = self.invert(t_ns.wrapping_sub(self.step_ns as u64));
         self.last_inverse = (t_ns, r, self.line.anchor_ps);
         r
     }
@@ -186,6 +198,7 @@ pub struct SimTransport {
     frame_in_cycle: usize,
     cycle_mode: bool,
     capture: Option<PcapCapture<BufWriter<File>>>,
+    faults: Option<FaultPlayer>,
 }
 
 impl std::fmt::Debug for SimTransport {
@@ -216,6 +229,7 @@ impl SimTransport {
             frame_in_cycle: 0,
             cycle_mode: false,
             capture: None,
+            faults: None,
         }
     }
 
@@ -239,7 +253,19 @@ impl SimTransport {
             frame_in_cycle: 0,
             cycle_mode: false,
             capture: None,
+            faults: self.faults.clone(),
         }
+    }
+
+    /// Plays `faults` from now on: the segment's on its frames, the host's on the cyclic
+    /// task's wake-ups and the master's clock.
+    pub fn set_faults(&mut self, faults: FaultPlayer) {
+        self.faults = Some(faults);
+    }
+
+    /// The fault player, if one plays.
+    pub fn faults(&self) -> Option<&FaultPlayer> {
+        self.faults.as_ref()
     }
 
     /// The segment.
@@ -351,6 +377,32 @@ impl SimTransport {
         }
     }
 
+    /// A reply in flight, complete at the master at real time `t_ps`: in arrival order (later
+    /// frames of a cycle come back later).
+    fn arrive(&mut self, t_ps: u64, buf: Vec<u8>) {
+        if self.inflight.back().is_none_or(|x| x.0 <= t_ps) {
+            self.inflight.push_back((t_ps, buf));
+        } else {
+            let at = self.inflight.partition_point(|x| x.0 <= t_ps);
+            self.inflight.insert(at, (t_ps, buf));
+        }
+    }
+
+    /// [`SimTransport::run_procedure`] with the waiting and retries of `cfg` (a bring-up on a
+    /// segment that loses frames: a lost datagram is sent again).
+    pub fn run_procedure_with<T: 'static>(
+        &mut self,
+        engine: &mut Engine<T>,
+        cfg: ProcedureConfig,
+        observe: impl FnMut(&mut SimTransport, &ProcedureExchange, &[Event]),
+    ) -> T {
+        let mut stats = ExchangeStats::default();
+        match crate::driver::run_procedure(self, engine, cfg, &mut stats, observe) {
+            Ok(v) => v,
+            Err(never) => match never {},
+        }
+    }
+
     /// Moves to master time `t_ns` exactly (a host's wake-up or a deadline).
     fn set_master_now(&mut self, t_ns: u64) {
         self.now_ps = self.master_clock.real_ps_at(t_ns);
@@ -366,6 +418,19 @@ impl Transport for SimTransport {
     }
 
     fn sleep_until(&mut self, t_ns: u64) {
+        // The host's faults due now: a stall delays this wake-up, a step moves the clock.
+        let stall_ns = match &mut self.faults {
+            Some(f) => {
+                let (stall, step) = f.host_faults(self.now_ps);
+                if step != 0 {
+                    self.master_clock.step(step);
+                    self.now_master_ns = None;
+                }
+                stall
+            }
+            None => 0,
+        };
+        let t_ns = t_ns.saturating_add(stall_ns);
         match self.delays {
             // A host's cyclic task: it wakes at the scheduled start, or when the previous
             // cycle is done if that is later, late by j_s, and runs e_m before it timestamps.
@@ -414,22 +479,29 @@ impl Transport for SimTransport {
         if let Some(c) = &mut self.capture {
             let _ = c.record(tx_ps, &buf);
         }
-        let out = self.segment.process(&mut buf, tx_ps);
-        let back = out.returned_sof_ps.map(|t| {
-            if let Some(c) = &mut self.capture {
-                let _ = c.record(t + frame_wire_time_ps(n), &buf);
-            }
-            t + frame_wire_time_ps(n) + self.rx_latency_ps
-        });
+        let fate = match &mut self.faults {
+            Some(f) => f.before_frame(&mut self.segment, &buf, tx_ps),
+            None => FrameFate::default(),
+        };
+        let back = if fate.lost_out {
+            None
+        } else {
+            let out = self.segment.process(&mut buf, tx_ps);
+            out.returned_sof_ps.and_then(|t| {
+                if let Some(c) = &mut self.capture {
+                    let _ = c.record(t + frame_wire_time_ps(n), &buf);
+                }
+                (!fate.lost_back)
+                    .then(|| t + frame_wire_time_ps(n) + self.rx_latency_ps + fate.extra_delay_ps)
+            })
+        };
         match back {
             Some(t) => {
-                // In arrival order (later frames of a cycle come back later).
-                if self.inflight.back().is_none_or(|x| x.0 <= t) {
-                    self.inflight.push_back((t, buf));
-                } else {
-                    let at = self.inflight.partition_point(|x| x.0 <= t);
-                    self.inflight.insert(at, (t, buf));
+                if let Some(lag) = fate.copy_after_ps {
+                    let copy = buf.clone();
+                    self.arrive(t + lag, copy);
                 }
+                self.arrive(t, buf);
             }
             None => self.spare.push(buf),
         }

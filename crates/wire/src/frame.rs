@@ -162,6 +162,14 @@ impl<T: AsRef<[u8]> + AsMut<[u8]>> EcatFrame<T> {
         self.buffer.as_mut()[6..12].copy_from_slice(&mac);
     }
 
+    /// Sets the index of the first datagram (a master's tag of the frame, see
+    /// [`EcatFrame::first_datagram_id`]); a frame without a datagram is left as it is.
+    pub fn set_first_datagram_index(&mut self, index: u8) {
+        if let Some(i) = self.payload_mut().get_mut(1) {
+            *i = index;
+        }
+    }
+
     /// Mutable bytes of the datagrams.
     pub fn payload_mut(&mut self) -> &mut [u8] {
         let start = ETH_HEADER_LEN + ECAT_HEADER_LEN;

@@ -188,6 +188,11 @@ impl Esc {
         self.update_dl_status();
     }
 
+    /// Which ports have a physical link.
+    pub fn links(&self) -> [bool; 4] {
+        self.link
+    }
+
     /// Whether a frame leaves through port `p` (link and loop open) rather than looping back.
     /// `Err(())` if the port is forced open without a link: the frame is lost there.
     #[allow(clippy::result_unit_err)]

@@ -30,6 +30,12 @@ impl SiiState {
         }
     }
 
+    /// After a power cycle: no read in progress (the contents stay).
+    pub(super) fn power_up(&mut self) {
+        self.busy_until_ps = 0;
+        self.pending_read = None;
+    }
+
     /// The EEPROM's contents.
     pub(super) fn image(&self) -> &[u8] {
         &self.image
