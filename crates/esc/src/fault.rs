@@ -859,7 +859,7 @@ stall_ms = 10
         let text = "[[fault]]\nat_s = 1\nkind = \"loss\"\nframes = 2\n\n[[fault]]\nat_s = 2\nkind = \"loss\"\nprobability = 1.5\n";
         let e = FaultSchedule::parse("f.toml", text).unwrap_err();
         assert_eq!(e.field, "fault[1].probability");
-        assert_eq!(e.line, Some(8));
+        assert_eq!(e.line, Some(9));
         assert!(e.fix.contains("0 to 1"), "{e}");
         let e =
             FaultSchedule::parse("f.toml", "[[fault]]\nat_s = 1\nkind = \"loss\"\n").unwrap_err();

@@ -366,6 +366,11 @@ impl BroughtUp {
     pub fn network(&self) -> &Network {
         &self.net
     }
+
+    /// The simulator's transport after the bring-up (its segment's ground truth, its faults).
+    pub fn sim(&self) -> &SimTransport {
+        &self.sim
+    }
 }
 
 /// The crystals of run `run` (the same hardware in every run; the wander differs).

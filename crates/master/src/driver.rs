@@ -168,7 +168,7 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
             Some(r) => {
                 engine.handle_reply(&buf[..r.received.len], r.sent_ns, r.received.received_ns)
             }
-            None => engine.handle_lost(),
+            None => engine.handle_lost_after(attempts),
         }
         let events = engine.take_events();
         observe(

@@ -1,14 +1,36 @@
 use crate::bringup::{Phase, SlaveId};
 use ecsync_wire::{AlState, AlStatusCode, Command};
 
+/// "BRD 0x0000:0x0130 and 2 more datagrams": what a lost frame carried.
+fn sent_text(first: Option<(Command, u32)>, datagrams: u16) -> String {
+    let Some((cmd, raw)) = first else {
+        return "no datagram".to_string();
+    };
+    let addr = if matches!(cmd, Command::Lrd | Command::Lwr | Command::Lrw) {
+        format!("{raw:#010x}")
+    } else {
+        format!("{:#06x}:{:#06x}", raw & 0xffff, raw >> 16)
+    };
+    match datagrams {
+        0 | 1 => format!("{cmd} {addr}"),
+        n => format!("{cmd} {addr} and {} more datagrams", n - 1),
+    }
+}
+
 /// Why the master could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MasterError {
     /// A frame did not come back (lost, or the network is down).
-    #[error("frame lost: no reply to {what}")]
+    #[error("frame lost: no reply to {what} ({}) after {attempts} {}", sent_text(*first, *datagrams), if *attempts == 1 { "send" } else { "sends" })]
     FrameLost {
         /// What the frame was for.
         what: &'static str,
+        /// Its first datagram's command and address (raw: ADP and ADO, or logical).
+        first: Option<(Command, u32)>,
+        /// Datagrams in it.
+        datagrams: u16,
+        /// How often it was sent (the driver's retries and the first).
+        attempts: u32,
     },
     /// The reply does not match the request (other datagrams, other indices).
     #[error("reply does not match the request ({0})")]

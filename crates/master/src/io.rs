@@ -43,7 +43,8 @@ struct Shared {
     now_ns: u64,
     outgoing: Option<Vec<u8>>,
     sleep_until: Option<u64>,
-    reply: Option<Result<Reply, ()>>,
+    /// The reply, or the number of sends after which the frame was given up.
+    reply: Option<Result<Reply, u32>>,
     events: Vec<Event>,
     next_index: u8,
     last_sent_ns: u64,
@@ -95,7 +96,7 @@ struct Exchange<'a> {
 }
 
 impl Future for Exchange<'_> {
-    type Output = Result<Reply, ()>;
+    type Output = Result<Reply, u32>;
     fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<Self::Output> {
         let mut s = self.link.shared.borrow_mut();
         if let Some(f) = self.frame.take() {
@@ -150,8 +151,8 @@ impl Link {
         self.shared.borrow_mut().events.push(e);
     }
 
-    /// Sends a raw frame and waits for its reply.
-    pub async fn exchange(&self, frame: Vec<u8>) -> Result<Reply, ()> {
+    /// Sends a raw frame and waits for its reply; `Err(sends)`: lost after that many sends.
+    pub async fn exchange(&self, frame: Vec<u8>) -> Result<Reply, u32> {
         Exchange {
             link: self,
             frame: Some(frame),
@@ -235,7 +236,12 @@ impl Link {
         let reply = self
             .exchange(buf)
             .await
-            .map_err(|_| MasterError::FrameLost { what })?;
+            .map_err(|attempts| MasterError::FrameLost {
+                what,
+                first: pdus.first().map(|p| (p.command, p.address)),
+                datagrams: pdus.len() as u16,
+                attempts,
+            })?;
         let f = EcatFrame::new_checked(&reply.frame[..])
             .map_err(|_| MasterError::BadReply("not an EtherCAT frame"))?;
         let mut out = Vec::with_capacity(pdus.len());
@@ -452,8 +458,13 @@ impl<T: 'static> Engine<T> {
 
     /// The frame sent last was lost.
     pub fn handle_lost(&mut self) {
+        self.handle_lost_after(1);
+    }
+
+    /// Reports that the frame was lost after `attempts` sends (the driver's retries).
+    pub fn handle_lost_after(&mut self, attempts: u32) {
         self.pending = None;
-        self.link.shared.borrow_mut().reply = Some(Err(()));
+        self.link.shared.borrow_mut().reply = Some(Err(attempts.max(1)));
     }
 
     /// Takes the events reported since the last call.

@@ -1,0 +1,173 @@
+//! Faults in virtual time on the letter's network, each alone, for every method, judged by the
+//! simulator's ground truth: what the schedule dropped is all that is lost, DC stays locked
+//! (|0x092C| under 100 ns in every cycle that came back), a host stall skips its cycles without
+//! a burst, a second responder is counted as one.
+
+use ecsync_esc::fault::FaultSchedule;
+use ecsync_esc::preset::PAPER_2024_TOML;
+use ecsync_lab::report::summarize;
+use std::sync::atomic::AtomicU64;
+
+/// The paper network, one run of 4 000 recorded cycles after the 10 s warm-up the methods'
+/// init frames need, with `faults` played from the start of the cyclic phase.
+fn compare_with(faults: &str) -> ecsync_lab::report::SummaryOut {
+    let mut s = ecsync_lab::parse("paper-2024", PAPER_2024_TOML).unwrap();
+    s.runs = 1;
+    s.cycles = 4_000;
+    s.warmup_cycles = 10_500;
+    s.faults = Some(FaultSchedule::parse("faults.toml", faults).unwrap());
+    let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
+    summarize(&c)
+}
+
+fn random_loss_keeps_dc_locked(p: f64) {
+    let out = compare_with(&format!(
+        "[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = {p}\n"
+    ));
+    let cycles = 14_500.0;
+    for (m, mo) in &out.methods {
+        let f = &mo.faults[0];
+        let dropped = f.counts.lost_out + f.counts.lost_back;
+        // The draw is the schedule's: about p of the frames, the same for every method.
+        assert!(
+            (dropped as f64 - p * cycles).abs() < 5.0 * (p * (1.0 - p) * cycles).sqrt(),
+            "{m}: {dropped} of {cycles} dropped at {p}"
+        );
+        assert_eq!(f.lost_cycles, dropped, "{m}: lost beyond those dropped");
+        assert_eq!(f.late_replies, 0, "{m}: a lost frame held up a later cycle");
+        assert_eq!(f.skipped_cycles, 0, "{m}: cycles skipped");
+        // Bus shift writes the master's jittered send time into the reference every cycle
+        // (the letter's E-S2M): its |0x092C| is microseconds with or without loss.
+        if m != "bus-shift" {
+            let bound = if m == "dcm-bus-shift" { 200 } else { 100 };
+            assert!(
+                f.max_rs_is_ns < bound,
+                "{m}: |0x092C| reached {} ns at {p} loss",
+                f.max_rs_is_ns
+            );
+        }
+    }
+    let first = out.methods.values().next().unwrap().faults[0].counts;
+    for (m, mo) in &out.methods {
+        assert_eq!(mo.faults[0].counts, first, "{m}: the same frames are lost");
+    }
+}
+
+#[test]
+fn ten_percent_loss_keeps_dc_locked_and_costs_only_the_lost_cycles() {
+    random_loss_keeps_dc_locked(0.1);
+}
+
+#[test]
+fn thirty_percent_loss_keeps_dc_locked_and_costs_only_the_lost_cycles() {
+    random_loss_keeps_dc_locked(0.3);
+}
+
+#[test]
+fn a_host_stall_skips_its_cycles_without_a_burst() {
+    let out = compare_with("[[fault]]\nat_s = 11\nkind = \"host_stall\"\nstall_ms = 10\n");
+    for (m, mo) in &out.methods {
+        let f = &mo.faults[0];
+        // 10 ms at 1 ms: the stalled cycle runs late, its ten slots' worth are gone (the
+        // first of them is the stalled cycle's own, run at once on waking).
+        assert!(
+            (9..=10).contains(&f.skipped_cycles),
+            "{m}: {} cycles skipped",
+            f.skipped_cycles
+        );
+        assert_eq!(f.lost_cycles, 0, "{m}: frames lost");
+        assert_eq!(f.late_replies, 0, "{m}: late replies");
+        // No burst: the frames stayed one per SYNC0 period, so no slave saw two frames in a
+        // period and none came late at the SYNC0 shift.
+        assert_eq!(mo.ground_truth.late_frames, 0, "{m}: late frames");
+        if m != "bus-shift" {
+            let bound = if m == "dcm-bus-shift" { 200 } else { 100 };
+            assert!(f.max_rs_is_ns < bound, "{m}: |0x092C| {}", f.max_rs_is_ns);
+        }
+    }
+}
+
+#[test]
+fn a_second_responder_is_counted_and_its_copies_discarded() {
+    let out =
+        compare_with("[[fault]]\nat_s = 11\nfor_s = 1\nkind = \"second_responder\"\nlag_us = 3\n");
+    for (m, mo) in &out.methods {
+        let f = &mo.faults[0];
+        assert_eq!(f.counts.duplicated, 1_000, "{m}: copies sent");
+        // Every copy was seen and none taken for a reply.
+        assert_eq!(f.duplicate_replies, 1_000, "{m}: duplicates counted");
+        assert_eq!(f.lost_cycles, 0, "{m}");
+        assert_eq!(mo.ground_truth.bad_wkc, 0, "{m}");
+    }
+}
+
+#[test]
+fn a_power_cycle_and_a_pulled_cable_reach_the_master() {
+    // Without recovery yet: the master sees the cut-off slaves in its working counters.
+    let out = compare_with(
+        "[[fault]]\nat_s = 11\nfor_s = 0.05\nkind = \"link_down\"\nslave = 3\n\n[[fault]]\nat_s = 12\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = 5\n",
+    );
+    let mo = &out.methods["median"];
+    let f = &mo.faults[0];
+    let kinds: Vec<(&str, &str)> = f.events.iter().map(|e| (e.kind, e.edge)).collect();
+    assert_eq!(
+        kinds,
+        [
+            ("link_down", "start"),
+            ("link_down", "end"),
+            ("power_cycle", "start"),
+            ("power_cycle", "end")
+        ]
+    );
+    // 50 ms of drives 4-6 gone, then drives 5-6 gone for 200 ms and drive 5 back in Init.
+    assert!(
+        mo.ground_truth.bad_wkc >= 250,
+        "bad working counters: {}",
+        mo.ground_truth.bad_wkc
+    );
+    assert_eq!(f.lost_cycles, 0, "the frames came back from drive 3");
+}
+
+#[test]
+fn the_bring_up_retries_through_ten_percent_loss_and_names_the_datagram_at_all() {
+    let mut s = ecsync_lab::parse("paper-2024", PAPER_2024_TOML).unwrap();
+    s.faults = Some(
+        FaultSchedule::parse(
+            "f.toml",
+            "epoch = \"start\"\n[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = 0.1\n",
+        )
+        .unwrap(),
+    );
+    let up = ecsync_lab::run::bring_up(&s, 0).expect("the bring-up retries lost datagrams");
+    let net = up.network();
+    let truth = up
+        .sim()
+        .segment()
+        .true_delays_ns(usize::from(net.reference));
+    for (k, sl) in net.slaves.iter().enumerate() {
+        let (d, t) = (
+            sl.delay_ns.unwrap_or(f64::NAN),
+            truth[k].unwrap_or(f64::NAN),
+        );
+        assert!(
+            (d - t).abs() <= 20.0,
+            "slave {k}: delay {d} ns, truth {t} ns"
+        );
+    }
+    let lost = up.sim().faults().unwrap().counts();
+    assert!(lost.lost_out + lost.lost_back > 1_000, "{lost:?}");
+    s.faults = Some(
+        FaultSchedule::parse(
+            "f.toml",
+            "epoch = \"start\"\n[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = 1\n",
+        )
+        .unwrap(),
+    );
+    let e = ecsync_lab::run::bring_up(&s, 0).unwrap_err().to_string();
+    println!("{e}");
+    // The phase, the datagram and how often it was sent.
+    assert_eq!(
+        e,
+        "bring-up failed: scan: frame lost: no reply to count slaves (BRD 0x0000:0x0000) after 11 sends"
+    );
+}
