@@ -509,6 +509,8 @@ pub struct FaultCounts {
     pub lost_back: u64,
     /// Frames whose FCS broke.
     pub corrupted: u64,
+    /// Of the frames lost (either way), those that carried process data (the cyclic frames).
+    pub lost_with_process_data: u64,
     /// Replies delayed.
     pub delayed: u64,
     /// Replies sent twice.
@@ -521,8 +523,10 @@ pub struct FaultPlayer {
     schedule: FaultSchedule,
     seed: u64,
     origin_ps: Option<u64>,
-    /// Frames since the epoch.
+    /// The current frame's number for the draws (see [`FaultPlayer::before_frame`]).
     frame_no: u64,
+    lrw_frames: u64,
+    since_lrw: u64,
     /// Per fault: started, ended; a burst's frames left.
     started: Vec<bool>,
     ended: Vec<bool>,
@@ -551,6 +555,8 @@ impl FaultPlayer {
             schedule,
             origin_ps: None,
             frame_no: 0,
+            lrw_frames: 0,
+            since_lrw: 0,
             started: vec![false; n],
             ended: vec![false; n],
             events: Vec::new(),
@@ -618,7 +624,18 @@ impl FaultPlayer {
             self.origin_ps = Some(t_ps);
         }
         let now = self.since(t_ps).unwrap_or(0);
-        self.frame_no += 1;
+        // A frame's number: the frames with process data since the epoch, and the others
+        // since the last of them. A master's extra frames (a recovery's, a diagnosis') then
+        // leave the cyclic frames' draws as they are: every method of a comparison loses the
+        // same cycles.
+        let lrw = carries_lrw(frame);
+        if lrw {
+            self.lrw_frames += 1;
+            self.since_lrw = 0;
+        } else {
+            self.since_lrw += 1;
+        }
+        self.frame_no = self.lrw_frames << 16 | self.since_lrw.min(0xffff);
         let mut fate = FrameFate::default();
         for f in 0..self.schedule.faults.len() {
             let fault = self.schedule.faults[f];
@@ -664,6 +681,9 @@ impl FaultPlayer {
             fate.lost_back = false;
         } else if fate.lost_back {
             self.counts.lost_back += 1;
+        }
+        if lrw && (fate.lost_out || fate.lost_back) {
+            self.counts.lost_with_process_data += 1;
         }
         if !fate.lost_out && !fate.lost_back {
             self.counts.delayed += u64::from(fate.extra_delay_ps > 0);

@@ -7,7 +7,7 @@ use crate::stats::{Stats, Summary};
 use ecsync_dc::sync::MasterSync;
 use ecsync_dc::{Method, MethodKind};
 use ecsync_esc::clock::CrystalParams;
-use ecsync_esc::fault::{Epoch, FaultCounts, FaultEvent, FaultPlayer};
+use ecsync_esc::fault::{Epoch, FaultCounts, FaultEvent, FaultKind, FaultPlayer};
 use ecsync_esc::rng::splitmix64;
 use ecsync_esc::{Segment, frame_wire_time_ps};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
@@ -286,6 +286,19 @@ pub struct RunResult {
     pub faults: Option<FaultsTruth>,
 }
 
+/// One recovery of a run.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RecoveryOut {
+    /// Start, ms after the cyclic phase's start.
+    pub start_ms: f64,
+    /// End, ms after the cyclic phase's start (`None`: still running at the end).
+    pub end_ms: Option<f64>,
+    /// Slaves configured again, network positions (1 = next to the master).
+    pub slaves: Vec<u16>,
+    /// Why it failed (it is tried again).
+    pub error: Option<String>,
+}
+
 /// A run's faults: what the schedule did, what the master saw, and how DC came back.
 #[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
 pub struct FaultsTruth {
@@ -299,13 +312,22 @@ pub struct FaultsTruth {
     pub duplicate_replies: u64,
     /// Cycles skipped by host stalls.
     pub skipped_cycles: u64,
+    /// The recoveries the driver ran: start and end (master time after the cyclic phase's
+    /// start, ms), the slaves brought back (network positions, 1 = next to the master) or
+    /// why it failed.
+    pub recoveries: Vec<RecoveryOut>,
+    /// Cycles whose reference time the engine did not believe (missing or jumped): the
+    /// method held over.
+    pub held_cycles: u64,
     /// Cycles of the whole cyclic phase (warm-up included) whose frame did not come back.
     pub lost_cycles: u64,
     /// The largest |0x092C| of a cycle whose frame came back, ns: DC held where it reads
     /// under 100 ns.
     pub max_rs_is_ns: u32,
-    /// Per fault start: the time from it to the first cycle from which |0x092C| stayed under
-    /// 100 ns for 100 cycles, ms (`None`: not by the end).
+    /// Per fault, from the moment it was over (the end of a window: the slave on again, the
+    /// cable in; else its start) to the first of 100 cycles that came back in a row locked and
+    /// running (|0x092C| under 100 ns, the reference's time believed, the LRW's working counter
+    /// complete), ms (`None`: not by the end).
     pub relock_ms: Vec<Option<f64>>,
 }
 
@@ -423,6 +445,10 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
     })
 }
 
+/// A recovered slave's SYNC0 starts at least this long after the recovery reads the time, ns
+/// (the rest of the recovery's frames, one per cycle, come first).
+const RECOVERY_SYNC0_LEAD_NS: u64 = 20_000_000;
+
 /// How the bring-up waits and retries on a segment with faults: 5 ms, ten times.
 pub const FAULTY_PROCEDURE: ecsync_master::driver::ProcedureConfig =
     ecsync_master::driver::ProcedureConfig {
@@ -534,9 +560,13 @@ pub struct Run {
     margins: Vec<f64>,
     /// Per DC slave: the frame of a cycle that carries its outputs, and that frame's wire time.
     out_frames: Vec<(usize, u64)>,
-    /// Per fault start seen: its real time, the good cycles in a row since, the first of
-    /// them (real time), the re-lock time once found (ms).
+    /// Per fault over: its real time, the good cycles in a row since, the first of them (real
+    /// time), the re-lock time once found (ms).
     relock: Vec<Relock>,
+    /// Fault events already looked at.
+    events_seen: usize,
+    /// The first cycle's scheduled start, master time, ns.
+    cyclic_start_ns: u64,
 }
 
 /// The way back to lock after one fault (see [`FaultsTruth::relock_ms`]).
@@ -631,11 +661,22 @@ impl Run {
         // The cyclic phase's host: its receive latency; a lost frame is given up half a cycle
         // after its send.
         sim.set_rx_latency_ps((s.host.rx_latency_ns * 1000.0) as u64);
-        let driver = CyclicDriver::new(CyclicLimits {
+        let mut driver = CyclicDriver::new(CyclicLimits {
             reply_timeout_ns: period / 2,
             lost_in_a_row: u64::MAX,
             ..CyclicLimits::default()
         });
+        // Slaves that lose their configuration (a power cycle) are brought back while the
+        // cycle goes on, as on a real network.
+        driver.set_recovery(
+            net.clone(),
+            ecsync_master::recovery::RecoveryConfig {
+                cycle_ns: s.cycle_ns,
+                sync0_shift_ns: s.sync0_shift_ns(),
+                sync0_lead_ns: RECOVERY_SYNC0_LEAD_NS,
+                timeouts: ecsync_master::bringup::BringupTimeouts::default(),
+            },
+        );
         Ok(Run {
             sim,
             eng,
@@ -690,6 +731,8 @@ impl Run {
             margins: Vec::with_capacity(n_dc),
             out_frames,
             relock: Vec::new(),
+            events_seen: 0,
+            cyclic_start_ns: first,
         })
     }
 
@@ -772,6 +815,7 @@ impl Run {
             margins,
             out_frames,
             relock,
+            events_seen,
             ..
         } = self;
         let (warmup, period, shift, target) = (
@@ -795,29 +839,39 @@ impl Run {
                 // start): DC held, and how soon it came back after each fault.
                 let sent_ps = tr.last_exchange().sent_ps;
                 if let Some(p) = tr.faults() {
-                    let starts = p.events().iter().filter(|e| e.edge == "start").count();
-                    for e in p
-                        .events()
-                        .iter()
-                        .filter(|e| e.edge == "start")
-                        .skip(relock.len())
-                    {
-                        relock.push(Relock {
-                            start_ps: e.t_ps,
-                            good_in_a_row: 0,
-                            first_good_ps: 0,
-                            done_ms: None,
-                        });
+                    // The way back is timed from the moment a fault is over: the end of one
+                    // with a window (the slave on again, the cable in), the start of one
+                    // without (a step, a stall, loss to the end of the run).
+                    for e in &p.events()[*events_seen..] {
+                        let f = &p.schedule().faults[e.fault];
+                        let windowed = f.for_ns.is_some()
+                            && !matches!(
+                                f.kind,
+                                FaultKind::HostStall { .. } | FaultKind::ClockStep { .. }
+                            );
+                        if (e.edge == "end") == windowed {
+                            relock.push(Relock {
+                                start_ps: e.t_ps,
+                                good_in_a_row: 0,
+                                first_good_ps: 0,
+                                done_ms: None,
+                            });
+                        }
                     }
-                    debug_assert_eq!(relock.len(), starts);
+                    *events_seen = p.events().len();
                 }
                 ft.skipped_cycles += rep.skipped_before;
+                ft.held_cycles += u64::from(rec.reference_held);
                 // A lost cycle says nothing of the lock: it neither counts nor breaks a run of
                 // good cycles (random loss would otherwise never let one reach its length).
                 let good = match (rec.receive_ns, rec.rs_is_ns) {
                     (Some(_), Some(v)) => {
                         ft.max_rs_is_ns = ft.max_rs_is_ns.max(v);
-                        Some(v < RELOCK_NS)
+                        // Locked and running: |0x092C| small, the reference's time believed
+                        // (a reset slave's register reads small before anyone writes it a
+                        // time), every slave's process data there.
+                        let wkc_ok = pdi_len == 0 || rec.lrw_wkc == Some(expected_wkc);
+                        Some(v < RELOCK_NS && !rec.reference_held && wkc_ok)
                     }
                     (Some(_), None) => Some(false),
                     (None, _) => {
@@ -1054,6 +1108,25 @@ impl Run {
             ft.late_replies = d.late;
             ft.duplicate_replies = d.duplicates;
             ft.relock_ms = self.relock.iter().map(|r| r.done_ms).collect();
+            let t0 = self.cyclic_start_ns;
+            let ms = |t: u64| t.saturating_sub(t0) as f64 / 1e6;
+            ft.recoveries = self
+                .driver
+                .recoveries()
+                .iter()
+                .map(|e| RecoveryOut {
+                    start_ms: ms(e.started_ns),
+                    end_ms: e.ended_ns.map(ms),
+                    slaves: match &e.outcome {
+                        Some(Ok(r)) => r.positions.iter().map(|p| p + 1).collect(),
+                        _ => Vec::new(),
+                    },
+                    error: match &e.outcome {
+                        Some(Err(m)) => Some(m.clone()),
+                        _ => None,
+                    },
+                })
+                .collect();
         }
         let [a, b, c] = self.series;
         res.series = [a.finish(), b.finish(), c.finish()];

@@ -27,7 +27,9 @@ fn random_loss_keeps_dc_locked(p: f64) {
     let cycles = 14_500.0;
     for (m, mo) in &out.methods {
         let f = &mo.faults[0];
-        let dropped = f.counts.lost_out + f.counts.lost_back;
+        // (The cyclic frames; a method whose reference came back after two lost frames in a
+        // row also sends a recovery's frames, and some of those are lost too.)
+        let dropped = f.counts.lost_with_process_data;
         // The draw is the schedule's: about p of the frames, the same for every method.
         assert!(
             (dropped as f64 - p * cycles).abs() < 5.0 * (p * (1.0 - p) * cycles).sqrt(),
@@ -49,7 +51,10 @@ fn random_loss_keeps_dc_locked(p: f64) {
     }
     let first = out.methods.values().next().unwrap().faults[0].counts;
     for (m, mo) in &out.methods {
-        assert_eq!(mo.faults[0].counts, first, "{m}: the same frames are lost");
+        assert_eq!(
+            mo.faults[0].counts.lost_with_process_data, first.lost_with_process_data,
+            "{m}: the same cycles are lost"
+        );
     }
 }
 
@@ -101,31 +106,132 @@ fn a_second_responder_is_counted_and_its_copies_discarded() {
     }
 }
 
+/// The re-lock time after the run's one fault, ms, per method.
+fn relock_ms(out: &ecsync_lab::report::SummaryOut) -> Vec<(String, Option<f64>)> {
+    out.methods
+        .iter()
+        .map(|(m, mo)| (m.clone(), mo.faults[0].relock_ms[0]))
+        .collect()
+}
+
 #[test]
-fn a_power_cycle_and_a_pulled_cable_reach_the_master() {
-    // Without recovery yet: the master sees the cut-off slaves in its working counters.
+fn a_slave_power_cycle_is_recovered_and_relocked_within_a_second() {
+    let out =
+        compare_with("[[fault]]\nat_s = 11\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = 5\n");
+    for (m, ms) in relock_ms(&out) {
+        let mo = &out.methods[&m];
+        let f = &mo.faults[0];
+        let back: Vec<&Vec<u16>> = f
+            .recoveries
+            .iter()
+            .filter(|r| !r.slaves.is_empty())
+            .map(|r| &r.slaves)
+            .collect();
+        assert_eq!(back, [&vec![5u16]], "{m}: drive 5 brought back once");
+        if m == "bus-shift" {
+            // E-S2M: its |0x092C| is microseconds anyway (the master's jitter in the
+            // reference's time): no lock to come back to.
+            continue;
+        }
+        let ms = ms.unwrap_or_else(|| panic!("{m}: never re-locked: {f:?}"));
+        println!("{m}: slave power cycle re-locked {ms:.1} ms after it was on again");
+        assert!(ms < 1_000.0, "{m}: re-locked after {ms} ms");
+        // Ground truth: the drives' SYNC0 came back on the grid (no late frame after the
+        // recovery would show a SYNC0 out of step only through its margin; the working
+        // counter shows the drive back in OP with its process data).
+        assert!(
+            mo.ground_truth.bad_wkc < 300,
+            "{m}: {} bad working counters",
+            mo.ground_truth.bad_wkc
+        );
+    }
+}
+
+#[test]
+fn a_reference_power_cycle_is_recovered_and_relocked_within_a_second() {
     let out = compare_with(
-        "[[fault]]\nat_s = 11\nfor_s = 0.05\nkind = \"link_down\"\nslave = 3\n\n[[fault]]\nat_s = 12\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = 5\n",
+        "[[fault]]\nat_s = 11\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = \"reference\"\n",
     );
-    let mo = &out.methods["median"];
-    let f = &mo.faults[0];
-    let kinds: Vec<(&str, &str)> = f.events.iter().map(|e| (e.kind, e.edge)).collect();
-    assert_eq!(
-        kinds,
-        [
-            ("link_down", "start"),
-            ("link_down", "end"),
-            ("power_cycle", "start"),
-            ("power_cycle", "end")
-        ]
-    );
-    // 50 ms of drives 4-6 gone, then drives 5-6 gone for 200 ms and drive 5 back in Init.
-    assert!(
-        mo.ground_truth.bad_wkc >= 250,
-        "bad working counters: {}",
-        mo.ground_truth.bad_wkc
-    );
-    assert_eq!(f.lost_cycles, 0, "the frames came back from drive 3");
+    for (m, ms) in relock_ms(&out) {
+        let f = &out.methods[&m].faults[0];
+        assert!(
+            f.recoveries.iter().any(|r| r.slaves == [1]),
+            "{m}: the reference brought back: {:?}",
+            f.recoveries
+        );
+        // The method held over while the reference's time was gone or not believed.
+        assert!(f.held_cycles >= 200, "{m}: held {} cycles", f.held_cycles);
+        if m == "bus-shift" {
+            continue;
+        }
+        let ms = ms.unwrap_or_else(|| panic!("{m}: never re-locked: {f:?}"));
+        println!("{m}: reference power cycle re-locked {ms:.1} ms after it was on again");
+        assert!(ms < 1_000.0, "{m}: re-locked after {ms} ms");
+        // Cycles lost: the 200 ms the reference (the first slave) was off, nothing more (a
+        // method that drops cycles sent fewer meanwhile).
+        assert!(
+            (150..=205).contains(&f.lost_cycles),
+            "{m}: {} cycles lost",
+            f.lost_cycles
+        );
+    }
+}
+
+#[test]
+fn a_pulled_cable_behind_drive_3_brings_drives_4_to_6_back_in_sync() {
+    let out = compare_with("[[fault]]\nat_s = 11\nfor_s = 0.05\nkind = \"link_down\"\nslave = 3\n");
+    for (m, ms) in relock_ms(&out) {
+        let mo = &out.methods[&m];
+        let f = &mo.faults[0];
+        let kinds: Vec<(&str, &str)> = f.events.iter().map(|e| (e.kind, e.edge)).collect();
+        assert_eq!(kinds, [("link_down", "start"), ("link_down", "end")], "{m}");
+        // 50 ms of drives 4-6 gone: their process data is missing from the working counter.
+        assert!(
+            (45..=60).contains(&mo.ground_truth.bad_wkc),
+            "{m}: bad working counters: {}",
+            mo.ground_truth.bad_wkc
+        );
+        assert_eq!(f.lost_cycles, 0, "{m}: the frames came back from drive 3");
+        if m == "bus-shift" {
+            continue;
+        }
+        let ms = ms.unwrap_or_else(|| panic!("{m}: never re-locked: {f:?}"));
+        assert!(ms < 1_000.0, "{m}: re-locked after {ms} ms");
+        // Ground truth: drives 4-6 kept their time (their loops had learnt the drift) and
+        // follow the reference again: the spread of the slaves' system times stays small.
+        assert!(
+            mo.ground_truth.slave_ref_diff.max < 1_000.0,
+            "{m}: slave spread {}",
+            mo.ground_truth.slave_ref_diff.max
+        );
+    }
+}
+
+#[test]
+fn a_master_clock_step_of_a_millisecond_either_way_is_survived() {
+    for step in [1000, -1000] {
+        let out = compare_with(&format!(
+            "[[fault]]\nat_s = 11\nkind = \"clock_step\"\nstep_us = {step}\n"
+        ));
+        for (m, ms) in relock_ms(&out) {
+            let mo = &out.methods[&m];
+            let f = &mo.faults[0];
+            assert_eq!(f.events.len(), 1, "{m}: the step is reported");
+            if m == "bus-shift" {
+                // The letter's bus shift writes the master's clock into the reference: the
+                // step goes into the DC time (left to do: compensate it in the engine).
+                continue;
+            }
+            assert_eq!(f.lost_cycles, 0, "{m}: {step} us: cycles lost");
+            let ms = ms.unwrap_or_else(|| panic!("{m}: {step} us: never re-locked: {f:?}"));
+            assert!(ms < 1_000.0, "{m}: {step} us: re-locked after {ms} ms");
+            assert!(
+                f.max_rs_is_ns < 200,
+                "{m}: {step} us: |0x092C| {}",
+                f.max_rs_is_ns
+            );
+        }
+    }
 }
 
 #[test]

@@ -1337,7 +1337,10 @@ async fn request_all(
 
 /// [`Phase::ProcessData`]: each slave's process data SyncManagers and an FMMU for each, mapped
 /// where [`map_process_image`] placed them; returns the LRW working counter OP must show.
-async fn configure_process_data(link: &Link, slaves: &[SlaveInfo]) -> Result<u16, MasterError> {
+pub(crate) async fn configure_process_data(
+    link: &Link,
+    slaves: &[SlaveInfo],
+) -> Result<u16, MasterError> {
     let mut expected_lrw_wkc = 0u16;
     for s in slaves {
         let mut fmmu_n = 0u16;

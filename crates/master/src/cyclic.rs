@@ -64,6 +64,9 @@ pub struct CycleRecord {
     pub output: CycleOutput,
     /// The method's log after it decided (methods that keep one, DCM).
     pub log: Option<ControllerLog>,
+    /// The reference's time was not believed this cycle (missing or jumped): the method held
+    /// over and no slave was handed a time.
+    pub reference_held: bool,
 }
 
 /// One frame of the cyclic exchange: its template and where its datagrams' fields are.
@@ -90,10 +93,52 @@ pub struct CyclicEngine<S> {
     first_start_ns: u64,
     scheduled_ns: u64,
     last_ref_ns: Option<u64>,
+    /// The cycle `last_ref_ns` was read in.
+    last_ref_cycle: u64,
+    /// The send timestamp of the cycle `last_ref_ns` was read in.
+    last_ref_send_ns: u64,
+    /// A reference time not believed and the cycle it came in: a new timeline if it goes on.
+    candidate: Option<(u64, u64)>,
+    /// The send timestamp of the candidate's cycle.
+    candidate_send_ns: u64,
     h_sum: i128,
     h_n: u64,
     h_mr: f64,
+    health: Health,
 }
+
+/// What the engine makes of the replies beyond the method's inputs: whether the reference's
+/// time can be believed and distributed, and whether slaves have lost their configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Health {
+    /// The LRWs' working counter every cycle should return (0: not checked).
+    pub expected_lrw_wkc: u16,
+    /// The reference's time is not believed (it did not answer, or it jumped): the method
+    /// holds over and the FRMW is sent as an FPRD, so that no slave takes a wrong time.
+    pub reference_held: bool,
+    /// Cycles in a row whose LRW working counter came back short.
+    pub short_wkc_cycles: u32,
+    /// Cycles in a row whose |0x092C| was beyond [`FAR_092C_NS`].
+    pub far_092c_cycles: u32,
+    /// Times the reference's time jumped (a reset, a step).
+    pub reference_jumps: u32,
+    /// Cycles the reference did not answer in (FRMW working counter 0).
+    pub reference_missing_cycles: u64,
+    /// Cycles in a row whose frame with the reference's time was lost.
+    pub reference_lost_cycles: u32,
+    /// Slaves seem to have lost their configuration: a recovery should run.
+    pub needs_recovery: bool,
+}
+
+/// |0x092C| beyond this is no slave's lock (a reset slave's register saturates), ns.
+pub const FAR_092C_NS: u32 = 1_000_000;
+/// A reference time this far from its extrapolation is a jump, ns (plus 200 ppm of the time
+/// since the last one believed).
+pub const REFERENCE_JUMP_NS: u64 = 100_000;
+/// Cycles a new timeline of the reference must run on by itself before it is taken.
+pub const ADOPT_CYCLES: u64 = 20;
+/// Cycles in a row of a short working counter or a far |0x092C| before a recovery is asked.
+pub const SUSPECT_CYCLES: u32 = 3;
 
 /// Builds the frames: a bus-shift write and the FRMW first, then the LRWs in as many frames as
 /// they need, the BRD of 0x092C last (the same single frame as always when everything fits).
@@ -195,6 +240,10 @@ impl<S: MasterSync> CyclicEngine<S> {
             p.id = ecsync_wire::EcatFrame::new_checked(&p.template[..])?.first_datagram_id();
         }
         let frames = plans.iter().map(|p| p.template.clone()).collect();
+        let cfg_expected_wkc = cfg
+            .lrw
+            .iter()
+            .fold(0u16, |a, c| a.wrapping_add(c.expected_wkc));
         Ok(CyclicEngine {
             sync,
             cfg,
@@ -204,10 +253,40 @@ impl<S: MasterSync> CyclicEngine<S> {
             first_start_ns,
             scheduled_ns: first_start_ns,
             last_ref_ns: None,
+            last_ref_cycle: 0,
+            last_ref_send_ns: 0,
+            candidate: None,
+            candidate_send_ns: 0,
             h_sum: 0,
             h_n: 0,
             h_mr: 0.0,
+            health: Health {
+                expected_lrw_wkc: cfg_expected_wkc,
+                ..Health::default()
+            },
         })
+    }
+
+    /// What the engine made of the replies so far.
+    pub fn health(&self) -> &Health {
+        &self.health
+    }
+
+    /// The reference's System Time Offset was written anew (a recovery of the reset
+    /// reference): a method that adjusts the offset adjusts this one from now on.
+    pub fn set_reference_offset(&mut self, offset_ns: u64) {
+        self.cfg.reference_offset_ns = offset_ns;
+    }
+
+    /// A recovery brought slaves back (or found none to bring back): the counts start again.
+    pub fn recovered(&mut self) {
+        if self.sync.reference_write_kind() == ReferenceWrite::SystemTime {
+            // The reference is set up again (or was fine): the master's writes make its time.
+            self.health.reference_held = false;
+        }
+        self.health.needs_recovery = false;
+        self.health.short_wkc_cycles = 0;
+        self.health.far_092c_cycles = 0;
     }
 
     /// The method.
@@ -305,7 +384,10 @@ impl<S: MasterSync> CyclicEngine<S> {
             let cycle = self.cycle - ago;
             (0..self.plans.len()).find_map(|k| {
                 let (cmd, _) = self.plans[k].id?;
-                (id == (cmd, self.tag_of(cycle, k))).then_some((ago, k))
+                // An FRMW first goes out as an FPRD while the reference is held.
+                let held_cmd = (cmd == Command::Frmw.code()).then_some(Command::Fprd.code());
+                let tag = self.tag_of(cycle, k);
+                (id == (cmd, tag) || Some(id) == held_cmd.map(|c| (c, tag))).then_some((ago, k))
             })
         })
     }
@@ -324,8 +406,15 @@ impl<S: MasterSync> CyclicEngine<S> {
         let span = cycles.wrapping_mul(u64::from(self.cfg.period_ns));
         self.cycle = self.cycle.wrapping_add(cycles);
         self.scheduled_ns = self.scheduled_ns.wrapping_add(span);
-        // The reference time expected next, for extending a 32-bit reference, moves on too.
+        // The reference time expected next, for extending a 32-bit reference, moves on too
+        // (and with it the cycle and send it stands for, which the jump check reckons from).
         self.last_ref_ns = self.last_ref_ns.map(|t| t.wrapping_add(span));
+        self.last_ref_cycle = self.last_ref_cycle.wrapping_add(cycles);
+        self.last_ref_send_ns = self.last_ref_send_ns.wrapping_add(span);
+        if let Some((t, at)) = self.candidate {
+            self.candidate = Some((t.wrapping_add(span), at.wrapping_add(cycles)));
+            self.candidate_send_ns = self.candidate_send_ns.wrapping_add(span);
+        }
     }
 
     /// The (first) frame to send now; `send_ns` is the timestamp taken right before sending
@@ -348,8 +437,16 @@ impl<S: MasterSync> CyclicEngine<S> {
         let tag = self.tag_of(self.cycle, k);
         let plan = &self.plans[k];
         out.copy_from_slice(&plan.template);
-        // (The template is a valid frame: the view checks only what it reads.)
+        // (The template is a valid frame: the views check only what they read.)
         ecsync_wire::EcatFrame::new_unchecked(&mut *out).set_first_datagram_index(tag);
+        if self.health.reference_held
+            && let Some(at) = plan.frmw_data_at
+        {
+            // Read the reference's time without handing it on: no slave takes a time that is
+            // not believed.
+            ecsync_wire::Datagram::new_unchecked(&mut out[at - DATAGRAM_HEADER_LEN..])
+                .set_command(Command::Fprd);
+        }
         if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns)) {
             let v = match self.sync.reference_write_kind() {
                 ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
@@ -392,16 +489,28 @@ impl<S: MasterSync> CyclicEngine<S> {
         };
         let mut all = true;
         let mut lrw_wkc: Option<u16> = Some(0);
-        for (k, plan) in self.plans.iter().enumerate() {
+        // (Out of `self` while the replies are read: reading the reference's time updates the
+        // engine's health.)
+        let plans = std::mem::take(&mut self.plans);
+        for (k, plan) in plans.iter().enumerate() {
             let n = plan.template.len();
             let Some(r) = reply(k).filter(|r| r.len() >= n) else {
                 all = false;
+                if plan.frmw_data_at.is_some() {
+                    // Gone for more than a lost frame: the reference may come back reset, and
+                    // its first answer must not reach the other slaves before it is believed.
+                    self.health.reference_lost_cycles += 1;
+                    if self.health.reference_lost_cycles >= 2 {
+                        self.health.reference_held = true;
+                    }
+                }
                 if !plan.lrw_wkc_at.is_empty() {
                     lrw_wkc = None;
                 }
                 continue;
             };
             if let Some(at) = plan.frmw_data_at {
+                self.health.reference_lost_cycles = 0;
                 let frmw_wkc = u16::from_le_bytes([r[at + 8], r[at + 9]]);
                 if frmw_wkc > 0 {
                     let raw = u64::from_le_bytes(r[at..at + 8].try_into().unwrap_or([0; 8]));
@@ -414,8 +523,17 @@ impl<S: MasterSync> CyclicEngine<S> {
                         ),
                         _ => raw,
                     };
-                    rec.ref_time_ns = Some(t);
-                    self.last_ref_ns = Some(t);
+                    if self.believe_reference(t, send_ns) {
+                        rec.ref_time_ns = Some(t);
+                        self.last_ref_ns = Some(t);
+                        self.last_ref_cycle = self.cycle;
+                        self.last_ref_send_ns = send_ns;
+                    }
+                } else {
+                    // The reference is gone (off, cut off): hold over, and hand nothing on
+                    // until its time is believed again.
+                    self.health.reference_missing_cycles += 1;
+                    self.health.reference_held = true;
                 }
             }
             if let Some(b) = plan.brd_data_at {
@@ -427,8 +545,13 @@ impl<S: MasterSync> CyclicEngine<S> {
                 lrw_wkc = lrw_wkc.map(|s| s.wrapping_add(u16::from_le_bytes([r[w], r[w + 1]])));
             }
         }
+        if all {
+            self.check_slaves(lrw_wkc, rec.rs_is_ns);
+        }
+        rec.reference_held = self.health.reference_held;
         // Received when every frame came back (a cycle with a lost frame is a lost cycle).
         rec.receive_ns = all.then_some(receive_ns);
+        self.plans = plans;
         if self.plans.iter().all(|p| p.lrw_wkc_at.is_empty()) {
             lrw_wkc = None;
         }
@@ -491,6 +614,95 @@ impl<S: MasterSync> CyclicEngine<S> {
         let rec = self.complete(returned.then_some(&frame[..]), send_ns, receive_ns);
         self.frames[0] = frame;
         rec
+    }
+
+    /// Whether the reference's time `t` continues its timeline: within [`REFERENCE_JUMP_NS`]
+    /// (and 200 ppm of the time since) of the last time believed, moved on by the cycles
+    /// since. A jump (the reference reset, its offset rewritten) holds the time until one
+    /// continues the old timeline again (a recovery sets the reset reference's offset so).
+    fn believe_reference(&mut self, t: u64, send_ns: u64) -> bool {
+        // A method that writes the master's time into the reference every cycle (bus shift)
+        // makes the reference's timeline itself: a jump is its own write (a frame held by a
+        // bridge delivers an old time), and a reset reference takes the master's time again
+        // with the next write.
+        let writes_time = self.sync.reference_write_kind() == ReferenceWrite::SystemTime;
+        if writes_time && self.health.reference_held {
+            // Back after it was gone: it may have been reset, and a reset reference keeps its
+            // own time however the master writes it (the writes steer its rate only) until a
+            // recovery has looked.
+            self.health.needs_recovery = true;
+            return false;
+        }
+        let Some(prev) = self.last_ref_ns.filter(|_| !writes_time) else {
+            self.health.reference_held = false;
+            return true;
+        };
+        // Moved on by the cycles since, or by the master's time between the sends (a method
+        // that drops or doubles a cycle sends a period early or late; a master whose own
+        // clock stepped sends on the cycles): either way the reference kept its timeline.
+        let cycles = self.cycle.wrapping_sub(self.last_ref_cycle);
+        let span = cycles.wrapping_mul(u64::from(self.cfg.period_ns));
+        let sent_span = send_ns.wrapping_sub(self.last_ref_send_ns);
+        let near = |span: u64| {
+            t.abs_diff(prev.wrapping_add(span))
+                <= REFERENCE_JUMP_NS + (span as i64).unsigned_abs() / 5_000
+        };
+        let mut ok = near(span) || near(sent_span);
+        if !ok {
+            // A new timeline: taken once it runs on by itself for a while and no recovery is
+            // wanted (a recovery that found no slave reset: the master's own time stepped
+            // into a bus-shift method's writes).
+            let period = u64::from(self.cfg.period_ns);
+            let steady = self.candidate.is_some_and(|(c, at)| {
+                let span = self.cycle.wrapping_sub(at).wrapping_mul(period);
+                let sent_span = send_ns.wrapping_sub(self.candidate_send_ns);
+                let near = |span: u64| {
+                    t.abs_diff(c.wrapping_add(span))
+                        <= REFERENCE_JUMP_NS + (span as i64).unsigned_abs() / 5_000
+                };
+                near(span) || near(sent_span)
+            });
+            match self.candidate {
+                Some((_, at)) if steady => {
+                    if self.cycle.wrapping_sub(at) >= ADOPT_CYCLES && !self.health.needs_recovery {
+                        ok = true;
+                        self.candidate = None;
+                    }
+                }
+                _ => {
+                    self.candidate = Some((t, self.cycle));
+                    self.candidate_send_ns = send_ns;
+                }
+            }
+        } else {
+            self.candidate = None;
+        }
+        if ok {
+            self.health.reference_held = false;
+        } else {
+            if !self.health.reference_held {
+                self.health.reference_jumps += 1;
+            }
+            if self.candidate.is_some_and(|(_, at)| at == self.cycle) {
+                // The timeline changed (again): someone must look.
+                self.health.needs_recovery = true;
+            }
+            self.health.reference_held = true;
+        }
+        ok
+    }
+
+    /// The working counter and |0x092C| of a cycle that came back: slaves that lost their
+    /// configuration show as a short counter or a far difference, cycles in a row.
+    fn check_slaves(&mut self, lrw_wkc: Option<u16>, rs_is_ns: Option<u32>) {
+        let h = &mut self.health;
+        let short = h.expected_lrw_wkc > 0 && lrw_wkc.is_some_and(|w| w < h.expected_lrw_wkc);
+        h.short_wkc_cycles = if short { h.short_wkc_cycles + 1 } else { 0 };
+        let far = rs_is_ns.is_some_and(|v| v >= FAR_092C_NS);
+        h.far_092c_cycles = if far { h.far_092c_cycles + 1 } else { 0 };
+        if h.short_wkc_cycles >= SUSPECT_CYCLES || h.far_092c_cycles >= SUSPECT_CYCLES {
+            h.needs_recovery = true;
+        }
     }
 
     /// Decodes a 0x092C register value (for callers that read it per slave).

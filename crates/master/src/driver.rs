@@ -17,8 +17,11 @@
 //!   its slot; the driver skips the slots that passed and runs the cycle whose slot is now (as a
 //!   PLC task skips an overrun), rather than sending the missed frames back to back.
 
+use crate::bringup::Network;
 use crate::cyclic::{CycleRecord, CyclicEngine};
+use crate::error::MasterError;
 use crate::io::{Action, Engine, Event};
+use crate::recovery::{Recovered, RecoveryConfig, recover};
 use crate::transport::{Received, Transport};
 use ecsync_dc::MasterSync;
 use ecsync_wire::EcatFrame;
@@ -245,8 +248,45 @@ pub enum Stopped {
     },
 }
 
+/// One recovery, for the report.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RecoveryEvent {
+    /// When it started, master time, ns.
+    pub started_ns: u64,
+    /// When it ended, master time, ns (`None`: still running).
+    pub ended_ns: Option<u64>,
+    /// What it did, or why it failed (it is tried again [`RECOVERY_RETRY_NS`] later).
+    pub outcome: Option<Result<Recovered, String>>,
+}
+
+/// A failed recovery is tried again this long after, ns.
+pub const RECOVERY_RETRY_NS: u64 = 50_000_000;
+/// A recovery's frame is sent again in this many cycles before the recovery hears of its
+/// loss.
+pub const RECOVERY_FRAME_TRIES: u32 = 10;
+
+/// The recovery the driver runs next to the cyclic frames: one frame of it per cycle.
+struct RecoverySlot {
+    net: Network,
+    cfg: RecoveryConfig,
+    running: Option<Engine<Result<Recovered, MasterError>>>,
+    /// The frame out, its send timestamp and its sends so far.
+    out: Option<(Vec<u8>, u64, u32)>,
+    retry_at_ns: u64,
+    log: Vec<RecoveryEvent>,
+}
+
+impl std::fmt::Debug for RecoverySlot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RecoverySlot")
+            .field("running", &self.running.is_some())
+            .field("log", &self.log)
+            .finish_non_exhaustive()
+    }
+}
+
 /// The cyclic driver: resumable, so a scheduler can run a cyclic phase in slices.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct CyclicDriver {
     limits: CyclicLimits,
     buf: Vec<u8>,
@@ -259,6 +299,7 @@ pub struct CyclicDriver {
     lost_row: u64,
     last_good: Option<u64>,
     stats: ExchangeStats,
+    recovery: Option<RecoverySlot>,
 }
 
 impl CyclicDriver {
@@ -274,7 +315,27 @@ impl CyclicDriver {
             lost_row: 0,
             last_good: None,
             stats: ExchangeStats::default(),
+            recovery: None,
         }
+    }
+
+    /// Lets the driver bring slaves of `net` back when the engine sees them lose their
+    /// configuration ([`crate::cyclic::Health::needs_recovery`]): a [`recover`] procedure runs
+    /// one frame per cycle after the cyclic frames, while the cycle goes on for the rest.
+    pub fn set_recovery(&mut self, net: Network, cfg: RecoveryConfig) {
+        self.recovery = Some(RecoverySlot {
+            net,
+            cfg,
+            running: None,
+            out: None,
+            retry_at_ns: 0,
+            log: Vec::new(),
+        });
+    }
+
+    /// The recoveries so far.
+    pub fn recoveries(&self) -> &[RecoveryEvent] {
+        self.recovery.as_ref().map_or(&[], |r| &r.log[..])
     }
 
     /// Counters so far.
@@ -337,6 +398,51 @@ impl CyclicDriver {
                 }
                 self.stats.sent += 1;
             }
+            // The recovery's frame, if one runs (or starts now).
+            let mut recovery_pending = false;
+            if let Some(rs) = self.recovery.as_mut() {
+                let now = tr.now_ns();
+                if rs.running.is_none() && eng.health().needs_recovery && now >= rs.retry_at_ns {
+                    let (net, cfg) = (rs.net.clone(), rs.cfg);
+                    rs.running = Some(Engine::new(move |link| recover(link, net, cfg)));
+                    rs.log.push(RecoveryEvent {
+                        started_ns: now,
+                        ended_ns: None,
+                        outcome: None,
+                    });
+                }
+                if rs.out.is_none()
+                    && let Some(e) = rs.running.as_mut()
+                {
+                    match e.poll(now) {
+                        Action::Send(f) => rs.out = Some((f.to_vec(), 0, 0)),
+                        Action::WaitUntil(_) => {}
+                        Action::Done(r) => {
+                            rs.running = None;
+                            if let Some(ev) = rs.log.last_mut() {
+                                ev.ended_ns = Some(now);
+                                ev.outcome = Some(r.clone().map_err(|e| e.to_string()));
+                            }
+                            match r {
+                                Ok(r) => {
+                                    if let Some(o) = r.reference_offset {
+                                        eng.set_reference_offset(o);
+                                    }
+                                    eng.recovered();
+                                }
+                                Err(_) => rs.retry_at_ns = now.saturating_add(RECOVERY_RETRY_NS),
+                            }
+                        }
+                    }
+                }
+                if let Some((f, sent, tries)) = rs.out.as_mut() {
+                    let at = tr.send_time_ns(f.len());
+                    *sent = tr.send(f, at)?;
+                    *tries += 1;
+                    self.stats.sent += 1;
+                    recovery_pending = true;
+                }
+            }
             if self.replies.len() < n {
                 self.replies.resize_with(n, || (vec![0u8; 2048], None));
             }
@@ -354,7 +460,7 @@ impl CyclicDriver {
                 .min(next_slot.max(sent_ns));
             let mut pending = n;
             let mut last: Option<Received> = None;
-            while pending > 0 {
+            while pending > 0 || recovery_pending {
                 let Some(r) = tr.recv(&mut self.buf, deadline)? else {
                     break;
                 };
@@ -366,7 +472,23 @@ impl CyclicDriver {
                 let id = EcatFrame::new_checked(&self.buf[..r.len])
                     .ok()
                     .and_then(|f| f.first_datagram_id());
-                match id.and_then(|id| eng.match_tag(id)) {
+                let tagged = id.and_then(|id| eng.match_tag(id));
+                let cyclic_now = matches!(tagged, Some((0, k)) if r.len >= eng.frame_len_of(k));
+                if recovery_pending
+                    && !cyclic_now
+                    && let Some(rs) = self.recovery.as_mut()
+                    && let Some((f, sent, _)) = &rs.out
+                    && answers(f, &self.buf[..r.len])
+                {
+                    if let Some(e) = rs.running.as_mut() {
+                        e.handle_reply(&self.buf[..r.len], *sent, r.received_ns);
+                    }
+                    rs.out = None;
+                    recovery_pending = false;
+                    self.stats.replies += 1;
+                    continue;
+                }
+                match tagged {
                     Some((0, k)) if r.len >= eng.frame_len_of(k) => {
                         if self.replies[k].1.is_some() {
                             // The same frame answered twice: a second responder on the wire.
@@ -389,6 +511,19 @@ impl CyclicDriver {
                 }
             }
             self.stats.lost += pending as u64;
+            if recovery_pending
+                && let Some(rs) = self.recovery.as_mut()
+                && let Some((_, _, tries)) = rs.out
+            {
+                // Sent again next cycle, up to its tries; then the procedure hears of it.
+                self.stats.lost += 1;
+                if tries >= RECOVERY_FRAME_TRIES {
+                    rs.out = None;
+                    if let Some(e) = rs.running.as_mut() {
+                        e.handle_lost_after(tries);
+                    }
+                }
+            }
             let replies = &self.replies;
             let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
             let (record, tx_stamp_ns, round_trip_ns) = if pending == 0 {

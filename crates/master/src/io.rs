@@ -7,10 +7,9 @@
 
 use crate::MasterError;
 use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
-use std::cell::RefCell;
 use std::future::Future;
 use std::pin::Pin;
-use std::rc::Rc;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::task::{Context, Poll, Waker};
 
 /// Source MAC of frames the master sends (locally administered bit clear, so returning frames,
@@ -54,7 +53,7 @@ struct Shared {
 /// The procedure's handle on the network: frames out, replies in, time.
 #[derive(Debug, Clone)]
 pub struct Link {
-    shared: Rc<RefCell<Shared>>,
+    shared: Arc<Mutex<Shared>>,
 }
 
 /// One datagram of a request frame.
@@ -98,7 +97,7 @@ struct Exchange<'a> {
 impl Future for Exchange<'_> {
     type Output = Result<Reply, u32>;
     fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<Self::Output> {
-        let mut s = self.link.shared.borrow_mut();
+        let mut s = self.link.lock();
         if let Some(f) = self.frame.take() {
             s.outgoing = Some(f);
             s.reply = None;
@@ -119,7 +118,7 @@ struct Sleep<'a> {
 impl Future for Sleep<'_> {
     type Output = ();
     fn poll(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<()> {
-        let mut s = self.link.shared.borrow_mut();
+        let mut s = self.link.lock();
         if s.now_ns >= self.until_ns {
             s.sleep_until = None;
             Poll::Ready(())
@@ -131,24 +130,30 @@ impl Future for Sleep<'_> {
 }
 
 impl Link {
+    /// The state shared with the engine (a procedure never panics while holding it; a poisoned
+    /// lock is taken as it is).
+    fn lock(&self) -> MutexGuard<'_, Shared> {
+        self.shared.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
     /// Master time now, ns.
     pub fn now_ns(&self) -> u64 {
-        self.shared.borrow().now_ns
+        self.lock().now_ns
     }
 
     /// Master time right before the last frame that came back was sent (its send timestamp).
     pub fn last_sent_ns(&self) -> u64 {
-        self.shared.borrow().last_sent_ns
+        self.lock().last_sent_ns
     }
 
     /// Master time when the last frame that came back was received (its receive timestamp).
     pub fn last_received_ns(&self) -> u64 {
-        self.shared.borrow().last_received_ns
+        self.lock().last_received_ns
     }
 
     /// Reports an event to the driver.
     pub fn event(&self, e: Event) {
-        self.shared.borrow_mut().events.push(e);
+        self.lock().events.push(e);
     }
 
     /// Sends a raw frame and waits for its reply; `Err(sends)`: lost after that many sends.
@@ -216,7 +221,7 @@ impl Link {
         let n = {
             let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)
                 .map_err(|_| MasterError::BadReply("frame buffer"))?;
-            let mut s = self.shared.borrow_mut();
+            let mut s = self.lock();
             first_index = s.next_index;
             for (i, p) in pdus.iter().enumerate() {
                 b.push(
@@ -376,7 +381,7 @@ pub enum Action<'a, T> {
     Done(T),
 }
 
-type Proc<T> = Pin<Box<dyn Future<Output = T>>>;
+type Proc<T> = Pin<Box<dyn Future<Output = T> + Send>>;
 
 /// Runs an async procedure step by step, without I/O of its own.
 pub struct Engine<T> {
@@ -397,10 +402,10 @@ impl<T: 'static> Engine<T> {
     pub fn new<F, Fut>(make: F) -> Self
     where
         F: FnOnce(Link) -> Fut,
-        Fut: Future<Output = T> + 'static,
+        Fut: Future<Output = T> + Send + 'static,
     {
         let link = Link {
-            shared: Rc::new(RefCell::new(Shared::default())),
+            shared: Arc::new(Mutex::new(Shared::default())),
         };
         let proc: Proc<T> = Box::pin(make(link.clone()));
         Engine {
@@ -413,7 +418,7 @@ impl<T: 'static> Engine<T> {
 
     /// Advances the procedure at master time `now_ns`.
     pub fn poll(&mut self, now_ns: u64) -> Action<'_, T> {
-        self.link.shared.borrow_mut().now_ns = now_ns;
+        self.link.lock().now_ns = now_ns;
         if self.pending.is_some() {
             // A frame is out; the driver must answer it first.
             return Action::Send(self.pending.as_deref().unwrap_or(&[]));
@@ -428,7 +433,7 @@ impl<T: 'static> Engine<T> {
         if let Some(v) = self.result.take() {
             return Action::Done(v);
         }
-        let mut s = self.link.shared.borrow_mut();
+        let mut s = self.link.lock();
         if let Some(f) = s.outgoing.take() {
             drop(s);
             self.pending = Some(f);
@@ -445,7 +450,7 @@ impl<T: 'static> Engine<T> {
     /// `received_ns` the time the reply arrived.
     pub fn handle_reply(&mut self, frame: &[u8], sent_ns: u64, received_ns: u64) {
         self.pending = None;
-        let mut s = self.link.shared.borrow_mut();
+        let mut s = self.link.lock();
         s.now_ns = s.now_ns.max(received_ns);
         s.last_sent_ns = sent_ns;
         s.last_received_ns = received_ns;
@@ -464,11 +469,11 @@ impl<T: 'static> Engine<T> {
     /// Reports that the frame was lost after `attempts` sends (the driver's retries).
     pub fn handle_lost_after(&mut self, attempts: u32) {
         self.pending = None;
-        self.link.shared.borrow_mut().reply = Some(Err(attempts.max(1)));
+        self.link.lock().reply = Some(Err(attempts.max(1)));
     }
 
     /// Takes the events reported since the last call.
     pub fn take_events(&mut self) -> Vec<Event> {
-        std::mem::take(&mut self.link.shared.borrow_mut().events)
+        std::mem::take(&mut self.link.lock().events)
     }
 }

@@ -43,6 +43,7 @@ mod error;
 pub mod io;
 pub mod output;
 pub mod pdi;
+pub mod recovery;
 pub mod sii;
 pub mod sim;
 pub mod stats;

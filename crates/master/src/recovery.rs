@@ -1,0 +1,241 @@
+//! Bringing slaves back while the cycle goes on: a sans-IO procedure, run by the cyclic driver
+//! one frame per cycle next to the cyclic frames ([`crate::driver::CyclicDriver::set_recovery`]),
+//! after the cyclic engine saw a slave lose its configuration (a power cycle: the LRW's working
+//! counter short, |0x092C| far off, the reference's time gone or restarted).
+//!
+//! What it does, in the bring-up's order but only for the slaves that lost their
+//! configuration, and from what the bring-up measured (the cables and delays are the same):
+//! 1. reads every slave's station address by position: a slave that answers with another
+//!    address has been reset; one that does not answer is not back yet (the procedure fails
+//!    and the driver tries again later);
+//! 2. gives it its station address again;
+//! 3. a DC slave: latches the receive times (BWR 0x0900) and sets its offset (0x0920) so
+//!    that its system time continues the segment's timeline, read from a slave that kept it
+//!    (the reference, or after the reference's own reset any synced slave): offset = that
+//!    slave's system time at the latch, less its delay, plus this one's delay, less this
+//!    one's local receive time; writes its delay (0x0928) and resets its time control loop
+//!    (0x0930), and starts its SYNC0 on the segment's grid;
+//! 4. takes it to PRE-OP, configures its SyncManagers and FMMUs, to SAFE-OP and to OP (the
+//!    cyclic frames bring it its process data meanwhile).
+
+use crate::bringup::{BringupTimeouts, DcCapability, Network, SlaveInfo, request_state};
+use crate::error::MasterError;
+use crate::io::{Link, Pdu};
+use ecsync_wire::register as reg;
+use ecsync_wire::{AlState, Command, DatagramAddress};
+
+/// How a recovery sets SYNC0 up and waits for the states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RecoveryConfig {
+    /// Cycle time and SYNC0 period, ns.
+    pub cycle_ns: u32,
+    /// SYNC0 shift after the grid point, ns.
+    pub sync0_shift_ns: u32,
+    /// SYNC0's first pulse this long after the recovery reads the time, at least, ns.
+    pub sync0_lead_ns: u64,
+    /// State timeouts.
+    pub timeouts: BringupTimeouts,
+}
+
+/// What a recovery did.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Recovered {
+    /// Positions of the slaves it configured again (empty: none had lost its configuration).
+    pub positions: Vec<u16>,
+    /// The reference clock was among them.
+    pub reference: bool,
+    /// The System Time Offset written to the reset reference (a method that adjusts the
+    /// reference's offset adjusts this one from now on).
+    pub reference_offset: Option<u64>,
+}
+
+fn position_addr(pos: u16, ado: u16) -> DatagramAddress {
+    DatagramAddress::position(pos, ado)
+}
+
+fn u64_of(b: &[u8]) -> u64 {
+    let mut a = [0u8; 8];
+    let n = b.len().min(8);
+    a[..n].copy_from_slice(&b[..n]);
+    u64::from_le_bytes(a)
+}
+
+/// Runs the recovery of `net` (see the module documentation).
+pub async fn recover(
+    link: Link,
+    net: Network,
+    cfg: RecoveryConfig,
+) -> Result<Recovered, MasterError> {
+    // 1. Who lost the configuration.
+    let reads: Vec<Pdu> = net
+        .slaves
+        .iter()
+        .map(|s| {
+            Pdu::new(
+                Command::Aprd,
+                position_addr(s.position, reg::STATION_ADDRESS),
+                vec![0; 2],
+            )
+        })
+        .collect();
+    let (r, _) = link.pdus(&reads, "read station addresses").await?;
+    let mut reset = Vec::new();
+    for (s, p) in net.slaves.iter().zip(&r) {
+        if p.wkc != 1 {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Aprd,
+                what: "read station address (the slave is not back)",
+                expected: 1,
+                got: p.wkc,
+            });
+        }
+        if u16::from_le_bytes([p.data[0], p.data[1]]) != s.station {
+            reset.push(s.position);
+        }
+    }
+    let mut out = Recovered {
+        reference: reset.contains(&net.reference),
+        positions: reset.clone(),
+        reference_offset: None,
+    };
+    if reset.is_empty() {
+        return Ok(out);
+    }
+    let info = |pos: u16| -> &SlaveInfo { &net.slaves[usize::from(pos)] };
+    // 2. Station addresses.
+    for &pos in &reset {
+        link.pdu_wkc(
+            Command::Apwr,
+            position_addr(pos, reg::STATION_ADDRESS),
+            info(pos).station.to_le_bytes().to_vec(),
+            1,
+            "station address",
+        )
+        .await?;
+    }
+    // 3. DC: the timeline from a slave that kept it.
+    let dc_reset: Vec<u16> = reset
+        .iter()
+        .copied()
+        .filter(|&p| info(p).dc == DcCapability::SystemTime)
+        .collect();
+    if !dc_reset.is_empty() {
+        let keeper = std::iter::once(net.reference)
+            .chain(
+                net.slaves
+                    .iter()
+                    .filter(|s| s.dc == DcCapability::SystemTime)
+                    .map(|s| s.position),
+            )
+            .find(|p| !reset.contains(p));
+        let Some(keeper) = keeper else {
+            return Err(MasterError::Config(
+                "every slave with a system time was reset: the segment's time is gone (bring it up again)"
+                    .into(),
+            ));
+        };
+        let k = info(keeper);
+        link.bwr(reg::DC_RECEIVE_TIME_PORT0, &[0; 4], "latch receive times")
+            .await?;
+        let k_local = u64_of(
+            &link
+                .fprd(k.station, reg::DC_RECEIVE_TIME_PU, 8, "receive time")
+                .await?,
+        );
+        let k_offset = u64_of(
+            &link
+                .fprd(
+                    k.station,
+                    reg::DC_SYSTEM_TIME_OFFSET,
+                    8,
+                    "system time offset",
+                )
+                .await?,
+        );
+        let delay_of =
+            |s: &SlaveInfo| ecsync_dc::offset::round_ns(s.delay_ns.unwrap_or(0.0)).max(0);
+        // The reference's system time at the latch, as the keeper has it.
+        let ref_time = k_local
+            .wrapping_add(k_offset)
+            .wrapping_sub(delay_of(k) as u64);
+        for &pos in &dc_reset {
+            let s = info(pos);
+            let local = u64_of(
+                &link
+                    .fprd(s.station, reg::DC_RECEIVE_TIME_PU, 8, "receive time")
+                    .await?,
+            );
+            let delay = delay_of(s);
+            let offset = ecsync_dc::system_time_offset(ref_time, delay, local);
+            if pos == net.reference {
+                out.reference_offset = Some(offset);
+            }
+            link.fpwr(
+                s.station,
+                reg::DC_SYSTEM_TIME_DELAY,
+                &(delay as u32).to_le_bytes(),
+                "write delay",
+            )
+            .await?;
+            link.fpwr(
+                s.station,
+                reg::DC_SYSTEM_TIME_OFFSET,
+                &offset.to_le_bytes(),
+                "write offset",
+            )
+            .await?;
+            link.fpwr(
+                s.station,
+                reg::DC_TIME_DIFF_FILTER_DEPTH,
+                &[0x00, 0x0c],
+                "filter depths",
+            )
+            .await?;
+            link.fpwr(
+                s.station,
+                reg::DC_SPEED_COUNTER_START,
+                &0x1000u16.to_le_bytes(),
+                "reset loop filter",
+            )
+            .await?;
+        }
+        // SYNC0 on the segment's grid (the start time is a grid point plus the shift).
+        let now_sys = u64_of(
+            &link
+                .fprd(k.station, reg::DC_SYSTEM_TIME, 8, "read system time")
+                .await?,
+        );
+        let start = ecsync_dc::sync0_start_time(
+            now_sys,
+            cfg.sync0_lead_ns,
+            cfg.cycle_ns,
+            cfg.sync0_shift_ns,
+        );
+        for &pos in &dc_reset {
+            let st = info(pos).station;
+            link.fpwr(st, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
+                .await?;
+            link.fpwr(
+                st,
+                reg::DC_SYNC0_CYCLE,
+                &cfg.cycle_ns.to_le_bytes(),
+                "SYNC0 cycle",
+            )
+            .await?;
+            link.fpwr(st, reg::DC_START_TIME, &start.to_le_bytes(), "SYNC0 start")
+                .await?;
+            link.fpwr(st, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
+                .await?;
+        }
+    }
+    // 4. The states, the process data between PRE-OP and SAFE-OP.
+    for &pos in &reset {
+        let s = info(pos);
+        request_state(&link, s.station, AlState::PreOp, &cfg.timeouts).await?;
+        crate::bringup::configure_process_data(&link, std::slice::from_ref(s)).await?;
+        request_state(&link, s.station, AlState::SafeOp, &cfg.timeouts).await?;
+        request_state(&link, s.station, AlState::Op, &cfg.timeouts).await?;
+    }
+    out.positions = reset;
+    Ok(out)
+}
