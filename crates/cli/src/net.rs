@@ -52,6 +52,12 @@ pub struct ServeArgs {
     /// No status line.
     #[arg(long)]
     quiet: bool,
+    /// Play the faults of this schedule on the served segment (TOML `[[fault]]` entries, the
+    /// format `compare --faults` reads; the segment's kinds: loss, corrupt, delay, power_cycle,
+    /// link_down, second_responder). Times count from the first frame with process data
+    /// unless it says `epoch = "start"`.
+    #[arg(long)]
+    faults: Option<PathBuf>,
 }
 
 /// Opens the segment's socket (EtherCAT frames, untagged or in a VLAN tag, which the answer
@@ -63,6 +69,25 @@ fn open_socket(iface: &str) -> Result<PacketSocket> {
 pub fn serve(args: ServeArgs) -> Result<ExitCode> {
     let (name, specs) = args.source.segment()?;
     let mut seg = Segment::new(&specs).context("building the segment")?;
+    let mut faults = match &args.faults {
+        Some(p) => {
+            let sched = ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
+            if let Some((n, f)) = sched
+                .faults
+                .iter()
+                .enumerate()
+                .find(|(_, f)| f.kind.is_host_fault())
+            {
+                anyhow::bail!(
+                    "{}: fault[{n}].kind: \"{}\" is a fault of the master's host, which serve cannot play; fix: remove it here (compare --faults plays it in virtual time)",
+                    p.display(),
+                    f.kind.name()
+                );
+            }
+            Some(ecsync_esc::fault::FaultPlayer::new(sched, 0))
+        }
+        None => None,
+    };
     let sock = open_socket(&args.iface)?;
     install_stop_handler();
     let rt = rt::setup(args.priority, rt::Pin::No);
@@ -106,17 +131,24 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
     let t0 = Instant::now();
     let mut last_print = Instant::now();
     let quiet = args.quiet;
-    let stats = ecsync_net::serve::serve(&sock, &mut seg, capture.as_mut(), &STOP, |s| {
-        if !quiet && last_print.elapsed().as_secs_f64() >= 1.0 {
-            last_print = Instant::now();
-            eprint!(
-                "\r{:>8.1} s: {} frames answered, {} not returned",
-                t0.elapsed().as_secs_f64(),
-                s.answered,
-                s.not_returned
-            );
-        }
-    })
+    let stats = ecsync_net::serve::serve(
+        &sock,
+        &mut seg,
+        capture.as_mut(),
+        faults.as_mut(),
+        &STOP,
+        |s| {
+            if !quiet && last_print.elapsed().as_secs_f64() >= 1.0 {
+                last_print = Instant::now();
+                eprint!(
+                    "\r{:>8.1} s: {} frames answered, {} not returned",
+                    t0.elapsed().as_secs_f64(),
+                    s.answered,
+                    s.not_returned
+                );
+            }
+        },
+    )
     .map_err(|e| anyhow::anyhow!("serving on {}: {e}", args.iface))?;
     if !quiet {
         eprintln!();
@@ -135,6 +167,21 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
         stats.not_returned,
         stats.marked_on_arrival
     );
+    if let Some(f) = &faults {
+        eprintln!(
+            "faults: {} frames dropped, {} replies deferred, the interface down {} times; events:",
+            stats.dropped_by_faults, stats.deferred_sends, stats.link_down_errors
+        );
+        for e in f.events() {
+            eprintln!(
+                "  {:>10.3} s  {} {}: {}",
+                e.since_epoch_ns as f64 / 1e9,
+                e.kind,
+                e.edge,
+                e.detail
+            );
+        }
+    }
     Ok(ExitCode::SUCCESS)
 }
 
@@ -186,6 +233,13 @@ pub struct RunArgs {
     /// later is discarded and counted as late.
     #[arg(long, default_value_t = 10_000)]
     timeout_us: u32,
+    /// End the run when this many frames in a row were lost (default: never; the run keeps
+    /// trying, recovering slaves that come back).
+    #[arg(long)]
+    give_up_after: Option<u64>,
+    /// How often the bring-up sends a lost datagram again before it fails.
+    #[arg(long, default_value_t = 10)]
+    retries: u32,
     /// SCHED_FIFO priority of the cycle task (0: normal scheduling).
     #[arg(long, default_value_t = 80)]
     priority: i32,
@@ -224,6 +278,15 @@ struct BringupOut {
     expected_lrw_wkc: u16,
     sync0_start_ns: Option<u64>,
     wall_s: f64,
+}
+
+/// One recovery in `run`'s summary.
+#[derive(Debug, Serialize)]
+struct RecoveryRow {
+    start_s: f64,
+    end_s: Option<f64>,
+    slaves: Vec<u16>,
+    error: Option<String>,
 }
 
 /// Wake-up latency figures, µs.
@@ -274,6 +337,15 @@ struct RunOut {
     round_trip: Summary,
     /// A controller's state at the end (DCM): in sync, the drift it learnt, its error.
     controller: Option<ControllerOut>,
+    /// Cycles whose reference time the engine did not believe (gone, or jumped): the method
+    /// held over, the FRMW went out as an FPRD.
+    reference_held_cycles: u64,
+    /// The recoveries of slaves that lost their configuration (power-cycled): start and end,
+    /// s after the cyclic phase's start, slaves brought back (positions, 1 = next to the
+    /// master) or why it failed (tried again 50 ms later).
+    recoveries: Vec<RecoveryRow>,
+    /// Sends and receives the interface refused because it was down.
+    link_down_errors: u64,
     csv: Option<String>,
 }
 
@@ -437,12 +509,12 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
     let json = args.json;
-    // The first frames on a real network meet cold caches and page faults on both ends: a
-    // procedure waits 20 ms for a reply and sends a lost frame up to three times more, as SOEM
-    // and ethercrab do.
+    // The first frames on a real network meet cold caches and page faults on both ends, and a
+    // network loses frames: a procedure waits 20 ms for a reply and sends a lost frame again
+    // (`--retries`, ten by default: at 10 % loss a frame fails once in 10^11).
     let procedure = ProcedureConfig {
         reply_timeout_ns: 20_000_000,
-        retries: 3,
+        retries: args.retries,
     };
     let net: Network = match run_procedure(
         &mut link,
@@ -523,17 +595,28 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let limits = CyclicLimits {
         duration_ns: args.duration.map(|d| (d * 1e9) as u64),
         max_cycles: None,
-        lost_in_a_row: 100.max(100_000_000 / period),
+        lost_in_a_row: args.give_up_after.unwrap_or(u64::MAX),
         reply_timeout_ns: u64::from(args.timeout_us.max(1)) * 1000,
     };
     let mut driver = CyclicDriver::new(limits);
+    // Slaves that lose their configuration (power-cycled) are brought back while the cycle
+    // goes on.
+    driver.set_recovery(
+        net.clone(),
+        ecsync_master::recovery::RecoveryConfig {
+            cycle_ns,
+            sync0_shift_ns: shift_ns,
+            sync0_lead_ns: 20_000_000,
+            timeouts: ecsync_master::bringup::BringupTimeouts::default(),
+        },
+    );
     // Statistics without ranges: quantiles of bounded error however large a stall.
     let mut m_rs = Stats::new();
     let mut rs_is = Stats::new();
     let mut wake = Stats::new();
     let mut tx_path = Stats::new();
     let mut rtt = Stats::new();
-    let (mut cycles, mut lost, mut bad_wkc) = (0u64, 0u64, 0u64);
+    let (mut cycles, mut lost, mut bad_wkc, mut held) = (0u64, 0u64, 0u64, 0u64);
     let mut skipped = 0u64;
     let mut csv_err: Option<std::io::Error> = None;
     let t_cyc = Instant::now();
@@ -553,6 +636,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         skipped += c.skipped_before;
         let r = &c.record;
         wake.add(c.wake_latency_ns as f64);
+        held += u64::from(r.reference_held);
         if r.receive_ns.is_none() {
             lost += 1;
         } else {
@@ -635,6 +719,24 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         tx_path: tx_path.summary(),
         round_trip: rtt.summary(),
         controller,
+        reference_held_cycles: held,
+        recoveries: driver
+            .recoveries()
+            .iter()
+            .map(|e| RecoveryRow {
+                start_s: e.started_ns.saturating_sub(first) as f64 / 1e9,
+                end_s: e.ended_ns.map(|t| t.saturating_sub(first) as f64 / 1e9),
+                slaves: match &e.outcome {
+                    Some(Ok(r)) => r.positions.iter().map(|p| p + 1).collect(),
+                    _ => Vec::new(),
+                },
+                error: match &e.outcome {
+                    Some(Err(m)) => Some(m.clone()),
+                    _ => None,
+                },
+            })
+            .collect(),
+        link_down_errors: link.link_down_errors(),
         csv: args.csv.as_ref().map(|p| p.display().to_string()),
     };
     let text = serde_json::to_string_pretty(&out)?;
@@ -717,6 +819,26 @@ fn print_run(o: &RunOut) {
         o.duplicate_replies,
         o.bad_wkc
     );
+    for r in o.recoveries.iter().filter(|r| !r.slaves.is_empty()) {
+        println!(
+            "Recovered slave(s) {:?} (power-cycled: configured again) at {:.3} s, in {:.0} ms.",
+            r.slaves,
+            r.start_s,
+            r.end_s.map_or(f64::NAN, |e| (e - r.start_s) * 1e3)
+        );
+    }
+    if o.reference_held_cycles > 0 {
+        println!(
+            "The reference's time was gone or not believed in {} cycles: the method held over meanwhile.",
+            o.reference_held_cycles
+        );
+    }
+    if o.link_down_errors > 0 {
+        println!(
+            "The interface was down {} times (frames lost meanwhile; the run went on).",
+            o.link_down_errors
+        );
+    }
     if o.duplicate_replies * 2 > o.cycles {
         println!(
             "A second responder: {} of {} cycles' frames were answered twice (two segments on the wire, or a loop).",

@@ -347,6 +347,110 @@ fn serve_and_run_with_every_other_method() {
     }
 }
 
+/// `ecsync run` with `method` for 8 s against `ecsync serve --faults`: 10 % loss all through
+/// the cyclic phase, the reference switched off for 200 ms at 2 s, the master's cable pulled
+/// for 50 ms at 5 s. The run keeps going, brings the reference back and ends locked.
+fn run_through_faults(pair: &NetPair, method: &str, faults: &Path) {
+    let _served = pair.serve(&["--faults", faults.to_str().unwrap()]);
+    let dir = tmp(&format!("faults-{method}"));
+    let csv = dir.join("cycles.csv");
+    let o = pair
+        .command(
+            &pair.ns_b,
+            &[
+                "run",
+                "--iface",
+                &pair.if_b,
+                "--method",
+                method,
+                "--duration",
+                "8",
+                "--static-drift",
+                "3000",
+                "--csv",
+                csv.to_str().unwrap(),
+                "--json",
+            ],
+        )
+        .output()
+        .expect("run ecsync run");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{method}: {stderr}");
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON summary");
+    assert_eq!(j["stopped"], "duration", "{method}: ran to its end");
+    let cycles = j["cycles"].as_u64().unwrap() as f64;
+    let lost = j["lost_frames"].as_u64().unwrap() as f64;
+    // 10 % of the cycles, the 200 ms off and the 50 ms unplugged, and what the busy host adds.
+    assert!(
+        lost > 0.07 * cycles && lost < 0.16 * cycles + 300.0,
+        "{method}: {lost} of {cycles} cycles lost"
+    );
+    let back: Vec<&serde_json::Value> = j["recoveries"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|r| r["slaves"].as_array().is_some_and(|s| !s.is_empty()))
+        .collect();
+    assert!(
+        back.iter().any(|r| r["slaves"] == serde_json::json!([1])),
+        "{method}: the reference brought back: {}",
+        j["recoveries"]
+    );
+    // Locked again at the end: the last second's |0x092C| of the cycles that came back.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let c = header.iter().position(|c| *c == "max_abs_092c_ns").unwrap();
+    let tail: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').nth(c)?.parse().ok())
+        .collect();
+    let last: Vec<f64> = tail[tail.len().saturating_sub(900)..].to_vec();
+    let worst = last.iter().copied().fold(0.0f64, f64::max);
+    let bound = if method == "bus-shift" {
+        200_000.0
+    } else {
+        1_000.0
+    };
+    println!(
+        "{method}: {lost} of {cycles} cycles lost, recoveries {}, last second's |0x092C| max {worst} ns",
+        j["recoveries"]
+    );
+    assert!(
+        worst < bound,
+        "{method}: |0x092C| {worst} ns in the last second"
+    );
+}
+
+#[test]
+fn every_method_runs_through_loss_a_reference_power_cycle_and_a_cable_pull_over_veth() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(pair) = NetPair::new("f") else {
+        return;
+    };
+    let dir = tmp("faults");
+    let faults = dir.join("faults.toml");
+    std::fs::write(
+        &faults,
+        "[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = 0.1\n\n\
+         [[fault]]\nat_s = 2\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = \"reference\"\n\n\
+         [[fault]]\nat_s = 5\nfor_s = 0.05\nkind = \"link_down\"\nslave = 1\nport = 0\n",
+    )
+    .unwrap();
+    for m in [
+        "median",
+        "median-fit",
+        "pi-m2s",
+        "bus-shift",
+        "dcm-bus-shift",
+        "dcm-master-shift",
+        "snap",
+        "soem-pi",
+    ] {
+        run_through_faults(&pair, m, &faults);
+    }
+}
+
 #[test]
 fn a_segment_that_dies_mid_run_is_reported_and_what_was_measured_is_kept() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
@@ -366,6 +470,9 @@ fn a_segment_that_dies_mid_run_is_reported_and_what_was_measured_is_kept() {
                 &pair.if_b,
                 "--duration",
                 "30",
+                // Without it the run keeps trying (and recovers a segment that comes back).
+                "--give-up-after",
+                "100",
                 "--csv",
                 csv.to_str().unwrap(),
                 "--summary",

@@ -135,6 +135,9 @@ pub const FAR_092C_NS: u32 = 1_000_000;
 /// A reference time this far from its extrapolation is a jump, ns (plus 200 ppm of the time
 /// since the last one believed).
 pub const REFERENCE_JUMP_NS: u64 = 100_000;
+/// Cycles in a row without the reference that may have been a power cycle (a bus-shift
+/// method's reference is then looked at by a recovery before it is believed again).
+pub const OUTAGE_CYCLES: u32 = 5;
 /// Cycles a new timeline of the reference must run on by itself before it is taken.
 pub const ADOPT_CYCLES: u64 = 20;
 /// Cycles in a row of a short working counter or a far |0x092C| before a recovery is asked.
@@ -510,7 +513,7 @@ impl<S: MasterSync> CyclicEngine<S> {
                 continue;
             };
             if let Some(at) = plan.frmw_data_at {
-                self.health.reference_lost_cycles = 0;
+                let outage = std::mem::take(&mut self.health.reference_lost_cycles);
                 let frmw_wkc = u16::from_le_bytes([r[at + 8], r[at + 9]]);
                 if frmw_wkc > 0 {
                     let raw = u64::from_le_bytes(r[at..at + 8].try_into().unwrap_or([0; 8]));
@@ -523,7 +526,7 @@ impl<S: MasterSync> CyclicEngine<S> {
                         ),
                         _ => raw,
                     };
-                    if self.believe_reference(t, send_ns) {
+                    if self.believe_reference(t, send_ns, outage) {
                         rec.ref_time_ns = Some(t);
                         self.last_ref_ns = Some(t);
                         self.last_ref_cycle = self.cycle;
@@ -620,18 +623,22 @@ impl<S: MasterSync> CyclicEngine<S> {
     /// (and 200 ppm of the time since) of the last time believed, moved on by the cycles
     /// since. A jump (the reference reset, its offset rewritten) holds the time until one
     /// continues the old timeline again (a recovery sets the reset reference's offset so).
-    fn believe_reference(&mut self, t: u64, send_ns: u64) -> bool {
+    fn believe_reference(&mut self, t: u64, send_ns: u64, outage: u32) -> bool {
         // A method that writes the master's time into the reference every cycle (bus shift)
         // makes the reference's timeline itself: a jump is its own write (a frame held by a
         // bridge delivers an old time), and a reset reference takes the master's time again
         // with the next write.
         let writes_time = self.sync.reference_write_kind() == ReferenceWrite::SystemTime;
         if writes_time && self.health.reference_held {
-            // Back after it was gone: it may have been reset, and a reset reference keeps its
-            // own time however the master writes it (the writes steer its rate only) until a
-            // recovery has looked.
-            self.health.needs_recovery = true;
-            return false;
+            if outage >= OUTAGE_CYCLES || self.health.needs_recovery {
+                // Back after it was gone a while: it may have been reset, and a reset
+                // reference keeps its own time however the master writes it (the writes steer
+                // its rate only) until a recovery has looked.
+                self.health.needs_recovery = true;
+                return false;
+            }
+            // A few frames lost: nothing to look at.
+            self.health.reference_held = false;
         }
         let Some(prev) = self.last_ref_ns.filter(|_| !writes_time) else {
             self.health.reference_held = false;

@@ -87,13 +87,22 @@ pub struct RealLink {
     tx_rt: Option<u64>,
     /// The frame being sent.
     tx_buf: Vec<u8>,
+    /// Sends and receives refused because the interface was down.
+    link_down: u64,
 }
 
 impl RealLink {
+    /// Sends and receives refused because the interface was down (each such frame counted
+    /// lost).
+    pub fn link_down_errors(&self) -> u64 {
+        self.link_down
+    }
+
     /// Opens interface `iface`.
     pub fn open(iface: &str) -> Result<RealLink, NetError> {
         Ok(RealLink {
             sock: PacketSocket::open(iface)?,
+            link_down: 0,
             clock: HostClock::new(),
             tx_rt: None,
             tx_buf: Vec::with_capacity(RECV_BUF_LEN),
@@ -118,6 +127,15 @@ impl RealLink {
 
 fn io_err(what: &'static str) -> impl Fn(io::Error) -> NetError {
     move |source| NetError::Io { what, source }
+}
+
+/// Whether an I/O error says the interface is down or gone for now (a cable pulled): the
+/// frame is lost, and the master keeps trying, as it does with any lost frame.
+fn link_is_down(e: &io::Error) -> bool {
+    matches!(
+        e.raw_os_error(),
+        Some(libc::ENETDOWN) | Some(libc::ENXIO) | Some(libc::ENODEV) | Some(libc::ENOBUFS)
+    )
 }
 
 impl Transport for RealLink {
@@ -149,7 +167,12 @@ impl Transport for RealLink {
             .is_some()
         {}
         self.tx_rt = None;
-        self.sock.send(&self.tx_buf).map_err(io_err("send"))?;
+        match self.sock.send(&self.tx_buf) {
+            Ok(()) => {}
+            // Lost on a link that is down: the reply's deadline tells the driver.
+            Err(e) if link_is_down(&e) => self.link_down += 1,
+            Err(e) => return Err(io_err("send")(e)),
+        }
         Ok(at_ns)
     }
 
@@ -161,7 +184,23 @@ impl Transport for RealLink {
             buf.resize(RECV_BUF_LEN, 0);
         }
         loop {
-            if let Some(r) = self.sock.recv(buf).map_err(io_err("receive"))? {
+            let got = match self.sock.recv(buf) {
+                Ok(r) => r,
+                Err(e) if link_is_down(&e) => {
+                    // No link: nothing can come before the deadline but the link itself.
+                    self.link_down += 1;
+                    let now = sys::monotonic_ns();
+                    if now >= deadline {
+                        return Ok(None);
+                    }
+                    std::thread::sleep(std::time::Duration::from_nanos(
+                        (deadline - now).min(1_000_000),
+                    ));
+                    continue;
+                }
+                Err(e) => return Err(io_err("receive")(e)),
+            };
+            if let Some(r) = got {
                 let now = self.clock.now_ns();
                 let (received_ns, stamped) = match r.kernel_rx_realtime_ns {
                     Some(t) => (self.clock.from_realtime_ns(t), true),
@@ -185,11 +224,15 @@ impl Transport for RealLink {
             if now >= deadline {
                 return Ok(None);
             }
-            match self
-                .sock
-                .wait(deadline - now)
-                .map_err(io_err("wait for a reply"))?
-            {
+            let ready = match self.sock.wait(deadline - now) {
+                Ok(r) => r,
+                Err(e) if link_is_down(&e) => {
+                    self.link_down += 1;
+                    continue;
+                }
+                Err(e) => return Err(io_err("wait for a reply")(e)),
+            };
+            match ready {
                 Ready::ErrorQueue => {
                     // Read it, or the next wait returns at once (a busy loop that would starve a
                     // peer on the same CPU).

@@ -21,6 +21,7 @@
 use crate::link::NetError;
 use crate::sys::{self, PacketSocket, Ready, TPID_8021AD, TPID_8021Q, VlanTag};
 use ecsync_esc::Segment;
+use ecsync_esc::fault::{FaultPlayer, FrameFate};
 use ecsync_esc::pcap::PcapCapture;
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -43,6 +44,22 @@ pub struct ServeStats {
     pub not_returned: u64,
     /// Frames too long for the buffer.
     pub truncated: u64,
+    /// Frames the fault schedule dropped (on the way in or out).
+    pub dropped_by_faults: u64,
+    /// Replies the fault schedule delayed or sent twice, sent later.
+    pub deferred_sends: u64,
+    /// Times the interface was down (a receive or send refused with ENETDOWN or ENXIO):
+    /// serving goes on, trying again.
+    pub link_down_errors: u64,
+}
+
+/// Whether an I/O error says the interface is down or gone for now (a cable pulled, the veth
+/// peer's namespace being set up): serving tries again.
+fn link_is_down(e: &std::io::Error) -> bool {
+    matches!(
+        e.raw_os_error(),
+        Some(libc::ENETDOWN) | Some(libc::ENXIO) | Some(libc::ENODEV) | Some(libc::ENOBUFS)
+    )
 }
 
 /// Most VLAN tags a frame may carry (802.1ad S-tag outside, 802.1Q C-tag inside).
@@ -105,11 +122,13 @@ fn retag(frame: &mut [u8], len: usize, tags: &Tags) -> usize {
 }
 
 /// Serves `segment` on `sock` until `stop` is raised. `capture` records every frame in and out.
-/// `on_frame` sees the counters after each frame.
+/// `faults` plays a fault schedule on the segment's frames (the segment's kinds; the master
+/// host's are refused before serving starts). `on_frame` sees the counters after each frame.
 pub fn serve<W: Write>(
     sock: &PacketSocket,
     segment: &mut Segment,
     mut capture: Option<&mut PcapCapture<W>>,
+    mut faults: Option<&mut FaultPlayer>,
     stop: &AtomicBool,
     mut on_frame: impl FnMut(&ServeStats),
 ) -> Result<ServeStats, NetError> {
@@ -120,9 +139,52 @@ pub fn serve<W: Write>(
     let mut buf = vec![0u8; 2048];
     let room = buf.len() - 4 * MAX_TAGS;
     let mut last_ps = 0u64;
+    // Replies to send later (a delay, a second responder's copy): when (monotonic ns), bytes.
+    let mut later: std::collections::VecDeque<(u64, Vec<u8>)> = std::collections::VecDeque::new();
+    let send = |sock: &PacketSocket, frame: &[u8], stats: &mut ServeStats| match sock.send(frame) {
+        Ok(()) => Ok(()),
+        Err(e) if link_is_down(&e) => {
+            stats.link_down_errors += 1;
+            Ok(())
+        }
+        Err(e) => Err(NetError::Io {
+            what: "send",
+            source: e,
+        }),
+    };
     while !stop.load(Ordering::Relaxed) {
-        let Some(r) = sock.recv(&mut buf[..room]).map_err(io("receive"))? else {
-            if sock.wait(50_000_000).map_err(io("wait for a frame"))? == Ready::ErrorQueue {
+        while later
+            .front()
+            .is_some_and(|(at, _)| *at <= sys::monotonic_ns())
+        {
+            if let Some((_, f)) = later.pop_front() {
+                send(sock, &f, &mut stats)?;
+            }
+        }
+        let got = match sock.recv(&mut buf[..room]) {
+            Ok(r) => r,
+            Err(e) if link_is_down(&e) => {
+                // The interface is down: wait and try again, as a slave waits for its link.
+                stats.link_down_errors += 1;
+                std::thread::sleep(std::time::Duration::from_millis(10));
+                continue;
+            }
+            Err(e) => return Err(io("receive")(e)),
+        };
+        let Some(r) = got else {
+            let wait_ns = later.front().map_or(50_000_000, |(at, _)| {
+                at.saturating_sub(sys::monotonic_ns()).max(1)
+            });
+            let ready = match sock.wait(wait_ns.min(50_000_000)) {
+                Ok(r) => r,
+                Err(e) if link_is_down(&e) => {
+                    stats.link_down_errors += 1;
+                    std::thread::sleep(std::time::Duration::from_millis(10));
+                    continue;
+                }
+                Err(e) => return Err(io("wait for a frame")(e)),
+            };
+            if ready == Ready::ErrorQueue {
                 // Transmit timestamps of the replies: not needed here, but they must be read
                 // or every wait returns at once.
                 while sock
@@ -161,11 +223,38 @@ pub fn serve<W: Write>(
             retag(&mut wire, len, &tags);
             let _ = c.record(t_ps, &wire);
         }
+        let fate = match faults.as_deref_mut() {
+            Some(f) => f.before_frame(segment, &buf[..len], t_ps),
+            None => FrameFate::default(),
+        };
+        if fate.lost_out {
+            stats.dropped_by_faults += 1;
+            on_frame(&stats);
+            continue;
+        }
         let out = segment.process(&mut buf[..len], t_ps);
+        if fate.lost_back && out.returned_sof_ps.is_some() {
+            stats.dropped_by_faults += 1;
+            on_frame(&stats);
+            continue;
+        }
         match out.returned_sof_ps {
             Some(back_ps) => {
                 let n = retag(&mut buf, len, &tags);
-                sock.send(&buf[..n]).map_err(io("send"))?;
+                let now = sys::monotonic_ns();
+                if fate.extra_delay_ps > 0 {
+                    later.push_back((now + fate.extra_delay_ps / 1000, buf[..n].to_vec()));
+                    stats.deferred_sends += 1;
+                } else {
+                    send(sock, &buf[..n], &mut stats)?;
+                }
+                if let Some(lag) = fate.copy_after_ps {
+                    let at = now + fate.extra_delay_ps / 1000 + lag / 1000;
+                    later.push_back((at, buf[..n].to_vec()));
+                    stats.deferred_sends += 1;
+                }
+                // (Deferred sends in the order they are due.)
+                later.make_contiguous().sort_by_key(|x| x.0);
                 stats.answered += 1;
                 stats.answered_tagged += u64::from(tags.len() > 0);
                 if let Some(c) = capture.as_deref_mut() {
