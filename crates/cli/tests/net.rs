@@ -795,6 +795,144 @@ mod ethercrab_raw {
     }
 }
 
+mod ethercrab_faults {
+    //! ethercrab 0.7 against `ecsync serve --faults`: the reference switched off for 200 ms
+    //! in OP. What ethercrab does is recorded, not judged (it is not ours to fix): the fault
+    //! reaches a real master as a real power cycle would.
+
+    use super::*;
+    use ethercrab::std::{ethercat_now, tx_rx_task};
+    use ethercrab::subdevice_group::DcConfiguration;
+    use ethercrab::{DcSync, MainDevice, MainDeviceConfig, PduStorage, Timeouts, error::Error};
+
+    const MAX_PDU_DATA: usize = PduStorage::element_size(1100);
+    type Storage = PduStorage<16, MAX_PDU_DATA>;
+    static STORAGE: Storage = PduStorage::new();
+    const CYCLE: Duration = Duration::from_millis(1);
+
+    #[test]
+    fn ethercrab_meets_a_reference_power_cycle_and_does_not_bring_it_back() {
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(pair) = NetPair::new("x") else {
+            return;
+        };
+        let dir = tmp("ethercrab-faults");
+        let faults = dir.join("faults.toml");
+        // From ethercrab's first frame with process data (its PRE-OP system time sync): the
+        // reference off at 4 s, when it has been in OP for a while.
+        std::fs::write(
+            &faults,
+            "[[fault]]\nat_s = 4\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = \"reference\"\n",
+        )
+        .unwrap();
+        let _served = pair.serve(&["--faults", faults.to_str().unwrap()]);
+        let n = 6u16;
+        let (tx, rx, pdu_loop) = STORAGE.try_split().expect("split once");
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let (ns_b, if_b) = (pair.ns_b.clone(), pair.if_b.clone());
+        let stop_io = stop.clone();
+        let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+        let io = std::thread::spawn(move || {
+            ecsync_net::sys::enter_netns(&ns_b).expect("enter namespace B");
+            let task = tx_rx_task(&if_b, tx, rx).expect("ethercrab's raw socket");
+            let _ = ready_tx.send(());
+            let stopped = async {
+                while !stop_io.load(Ordering::Relaxed) {
+                    async_io::Timer::after(Duration::from_millis(10)).await;
+                }
+            };
+            async_io::block_on(futures_lite::future::or(
+                async {
+                    let _ = task.await;
+                },
+                stopped,
+            ));
+        });
+        ready_rx
+            .recv_timeout(Duration::from_secs(10))
+            .expect("ethercrab's TX/RX task started");
+        // Its own PDU timeout (30 ms): the frames of the 200 ms off are lost, not late.
+        let timeouts = Timeouts {
+            eeprom: Duration::from_millis(500),
+            ..Timeouts::default()
+        };
+        let maindevice = MainDevice::new(pdu_loop, timeouts, MainDeviceConfig::default());
+        let result: Result<(), Error> = futures_lite::future::block_on(async {
+            let mut group = maindevice.init_single_group::<8, 256>(ethercat_now).await?;
+            for mut sd in group.iter_mut(&maindevice) {
+                sd.set_dc_sync(DcSync::Sync0);
+            }
+            let group = group.into_pre_op_pdi(&maindevice).await?;
+            for _ in 0..2_000 {
+                group.tx_rx_sync_system_time(&maindevice).await?;
+            }
+            let group = group
+                .configure_dc_sync(
+                    &maindevice,
+                    DcConfiguration {
+                        start_delay: Duration::from_millis(100),
+                        sync0_period: CYCLE,
+                        sync0_shift: CYCLE / 2,
+                    },
+                )
+                .await?;
+            let group = group.into_safe_op(&maindevice).await?;
+            let group = group.request_into_op(&maindevice).await?;
+            // Cycles until well after the power cycle: what each one returned.
+            let (mut ok, mut errors, mut short_wkc_after, mut all_op_after) = (0, 0, 0, 0);
+            let mut first_error_at = None;
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(6) {
+                let now = Instant::now();
+                match group.tx_rx_dc(&maindevice).await {
+                    Ok(r) => {
+                        ok += 1;
+                        if first_error_at.is_some() {
+                            short_wkc_after += usize::from(r.working_counter < 3 * n);
+                            all_op_after += usize::from(r.all_op());
+                        }
+                        async_io::Timer::at(now + r.extra.next_cycle_wait.min(CYCLE * 2)).await;
+                    }
+                    Err(e) => {
+                        errors += 1;
+                        first_error_at.get_or_insert((t0.elapsed(), format!("{e:?}")));
+                    }
+                }
+            }
+            println!(
+                "ethercrab: {ok} cycles answered, {errors} failed (the first at {:?}); after it: \
+                 {short_wkc_after} cycles with a short working counter, {all_op_after} with every \
+                 drive in OP",
+                first_error_at
+            );
+            // What a real power cycle does to ethercrab 0.7, as the segment played it (seen on
+            // this machine: 7 cycles failed with Timeout(Pdu), then every cycle short): the
+            // cycles of the 200 ms off fail (its PDUs time out); afterwards the process data's
+            // working counter stays short for good, since ethercrab does not bring a reset
+            // slave back, and its response's all_op() still says every drive is in OP.
+            assert!(errors >= 1, "the frames of the 200 ms off failed");
+            let (at, what) = first_error_at.clone().unwrap();
+            assert!(
+                at > Duration::from_millis(2_000),
+                "the first failure at {at:?}: {what}"
+            );
+            assert!(what.contains("Timeout"), "ethercrab's error: {what}");
+            assert!(
+                short_wkc_after > 500,
+                "short working counters after: {short_wkc_after}"
+            );
+            assert!(
+                all_op_after > 500,
+                "ethercrab's all_op() after the power cycle: {all_op_after}"
+            );
+            Ok(())
+        });
+        stop.store(true, Ordering::Relaxed);
+        let _ = io.join();
+        result.expect("ethercrab against ecsync serve --faults");
+    }
+}
+
 mod raw_frames {
     //! Single frames from the crate's own raw socket in namespace B against `ecsync serve` in
     //! namespace A: what a real ESC answers at its port 0, whatever the master's source address,
