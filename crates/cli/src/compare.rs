@@ -15,6 +15,48 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+/// Every fault's start and end and every recovery, per method and run, as CSV (times in s
+/// after the start of the cyclic phase).
+fn faults_csv(out: &ecsync_lab::report::SummaryOut, order: &[String]) -> String {
+    use std::fmt::Write as _;
+    let mut t = String::from("method,run,what,edge,at_s,detail\n");
+    let q = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
+    for m in order {
+        let Some(mo) = out.methods.get(m) else {
+            continue;
+        };
+        for (run, f) in mo.faults.iter().enumerate() {
+            for e in &f.events {
+                let _ = writeln!(
+                    t,
+                    "{m},{run},{},{},{:.6},{}",
+                    e.kind,
+                    e.edge,
+                    e.since_epoch_ns as f64 / 1e9,
+                    q(&e.detail)
+                );
+            }
+            for r in &f.recoveries {
+                let what = match (&r.error, r.slaves.is_empty()) {
+                    (Some(e), _) => format!("failed: {e}"),
+                    (None, true) => "no slave had lost its configuration".to_string(),
+                    (None, false) => format!("slaves {:?} configured again", r.slaves),
+                };
+                let _ = writeln!(
+                    t,
+                    "{m},{run},recovery,start,{:.6},{}",
+                    r.start_ms / 1e3,
+                    q(&what)
+                );
+                if let Some(end) = r.end_ms {
+                    let _ = writeln!(t, "{m},{run},recovery,end,{:.6},{}", end / 1e3, q(&what));
+                }
+            }
+        }
+    }
+    t
+}
+
 /// The faults' table: per method, what the schedule did, what the master saw, DC's worst
 /// |0x092C| and the re-lock time after each fault (worst run).
 fn faults_text(out: &ecsync_lab::report::SummaryOut, order: &[String]) -> String {
@@ -309,6 +351,12 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let json = serde_json::to_string_pretty(&out)?;
     write_atomic(&args.out.join("summary.json"), json.as_bytes())?;
     write_atomic(&args.out.join("summary.csv"), csv(&out, &order).as_bytes())?;
+    if args.faults.is_some() {
+        write_atomic(
+            &args.out.join("faults.csv"),
+            faults_csv(&out, &order).as_bytes(),
+        )?;
+    }
     let table = table1_text(&out, &order);
     write_atomic(&args.out.join("table1.txt"), table.as_bytes())?;
     ecsync_lab::plots::write_all(&cmp, &out, &order, &args.out)
@@ -349,8 +397,9 @@ pub fn run(args: Args) -> Result<ExitCode> {
         print!("{table}");
         println!();
         println!(
-            "Wrote {}/{{summary.json, summary.csv, table1.txt, report.html, *.svg, *.png}} in {:.1} s on {}.",
+            "Wrote {}/{{summary.json, summary.csv, {}table1.txt, report.html, *.svg, *.png}} in {:.1} s on {}.",
             args.out.display(),
+            if s_has_faults { "faults.csv, " } else { "" },
             out.wall_s,
             plural(out.threads as u64, "thread", "threads")
         );

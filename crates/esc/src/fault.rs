@@ -43,6 +43,14 @@ use ecsync_wire::{Command, EcatFrame};
 use serde::Deserialize;
 use std::fmt;
 
+/// The built-in schedule `faults-demo`: the paper network's faults (5 % loss, the
+/// reference's power cycle at 20 s, the cable behind drive 3 pulled at 40 s, a 10 ms host
+/// stall at 60 s).
+pub const FAULTS_DEMO_TOML: &str = include_str!("../presets/faults-demo.toml");
+
+/// The built-in schedules by name.
+pub const BUILT_IN: [(&str, &str); 1] = [("faults-demo", FAULTS_DEMO_TOML)];
+
 /// Where `at_s` counts from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -228,15 +236,24 @@ impl FaultSchedule {
         })
     }
 
-    /// Reads and parses a schedule file.
+    /// Reads and parses a schedule file, or the built-in schedule of that name (when no such
+    /// file exists).
     pub fn load(path: &std::path::Path) -> Result<FaultSchedule, ConfigError> {
         let name = path.display().to_string();
+        if !path.exists()
+            && let Some((n, text)) = BUILT_IN.iter().find(|(n, _)| *n == name)
+        {
+            return Self::parse(n, text);
+        }
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
             file: name.clone(),
             line: None,
             field: "(file)".into(),
             message: format!("cannot read it: {e}"),
-            fix: "give the path of a fault schedule (TOML with [[fault]] entries)".into(),
+            fix: format!(
+                "give the path of a fault schedule (TOML with [[fault]] entries) or a built-in one: {}",
+                BUILT_IN.map(|b| b.0).join(", ")
+            ),
         })?;
         Self::parse(&name, &text)
     }
@@ -849,6 +866,22 @@ at_s = 60
 kind = "host_stall"
 stall_ms = 10
 "#;
+
+    #[test]
+    fn the_built_in_demo_parses_and_is_the_repository_preset() {
+        let s = FaultSchedule::load(std::path::Path::new("faults-demo")).unwrap();
+        assert_eq!(s.faults.len(), 4);
+        assert_eq!(s.faults[1].at_ns, 20_000_000_000);
+        let copy = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../presets/faults-demo.toml"
+        ))
+        .unwrap();
+        assert_eq!(
+            copy, FAULTS_DEMO_TOML,
+            "presets/faults-demo.toml is the built-in one"
+        );
+    }
 
     #[test]
     fn parses_the_demo() {

@@ -365,6 +365,107 @@ fn bands<DB: DrawingBackend>(
     root.present().map_err(err)
 }
 
+/// Run 0's |0x092C| around each fault, every method on one panel per fault (log scale; a lost
+/// cycle is a gap, a cycle whose reference time the master held is drawn light).
+fn fault_windows<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    c: &Comparison,
+    order: &[String],
+) -> io::Result<()> {
+    root.fill(&WHITE).map_err(err)?;
+    let runs: Vec<(usize, &String, &crate::run::FaultsTruth)> = order
+        .iter()
+        .enumerate()
+        .filter_map(|(i, name)| {
+            let m = c
+                .scenario
+                .methods
+                .iter()
+                .position(|x| x.name() == name.as_str())?;
+            Some((i, name, c.results[m].first()?.faults.as_ref()?))
+        })
+        .collect();
+    let n = runs.iter().map(|r| r.2.windows.len()).max().unwrap_or(0);
+    let (head, body) = root.split_vertically(30);
+    head.titled(
+        "|0x092C| around each fault (run 0; ms since the fault started; log scale)",
+        ("sans-serif", 18),
+    )
+    .map_err(err)?;
+    if n == 0 {
+        return root.present().map_err(err);
+    }
+    let rows = body.split_evenly((n, 1));
+    for (k, row) in rows.iter().enumerate() {
+        let t_end = runs
+            .iter()
+            .filter_map(|r| r.2.windows.get(k)?.points.last().map(|p| f64::from(p.0)))
+            .fold(1.0f64, f64::max);
+        let kind = runs
+            .iter()
+            .find_map(|r| r.2.windows.get(k).map(|w| (w.fault, w.kind)))
+            .unwrap_or((k, ""));
+        let mut chart = ChartBuilder::on(row)
+            .caption(format!("fault {}: {}", kind.0, kind.1), ("sans-serif", 14))
+            .margin(4)
+            .x_label_area_size(24)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..t_end, (1.0f64..3e9f64).log_scale())
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .y_desc("ns")
+            .y_label_formatter(&|v| format!("{v:.0e}"))
+            .x_labels(10)
+            .light_line_style(RGBColor(0xf0, 0xf0, 0xf0))
+            .draw()
+            .map_err(err)?;
+        for (i, name, f) in &runs {
+            let Some(w) = f.windows.get(k) else { continue };
+            let col = COLORS[*i % COLORS.len()];
+            // Runs of cycles that came back, one path each: a lost cycle breaks the line.
+            let mut path: Vec<(f64, f64)> = Vec::new();
+            let mut paths = Vec::new();
+            for &(t, v, _) in &w.points {
+                if v.is_finite() {
+                    path.push((f64::from(t), f64::from(v).max(1.0)));
+                } else if !path.is_empty() {
+                    paths.push(std::mem::take(&mut path));
+                }
+            }
+            paths.push(path);
+            let mut first = true;
+            for p in paths.into_iter().filter(|p| !p.is_empty()) {
+                let s = chart
+                    .draw_series(std::iter::once(PathElement::new(p, col.stroke_width(1))))
+                    .map_err(err)?;
+                if std::mem::take(&mut first) && k == 0 {
+                    let label = (*name).clone();
+                    s.label(label).legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], col.stroke_width(2))
+                    });
+                }
+            }
+        }
+        if k == 0 {
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(err)?;
+        }
+        // The lock bound.
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                vec![(0.0, 100.0), (t_end, 100.0)],
+                RGBColor(0xc0, 0x00, 0x00).stroke_width(1),
+            )))
+            .map_err(err)?;
+    }
+    root.present().map_err(err)
+}
+
 fn fig4<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     c: &Comparison,
@@ -671,6 +772,27 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
             }),
         },
     ];
+    let mut plots = plots;
+    let windows = c
+        .results
+        .iter()
+        .flatten()
+        .filter_map(|r| r.faults.as_ref())
+        .map(|f| f.windows.len())
+        .max()
+        .unwrap_or(0);
+    if windows > 0 {
+        plots.insert(
+            0,
+            Plot {
+                name: "faults",
+                caption: "Each fault of the schedule in run 0: |0x092C| (the BRD's OR over every drive) from the fault's start to a second after its end, per method; a gap is a lost cycle; the red line is the 100 ns the re-lock time counts from. A master that brings a reset slave back shows the gap, the far values of the reset slave, and the way back under the line.".into(),
+                draw: Box::new(move |p, svg| {
+                    plot!(p, svg, (1100, 200 * windows as u32 + 40), |r| fault_windows(r, c, order))
+                }),
+            },
+        );
+    }
     for pl in &plots {
         for (ext, svg) in [("svg", true), ("png", false)] {
             let fin = dir.join(format!("{}.{ext}", pl.name));

@@ -286,6 +286,25 @@ pub struct RunResult {
     pub faults: Option<FaultsTruth>,
 }
 
+/// The cycles around one fault: from its start to a second after its end.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FaultWindow {
+    /// The fault's entry in the schedule, and its kind.
+    pub fault: usize,
+    /// Its kind.
+    pub kind: &'static str,
+    /// When it started, real time, ps.
+    pub start_ps: u64,
+    /// Until when cycles are kept, real time, ps.
+    pub until_ps: u64,
+    /// Per cycle: ms since the start, |0x092C| (ns; NaN: lost), and whether the reference's
+    /// time was held.
+    pub points: Vec<(f32, f32, bool)>,
+}
+
+/// A second after a fault's end, the window of the report's plot closes.
+const WINDOW_AFTER_PS: u64 = 1_000_000_000_000;
+
 /// One recovery of a run.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RecoveryOut {
@@ -324,6 +343,10 @@ pub struct FaultsTruth {
     /// The largest |0x092C| of a cycle whose frame came back, ns: DC held where it reads
     /// under 100 ns.
     pub max_rs_is_ns: u32,
+    /// Per fault start: the cycles from it to a second after its end (for the report's plot;
+    /// not in summary.json).
+    #[serde(skip)]
+    pub windows: Vec<FaultWindow>,
     /// Per fault, from the moment it was over (the end of a window: the slave on again, the
     /// cable in; else its start) to the first of 100 cycles that came back in a row locked and
     /// running (|0x092C| under 100 ns, the reference's time believed, the LRW's working counter
@@ -844,6 +867,17 @@ impl Run {
                     // without (a step, a stall, loss to the end of the run).
                     for e in &p.events()[*events_seen..] {
                         let f = &p.schedule().faults[e.fault];
+                        if e.edge == "start" {
+                            ft.windows.push(FaultWindow {
+                                fault: e.fault,
+                                kind: e.kind,
+                                start_ps: e.t_ps,
+                                until_ps: e.t_ps
+                                    + f.for_ns.unwrap_or(0).min(10_000_000_000) * 1000
+                                    + WINDOW_AFTER_PS,
+                                points: Vec::new(),
+                            });
+                        }
                         let windowed = f.for_ns.is_some()
                             && !matches!(
                                 f.kind,
@@ -859,6 +893,14 @@ impl Run {
                         }
                     }
                     *events_seen = p.events().len();
+                }
+                for w in ft.windows.iter_mut().filter(|w| sent_ps < w.until_ps) {
+                    let v = match (rec.receive_ns, rec.rs_is_ns) {
+                        (Some(_), Some(v)) => v as f32,
+                        _ => f32::NAN,
+                    };
+                    let t = (sent_ps.saturating_sub(w.start_ps)) as f64 / 1e9;
+                    w.points.push((t as f32, v, rec.reference_held));
                 }
                 ft.skipped_cycles += rep.skipped_before;
                 ft.held_cycles += u64::from(rec.reference_held);
@@ -964,9 +1006,16 @@ impl Run {
                 res.rs_is.add(f64::from(v));
                 series[1].add(k, f64::from(v));
             }
-            // Ground truth from the segment: the cycle's first frame at the reference.
+            // Ground truth from the segment: the cycle's first frame at the reference. A slave
+            // without SYNC0 running (power-cycled, not configured again yet) has no grid and no
+            // deadline: it is not counted until it has.
+            let runs_sync0 = |x: usize| seg.esc(x).dc().is_some_and(|d| d.sync0().is_some());
             let trace = tr.frame_trace(0);
-            let Some(r) = trace.pu_ps(reference).and_then(|t| sys(reference, t)) else {
+            let Some(r) = trace
+                .pu_ps(reference)
+                .filter(|_| runs_sync0(reference))
+                .and_then(|t| sys(reference, t))
+            else {
                 return;
             };
             // The grid point this frame aims at: the one nearest the target at the first
@@ -986,7 +1035,7 @@ impl Run {
             if k % 8 == 0 {
                 let mut worst = 0.0f64;
                 for &x in dc_slaves.iter() {
-                    if x == reference {
+                    if x == reference || !runs_sync0(x) {
                         continue;
                     }
                     if let Some(v) = sys(x, trace.pu_ps(reference).unwrap_or(0)) {
@@ -1010,7 +1059,9 @@ impl Run {
                 .zip(dc_slaves.iter())
                 .zip(out_frames.iter())
             {
-                let pu = if k == 0 {
+                let pu = if !runs_sync0(x) {
+                    None
+                } else if k == 0 {
                     trace.pu_ps(x)
                 } else {
                     tr.frame_trace(k).pu_ps(x)
