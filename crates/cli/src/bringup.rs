@@ -30,6 +30,11 @@ pub struct Args {
     /// Cycles monitored in OP after lock.
     #[arg(long, default_value_t = 1_000)]
     monitor_cycles: u32,
+    /// Play the faults of this schedule (TOML `[[fault]]` entries, or a built-in one) during
+    /// the bring-up; times count from its first frame. A lost datagram is then waited for
+    /// 5 ms and sent again up to ten times.
+    #[arg(long)]
+    faults: Option<PathBuf>,
 }
 
 #[derive(Debug, Serialize)]
@@ -115,7 +120,18 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let mut samples: Vec<(u64, f64)> = Vec::new();
     let mut after_offsets = false;
     let mut frames = 0u64;
-    let result = sim.run_procedure(&mut engine, |tr, _, events| {
+    let procedure = match &args.faults {
+        Some(p) => {
+            let mut sched =
+                ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
+            // The bring-up's own time: from its first frame.
+            sched.epoch = ecsync_esc::fault::Epoch::Start;
+            sim.set_faults(ecsync_esc::fault::FaultPlayer::new(sched, 0));
+            ecsync_lab::run::FAULTY_PROCEDURE
+        }
+        None => ecsync_master::sim::SIM_PROCEDURE,
+    };
+    let result = sim.run_procedure_with(&mut engine, procedure, |tr, _, events| {
         let (seg, ex) = (tr.segment(), tr.last_exchange());
         frames += 1;
         if events.contains(&Event::OffsetsWritten) {

@@ -36,6 +36,10 @@ struct RunArgs {
     /// A TOML file describing the network, bridge and gPTP (see presets/tsn-2020.toml).
     #[arg(long)]
     config: Option<std::path::PathBuf>,
+    /// Play the faults of this schedule on each variant's segment (TOML `[[fault]]` entries
+    /// or a built-in one; the segment's kinds but a second responder).
+    #[arg(long)]
+    faults: Option<std::path::PathBuf>,
     /// Variants to run (default: the scenario's).
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     variants: Option<Vec<String>>,
@@ -198,7 +202,25 @@ fn tsn_run(args: RunArgs) -> Result<ExitCode> {
         std::fs::create_dir_all(dir)
             .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
     }
+    let faults = match &args.faults {
+        Some(p) => {
+            let f = ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
+            if let Some((n, x)) = f.faults.iter().enumerate().find(|(_, x)| {
+                x.kind.is_host_fault()
+                    || matches!(x.kind, ecsync_esc::fault::FaultKind::SecondResponder { .. })
+            }) {
+                anyhow::bail!(
+                    "{}: fault[{n}].kind: \"{}\" is not played on the TSN network (its master's host and its one reply per frame); fix: remove it here (compare --faults plays it)",
+                    p.display(),
+                    x.kind.name()
+                );
+            }
+            Some(f)
+        }
+        None => None,
+    };
     let opts = TsnOptions {
+        faults,
         pcap_dir: args.pcap.clone(),
         pcap_cycles: (args.pcap_seconds.max(0.0) * 1e9 / f64::from(s.cycle_ns)) as u64,
     };

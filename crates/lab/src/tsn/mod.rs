@@ -43,12 +43,12 @@ use std::path::Path;
 #[derive(Debug, thiserror::Error)]
 pub enum TsnError {
     /// The bring-up failed.
-    #[error("{variant}: bring-up failed: {source}")]
+    #[error("{variant}: bring-up failed: {cause}")]
     Bringup {
         /// Variant.
         variant: &'static str,
-        /// Why.
-        source: MasterError,
+        /// Why (in the message, not a source of its own: said once).
+        cause: MasterError,
     },
     /// The network cannot be built (its segment), or its capture not written.
     #[error(transparent)]
@@ -168,6 +168,8 @@ pub struct TsnOptions {
     pub pcap_dir: Option<std::path::PathBuf>,
     /// Capture only this many seconds of cyclic operation (the bring-up is always captured).
     pub pcap_cycles: u64,
+    /// A fault schedule played on each variant's segment (`tsn run --faults`).
+    pub faults: Option<ecsync_esc::fault::FaultSchedule>,
 }
 
 /// Runs one variant of the scenario.
@@ -178,6 +180,9 @@ pub fn run_variant(
 ) -> Result<VariantResult, TsnError> {
     let t0 = std::time::Instant::now();
     let mut net = TsnNetwork::new(s.network_params(), variant)?;
+    if let Some(f) = &opts.faults {
+        net.set_faults(ecsync_esc::fault::FaultPlayer::new(f.clone(), s.seed));
+    }
     let pcap = opts.pcap_dir.as_ref().map(|dir| pcap_path(dir, variant));
     if let Some(path) = &pcap {
         let c = PcapCapture::create(path).map_err(|e| TsnError::Pcap {
@@ -214,9 +219,10 @@ pub fn run_variant(
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
+    // A segment with faults loses datagrams: they are sent again, as on a real network.
     let procedure = ProcedureConfig {
         reply_timeout_ns: TIMEOUT_PS / 1000,
-        retries: 0,
+        retries: if opts.faults.is_some() { 10 } else { 0 },
     };
     let bring = run_procedure(
         &mut net,
@@ -229,9 +235,9 @@ pub fn run_variant(
         Ok(r) => r,
         Err(never) => match never {},
     }
-    .map_err(|source| TsnError::Bringup {
+    .map_err(|cause| TsnError::Bringup {
         variant: variant.name(),
-        source,
+        cause,
     })?;
     net.end_bringup();
 

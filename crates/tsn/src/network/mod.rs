@@ -337,9 +337,22 @@ pub struct TsnNetwork<'a> {
     last_wait_fwd_ps: u64,
     /// Frames in flight (a cycle of several frames), in the order sent, with their replies.
     trips: VecDeque<(Trip, Vec<u8>)>,
+    /// A fault schedule played on the segment's frames (the segment's kinds; a second
+    /// responder's copy and the master host's faults are not played on this network).
+    faults: Option<ecsync_esc::fault::FaultPlayer>,
 }
 
 impl<'a> TsnNetwork<'a> {
+    /// Plays `faults` on the segment's frames from now on.
+    pub fn set_faults(&mut self, faults: ecsync_esc::fault::FaultPlayer) {
+        self.faults = Some(faults);
+    }
+
+    /// The fault player, if one plays.
+    pub fn faults(&self) -> Option<&ecsync_esc::fault::FaultPlayer> {
+        self.faults.as_ref()
+    }
+
     /// The network of `variant`, at real time 0.
     pub fn new(p: NetworkParams<'a>, variant: Variant) -> Result<Self, NetworkError> {
         let (m, b, g) = (p.master, p.bridge, p.gptp);
@@ -426,6 +439,7 @@ impl<'a> TsnNetwork<'a> {
             last_launch_ns: 0,
             last_wait_fwd_ps: 0,
             trips: VecDeque::new(),
+            faults: None,
         })
     }
 
@@ -602,8 +616,19 @@ impl<'a> TsnNetwork<'a> {
         } else {
             (t_tx, 0)
         };
-        let out = self.segment.process(frame, t_seg);
-        let Some(back_sof) = out.returned_sof_ps else {
+        let fate = match &mut self.faults {
+            Some(f) => f.before_frame(&mut self.segment, frame, t_seg),
+            None => ecsync_esc::fault::FrameFate::default(),
+        };
+        let returned = if fate.lost_out {
+            None
+        } else {
+            let out = self.segment.process(frame, t_seg);
+            out.returned_sof_ps
+                .filter(|_| !fate.lost_back)
+                .map(|t| t + fate.extra_delay_ps)
+        };
+        let Some(back_sof) = returned else {
             return Trip {
                 t1_ns: t1,
                 t4_ns: None,
