@@ -866,6 +866,7 @@ figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:
         let _ = write!(h, "<p class=warn>{}</p>", esc(&w.message));
     }
     truth_table(&mut h, out, order);
+    faults_table(&mut h, out, order);
     per_slave_table(&mut h, out);
     letter_table(&mut h, out, order);
     let _ = write!(h, "<h2>Plots</h2>");
@@ -887,6 +888,73 @@ figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:
         esc(&verdict_text(out))
     );
     h
+}
+
+/// With `compare --faults`: per method, what the faults did and how it came back (all runs;
+/// the re-lock time is the worst run's).
+fn faults_table(h: &mut String, out: &SummaryOut, order: &[String]) {
+    if out.methods.values().all(|m| m.faults.is_empty()) {
+        return;
+    }
+    let kinds: Vec<&str> = out
+        .methods
+        .values()
+        .find_map(|m| m.faults.first())
+        .map(|f| f.relock_kinds.clone())
+        .unwrap_or_default();
+    let _ = write!(
+        h,
+        "<h2>Faults</h2><p>All runs. Dropped: frames the schedule lost; lost: cycles whose frame did not come back; recovered: slaves the master configured again (network positions); held: cycles the master did not believe the reference's time and held over. Re-lock: from the fault's end to the first of 100 cycles in a row with |0x092C| under 100 ns, the reference believed and every slave's process data (the worst run). Every fault's edges and every recovery: <a href=\"faults.csv\">faults.csv</a>.</p><table><tr><th class=l>method</th><th>dropped</th><th>lost</th><th>late</th><th>duplicates</th><th>skipped</th><th>held</th><th>recovered</th><th>max |0x092C| ns</th>"
+    );
+    for k in &kinds {
+        let _ = write!(h, "<th>re-lock after {} ms</th>", esc(k));
+    }
+    let _ = write!(h, "</tr>");
+    for m in order {
+        let Some(mo) = out.methods.get(m) else {
+            continue;
+        };
+        let f = &mo.faults;
+        let sum = |g: fn(&crate::run::FaultsTruth) -> u64| f.iter().map(g).sum::<u64>();
+        let mut recovered: Vec<u16> = f
+            .iter()
+            .flat_map(|x| x.recoveries.iter().flat_map(|r| r.slaves.iter().copied()))
+            .collect();
+        recovered.sort_unstable();
+        recovered.dedup();
+        let _ = write!(
+            h,
+            "<tr><td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:?}</td><td>{}</td>",
+            esc(m),
+            sum(|x| x.counts.lost_out + x.counts.lost_back),
+            sum(|x| x.lost_cycles),
+            sum(|x| x.late_replies),
+            sum(|x| x.duplicate_replies),
+            sum(|x| x.skipped_cycles),
+            sum(|x| x.held_cycles),
+            recovered,
+            f.iter().map(|x| x.max_rs_is_ns).max().unwrap_or(0)
+        );
+        for k in 0..kinds.len() {
+            let mut worst = Some(0.0f64);
+            for x in f {
+                worst = match (worst, x.relock_ms.get(k).copied().flatten()) {
+                    (Some(a), Some(b)) => Some(a.max(b)),
+                    _ => None,
+                };
+            }
+            match worst {
+                Some(ms) => {
+                    let _ = write!(h, "<td>{ms:.1}</td>");
+                }
+                None => {
+                    let _ = write!(h, "<td>never</td>");
+                }
+            }
+        }
+        let _ = write!(h, "</tr>");
+    }
+    let _ = write!(h, "</table>");
 }
 
 fn us3(ns: f64) -> String {

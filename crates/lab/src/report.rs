@@ -739,9 +739,50 @@ fn warnings(
             w.push(Warning {
                 kind: "lost_frames",
                 method: Some(m.clone()),
+                message: if mo.faults.is_empty() {
+                    format!(
+                        "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle) or not at all",
+                        mo.cycles_done
+                    )
+                } else {
+                    format!(
+                        "{m}: {lost} of {} recorded frames were lost (the fault schedule's loss, and the cycles its power cycles and cable pulls cut off)",
+                        mo.cycles_done
+                    )
+                },
+            });
+        }
+    }
+    for m in order {
+        let Some(mo) = methods.get(m) else { continue };
+        // A fault a method did not come back from, in any run.
+        let mut never: Vec<String> = Vec::new();
+        for (run, f) in mo.faults.iter().enumerate() {
+            for (k, ms) in f.relock_ms.iter().enumerate() {
+                if ms.is_none() {
+                    let kind = f.relock_kinds.get(k).copied().unwrap_or("fault");
+                    never.push(format!("{kind} (run {run})"));
+                }
+            }
+        }
+        if !never.is_empty() {
+            never.dedup();
+            // A method whose |0x092C| is above the bound most of the time (the letter's bus
+            // shift) never counts as locked, faults or not: said so.
+            let median = mo.rs_is_pooled.p50;
+            let why = if median >= 100.0 {
+                format!(
+                    "; its |0x092C| is above 100 ns in most cycles anyway (median {median:.0} ns): it does not lock to that bound, faults or not"
+                )
+            } else {
+                String::new()
+            };
+            w.push(Warning {
+                kind: "no_relock",
+                method: Some(m.clone()),
                 message: format!(
-                    "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle) or not at all",
-                    mo.cycles_done
+                    "{m} did not come back to lock (|0x092C| under 100 ns, the reference believed, every slave's process data, for 100 cycles) after: {}{why}",
+                    never.join(", ")
                 ),
             });
         }
@@ -782,6 +823,12 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
         .collect();
     let transit = if transits.is_empty() {
         0.0
+    } else if s.faults.is_some() {
+        // With faults a method that lost the reference's timeline for a while carries a phase
+        // far off in its mean: the median over methods is the network's transit.
+        let mut t = transits.clone();
+        t.sort_by(f64::total_cmp);
+        t[t.len() / 2]
     } else {
         transits.iter().sum::<f64>() / transits.len() as f64
     };

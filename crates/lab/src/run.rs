@@ -343,6 +343,8 @@ pub struct FaultsTruth {
     /// The largest |0x092C| of a cycle whose frame came back, ns: DC held where it reads
     /// under 100 ns.
     pub max_rs_is_ns: u32,
+    /// The kind of the fault each of `relock_ms` is of.
+    pub relock_kinds: Vec<&'static str>,
     /// Per fault start: the cycles from it to a second after its end (for the report's plot;
     /// not in summary.json).
     #[serde(skip)]
@@ -595,6 +597,7 @@ pub struct Run {
 /// The way back to lock after one fault (see [`FaultsTruth::relock_ms`]).
 #[derive(Debug, Clone, Copy)]
 struct Relock {
+    kind: &'static str,
     start_ps: u64,
     good_in_a_row: u32,
     first_good_ps: u64,
@@ -850,6 +853,7 @@ impl Run {
         let (reference, init_frames, total) = (self.reference, self.init_frames, self.total_cycles);
         let (expected_wkc, pdi_len) = (self.expected_lrw_wkc, self.pdi_len);
         let p = period as f64;
+        let with_faults = res.faults.is_some();
         let observe = |tr: &mut SimTransport, rep: &CycleReport| {
             let rec = &rep.record;
             let i = rec.cycle;
@@ -885,6 +889,7 @@ impl Run {
                             );
                         if (e.edge == "end") == windowed {
                             relock.push(Relock {
+                                kind: e.kind,
                                 start_ps: e.t_ps,
                                 good_in_a_row: 0,
                                 first_good_ps: 0,
@@ -1019,12 +1024,18 @@ impl Run {
                 return;
             };
             // The grid point this frame aims at: the one nearest the target at the first
-            // recorded frame, one per cycle from there.
+            // recorded frame, one per cycle from there. With faults, the one nearest the
+            // target now: a method that lost the reference for a while (a power cycle) may
+            // come back a few periods off its count, and SYNC0 fires every period.
             let (g0, k0) = *grid0.get_or_insert_with(|| {
                 let g = ((r.0 as f64 + r.1 - target as f64) / p).round() as u64;
                 (g, k as i64)
             });
-            let grid = (g0 + (k as i64 - k0) as u64) * period;
+            let grid = if with_faults {
+                ((r.0 as f64 + r.1 - target as f64) / p).round() as u64 * period
+            } else {
+                (g0 + (k as i64 - k0) as u64) * period
+            };
             let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
             res.phase.add(phase);
             res.phase_error.add(phase - target as f64);
@@ -1159,6 +1170,7 @@ impl Run {
             ft.late_replies = d.late;
             ft.duplicate_replies = d.duplicates;
             ft.relock_ms = self.relock.iter().map(|r| r.done_ms).collect();
+            ft.relock_kinds = self.relock.iter().map(|r| r.kind).collect();
             let t0 = self.cyclic_start_ns;
             let ms = |t: u64| t.saturating_sub(t0) as f64 / 1e6;
             ft.recoveries = self
