@@ -452,6 +452,85 @@ fn every_method_runs_through_loss_a_reference_power_cycle_and_a_cable_pull_over_
 }
 
 #[test]
+fn serve_and_run_survive_their_interfaces_going_down_for_50_ms() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(pair) = NetPair::new("d") else {
+        return;
+    };
+    let mut served = pair.serve(&[]);
+    let dir = tmp("down");
+    let csv = dir.join("cycles.csv");
+    let summary = dir.join("summary.json");
+    let run = pair
+        .command(
+            &pair.ns_b,
+            &[
+                "run",
+                "--iface",
+                &pair.if_b,
+                "--duration",
+                "6",
+                "--csv",
+                csv.to_str().unwrap(),
+                "--summary",
+                summary.to_str().unwrap(),
+            ],
+        )
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while lines(&csv) < 1_000 {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the cyclic phase did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // The segment's interface down for 50 ms, then the master's.
+    for (ns, ifc) in [(&pair.ns_a, &pair.if_a), (&pair.ns_b, &pair.if_b)] {
+        ip(&["-n", ns, "link", "set", ifc, "down"]).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        ip(&["-n", ns, "link", "set", ifc, "up"]).unwrap();
+        std::thread::sleep(Duration::from_millis(1_000));
+    }
+    let o = run.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "run: {stderr}");
+    // serve is still there.
+    assert!(
+        served.child.try_wait().unwrap().is_none(),
+        "serve exited when its interface went down"
+    );
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    assert_eq!(j["stopped"], "duration");
+    let lost = j["lost_frames"].as_u64().unwrap();
+    println!(
+        "interfaces down: {lost} frames lost, the master's interface refused {} times",
+        j["link_down_errors"]
+    );
+    // Two outages of 50 ms (and the time a veth takes to carry again).
+    assert!(lost >= 50 && lost < 2_000, "{lost} frames lost");
+    // Locked at the end.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let c = header.iter().position(|c| *c == "max_abs_092c_ns").unwrap();
+    let tail: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').nth(c)?.parse().ok())
+        .collect();
+    let worst = tail[tail.len().saturating_sub(500)..]
+        .iter()
+        .copied()
+        .fold(0.0f64, f64::max);
+    assert!(worst < 1_000.0, "|0x092C| {worst} ns at the end");
+    served.kill();
+}
+
+#[test]
 fn a_segment_that_dies_mid_run_is_reported_and_what_was_measured_is_kept() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let Some(pair) = NetPair::new("k") else {

@@ -30,7 +30,8 @@
 //! master's NIC drops it), `delay` (`extra_us` on every reply while it lasts), `power_cycle`
 //! (the slave off for `for_s`, then up again from reset: registers, AL Init, a new power-up
 //! time of its clock; the SII is kept; the slaves behind it are cut off meanwhile),
-//! `link_down` (`slave`, `port`), `host_stall` (`stall_ms`: the master's cyclic task wakes that
+//! `link_down` (`slave`, `port`), `hot_connect` (`slaves`: the last N slaves absent until
+//! `at_s`), `host_stall` (`stall_ms`: the master's cyclic task wakes that
 //! late once), `clock_step` (`step_us`, signed: the master's clock jumps), `second_responder`
 //! (every frame answered twice while it lasts, the copy `lag_us` later). Random draws are a
 //! hash of the seed and the frame's number since the epoch: every method of a comparison loses
@@ -115,6 +116,12 @@ pub enum FaultKind {
         /// Step, ns (negative: back).
         step_ns: i64,
     },
+    /// The last `slaves` slaves of the network are not connected until the fault starts
+    /// (their cables plugged in then): slaves that appear at the end (hot connect).
+    HotConnect {
+        /// How many.
+        slaves: u16,
+    },
     /// A second device answers every frame again.
     SecondResponder {
         /// The copy's lag behind the reply, ns.
@@ -134,6 +141,7 @@ impl FaultKind {
             FaultKind::HostStall { .. } => "host_stall",
             FaultKind::ClockStep { .. } => "clock_step",
             FaultKind::SecondResponder { .. } => "second_responder",
+            FaultKind::HotConnect { .. } => "hot_connect",
         }
     }
 
@@ -203,6 +211,7 @@ struct EntryRepr {
     stall_ms: Option<f64>,
     step_us: Option<f64>,
     lag_us: Option<f64>,
+    slaves: Option<u16>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -214,7 +223,7 @@ enum SlaveRepr {
 
 /// The kinds a file may name, for the error's fix.
 const KINDS: &str = "loss, corrupt, delay, power_cycle, link_down, host_stall, clock_step, \
-                     second_responder";
+                     second_responder, hot_connect";
 
 /// The default time a power-cycled slave stays off, ns.
 pub const DEFAULT_OFF_NS: u64 = 200_000_000;
@@ -380,6 +389,7 @@ fn entry(src: &ConfigSource, n: usize, e: &EntryRepr) -> Result<Fault, ConfigErr
         "host_stall" => &["stall_ms"],
         "clock_step" => &["step_us"],
         "second_responder" => &["lag_us"],
+        "hot_connect" => &["slaves"],
         other => {
             return Err(err(
                 "kind",
@@ -397,6 +407,7 @@ fn entry(src: &ConfigSource, n: usize, e: &EntryRepr) -> Result<Fault, ConfigErr
         ("stall_ms", e.stall_ms.is_some()),
         ("step_us", e.step_us.is_some()),
         ("lag_us", e.lag_us.is_some()),
+        ("slaves", e.slaves.is_some()),
     ];
     if let Some((k, _)) = given.iter().find(|(k, g)| *g && !allowed.contains(k)) {
         return Err(err(
@@ -474,6 +485,19 @@ fn entry(src: &ConfigSource, n: usize, e: &EntryRepr) -> Result<Fault, ConfigErr
                 lag_ns: (us * 1e3).round() as u64,
             }
         }
+        "hot_connect" => match e.slaves {
+            Some(n) if n >= 1 => FaultKind::HotConnect { slaves: n },
+            _ => {
+                return Err(err(
+                    "slaves",
+                    format!(
+                        "kind \"{}\" needs how many slaves appear, 1 or more",
+                        e.kind
+                    ),
+                    "add slaves = 2 (the last two slaves of the network, absent until at_s)",
+                ));
+            }
+        },
         _ => unreachable!("kinds checked above"),
     };
     let for_ns = match kind {
@@ -550,6 +574,14 @@ pub struct FaultPlayer {
     burst_left: Vec<u32>,
     events: Vec<FaultEvent>,
     counts: FaultCounts,
+    /// The schedule's state before the first fault (slaves not yet connected) is set.
+    initialised: bool,
+}
+
+/// The positions of the last `n` slaves of the segment (at least one stays).
+fn hot_slaves(segment: &Segment, n: u16) -> std::ops::Range<usize> {
+    let len = segment.len();
+    len.saturating_sub(usize::from(n)).max(1).min(len)..len
 }
 
 impl FaultPlayer {
@@ -578,6 +610,7 @@ impl FaultPlayer {
             ended: vec![false; n],
             events: Vec::new(),
             counts: FaultCounts::default(),
+            initialised: false,
         }
     }
 
@@ -630,6 +663,17 @@ impl FaultPlayer {
     /// Before `segment` takes a frame leaving at real time `t_ps`: starts and ends the
     /// segment's faults that are due (power, links) and says what becomes of the frame.
     pub fn before_frame(&mut self, segment: &mut Segment, frame: &[u8], t_ps: u64) -> FrameFate {
+        if !self.initialised {
+            // Slaves that appear later are not connected yet.
+            self.initialised = true;
+            for f in self.schedule.faults.iter() {
+                if let FaultKind::HotConnect { slaves } = f.kind {
+                    for p in hot_slaves(segment, slaves) {
+                        segment.set_link(p, segment.entry_port(p), false);
+                    }
+                }
+            }
+        }
         if self.origin_ps.is_none() {
             let at_epoch = match self.schedule.epoch {
                 Epoch::Start => true,
@@ -772,6 +816,13 @@ fn resolve(segment: &Segment, slave: SlaveRef) -> Option<usize> {
 
 fn start_fault(segment: &mut Segment, kind: &FaultKind, t_ps: u64) -> String {
     match *kind {
+        FaultKind::HotConnect { slaves } => {
+            let r = hot_slaves(segment, slaves);
+            for p in r.clone() {
+                segment.set_link(p, segment.entry_port(p), true);
+            }
+            format!("slaves {} to {} connected", r.start + 1, r.end)
+        }
         FaultKind::PowerCycle { slave } => match resolve(segment, slave) {
             Some(p) => {
                 segment.power_off(p, t_ps);
@@ -966,6 +1017,80 @@ stall_ms = 10
         assert_eq!(fa, fb);
         let lost = fa.iter().filter(|&&l| l).count();
         assert!((2_700..3_300).contains(&lost), "{lost} of 10 000 at 30 %");
+    }
+
+    /// A broadcast read's working counter: the slaves it reached.
+    fn count(seg: &mut Segment, p: &mut FaultPlayer, t_ps: u64) -> u16 {
+        let mut buf = [0u8; 60];
+        let mut b =
+            ecsync_wire::FrameBuilder::new(&mut buf, [0xff; 6], [2, 0, 0, 0, 0, 1]).unwrap();
+        b.push_zeroed(
+            Command::Brd,
+            0,
+            ecsync_wire::DatagramAddress::position(0, 0),
+            1,
+        )
+        .unwrap();
+        let n = b.finish();
+        let fate = p.before_frame(seg, &buf[..n], t_ps);
+        assert!(!fate.lost_out && !fate.lost_back);
+        seg.process(&mut buf[..n], t_ps);
+        let f = EcatFrame::new_checked(&buf[..n]).unwrap();
+        f.datagrams().next().unwrap().unwrap().wkc()
+    }
+
+    #[test]
+    fn hot_connected_slaves_appear_at_their_time() {
+        let s = FaultSchedule::parse(
+            "f.toml",
+            "epoch = \"start\"\n[[fault]]\nat_s = 0.01\nkind = \"hot_connect\"\nslaves = 2\n",
+        )
+        .unwrap();
+        let mut seg = Segment::new(&crate::preset::line(5, 1)).unwrap();
+        let mut p = FaultPlayer::new(s, 1);
+        assert_eq!(
+            count(&mut seg, &mut p, 0),
+            3,
+            "the last two are not connected yet"
+        );
+        assert_eq!(count(&mut seg, &mut p, 5_000_000_000), 3);
+        assert_eq!(
+            count(&mut seg, &mut p, 20_000_000_000),
+            5,
+            "connected at 10 ms"
+        );
+        assert_eq!(p.events()[0].detail, "slaves 4 to 5 connected");
+    }
+
+    #[test]
+    fn a_pulled_cable_and_a_power_cycle_cut_the_segment_behind() {
+        let s = FaultSchedule::parse(
+            "f.toml",
+            "epoch = \"start\"\n[[fault]]\nat_s = 0.01\nfor_s = 0.01\nkind = \"link_down\"\nslave = 2\n\n[[fault]]\nat_s = 0.03\nfor_s = 0.01\nkind = \"power_cycle\"\nslave = 4\n",
+        )
+        .unwrap();
+        let mut seg = Segment::new(&crate::preset::line(5, 1)).unwrap();
+        let mut p = FaultPlayer::new(s, 1);
+        let ms = |m: u64| m * 1_000_000_000;
+        assert_eq!(count(&mut seg, &mut p, 0), 5);
+        assert_eq!(
+            count(&mut seg, &mut p, ms(15)),
+            2,
+            "slaves 3-5 behind the cable"
+        );
+        assert_eq!(count(&mut seg, &mut p, ms(25)), 5, "plugged in again");
+        assert_eq!(
+            count(&mut seg, &mut p, ms(35)),
+            3,
+            "slave 4 off: 4 and 5 gone"
+        );
+        assert!(seg.is_powered_off(3));
+        assert_eq!(count(&mut seg, &mut p, ms(45)), 5, "on again");
+        assert_eq!(
+            seg.esc(3).al_state(),
+            ecsync_wire::AlState::Init,
+            "from reset"
+        );
     }
 
     #[test]

@@ -745,6 +745,12 @@ impl Segment {
         }
     }
 
+    /// The port through which frames enter the slave at network position `pos` (its upstream
+    /// cable).
+    pub fn entry_port(&self, pos: usize) -> usize {
+        usize::from(self.nodes[pos].entry_port)
+    }
+
     /// Whether the slave at network position `pos` is switched off.
     pub fn is_powered_off(&self, pos: usize) -> bool {
         self.nodes[pos].off
