@@ -512,7 +512,7 @@ fn serve_and_run_survive_their_interfaces_going_down_for_50_ms() {
         j["link_down_errors"]
     );
     // Two outages of 50 ms (and the time a veth takes to carry again).
-    assert!(lost >= 50 && lost < 2_000, "{lost} frames lost");
+    assert!((50..2_000).contains(&lost), "{lost} frames lost");
     // Locked at the end.
     let text = std::fs::read_to_string(&csv).unwrap();
     let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
