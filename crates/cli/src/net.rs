@@ -346,6 +346,9 @@ struct RunOut {
     recoveries: Vec<RecoveryRow>,
     /// Sends and receives the interface refused because it was down.
     link_down_errors: u64,
+    /// Steps of the host's clock the engine saw (the reference ran on while the master's time
+    /// jumped: an NTP step, a `date -s`).
+    master_clock_steps: u32,
     csv: Option<String>,
 }
 
@@ -737,6 +740,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             })
             .collect(),
         link_down_errors: link.link_down_errors(),
+        master_clock_steps: eng.health().master_clock_steps,
         csv: args.csv.as_ref().map(|p| p.display().to_string()),
     };
     let text = serde_json::to_string_pretty(&out)?;

@@ -338,6 +338,14 @@ pub struct FaultsTruth {
     /// Cycles whose reference time the engine did not believe (missing or jumped): the
     /// method held over.
     pub held_cycles: u64,
+    /// Steps of the master's clock the engine detected (the reference ran on while the
+    /// master's time jumped), and the last one's size, ns.
+    pub master_clock_steps: u32,
+    /// The last detected step of the master's clock, ns (positive: forward).
+    pub last_master_step_ns: i64,
+    /// Cycles with a late frame (after some drive's SYNC0) inside a fault's window (its start
+    /// to a second after its end), recorded cycles only.
+    pub late_in_windows: u64,
     /// Cycles of the whole cyclic phase (warm-up included) whose frame did not come back.
     pub lost_cycles: u64,
     /// The largest |0x092C| of a cycle whose frame came back, ns: DC held where it reads
@@ -1101,6 +1109,14 @@ impl Run {
                 }
             }
             let late = worst_margin < 0.0;
+            if late && let Some(ft) = res.faults.as_mut() {
+                let sent_ps = tr.last_exchange().sent_ps;
+                ft.late_in_windows += u64::from(
+                    ft.windows
+                        .iter()
+                        .any(|w| sent_ps >= w.start_ps && sent_ps < w.until_ps),
+                );
+            }
             if worst_margin.is_finite() {
                 res.margin.add(worst_margin);
                 if late {
@@ -1167,6 +1183,9 @@ impl Run {
                 ft.counts = p.counts();
             }
             let d = self.driver.stats();
+            let h = self.eng.health();
+            ft.master_clock_steps = h.master_clock_steps;
+            ft.last_master_step_ns = h.last_master_step_ns;
             ft.late_replies = d.late;
             ft.duplicate_replies = d.duplicates;
             ft.relock_ms = self.relock.iter().map(|r| r.done_ms).collect();

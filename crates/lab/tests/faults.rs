@@ -223,6 +223,17 @@ fn a_master_clock_step_of_a_millisecond_either_way_is_survived() {
                 continue;
             }
             assert_eq!(f.lost_cycles, 0, "{m}: {step} us: cycles lost");
+            // Detected: the reference ran on while the master's time jumped.
+            assert_eq!(f.master_clock_steps, 1, "{m}: {step} us: steps detected");
+            assert!(
+                (f.last_master_step_ns - step * 1000).abs() < 20_000,
+                "{m}: {step} us detected as {} ns",
+                f.last_master_step_ns
+            );
+            assert_eq!(
+                f.held_cycles, 0,
+                "{m}: {step} us: the reference was believed"
+            );
             let ms = ms.unwrap_or_else(|| panic!("{m}: {step} us: never re-locked: {f:?}"));
             assert!(ms < 1_000.0, "{m}: {step} us: re-locked after {ms} ms");
             assert!(

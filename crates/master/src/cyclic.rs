@@ -126,6 +126,11 @@ pub struct Health {
     pub reference_missing_cycles: u64,
     /// Cycles in a row whose frame with the reference's time was lost.
     pub reference_lost_cycles: u32,
+    /// Steps of the master's own clock seen (the reference ran on while the master's time
+    /// between two cycles jumped), and the last one's size, ns (positive: forward).
+    pub master_clock_steps: u32,
+    /// The last step of the master's clock, ns.
+    pub last_master_step_ns: i64,
     /// Slaves seem to have lost their configuration: a recovery should run.
     pub needs_recovery: bool,
 }
@@ -655,6 +660,17 @@ impl<S: MasterSync> CyclicEngine<S> {
                 <= REFERENCE_JUMP_NS + (span as i64).unsigned_abs() / 5_000
         };
         let mut ok = near(span) || near(sent_span);
+        // Neither, but both alike while frames kept coming: the reference ran on and the
+        // master's own clock stepped (its wake-up and its timestamps moved together). A
+        // reference that jumps comes back after an outage, a master's step does not.
+        let both_alike =
+            (sent_span as i64).wrapping_sub(span as i64).unsigned_abs() <= REFERENCE_JUMP_NS;
+        if !ok && outage == 0 && both_alike {
+            let step = (sent_span as i64).wrapping_sub(t.wrapping_sub(prev) as i64);
+            self.health.master_clock_steps += 1;
+            self.health.last_master_step_ns = step;
+            ok = true;
+        }
         if !ok {
             // A new timeline: taken once it runs on by itself for a while and no recovery is
             // wanted (a recovery that found no slave reset: the master's own time stepped
