@@ -287,6 +287,8 @@ struct RecoveryRow {
     end_s: Option<f64>,
     slaves: Vec<u16>,
     error: Option<String>,
+    /// Slaves that answered beyond the network as brought up (hot-connected): not taken in.
+    appeared: u16,
 }
 
 /// Wake-up latency figures, µs.
@@ -737,6 +739,10 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                     Some(Err(m)) => Some(m.clone()),
                     _ => None,
                 },
+                appeared: match &e.outcome {
+                    Some(Ok(r)) => r.appeared,
+                    _ => 0,
+                },
             })
             .collect(),
         link_down_errors: link.link_down_errors(),
@@ -829,6 +835,12 @@ fn print_run(o: &RunOut) {
             r.slaves,
             r.start_s,
             r.end_s.map_or(f64::NAN, |e| (e - r.start_s) * 1e3)
+        );
+    }
+    if let Some(r) = o.recoveries.iter().find(|r| r.appeared > 0) {
+        println!(
+            "{} slave(s) appeared at the end of the network at {:.3} s (hot connect): counted, not taken in (bring the network up again to use them).",
+            r.appeared, r.start_s
         );
     }
     if o.reference_held_cycles > 0 {

@@ -660,19 +660,26 @@ impl FaultPlayer {
         unit_from_bits(r.next())
     }
 
+    /// Sets the segment up as the schedule has it before its first fault: slaves that appear
+    /// later (hot connect) not connected yet. [`FaultPlayer::before_frame`] does it at the
+    /// first frame; a caller that attaches the player later (at the cyclic phase) calls it
+    /// before the bring-up.
+    pub fn prepare(&mut self, segment: &mut Segment) {
+        self.initialised = true;
+        for f in self.schedule.faults.iter() {
+            if let FaultKind::HotConnect { slaves } = f.kind {
+                for p in hot_slaves(segment, slaves) {
+                    segment.set_link(p, segment.entry_port(p), false);
+                }
+            }
+        }
+    }
+
     /// Before `segment` takes a frame leaving at real time `t_ps`: starts and ends the
     /// segment's faults that are due (power, links) and says what becomes of the frame.
     pub fn before_frame(&mut self, segment: &mut Segment, frame: &[u8], t_ps: u64) -> FrameFate {
         if !self.initialised {
-            // Slaves that appear later are not connected yet.
-            self.initialised = true;
-            for f in self.schedule.faults.iter() {
-                if let FaultKind::HotConnect { slaves } = f.kind {
-                    for p in hot_slaves(segment, slaves) {
-                        segment.set_link(p, segment.entry_port(p), false);
-                    }
-                }
-            }
+            self.prepare(segment);
         }
         if self.origin_ps.is_none() {
             let at_epoch = match self.schedule.epoch {

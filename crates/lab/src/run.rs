@@ -316,6 +316,8 @@ pub struct RecoveryOut {
     pub slaves: Vec<u16>,
     /// Why it failed (it is tried again).
     pub error: Option<String>,
+    /// Slaves that answered beyond the network as brought up (hot-connected): not taken in.
+    pub appeared: u16,
 }
 
 /// A run's faults: what the schedule did, what the master saw, and how DC came back.
@@ -463,6 +465,10 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
     let mut engine = Engine::new(move |link| bringup(link, cfg));
     // Faults counted from the first frame play on the bring-up too: a lost datagram is then
     // waited for a few milliseconds and sent again, as on a real network.
+    // Slaves that appear later are not there for the bring-up, whatever the epoch.
+    if let Some(f) = &s.faults {
+        FaultPlayer::new(f.clone(), seed).prepare(sim.segment_mut());
+    }
     let net = match &s.faults {
         Some(f) if f.epoch == Epoch::Start => {
             sim.set_faults(FaultPlayer::new(f.clone(), seed));
@@ -1206,6 +1212,10 @@ impl Run {
                     error: match &e.outcome {
                         Some(Err(m)) => Some(m.clone()),
                         _ => None,
+                    },
+                    appeared: match &e.outcome {
+                        Some(Ok(r)) => r.appeared,
+                        _ => 0,
                     },
                 })
                 .collect();

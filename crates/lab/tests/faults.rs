@@ -288,3 +288,37 @@ fn the_bring_up_retries_through_ten_percent_loss_and_names_the_datagram_at_all()
         "bring-up failed: scan: frame lost: no reply to count slaves (BRD 0x0000:0x0000) after 11 sends"
     );
 }
+
+#[test]
+fn slaves_appearing_at_the_end_are_counted_and_leave_the_others_locked() {
+    // Drives 5 and 6 are not there for the bring-up and appear at 11 s.
+    let out = compare_with("[[fault]]\nat_s = 11\nkind = \"hot_connect\"\nslaves = 2\n");
+    for (m, mo) in &out.methods {
+        let f = &mo.faults[0];
+        assert_eq!(f.events.len(), 1, "{m}: {:?}", f.events);
+        assert_eq!(f.events[0].detail, "slaves 5 to 6 connected");
+        // The master counted them in a recovery and took nothing else for a reset.
+        assert!(
+            f.recoveries
+                .iter()
+                .any(|r| r.appeared == 2 && r.slaves.is_empty()),
+            "{m}: {:?}",
+            f.recoveries
+        );
+        assert!(
+            f.recoveries.len() <= 3,
+            "{m}: {} recoveries",
+            f.recoveries.len()
+        );
+        assert_eq!(f.lost_cycles, 0, "{m}");
+        // The four drives of the bring-up kept their process data and their lock.
+        assert_eq!(mo.ground_truth.bad_wkc, 0, "{m}: working counters");
+        if m != "bus-shift" {
+            assert!(
+                mo.ground_truth.slave_ref_diff.max < 1_000.0,
+                "{m}: slave spread {}",
+                mo.ground_truth.slave_ref_diff.max
+            );
+        }
+    }
+}

@@ -133,6 +133,9 @@ pub struct Health {
     pub last_master_step_ns: i64,
     /// Slaves seem to have lost their configuration: a recovery should run.
     pub needs_recovery: bool,
+    /// Slaves answer that the bring-up did not take in (hot-connected): their |0x092C| is not
+    /// the network's.
+    pub unmanaged_slaves: bool,
 }
 
 /// |0x092C| beyond this is no slave's lock (a reset slave's register saturates), ns.
@@ -284,6 +287,12 @@ impl<S: MasterSync> CyclicEngine<S> {
     /// reference): a method that adjusts the offset adjusts this one from now on.
     pub fn set_reference_offset(&mut self, offset_ns: u64) {
         self.cfg.reference_offset_ns = offset_ns;
+    }
+
+    /// Slaves answer that the bring-up did not take in (a recovery counted them): their
+    /// |0x092C| no longer asks for recoveries.
+    pub fn unmanaged_slaves_answer(&mut self) {
+        self.health.unmanaged_slaves = true;
     }
 
     /// A recovery brought slaves back (or found none to bring back): the counts start again.
@@ -721,7 +730,9 @@ impl<S: MasterSync> CyclicEngine<S> {
         let h = &mut self.health;
         let short = h.expected_lrw_wkc > 0 && lrw_wkc.is_some_and(|w| w < h.expected_lrw_wkc);
         h.short_wkc_cycles = if short { h.short_wkc_cycles + 1 } else { 0 };
-        let far = rs_is_ns.is_some_and(|v| v >= FAR_092C_NS);
+        // (Not while slaves the master does not manage answer: a hot-connected slave's time
+        // control loop takes the FRMW's time from far away, and the BRD ORs it in.)
+        let far = rs_is_ns.is_some_and(|v| v >= FAR_092C_NS) && !h.unmanaged_slaves;
         h.far_092c_cycles = if far { h.far_092c_cycles + 1 } else { 0 };
         if h.short_wkc_cycles >= SUSPECT_CYCLES || h.far_092c_cycles >= SUSPECT_CYCLES {
             h.needs_recovery = true;

@@ -428,6 +428,9 @@ impl CyclicDriver {
                                     if let Some(o) = r.reference_offset {
                                         eng.set_reference_offset(o);
                                     }
+                                    if r.appeared > 0 {
+                                        eng.unmanaged_slaves_answer();
+                                    }
                                     eng.recovered();
                                 }
                                 Err(_) => rs.retry_at_ns = now.saturating_add(RECOVERY_RETRY_NS),

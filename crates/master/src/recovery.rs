@@ -47,6 +47,9 @@ pub struct Recovered {
     /// The System Time Offset written to the reset reference (a method that adjusts the
     /// reference's offset adjusts this one from now on).
     pub reference_offset: Option<u64>,
+    /// Slaves that answer beyond the network as brought up (hot-connected at the end): counted,
+    /// not taken in (a new bring-up maps their process data).
+    pub appeared: u16,
 }
 
 fn position_addr(pos: u16, ado: u16) -> DatagramAddress {
@@ -66,6 +69,18 @@ pub async fn recover(
     net: Network,
     cfg: RecoveryConfig,
 ) -> Result<Recovered, MasterError> {
+    // 0. How many slaves answer: more than brought up, and some appeared at the end.
+    let (count, _) = link
+        .pdus(
+            &[Pdu::new(
+                Command::Brd,
+                position_addr(0, reg::TYPE),
+                vec![0; 1],
+            )],
+            "count slaves",
+        )
+        .await?;
+    let appeared = count[0].wkc.saturating_sub(net.slaves.len() as u16);
     // 1. Who lost the configuration.
     let reads: Vec<Pdu> = net
         .slaves
@@ -97,6 +112,7 @@ pub async fn recover(
         reference: reset.contains(&net.reference),
         positions: reset.clone(),
         reference_offset: None,
+        appeared,
     };
     if reset.is_empty() {
         return Ok(out);
