@@ -613,6 +613,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             sync0_shift_ns: shift_ns,
             sync0_lead_ns: 20_000_000,
             timeouts: ecsync_master::bringup::BringupTimeouts::default(),
+            static_drift_frames: 15_000,
         },
     );
     // Statistics without ranges: quantiles of bounded error however large a stall.

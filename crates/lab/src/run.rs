@@ -488,6 +488,9 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
 /// (the rest of the recovery's frames, one per cycle, come first).
 const RECOVERY_SYNC0_LEAD_NS: u64 = 20_000_000;
 
+/// FRMW frames of static drift compensation a recovery sends after a reset slave's offset.
+const RECOVERY_STATIC_DRIFT_FRAMES: u32 = 15_000;
+
 /// How the bring-up waits and retries on a segment with faults: 5 ms, ten times.
 pub const FAULTY_PROCEDURE: ecsync_master::driver::ProcedureConfig =
     ecsync_master::driver::ProcedureConfig {
@@ -715,6 +718,7 @@ impl Run {
                 sync0_shift_ns: s.sync0_shift_ns(),
                 sync0_lead_ns: RECOVERY_SYNC0_LEAD_NS,
                 timeouts: ecsync_master::bringup::BringupTimeouts::default(),
+                static_drift_frames: RECOVERY_STATIC_DRIFT_FRAMES,
             },
         );
         Ok(Run {

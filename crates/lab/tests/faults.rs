@@ -159,8 +159,9 @@ fn a_reference_power_cycle_is_recovered_and_relocked_within_a_second() {
             "{m}: the reference brought back: {:?}",
             f.recoveries
         );
-        // The method held over while the reference's time was gone or not believed.
-        assert!(f.held_cycles >= 200, "{m}: held {} cycles", f.held_cycles);
+        // The method held over while the reference's time was gone or not believed (the
+        // 200 ms off; a method that drops cycles has fewer).
+        assert!(f.held_cycles >= 150, "{m}: held {} cycles", f.held_cycles);
         if m == "bus-shift" {
             continue;
         }

@@ -333,6 +333,74 @@ impl CyclicDriver {
         });
     }
 
+    /// Exchanges the running recovery's frames one after the other until master time
+    /// `until_ns` (or it waits past it, or a frame is lost: that one goes with the next cycle).
+    fn recovery_burst<S: MasterSync, Tr: Transport>(
+        &mut self,
+        tr: &mut Tr,
+        eng: &mut CyclicEngine<S>,
+        until_ns: u64,
+    ) -> Result<(), Tr::Error> {
+        let Some(rs) = self.recovery.as_mut() else {
+            return Ok(());
+        };
+        while rs.out.is_none() && tr.now_ns() < until_ns {
+            let Some(e) = rs.running.as_mut() else {
+                break;
+            };
+            let now = tr.now_ns();
+            let frame = match e.poll(now) {
+                Action::Send(f) => f.to_vec(),
+                Action::WaitUntil(t) if t < until_ns => {
+                    tr.sleep_until(t);
+                    continue;
+                }
+                Action::WaitUntil(_) => break,
+                Action::Done(r) => {
+                    rs.running = None;
+                    if let Some(ev) = rs.log.last_mut() {
+                        ev.ended_ns = Some(now);
+                        ev.outcome = Some(r.clone().map_err(|e| e.to_string()));
+                    }
+                    match r {
+                        Ok(r) => {
+                            if let Some(o) = r.reference_offset {
+                                eng.set_reference_offset(o);
+                            }
+                            if r.appeared > 0 {
+                                eng.unmanaged_slaves_answer();
+                            }
+                            eng.recovered();
+                        }
+                        Err(_) => rs.retry_at_ns = now.saturating_add(RECOVERY_RETRY_NS),
+                    }
+                    break;
+                }
+            };
+            let at = tr.send_time_ns(frame.len());
+            let sent = tr.send(&frame, at)?;
+            self.stats.sent += 1;
+            let mut answered = false;
+            while let Some(r) = tr.recv(&mut self.buf, until_ns.max(sent))? {
+                if !r.truncated && answers(&frame, &self.buf[..r.len]) {
+                    e.handle_reply(&self.buf[..r.len], sent, r.received_ns);
+                    self.stats.replies += 1;
+                    answered = true;
+                    break;
+                }
+                // A late cyclic reply or other traffic: counted as the cycle would.
+                self.stats.stale += 1;
+            }
+            if !answered {
+                // Lost (or not back before the cycle's end): sent again with the next cycle.
+                self.stats.lost += 1;
+                rs.out = Some((frame, sent, 1));
+                break;
+            }
+        }
+        Ok(())
+    }
+
     /// The recoveries so far.
     pub fn recoveries(&self) -> &[RecoveryEvent] {
         self.recovery.as_ref().map_or(&[], |r| &r.log[..])
@@ -557,6 +625,11 @@ impl CyclicDriver {
                     frame_len: len,
                 },
             );
+            // The rest of the cycle is the recovery's, up to a quarter cycle before the next
+            // slot: its frames one after the other (a static drift compensation of a reset
+            // slave is thousands of them).
+            let until = eng.scheduled_start_ns().saturating_sub(period_ns / 4);
+            self.recovery_burst(tr, eng, until)?;
             if self.lost_row >= self.limits.lost_in_a_row.max(1) {
                 return Ok(Some(Stopped::NetworkGone {
                     last_good_cycle: self.last_good,

@@ -14,7 +14,8 @@
 //!    (the reference, or after the reference's own reset any synced slave): offset = that
 //!    slave's system time at the latch, less its delay, plus this one's delay, less this
 //!    one's local receive time; writes its delay (0x0928) and resets its time control loop
-//!    (0x0930), and starts its SYNC0 on the segment's grid;
+//!    (0x0930), runs a static drift compensation (FRMW frames back to back) and starts its
+//!    SYNC0 on the segment's grid;
 //! 4. takes it to PRE-OP, configures its SyncManagers and FMMUs, to SAFE-OP and to OP (the
 //!    cyclic frames bring it its process data meanwhile).
 
@@ -35,6 +36,11 @@ pub struct RecoveryConfig {
     pub sync0_lead_ns: u64,
     /// State timeouts.
     pub timeouts: BringupTimeouts,
+    /// At most this many FRMW frames of static drift compensation after a reset slave's
+    /// offset is written, until its |0x092C| stays under 100 ns (its time control loop learns
+    /// its crystal's drift from them; the cyclic FRMW alone, one a cycle, takes seconds for
+    /// tens of ppm).
+    pub static_drift_frames: u32,
 }
 
 /// What a recovery did.
@@ -51,6 +57,9 @@ pub struct Recovered {
     /// not taken in (a new bring-up maps their process data).
     pub appeared: u16,
 }
+
+/// |0x092C| under this is a reset slave locked again, ns.
+const LOCKED_NS: u32 = 100;
 
 fn position_addr(pos: u16, ado: u16) -> DatagramAddress {
     DatagramAddress::position(pos, ado)
@@ -214,6 +223,48 @@ pub async fn recover(
                 "reset loop filter",
             )
             .await?;
+        }
+        // Static drift compensation: the reference's time to every slave after it, frame
+        // after frame (the driver sends them back to back in the rest of each cycle).
+        let reference = info(net.reference).station;
+        let frmw = Pdu::new(
+            Command::Frmw,
+            DatagramAddress::Configured {
+                adp: reference,
+                ado: reg::DC_SYSTEM_TIME,
+            },
+            vec![0; 8],
+        );
+        // Until the reset slaves' |0x092C| stays under 100 ns for three checks of 250 frames
+        // (a crystal near the reference's is there at once), at most `static_drift_frames`.
+        let mut good_checks = 0;
+        for n in 1..=cfg.static_drift_frames {
+            link.pdus(std::slice::from_ref(&frmw), "static drift compensation")
+                .await?;
+            if n % 250 != 0 {
+                continue;
+            }
+            let mut worst = 0u32;
+            for &pos in &dc_reset {
+                let v = link
+                    .fprd(
+                        info(pos).station,
+                        reg::DC_SYSTEM_TIME_DIFF,
+                        4,
+                        "read system time difference",
+                    )
+                    .await?;
+                let raw = u32::from_le_bytes([v[0], v[1], v[2], v[3]]);
+                worst = worst.max(ecsync_wire::dc_time::decode_time_difference(raw).unsigned_abs());
+            }
+            good_checks = if worst < LOCKED_NS {
+                good_checks + 1
+            } else {
+                0
+            };
+            if good_checks >= 3 {
+                break;
+            }
         }
         // SYNC0 on the segment's grid (the start time is a grid point plus the shift).
         let now_sys = u64_of(
