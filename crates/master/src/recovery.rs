@@ -117,6 +117,38 @@ pub async fn recover(
             reset.push(s.position);
         }
     }
+    // A slave with its address but not in OP: a recovery that stopped half way (a lost frame)
+    // or a slave that left OP by itself: configured again as well.
+    let kept: Vec<&SlaveInfo> = net
+        .slaves
+        .iter()
+        .filter(|s| !reset.contains(&s.position))
+        .collect();
+    if !kept.is_empty() {
+        let reads: Vec<Pdu> = kept
+            .iter()
+            .map(|s| {
+                Pdu::new(
+                    Command::Fprd,
+                    DatagramAddress::Configured {
+                        adp: s.station,
+                        ado: reg::AL_STATUS,
+                    },
+                    vec![0; 2],
+                )
+            })
+            .collect();
+        let (r, _) = link.pdus(&reads, "read AL status").await?;
+        for (s, p) in kept.iter().zip(&r) {
+            let op = ecsync_wire::AlStatus::new_checked(&p.data[..])
+                .ok()
+                .is_some_and(|a| a.state() == Ok(AlState::Op) && !a.error());
+            if p.wkc == 1 && !op {
+                reset.push(s.position);
+            }
+        }
+        reset.sort_unstable();
+    }
     let mut out = Recovered {
         reference: reset.contains(&net.reference),
         positions: reset.clone(),
@@ -239,8 +271,14 @@ pub async fn recover(
         // (a crystal near the reference's is there at once), at most `static_drift_frames`.
         let mut good_checks = 0;
         for n in 1..=cfg.static_drift_frames {
-            link.pdus(std::slice::from_ref(&frmw), "static drift compensation")
-                .await?;
+            // A lost FRMW is one write fewer for the loop, not a failure of the recovery.
+            match link
+                .pdus(std::slice::from_ref(&frmw), "static drift compensation")
+                .await
+            {
+                Ok(_) | Err(MasterError::FrameLost { .. }) => {}
+                Err(e) => return Err(e),
+            }
             if n % 250 != 0 {
                 continue;
             }
