@@ -732,18 +732,9 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             .map(|e| RecoveryRow {
                 start_s: e.started_ns.saturating_sub(first) as f64 / 1e9,
                 end_s: e.ended_ns.map(|t| t.saturating_sub(first) as f64 / 1e9),
-                slaves: match &e.outcome {
-                    Some(Ok(r)) => r.positions.iter().map(|p| p + 1).collect(),
-                    _ => Vec::new(),
-                },
-                error: match &e.outcome {
-                    Some(Err(m)) => Some(m.clone()),
-                    _ => None,
-                },
-                appeared: match &e.outcome {
-                    Some(Ok(r)) => r.appeared,
-                    _ => 0,
-                },
+                slaves: e.slaves_brought_back(),
+                error: e.error(),
+                appeared: e.appeared(),
             })
             .collect(),
         link_down_errors: link.link_down_errors(),

@@ -1209,18 +1209,9 @@ impl Run {
                 .map(|e| RecoveryOut {
                     start_ms: ms(e.started_ns),
                     end_ms: e.ended_ns.map(ms),
-                    slaves: match &e.outcome {
-                        Some(Ok(r)) => r.positions.iter().map(|p| p + 1).collect(),
-                        _ => Vec::new(),
-                    },
-                    error: match &e.outcome {
-                        Some(Err(m)) => Some(m.clone()),
-                        _ => None,
-                    },
-                    appeared: match &e.outcome {
-                        Some(Ok(r)) => r.appeared,
-                        _ => 0,
-                    },
+                    slaves: e.slaves_brought_back(),
+                    error: e.error(),
+                    appeared: e.appeared(),
                 })
                 .collect();
         }

@@ -276,6 +276,62 @@ struct RecoverySlot {
     log: Vec<RecoveryEvent>,
 }
 
+impl RecoverySlot {
+    /// The recovery ended at `now` with `r`: logged, and the engine told what it did (or a
+    /// retry planned).
+    fn finish<S: MasterSync>(
+        &mut self,
+        r: Result<Recovered, MasterError>,
+        now: u64,
+        eng: &mut CyclicEngine<S>,
+    ) {
+        self.running = None;
+        if let Some(ev) = self.log.last_mut() {
+            ev.ended_ns = Some(now);
+            ev.outcome = Some(r.clone().map_err(|e| e.to_string()));
+        }
+        match r {
+            Ok(r) => {
+                if let Some(o) = r.reference_offset {
+                    eng.set_reference_offset(o);
+                }
+                if r.appeared > 0 {
+                    eng.unmanaged_slaves_answer();
+                }
+                eng.recovered();
+            }
+            Err(_) => self.retry_at_ns = now.saturating_add(RECOVERY_RETRY_NS),
+        }
+    }
+}
+
+impl RecoveryEvent {
+    /// The slaves it configured again, network positions counted from 1 (the next to the
+    /// master), as the reports print them.
+    pub fn slaves_brought_back(&self) -> Vec<u16> {
+        match &self.outcome {
+            Some(Ok(r)) => r.positions.iter().map(|p| p + 1).collect(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// Why it failed, if it did.
+    pub fn error(&self) -> Option<String> {
+        match &self.outcome {
+            Some(Err(m)) => Some(m.clone()),
+            _ => None,
+        }
+    }
+
+    /// Slaves it counted beyond the network as brought up.
+    pub fn appeared(&self) -> u16 {
+        match &self.outcome {
+            Some(Ok(r)) => r.appeared,
+            _ => 0,
+        }
+    }
+}
+
 impl std::fmt::Debug for RecoverySlot {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RecoverySlot")
@@ -357,23 +413,7 @@ impl CyclicDriver {
                 }
                 Action::WaitUntil(_) => break,
                 Action::Done(r) => {
-                    rs.running = None;
-                    if let Some(ev) = rs.log.last_mut() {
-                        ev.ended_ns = Some(now);
-                        ev.outcome = Some(r.clone().map_err(|e| e.to_string()));
-                    }
-                    match r {
-                        Ok(r) => {
-                            if let Some(o) = r.reference_offset {
-                                eng.set_reference_offset(o);
-                            }
-                            if r.appeared > 0 {
-                                eng.unmanaged_slaves_answer();
-                            }
-                            eng.recovered();
-                        }
-                        Err(_) => rs.retry_at_ns = now.saturating_add(RECOVERY_RETRY_NS),
-                    }
+                    rs.finish(r, now, eng);
                     break;
                 }
             };
@@ -485,25 +525,7 @@ impl CyclicDriver {
                     match e.poll(now) {
                         Action::Send(f) => rs.out = Some((f.to_vec(), 0, 0)),
                         Action::WaitUntil(_) => {}
-                        Action::Done(r) => {
-                            rs.running = None;
-                            if let Some(ev) = rs.log.last_mut() {
-                                ev.ended_ns = Some(now);
-                                ev.outcome = Some(r.clone().map_err(|e| e.to_string()));
-                            }
-                            match r {
-                                Ok(r) => {
-                                    if let Some(o) = r.reference_offset {
-                                        eng.set_reference_offset(o);
-                                    }
-                                    if r.appeared > 0 {
-                                        eng.unmanaged_slaves_answer();
-                                    }
-                                    eng.recovered();
-                                }
-                                Err(_) => rs.retry_at_ns = now.saturating_add(RECOVERY_RETRY_NS),
-                            }
-                        }
+                        Action::Done(r) => rs.finish(r, now, eng),
                     }
                 }
                 if let Some((f, sent, tries)) = rs.out.as_mut() {
