@@ -97,6 +97,8 @@ pub struct CyclicEngine<S> {
     last_ref_cycle: u64,
     /// The send timestamp of the cycle `last_ref_ns` was read in.
     last_ref_send_ns: u64,
+    /// That cycle's round trip (send to reply), master time, ns.
+    last_ref_round_trip_ns: u64,
     /// A reference time not believed and the cycle it came in: a new timeline if it goes on.
     candidate: Option<(u64, u64)>,
     /// The send timestamp of the candidate's cycle.
@@ -105,6 +107,9 @@ pub struct CyclicEngine<S> {
     h_n: u64,
     h_mr: f64,
     health: Health,
+    /// A step of the master's clock seen in one cycle, ns, waiting for the next reference time
+    /// to confirm it (a frame held up on the way looks like one for a cycle).
+    pending_step_ns: Option<i64>,
 }
 
 /// What the engine makes of the replies beyond the method's inputs: whether the reference's
@@ -131,6 +136,10 @@ pub struct Health {
     pub master_clock_steps: u32,
     /// The last step of the master's clock, ns.
     pub last_master_step_ns: i64,
+    /// The master's clock steps taken out so far, ns: the engine and its method run on the
+    /// master's clock minus this, the timeline it had before (the schedule the task sleeps to
+    /// and the reported timestamps stay the clock's own).
+    pub master_clock_correction_ns: i64,
     /// Slaves seem to have lost their configuration: a recovery should run.
     pub needs_recovery: bool,
     /// Slaves answer that the bring-up did not take in (hot-connected): their |0x092C| is not
@@ -266,6 +275,7 @@ impl<S: MasterSync> CyclicEngine<S> {
             last_ref_ns: None,
             last_ref_cycle: 0,
             last_ref_send_ns: 0,
+            last_ref_round_trip_ns: 0,
             candidate: None,
             candidate_send_ns: 0,
             h_sum: 0,
@@ -275,6 +285,7 @@ impl<S: MasterSync> CyclicEngine<S> {
                 expected_lrw_wkc: cfg_expected_wkc,
                 ..Health::default()
             },
+            pending_step_ns: None,
         })
     }
 
@@ -464,6 +475,8 @@ impl<S: MasterSync> CyclicEngine<S> {
             ecsync_wire::Datagram::new_unchecked(&mut out[at - DATAGRAM_HEADER_LEN..])
                 .set_command(Command::Fprd);
         }
+        // (A step of the master's clock is taken out: the reference keeps the timeline.)
+        let send_ns = send_ns.wrapping_sub(self.health.master_clock_correction_ns as u64);
         if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns)) {
             let v = match self.sync.reference_write_kind() {
                 ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
@@ -504,6 +517,11 @@ impl<S: MasterSync> CyclicEngine<S> {
             send_ns,
             ..CycleRecord::default()
         };
+        // The engine runs on the master's clock with its steps taken out (the correction as
+        // it was when this cycle was planned, and as it is once the replies are read).
+        let planned_correction = self.health.master_clock_correction_ns;
+        let (raw_send_ns, raw_receive_ns) = (send_ns, receive_ns);
+        let corrected = |raw: u64, c: i64| raw.wrapping_sub(c as u64);
         let mut all = true;
         let mut lrw_wkc: Option<u16> = Some(0);
         // (Out of `self` while the replies are read: reading the reference's time updates the
@@ -540,11 +558,15 @@ impl<S: MasterSync> CyclicEngine<S> {
                         ),
                         _ => raw,
                     };
-                    if self.believe_reference(t, send_ns, outage) {
+                    let send_ns = corrected(raw_send_ns, self.health.master_clock_correction_ns);
+                    let round_trip_ns = raw_receive_ns.wrapping_sub(raw_send_ns);
+                    if self.believe_reference(t, send_ns, round_trip_ns, outage) {
                         rec.ref_time_ns = Some(t);
                         self.last_ref_ns = Some(t);
                         self.last_ref_cycle = self.cycle;
-                        self.last_ref_send_ns = send_ns;
+                        self.last_ref_send_ns =
+                            corrected(raw_send_ns, self.health.master_clock_correction_ns);
+                        self.last_ref_round_trip_ns = round_trip_ns;
                     }
                 } else {
                     // The reference is gone (off, cut off): hold over, and hand nothing on
@@ -573,6 +595,9 @@ impl<S: MasterSync> CyclicEngine<S> {
             lrw_wkc = None;
         }
         rec.lrw_wkc = if all { lrw_wkc } else { None };
+        let correction = self.health.master_clock_correction_ns;
+        let send_ns = corrected(raw_send_ns, correction);
+        let receive_ns = corrected(raw_receive_ns, correction);
         let nominal = self
             .first_start_ns
             .wrapping_add(self.cycle.wrapping_mul(u64::from(self.cfg.period_ns)));
@@ -580,15 +605,16 @@ impl<S: MasterSync> CyclicEngine<S> {
             cycle: self.cycle,
             period_ns: self.cfg.period_ns,
             nominal_start_ns: nominal,
-            scheduled_start_ns: self.scheduled_ns,
+            scheduled_start_ns: corrected(self.scheduled_ns, planned_correction),
             send_ns,
             receive_ns,
             ref_time_ns: rec.ref_time_ns,
         };
         rec.output = self.sync.update(&input);
         rec.log = self.sync.controller_log();
-        // The letter's M-rS error.
-        if let Some(t_ra) = rec.ref_time_ns {
+        // The letter's M-rS error (not in a cycle whose send the master's clock may have
+        // stepped under: its time is not known until the next cycle says).
+        if let Some(t_ra) = rec.ref_time_ns.filter(|_| self.pending_step_ns.is_none()) {
             if self.sync.is_master_shift() {
                 if self.cycle < self.cfg.measure_init_frames {
                     self.h_sum += i128::from(diff_u64(send_ns, t_ra));
@@ -614,7 +640,7 @@ impl<S: MasterSync> CyclicEngine<S> {
                 rec.m_rs_ns = Some(diff_u64(t_ra, send_ns));
             }
         }
-        self.scheduled_ns = rec.output.next_start_ns;
+        self.scheduled_ns = rec.output.next_start_ns.wrapping_add(correction as u64);
         self.cycle += 1;
         rec
     }
@@ -637,7 +663,7 @@ impl<S: MasterSync> CyclicEngine<S> {
     /// (and 200 ppm of the time since) of the last time believed, moved on by the cycles
     /// since. A jump (the reference reset, its offset rewritten) holds the time until one
     /// continues the old timeline again (a recovery sets the reset reference's offset so).
-    fn believe_reference(&mut self, t: u64, send_ns: u64, outage: u32) -> bool {
+    fn believe_reference(&mut self, t: u64, send_ns: u64, round_trip_ns: u64, outage: u32) -> bool {
         // A method that writes the master's time into the reference every cycle (bus shift)
         // makes the reference's timeline itself: a jump is its own write (a frame held by a
         // bridge delivers an old time), and a reset reference takes the master's time again
@@ -654,7 +680,7 @@ impl<S: MasterSync> CyclicEngine<S> {
             // A few frames lost: nothing to look at.
             self.health.reference_held = false;
         }
-        let Some(prev) = self.last_ref_ns.filter(|_| !writes_time) else {
+        let Some(prev) = self.last_ref_ns else {
             self.health.reference_held = false;
             return true;
         };
@@ -671,14 +697,39 @@ impl<S: MasterSync> CyclicEngine<S> {
         let mut ok = near(span) || near(sent_span);
         // Neither, but both alike while frames kept coming: the reference ran on and the
         // master's own clock stepped (its wake-up and its timestamps moved together). A
-        // reference that jumps comes back after an outage, a master's step does not.
+        // reference that jumps comes back after an outage (a reset slave loses its address
+        // and answers nothing until a recovery), a master's step does not: a step is looked
+        // for only in a reference time a few cycles after the last one believed. A frame held up on its way to the
+        // reference (a bridge's closed gate) reads a later time too, but comes back later by
+        // as much: a step leaves the round trip as it was.
         let both_alike =
             (sent_span as i64).wrapping_sub(span as i64).unsigned_abs() <= REFERENCE_JUMP_NS;
-        if !ok && outage == 0 && both_alike {
-            let step = (sent_span as i64).wrapping_sub(t.wrapping_sub(prev) as i64);
-            self.health.master_clock_steps += 1;
-            self.health.last_master_step_ns = step;
+        let seen_step = (sent_span as i64).wrapping_sub(t.wrapping_sub(prev) as i64);
+        let same_trip =
+            round_trip_ns.abs_diff(self.last_ref_round_trip_ns) < seen_step.unsigned_abs() / 2;
+        if ok {
+            if let Some(step) = self.pending_step_ns.take() {
+                // The reference runs on from the stepped cycle: the master's clock did step.
+                // From now on it is taken out of everything the engine and the method see.
+                self.health.master_clock_steps += 1;
+                self.health.last_master_step_ns = step;
+                self.health.master_clock_correction_ns =
+                    self.health.master_clock_correction_ns.wrapping_add(step);
+            }
+        } else if cycles <= u64::from(OUTAGE_CYCLES) && both_alike && same_trip {
+            let step = seen_step;
+            match self.pending_step_ns.take() {
+                // Back to the old relation: the last frame was held up on its way (a bridge),
+                // the clock did not step.
+                Some(p) if p.wrapping_add(step).unsigned_abs() <= REFERENCE_JUMP_NS => {}
+                _ => self.pending_step_ns = Some(step),
+            }
             ok = true;
+        }
+        if writes_time {
+            // The method's own writes make the timeline: only the master's step is looked for.
+            self.health.reference_held = false;
+            return true;
         }
         if !ok {
             // A new timeline: taken once it runs on by itself for a while and no recovery is
