@@ -786,7 +786,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
             0,
             Plot {
                 name: "faults",
-                caption: "Each fault of the schedule in run 0: |0x092C| (the BRD's OR over every drive) from the fault's start to a second after its end, per method; a gap is a lost cycle; the red line is the 100 ns the re-lock time counts from. A master that brings a reset slave back shows the gap, the far values of the reset slave, and the way back under the line.".into(),
+                caption: "Each fault of the schedule in run 0: |0x092C| (the BRD's OR over every drive) from the fault's start to a second after its end, per method; a gap is a lost cycle; the red line is 100 ns, the lock band of every method that does not write the master's time into the reference. A master that brings a reset slave back shows the gap, the far values of the reset slave, and the way back under the line.".into(),
                 draw: Box::new(move |p, svg| {
                     plot!(p, svg, (1100, 200 * windows as u32 + 40), |r| fault_windows(r, c, order))
                 }),
@@ -904,7 +904,7 @@ fn faults_table(h: &mut String, out: &SummaryOut, order: &[String]) {
         .unwrap_or_default();
     let _ = write!(
         h,
-        "<h2>Faults</h2><p>All runs. Dropped: frames the schedule lost; lost: cycles whose frame did not come back; recovered: slaves the master configured again (network positions); held: cycles the master did not believe the reference's time and held over. Re-lock: from the fault's end to the first of 100 cycles in a row with |0x092C| under 100 ns, the reference believed and every slave's process data (the worst run). Every fault's edges and every recovery: <a href=\"faults.csv\">faults.csv</a>.</p><table><tr><th class=l>method</th><th>dropped</th><th>lost</th><th>late</th><th>duplicates</th><th>skipped</th><th>held</th><th>recovered</th><th>max |0x092C| ns</th>"
+        "<h2>Faults</h2><p>All runs. Dropped: frames the schedule lost; lost: cycles whose frame did not come back; recovered: slaves the master configured again (network positions); held: cycles the master did not believe the reference's time and held over. Re-lock: from the fault's end to the first of 100 cycles in a row with |0x092C| under the method's lock band (100 ns, or twice the 99.9th percentile it holds outside the faults' windows if more: the letter's bus shift writes the master's jitter into the reference), its M-rS within its error band (twice the 99.9th percentile of its distance from its median outside the windows, at least 1 us), the reference believed and every slave's process data (the worst run). Every fault's edges and every recovery: <a href=\"faults.csv\">faults.csv</a>.</p><table><tr><th class=l>method</th><th>dropped</th><th>lost</th><th>late</th><th>duplicates</th><th>skipped</th><th>held</th><th>recovered</th><th>max |0x092C| ns</th><th>lock band |0x092C| ns</th><th>M-rS band ns</th>"
     );
     for k in &kinds {
         let _ = write!(h, "<th>re-lock after {} ms</th>", esc(k));
@@ -934,6 +934,16 @@ fn faults_table(h: &mut String, out: &SummaryOut, order: &[String]) {
             sum(|x| x.held_cycles),
             recovered,
             f.iter().map(|x| x.max_rs_is_ns).max().unwrap_or(0)
+        );
+        let band = f.iter().map(|x| x.lock_band_092c_ns).fold(0.0f64, f64::max);
+        let m_band = f
+            .iter()
+            .filter_map(|x| x.lock_band_m_rs_ns)
+            .fold(None, |a: Option<f64>, b| Some(a.map_or(b, |a| a.max(b))));
+        let _ = write!(
+            h,
+            "<td>{band:.0}</td><td>{}</td>",
+            m_band.map_or_else(|| "-".to_string(), |b| format!("{b:.0}"))
         );
         for k in 0..kinds.len() {
             let mut worst = Some(0.0f64);

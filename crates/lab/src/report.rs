@@ -767,21 +767,16 @@ fn warnings(
         }
         if !never.is_empty() {
             never.dedup();
-            // A method whose |0x092C| is above the bound most of the time (the letter's bus
-            // shift) never counts as locked, faults or not: said so.
-            let median = mo.rs_is_pooled.p50;
-            let why = if median >= 100.0 {
-                format!(
-                    "; its |0x092C| is above 100 ns in most cycles anyway (median {median:.0} ns): it does not lock to that bound, faults or not"
-                )
-            } else {
-                String::new()
-            };
+            let band = mo
+                .faults
+                .iter()
+                .map(|f| f.lock_band_092c_ns)
+                .fold(0.0f64, f64::max);
             w.push(Warning {
                 kind: "no_relock",
                 method: Some(m.clone()),
                 message: format!(
-                    "{m} did not come back to lock (|0x092C| under 100 ns, the reference believed, every slave's process data, for 100 cycles) after: {}{why}",
+                    "{m} did not come back to lock (|0x092C| under {band:.0} ns and M-rS within its band, the reference believed, every slave's process data, for 100 cycles) after: {}",
                     never.join(", ")
                 ),
             });

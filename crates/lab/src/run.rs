@@ -361,9 +361,130 @@ pub struct FaultsTruth {
     pub windows: Vec<FaultWindow>,
     /// Per fault, from the moment it was over (the end of a window: the slave on again, the
     /// cable in; else its start) to the first of 100 cycles that came back in a row locked and
-    /// running (|0x092C| under 100 ns, the reference's time believed, the LRW's working counter
-    /// complete), ms (`None`: not by the end).
+    /// running (|0x092C| within `lock_band_092c_ns`, the method's M-rS within
+    /// `lock_band_m_rs_ns` of its usual value, the reference's time believed, the LRW's working
+    /// counter complete), ms (`None`: not by the end).
     pub relock_ms: Vec<Option<f64>>,
+    /// The bound of |0x092C| for "locked", ns: 100, or twice the 99.9th percentile the method
+    /// holds outside the faults' windows if that is more (the letter's bus shift writes the
+    /// master's jitter into the reference: microseconds without any fault).
+    pub lock_band_092c_ns: f64,
+    /// The method's error band: M-rS within this of its median outside the faults' windows,
+    /// ns (twice the 99.9th percentile of the distance, at least 1 us; `None`: no M-rS
+    /// outside them, not judged).
+    pub lock_band_m_rs_ns: Option<f64>,
+    /// The usual M-rS the band is around (its median outside the faults' windows), ns.
+    pub usual_m_rs_ns: Option<f64>,
+}
+
+/// One cycle of the cyclic phase as the re-lock is judged from it (kept with faults only).
+#[derive(Debug, Clone, Copy)]
+struct LockSample {
+    sent_ps: u64,
+    /// |0x092C|, ns (NaN: none).
+    rs_is_ns: f32,
+    /// M-rS, ns (NaN: none).
+    m_rs_ns: f32,
+    /// Came back, reference believed, working counter complete.
+    running: bool,
+}
+
+/// The 99.9th percentile of `v` (sorted in place; `v` not empty).
+fn p999(v: &mut [f32]) -> f64 {
+    v.sort_unstable_by(f32::total_cmp);
+    let at = ((v.len() - 1) as f64 * 0.999).round() as usize;
+    f64::from(v[at])
+}
+
+/// Cycles outside the faults' windows that make a band (fewer: the whole run's).
+const QUIET_CYCLES: usize = 1_000;
+
+impl FaultsTruth {
+    /// The bands from the quiet cycles, then each fault's re-lock time.
+    fn judge_relock(&mut self, samples: &[LockSample], relock: &[Relock]) {
+        let in_window = |t: u64| {
+            self.windows
+                .iter()
+                .any(|w| t >= w.start_ps && t < w.until_ps)
+        };
+        let running: Vec<&LockSample> = samples.iter().filter(|x| x.running).collect();
+        let quiet: Vec<&LockSample> = running
+            .iter()
+            .copied()
+            .filter(|x| !in_window(x.sent_ps))
+            .collect();
+        let base = if quiet.len() >= QUIET_CYCLES {
+            &quiet
+        } else {
+            &running
+        };
+        let mut rs: Vec<f32> = base
+            .iter()
+            .map(|x| x.rs_is_ns)
+            .filter(|v| v.is_finite())
+            .collect();
+        let band_092c = if rs.is_empty() {
+            f64::from(RELOCK_NS)
+        } else {
+            (2.0 * p999(&mut rs)).max(f64::from(RELOCK_NS))
+        };
+        let mut m: Vec<f32> = base
+            .iter()
+            .map(|x| x.m_rs_ns)
+            .filter(|v| v.is_finite())
+            .collect();
+        let (usual, band_m) = if m.len() < QUIET_CYCLES / 10 {
+            (None, None)
+        } else {
+            m.sort_unstable_by(f32::total_cmp);
+            let median = m[m.len() / 2];
+            let mut d: Vec<f32> = m.iter().map(|v| (v - median).abs()).collect();
+            (
+                Some(f64::from(median)),
+                Some((2.0 * p999(&mut d)).max(RELOCK_M_RS_MIN_NS)),
+            )
+        };
+        self.lock_band_092c_ns = band_092c;
+        self.lock_band_m_rs_ns = band_m;
+        self.usual_m_rs_ns = usual;
+        self.relock_kinds = relock.iter().map(|r| r.kind).collect();
+        self.relock_ms = relock
+            .iter()
+            .map(|r| {
+                let mut in_a_row = 0u32;
+                let mut first_good_ps = 0u64;
+                for x in samples.iter().filter(|x| x.sent_ps >= r.start_ps) {
+                    // A lost cycle says nothing of the lock: it neither counts nor breaks a
+                    // run of good cycles (random loss would otherwise never let one reach its
+                    // length).
+                    if x.rs_is_ns.is_nan() && !x.running {
+                        continue;
+                    }
+                    // (No M-rS yet, a master-shift method's measurement still averaging its
+                    // offset: nothing to judge the method by.)
+                    let method_ok = match (usual, band_m) {
+                        (Some(u), Some(b)) if x.m_rs_ns.is_finite() => {
+                            (f64::from(x.m_rs_ns) - u).abs() <= b
+                        }
+                        _ => true,
+                    };
+                    let good = x.running && f64::from(x.rs_is_ns) < band_092c && method_ok;
+                    if !good {
+                        in_a_row = 0;
+                        continue;
+                    }
+                    if in_a_row == 0 {
+                        first_good_ps = x.sent_ps;
+                    }
+                    in_a_row += 1;
+                    if in_a_row >= RELOCK_CYCLES {
+                        return Some((first_good_ps - r.start_ps) as f64 / 1e9);
+                    }
+                }
+                None
+            })
+            .collect();
+    }
 }
 
 impl RunResult {
@@ -605,6 +726,8 @@ pub struct Run {
     /// Per fault over: its real time, the good cycles in a row since, the first of them (real
     /// time), the re-lock time once found (ms).
     relock: Vec<Relock>,
+    /// Per cycle of the cyclic phase, what its re-lock is judged from (with faults only).
+    lock_samples: Vec<LockSample>,
     /// Fault events already looked at.
     events_seen: usize,
     /// The first cycle's scheduled start, master time, ns.
@@ -616,15 +739,14 @@ pub struct Run {
 struct Relock {
     kind: &'static str,
     start_ps: u64,
-    good_in_a_row: u32,
-    first_good_ps: u64,
-    done_ms: Option<f64>,
 }
 
 /// Cycles in a row with |0x092C| under [`RELOCK_NS`] that count as locked again.
 const RELOCK_CYCLES: u32 = 100;
-/// The bound of |0x092C| for "locked", ns.
+/// The bound of |0x092C| for "locked", ns (at least).
 const RELOCK_NS: u32 = 100;
+/// The method's error band, ns (at least).
+const RELOCK_M_RS_MIN_NS: f64 = 1_000.0;
 
 impl std::fmt::Debug for Run {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -775,6 +897,7 @@ impl Run {
             margins: Vec::with_capacity(n_dc),
             out_frames,
             relock: Vec::new(),
+            lock_samples: Vec::new(),
             events_seen: 0,
             cyclic_start_ns: first,
         })
@@ -859,6 +982,7 @@ impl Run {
             margins,
             out_frames,
             relock,
+            lock_samples,
             events_seen,
             ..
         } = self;
@@ -909,9 +1033,6 @@ impl Run {
                             relock.push(Relock {
                                 kind: e.kind,
                                 start_ps: e.t_ps,
-                                good_in_a_row: 0,
-                                first_good_ps: 0,
-                                done_ms: None,
                             });
                         }
                     }
@@ -927,39 +1048,32 @@ impl Run {
                 }
                 ft.skipped_cycles += rep.skipped_before;
                 ft.held_cycles += u64::from(rec.reference_held);
-                // A lost cycle says nothing of the lock: it neither counts nor breaks a run of
-                // good cycles (random loss would otherwise never let one reach its length).
-                let good = match (rec.receive_ns, rec.rs_is_ns) {
+                // Running: came back, the reference's time believed (a reset slave's register
+                // reads small before anyone writes it a time), every slave's process data
+                // there. Whether it is locked is judged at the end, against the bands the
+                // method holds outside the faults.
+                let running = match (rec.receive_ns, rec.rs_is_ns) {
                     (Some(_), Some(v)) => {
                         ft.max_rs_is_ns = ft.max_rs_is_ns.max(v);
-                        // Locked and running: |0x092C| small, the reference's time believed
-                        // (a reset slave's register reads small before anyone writes it a
-                        // time), every slave's process data there.
                         let wkc_ok = pdi_len == 0 || rec.lrw_wkc == Some(expected_wkc);
-                        Some(v < RELOCK_NS && !rec.reference_held && wkc_ok)
+                        !rec.reference_held && wkc_ok
                     }
-                    (Some(_), None) => Some(false),
+                    (Some(_), None) => false,
                     (None, _) => {
                         ft.lost_cycles += 1;
-                        None
+                        false
                     }
                 };
-                for r in relock.iter_mut().filter(|r| r.done_ms.is_none()) {
-                    let Some(good) = good.filter(|_| sent_ps >= r.start_ps) else {
-                        continue;
-                    };
-                    if good {
-                        if r.good_in_a_row == 0 {
-                            r.first_good_ps = sent_ps;
-                        }
-                        r.good_in_a_row += 1;
-                        if r.good_in_a_row >= RELOCK_CYCLES {
-                            r.done_ms = Some((r.first_good_ps - r.start_ps) as f64 / 1e9);
-                        }
-                    } else {
-                        r.good_in_a_row = 0;
-                    }
-                }
+                lock_samples.push(LockSample {
+                    sent_ps,
+                    rs_is_ns: match (rec.receive_ns, rec.rs_is_ns) {
+                        (Some(_), Some(v)) => v as f32,
+                        (Some(_), None) => f32::INFINITY,
+                        (None, _) => f32::NAN,
+                    },
+                    m_rs_ns: rec.m_rs_ns.map_or(f32::NAN, |m| m as f32),
+                    running,
+                });
             }
             if let (Some(c), Some(t)) = (rec.log, res.controller.as_mut()) {
                 if c.in_sync && t.first_in_sync_cycle.is_none() {
@@ -1039,6 +1153,19 @@ impl Run {
                 .filter(|_| runs_sync0(reference))
                 .and_then(|t| sys(reference, t))
             else {
+                // No grid to judge the cycle by (the reference reset, its SYNC0 not running
+                // again yet): the master's own figures only.
+                if let Some(sk) = samples.as_mut() {
+                    let _ = write!(sk.line, "{k},0,,");
+                    if let Some(m) = rec.m_rs_ns {
+                        let _ = write!(sk.line, "{m}");
+                    }
+                    sk.line.push(',');
+                    if let Some(v) = rec.rs_is_ns {
+                        let _ = write!(sk.line, "{v}");
+                    }
+                    sk.write_line();
+                }
                 return;
             };
             // The grid point this frame aims at: the one nearest the target at the first
@@ -1198,8 +1325,7 @@ impl Run {
             ft.last_master_step_ns = h.last_master_step_ns;
             ft.late_replies = d.late;
             ft.duplicate_replies = d.duplicates;
-            ft.relock_ms = self.relock.iter().map(|r| r.done_ms).collect();
-            ft.relock_kinds = self.relock.iter().map(|r| r.kind).collect();
+            ft.judge_relock(&self.lock_samples, &self.relock);
             let t0 = self.cyclic_start_ns;
             let ms = |t: u64| t.saturating_sub(t0) as f64 / 1e6;
             ft.recoveries = self

@@ -145,6 +145,9 @@ pub struct Health {
     /// Slaves answer that the bring-up did not take in (hot-connected): their |0x092C| is not
     /// the network's.
     pub unmanaged_slaves: bool,
+    /// A recovery is configuring slaves (the driver says so): a method that adjusts the
+    /// reference's offset holds its writes, which would undo the recovery's new offset.
+    pub recovery_running: bool,
 }
 
 /// |0x092C| beyond this is no slave's lock (a reset slave's register saturates), ns.
@@ -297,13 +300,26 @@ impl<S: MasterSync> CyclicEngine<S> {
     /// The reference's System Time Offset was written anew (a recovery of the reset
     /// reference): a method that adjusts the offset adjusts this one from now on.
     pub fn set_reference_offset(&mut self, offset_ns: u64) {
-        self.cfg.reference_offset_ns = offset_ns;
+        // The new offset continues the timeline the method's adjustments had made: they are in
+        // it already, so the base the adjustments go onto is the offset minus the adjustment
+        // so far (the next write then writes the offset as the recovery did, not the
+        // adjustment twice).
+        let adjusted = match self.sync.reference_write_kind() {
+            ReferenceWrite::OffsetAdjust => self.sync.reference_write(0).unwrap_or(0),
+            _ => 0,
+        };
+        self.cfg.reference_offset_ns = offset_ns.wrapping_sub(adjusted);
     }
 
     /// Slaves answer that the bring-up did not take in (a recovery counted them): their
     /// |0x092C| no longer asks for recoveries.
     pub fn unmanaged_slaves_answer(&mut self) {
         self.health.unmanaged_slaves = true;
+    }
+
+    /// Whether a recovery is running now (the driver tells the engine before each cycle).
+    pub fn set_recovery_running(&mut self, running: bool) {
+        self.health.recovery_running = running;
     }
 
     /// A recovery brought slaves back (or found none to bring back): the counts start again.
@@ -412,8 +428,10 @@ impl<S: MasterSync> CyclicEngine<S> {
             let cycle = self.cycle - ago;
             (0..self.plans.len()).find_map(|k| {
                 let (cmd, _) = self.plans[k].id?;
-                // An FRMW first goes out as an FPRD while the reference is held.
-                let held_cmd = (cmd == Command::Frmw.code()).then_some(Command::Fprd.code());
+                // An FRMW (or an offset adjustment's FPWR) first goes out as an FPRD while
+                // the reference is held.
+                let held_cmd = (cmd == Command::Frmw.code() || cmd == Command::Fpwr.code())
+                    .then_some(Command::Fprd.code());
                 let tag = self.tag_of(cycle, k);
                 (id == (cmd, tag) || Some(id) == held_cmd.map(|c| (c, tag))).then_some((ago, k))
             })
@@ -477,8 +495,26 @@ impl<S: MasterSync> CyclicEngine<S> {
         }
         // (A step of the master's clock is taken out: the reference keeps the timeline.)
         let send_ns = send_ns.wrapping_sub(self.health.master_clock_correction_ns as u64);
-        if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns)) {
-            let v = match self.sync.reference_write_kind() {
+        let kind = self.sync.reference_write_kind();
+        let hold_write = match kind {
+            ReferenceWrite::OffsetAdjust => {
+                self.health.reference_held || self.health.recovery_running
+            }
+            ReferenceWrite::SystemTime => self.health.recovery_running,
+            ReferenceWrite::None => false,
+        };
+        if hold_write && let Some(at) = plan.bus_write_at {
+            // The reference's offset is not adjusted while its time is not believed or a
+            // recovery may be writing it anew (an adjustment of the old offset would throw a
+            // reset reference onto a timeline of its own), and the master's time is not
+            // written into it while a recovery waits for the slaves' |0x092C| to settle (the
+            // reference's own would be the master's jitter, which never does): the reference
+            // holds over, and the write becomes a read.
+            ecsync_wire::Datagram::new_unchecked(&mut out[at - DATAGRAM_HEADER_LEN..])
+                .set_command(Command::Fprd);
+        } else if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns))
+        {
+            let v = match kind {
                 ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
                 _ => v,
             };

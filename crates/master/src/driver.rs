@@ -497,6 +497,7 @@ impl CyclicDriver {
             let n = eng.frame_count();
             let len = eng.frame_len();
             let mut sent_ns = 0;
+            eng.set_recovery_running(self.recovery.as_ref().is_some_and(|r| r.running.is_some()));
             for k in 0..n {
                 let len = eng.frame_len_of(k);
                 let at = tr.send_time_ns(len);
