@@ -40,7 +40,14 @@ fn faults_csv(out: &ecsync_lab::report::SummaryOut, order: &[String]) -> String 
                 let what = match (&r.error, r.slaves.is_empty()) {
                     (Some(e), _) => format!("failed: {e}"),
                     (None, true) => "no slave had lost its configuration".to_string(),
-                    (None, false) => format!("slaves {:?} configured again", r.slaves),
+                    (None, false) if r.left_op.is_empty() => {
+                        format!("slaves {:?} configured again", r.slaves)
+                    }
+                    (None, false) => format!(
+                        "slaves {:?} configured again ({})",
+                        r.slaves,
+                        r.left_op.join("; ")
+                    ),
                 };
                 let _ = writeln!(
                     t,

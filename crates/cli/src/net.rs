@@ -289,6 +289,9 @@ struct RecoveryRow {
     error: Option<String>,
     /// Slaves that answered beyond the network as brought up (hot-connected): not taken in.
     appeared: u16,
+    /// Slaves found out of OP with their configuration kept, and why (their AL status).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    left_op: Vec<String>,
 }
 
 /// Wake-up latency figures, µs.
@@ -735,6 +738,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 slaves: e.slaves_brought_back(),
                 error: e.error(),
                 appeared: e.appeared(),
+                left_op: e.left_op(),
             })
             .collect(),
         link_down_errors: link.link_down_errors(),
@@ -822,8 +826,13 @@ fn print_run(o: &RunOut) {
         o.bad_wkc
     );
     for r in o.recoveries.iter().filter(|r| !r.slaves.is_empty()) {
+        let why = if r.left_op.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", r.left_op.join("; "))
+        };
         println!(
-            "Recovered slave(s) {:?} (power-cycled: configured again) at {:.3} s, in {:.0} ms.",
+            "Recovered slave(s) {:?} (reset or out of OP: configured again) at {:.3} s, in {:.0} ms{why}.",
             r.slaves,
             r.start_s,
             r.end_s.map_or(f64::NAN, |e| (e - r.start_s) * 1e3)

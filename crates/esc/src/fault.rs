@@ -33,7 +33,9 @@
 //! `link_down` (`slave`, `port`), `hot_connect` (`slaves`: the last N slaves absent until
 //! `at_s`), `host_stall` (`stall_ms`: the master's cyclic task wakes that
 //! late once), `clock_step` (`step_us`, signed: the master's clock jumps), `second_responder`
-//! (every frame answered twice while it lasts, the copy `lag_us` later). Random draws are a
+//! (every frame answered twice while it lasts, the copy `lag_us` later), `al_error` (`slave`,
+//! `code`, 0x001A by default: the slave's application raises an AL error and falls back from
+//! OP to SAFE-OP, as a drive does on a synchronization error). Random draws are a
 //! hash of the seed and the frame's number since the epoch: every method of a comparison loses
 //! the same frames.
 
@@ -122,6 +124,14 @@ pub enum FaultKind {
         /// How many.
         slaves: u16,
     },
+    /// The slave's application raises an AL error (ETG.1000.6): the error indication with
+    /// `code` in AL status, OP left for SAFE-OP.
+    AlError {
+        /// The slave.
+        slave: SlaveRef,
+        /// The AL status code.
+        code: u16,
+    },
     /// A second device answers every frame again.
     SecondResponder {
         /// The copy's lag behind the reply, ns.
@@ -142,6 +152,7 @@ impl FaultKind {
             FaultKind::ClockStep { .. } => "clock_step",
             FaultKind::SecondResponder { .. } => "second_responder",
             FaultKind::HotConnect { .. } => "hot_connect",
+            FaultKind::AlError { .. } => "al_error",
         }
     }
 
@@ -212,6 +223,7 @@ struct EntryRepr {
     step_us: Option<f64>,
     lag_us: Option<f64>,
     slaves: Option<u16>,
+    code: Option<i64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -223,7 +235,7 @@ enum SlaveRepr {
 
 /// The kinds a file may name, for the error's fix.
 const KINDS: &str = "loss, corrupt, delay, power_cycle, link_down, host_stall, clock_step, \
-                     second_responder, hot_connect";
+                     second_responder, hot_connect, al_error";
 
 /// The default time a power-cycled slave stays off, ns.
 pub const DEFAULT_OFF_NS: u64 = 200_000_000;
@@ -390,6 +402,7 @@ fn entry(src: &ConfigSource, n: usize, e: &EntryRepr) -> Result<Fault, ConfigErr
         "clock_step" => &["step_us"],
         "second_responder" => &["lag_us"],
         "hot_connect" => &["slaves"],
+        "al_error" => &["slave", "code"],
         other => {
             return Err(err(
                 "kind",
@@ -408,6 +421,7 @@ fn entry(src: &ConfigSource, n: usize, e: &EntryRepr) -> Result<Fault, ConfigErr
         ("step_us", e.step_us.is_some()),
         ("lag_us", e.lag_us.is_some()),
         ("slaves", e.slaves.is_some()),
+        ("code", e.code.is_some()),
     ];
     if let Some((k, _)) = given.iter().find(|(k, g)| *g && !allowed.contains(k)) {
         return Err(err(
@@ -439,6 +453,27 @@ fn entry(src: &ConfigSource, n: usize, e: &EntryRepr) -> Result<Fault, ConfigErr
             }
         }
         "power_cycle" => FaultKind::PowerCycle { slave: slave()? },
+        "al_error" => {
+            let code = e.code.unwrap_or(0x001A);
+            let Ok(code) = u16::try_from(code) else {
+                return Err(err(
+                    "code",
+                    format!("{code} is no AL status code"),
+                    "give a code from 0x0001 to 0xFFFF, e.g. 0x001A (synchronization error)",
+                ));
+            };
+            if code == 0 {
+                return Err(err(
+                    "code",
+                    "0 is \"no error\"".to_string(),
+                    "give a code from 0x0001 to 0xFFFF, e.g. 0x001A (synchronization error)",
+                ));
+            }
+            FaultKind::AlError {
+                slave: slave()?,
+                code,
+            }
+        }
         "link_down" => {
             let port = e.port.unwrap_or(1);
             if port > 3 {
@@ -830,6 +865,18 @@ fn start_fault(segment: &mut Segment, kind: &FaultKind, t_ps: u64) -> String {
             }
             format!("slaves {} to {} connected", r.start + 1, r.end)
         }
+        FaultKind::AlError { slave, code } => match resolve(segment, slave) {
+            Some(p) => {
+                let code = ecsync_wire::AlStatusCode::from(code);
+                segment.esc_mut(p).raise_al_error(code);
+                format!(
+                    "slave {}: AL error {code}, now {}",
+                    p + 1,
+                    segment.esc(p).al_state()
+                )
+            }
+            None => format!("{slave} is not in the segment: no error raised"),
+        },
         FaultKind::PowerCycle { slave } => match resolve(segment, slave) {
             Some(p) => {
                 segment.power_off(p, t_ps);
@@ -963,6 +1010,45 @@ stall_ms = 10
             }
         );
         assert!(s.has_host_faults());
+    }
+
+    #[test]
+    fn an_al_error_takes_a_code_and_refuses_none() {
+        let s = FaultSchedule::parse(
+            "f.toml",
+            "[[fault]]\nat_s = 1\nkind = \"al_error\"\nslave = 2\n\n[[fault]]\nat_s = 2\nkind = \"al_error\"\nslave = \"reference\"\ncode = 0x002C\n",
+        )
+        .unwrap();
+        assert_eq!(
+            s.faults[0].kind,
+            FaultKind::AlError {
+                slave: SlaveRef::Position(1),
+                code: 0x001A
+            }
+        );
+        assert_eq!(
+            s.faults[1].kind,
+            FaultKind::AlError {
+                slave: SlaveRef::Reference,
+                code: 0x002C
+            }
+        );
+        for bad in ["0", "65536", "-1"] {
+            let e = FaultSchedule::parse(
+                "f.toml",
+                &format!("[[fault]]\nat_s = 1\nkind = \"al_error\"\nslave = 2\ncode = {bad}\n"),
+            )
+            .unwrap_err();
+            assert_eq!(e.field, "fault[0].code", "{bad}: {e}");
+            assert!(e.fix.contains("0x001A"), "{e}");
+        }
+        // A parameter it does not take.
+        let e = FaultSchedule::parse(
+            "f.toml",
+            "[[fault]]\nat_s = 1\nkind = \"al_error\"\nport = 1\nslave = 2\n",
+        )
+        .unwrap_err();
+        assert_eq!(e.field, "fault[0].port", "{e}");
     }
 
     #[test]

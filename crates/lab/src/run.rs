@@ -318,6 +318,9 @@ pub struct RecoveryOut {
     pub error: Option<String>,
     /// Slaves that answered beyond the network as brought up (hot-connected): not taken in.
     pub appeared: u16,
+    /// Slaves found out of OP with their configuration kept, and why (their AL status).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub left_op: Vec<String>,
 }
 
 /// A run's faults: what the schedule did, what the master saw, and how DC came back.
@@ -1338,6 +1341,7 @@ impl Run {
                     slaves: e.slaves_brought_back(),
                     error: e.error(),
                     appeared: e.appeared(),
+                    left_op: e.left_op(),
                 })
                 .collect();
         }

@@ -373,3 +373,41 @@ fn every_method_comes_back_from_each_fault_of_the_faults_demo_within_a_second() 
         assert_eq!(mo.ground_truth.late_frames, 0, "{m}: late frames");
     }
 }
+
+#[test]
+fn a_drive_that_leaves_op_with_an_al_error_is_read_acknowledged_and_taken_back() {
+    // Drive 4's application raises a synchronization error at 11 s: SAFE-OP with the error
+    // flag and code 0x001A, its outputs no longer taken (the LRW's working counter short).
+    let out = compare_with("[[fault]]\nat_s = 11\nkind = \"al_error\"\nslave = 4\ncode = 0x1A\n");
+    for (m, mo) in &out.methods {
+        let f = &mo.faults[0];
+        assert_eq!(
+            f.events[0].detail, "slave 4: AL error 0x001a (Synchronization error), now SAFE-OP",
+            "{m}"
+        );
+        // The master read why from the AL status, acknowledged the error and took the drive
+        // back to OP; its clock was left alone (no reset: no offset, no SYNC0 restart).
+        let back: Vec<_> = f
+            .recoveries
+            .iter()
+            .filter(|r| !r.slaves.is_empty())
+            .collect();
+        assert_eq!(back.len(), 1, "{m}: {:?}", f.recoveries);
+        assert_eq!(back[0].slaves, [4], "{m}");
+        assert_eq!(
+            back[0].left_op,
+            ["slave 4 in SAFE-OP with AL error 0x001a (Synchronization error)"],
+            "{m}"
+        );
+        // A short working counter for the cycles until it was back, then full again.
+        assert!(
+            (3..100).contains(&mo.ground_truth.bad_wkc),
+            "{m}: {} bad working counters",
+            mo.ground_truth.bad_wkc
+        );
+        assert_eq!(f.lost_cycles, 0, "{m}");
+        let ms = f.relock_ms[0].unwrap_or_else(|| panic!("{m}: never back: {f:?}"));
+        println!("{m}: AL error: back in OP and locked {ms:.1} ms after it");
+        assert!(ms < 1_000.0, "{m}: {ms} ms");
+    }
+}

@@ -1570,7 +1570,18 @@ pub async fn request_state(
     state: AlState,
     timeouts: &BringupTimeouts,
 ) -> Result<(), MasterError> {
-    let request = AlControlRepr::request(state).to_bytes();
+    request_state_with(link, station, AlControlRepr::request(state), timeouts).await
+}
+
+/// [`request_state`] with the whole AL control value (an error acknowledge with it).
+pub async fn request_state_with(
+    link: &Link,
+    station: u16,
+    control: AlControlRepr,
+    timeouts: &BringupTimeouts,
+) -> Result<(), MasterError> {
+    let state = control.state;
+    let request = control.to_bytes();
     link.fpwr(station, reg::AL_CONTROL, &request, "AL control")
         .await?;
     let start = link.now_ns();

@@ -323,6 +323,15 @@ impl RecoveryEvent {
         }
     }
 
+    /// Slaves it found out of OP with their configuration kept, as their AL status said
+    /// ("slave 4 in SAFE-OP with AL error 0x001A (synchronization error)").
+    pub fn left_op(&self) -> Vec<String> {
+        match &self.outcome {
+            Some(Ok(r)) => r.left_op.iter().map(|l| l.to_string()).collect(),
+            _ => Vec::new(),
+        }
+    }
+
     /// Slaves it counted beyond the network as brought up.
     pub fn appeared(&self) -> u16 {
         match &self.outcome {

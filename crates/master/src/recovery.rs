@@ -23,7 +23,7 @@ use crate::bringup::{BringupTimeouts, DcCapability, Network, SlaveInfo, request_
 use crate::error::MasterError;
 use crate::io::{Link, Pdu};
 use ecsync_wire::register as reg;
-use ecsync_wire::{AlState, Command, DatagramAddress};
+use ecsync_wire::{AlControlRepr, AlState, Command, DatagramAddress};
 
 /// How a recovery sets SYNC0 up and waits for the states.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -56,6 +56,36 @@ pub struct Recovered {
     /// Slaves that answer beyond the network as brought up (hot-connected at the end): counted,
     /// not taken in (a new bring-up maps their process data).
     pub appeared: u16,
+    /// Slaves that kept their configuration but had left OP (an AL error of their own, a
+    /// state request of someone else), as their AL status said: taken back to OP (the error
+    /// acknowledged), their clocks left as they were.
+    pub left_op: Vec<LeftOp>,
+}
+
+/// A slave found out of OP with its station address kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LeftOp {
+    /// Network position.
+    pub position: u16,
+    /// The state it was in (AL status bits 3:0).
+    pub state: u8,
+    /// The error indication (AL status bit 4).
+    pub error: bool,
+    /// The AL status code (0x0134).
+    pub code: u16,
+}
+
+impl std::fmt::Display for LeftOp {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let state = AlState::from_register(self.state)
+            .map_or_else(|_| format!("state 0x{:X}", self.state), |s| s.to_string());
+        write!(f, "slave {} in {state}", self.position + 1)?;
+        if self.error {
+            let code = ecsync_wire::AlStatusCode::from(self.code);
+            write!(f, " with AL error {code}")?;
+        }
+        Ok(())
+    }
 }
 
 /// |0x092C| under this is a reset slave locked again, ns.
@@ -124,7 +154,9 @@ pub async fn recover(
         .iter()
         .filter(|s| !reset.contains(&s.position))
         .collect();
+    let mut left_op = Vec::new();
     if !kept.is_empty() {
+        // AL status and, four bytes on, its code, in one read per slave.
         let reads: Vec<Pdu> = kept
             .iter()
             .map(|s| {
@@ -134,28 +166,33 @@ pub async fn recover(
                         adp: s.station,
                         ado: reg::AL_STATUS,
                     },
-                    vec![0; 2],
+                    vec![0; ecsync_wire::al::AL_STATUS_BLOCK_LEN],
                 )
             })
             .collect();
         let (r, _) = link.pdus(&reads, "read AL status").await?;
         for (s, p) in kept.iter().zip(&r) {
-            let op = ecsync_wire::AlStatus::new_checked(&p.data[..])
-                .ok()
-                .is_some_and(|a| a.state() == Ok(AlState::Op) && !a.error());
-            if p.wkc == 1 && !op {
-                reset.push(s.position);
+            let Ok(a) = ecsync_wire::AlStatus::new_checked(&p.data[..]) else {
+                continue;
+            };
+            if p.wkc == 1 && (a.state() != Ok(AlState::Op) || a.error()) {
+                left_op.push(LeftOp {
+                    position: s.position,
+                    state: a.state_raw(),
+                    error: a.error(),
+                    code: a.status_code().map_or(0, |c| c.code()),
+                });
             }
         }
-        reset.sort_unstable();
     }
     let mut out = Recovered {
         reference: reset.contains(&net.reference),
         positions: reset.clone(),
         reference_offset: None,
         appeared,
+        left_op: left_op.clone(),
     };
-    if reset.is_empty() {
+    if reset.is_empty() && left_op.is_empty() {
         return Ok(out);
     }
     let info = |pos: u16| -> &SlaveInfo { &net.slaves[usize::from(pos)] };
@@ -333,14 +370,26 @@ pub async fn recover(
                 .await?;
         }
     }
-    // 4. The states, the process data between PRE-OP and SAFE-OP.
-    for &pos in &reset {
+    // 4. The states, the process data between PRE-OP and SAFE-OP; an error indication is
+    // acknowledged with the first request (an unacknowledged one refuses every request).
+    let mut states: Vec<u16> = reset
+        .iter()
+        .copied()
+        .chain(left_op.iter().map(|l| l.position))
+        .collect();
+    states.sort_unstable();
+    for &pos in &states {
         let s = info(pos);
-        request_state(&link, s.station, AlState::PreOp, &cfg.timeouts).await?;
+        let ack = AlControlRepr {
+            state: AlState::PreOp,
+            error_ack: true,
+            id_request: false,
+        };
+        crate::bringup::request_state_with(&link, s.station, ack, &cfg.timeouts).await?;
         crate::bringup::configure_process_data(&link, std::slice::from_ref(s)).await?;
         request_state(&link, s.station, AlState::SafeOp, &cfg.timeouts).await?;
         request_state(&link, s.station, AlState::Op, &cfg.timeouts).await?;
     }
-    out.positions = reset;
+    out.positions = states;
     Ok(out)
 }

@@ -51,6 +51,19 @@ impl Esc {
         self.update_al_registers();
     }
 
+    /// The application raises an error by itself (a drive's synchronization error, a
+    /// watchdog): the error indication with `code`, and OP left for SAFE-OP (ETG.1000.6: an
+    /// error in OP takes the slave to SAFE-OP with the error flag; in a lower state it stays).
+    /// It stays so until the master acknowledges it (AL control with the acknowledge bit).
+    pub fn raise_al_error(&mut self, code: AlStatusCode) {
+        self.generation += 1;
+        if self.al_state == AlState::Op {
+            self.al_state = AlState::SafeOp;
+        }
+        self.fail(code);
+        self.update_al_registers();
+    }
+
     /// Sets the error indication with its code; the state stays.
     fn fail(&mut self, code: AlStatusCode) {
         self.al_error = true;
@@ -155,6 +168,25 @@ mod tests {
         // PRE-OP -> SAFE-OP without SyncManagers: invalid output configuration.
         e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x04, 0]), 0);
         assert_eq!(st(&mut e), (0x0012, 0x001d));
+    }
+
+    #[test]
+    fn an_application_error_in_safe_op_stays_until_acknowledged() {
+        let mut e = esc();
+        let st = |e: &mut super::Esc| {
+            let mut d = dg(Command::Brd, 0, 0x0130, &[0, 0, 0, 0, 0, 0]);
+            e.process_datagram(&mut d, 0);
+            (d[10], u16::from_le_bytes([d[14], d[15]]))
+        };
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x02, 0]), 0);
+        e.raise_al_error(ecsync_wire::AlStatusCode::from(0x001a));
+        // PRE-OP stays PRE-OP (only OP falls back), with the flag and the code.
+        assert_eq!(st(&mut e), (0x12, 0x001a));
+        // Refused without the acknowledge, taken with it.
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x02, 0]), 0);
+        assert_eq!(st(&mut e), (0x12, 0x001a));
+        e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x12, 0]), 0);
+        assert_eq!(st(&mut e), (0x02, 0));
     }
 
     #[test]
