@@ -37,6 +37,26 @@ pub enum WireError {
     /// AL control or AL status bits 3:0 that name no AL state (valid: 1, 2, 3, 4, 8).
     #[error("unknown AL state {0:#04x}")]
     UnknownAlState(u8),
+    /// A mailbox header's type names no protocol (valid: 0-5, 15).
+    #[error("unknown mailbox type {0:#04x}")]
+    UnknownMailboxType(u8),
+    /// A mailbox header announces more data than the buffer holds.
+    #[error("mailbox length {length} exceeds the {room} bytes after the header")]
+    MailboxLength {
+        /// The header's length field.
+        length: u16,
+        /// Bytes after the header.
+        room: u16,
+    },
+    /// A CoE header's service names none (valid: 1-8).
+    #[error("unknown CoE service {0}")]
+    UnknownCoeService(u8),
+    /// An SDO command specifier names no request (valid: 0-4).
+    #[error("unknown SDO command specifier {0}")]
+    UnknownSdoCommand(u8),
+    /// An SDO Information opcode that names no request.
+    #[error("unknown SDO Information opcode {0}")]
+    UnknownSdoInfoOpcode(u8),
     /// A register field holds a value the datasheet reserves.
     #[error("reserved value {value:#04x} in the {field}")]
     Reserved {

@@ -37,6 +37,7 @@ pub mod dl;
 mod error;
 pub mod fmmu;
 mod frame;
+pub mod mailbox;
 pub mod register;
 pub mod sii;
 pub mod sync_manager;
