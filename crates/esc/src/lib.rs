@@ -22,6 +22,7 @@
 #![warn(missing_docs)]
 
 pub mod clock;
+pub mod coe;
 pub mod config;
 pub mod dc_unit;
 mod esc;
