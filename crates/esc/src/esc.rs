@@ -15,6 +15,7 @@
 //!   physical reads and writes and their side effects, DL control and DL status;
 //! - [`al`]: the AL state machine (AL control, AL status, AL status code);
 //! - [`sii`]: the SII EEPROM interface and its busy time;
+//! - [`mailbox`]: the mailbox SyncManagers and the CoE server behind them;
 //! - [`process_data`]: FMMUs, SyncManagers, logical addressing and the loopback application;
 //! - [`datagram`]: datagram processing (address modes, working counters) and the recording of
 //!   a frame's effects for the replay;
@@ -22,6 +23,7 @@
 
 mod al;
 mod datagram;
+mod mailbox;
 mod process_data;
 mod registers;
 mod replay;
@@ -95,6 +97,8 @@ pub struct Esc {
     /// The slot the next recording replaces when none is free.
     next_slot: u8,
     rec: Recorder,
+    /// The mailbox and its CoE server (a device with a mailbox); boxed, it is rarely used.
+    mbx: Option<Box<mailbox::MailboxState>>,
 }
 
 impl Esc {
@@ -107,6 +111,12 @@ impl Esc {
     /// then).
     pub fn new_at(model: EscModel, device: DeviceInfo, crystal: CrystalParams, t_ps: u64) -> Self {
         let image = sii_image::build(&model, &device);
+        let mbx = device.mailbox.map(|l| {
+            Box::new(mailbox::MailboxState::new(
+                l,
+                crate::coe::SdoServer::new(&device),
+            ))
+        });
         let mut esc = Esc {
             regs: Box::new([0; REG_SPACE]),
             attr: Box::new([0; REG_SPACE]),
@@ -146,6 +156,7 @@ impl Esc {
             program_keys: [(0, u64::MAX); PROGRAM_SLOTS],
             next_slot: 0,
             rec: Recorder::default(),
+            mbx,
         };
         esc.build_attributes();
         esc.reset_registers();

@@ -282,9 +282,67 @@ pub struct DeviceInfo {
     pub outputs: Vec<PdoEntry>,
     /// Inputs (TxPDO, slave to master) entries.
     pub inputs: Vec<PdoEntry>,
+    /// The mailbox (SM0 out, SM1 in) with CoE behind it, as real drives have: the process
+    /// data then sits on SM2 and SM3. `None`: no mailbox, the process data on SM0 and SM1.
+    pub mailbox: Option<MailboxLayout>,
+}
+
+/// Where a device's mailbox buffers are (the SII's standard mailbox words 0x18-0x1B).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MailboxLayout {
+    /// SM0: master to slave, physical start.
+    pub out_start: u16,
+    /// SM0 length, bytes.
+    pub out_len: u16,
+    /// SM1: slave to master, physical start.
+    pub in_start: u16,
+    /// SM1 length, bytes.
+    pub in_len: u16,
+    /// The time the application takes to answer a mailbox message, ns.
+    pub response_ns: u64,
+}
+
+impl MailboxLayout {
+    /// 128-byte mailboxes at 0x1000 and 0x1080 (the layout of Beckhoff terminals and most
+    /// drives), answered within 200 us.
+    pub const STANDARD: MailboxLayout = MailboxLayout {
+        out_start: 0x1000,
+        out_len: 128,
+        in_start: 0x1080,
+        in_len: 128,
+        response_ns: 200_000,
+    };
+
+    /// Where the process data goes behind it: outputs (SM2), inputs (SM3).
+    pub fn process_data_starts(&self) -> (u16, u16) {
+        let end = self
+            .out_start
+            .saturating_add(self.out_len)
+            .max(self.in_start.saturating_add(self.in_len));
+        let outputs = end.next_multiple_of(0x80);
+        (outputs, outputs + 0x80)
+    }
 }
 
 impl DeviceInfo {
+    /// The physical starts of the output and input buffers (SM2/SM3 behind a mailbox, else
+    /// SM0/SM1).
+    pub fn process_data_starts(&self) -> (u16, u16) {
+        match &self.mailbox {
+            Some(m) => m.process_data_starts(),
+            None => (
+                crate::sii_image::SM_OUTPUT_START,
+                crate::sii_image::SM_INPUT_START,
+            ),
+        }
+    }
+
+    /// The same device with a standard mailbox and CoE (a real drive's layout).
+    pub fn with_mailbox(mut self) -> Self {
+        self.mailbox = Some(MailboxLayout::STANDARD);
+        self
+    }
+
     /// Bytes of outputs.
     pub fn output_bytes(&self) -> usize {
         self.outputs
@@ -337,6 +395,7 @@ impl DeviceInfo {
                 e(0x6077, 0, 16, "Torque actual value"),
                 e(0x60f4, 0, 32, "Following error actual value"),
             ],
+            mailbox: None,
         }
     }
 
@@ -351,6 +410,7 @@ impl DeviceInfo {
             alias: 0,
             outputs: vec![],
             inputs: vec![],
+            mailbox: None,
         }
     }
 }

@@ -15,6 +15,13 @@ pub const SM_INPUT_START: u16 = 0x1100;
 pub const SM_OUTPUT_CONTROL: u8 = 0x64;
 /// SM1 control byte: buffered mode, ECAT reads, PDI interrupt.
 pub const SM_INPUT_CONTROL: u8 = 0x20;
+/// Mailbox out (SM0) control byte: mailbox mode, ECAT writes, PDI interrupt.
+pub const SM_MAILBOX_OUT_CONTROL: u8 = 0x26;
+/// Mailbox in (SM1) control byte: mailbox mode, ECAT reads, PDI interrupt.
+pub const SM_MAILBOX_IN_CONTROL: u8 = 0x22;
+/// The general category's CoE details of a drive with a mailbox: SDO, SDO Information, PDO
+/// assignment, PDO configuration and complete access (ETG.2010 table 6, bits 0-3 and 5).
+pub const COE_DETAILS: u8 = 0x2f;
 /// SYNC pulse length in SII word 2, units of 10 ns (1 us).
 pub const SYNC_PULSE_LENGTH_10NS: u16 = 100;
 
@@ -97,7 +104,15 @@ pub fn build(model: &EscModel, dev: &DeviceInfo) -> Vec<u8> {
     w.dword(sii::WORD_PRODUCT_CODE, dev.product_code);
     w.dword(sii::WORD_REVISION, dev.revision);
     w.dword(sii::WORD_SERIAL, dev.serial);
-    // Words 0x14..0x1C: no mailbox.
+    // Words 0x14..0x17: no bootstrap mailbox; 0x18..0x1B the standard mailbox, 0x1C its
+    // protocols (CoE).
+    if let Some(m) = &dev.mailbox {
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET, m.out_start);
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET + 1, m.out_len);
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET + 2, m.in_start);
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET + 3, m.in_len);
+        w.word(sii::WORD_MAILBOX_PROTOCOL, 0x0004);
+    }
     w.word(sii::WORD_SIZE, (EEPROM_BYTES * 8 / 1024 - 1) as u16);
     w.word(sii::WORD_VERSION, 1);
 
@@ -120,6 +135,9 @@ pub fn build(model: &EscModel, dev: &DeviceInfo) -> Vec<u8> {
     general[sii::general::GROUP_IDX] = 2;
     general[sii::general::ORDER_IDX] = 3;
     general[sii::general::NAME_IDX] = 1;
+    if dev.mailbox.is_some() {
+        general[sii::general::COE_DETAILS] = COE_DETAILS;
+    }
     let ports = model
         .ports
         .iter()
@@ -130,25 +148,44 @@ pub fn build(model: &EscModel, dev: &DeviceInfo) -> Vec<u8> {
     push_category(&mut cats, category::GENERAL, general);
 
     let has_pd = !dev.outputs.is_empty() || !dev.inputs.is_empty();
-    if has_pd {
-        push_category(&mut cats, category::FMMU, vec![0x01, 0x02]);
+    if has_pd || dev.mailbox.is_some() {
+        // FMMU usage: outputs, inputs (and the mailbox state with a mailbox).
+        let fmmus = if dev.mailbox.is_some() {
+            vec![0x01, 0x02, 0x03, 0x00]
+        } else {
+            vec![0x01, 0x02]
+        };
+        push_category(&mut cats, category::FMMU, fmmus);
+        // SyncManagers: (start, length, control, status, enable, type 1 mailbox out, 2 mailbox
+        // in, 3 outputs, 4 inputs).
         let mut sm = Vec::new();
-        sm.extend_from_slice(&SM_OUTPUT_START.to_le_bytes());
-        sm.extend_from_slice(&(dev.output_bytes() as u16).to_le_bytes());
-        sm.extend_from_slice(&[SM_OUTPUT_CONTROL, 0x00, 0x01, 0x03]);
-        sm.extend_from_slice(&SM_INPUT_START.to_le_bytes());
-        sm.extend_from_slice(&(dev.input_bytes() as u16).to_le_bytes());
-        sm.extend_from_slice(&[SM_INPUT_CONTROL, 0x00, 0x01, 0x04]);
+        let mut push_sm = |start: u16, len: u16, control: u8, kind: u8| {
+            sm.extend_from_slice(&start.to_le_bytes());
+            sm.extend_from_slice(&len.to_le_bytes());
+            sm.extend_from_slice(&[control, 0x00, 0x01, kind]);
+        };
+        if let Some(m) = &dev.mailbox {
+            push_sm(m.out_start, m.out_len, SM_MAILBOX_OUT_CONTROL, 1);
+            push_sm(m.in_start, m.in_len, SM_MAILBOX_IN_CONTROL, 2);
+        }
+        let (out_start, in_start) = dev.process_data_starts();
+        push_sm(out_start, dev.output_bytes() as u16, SM_OUTPUT_CONTROL, 3);
+        push_sm(in_start, dev.input_bytes() as u16, SM_INPUT_CONTROL, 4);
         push_category(&mut cats, category::SYNC_MANAGER, sm);
+        let (out_sm, in_sm) = if dev.mailbox.is_some() {
+            (2, 3)
+        } else {
+            (0, 1)
+        };
         push_category(
             &mut cats,
             category::TXPDO,
-            pdo_category(0x1a00, 1, &dev.inputs, in_names_at),
+            pdo_category(0x1a00, in_sm, &dev.inputs, in_names_at),
         );
         push_category(
             &mut cats,
             category::RXPDO,
-            pdo_category(0x1600, 0, &dev.outputs, out_names_at),
+            pdo_category(0x1600, out_sm, &dev.outputs, out_names_at),
         );
     }
     cats.extend_from_slice(&category::END.to_le_bytes());

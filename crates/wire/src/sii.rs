@@ -89,7 +89,8 @@ pub struct Identity {
     pub serial: u32,
 }
 
-fn word(image: &[u8], word: u16) -> Result<u16, WireError> {
+/// Word `word` of an SII image.
+pub fn word(image: &[u8], word: u16) -> Result<u16, WireError> {
     let at = usize::from(word) * 2;
     match image.get(at..at + 2) {
         Some(b) => Ok(u16::from_le_bytes([b[0], b[1]])),

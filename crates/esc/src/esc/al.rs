@@ -4,7 +4,6 @@
 //! place ([`ecsync_wire::AlState`]).
 
 use super::Esc;
-use crate::sii_image;
 use ecsync_wire::register as reg;
 use ecsync_wire::{AL_CONTROL_LEN, AL_STATUS_BLOCK_LEN, AlControl, AlState, AlStatus};
 use ecsync_wire::{AlStatusCode, AlStatusRepr};
@@ -89,6 +88,10 @@ impl Esc {
             );
         if !valid {
             self.fail(AlStatusCode::InvalidStateChange);
+        } else if (from, to) == (Init, PreOp) && !self.mailbox_configured() {
+            // A device with a mailbox needs SM0 and SM1 set up as its SII says before PRE-OP
+            // (ETG.1000.6: 0x0016 otherwise).
+            self.fail(AlStatusCode::InvalidMailboxConfig);
         } else if (from, to) == (PreOp, SafeOp) {
             match self.check_process_data_config() {
                 Ok(()) => self.al_state = to,
@@ -105,14 +108,36 @@ impl Esc {
         }
     }
 
+    /// Whether the mailbox SyncManagers are as the device's layout has them (true without a
+    /// mailbox).
+    fn mailbox_configured(&self) -> bool {
+        let Some(m) = self.device.mailbox else {
+            return true;
+        };
+        let ok = |start: u16, len: u16, ecat_writes: bool| {
+            self.sms
+                .iter()
+                .take(usize::from(self.model.sm_count))
+                .any(|s| {
+                    s.enabled
+                        && s.mailbox
+                        && s.start == start
+                        && s.len == len
+                        && s.ecat_writes == ecat_writes
+                })
+        };
+        ok(m.out_start, m.out_len, true) && ok(m.in_start, m.in_len, false)
+    }
+
     /// PRE-OP -> SAFE-OP: the process data SyncManagers must be configured as the SII describes
     /// (the application's check; a wrong length gives "invalid output/input configuration").
     fn check_process_data_config(&mut self) -> Result<(), AlStatusCode> {
         let out_len = self.device.output_bytes() as u16;
         let in_len = self.device.input_bytes() as u16;
+        let (out_start, in_start) = self.device.process_data_starts();
         let out = if out_len > 0 {
             let i = self
-                .find_sm(sii_image::SM_OUTPUT_START, true)
+                .find_sm(out_start, true)
                 .ok_or(AlStatusCode::InvalidOutputConfiguration)?;
             if self.sms[i].len != out_len {
                 return Err(AlStatusCode::InvalidOutputConfiguration);
@@ -123,7 +148,7 @@ impl Esc {
         };
         let inp = if in_len > 0 {
             let i = self
-                .find_sm(sii_image::SM_INPUT_START, false)
+                .find_sm(in_start, false)
                 .ok_or(AlStatusCode::InvalidInputConfiguration)?;
             if self.sms[i].len != in_len {
                 return Err(AlStatusCode::InvalidInputConfiguration);

@@ -34,6 +34,8 @@ pub(super) struct SmBuffer {
     /// Direction "write": the EtherCAT side writes (outputs).
     pub(super) ecat_writes: bool,
     pub(super) enabled: bool,
+    /// Mailbox mode (else buffered: process data).
+    pub(super) mailbox: bool,
 }
 
 impl SmBuffer {
@@ -161,8 +163,10 @@ impl Esc {
                 // A reserved direction is no write direction, as the silicon's decoder reads it.
                 ecat_writes: s.direction() == Ok(SmDirection::Write),
                 enabled: s.enabled(),
+                mailbox: s.mode() == Ok(ecsync_wire::SmMode::Mailbox),
             };
         }
+        self.mailbox_sms_changed();
         if self.input_sm.is_some() {
             self.app = self.app_layout();
         }

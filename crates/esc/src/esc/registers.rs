@@ -265,6 +265,9 @@ impl Esc {
             return true;
         }
         self.rec.uncacheable();
+        if self.mbx.is_some() {
+            self.mailbox_tick(t_ps);
+        }
         let lo = usize::from(ado);
         let hi = lo + out.len();
         let mut counted = false;
@@ -283,7 +286,15 @@ impl Esc {
             }
         }
         if hi > REG_SPACE {
-            counted |= self.read_ram(lo, hi, out, or);
+            match self.mailbox_gate(lo, hi, false) {
+                // An empty mailbox: nothing read, nothing counted.
+                Some(false) => {}
+                Some(true) => {
+                    counted |= self.read_ram(lo, hi, out, or);
+                    self.mailbox_accessed(hi, false, t_ps);
+                }
+                None => counted |= self.read_ram(lo, hi, out, or),
+            }
         }
         counted
     }
@@ -362,8 +373,11 @@ impl Esc {
         self.generation += 1;
         let lo = usize::from(ado);
         let hi = lo + data.len();
+        if self.mbx.is_some() {
+            self.mailbox_tick(t_ps);
+        }
         if lo >= REG_SPACE {
-            return self.write_ram(lo, hi, data);
+            return self.write_ram_gated(lo, hi, data, t_ps);
         }
         let rhi = hi.min(REG_SPACE);
         // While the EEPROM interface is busy its registers are write-protected.
@@ -379,13 +393,26 @@ impl Esc {
             }
         }
         if !counted {
-            return hi > REG_SPACE && self.write_ram(lo, hi, data);
+            return hi > REG_SPACE && self.write_ram_gated(lo, hi, data, t_ps);
         }
         self.registers_written(lo, rhi, data, sii_busy, t_ps, fx);
         if hi > REG_SPACE {
-            self.write_ram(lo, hi, data);
+            self.write_ram_gated(lo, hi, data, t_ps);
         }
         true
+    }
+
+    /// A write of process RAM through the mailbox's gate (a full mailbox takes nothing).
+    fn write_ram_gated(&mut self, lo: usize, hi: usize, data: &[u8], t_ps: u64) -> bool {
+        match self.mailbox_gate(lo, hi, true) {
+            Some(false) => false,
+            Some(true) => {
+                let w = self.write_ram(lo, hi, data);
+                self.mailbox_accessed(hi, true, t_ps);
+                w
+            }
+            None => self.write_ram(lo, hi, data),
+        }
     }
 
     /// What a write of `data` to registers `lo..hi` sets off in the other parts of the ESC.

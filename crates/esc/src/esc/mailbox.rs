@@ -1,0 +1,420 @@
+//! The mailbox (ESC datasheet section I, "SyncManager", mailbox mode; ETG.1000.4 section 5.6):
+//! two SyncManagers in mailbox mode guard one buffer each, SM0 for the master's messages, SM1
+//! for the slave's answers, and the application (the CoE server of [`crate::coe`]) behind them.
+//!
+//! What the EtherCAT side sees, as the datasheet gives it:
+//! - a write to the mailbox out buffer is taken only while it is empty; the write of its last
+//!   byte makes it full (status bit 3), and the application takes the message; a write while it
+//!   is full is ignored and does not count in the working counter;
+//! - a read of the mailbox in buffer works only while it is full (otherwise it does not count
+//!   and returns nothing); the read of its last byte empties it;
+//! - the answer comes `response_ns` after the message (the application's time), read through
+//!   the SM1 status polls the masters make;
+//! - the repeat request: toggling SM1's activate bit 1 puts the last answer in the buffer again,
+//!   acknowledged in SM1's PDI control bit 1;
+//! - the mailbox counter: a message with the counter of the one before (not 0) is a repeat the
+//!   master sent after a lost answer, and is not processed twice.
+
+use super::Esc;
+use crate::coe::{MailboxFault, SdoServer};
+use crate::model::MailboxLayout;
+use ecsync_wire::mailbox::{
+    MAILBOX_HEADER_LEN, Mailbox, MailboxErrorCode, MailboxRepr, MailboxType, emit_mailbox_error,
+};
+use ecsync_wire::register as reg;
+
+/// The mailbox of one ESC.
+#[derive(Debug, Clone)]
+pub(super) struct MailboxState {
+    layout: MailboxLayout,
+    server: SdoServer,
+    /// The SyncManagers in mailbox mode, by direction (their index), while enabled.
+    out_sm: Option<usize>,
+    in_sm: Option<usize>,
+    out_full: bool,
+    in_full: bool,
+    /// The answer being prepared: when it is ready (ps) and the message.
+    pending: Option<(u64, Vec<u8>)>,
+    /// The last answer put in the buffer (for a repeat request).
+    last: Vec<u8>,
+    /// The counter of the master's last message.
+    last_counter: u8,
+    /// This slave's counter, 1 to 7 in turn.
+    own_counter: u8,
+    /// SM1's repeat request bit as last seen.
+    repeat: bool,
+}
+
+impl MailboxState {
+    pub(super) fn new(layout: MailboxLayout, server: SdoServer) -> Self {
+        MailboxState {
+            layout,
+            server,
+            out_sm: None,
+            in_sm: None,
+            out_full: false,
+            in_full: false,
+            pending: None,
+            last: Vec::new(),
+            last_counter: 0,
+            own_counter: 0,
+            repeat: false,
+        }
+    }
+
+    /// The CoE server (its dictionary).
+    pub(super) fn server(&self) -> &SdoServer {
+        &self.server
+    }
+
+    /// The CoE server, to change (the drive's own counters).
+    pub(super) fn server_mut(&mut self) -> &mut SdoServer {
+        &mut self.server
+    }
+}
+
+impl Esc {
+    /// The SyncManagers were written: which are the mailbox's, and a repeat request.
+    pub(super) fn mailbox_sms_changed(&mut self) {
+        let Some(m) = self.mbx.as_deref_mut() else {
+            return;
+        };
+        let find = |ecat_writes: bool| {
+            self.sms
+                .iter()
+                .take(usize::from(self.model.sm_count))
+                .position(|s| s.enabled && s.mailbox && s.ecat_writes == ecat_writes)
+        };
+        let (out_sm, in_sm) = (find(true), find(false));
+        // A SyncManager switched off (or moved) forgets its buffer's state.
+        if out_sm != m.out_sm {
+            m.out_full = false;
+        }
+        if in_sm != m.in_sm {
+            m.in_full = false;
+            m.pending = None;
+        }
+        m.out_sm = out_sm;
+        m.in_sm = in_sm;
+        if let Some(i) = in_sm {
+            let base = usize::from(reg::sync_manager_address(i as u8));
+            let repeat = self.regs[base + 6] & 0x02 != 0;
+            if repeat != m.repeat {
+                m.repeat = repeat;
+                // The last answer again, and the acknowledge in the PDI control byte.
+                if !m.last.is_empty() {
+                    let msg = m.last.clone();
+                    let b = self.sms[i];
+                    let start = usize::from(b.start).saturating_sub(super::registers::REG_SPACE);
+                    let n = usize::from(b.len).min(self.ram.len().saturating_sub(start));
+                    self.ram[start..start + n].fill(0);
+                    let k = msg.len().min(n);
+                    self.ram[start..start + k].copy_from_slice(&msg[..k]);
+                    m.in_full = true;
+                }
+                self.regs[base + 7] = (self.regs[base + 7] & !0x02) | (u8::from(repeat) << 1);
+            }
+        }
+        self.update_mailbox_status();
+    }
+
+    /// SM status bit 3 (mailbox full) of both mailbox SyncManagers.
+    fn update_mailbox_status(&mut self) {
+        let Some(m) = self.mbx.as_deref() else {
+            return;
+        };
+        for (sm, full) in [(m.out_sm, m.out_full), (m.in_sm, m.in_full)] {
+            if let Some(i) = sm {
+                let at = usize::from(reg::sync_manager_address(i as u8)) + 5;
+                self.regs[at] = (self.regs[at] & !0x08) | (u8::from(full) << 3);
+            }
+        }
+    }
+
+    /// The answer, once it is ready at `t_ps`, goes into the mailbox in buffer (when that is
+    /// empty).
+    pub(super) fn mailbox_tick(&mut self, t_ps: u64) {
+        let Some(m) = self.mbx.as_deref_mut() else {
+            return;
+        };
+        let Some((ready, _)) = &m.pending else {
+            return;
+        };
+        let Some(i) = m.in_sm else {
+            return;
+        };
+        if *ready > t_ps || m.in_full {
+            return;
+        }
+        let Some((_, msg)) = m.pending.take() else {
+            return;
+        };
+        let b = self.sms[i];
+        let start = usize::from(b.start).saturating_sub(super::registers::REG_SPACE);
+        let n = usize::from(b.len).min(self.ram.len().saturating_sub(start));
+        self.ram[start..start + n].fill(0);
+        let k = msg.len().min(n);
+        self.ram[start..start + k].copy_from_slice(&msg[..k]);
+        m.in_full = true;
+        // The application has taken the message it answers.
+        m.out_full = false;
+        m.last = msg;
+        self.update_mailbox_status();
+    }
+
+    /// What a physical access to `lo..hi` (physical addresses) does to the mailbox: `Some(false)`
+    /// refuses it (no data, no count), `Some(true)` lets it through, `None`: not a mailbox
+    /// buffer.
+    pub(super) fn mailbox_gate(&self, lo: usize, hi: usize, write: bool) -> Option<bool> {
+        let m = self.mbx.as_deref()?;
+        let overlaps = |sm: Option<usize>| {
+            sm.map(|i| self.sms[i]).filter(|b| {
+                let (s, e) = (
+                    usize::from(b.start),
+                    usize::from(b.start) + usize::from(b.len),
+                );
+                lo < e && hi > s
+            })
+        };
+        if overlaps(m.out_sm).is_some() {
+            // The master's buffer: written while empty, never read from this side.
+            return Some(write && !m.out_full);
+        }
+        if overlaps(m.in_sm).is_some() {
+            return Some(!write && m.in_full);
+        }
+        None
+    }
+
+    /// After an access the gate let through: a write of the out buffer's last byte hands the
+    /// message to the application, a read of the in buffer's last byte empties it.
+    pub(super) fn mailbox_accessed(&mut self, hi: usize, write: bool, t_ps: u64) {
+        let state = self.al_state;
+        let station = self.station_address();
+        let Some(m) = self.mbx.as_deref_mut() else {
+            return;
+        };
+        let sm = if write { m.out_sm } else { m.in_sm };
+        let Some(i) = sm else {
+            return;
+        };
+        let b = self.sms[i];
+        let end = usize::from(b.start) + usize::from(b.len);
+        if hi < end {
+            return;
+        }
+        if !write {
+            m.in_full = false;
+            self.update_mailbox_status();
+            return;
+        }
+        m.out_full = true;
+        let start = usize::from(b.start).saturating_sub(super::registers::REG_SPACE);
+        let n = usize::from(b.len).min(self.ram.len().saturating_sub(start));
+        let request = self.ram[start..start + n].to_vec();
+        let room = usize::from(m.layout.in_len).saturating_sub(MAILBOX_HEADER_LEN);
+        let answer = answer(m, &request, state, station, room);
+        match answer {
+            Some(msg) => {
+                let ready = t_ps.saturating_add(m.layout.response_ns.saturating_mul(1000));
+                m.pending = Some((ready, msg));
+            }
+            // Nothing to answer: the application has taken the message.
+            None => m.out_full = false,
+        }
+        self.update_mailbox_status();
+    }
+
+    /// The CoE server behind the mailbox, if the device has one.
+    pub fn sdo_server(&self) -> Option<&SdoServer> {
+        self.mbx.as_deref().map(MailboxState::server)
+    }
+
+    /// The CoE server, to change the drive's own entries.
+    pub fn sdo_server_mut(&mut self) -> Option<&mut SdoServer> {
+        self.mbx.as_deref_mut().map(MailboxState::server_mut)
+    }
+}
+
+/// The whole answer message (header and data) to the master's message `request` (the buffer),
+/// or `None` for one that gets no answer.
+fn answer(
+    m: &mut MailboxState,
+    request: &[u8],
+    state: ecsync_wire::AlState,
+    station: u16,
+    room: usize,
+) -> Option<Vec<u8>> {
+    let next_counter = |m: &mut MailboxState| {
+        m.own_counter = if m.own_counter >= 7 {
+            1
+        } else {
+            m.own_counter + 1
+        };
+        m.own_counter
+    };
+    let error = |m: &mut MailboxState, code: MailboxErrorCode| {
+        let mut out = vec![0u8; MAILBOX_HEADER_LEN + ecsync_wire::mailbox::MAILBOX_ERROR_LEN];
+        let c = next_counter(m);
+        let _ = emit_mailbox_error(&mut out, station, c, code);
+        Some(out)
+    };
+    let Ok(msg) = Mailbox::new_checked(request) else {
+        return error(m, MailboxErrorCode::InvalidSize);
+    };
+    let counter = msg.counter();
+    if counter != 0 && counter == m.last_counter {
+        // The same message again (the master lost the answer and repeats): not processed a
+        // second time; the repeat request gives the answer back.
+        return None;
+    }
+    m.last_counter = counter;
+    if msg.channel() != 0 {
+        return error(m, MailboxErrorCode::InvalidChannel);
+    }
+    match msg.mailbox_type() {
+        Ok(MailboxType::Coe) => {}
+        _ => return error(m, MailboxErrorCode::UnsupportedProtocol),
+    }
+    let coe = match m.server.handle(msg.payload(), state, room) {
+        Ok(Some(c)) => c,
+        Ok(None) => return None,
+        Err(MailboxFault::SizeTooShort) => return error(m, MailboxErrorCode::SizeTooShort),
+        Err(MailboxFault::ServiceNotSupported) => {
+            return error(m, MailboxErrorCode::ServiceNotSupported);
+        }
+    };
+    let mut out = vec![0u8; MAILBOX_HEADER_LEN + coe.len()];
+    let c = next_counter(m);
+    Mailbox::new_unchecked(&mut out[..]).set_header(&MailboxRepr {
+        length: coe.len() as u16,
+        address: station,
+        channel: 0,
+        priority: 0,
+        mailbox_type: MailboxType::Coe,
+        counter: c,
+    });
+    out[MAILBOX_HEADER_LEN..].copy_from_slice(&coe);
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::Esc;
+    use super::super::testing::{dg, wkc};
+    use crate::clock::CrystalParams;
+    use crate::model::{DeviceInfo, EscModel};
+    use ecsync_wire::Command;
+
+    fn drive() -> Esc {
+        let mut e = Esc::new(
+            EscModel::servo_mii(),
+            DeviceInfo::servo_drive(7).with_mailbox(),
+            CrystalParams::default(),
+        );
+        e.set_links([true, false, false, false]);
+        e
+    }
+
+    fn put(e: &mut Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
+        let mut d = dg(Command::Bwr, 0, ado, data);
+        e.process_datagram(&mut d, t_ps);
+        wkc(&d)
+    }
+
+    fn get(e: &mut Esc, ado: u16, n: usize, t_ps: u64) -> (u16, Vec<u8>) {
+        let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
+        e.process_datagram(&mut d, t_ps);
+        (wkc(&d), d[10..10 + n].to_vec())
+    }
+
+    /// A 128-byte mailbox with an SDO upload of `index:sub`, counter `counter`.
+    fn upload(index: u16, sub: u8, counter: u8) -> Vec<u8> {
+        let mut m = vec![10, 0, 0, 0, 0, 0x03 | (counter << 4), 0x00, 0x20, 0x40];
+        m.extend_from_slice(&index.to_le_bytes());
+        m.extend_from_slice(&[sub, 0, 0, 0, 0]);
+        m.resize(128, 0);
+        m
+    }
+
+    #[test]
+    fn an_sdo_upload_goes_through_sm0_and_comes_back_on_sm1() {
+        let mut e = drive();
+        // PRE-OP before the mailbox is set up: 0x0016.
+        assert_eq!(put(&mut e, 0x0120, &[0x02, 0], 0), 1);
+        let (_, st) = get(&mut e, 0x0130, 6, 0);
+        assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x11, 0x0016));
+        // SM0 and SM1 as the SII says (0x1000/128 control 0x26, 0x1080/128 control 0x22).
+        let img = e.sii_image().to_vec();
+        assert_eq!(
+            ecsync_wire::sii::word(&img, 0x18)
+                .ok()
+                .zip(ecsync_wire::sii::word(&img, 0x1a).ok()),
+            Some((0x1000, 0x1080))
+        );
+        assert_eq!(ecsync_wire::sii::word(&img, 0x1c), Ok(0x0004), "CoE");
+        put(
+            &mut e,
+            0x0800,
+            &[0x00, 0x10, 0x80, 0x00, 0x26, 0x00, 0x01, 0x00],
+            0,
+        );
+        put(
+            &mut e,
+            0x0808,
+            &[0x80, 0x10, 0x80, 0x00, 0x22, 0x00, 0x01, 0x00],
+            0,
+        );
+        put(&mut e, 0x0120, &[0x12, 0], 0);
+        assert_eq!(get(&mut e, 0x0130, 2, 0).1, [0x02, 0x00], "PRE-OP");
+        // Nothing to read yet: the working counter says so.
+        assert_eq!(get(&mut e, 0x1080, 128, 0).0, 0);
+        // The request: taken, SM0 full; a second one while full is not.
+        let t0 = 1_000_000_000;
+        assert_eq!(put(&mut e, 0x1000, &upload(0x1018, 2, 1), t0), 1);
+        assert_eq!(get(&mut e, 0x0805, 1, t0).1[0] & 0x08, 0x08);
+        assert_eq!(put(&mut e, 0x1000, &upload(0x1018, 3, 2), t0), 0);
+        // The answer 200 us later.
+        assert_eq!(get(&mut e, 0x080d, 1, t0 + 100_000_000).1[0] & 0x08, 0);
+        assert_eq!(get(&mut e, 0x080d, 1, t0 + 200_000_000).1[0] & 0x08, 0x08);
+        assert_eq!(
+            get(&mut e, 0x0805, 1, t0 + 200_000_000).1[0] & 0x08,
+            0,
+            "taken"
+        );
+        let (w, r) = get(&mut e, 0x1080, 128, t0 + 210_000_000);
+        assert_eq!(w, 1);
+        // Header: 10 bytes of CoE, type 3, counter 1; SDO response, expedited 4 bytes, the
+        // product code 0x4024.
+        assert_eq!(
+            &r[..16],
+            &[
+                10, 0, 0, 0, 0, 0x13, 0x00, 0x30, 0x43, 0x18, 0x10, 2, 0x24, 0x40, 0, 0
+            ]
+        );
+        assert_eq!(
+            get(&mut e, 0x080d, 1, t0 + 210_000_000).1[0] & 0x08,
+            0,
+            "read out"
+        );
+        assert_eq!(get(&mut e, 0x1080, 128, t0 + 210_000_000).0, 0);
+        // The repeat request: SM1's activate bit 1 toggled gives the answer again, acknowledged
+        // in its PDI control bit 1.
+        put(&mut e, 0x080e, &[0x03], t0 + 220_000_000);
+        assert_eq!(get(&mut e, 0x080f, 1, t0 + 220_000_000).1[0] & 0x02, 0x02);
+        let (w, again) = get(&mut e, 0x1080, 128, t0 + 220_000_000);
+        assert_eq!((w, again), (1, r));
+        // The same counter again is a repeat: not answered twice.
+        assert_eq!(
+            put(&mut e, 0x1000, &upload(0x1018, 2, 1), t0 + 300_000_000),
+            1
+        );
+        assert_eq!(get(&mut e, 0x080d, 1, t0 + 900_000_000).1[0] & 0x08, 0);
+        // A protocol the drive does not have (EoE): a mailbox error, service 1, code 2.
+        let mut eoe = upload(0x1018, 2, 3);
+        eoe[5] = 0x02 | (3 << 4);
+        put(&mut e, 0x1000, &eoe, t0 + 1_000_000_000);
+        let (w, r) = get(&mut e, 0x1080, 128, t0 + 1_300_000_000);
+        assert_eq!((w, &r[..10]), (1, &[4, 0, 0, 0, 0, 0x20, 1, 0, 2, 0][..]));
+    }
+}
