@@ -96,13 +96,36 @@ fn pcap_is_read_by_tsharks_ethercat_dissector_without_malformed_frames() {
     assert!(protos.status.success());
     let protos = String::from_utf8(protos.stdout).unwrap();
     assert_eq!(protos.lines().count() as u64, frames);
+    // (A frame with a mailbox message decodes as ecat_mailbox inside.)
+    let ecat =
+        |l: &str| l == "eth:ethertype:ecatf:ecat" || l == "eth:ethertype:ecatf:ecat:ecat_mailbox";
     assert!(
-        protos.lines().all(|l| l == "eth:ethertype:ecatf:ecat"),
+        protos.lines().all(ecat),
         "every frame is EtherCAT: {}",
-        protos
-            .lines()
-            .find(|l| *l != "eth:ethertype:ecatf:ecat")
-            .unwrap_or("")
+        protos.lines().find(|l| !ecat(l)).unwrap_or("")
+    );
+    // The drives' sync mode set over CoE: the dissector reads the SDO downloads of 0x1C32:01
+    // and 0x1C33:01 (expedited, 2 bytes) and their responses, six drives each.
+    let sdo = tshark()
+        .unwrap()
+        .arg("-r")
+        .arg(&pcap)
+        .args([
+            "-Y",
+            "ecat_mailbox.coe.sdoidx == 0x1c32 && ecat_mailbox.coe.sdosub == 1",
+            "-T",
+            "fields",
+            "-e",
+            "ecat_mailbox.coe.sdoreq",
+            "-e",
+            "ecat_mailbox.coe.sdodata",
+        ])
+        .output()
+        .unwrap();
+    let sdo = String::from_utf8_lossy(&sdo.stdout).to_string();
+    assert!(
+        sdo.lines().filter(|l| !l.is_empty()).count() >= 6,
+        "SDO writes of 0x1C32:01: {sdo}"
     );
     let bad = tshark()
         .unwrap()

@@ -246,11 +246,15 @@ mod testing {
     use crate::model::{DeviceInfo, EscModel};
     use ecsync_wire::Command;
 
-    /// A servo drive's ESC with a link on port 0.
+    /// A servo drive's ESC with a link on port 0, without a mailbox (the AL state machine
+    /// goes to PRE-OP without one set up; the mailbox has its own tests).
     pub(super) fn esc() -> Esc {
         let mut e = Esc::new(
             EscModel::servo_mii(),
-            DeviceInfo::servo_drive(7),
+            DeviceInfo {
+                mailbox: None,
+                ..DeviceInfo::servo_drive(7)
+            },
             CrystalParams::default(),
         );
         e.set_links([true, false, false, false]);

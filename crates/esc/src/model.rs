@@ -362,7 +362,8 @@ impl DeviceInfo {
     }
 
     /// A CiA 402 servo drive in cyclic synchronous position mode with 16 bytes of outputs and 18
-    /// bytes of inputs (34 bytes per drive; six drives exchange the letter's 204 bytes).
+    /// bytes of inputs (34 bytes per drive; six drives exchange the letter's 204 bytes), with a
+    /// standard mailbox and CoE.
     pub fn servo_drive(serial: u32) -> Self {
         let e = |index: u16, subindex: u8, bits: u8, name: &str| PdoEntry {
             index,
@@ -395,7 +396,8 @@ impl DeviceInfo {
                 e(0x6077, 0, 16, "Torque actual value"),
                 e(0x60f4, 0, 32, "Following error actual value"),
             ],
-            mailbox: None,
+            // A drive has a mailbox with CoE, its process data on SM2/SM3.
+            mailbox: Some(MailboxLayout::STANDARD),
         }
     }
 

@@ -216,11 +216,27 @@ mod tests {
             sii::string(strings.data, name_idx).unwrap(),
             dev.name.as_bytes()
         );
+        // Four SyncManagers: the mailbox out and in (128 bytes at 0x1000 and 0x1080, types 1
+        // and 2), the outputs (16 bytes at 0x1100, type 3) and inputs (18 at 0x1180, type 4).
         let sm = sii::find_category(&img, category::SYNC_MANAGER).unwrap();
-        assert_eq!(sm.data.len(), 16);
-        assert_eq!(u16::from_le_bytes([sm.data[2], sm.data[3]]), 16);
-        assert_eq!(u16::from_le_bytes([sm.data[10], sm.data[11]]), 18);
+        assert_eq!(sm.data.len(), 32);
+        let entry = |k: usize| {
+            let e = &sm.data[8 * k..8 * k + 8];
+            (
+                u16::from_le_bytes([e[0], e[1]]),
+                u16::from_le_bytes([e[2], e[3]]),
+                e[4],
+                e[7],
+            )
+        };
+        assert_eq!(entry(0), (0x1000, 128, 0x26, 1));
+        assert_eq!(entry(1), (0x1080, 128, 0x22, 2));
+        assert_eq!(entry(2), (0x1100, 16, 0x64, 3));
+        assert_eq!(entry(3), (0x1180, 18, 0x20, 4));
+        assert_eq!(sii::word(&img, sii::WORD_MAILBOX_PROTOCOL), Ok(0x0004));
+        assert_eq!(general.data[sii::general::COE_DETAILS], COE_DETAILS);
         let tx = sii::find_category(&img, category::TXPDO).unwrap();
+        assert_eq!(tx.data[3], 3, "TxPDO on SM3");
         let bits: u32 = tx.data[8..].chunks(8).map(|e| u32::from(e[5])).sum();
         assert_eq!(bits, 18 * 8);
         // Ports: 0 and 1 MII.

@@ -17,7 +17,7 @@ use ecsync_wire::register::{self as reg, dl_status, features};
 use ecsync_wire::sii::{self, Identity, category};
 use ecsync_wire::{
     AlControlRepr, AlState, AlStatus, AlStatusCode, Command, DatagramAddress, FmmuRepr, SmActivate,
-    SmControl, SyncManagerRepr, dc_time,
+    SmControl, SmDirection, SmMode, SyncManagerRepr, dc_time,
 };
 use std::fmt;
 
@@ -316,6 +316,31 @@ pub struct SlaveInfo {
     /// Output and input SyncManager indices and physical starts.
     #[serde(skip)]
     pub sms: Vec<SmConfig>,
+    /// The mailbox, as the SII's words 0x18-0x1C give it (`None`: none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mailbox: Option<MailboxInfo>,
+}
+
+/// A slave's standard mailbox (SII words 0x18-0x1C) and the SyncManagers that hold it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct MailboxInfo {
+    /// SM0, master to slave: physical start.
+    pub out_start: u16,
+    /// SM0 length, bytes.
+    pub out_len: u16,
+    /// SM1, slave to master: physical start.
+    pub in_start: u16,
+    /// SM1 length, bytes.
+    pub in_len: u16,
+    /// The protocols (word 0x1C: bit 2 CoE).
+    pub protocols: u16,
+}
+
+impl MailboxInfo {
+    /// Whether the slave speaks CoE.
+    pub fn coe(&self) -> bool {
+        self.protocols & ecsync_wire::mailbox::MailboxType::Coe.protocol_bit() != 0
+    }
 }
 
 impl SlaveInfo {
@@ -483,6 +508,9 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         return Ok(net.done_at(&link));
     }
 
+    configure_mailboxes(&link, &net.slaves)
+        .await
+        .map_err(|e| e.during(Phase::PreOp))?;
     request_all(
         &link,
         &net.slaves,
@@ -492,6 +520,11 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     )
     .await
     .map_err(|e| e.during(Phase::PreOp))?;
+    for s in &net.slaves {
+        configure_sync_mode(&link, s, cfg.cycle_ns)
+            .await
+            .map_err(|e| e.at(Phase::PreOp, s.id()))?;
+    }
     net.expected_lrw_wkc = configure_process_data(&link, &net.slaves)
         .await
         .map_err(|e| e.during(Phase::ProcessData))?;
@@ -719,6 +752,22 @@ async fn identify_slave(
             _ => String::new(),
         }
     };
+    // The standard mailbox (SOEM and ethercrab read these words of every slave).
+    let mailbox = if details {
+        let w = sii.read(sii::WORD_STD_RX_MAILBOX_OFFSET, 10).await?;
+        let word = |k: usize| u16::from_le_bytes([w[2 * k], w[2 * k + 1]]);
+        let m = MailboxInfo {
+            out_start: word(0),
+            out_len: word(1),
+            in_start: word(2),
+            in_len: word(3),
+            protocols: word(4),
+        };
+        // (An erased EEPROM reads 0xFFFF.)
+        (m.out_len > 0 && m.in_len > 0 && m.out_len != 0xffff && m.in_len != 0xffff).then_some(m)
+    } else {
+        None
+    };
     let mut sms = Vec::new();
     let smcat = if details {
         sii.category(category::SYNC_MANAGER).await?
@@ -770,6 +819,7 @@ async fn identify_slave(
         outputs: (0, 0),
         inputs: (0, 0),
         sms,
+        mailbox,
     })
 }
 
@@ -1331,6 +1381,84 @@ async fn request_all(
         request_state(link, s.station, state, timeouts)
             .await
             .map_err(|e| e.at(phase, s.id()))?;
+    }
+    Ok(())
+}
+
+/// Part of [`Phase::PreOp`]: the mailbox SyncManagers of every slave that has a mailbox, in
+/// INIT (a slave refuses PRE-OP without them: AL status code 0x0016): SM0 written by the
+/// master, SM1 read, both in mailbox mode, as the SII's words give them.
+pub(crate) async fn configure_mailboxes(
+    link: &Link,
+    slaves: &[SlaveInfo],
+) -> Result<(), MasterError> {
+    for s in slaves {
+        let Some(m) = s.mailbox else { continue };
+        for (n, start, len, direction) in [
+            (0u16, m.out_start, m.out_len, SmDirection::Write),
+            (1, m.in_start, m.in_len, SmDirection::Read),
+        ] {
+            let smr = SyncManagerRepr {
+                physical_start: start,
+                length_bytes: len,
+                control: SmControl {
+                    mode: SmMode::Mailbox,
+                    direction,
+                    ecat_event: false,
+                    al_event: true,
+                    watchdog: false,
+                },
+                activate: SmActivate {
+                    enable: true,
+                    ..SmActivate::default()
+                },
+                ..SyncManagerRepr::default()
+            }
+            .to_bytes();
+            link.fpwr(
+                s.station,
+                reg::SM_BASE + n * reg::SM_LEN,
+                &smr,
+                "configure mailbox SyncManager",
+            )
+            .await
+            .map_err(|e| e.at(Phase::PreOp, s.id()))?;
+        }
+    }
+    Ok(())
+}
+
+/// Part of [`Phase::PreOp`], in PRE-OP: a drive with CoE and a system time is switched to DC
+/// SYNC0 synchronisation the way masters do it (ETG.1020 section 12): 0x1C32:01 and 0x1C33:01
+/// = 2, and 0x1C32:02 the cycle time. An object the drive does not have is skipped (not every
+/// device has its SyncManager parameters); any other abort is an error.
+pub(crate) async fn configure_sync_mode(
+    link: &Link,
+    s: &SlaveInfo,
+    cycle_ns: u32,
+) -> Result<(), MasterError> {
+    let Some(m) = s.mailbox.filter(|m| m.coe()) else {
+        return Ok(());
+    };
+    if s.dc != DcCapability::SystemTime {
+        return Ok(());
+    }
+    let mut c = crate::coe::SdoClient::new(link, s.station, m);
+    let writes: [(u16, u8, &[u8]); 3] = [
+        (0x1c32, 1, &2u16.to_le_bytes()),
+        (0x1c32, 2, &cycle_ns.to_le_bytes()),
+        (0x1c33, 1, &2u16.to_le_bytes()),
+    ];
+    for (index, sub, v) in writes {
+        match c.download(index, sub, v).await {
+            Ok(()) => {}
+            // Not there: the drive has no such parameter (0x06020000, 0x06090011).
+            Err(MasterError::SdoAbort {
+                code: 0x0602_0000 | 0x0609_0011,
+                ..
+            }) => {}
+            Err(e) => return Err(e),
+        }
     }
     Ok(())
 }

@@ -98,6 +98,29 @@ pub enum MasterError {
         /// The low byte of AL status of the last read, OR-ed over the slaves that answered.
         status: u8,
     },
+    /// A slave's mailbox did not carry an exchange.
+    #[error("slave {slave}: mailbox: {what}")]
+    Mailbox {
+        /// Station address.
+        slave: u16,
+        /// What went wrong.
+        what: &'static str,
+    },
+    /// A slave aborted an SDO transfer.
+    #[error(
+        "slave {slave}: SDO {index:#06x}:{subindex:02x} aborted with {code:#010x} ({})",
+        sdo_abort_text(*code)
+    )]
+    SdoAbort {
+        /// Station address.
+        slave: u16,
+        /// Object index.
+        index: u16,
+        /// Subindex.
+        subindex: u8,
+        /// Abort code.
+        code: u32,
+    },
     /// The clocks did not lock in the allowed time.
     #[error("DC did not lock within {0} ms")]
     NoLock(u64),
@@ -185,5 +208,27 @@ fn bringup_message(phase: Phase, slave: Option<&SlaveId>, cause: &MasterError) -
     match slave {
         Some(s) => format!("{phase}: {s}: {}", cause.without_slave()),
         None => format!("{phase}: {cause}"),
+    }
+}
+
+/// What an SDO abort code means (ETG.1000.6 table 41), for the messages.
+fn sdo_abort_text(code: u32) -> &'static str {
+    match code {
+        0x0503_0000 => "toggle bit not changed",
+        0x0504_0001 => "command specifier unknown",
+        0x0601_0000 => "unsupported access",
+        0x0601_0001 => "write-only object",
+        0x0601_0002 => "read-only object",
+        0x0601_0003 => "subindex 0 must be 0 first",
+        0x0602_0000 => "object does not exist",
+        0x0607_0010 => "length does not match",
+        0x0607_0012 => "length too high",
+        0x0607_0013 => "length too low",
+        0x0609_0011 => "subindex does not exist",
+        0x0609_0030 => "value out of range",
+        0x0800_0000 => "general error",
+        0x0800_0020 => "cannot be stored",
+        0x0800_0022 => "not in the present state",
+        _ => "see ETG.1000.6 table 41",
     }
 }

@@ -37,6 +37,7 @@
 
 pub mod bench;
 pub mod bringup;
+pub mod coe;
 pub mod cyclic;
 pub mod driver;
 mod error;

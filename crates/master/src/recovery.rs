@@ -378,6 +378,9 @@ pub async fn recover(
         .chain(left_op.iter().map(|l| l.position))
         .collect();
     states.sort_unstable();
+    // A reset slave with a mailbox needs its mailbox SyncManagers before PRE-OP.
+    let reset_slaves: Vec<SlaveInfo> = reset.iter().map(|&p| info(p).clone()).collect();
+    crate::bringup::configure_mailboxes(&link, &reset_slaves).await?;
     for &pos in &states {
         let s = info(pos);
         let ack = AlControlRepr {
@@ -386,6 +389,10 @@ pub async fn recover(
             id_request: false,
         };
         crate::bringup::request_state_with(&link, s.station, ack, &cfg.timeouts).await?;
+        if reset.contains(&pos) {
+            // Its CoE parameters were reset with it.
+            crate::bringup::configure_sync_mode(&link, s, cfg.cycle_ns).await?;
+        }
         crate::bringup::configure_process_data(&link, std::slice::from_ref(s)).await?;
         request_state(&link, s.station, AlState::SafeOp, &cfg.timeouts).await?;
         request_state(&link, s.station, AlState::Op, &cfg.timeouts).await?;

@@ -10,8 +10,9 @@
 //!   sees of a slave at the end of a line that lost power. Broadcasts still count it and an
 //!   FRMW still reaches it, so the tests kill a slave where its next exchange is addressed to
 //!   it alone;
-//! * a misconfigured slave: the FPWRs of SyncManager entries (0x0800-0x087F) to
-//!   `blank_sync_managers_of` reach it as zeros (every SyncManager off), so it refuses SAFE-OP.
+//! * a misconfigured slave: the FPWRs of process data SyncManager entries (SM2 on,
+//!   0x0810-0x087F) to `blank_sync_managers_of` reach it as zeros, so it refuses SAFE-OP; those
+//!   of every SyncManager (the mailbox's too) to `blank_mailbox_of`, so it refuses PRE-OP.
 
 use ecsync_esc::{Segment, preset};
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, run_procedure};
@@ -43,8 +44,10 @@ struct Faults {
     lose_next: u32,
     /// The slave at this station does not answer its configured-address datagrams.
     dead_station: Option<u16>,
-    /// The SyncManager writes to this station arrive as zeros.
+    /// The process data SyncManager writes to this station arrive as zeros.
     blank_sync_managers_of: Option<u16>,
+    /// Every SyncManager write to this station arrives as zeros.
+    blank_mailbox_of: Option<u16>,
     in_flight: VecDeque<Sent>,
 }
 
@@ -56,6 +59,7 @@ impl Faults {
             lose_next: 0,
             dead_station: None,
             blank_sync_managers_of: None,
+            blank_mailbox_of: None,
             in_flight: VecDeque::new(),
         }
     }
@@ -138,7 +142,11 @@ impl Transport for Faults {
             lost: self.lose || lost_next,
             readdressed: Vec::new(),
         };
-        let (dead, blank) = (self.dead_station, self.blank_sync_managers_of);
+        let (dead, blank, blank_all) = (
+            self.dead_station,
+            self.blank_sync_managers_of,
+            self.blank_mailbox_of,
+        );
         let r = self.inner.send_with(len, at_ns, |buf| {
             fill(buf);
             if let Some(station) = dead {
@@ -146,6 +154,10 @@ impl Transport for Faults {
                 set_adp(buf, &sent.readdressed, NOBODY);
             }
             if let Some(station) = blank {
+                let sm = datagrams_to(buf, station, 0x0810..=0x087f);
+                zero_data(buf, &sm, Command::Fpwr);
+            }
+            if let Some(station) = blank_all {
                 let sm = datagrams_to(buf, station, 0x0800..=0x087f);
                 zero_data(buf, &sm, Command::Fpwr);
             }
@@ -449,4 +461,20 @@ fn a_slave_that_refuses_safe_op_is_named_with_its_al_status_code() {
         "safe-op: slave 2 (station 0x1002): could not enter SAFE-OP: AL status code 0x001d \
          (Invalid output configuration)"
     );
+}
+
+#[test]
+fn a_drive_without_its_mailbox_set_up_refuses_pre_op_and_says_why() {
+    let e = bring_up(quick(), |tr| tr.blank_mailbox_of = Some(0x1003), |_, _| {}).unwrap_err();
+    assert_eq!(e.phase(), Some(Phase::PreOp));
+    assert_eq!(e.slave(), slave(3));
+    assert_eq!(
+        e.root(),
+        &MasterError::StateChange {
+            slave: 0x1003,
+            state: AlState::PreOp,
+            code: AlStatusCode::InvalidMailboxConfig,
+        }
+    );
+    println!("{e}");
 }
