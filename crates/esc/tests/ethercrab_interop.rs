@@ -11,8 +11,11 @@
 //! 2. its DC initialisation (latch, topology, delays, offsets, static drift compensation) writes
 //!    propagation delays to 0x0928 that match the segment's ground truth;
 //! 3. with `tx_rx_sync_system_time`, every drive's 0x092C converges below 100 ns and stays there;
-//! 4. SYNC0 configuration, SAFE-OP and OP with process data exchanged through the SII PDO
-//!    mapping (SM0 = 16 B outputs, SM1 = 18 B inputs, no mailbox).
+//! 4. over CoE in PRE-OP (the drives' mailbox on SM0/SM1), as an application configures its
+//!    drives before SAFE-OP: 0x1C32:01 written to 2 (DC SYNC0), 0x1018 and the PDO assignment
+//!    0x1C12/0x1C13 read back, each equal to the device's own;
+//! 5. SYNC0 configuration, SAFE-OP and OP with process data exchanged through the PDO
+//!    mapping ethercrab read over CoE (SM2 = 16 B outputs, SM3 = 18 B inputs).
 
 use ecsync_esc::model::{DcSupport, EscModel};
 use ecsync_esc::{Segment, SlaveSpec, frame_wire_time_ps, preset};
@@ -334,6 +337,36 @@ fn run(
             assert_eq!(feats, want_features[i], "drive {i}: features");
         }
 
+        // The drives over CoE in PRE-OP: their sync mode set to DC SYNC0, their identity and
+        // PDO assignment read back through the mailbox.
+        for (i, sd) in group.iter(&maindevice).enumerate() {
+            let (dev, _, _) = &expected[i];
+            sd.sdo_write(0x1c32, 1, 2u16).await?;
+            let sync_mode: u16 = sd.sdo_read(0x1c32, 1).await?;
+            assert_eq!(sync_mode, 2, "drive {i}: 0x1C32:01 read back");
+            let vendor: u32 = sd.sdo_read(0x1018, 1).await?;
+            let product: u32 = sd.sdo_read(0x1018, 2).await?;
+            let serial: u32 = sd.sdo_read(0x1018, 4).await?;
+            assert_eq!(
+                (vendor, product, serial),
+                (dev.vendor_id, dev.product_code, dev.serial),
+                "drive {i}: 0x1018 over CoE"
+            );
+            let rx: u16 = sd.sdo_read(0x1c12, 1).await?;
+            let tx: u16 = sd.sdo_read(0x1c13, 1).await?;
+            assert_eq!((rx, tx), (0x1600, 0x1a00), "drive {i}: PDO assignment");
+        }
+        let modes: Vec<u32> = wire.query(move |s| {
+            (0..n)
+                .map(|i| {
+                    s.esc(i)
+                        .sdo_server()
+                        .map_or(0, |c| c.od.read_u32(0x1c32, 1))
+                })
+                .collect()
+        });
+        assert_eq!(modes, vec![2; n], "the drives' own 0x1C32:01");
+
         // 2. Propagation delays: ethercrab's view, what it wrote to 0x0928, the ground truth.
         let written: Vec<u32> = wire.query(move |s| {
             (0..n)
@@ -430,7 +463,7 @@ fn run(
              ({rounds} rounds of {CYCLE:?}): {diffs:?}"
         );
 
-        // 4. SYNC0, SAFE-OP, OP.
+        // 5. SYNC0, SAFE-OP, OP.
         let group = group
             .configure_dc_sync(
                 &maindevice,
