@@ -1,0 +1,59 @@
+"""SOEM (through pysoem) against `ecsync serve`: the scan, CoE reads, SDO Information, the
+mapping and OP, as `slaveinfo -sdo` and SOEM's simple_test do them. Prints one JSON object."""
+import json
+import sys
+import time
+
+import pysoem
+
+iface = sys.argv[1]
+m = pysoem.Master()
+m.open(iface)
+out = {"slaves": m.config_init(), "drives": []}
+u = lambda b: int.from_bytes(b, "little")
+for s in m.slaves:
+    d = {"name": s.name, "man": s.man, "id": s.id, "rev": s.rev}
+    d["vendor_sdo"] = u(s.sdo_read(0x1018, 1))
+    d["product_sdo"] = u(s.sdo_read(0x1018, 2))
+    d["rx_assign"] = u(s.sdo_read(0x1C12, 1))
+    d["tx_assign"] = u(s.sdo_read(0x1C13, 1))
+    d["rx_map_count"] = u(s.sdo_read(0x1600, 0))
+    od = s.od
+    d["od"] = [o.index for o in od]
+    named = {o.index: o for o in od}
+    ident = named.get(0x1018)
+    d["identity_name"] = ident.name.decode() if ident is not None else None
+    d["identity_entries"] = [e.name.decode() for e in ident.entries] if ident is not None else []
+    out["drives"].append(d)
+out["io_map"] = m.config_map()
+out["expected_wkc"] = m.expected_wkc
+for s in m.slaves:
+    s.state_check(pysoem.SAFEOP_STATE, 50_000)
+m.state = pysoem.OP_STATE
+m.send_processdata()
+m.receive_processdata(2_000)
+m.write_state()
+wkc = 0
+t0 = time.monotonic()
+while time.monotonic() - t0 < 5.0:
+    m.send_processdata()
+    wkc = m.receive_processdata(2_000)
+    if m.state_check(pysoem.OP_STATE, 5_000) == pysoem.OP_STATE and wkc == m.expected_wkc:
+        break
+    time.sleep(0.001)
+m.read_state()
+out["op"] = all(s.state == pysoem.OP_STATE for s in m.slaves)
+out["wkc"] = wkc
+# Outputs echoed after the statusword, as the virtual drives do.
+for k, s in enumerate(m.slaves):
+    s.output = bytes([k + 1] * len(s.output))
+for _ in range(20):
+    m.send_processdata()
+    wkc = m.receive_processdata(2_000)
+    time.sleep(0.001)
+out["echo"] = [list(s.input[2:6]) for s in m.slaves]
+out["sm_event_missed"] = [u(s.sdo_read(0x1C32, 0x0B)) for s in m.slaves]
+m.state = pysoem.INIT_STATE
+m.write_state()
+m.close()
+print(json.dumps(out))
