@@ -19,7 +19,8 @@
 //! - [`process_data`]: FMMUs, SyncManagers, logical addressing and the loopback application;
 //! - [`datagram`]: datagram processing (address modes, working counters) and the recording of
 //!   a frame's effects for the replay;
-//! - [`replay`]: the replay fast path, which repeats what a frame of the same shape did.
+//! - [`replay`]: the replay fast path, which repeats what a frame of the same shape did;
+//! - [`watchdog`]: the process data watchdog and its expiry.
 
 mod al;
 mod datagram;
@@ -28,6 +29,7 @@ mod process_data;
 mod registers;
 mod replay;
 mod sii;
+mod watchdog;
 
 use crate::dc_unit::{DC_BLOCK_LEN, DcParams, DcUnit};
 use crate::model::{DcSupport, DeviceInfo, EscModel};
@@ -99,6 +101,12 @@ pub struct Esc {
     rec: Recorder,
     /// The mailbox and its CoE server (a device with a mailbox); boxed, it is rarely used.
     mbx: Option<Box<mailbox::MailboxState>>,
+    /// The process data watchdog's time while armed (OP, outputs triggering it), ps; 0: off.
+    wd_period_ps: u64,
+    /// The last write of the outputs, ps.
+    wd_last_write_ps: u64,
+    /// The outputs were written by the datagram being processed.
+    pd_written: bool,
 }
 
 impl Esc {
@@ -157,6 +165,9 @@ impl Esc {
             next_slot: 0,
             rec: Recorder::default(),
             mbx,
+            wd_period_ps: 0,
+            wd_last_write_ps: 0,
+            pd_written: false,
         };
         esc.build_attributes();
         esc.reset_registers();

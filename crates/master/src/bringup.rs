@@ -1620,10 +1620,18 @@ async fn enter_op(
     grid: &mut CycleGrid,
 ) -> Result<(), MasterError> {
     let op = AlControlRepr::request(AlState::Op).to_bytes();
+    // The process data keeps coming while the requests go out one by one (a large network's
+    // take longer than a cycle): a slave in OP without outputs for its watchdog time (100 ms)
+    // would fall back to SAFE-OP.
+    let mut last_cyclic = link.now_ns();
     for s in slaves {
         link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
             .await
             .map_err(|e| e.at(Phase::Op, s.id()))?;
+        if link.now_ns().saturating_sub(last_cyclic) >= grid.cycle_ns {
+            link.pdus(&cyclic.pdus, "cyclic").await?;
+            last_cyclic = link.now_ns();
+        }
     }
     let count = slaves.len() as u16;
     // Cycle until every slave reports OP.

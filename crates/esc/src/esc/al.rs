@@ -58,6 +58,8 @@ impl Esc {
         self.generation += 1;
         if self.al_state == AlState::Op {
             self.al_state = AlState::SafeOp;
+            // Out of OP: the process data watchdog no longer runs.
+            self.wd_period_ps = 0;
         }
         self.fail(code);
         self.update_al_registers();

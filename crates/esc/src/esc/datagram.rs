@@ -121,6 +121,15 @@ impl Esc {
     /// reached the unit at `t_ps`. `dg` is the whole datagram (header, data, working counter);
     /// its length must already have been validated.
     pub fn process_datagram(&mut self, dg: &mut [u8], t_ps: u64) -> DatagramEffects {
+        self.watchdog_check(t_ps);
+        let fx = self.process_datagram_at(dg, t_ps);
+        if std::mem::take(&mut self.pd_written) {
+            self.outputs_written(t_ps);
+        }
+        fx
+    }
+
+    fn process_datagram_at(&mut self, dg: &mut [u8], t_ps: u64) -> DatagramEffects {
         let mut fx = DatagramEffects::default();
         let mut d = Datagram::new_unchecked(dg);
         let Ok(cmd) = d.command() else {
@@ -245,6 +254,8 @@ impl Esc {
         t_ps: u64,
     ) -> DatagramEffects {
         self.stats.frames += 1;
+        // (An expiry changes the generation: no recorded program holds after it.)
+        self.watchdog_check(t_ps);
         if let Some(k) = self.program_slot(shape) {
             self.replay(k, frame, t_ps);
             return DatagramEffects::default();

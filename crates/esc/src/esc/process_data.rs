@@ -323,6 +323,7 @@ impl Esc {
                 }
                 self.ram[r0..r0 + n].copy_from_slice(&data[d0..d0 + n]);
                 write_hit = true;
+                self.pd_written = true;
                 self.rec.op(LogicalOp::Write {
                     data_off: d0 as u16,
                     ram_off: r0 as u16,

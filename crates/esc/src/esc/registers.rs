@@ -170,6 +170,12 @@ impl Esc {
         self.put_u16(reg::PDI_CONTROL, w0);
         self.put_u16(0x0150, w1);
         self.put_u16(reg::SII_CONTROL, sii_control::READ_SIZE_8);
+        // The watchdogs' reset values: 100 us ticks, 100 ms each; process data watchdog
+        // running (0x0440 bit 0 = 1: not expired).
+        self.put_u16(0x0400, super::watchdog::WATCHDOG_DIVIDER_RESET);
+        self.put_u16(0x0410, super::watchdog::PDI_WATCHDOG_RESET);
+        self.put_u16(0x0420, super::watchdog::PD_WATCHDOG_RESET);
+        self.regs[0x0440] = 0x01;
         AlControlRepr::request(AlState::Init).emit(&mut AlControl::new_unchecked(
             self.reg_bytes_mut(reg::AL_CONTROL, ecsync_wire::AL_CONTROL_LEN),
         ));
@@ -411,7 +417,20 @@ impl Esc {
                 self.mailbox_accessed(hi, true, t_ps);
                 w
             }
-            None => self.write_ram(lo, hi, data),
+            None => {
+                let w = self.write_ram(lo, hi, data);
+                // A write into the output SyncManager's buffer restarts the watchdog, physical
+                // or logical.
+                if let Some(i) = self.output_sm {
+                    let b = self.sms[i];
+                    let (s, e) = (
+                        usize::from(b.start),
+                        usize::from(b.start) + usize::from(b.len),
+                    );
+                    self.pd_written |= w && lo < e && hi > s;
+                }
+                w
+            }
         }
     }
 
@@ -472,6 +491,17 @@ impl Esc {
         let sms_len = usize::from(reg::MAX_SYNC_MANAGERS) * usize::from(reg::SM_LEN);
         if ranges_overlap(lo, hi, sms, sms_len) {
             self.parse_sms();
+        }
+        if ranges_overlap(lo, hi, sms, sms_len)
+            || ranges_overlap(lo, hi, 0x0400, 0x22)
+            || ranges_overlap(
+                lo,
+                hi,
+                usize::from(reg::AL_CONTROL),
+                ecsync_wire::AL_CONTROL_LEN,
+            )
+        {
+            self.update_watchdog(t_ps);
         }
         if ranges_overlap(lo, hi, usize::from(reg::DL_CONTROL), DL_CONTROL_LEN) {
             self.parse_dl_control();

@@ -428,6 +428,8 @@ pub(super) struct Program {
     /// Frames replayed by `cyclic` and not yet in the ESC's counters (one increment per frame
     /// instead of three; see [`Esc::stats`]).
     pub(super) replays: u64,
+    /// It writes process RAM (the outputs): a replay restarts the process data watchdog.
+    writes_ram: bool,
 }
 
 impl Default for Program {
@@ -440,6 +442,7 @@ impl Default for Program {
             counted: 0,
             cyclic: None,
             simple: None,
+            writes_ram: false,
             replays: 0,
         }
     }
@@ -527,6 +530,11 @@ impl Esc {
         let prog = &mut self.programs[k];
         prog.n = fuse(&recorded.ops[..usize::from(recorded.n)], &mut prog.ops);
         let ops = &prog.ops[..usize::from(prog.n)];
+        prog.writes_ram = ops.iter().any(|op| match op {
+            Op::ToRam { .. } | Op::WriteFused(_) => true,
+            Op::LrwFused(l) => l.w_len > 0,
+            _ => false,
+        });
         prog.cyclic = match *ops {
             [Op::SysFused(sys), Op::LrwFused(lrw), Op::DiffFused(diff)] => {
                 Some(CyclicSteps::new(None, sys, lrw, diff))
@@ -564,6 +572,9 @@ impl Esc {
         self.stats.replayed_frames += 1;
         self.stats.datagrams_counted += u64::from(self.programs[k].counted);
         self.replay_ops(k, frame, t_ps);
+        if self.programs[k].writes_ram {
+            self.outputs_written(t_ps);
+        }
     }
 
     fn replay_ops(&mut self, slot: usize, frame: &mut [u8], t_ps: u64) {
@@ -655,6 +666,10 @@ impl Esc {
         t_ps: u64,
         d: &mut Deferred,
     ) -> bool {
+        // An expired watchdog changes the state first: the full path takes the frame then.
+        if self.watchdog_check(t_ps) {
+            return false;
+        }
         let Some(k) = self.program_slot(shape) else {
             return false;
         };
@@ -665,12 +680,13 @@ impl Esc {
             app,
             al_state,
             app_cycles,
+            wd_last_write_ps,
             ..
         } = self;
         // (k is below PROGRAM_SLOTS, a power of two: the mask spares the bounds check.)
         let program = &mut programs[k & (PROGRAM_SLOTS - 1)];
         let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) else {
-            return replay_simple(
+            let done = replay_simple(
                 program,
                 dc,
                 ram,
@@ -681,8 +697,15 @@ impl Esc {
                 t_ps,
                 d,
             );
+            if done && program.writes_ram {
+                *wd_last_write_ps = t_ps;
+            }
+            return done;
         };
         program.replays += 1;
+        if program.writes_ram {
+            *wd_last_write_ps = t_ps;
+        }
         if c.layout != d.layout {
             d.flush(frame);
             d.layout = c.layout;
