@@ -717,8 +717,9 @@ mod ethercrab_raw {
     }
 
     /// ethercrab's raw socket against `ecsync serve` of the paper-2024 drives (or `config`):
-    /// scan, SII identity, its DC configuration with delays within `bound_ns` of the truth,
-    /// SYNC0, OP, 1000 cycles of `tx_rx_dc`, then the adapter's median loop for 1000 cycles.
+    /// scan, SII identity, SDOs over CoE in PRE-OP, its DC configuration with delays within
+    /// `bound_ns` of the truth, SYNC0, OP (the process data as it read the mapping over CoE),
+    /// 1000 cycles of `tx_rx_dc`, then the adapter's median loop for 1000 cycles.
     fn ethercrab_against_serve(
         tag: &str,
         storage: &'static Storage,
@@ -803,6 +804,22 @@ mod ethercrab_raw {
                     "drive {i}: SII identity"
                 );
                 assert_eq!(sd.name(), order.as_str(), "drive {i}: order string");
+            }
+            // Over CoE in PRE-OP, through the drives' mailboxes across the veth pair: the sync
+            // mode to DC SYNC0 and read back, the identity and the PDO assignment.
+            for (i, sd) in group.iter(&maindevice).enumerate() {
+                let (dev, _) = &expected[i];
+                sd.sdo_write(0x1c32, 1, 2u16).await?;
+                let mode: u16 = sd.sdo_read(0x1c32, 1).await?;
+                let product: u32 = sd.sdo_read(0x1018, 2).await?;
+                let serial: u32 = sd.sdo_read(0x1018, 4).await?;
+                let rx: u16 = sd.sdo_read(0x1c12, 1).await?;
+                let tx: u16 = sd.sdo_read(0x1c13, 1).await?;
+                assert_eq!(
+                    (mode, product, serial, rx, tx),
+                    (2, dev.product_code, dev.serial, 0x1600, 0x1a00),
+                    "drive {i} over CoE"
+                );
             }
             // Its DC configuration: delays against the preset's.
             println!("drive  ethercrab  preset [ns]  error");
