@@ -94,6 +94,10 @@ impl Esc {
             // A device with a mailbox needs SM0 and SM1 set up as its SII says before PRE-OP
             // (ETG.1000.6: 0x0016 otherwise).
             self.fail(AlStatusCode::InvalidMailboxConfig);
+        } else if (from, to) == (SafeOp, Op) && self.waits_for_sync0_in_vain() {
+            // A drive set to DC SYNC0 (0x1C32:01 = 2) waits for its sync signals before OP; with
+            // SYNC0 not activated none comes (ETG.1020: 0x002D, no sync error).
+            self.fail(AlStatusCode::NoSyncError);
         } else if (from, to) == (PreOp, SafeOp) {
             match self.check_process_data_config() {
                 Ok(()) => self.al_state = to,
@@ -108,6 +112,14 @@ impl Esc {
             self.input_sm = None;
             self.app = None;
         }
+    }
+
+    /// The drive is set to DC SYNC0 over CoE and its SYNC0 does not run.
+    fn waits_for_sync0_in_vain(&self) -> bool {
+        let dc_mode = self
+            .sdo_server()
+            .is_some_and(|c| c.od.read_u32(0x1c32, 1) == 2);
+        dc_mode && self.dc.as_ref().is_none_or(|d| d.sync0().is_none())
     }
 
     /// Whether the mailbox SyncManagers are as the device's layout has them (true without a

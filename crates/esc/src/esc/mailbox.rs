@@ -418,3 +418,89 @@ mod tests {
         assert_eq!((w, &r[..10]), (1, &[4, 0, 0, 0, 0, 0x20, 1, 0, 2, 0][..]));
     }
 }
+
+#[cfg(test)]
+mod sync_mode_tests {
+    use super::super::testing::{dg, wkc};
+    use crate::clock::CrystalParams;
+    use crate::model::{DeviceInfo, EscModel};
+    use ecsync_wire::Command;
+
+    fn put(e: &mut super::Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
+        let mut d = dg(Command::Bwr, 0, ado, data);
+        e.process_datagram(&mut d, t_ps);
+        wkc(&d)
+    }
+
+    fn get(e: &mut super::Esc, ado: u16, n: usize, t_ps: u64) -> Vec<u8> {
+        let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
+        e.process_datagram(&mut d, t_ps);
+        d[10..10 + n].to_vec()
+    }
+
+    /// A drive in SAFE-OP after 0x1C32:01 = `mode` over CoE, with or without SYNC0 started.
+    fn safe_op(mode: u16, sync0: bool) -> super::Esc {
+        let mut e = super::Esc::new(
+            EscModel::servo_mii(),
+            DeviceInfo::servo_drive(7),
+            CrystalParams::default(),
+        );
+        e.set_links([true, false, false, false]);
+        put(
+            &mut e,
+            0x0800,
+            &[0x00, 0x10, 0x80, 0x00, 0x26, 0x00, 0x01, 0x00],
+            0,
+        );
+        put(
+            &mut e,
+            0x0808,
+            &[0x80, 0x10, 0x80, 0x00, 0x22, 0x00, 0x01, 0x00],
+            0,
+        );
+        put(&mut e, 0x0120, &[0x02, 0], 0);
+        // The SDO download of the sync mode, its answer read 1 ms later.
+        let mut m = vec![10, 0, 0, 0, 0, 0x13, 0x00, 0x20, 0x2b, 0x32, 0x1c, 0x01];
+        m.extend_from_slice(&mode.to_le_bytes());
+        m.resize(128, 0);
+        put(&mut e, 0x1000, &m, 1_000_000);
+        let mut d = dg(Command::Brd, 0, 0x1080, &[0; 128]);
+        e.process_datagram(&mut d, 1_000_000_000);
+        assert_eq!(d[10 + 8], 0x60, "download answered");
+        put(
+            &mut e,
+            0x0810,
+            &[0x00, 0x11, 16, 0, 0x64, 0, 1, 0],
+            2_000_000_000,
+        );
+        put(
+            &mut e,
+            0x0818,
+            &[0x80, 0x11, 18, 0, 0x20, 0, 1, 0],
+            2_000_000_000,
+        );
+        if sync0 {
+            put(&mut e, 0x09a0, &1_000_000u32.to_le_bytes(), 2_000_000_000);
+            put(&mut e, 0x0990, &10_000_000u64.to_le_bytes(), 2_000_000_000);
+            put(&mut e, 0x0981, &[0x03], 2_000_000_000);
+        }
+        put(&mut e, 0x0120, &[0x04, 0], 2_000_000_000);
+        assert_eq!(get(&mut e, 0x0130, 2, 2_000_000_000)[0], 0x04, "SAFE-OP");
+        e
+    }
+
+    #[test]
+    fn a_drive_in_dc_mode_without_sync0_refuses_op_with_0x002d() {
+        let mut e = safe_op(2, false);
+        put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
+        let st = get(&mut e, 0x0130, 6, 3_000_000_000);
+        assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x002d));
+        // With SYNC0 running it goes to OP; in free run it does without.
+        let mut e = safe_op(2, true);
+        put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
+        assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
+        let mut e = safe_op(0, false);
+        put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
+        assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
+    }
+}
