@@ -502,6 +502,22 @@ impl ObjectDictionary {
         Ok(())
     }
 
+    /// A write of one entry, or with `complete_access` of the object from `sub`.
+    pub fn write_access(
+        &mut self,
+        index: u16,
+        sub: u8,
+        complete_access: bool,
+        data: &[u8],
+        state: AlState,
+    ) -> Result<(), SdoAbortCode> {
+        if complete_access {
+            self.write_complete(index, sub, data, state)
+        } else {
+            self.write(index, sub, data, state)
+        }
+    }
+
     /// A complete access read from `sub` (0 or 1).
     pub fn read_complete(&self, index: u16, sub: u8) -> Result<Vec<u8>, SdoAbortCode> {
         let o = self.object(index).ok_or(SdoAbortCode::NoObject)?;
@@ -787,13 +803,9 @@ impl SdoServer {
                 let total = size.unwrap_or(0) as usize;
                 let got = s.rest();
                 if got.len() >= total {
-                    let v = &got[..total];
-                    if complete_access {
-                        self.od.write_complete(index, subindex, v, state)
-                    } else {
-                        self.od.write(index, subindex, v, state)
-                    }
-                    .map_err(|c| (index, subindex, c))?;
+                    self.od
+                        .write_access(index, subindex, complete_access, &got[..total], state)
+                        .map_err(|c| (index, subindex, c))?;
                 } else {
                     self.transfer = Some(Transfer::Download {
                         index,
@@ -850,13 +862,9 @@ impl SdoServer {
                     if v.len() < size {
                         return Err((index, subindex, SdoAbortCode::LengthTooLow));
                     }
-                    let v = &v[..size];
-                    if ca {
-                        self.od.write_complete(index, subindex, v, state)
-                    } else {
-                        self.od.write(index, subindex, v, state)
-                    }
-                    .map_err(|c| (index, subindex, c))?;
+                    self.od
+                        .write_access(index, subindex, ca, &v[..size], state)
+                        .map_err(|c| (index, subindex, c))?;
                 }
                 Ok(out)
             }

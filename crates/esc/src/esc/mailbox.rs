@@ -103,13 +103,7 @@ impl Esc {
                 m.repeat = repeat;
                 // The last answer again, and the acknowledge in the PDI control byte.
                 if !m.last.is_empty() {
-                    let msg = m.last.clone();
-                    let b = self.sms[i];
-                    let start = usize::from(b.start).saturating_sub(super::registers::REG_SPACE);
-                    let n = usize::from(b.len).min(self.ram.len().saturating_sub(start));
-                    self.ram[start..start + n].fill(0);
-                    let k = msg.len().min(n);
-                    self.ram[start..start + k].copy_from_slice(&msg[..k]);
+                    put_in_buffer(&mut self.ram, self.sms[i], &m.last);
                     m.in_full = true;
                 }
                 self.regs[base + 7] = (self.regs[base + 7] & !0x02) | (u8::from(repeat) << 1);
@@ -149,12 +143,7 @@ impl Esc {
         let Some((_, msg)) = m.pending.take() else {
             return;
         };
-        let b = self.sms[i];
-        let start = usize::from(b.start).saturating_sub(super::registers::REG_SPACE);
-        let n = usize::from(b.len).min(self.ram.len().saturating_sub(start));
-        self.ram[start..start + n].fill(0);
-        let k = msg.len().min(n);
-        self.ram[start..start + k].copy_from_slice(&msg[..k]);
+        put_in_buffer(&mut self.ram, self.sms[i], &msg);
         m.in_full = true;
         // The application has taken the message it answers.
         m.out_full = false;
@@ -209,9 +198,7 @@ impl Esc {
             return;
         }
         m.out_full = true;
-        let start = usize::from(b.start).saturating_sub(super::registers::REG_SPACE);
-        let n = usize::from(b.len).min(self.ram.len().saturating_sub(start));
-        let request = self.ram[start..start + n].to_vec();
+        let request = self.ram[buffer_in_ram(self.ram.len(), b)].to_vec();
         let room = usize::from(m.layout.in_len).saturating_sub(MAILBOX_HEADER_LEN);
         let answer = answer(m, &request, state, station, room);
         match answer {
@@ -234,6 +221,24 @@ impl Esc {
     pub fn sdo_server_mut(&mut self) -> Option<&mut SdoServer> {
         self.mbx.as_deref_mut().map(MailboxState::server_mut)
     }
+}
+
+/// Where SyncManager buffer `b` lies in the process RAM (of `ram_len` bytes).
+fn buffer_in_ram(ram_len: usize, b: super::process_data::SmBuffer) -> std::ops::Range<usize> {
+    let start = usize::from(b.start)
+        .saturating_sub(super::registers::REG_SPACE)
+        .min(ram_len);
+    start..start + usize::from(b.len).min(ram_len - start)
+}
+
+/// Writes message `msg` into SyncManager buffer `b`, the rest of the buffer zeroed (the
+/// application writes the whole buffer, which is what makes it full).
+fn put_in_buffer(ram: &mut [u8], b: super::process_data::SmBuffer, msg: &[u8]) {
+    let r = buffer_in_ram(ram.len(), b);
+    let buf = &mut ram[r];
+    buf.fill(0);
+    let k = msg.len().min(buf.len());
+    buf[..k].copy_from_slice(&msg[..k]);
 }
 
 /// The whole answer message (header and data) to the master's message `request` (the buffer),
