@@ -306,6 +306,31 @@ impl ObjectDictionary {
                 ],
             ),
         ];
+        // ETG.1020's error settings: the local error reaction (0: the ESM's default, to
+        // SAFE-OP) and the sync error counter limit past which the drive leaves OP with 0x001A
+        // (see esc/sync.rs; 0 here: count, do not react, the virtual drive's default).
+        objects.push(record(
+            0x10f1,
+            "Error settings",
+            ObjectCode::Record,
+            ro,
+            vec![
+                entry(
+                    1,
+                    "Local error reaction",
+                    data_type::UINT32,
+                    Access::ReadWrite,
+                    u32v(0),
+                ),
+                entry(
+                    2,
+                    "Sync error counter limit",
+                    data_type::UINT16,
+                    Access::ReadWrite,
+                    0u16.to_le_bytes().to_vec(),
+                ),
+            ],
+        ));
         let mapping = |index: u16, name: &str, pdos: &[crate::model::PdoEntry]| {
             record(
                 index,

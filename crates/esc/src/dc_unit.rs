@@ -249,6 +249,11 @@ impl DcUnit {
         (ns.wrapping_add(self.offset), frac)
     }
 
+    /// Whether the system time is 64 bits wide (else 32).
+    pub fn is_64bit(&self) -> bool {
+        self.is_64bit
+    }
+
     /// System time offset (0x0920).
     pub fn offset(&self) -> u64 {
         self.offset

@@ -20,7 +20,8 @@
 //! - [`datagram`]: datagram processing (address modes, working counters) and the recording of
 //!   a frame's effects for the replay;
 //! - [`replay`]: the replay fast path, which repeats what a frame of the same shape did;
-//! - [`watchdog`]: the process data watchdog and its expiry.
+//! - [`watchdog`]: the process data watchdog and its expiry;
+//! - [`sync`]: the drive's application in time (the SYNC0 deadline, SM events missed).
 
 mod al;
 mod datagram;
@@ -29,6 +30,7 @@ mod process_data;
 mod registers;
 mod replay;
 mod sii;
+mod sync;
 mod watchdog;
 
 use crate::dc_unit::{DC_BLOCK_LEN, DcParams, DcUnit};
@@ -107,6 +109,11 @@ pub struct Esc {
     wd_last_write_ps: u64,
     /// The outputs were written by the datagram being processed.
     pd_written: bool,
+    /// The frame being processed wrote the outputs (the SYNC0 deadline is checked at its
+    /// end).
+    sync_pending: bool,
+    /// The SYNC0 deadline's bookkeeping.
+    sync: sync::SyncMonitor,
 }
 
 impl Esc {
@@ -168,6 +175,8 @@ impl Esc {
             wd_period_ps: 0,
             wd_last_write_ps: 0,
             pd_written: false,
+            sync_pending: false,
+            sync: sync::SyncMonitor::default(),
         };
         esc.build_attributes();
         esc.reset_registers();

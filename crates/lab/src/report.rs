@@ -73,6 +73,12 @@ pub struct SlaveOut {
     pub margin_mean_ns: f64,
     /// Cycles this slave got its frame after SYNC0, all runs.
     pub late_frames: u64,
+    /// SYNC0 pulses with no new outputs since the pulse before, all runs (the ground truth of
+    /// what a drive counts in 0x1C32:0B; a late frame right after a late one is not one more).
+    pub sync0_missed: u64,
+    /// The drive's own SM-event-missed count (0x1C32:0B) over the same cycles, all runs; none
+    /// for a slave that does not run on SYNC0 (no CoE, or not set to DC mode).
+    pub drive_sm_events_missed: Option<u64>,
     /// The smallest SYNC0 shift this slave needs, % of the cycle (rounded up to 0.1 %).
     pub smallest_safe_shift_pct: f64,
 }
@@ -317,11 +323,17 @@ fn method_out(c: &Comparison, m: usize, kind: MethodKind, letter_testbed: bool) 
                 .map(|i| {
                     let mut st = Stats::new();
                     let mut late = 0;
+                    let mut missed = 0;
+                    let mut drive: Option<u64> = None;
                     let mut latest = f64::NEG_INFINITY;
                     for r in rs {
                         if let Some(x) = r.per_slave.get(i) {
                             st.merge(&x.margin);
                             late += x.late_frames;
+                            missed += x.sync0_missed;
+                            if let Some(d) = x.drive_sm_events_missed {
+                                drive = Some(drive.unwrap_or(0) + d);
+                            }
                             latest = latest.max(x.latest_end_ns);
                         }
                     }
@@ -332,6 +344,8 @@ fn method_out(c: &Comparison, m: usize, kind: MethodKind, letter_testbed: bool) 
                         margin_p001_ns: sm.p001,
                         margin_mean_ns: sm.mean,
                         late_frames: late,
+                        sync0_missed: missed,
+                        drive_sm_events_missed: drive,
                         smallest_safe_shift_pct: shift_pct(latest, period),
                     }
                 })

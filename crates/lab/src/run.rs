@@ -198,6 +198,18 @@ pub struct SlaveTruth {
     pub latest_end_ns: f64,
     /// Cycles whose frame passed it after its SYNC0.
     pub late_frames: u64,
+    /// SYNC0 pulses (grid point plus shift) with no frame's outputs at this slave since the
+    /// pulse before: what a drive counts as "SM event missed" (ETG.1020, 0x1C32:0B). A late
+    /// frame right after a late one is not one more: its outputs are the next pulse's, as far
+    /// as any drive can tell. Counted between the measured frames.
+    pub sync0_missed: u64,
+    /// The system time (integer ns) the last measured frame's outputs passed this slave.
+    pub last_outputs_ns: Option<u64>,
+    /// The drive's own 0x1C32:0B count over the same frames (its counter after the last one
+    /// minus after the first), if it runs on SYNC0 (set to DC mode over CoE).
+    pub drive_sm_events_missed: Option<u64>,
+    /// The drive's counter after the first measured frame.
+    pub drive_count_at_start: Option<u64>,
 }
 
 /// The drift the frames underwent while a method averaged its init frames: the reference's
@@ -808,6 +820,10 @@ impl Run {
                 margin: Stats::new(),
                 latest_end_ns: f64::NEG_INFINITY,
                 late_frames: 0,
+                sync0_missed: 0,
+                last_outputs_ns: None,
+                drive_sm_events_missed: None,
+                drive_count_at_start: None,
             })
             .collect();
         let has_log = method.controller_log().is_some();
@@ -1233,6 +1249,23 @@ impl Run {
                 };
                 let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
                 let margin = shift - end_after_grid;
+                // The pulses at m x period + shift up to the outputs: those between two
+                // frames' outputs but the first found none new.
+                let pulses = |t: u64| {
+                    let s = shift as u64;
+                    if t < s { 0 } else { (t - s) / period + 1 }
+                };
+                if let Some(prev) = st.last_outputs_ns.replace(e.0) {
+                    st.sync0_missed += pulses(e.0)
+                        .saturating_sub(pulses(prev))
+                        .saturating_sub(1);
+                }
+                let esc = seg.esc(x);
+                if esc.runs_on_sync0() {
+                    let now = esc.sm_events_missed();
+                    let start = *st.drive_count_at_start.get_or_insert(now);
+                    st.drive_sm_events_missed = Some(now.saturating_sub(start));
+                }
                 if keep {
                     margins.push(margin);
                 }

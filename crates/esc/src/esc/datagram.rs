@@ -121,6 +121,14 @@ impl Esc {
     /// reached the unit at `t_ps`. `dg` is the whole datagram (header, data, working counter);
     /// its length must already have been validated.
     pub fn process_datagram(&mut self, dg: &mut [u8], t_ps: u64) -> DatagramEffects {
+        let fx = self.datagram_in_frame(dg, t_ps);
+        self.end_of_frame(t_ps);
+        fx
+    }
+
+    /// One datagram of a frame: what the frame's end does (the outputs taken, the SYNC0
+    /// deadline) is left to [`Esc::end_of_frame`].
+    fn datagram_in_frame(&mut self, dg: &mut [u8], t_ps: u64) -> DatagramEffects {
         self.watchdog_check(t_ps);
         let fx = self.process_datagram_at(dg, t_ps);
         if std::mem::take(&mut self.pd_written) {
@@ -258,9 +266,12 @@ impl Esc {
         self.watchdog_check(t_ps);
         if let Some(k) = self.program_slot(shape) {
             self.replay(k, frame, t_ps);
+            self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
             return DatagramEffects::default();
         }
-        self.process_frame_full(frame, offsets, shape, t_ps)
+        let fx = self.process_frame_full(frame, offsets, shape, t_ps);
+        self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+        fx
     }
 
     /// Every datagram decoded in full, recording a program for the next frame of this shape.
@@ -285,7 +296,7 @@ impl Esc {
             };
             self.rec = Recorder::start(recording);
             let wkc_before = u16::from_le_bytes([frame[wkc_at], frame[wkc_at + 1]]);
-            out.merge(self.process_datagram(&mut frame[at..at + total], t_ps));
+            out.merge(self.datagram_in_frame(&mut frame[at..at + total], t_ps));
             recording = recording
                 && self.rec.cacheable
                 && self.record(&mut prog, &frame[at..at + total], at, wkc_before);
@@ -346,12 +357,13 @@ impl Esc {
         let end = at + f.ecat_len();
         while let Ok(d) = Datagram::new_checked(&frame[at..end]) {
             let (total, more) = (d.total_len(), d.more_follows());
-            out.merge(self.process_datagram(&mut frame[at..at + total], t_ps));
+            out.merge(self.datagram_in_frame(&mut frame[at..at + total], t_ps));
             at += total;
             if !more {
                 break;
             }
         }
+        self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
         out
     }
 }

@@ -178,6 +178,10 @@ impl Esc {
     /// After an access the gate let through: a write of the out buffer's last byte hands the
     /// message to the application, a read of the in buffer's last byte empties it.
     pub(super) fn mailbox_accessed(&mut self, hi: usize, write: bool, t_ps: u64) {
+        if write {
+            // A read of the drive's counters answers with them as they are now.
+            self.sync_catch_up(t_ps);
+        }
         let state = self.al_state;
         let station = self.station_address();
         let Some(m) = self.mbx.as_deref_mut() else {
@@ -210,6 +214,7 @@ impl Esc {
             None => m.out_full = false,
         }
         self.update_mailbox_status();
+        self.sync_settings_changed();
     }
 
     /// The CoE server behind the mailbox, if the device has one.

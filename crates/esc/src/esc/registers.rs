@@ -451,6 +451,9 @@ impl Esc {
             let (a, b) = clamp_to(lo, hi, dc_start, DC_BLOCK_LEN);
             let e = dc.write(a as u16, &data[a - lo..b - lo], t_ps);
             fx.latch_receive_times |= e.latch_receive_times;
+            if ranges_overlap(lo, hi, usize::from(reg::DC_ACTIVATION), 1) {
+                self.sync0_activation_changed();
+            }
         }
         if ranges_overlap(
             lo,

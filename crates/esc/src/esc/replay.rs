@@ -666,6 +666,21 @@ impl Esc {
         t_ps: u64,
         d: &mut Deferred,
     ) -> bool {
+        let done = self.replay_cyclic_steps(frame, shape, t_ps, d);
+        if self.sync_pending {
+            self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+        }
+        done
+    }
+
+    #[inline(always)]
+    fn replay_cyclic_steps(
+        &mut self,
+        frame: &mut [u8],
+        shape: u32,
+        t_ps: u64,
+        d: &mut Deferred,
+    ) -> bool {
         // An expired watchdog changes the state first: the full path takes the frame then.
         if self.watchdog_check(t_ps) {
             return false;
@@ -681,6 +696,7 @@ impl Esc {
             al_state,
             app_cycles,
             wd_last_write_ps,
+            sync_pending,
             ..
         } = self;
         // (k is below PROGRAM_SLOTS, a power of two: the mask spares the bounds check.)
@@ -699,12 +715,14 @@ impl Esc {
             );
             if done && program.writes_ram {
                 *wd_last_write_ps = t_ps;
+                *sync_pending = true;
             }
             return done;
         };
         program.replays += 1;
         if program.writes_ram {
             *wd_last_write_ps = t_ps;
+            *sync_pending = true;
         }
         if c.layout != d.layout {
             d.flush(frame);

@@ -53,6 +53,7 @@ impl Esc {
     #[inline(always)]
     pub(super) fn outputs_written(&mut self, t_ps: u64) {
         self.wd_last_write_ps = t_ps;
+        self.sync_pending = true;
     }
 
     /// Whether the watchdog expired before `t_ps` (and, if so, what it does).

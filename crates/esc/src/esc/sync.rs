@@ -1,0 +1,338 @@
+//! The drive's application in time: in DC SYNC0 mode (0x1C32:01 = 2) the application takes
+//! its outputs at each SYNC0 pulse, and a pulse with no new outputs since the one before is an
+//! "SM event missed" (0x1C32:0B); too many of them in a short time are a synchronization
+//! error, and the drive leaves OP.
+//!
+//! Sources: ETG.1020 (section "Synchronization", the SyncManager parameter objects 0x1C32 and
+//! 0x1C33): :0B "SM-Event Missed", the number of SYNC0 cycles in OP without an SM2 event
+//! before them (DC mode only); :20 "Sync Error", set when the last cycle had one. The reaction
+//! follows the EtherCAT Slave Stack Code (ETG's SSC, `Sync0_Isr`/`PDI_Isr`) as its drives
+//! ship it: a sync error counter goes up by 3 per missed SM event and down by 1 per SM event;
+//! past 0x10F1:02 (Sync Error Counter Limit) the application raises AL status code 0x001A
+//! (synchronization error) and goes to SAFE-OP. A SYNC0 switched off while the drive runs on it
+//! in OP is a fatal sync error (0x002C); a drive in DC mode whose SYNC0 is not active refuses
+//! OP with 0x002D (see `al.rs`).
+//!
+//! Assumptions, written down:
+//! - The outputs of a frame count when the frame's last bit has passed the ESC (the SyncManager
+//!   buffer changes after the FCS check), at that instant of the ESC's system time; SYNC0
+//!   pulses are at 0x0990 + n x 0x09A0. Both are taken at 1 ns, as the ground truth takes them
+//!   (the 10 ns granularity of the SYNC0 unit is left out).
+//! - The sequence starts with the first outputs written in OP with SYNC0 running (as SSC's
+//!   check begins with the first SM2 event); leaving OP, SYNC0 stopping or the sync mode
+//!   changing ends it.
+//! - The virtual drive's 0x10F1:02 is 0 by default, which here means "count, do not react":
+//!   a comparison that sweeps SYNC0 shifts measures the method, not a drive's reaction. A master
+//!   (or a test) writes a limit to make the drive react, as SSC's default of 4 does.
+//!
+//! Counting happens lazily, when outputs arrive (and when the master reads the counter), so
+//! the cyclic path does one division per frame and allocates nothing: the pulses in the
+//! interval between two output writes are n; n - 1 of them found no new outputs.
+
+use super::Esc;
+use ecsync_wire::{AlState, AlStatusCode};
+
+/// The ETG.1020 sync mode of 0x1C32:01 that runs the application on SYNC0.
+pub const SYNC_MODE_DC_SYNC0: u32 = 2;
+/// What a missed SM event adds to the sync error counter (SSC).
+const ERROR_PER_MISS: u32 = 3;
+
+/// The SYNC0 deadline's bookkeeping of one drive.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct SyncMonitor {
+    /// The device runs its application on SYNC0 (0x1C32:01 = 2), as last read from its OD.
+    pub(super) dc_mode: bool,
+    /// The system time of the last outputs, ns, while a sequence runs.
+    last_write_ns: Option<u64>,
+    /// Pulses after the last outputs already counted as missed (by a read of the counter).
+    counted_since_write: u64,
+    /// 0x1C32:0B: SYNC0 pulses in OP with no outputs since the pulse before.
+    pub(super) missed: u64,
+    /// The SSC's sync error counter.
+    error_counter: u32,
+    /// 0x10F1:02; 0: no reaction.
+    pub(super) limit: u32,
+    /// 0x1C32:20: the last cycle had a missed SM event.
+    pub(super) sync_error: bool,
+    /// The counters changed since the OD was last brought up to date.
+    pub(super) dirty: bool,
+}
+
+/// What the monitor asks of the ESC.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum SyncReaction {
+    /// Nothing.
+    None,
+    /// The sync error counter passed the limit: AL error 0x001A, SAFE-OP.
+    SyncError,
+}
+
+/// The number of pulses at `start + k * cycle` (k >= 0) at or before `t` (`cycle` > 0).
+#[inline]
+fn pulses_through(t: u64, start: u64, cycle: u64) -> u64 {
+    if t < start { 0 } else { (t - start) / cycle + 1 }
+}
+
+impl SyncMonitor {
+    /// Outputs arrived at system time `t_ns`, SYNC0 running from `start_ns` every `cycle_ns`
+    /// (`None`: not running), the drive in OP or not.
+    #[inline]
+    pub(super) fn outputs_at(
+        &mut self,
+        t_ns: u64,
+        sync0: Option<(u64, u32)>,
+        in_op: bool,
+    ) -> SyncReaction {
+        let Some((start, cycle)) = sync0.filter(|&(_, c)| c > 0 && in_op && self.dc_mode) else {
+            self.last_write_ns = None;
+            return SyncReaction::None;
+        };
+        let Some(last) = self.last_write_ns.replace(t_ns) else {
+            self.counted_since_write = 0;
+            return SyncReaction::None;
+        };
+        let cycle = u64::from(cycle);
+        let n = pulses_through(t_ns, start, cycle).saturating_sub(pulses_through(last, start, cycle));
+        let missed_now = n.saturating_sub(1);
+        let new = missed_now.saturating_sub(self.counted_since_write);
+        self.counted_since_write = 0;
+        self.account(new, true)
+    }
+
+    /// The counters up to system time `t_ns` (a read of 0x1C32:0B between two outputs: the
+    /// pulses since the last outputs but the first are missed already).
+    pub(super) fn catch_up(&mut self, t_ns: u64, sync0: Option<(u64, u32)>) {
+        let (Some(last), Some((start, cycle))) = (self.last_write_ns, sync0) else {
+            return;
+        };
+        if cycle == 0 || t_ns <= last {
+            return;
+        }
+        let cycle = u64::from(cycle);
+        let n = pulses_through(t_ns, start, cycle).saturating_sub(pulses_through(last, start, cycle));
+        let missed_now = n.saturating_sub(1);
+        let new = missed_now.saturating_sub(self.counted_since_write);
+        if new > 0 {
+            self.counted_since_write = missed_now;
+            // The drive in the meantime only counts; its reaction comes with the next outputs
+            // or, without any, from the process data watchdog.
+            let _ = self.account(new, false);
+        }
+    }
+
+    fn account(&mut self, new_misses: u64, sm_event: bool) -> SyncReaction {
+        if new_misses > 0 {
+            self.missed = self.missed.saturating_add(new_misses);
+            self.error_counter = self
+                .error_counter
+                .saturating_add(ERROR_PER_MISS.saturating_mul(new_misses as u32));
+            self.dirty = true;
+        }
+        let error = new_misses > 0;
+        if error != self.sync_error {
+            self.sync_error = error;
+            self.dirty = true;
+        }
+        if sm_event {
+            if self.limit != 0 && self.error_counter > self.limit {
+                self.error_counter = 0;
+                self.last_write_ns = None;
+                return SyncReaction::SyncError;
+            }
+            self.error_counter = self.error_counter.saturating_sub(1);
+        }
+        SyncReaction::None
+    }
+
+    /// The sequence ends (the drive left OP, SYNC0 stopped): the next outputs start a new one.
+    pub(super) fn stop(&mut self) {
+        self.last_write_ns = None;
+        self.error_counter = 0;
+    }
+}
+
+impl Esc {
+    /// The end of a frame that passed at `t_end_ps` (its last bit): if it wrote the outputs,
+    /// the SYNC0 deadline's check.
+    #[inline]
+    pub(super) fn end_of_frame(&mut self, t_end_ps: u64) {
+        if !std::mem::take(&mut self.sync_pending) || !self.sync.dc_mode {
+            return;
+        }
+        self.sync_outputs(t_end_ps);
+    }
+
+    #[inline(never)]
+    fn sync_outputs(&mut self, t_end_ps: u64) {
+        let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit()) else {
+            return;
+        };
+        let t_ns = dc.system_time_split(t_end_ps).0;
+        let r = self
+            .sync
+            .outputs_at(t_ns, dc.sync0(), self.al_state == AlState::Op);
+        self.update_sync_objects();
+        if r == SyncReaction::SyncError {
+            self.raise_al_error(AlStatusCode::SynchronizationError);
+        }
+    }
+
+    /// Before the application answers a mailbox message at `t_ps`: the counters up to now.
+    pub(super) fn sync_catch_up(&mut self, t_ps: u64) {
+        if !self.sync.dc_mode || self.al_state != AlState::Op {
+            return;
+        }
+        let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit()) else {
+            return;
+        };
+        let t_ns = dc.system_time_split(t_ps).0;
+        self.sync.catch_up(t_ns, dc.sync0());
+        self.update_sync_objects();
+    }
+
+    /// After the master's mailbox message: the sync mode and the limit as the OD has them now.
+    pub(super) fn sync_settings_changed(&mut self) {
+        let Some(c) = self.sdo_server() else {
+            return;
+        };
+        let dc_mode = c.od.read_u32(0x1c32, 1) == SYNC_MODE_DC_SYNC0;
+        let limit = c.od.read_u32(0x10f1, 2);
+        if dc_mode != self.sync.dc_mode {
+            self.sync.stop();
+        }
+        self.sync.dc_mode = dc_mode;
+        self.sync.limit = limit;
+    }
+
+    /// The SYNC0 activation changed: a drive running on SYNC0 in OP whose SYNC0 stops has a
+    /// fatal sync error (ETG.1020: 0x002C), and leaves OP.
+    pub(super) fn sync0_activation_changed(&mut self) {
+        let stopped = self.dc.as_ref().is_none_or(|d| d.sync0().is_none());
+        if stopped {
+            self.sync.stop();
+            if self.sync.dc_mode && self.al_state == AlState::Op {
+                self.raise_al_error(AlStatusCode::FatalSyncError);
+            }
+        }
+    }
+
+    /// 0x1C32:0B and :20 as the monitor counts.
+    fn update_sync_objects(&mut self) {
+        if !std::mem::take(&mut self.sync.dirty) {
+            return;
+        }
+        let (missed, error) = (self.sync.missed, self.sync.sync_error);
+        if let Some(c) = self.sdo_server_mut() {
+            // UNSIGNED16: it stops at its maximum.
+            let v = missed.min(u64::from(u16::MAX)) as u16;
+            c.od.set(0x1c32, 0x0b, &v.to_le_bytes());
+            c.od.set(0x1c32, 0x20, &[u8::from(error)]);
+        }
+    }
+
+    /// Whether the application runs on SYNC0 (set to DC SYNC0 mode over CoE, 0x1C32:01 = 2).
+    pub fn runs_on_sync0(&self) -> bool {
+        self.sync.dc_mode
+    }
+
+    /// SM events missed (0x1C32:0B) as the drive counted them up to its last outputs, without
+    /// the 16-bit object's ceiling.
+    pub fn sm_events_missed(&self) -> u64 {
+        self.sync.missed
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const C: u32 = 1_000_000;
+
+    fn monitor() -> SyncMonitor {
+        SyncMonitor {
+            dc_mode: true,
+            ..SyncMonitor::default()
+        }
+    }
+
+    /// Frames worked out by hand against pulses at 300 us + k ms: on time, one late (one
+    /// miss), two late in a row (one miss: the second late frame's outputs are taken at the
+    /// pulse after it, as far as the drive can tell), a cycle without a frame (one miss).
+    #[test]
+    fn misses_worked_out_by_hand() {
+        let s0 = Some((300_000u64, C));
+        let mut m = monitor();
+        // Frames end 50 us before their pulse: k ms + 250 us.
+        let on_time = |k: u64| k * 1_000_000 + 250_000;
+        let late = |k: u64| k * 1_000_000 + 310_000;
+        for k in 0..5 {
+            assert_eq!(m.outputs_at(on_time(k), s0, true), SyncReaction::None);
+        }
+        assert_eq!(m.missed, 0);
+        m.outputs_at(late(5), s0, true);
+        assert_eq!(m.missed, 1);
+        assert!(m.sync_error);
+        m.outputs_at(on_time(6), s0, true);
+        assert_eq!(m.missed, 1);
+        assert!(!m.sync_error);
+        m.outputs_at(late(7), s0, true);
+        m.outputs_at(late(8), s0, true);
+        m.outputs_at(on_time(9), s0, true);
+        assert_eq!(m.missed, 2);
+        // No frame in cycle 10.
+        m.outputs_at(on_time(11), s0, true);
+        assert_eq!(m.missed, 3);
+        // Read between frames, with the outputs stopped: the pulse of cycle 11 took the outputs
+        // of cycle 11; those of cycles 12, 13 and 14 (the last one at the read) found none.
+        m.catch_up(14 * 1_000_000 + 300_000, s0);
+        assert_eq!(m.missed, 6);
+        // Counted once only when the outputs come back (on time for pulse 15).
+        m.outputs_at(on_time(15), s0, true);
+        assert_eq!(m.missed, 6);
+    }
+
+    #[test]
+    fn not_counted_outside_op_or_dc_mode() {
+        let s0 = Some((0u64, C));
+        let mut m = monitor();
+        m.outputs_at(100, s0, false);
+        m.outputs_at(5_000_100, s0, false);
+        assert_eq!(m.missed, 0);
+        m.dc_mode = false;
+        m.outputs_at(100, s0, true);
+        m.outputs_at(5_000_100, s0, true);
+        assert_eq!(m.missed, 0);
+        m.dc_mode = true;
+        m.outputs_at(5_000_200, None, true);
+        m.outputs_at(9_000_200, None, true);
+        assert_eq!(m.missed, 0);
+    }
+
+    /// SSC's counter: +3 per miss, -1 per SM event; past the limit, a sync error.
+    #[test]
+    fn the_limit_raises_a_sync_error() {
+        let s0 = Some((300_000u64, C));
+        let mut m = SyncMonitor {
+            limit: 4,
+            ..monitor()
+        };
+        m.outputs_at(250_000, s0, true);
+        // One miss: counter 3, then 2 after the SM event: no error.
+        assert_eq!(m.outputs_at(2_250_000, s0, true), SyncReaction::None);
+        // A second miss soon after: 2 + 3 = 5 > 4.
+        assert_eq!(m.outputs_at(4_250_000, s0, true), SyncReaction::SyncError);
+        assert_eq!(m.missed, 2);
+        // Isolated misses decay: 3 per miss, 1 per good cycle.
+        let mut m = SyncMonitor {
+            limit: 4,
+            ..monitor()
+        };
+        m.outputs_at(250_000, s0, true);
+        let mut t = 250_000;
+        for k in 0..20 {
+            t += if k % 5 == 0 { 2_000_000 } else { 1_000_000 };
+            assert_eq!(m.outputs_at(t, s0, true), SyncReaction::None);
+        }
+        assert_eq!(m.missed, 4);
+    }
+}
