@@ -306,6 +306,15 @@ struct LatencyOut {
 }
 
 #[derive(Debug, Serialize)]
+struct SyncCounterRow {
+    /// Network position, 1 = next to the master.
+    position: u16,
+    sm_events_missed: u16,
+    /// When it was read, s after the cyclic phase's start.
+    read_s: f64,
+}
+
+#[derive(Debug, Serialize)]
 struct RunOut {
     iface: String,
     method: String,
@@ -349,6 +358,10 @@ struct RunOut {
     /// s after the cyclic phase's start, slaves brought back (positions, 1 = next to the
     /// master) or why it failed (tried again 50 ms later).
     recoveries: Vec<RecoveryRow>,
+    /// Each drive's SM-event-missed counter (0x1C32:0B) as last read over CoE in the cyclic
+    /// phase (once a second): SYNC0 cycles the drive ran without new outputs, by its own
+    /// count since it went to OP.
+    sm_events_missed: Vec<SyncCounterRow>,
     /// Sends and receives the interface refused because it was down.
     link_down_errors: u64,
     /// Steps of the host's clock the engine saw (the reference ran on while the master's time
@@ -605,6 +618,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         max_cycles: None,
         lost_in_a_row: args.give_up_after.unwrap_or(u64::MAX),
         reply_timeout_ns: u64::from(args.timeout_us.max(1)) * 1000,
+        // The drives' own count of SYNC0 cycles without new outputs, once a second.
+        sync_counters_every_ns: Some(1_000_000_000),
     };
     let mut driver = CyclicDriver::new(limits);
     // Slaves that lose their configuration (power-cycled) are brought back while the cycle
@@ -741,6 +756,15 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 left_op: e.left_op(),
             })
             .collect(),
+        sm_events_missed: driver
+            .sync_counters()
+            .iter()
+            .map(|c| SyncCounterRow {
+                position: c.position + 1,
+                sm_events_missed: c.sm_events_missed,
+                read_s: c.read_ns.saturating_sub(first) as f64 / 1e9,
+            })
+            .collect(),
         link_down_errors: link.link_down_errors(),
         master_clock_steps: eng.health().master_clock_steps,
         csv: args.csv.as_ref().map(|p| p.display().to_string()),
@@ -842,6 +866,24 @@ fn print_run(o: &RunOut) {
         println!(
             "{} slave(s) appeared at the end of the network at {:.3} s (hot connect): counted, not taken in (bring the network up again to use them).",
             r.appeared, r.start_s
+        );
+    }
+    if !o.sm_events_missed.is_empty() {
+        let missed: Vec<String> = o
+            .sm_events_missed
+            .iter()
+            .map(|c| format!("{}: {}", c.position, c.sm_events_missed))
+            .collect();
+        let total: u64 = o.sm_events_missed.iter().map(|c| u64::from(c.sm_events_missed)).sum();
+        println!(
+            "SM events missed (0x1C32:0B, the drives' own count of SYNC0 cycles without new outputs, read {:.1} s in){}: {}",
+            o.sm_events_missed.iter().map(|c| c.read_s).fold(0.0, f64::max),
+            if total > 0 {
+                " -- SYNC0 came before the outputs: a SYNC0 shift too small for this host's jitter, or frames lost"
+            } else {
+                ""
+            },
+            missed.join(", ")
         );
     }
     if o.reference_held_cycles > 0 {

@@ -1051,8 +1051,15 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
     );
     let _ = writeln!(
         t,
-        "{:>9}{:>16}{:>16}{:>16}{:>8}{:>14}",
-        "position", "margin min us", "margin p0.1 us", "margin mean us", "late", "safe shift %"
+        "{:>9}{:>16}{:>16}{:>16}{:>8}{:>10}{:>10}{:>14}",
+        "position",
+        "margin min us",
+        "margin p0.1 us",
+        "margin mean us",
+        "late",
+        "missed",
+        "drive",
+        "safe shift %"
     );
     // A large network lists the slaves that need the largest shift (in position order), the
     // others are in summary.json.
@@ -1071,15 +1078,24 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
     for s in shown.iter().map(|&k| &all[k]) {
         let _ = writeln!(
             t,
-            "{:>9}{:>16.1}{:>16.1}{:>16.1}{:>8}{:>14.1}",
+            "{:>9}{:>16.1}{:>16.1}{:>16.1}{:>8}{:>10}{:>10}{:>14.1}",
             s.position,
             s.margin_min_ns / 1000.0,
             s.margin_p001_ns / 1000.0,
             s.margin_mean_ns / 1000.0,
             s.late_frames,
+            s.sync0_missed,
+            s.drive_sm_events_missed
+                .map_or("-".to_string(), |d| d.to_string()),
             s.smallest_safe_shift_pct
         );
     }
+    let _ = writeln!(
+        t,
+        "(late: frames after the slave's SYNC0; missed: SYNC0 pulses with no new outputs since \
+         the one before, the ground truth of what a drive counts; drive: the drive's own \
+         SM-event-missed count, 0x1C32:0B, over the same cycles, - without CoE DC mode)"
+    );
     if all.len() > shown.len() {
         let _ = writeln!(
             t,
@@ -1148,18 +1164,21 @@ pub fn csv(out: &SummaryOut, order: &[String]) -> String {
     }
     let _ = writeln!(
         t,
-        "\nmethod,position,margin_min_ns,margin_p0.1_ns,margin_mean_ns,late_frames,smallest_safe_shift_pct"
+        "\nmethod,position,margin_min_ns,margin_p0.1_ns,margin_mean_ns,late_frames,sync0_missed,drive_sm_events_missed,smallest_safe_shift_pct"
     );
     for m in order {
         for s in &out.methods[m].ground_truth.per_slave {
             let _ = writeln!(
                 t,
-                "{m},{},{},{},{},{},{}",
+                "{m},{},{},{},{},{},{},{},{}",
                 s.position,
                 s.margin_min_ns,
                 s.margin_p001_ns,
                 s.margin_mean_ns,
                 s.late_frames,
+                s.sync0_missed,
+                s.drive_sm_events_missed
+                    .map_or(String::new(), |d| d.to_string()),
                 s.smallest_safe_shift_pct
             );
         }

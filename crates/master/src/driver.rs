@@ -197,6 +197,10 @@ pub struct CyclicLimits {
     pub lost_in_a_row: u64,
     /// How long to wait for a cycle's reply after its send, ns.
     pub reply_timeout_ns: u64,
+    /// Read every drive's SM-event-missed counter (0x1C32:0B) over CoE this often, ns, in
+    /// the cycles' spare time (`None`: never). Drives with CoE and a system time only, as
+    /// the bring-up set them to DC mode.
+    pub sync_counters_every_ns: Option<u64>,
 }
 
 impl Default for CyclicLimits {
@@ -206,6 +210,7 @@ impl Default for CyclicLimits {
             max_cycles: None,
             lost_in_a_row: 100,
             reply_timeout_ns: 10_000_000,
+            sync_counters_every_ns: None,
         }
     }
 }
@@ -265,11 +270,56 @@ pub const RECOVERY_RETRY_NS: u64 = 50_000_000;
 /// loss.
 pub const RECOVERY_FRAME_TRIES: u32 = 10;
 
+/// A drive's SM-event-missed counter as the master read it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SyncCounter {
+    /// Network position, from 0.
+    pub position: u16,
+    /// 0x1C32:0B: SYNC0 cycles in OP without new outputs, as the drive counted them.
+    pub sm_events_missed: u16,
+    /// When the answer came, master time, ns.
+    pub read_ns: u64,
+}
+
+/// What the acyclic slot's procedure gives.
+enum JobResult {
+    Recovery(Result<Recovered, MasterError>),
+    SyncCounters(Result<Vec<SyncCounter>, MasterError>),
+}
+
+/// Reads 0x1C32:0B of each drive of `drives` (position, station, mailbox), one after the
+/// other; a drive without the object is left out.
+async fn read_sync_counters(
+    link: crate::io::Link,
+    drives: Vec<(u16, u16, crate::bringup::MailboxInfo)>,
+) -> Result<Vec<SyncCounter>, MasterError> {
+    let mut out = Vec::with_capacity(drives.len());
+    for (position, station, m) in drives {
+        let mut c = crate::coe::SdoClient::new(&link, station, m);
+        match c.upload(0x1c32, 0x0b).await {
+            Ok(v) if v.len() >= 2 => out.push(SyncCounter {
+                position,
+                sm_events_missed: u16::from_le_bytes([v[0], v[1]]),
+                read_ns: link.now_ns(),
+            }),
+            Ok(_) | Err(MasterError::SdoAbort { .. }) => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(out)
+}
+
 /// The recovery the driver runs next to the cyclic frames: one frame of it per cycle.
 struct RecoverySlot {
     net: Network,
     cfg: RecoveryConfig,
-    running: Option<Engine<Result<Recovered, MasterError>>>,
+    running: Option<Engine<JobResult>>,
+    /// The running procedure is a recovery (else a read of the drives' counters).
+    recovering: bool,
+    /// The drives whose counters are read, and when next.
+    sync_drives: Vec<(u16, u16, crate::bringup::MailboxInfo)>,
+    next_sync_read_ns: Option<u64>,
+    sync_counters: Vec<SyncCounter>,
     /// The frame out, its send timestamp and its sends so far.
     out: Option<(Vec<u8>, u64, u32)>,
     retry_at_ns: u64,
@@ -279,13 +329,24 @@ struct RecoverySlot {
 impl RecoverySlot {
     /// The recovery ended at `now` with `r`: logged, and the engine told what it did (or a
     /// retry planned).
-    fn finish<S: MasterSync>(
-        &mut self,
-        r: Result<Recovered, MasterError>,
-        now: u64,
-        eng: &mut CyclicEngine<S>,
-    ) {
+    fn finish<S: MasterSync>(&mut self, r: JobResult, now: u64, eng: &mut CyclicEngine<S>) {
         self.running = None;
+        let r = match r {
+            JobResult::Recovery(r) => r,
+            JobResult::SyncCounters(r) => {
+                // A failed read (a drive gone) is the cyclic phase's to notice; the next read
+                // comes at its time.
+                if let Ok(v) = r {
+                    for c in v {
+                        match self.sync_counters.iter_mut().find(|x| x.position == c.position) {
+                            Some(x) => *x = c,
+                            None => self.sync_counters.push(c),
+                        }
+                    }
+                }
+                return;
+            }
+        };
         if let Some(ev) = self.log.last_mut() {
             ev.ended_ns = Some(now);
             ev.outcome = Some(r.clone().map_err(|e| e.to_string()));
@@ -388,10 +449,24 @@ impl CyclicDriver {
     /// configuration ([`crate::cyclic::Health::needs_recovery`]): a [`recover`] procedure runs
     /// one frame per cycle after the cyclic frames, while the cycle goes on for the rest.
     pub fn set_recovery(&mut self, net: Network, cfg: RecoveryConfig) {
+        let sync_drives = net
+            .slaves
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.dc == crate::bringup::DcCapability::SystemTime)
+            .filter_map(|(k, s)| {
+                let m = s.mailbox.filter(|m| m.coe())?;
+                Some((k as u16, s.station, m))
+            })
+            .collect();
         self.recovery = Some(RecoverySlot {
             net,
             cfg,
             running: None,
+            recovering: false,
+            sync_drives,
+            next_sync_read_ns: None,
+            sync_counters: Vec::new(),
             out: None,
             retry_at_ns: 0,
             log: Vec::new(),
@@ -450,6 +525,17 @@ impl CyclicDriver {
         Ok(())
     }
 
+    /// The drives' SM-event-missed counters as last read (see
+    /// [`CyclicLimits::sync_counters_every_ns`]), in network order.
+    pub fn sync_counters(&self) -> Vec<SyncCounter> {
+        let mut v = self
+            .recovery
+            .as_ref()
+            .map_or_else(Vec::new, |r| r.sync_counters.clone());
+        v.sort_by_key(|c| c.position);
+        v
+    }
+
     /// The recoveries so far.
     pub fn recoveries(&self) -> &[RecoveryEvent] {
         self.recovery.as_ref().map_or(&[], |r| &r.log[..])
@@ -506,7 +592,11 @@ impl CyclicDriver {
             let n = eng.frame_count();
             let len = eng.frame_len();
             let mut sent_ns = 0;
-            eng.set_recovery_running(self.recovery.as_ref().is_some_and(|r| r.running.is_some()));
+            eng.set_recovery_running(
+                self.recovery
+                    .as_ref()
+                    .is_some_and(|r| r.running.is_some() && r.recovering),
+            );
             for k in 0..n {
                 let len = eng.frame_len_of(k);
                 let at = tr.send_time_ns(len);
@@ -522,12 +612,30 @@ impl CyclicDriver {
                 let now = tr.now_ns();
                 if rs.running.is_none() && eng.health().needs_recovery && now >= rs.retry_at_ns {
                     let (net, cfg) = (rs.net.clone(), rs.cfg);
-                    rs.running = Some(Engine::new(move |link| recover(link, net, cfg)));
+                    rs.running = Some(Engine::new(move |link| async move {
+                        JobResult::Recovery(recover(link, net, cfg).await)
+                    }));
+                    rs.recovering = true;
                     rs.log.push(RecoveryEvent {
                         started_ns: now,
                         ended_ns: None,
                         outcome: None,
                     });
+                }
+                if let Some(every) = self.limits.sync_counters_every_ns
+                    && rs.running.is_none()
+                    && !eng.health().needs_recovery
+                    && !rs.sync_drives.is_empty()
+                {
+                    let due = *rs.next_sync_read_ns.get_or_insert(now.saturating_add(every));
+                    if now >= due {
+                        rs.next_sync_read_ns = Some(now.saturating_add(every));
+                        let drives = rs.sync_drives.clone();
+                        rs.running = Some(Engine::new(move |link| async move {
+                            JobResult::SyncCounters(read_sync_counters(link, drives).await)
+                        }));
+                        rs.recovering = false;
+                    }
                 }
                 if rs.out.is_none()
                     && let Some(e) = rs.running.as_mut()

@@ -513,4 +513,91 @@ mod sync_mode_tests {
         put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
         assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
     }
+
+    /// An SDO upload of `index:sub` at `t_ps`, its answer read 1 ms later: the data bytes of
+    /// an expedited answer.
+    fn upload(e: &mut super::Esc, index: u16, sub: u8, counter: u8, t_ps: u64) -> Vec<u8> {
+        let [lo, hi] = index.to_le_bytes();
+        let mut m = vec![10, 0, 0, 0, 0, 0x03 | (counter << 4), 0x00, 0x20, 0x40, lo, hi, sub];
+        m.resize(128, 0);
+        put(e, 0x1000, &m, t_ps);
+        let mut d = dg(Command::Brd, 0, 0x1080, &[0; 128]);
+        e.process_datagram(&mut d, t_ps + 1_000_000_000);
+        assert_eq!(d[10 + 8] & 0xe0, 0x40, "upload answered: {:02x?}", &d[10..26]);
+        d[10 + 12..10 + 16].to_vec()
+    }
+
+    /// Outputs written by hand against SYNC0 at 10 ms + k ms (shift 0 here): on time, late,
+    /// none; 0x1C32:0B read over CoE counts the pulses without new outputs, worked out by hand.
+    #[test]
+    fn sm_events_missed_counts_sync0_pulses_without_new_outputs() {
+        let mut e = safe_op(2, true);
+        put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
+        assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08, "OP");
+        assert!(e.runs_on_sync0());
+        // The DC system time is the local time here (no offset written): pulses at 10 ms +
+        // k ms of local time, local time = real time for the default crystal.
+        let local = |t_ps: u64| e.dc().unwrap().system_time_split(t_ps).0;
+        // 20 ms, ps (within the process data watchdog's 100 ms after OP at 3 ms).
+        let t0 = 20_000_000_000u64;
+        let base = local(t0);
+        let pulse_k = (base - 10_000_000) / 1_000_000 + 1; // the first pulse after t0
+        let pulse_ns = |k: u64| 10_000_000 + k * 1_000_000;
+        // Real time (ps) at which the frame end is `before_ns` before pulse k.
+        let at = |k: u64, before_ns: i64| {
+            t0 + ((pulse_ns(k) as i64 - before_ns - base as i64) * 1000) as u64
+        };
+        let write = |e: &mut super::Esc, t_ps: u64| put(e, 0x1100, &[0u8; 16], t_ps);
+        let mut k = pulse_k + 1;
+        for _ in 0..5 {
+            write(&mut e, at(k, 100_000));
+            k += 1;
+        }
+        assert_eq!(e.sm_events_missed(), 0);
+        // Late (20 us after its pulse), then on time: one missed.
+        write(&mut e, at(k, -20_000));
+        k += 1;
+        write(&mut e, at(k, 100_000));
+        k += 1;
+        assert_eq!(e.sm_events_missed(), 1);
+        // Two cycles without outputs: two missed.
+        k += 2;
+        write(&mut e, at(k, 100_000));
+        assert_eq!(e.sm_events_missed(), 3);
+        let v = upload(&mut e, 0x1c32, 0x0b, 2, at(k, 50_000));
+        assert_eq!(u16::from_le_bytes([v[0], v[1]]), 3);
+        // 0x002C: SYNC0 switched off under a drive running on it in OP.
+        put(&mut e, 0x0981, &[0x00], at(k + 2, 0));
+        let st = get(&mut e, 0x0130, 6, at(k + 2, 0));
+        assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x002c));
+    }
+
+    /// Past 0x10F1:02 (written over CoE) the drive leaves OP with 0x001A.
+    #[test]
+    fn past_the_sync_error_limit_the_drive_leaves_op_with_0x001a() {
+        let mut e = safe_op(2, true);
+        // 0x10F1:02 = 4 (SSC's default), an expedited download of 2 bytes.
+        let mut m = vec![10, 0, 0, 0, 0, 0x23, 0x00, 0x20, 0x2b, 0xf1, 0x10, 0x02, 4, 0];
+        m.resize(128, 0);
+        put(&mut e, 0x1000, &m, 2_500_000_000);
+        let mut d = dg(Command::Brd, 0, 0x1080, &[0; 128]);
+        e.process_datagram(&mut d, 2_800_000_000);
+        assert_eq!(d[10 + 8], 0x60, "download answered");
+        put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
+        let ms = 1_000_000_000u64; // 1 ms, ps
+        let t0 = 3_000_000_000u64 + ms / 2;
+        let write = |e: &mut super::Esc, t_ps: u64| put(e, 0x1100, &[0u8; 16], t_ps);
+        // Frames every ms (SYNC0 from 10 ms on), one cycle left out: 3 up, 1 down per SM
+        // event: 2.
+        for k in 0..10 {
+            write(&mut e, t0 + k * ms);
+        }
+        write(&mut e, t0 + 11 * ms);
+        assert_eq!(get(&mut e, 0x0130, 2, t0 + 11 * ms)[0], 0x08, "still OP");
+        // Another one soon after: 2 + 3 > 4.
+        write(&mut e, t0 + 13 * ms);
+        let st = get(&mut e, 0x0130, 6, t0 + 13 * ms);
+        assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x001a));
+        assert_eq!(e.sm_events_missed(), 2);
+    }
 }
