@@ -37,6 +37,21 @@ impl<'a> SdoClient<'a> {
         }
     }
 
+    /// The client of the slave at `station` going on from the mailbox counter `counter` of
+    /// the last message sent to it (a slave ignores a message with its last one's counter as
+    /// a repeat: ETG.1000.4, the mailbox counter; a master keeps it per slave).
+    pub fn going_on_from(link: &'a Link, station: u16, mbx: MailboxInfo, counter: u8) -> Self {
+        SdoClient {
+            counter,
+            ..SdoClient::new(link, station, mbx)
+        }
+    }
+
+    /// The counter of the last message sent.
+    pub fn counter(&self) -> u8 {
+        self.counter
+    }
+
     fn next_counter(&mut self) -> u8 {
         self.counter = if self.counter >= 7 {
             1

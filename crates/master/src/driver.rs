@@ -284,29 +284,42 @@ pub struct SyncCounter {
 /// What the acyclic slot's procedure gives.
 enum JobResult {
     Recovery(Result<Recovered, MasterError>),
-    SyncCounters(Result<Vec<SyncCounter>, MasterError>),
+    /// The counters read, and each drive's mailbox counter after.
+    SyncCounters(Result<Vec<SyncCounter>, MasterError>, Vec<u8>),
 }
 
 /// Reads 0x1C32:0B of each drive of `drives` (position, station, mailbox), one after the
 /// other; a drive without the object is left out.
-async fn read_sync_counters(
-    link: crate::io::Link,
-    drives: Vec<(u16, u16, crate::bringup::MailboxInfo)>,
-) -> Result<Vec<SyncCounter>, MasterError> {
+async fn read_sync_counters(link: crate::io::Link, drives: Vec<SyncDrive>) -> JobResult {
     let mut out = Vec::with_capacity(drives.len());
-    for (position, station, m) in drives {
-        let mut c = crate::coe::SdoClient::new(&link, station, m);
-        match c.upload(0x1c32, 0x0b).await {
+    let mut counters: Vec<u8> = drives.iter().map(|d| d.counter).collect();
+    for (k, d) in drives.iter().enumerate() {
+        let mut c = crate::coe::SdoClient::going_on_from(&link, d.station, d.mailbox, d.counter);
+        let r = c.upload(0x1c32, 0x0b).await;
+        counters[k] = c.counter();
+        match r {
             Ok(v) if v.len() >= 2 => out.push(SyncCounter {
-                position,
+                position: d.position,
                 sm_events_missed: u16::from_le_bytes([v[0], v[1]]),
                 read_ns: link.now_ns(),
             }),
             Ok(_) | Err(MasterError::SdoAbort { .. }) => {}
-            Err(e) => return Err(e),
+            Err(e) => return JobResult::SyncCounters(Err(e), counters),
         }
     }
-    Ok(out)
+    JobResult::SyncCounters(Ok(out), counters)
+}
+
+/// A drive whose counter is read.
+#[derive(Debug, Clone, Copy)]
+struct SyncDrive {
+    position: u16,
+    station: u16,
+    mailbox: crate::bringup::MailboxInfo,
+    /// The mailbox counter of the last message this driver sent it. The bring-up's last
+    /// (configuring the sync mode) were 1 to 3; 0 here: the first read goes out with 1, and
+    /// a drive that took three messages before does not take it for a repeat.
+    counter: u8,
 }
 
 /// The recovery the driver runs next to the cyclic frames: one frame of it per cycle.
@@ -317,7 +330,7 @@ struct RecoverySlot {
     /// The running procedure is a recovery (else a read of the drives' counters).
     recovering: bool,
     /// The drives whose counters are read, and when next.
-    sync_drives: Vec<(u16, u16, crate::bringup::MailboxInfo)>,
+    sync_drives: Vec<SyncDrive>,
     next_sync_read_ns: Option<u64>,
     sync_counters: Vec<SyncCounter>,
     /// The frame out, its send timestamp and its sends so far.
@@ -333,7 +346,10 @@ impl RecoverySlot {
         self.running = None;
         let r = match r {
             JobResult::Recovery(r) => r,
-            JobResult::SyncCounters(r) => {
+            JobResult::SyncCounters(r, counters) => {
+                for (d, c) in self.sync_drives.iter_mut().zip(counters) {
+                    d.counter = c;
+                }
                 // A failed read (a drive gone) is the cyclic phase's to notice; the next read
                 // comes at its time.
                 if let Ok(v) = r {
@@ -456,7 +472,12 @@ impl CyclicDriver {
             .filter(|(_, s)| s.dc == crate::bringup::DcCapability::SystemTime)
             .filter_map(|(k, s)| {
                 let m = s.mailbox.filter(|m| m.coe())?;
-                Some((k as u16, s.station, m))
+                Some(SyncDrive {
+                    position: k as u16,
+                    station: s.station,
+                    mailbox: m,
+                    counter: 0,
+                })
             })
             .collect();
         self.recovery = Some(RecoverySlot {
@@ -631,9 +652,7 @@ impl CyclicDriver {
                     if now >= due {
                         rs.next_sync_read_ns = Some(now.saturating_add(every));
                         let drives = rs.sync_drives.clone();
-                        rs.running = Some(Engine::new(move |link| async move {
-                            JobResult::SyncCounters(read_sync_counters(link, drives).await)
-                        }));
+                        rs.running = Some(Engine::new(move |link| read_sync_counters(link, drives)));
                         rs.recovering = false;
                     }
                 }

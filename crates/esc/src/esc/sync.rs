@@ -230,6 +230,15 @@ impl Esc {
         }
     }
 
+    /// The drive's sync error counter limit (0x10F1:02) as its firmware keeps it (a device
+    /// configured so before it is powered, as a master's startup SDO would): 0 counts only.
+    pub fn set_sync_error_limit(&mut self, limit: u16) {
+        if let Some(c) = self.sdo_server_mut() {
+            c.od.set(0x10f1, 2, &limit.to_le_bytes());
+        }
+        self.sync_settings_changed();
+    }
+
     /// Whether the application runs on SYNC0 (set to DC SYNC0 mode over CoE, 0x1C32:01 = 2).
     pub fn runs_on_sync0(&self) -> bool {
         self.sync.dc_mode

@@ -1,0 +1,173 @@
+//! Issue 13, acceptance 3, in virtual time with the master's own cyclic driver: frames sent
+//! after the drives' SYNC0 in chosen cycles, and cycles the host skipped, make every drive
+//! count exactly the SYNC0 pulses that found no new outputs (worked out by hand below) in
+//! 0x1C32:0B; the master reads the counter over CoE in the cyclic phase and gets that count.
+//! Past a configured sync error limit (0x10F1:02) the drives leave OP with 0x001A, and the
+//! master reports it and brings them back.
+
+use ecsync_dc::MedianSync;
+use ecsync_esc::{Segment, preset};
+use ecsync_master::bringup::BringupTimeouts;
+use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
+use ecsync_master::driver::{CyclicDriver, CyclicLimits};
+use ecsync_master::recovery::RecoveryConfig;
+use ecsync_master::sim::SimTransport;
+use ecsync_master::transport::{Received, Transport};
+use ecsync_master::{BringupConfig, Engine, Stage, bringup};
+
+const PERIOD_NS: u64 = 1_000_000;
+const SHIFT_NS: u32 = 300_000;
+
+/// A host that wakes `extra_ns` late in chosen cycles (and on time otherwise).
+struct LateHost {
+    inner: SimTransport,
+    late: Vec<(u64, u64)>,
+    armed_ns: u64,
+}
+
+impl Transport for LateHost {
+    type Error = <SimTransport as Transport>::Error;
+
+    fn now_ns(&mut self) -> u64 {
+        self.inner.now_ns()
+    }
+
+    fn sleep_until(&mut self, t_ns: u64) {
+        let extra = std::mem::take(&mut self.armed_ns);
+        self.inner.sleep_until(t_ns + extra);
+    }
+
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at_ns: u64,
+        fill: F,
+    ) -> Result<u64, Self::Error> {
+        self.inner.send_with(len, at_ns, fill)
+    }
+
+    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Self::Error> {
+        self.inner.recv(buf, deadline_ns)
+    }
+
+    fn start_cycle(&mut self, cycle: u64) {
+        self.armed_ns = self
+            .late
+            .iter()
+            .find(|l| l.0 == cycle)
+            .map_or(0, |l| l.1);
+        self.inner.start_cycle(cycle);
+    }
+}
+
+#[test]
+fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
+    let mut sim = SimTransport::new(Segment::new(&preset::paper_2024()).unwrap());
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: 1_000,
+        lock_hold_checks: 50,
+        sync0_shift_ns: SHIFT_NS,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |l| bringup(l, cfg));
+    let net = sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
+    let drives: Vec<usize> = (0..sim.segment().len())
+        .filter(|&x| sim.segment().esc(x).runs_on_sync0())
+        .collect();
+    assert_eq!(drives.len(), 6, "every drive set to DC SYNC0 over CoE by the bring-up");
+    let cyc = CyclicConfig {
+        period_ns: PERIOD_NS as u32,
+        reference_station: net.slaves[usize::from(net.reference)].station,
+        pdi_len: net.pdi_len,
+        measure_init_frames: 2,
+        reference_offset_ns: 0,
+        lrw: net.lrw.clone(),
+    };
+    // Sent at the grid point: the frames pass the drives a few us after it, ~295 us before
+    // SYNC0.
+    let first = (sim.now_ns() / PERIOD_NS + 2) * PERIOD_NS;
+    let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+    // Worked out by hand, pulses at grid + 300 us:
+    // - cycle 100 sent 500 us late: after its SYNC0, before the next: 1 missed;
+    // - cycles 200 and 201 both 500 us late: 1 missed (pulse 201 takes cycle 200's outputs,
+    //   as far as the drive can tell);
+    // - cycle 300: the host 2.1 periods late: slots 300 and 301 skipped, cycle 302's frame
+    //   100 us after its grid point, before its SYNC0: pulses 300 and 301 found nothing: 2.
+    let expected_new = 1 + 1 + 2;
+    let mut tr = LateHost {
+        inner: sim,
+        late: vec![
+            (100, 500_000),
+            (200, 500_000),
+            (201, 500_000),
+            (300, 2 * PERIOD_NS + PERIOD_NS / 10),
+            // The second part: with the limit set, a host 2.1 periods late.
+            (800, 2 * PERIOD_NS + PERIOD_NS / 10),
+        ],
+        armed_ns: 0,
+    };
+    let mut driver = CyclicDriver::new(CyclicLimits {
+        max_cycles: Some(1_400),
+        sync_counters_every_ns: Some(100_000_000),
+        ..CyclicLimits::default()
+    });
+    driver.set_recovery(
+        net.clone(),
+        RecoveryConfig {
+            cycle_ns: PERIOD_NS as u32,
+            sync0_shift_ns: SHIFT_NS,
+            sync0_lead_ns: 20_000_000,
+            timeouts: BringupTimeouts::default(),
+            static_drift_frames: 1_000,
+        },
+    );
+    // The count after cycle 20 (the hand-over from the bring-up to the cyclic phase may have
+    // cost a pulse or two, counted as a drive would).
+    let mut base: Vec<u64> = Vec::new();
+    driver
+        .run(&mut tr, &mut eng, 700, None, |t, c| {
+            if c.record.cycle == 20 {
+                base = drives
+                    .iter()
+                    .map(|&x| t.inner.segment().esc(x).sm_events_missed())
+                    .collect();
+            }
+        })
+        .unwrap();
+    assert_eq!(base.len(), drives.len());
+    let reads = driver.sync_counters();
+    assert_eq!(reads.len(), drives.len(), "{reads:?}");
+    for (k, &x) in drives.iter().enumerate() {
+        let count = tr.inner.segment().esc(x).sm_events_missed();
+        assert_eq!(count - base[k], expected_new, "drive at {x}");
+        // The master's last read (after cycle 600) is the drive's count.
+        let r = reads.iter().find(|r| usize::from(r.position) == x).unwrap();
+        assert_eq!(u64::from(r.sm_events_missed), count, "drive at {x}: {r:?}");
+    }
+    assert!(driver.recoveries().is_empty(), "{:?}", driver.recoveries());
+
+    // Past the limit: SSC's default of 4; two pulses missed at once add 6.
+    for &x in &drives {
+        tr.inner.segment_mut().esc_mut(x).set_sync_error_limit(4);
+    }
+    driver.run(&mut tr, &mut eng, 700, None, |_, _| {}).unwrap();
+    let rec = driver.recoveries();
+    assert!(!rec.is_empty(), "the drives' sync error was not noticed");
+    let left: Vec<String> = rec.iter().flat_map(|e| e.left_op()).collect();
+    for &x in &drives {
+        let who = format!("slave {} in SAFE-OP with AL error 0x001a", x + 1);
+        assert!(
+            left.iter().any(|l| l.starts_with(&who)),
+            "drive at {x} not reported: {left:?}"
+        );
+    }
+    // Brought back: in OP again at the end.
+    for &x in &drives {
+        assert_eq!(
+            tr.inner.segment().esc(x).al_state(),
+            ecsync_wire::AlState::Op,
+            "drive at {x}"
+        );
+    }
+}
