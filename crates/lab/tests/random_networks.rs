@@ -199,3 +199,49 @@ fn power_cycles_are_recovered_on_twelve_random_networks() {
     }
     println!("slowest re-lock over the networks: {worst:.0} ms");
 }
+
+/// Issue 13, acceptance 3, on random networks: with a SYNC0 shift too small for the loaded
+/// host's jitter (4 %), every drive of every method counts in 0x1C32:0B exactly the SYNC0
+/// pulses the ground truth finds without new outputs at that drive (frames' last bits against
+/// the grid), and the last drive's count is the ground truth's; pulses missed never exceed the
+/// late frames (a late frame right after a late one is not another miss).
+#[test]
+fn drives_count_the_ground_truths_sync0_misses_on_eight_random_networks() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0x13_0b);
+    let mut missed_total = 0;
+    for k in 0..8 {
+        let n = rng.random_range(2..=16);
+        let text = network(&mut rng, n)
+            .replace("sync0_shift_pct = 30", "sync0_shift_pct = 4")
+            .replace("cycles = 12000", "cycles = 3000")
+            .replace(
+                "methods = [\"median\", \"median-fit\"]",
+                "methods = [\"median-fit\", \"pi-m2s\", \"bus-shift\", \"snap\"]",
+            );
+        let s = ecsync_lab::parse(&format!("net{k}.toml"), &text)
+            .unwrap_or_else(|e| panic!("network {k}: {e}\n{text}"));
+        let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0))
+            .unwrap_or_else(|e| panic!("network {k}: {e}\n{text}"));
+        let out = summarize(&c);
+        for (m, mo) in &out.methods {
+            let g = &mo.ground_truth;
+            let drives: Vec<_> = g
+                .per_slave
+                .iter()
+                .filter(|s| s.drive_sm_events_missed.is_some())
+                .collect();
+            assert_eq!(drives.len(), n - usize::from(text.contains("junction-mii")));
+            for s in &drives {
+                assert_eq!(
+                    s.drive_sm_events_missed,
+                    Some(s.sync0_missed),
+                    "network {k}, {m}, drive at {}\n{text}",
+                    s.position
+                );
+                assert!(s.sync0_missed <= s.late_frames, "network {k}, {m}");
+                missed_total += s.sync0_missed;
+            }
+        }
+    }
+    assert!(missed_total > 1_000, "the shift was not too small: {missed_total} missed");
+}
