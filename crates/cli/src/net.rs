@@ -874,10 +874,17 @@ fn print_run(o: &RunOut) {
             .iter()
             .map(|c| format!("{}: {}", c.position, c.sm_events_missed))
             .collect();
-        let total: u64 = o.sm_events_missed.iter().map(|c| u64::from(c.sm_events_missed)).sum();
+        let total: u64 = o
+            .sm_events_missed
+            .iter()
+            .map(|c| u64::from(c.sm_events_missed))
+            .sum();
         println!(
             "SM events missed (0x1C32:0B, the drives' own count of SYNC0 cycles without new outputs, read {:.1} s in){}: {}",
-            o.sm_events_missed.iter().map(|c| c.read_s).fold(0.0, f64::max),
+            o.sm_events_missed
+                .iter()
+                .map(|c| c.read_s)
+                .fold(0.0, f64::max),
             if total > 0 {
                 " -- SYNC0 came before the outputs: a SYNC0 shift too small for this host's jitter, or frames lost"
             } else {

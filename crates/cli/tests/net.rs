@@ -1480,12 +1480,13 @@ mod soem {
         assert_eq!(v["io_map"], 6 * 34);
         assert_eq!(v["op"], true, "every drive in OP");
         assert_eq!(v["wkc"], v["expected_wkc"]);
-        for (k, e) in v["echo"].as_array().unwrap().iter().enumerate() {
-            let b = (k + 1) as u64;
+        // Enabled through the CiA 402 state machine: operation enabled, following the
+        // target (statusword 0x1237), in cyclic synchronous position (8), at the target.
+        for (k, e) in v["drive_inputs"].as_array().unwrap().iter().enumerate() {
             assert_eq!(
                 e,
-                &serde_json::json!([b, b, b, b]),
-                "drive {k}: outputs echoed"
+                &serde_json::json!([0x1237, 8, 1000 * (k + 1)]),
+                "drive {k}: statusword, mode, position actual"
             );
         }
         assert_eq!(v["sm_event_missed"], serde_json::json!([0, 0, 0, 0, 0, 0]));

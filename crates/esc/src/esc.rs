@@ -24,6 +24,7 @@
 //! - [`sync`]: the drive's application in time (the SYNC0 deadline, SM events missed).
 
 mod al;
+mod cia402;
 mod datagram;
 mod mailbox;
 mod process_data;
@@ -86,7 +87,7 @@ pub struct Esc {
     output_sm: Option<usize>,
     input_sm: Option<usize>,
     app: Option<AppLayout>,
-    app_cycles: u16,
+    app_mem: process_data::AppMemory,
     stats: EscStats,
     device: DeviceInfo,
     /// Bumped by every change that could make a datagram act differently (register writes,
@@ -160,7 +161,7 @@ impl Esc {
             output_sm: None,
             input_sm: None,
             app: None,
-            app_cycles: 0,
+            app_mem: process_data::AppMemory::default(),
             stats: EscStats::default(),
             model,
             device,

@@ -355,6 +355,28 @@ fn run(
             let rx: u16 = sd.sdo_read(0x1c12, 1).await?;
             let tx: u16 = sd.sdo_read(0x1c13, 1).await?;
             assert_eq!((rx, tx), (0x1600, 0x1a00), "drive {i}: PDO assignment");
+            if i % 2 == 1 {
+                // Every other drive mapped anew, as ETG.1020 orders it (assignment cleared,
+                // mapping count 0, entries, count, assignment back): outputs target position,
+                // controlword, mode, padding (8 bytes); inputs position actual, statusword
+                // (6 bytes). ethercrab sizes the process image from the CoE mapping.
+                sd.sdo_write(0x1c12, 0, 0u8).await?;
+                sd.sdo_write(0x1600, 0, 0u8).await?;
+                for (s, v) in [0x607a_0020u32, 0x6040_0010, 0x6060_0008, 0x0000_0008]
+                    .into_iter()
+                    .enumerate()
+                {
+                    sd.sdo_write(0x1600, s as u8 + 1, v).await?;
+                }
+                sd.sdo_write(0x1600, 0, 4u8).await?;
+                sd.sdo_write(0x1c12, 0, 1u8).await?;
+                sd.sdo_write(0x1c13, 0, 0u8).await?;
+                sd.sdo_write(0x1a00, 0, 0u8).await?;
+                sd.sdo_write(0x1a00, 1, 0x6064_0020u32).await?;
+                sd.sdo_write(0x1a00, 2, 0x6041_0010u32).await?;
+                sd.sdo_write(0x1a00, 0, 2u8).await?;
+                sd.sdo_write(0x1c13, 0, 1u8).await?;
+            }
         }
         let modes: Vec<u32> = wire.query(move |s| {
             (0..n)
@@ -488,13 +510,29 @@ fn run(
             thread::sleep(r.extra.next_cycle_wait);
         }
         eprintln!("all OP after {cycles} cycles ({:?})", t_op.elapsed());
-        // Process data: the virtual drives echo their outputs after the statusword.
+        // Process data: the CiA 402 drives enabled (shutdown, switch on, enable operation)
+        // and moved in cyclic synchronous position, on the mapping each was given.
         let mut last_wkc = 0;
+        let target = |i: usize, k: u32| (i as i32 + 1) * 100_000 + 10 * k as i32;
         for k in 0..200u32 {
+            let cw: u16 = match k {
+                0..20 => 0x0006,
+                20..40 => 0x0007,
+                _ => 0x000f,
+            };
             for (i, sd) in group.iter(&maindevice).enumerate() {
                 let mut o = sd.outputs_raw_mut();
                 o.fill(0);
-                o[..4].copy_from_slice(&(k * 16 + i as u32).to_le_bytes());
+                let t = target(i, k).to_le_bytes();
+                if i % 2 == 1 {
+                    o[..4].copy_from_slice(&t);
+                    o[4..6].copy_from_slice(&cw.to_le_bytes());
+                    o[6] = 8;
+                } else {
+                    o[..2].copy_from_slice(&cw.to_le_bytes());
+                    o[2] = 8;
+                    o[4..8].copy_from_slice(&t);
+                }
             }
             let r = group.tx_rx_dc(&maindevice).await?;
             assert!(r.all_op());
@@ -504,15 +542,23 @@ fn run(
         assert_eq!(last_wkc, 3 * n as u16, "LRW: read + write on every drive");
         for (i, sd) in group.iter(&maindevice).enumerate() {
             let inp = sd.inputs_raw();
-            assert_eq!(inp.len(), 18);
-            let echoed = u32::from_le_bytes(inp[2..6].try_into().unwrap());
-            // The echo is one or two cycles old.
-            assert_eq!(
-                echoed % 16,
-                i as u32,
-                "drive {i}: inputs echo its own outputs"
+            let (len, status, position) = if i % 2 == 1 {
+                (6, u16::from_le_bytes([inp[4], inp[5]]), &inp[0..4])
+            } else {
+                (18, u16::from_le_bytes([inp[0], inp[1]]), &inp[4..8])
+            };
+            assert_eq!(inp.len(), len, "drive {i}: the inputs its mapping lays out");
+            assert_eq!(status, 0x1237, "drive {i}: operation enabled, following");
+            // The position actual is the target of the cycle before (one or two cycles old
+            // as ethercrab's frames meet the drive).
+            let p = i32::from_le_bytes(position.try_into().unwrap());
+            assert!(
+                p == target(i, 198) || p == target(i, 197),
+                "drive {i}: position actual {p}, targets {} / {}",
+                target(i, 198),
+                target(i, 197)
             );
-            assert!(echoed / 16 >= 197, "drive {i}: inputs are fresh ({echoed})");
+            assert_eq!(sd.outputs_raw().len(), if i % 2 == 1 { 8 } else { 16 });
         }
         // 0x092C stays locked while SYNC0 runs.
         let mut raws = vec![0u32; n];

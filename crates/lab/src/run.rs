@@ -1256,9 +1256,7 @@ impl Run {
                     if t < s { 0 } else { (t - s) / period + 1 }
                 };
                 if let Some(prev) = st.last_outputs_ns.replace(e.0) {
-                    st.sync0_missed += pulses(e.0)
-                        .saturating_sub(pulses(prev))
-                        .saturating_sub(1);
+                    st.sync0_missed += pulses(e.0).saturating_sub(pulses(prev)).saturating_sub(1);
                 }
                 let esc = seg.esc(x);
                 if esc.runs_on_sync0() {

@@ -243,5 +243,8 @@ fn drives_count_the_ground_truths_sync0_misses_on_eight_random_networks() {
             }
         }
     }
-    assert!(missed_total > 1_000, "the shift was not too small: {missed_total} missed");
+    assert!(
+        missed_total > 1_000,
+        "the shift was not too small: {missed_total} missed"
+    );
 }

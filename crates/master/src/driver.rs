@@ -354,7 +354,11 @@ impl RecoverySlot {
                 // comes at its time.
                 if let Ok(v) = r {
                     for c in v {
-                        match self.sync_counters.iter_mut().find(|x| x.position == c.position) {
+                        match self
+                            .sync_counters
+                            .iter_mut()
+                            .find(|x| x.position == c.position)
+                        {
                             Some(x) => *x = c,
                             None => self.sync_counters.push(c),
                         }
@@ -648,11 +652,14 @@ impl CyclicDriver {
                     && !eng.health().needs_recovery
                     && !rs.sync_drives.is_empty()
                 {
-                    let due = *rs.next_sync_read_ns.get_or_insert(now.saturating_add(every));
+                    let due = *rs
+                        .next_sync_read_ns
+                        .get_or_insert(now.saturating_add(every));
                     if now >= due {
                         rs.next_sync_read_ns = Some(now.saturating_add(every));
                         let drives = rs.sync_drives.clone();
-                        rs.running = Some(Engine::new(move |link| read_sync_counters(link, drives)));
+                        rs.running =
+                            Some(Engine::new(move |link| read_sync_counters(link, drives)));
                         rs.recovering = false;
                     }
                 }

@@ -46,16 +46,16 @@ impl Transport for LateHost {
         self.inner.send_with(len, at_ns, fill)
     }
 
-    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Self::Error> {
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline_ns: u64,
+    ) -> Result<Option<Received>, Self::Error> {
         self.inner.recv(buf, deadline_ns)
     }
 
     fn start_cycle(&mut self, cycle: u64) {
-        self.armed_ns = self
-            .late
-            .iter()
-            .find(|l| l.0 == cycle)
-            .map_or(0, |l| l.1);
+        self.armed_ns = self.late.iter().find(|l| l.0 == cycle).map_or(0, |l| l.1);
         self.inner.start_cycle(cycle);
     }
 }
@@ -75,7 +75,11 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
     let drives: Vec<usize> = (0..sim.segment().len())
         .filter(|&x| sim.segment().esc(x).runs_on_sync0())
         .collect();
-    assert_eq!(drives.len(), 6, "every drive set to DC SYNC0 over CoE by the bring-up");
+    assert_eq!(
+        drives.len(),
+        6,
+        "every drive set to DC SYNC0 over CoE by the bring-up"
+    );
     let cyc = CyclicConfig {
         period_ns: PERIOD_NS as u32,
         reference_station: net.slaves[usize::from(net.reference)].station,

@@ -1,6 +1,7 @@
 """SOEM (through pysoem) against `ecsync serve`: the scan, CoE reads, SDO Information, the
 mapping and OP, as `slaveinfo -sdo` and SOEM's simple_test do them. Prints one JSON object."""
 import json
+import struct
 import sys
 import time
 
@@ -44,14 +45,18 @@ while time.monotonic() - t0 < 5.0:
 m.read_state()
 out["op"] = all(s.state == pysoem.OP_STATE for s in m.slaves)
 out["wkc"] = wkc
-# Outputs echoed after the statusword, as the virtual drives do.
-for k, s in enumerate(m.slaves):
-    s.output = bytes([k + 1] * len(s.output))
-for _ in range(20):
+# The CiA 402 drives: shutdown, switch on, enable operation (controlword 0x6040), cyclic
+# synchronous position (0x6060 = 8) to a target position of 1000 x (k + 1) counts (0x607A),
+# as the default mapping lays them out (controlword, mode, padding, target position, ...).
+for c in range(30):
+    cw = 0x0006 if c < 5 else 0x0007 if c < 10 else 0x000F
+    for k, s in enumerate(m.slaves):
+        s.output = struct.pack("<HBxiihh", cw, 8, 1000 * (k + 1), 0, 0, 0)
     m.send_processdata()
     wkc = m.receive_processdata(2_000)
     time.sleep(0.001)
-out["echo"] = [list(s.input[2:6]) for s in m.slaves]
+# Statusword, modes display, position actual (0x6041, 0x6061, 0x6064).
+out["drive_inputs"] = [list(struct.unpack_from("<HBxi", bytes(s.input))) for s in m.slaves]
 out["sm_event_missed"] = [u(s.sdo_read(0x1C32, 0x0B)) for s in m.slaves]
 m.state = pysoem.INIT_STATE
 m.write_state()

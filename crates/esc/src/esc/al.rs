@@ -114,6 +114,28 @@ impl Esc {
         }
     }
 
+    /// Bytes of outputs and inputs: as the PDO assignment in the object dictionary lays them
+    /// (the master may have mapped other PDOs in PRE-OP), else as the SII describes them.
+    fn mapped_bytes(&self) -> (u16, u16) {
+        match self.sdo_server() {
+            Some(c) => {
+                let bytes = |assign: u16| {
+                    let bits: usize =
+                        c.od.assigned_entries(assign)
+                            .iter()
+                            .map(|e| usize::from(e.2))
+                            .sum();
+                    bits.div_ceil(8) as u16
+                };
+                (bytes(0x1c12), bytes(0x1c13))
+            }
+            None => (
+                self.device.output_bytes() as u16,
+                self.device.input_bytes() as u16,
+            ),
+        }
+    }
+
     /// The drive is set to DC SYNC0 over CoE and its SYNC0 does not run.
     fn waits_for_sync0_in_vain(&self) -> bool {
         let dc_mode = self
@@ -146,8 +168,7 @@ impl Esc {
     /// PRE-OP -> SAFE-OP: the process data SyncManagers must be configured as the SII describes
     /// (the application's check; a wrong length gives "invalid output/input configuration").
     fn check_process_data_config(&mut self) -> Result<(), AlStatusCode> {
-        let out_len = self.device.output_bytes() as u16;
-        let in_len = self.device.input_bytes() as u16;
+        let (out_len, in_len) = self.mapped_bytes();
         let (out_start, in_start) = self.device.process_data_starts();
         let out = if out_len > 0 {
             let i = self

@@ -518,12 +518,30 @@ mod sync_mode_tests {
     /// an expedited answer.
     fn upload(e: &mut super::Esc, index: u16, sub: u8, counter: u8, t_ps: u64) -> Vec<u8> {
         let [lo, hi] = index.to_le_bytes();
-        let mut m = vec![10, 0, 0, 0, 0, 0x03 | (counter << 4), 0x00, 0x20, 0x40, lo, hi, sub];
+        let mut m = vec![
+            10,
+            0,
+            0,
+            0,
+            0,
+            0x03 | (counter << 4),
+            0x00,
+            0x20,
+            0x40,
+            lo,
+            hi,
+            sub,
+        ];
         m.resize(128, 0);
         put(e, 0x1000, &m, t_ps);
         let mut d = dg(Command::Brd, 0, 0x1080, &[0; 128]);
         e.process_datagram(&mut d, t_ps + 1_000_000_000);
-        assert_eq!(d[10 + 8] & 0xe0, 0x40, "upload answered: {:02x?}", &d[10..26]);
+        assert_eq!(
+            d[10 + 8] & 0xe0,
+            0x40,
+            "upload answered: {:02x?}",
+            &d[10..26]
+        );
         d[10 + 12..10 + 16].to_vec()
     }
 
@@ -577,7 +595,9 @@ mod sync_mode_tests {
     fn past_the_sync_error_limit_the_drive_leaves_op_with_0x001a() {
         let mut e = safe_op(2, true);
         // 0x10F1:02 = 4 (SSC's default), an expedited download of 2 bytes.
-        let mut m = vec![10, 0, 0, 0, 0, 0x23, 0x00, 0x20, 0x2b, 0xf1, 0x10, 0x02, 4, 0];
+        let mut m = vec![
+            10, 0, 0, 0, 0, 0x23, 0x00, 0x20, 0x2b, 0xf1, 0x10, 0x02, 4, 0,
+        ];
         m.resize(128, 0);
         put(&mut e, 0x1000, &m, 2_500_000_000);
         let mut d = dg(Command::Brd, 0, 0x1080, &[0; 128]);

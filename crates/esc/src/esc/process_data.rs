@@ -5,6 +5,7 @@
 //! The FMMU and SyncManager registers are decoded through the wire crate's views when they are
 //! written; the datagram path then works on the decoded copies below.
 
+use super::cia402::{self, DriveMemory, DrivePlan};
 use super::datagram::{Act, LogicalOp};
 use super::registers::REG_SPACE;
 use super::{Esc, FMMUS, SMS};
@@ -51,6 +52,17 @@ pub(super) struct AppLayout {
     ob: usize,
     n: usize,
     tail: usize,
+    /// A CiA 402 drive's objects where its mapping puts them (else the loopback runs).
+    drive: Option<DrivePlan>,
+}
+
+/// What the application keeps between cycles.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(super) struct AppMemory {
+    /// The loopback's cycle counter.
+    cycles: u16,
+    /// The drive's state and position.
+    drive: DriveMemory,
 }
 
 /// Copies a few dozen bytes without a call into `memcpy`: the process data of one slave in the
@@ -83,15 +95,15 @@ pub(super) fn copy_small(dst: &mut [u8], src: &[u8]) {
     }
 }
 
-/// The application (a loopback device): statusword, then the outputs echoed, then a cycle
-/// counter, laid out as `l` says.
+/// The application, laid out as `l` says: a CiA 402 drive on its mapping, or a loopback
+/// device (statusword, then the outputs echoed, then a cycle counter).
 #[inline(always)]
-pub(super) fn refresh_inputs(
-    ram: &mut [u8],
-    l: AppLayout,
-    al_state: AlState,
-    app_cycles: &mut u16,
-) {
+pub(super) fn refresh_inputs(ram: &mut [u8], l: AppLayout, al_state: AlState, mem: &mut AppMemory) {
+    if let Some(p) = &l.drive {
+        cia402::step(ram, p, al_state, &mut mem.drive);
+        return;
+    }
+    let app_cycles = &mut mem.cycles;
     let status: u16 = if al_state == AlState::Op {
         STATUS_OP
     } else {
@@ -202,7 +214,7 @@ impl Esc {
     #[inline(always)]
     pub(super) fn app_refresh_inputs(&mut self) {
         if let Some(l) = self.app {
-            refresh_inputs(&mut self.ram, l, self.al_state, &mut self.app_cycles);
+            refresh_inputs(&mut self.ram, l, self.al_state, &mut self.app_mem);
             return;
         }
         self.app_refresh_slow();
@@ -232,11 +244,26 @@ impl Esc {
             }
             None => (0, 0),
         };
+        let drive = self.sdo_server().and_then(|c| {
+            let (ob, ib) = (
+                self.output_sm
+                    .map_or(0, |o| usize::from(self.sms[o].start) - REG_SPACE),
+                ib,
+            );
+            DrivePlan::new(
+                &c.od.assigned_entries(0x1c12),
+                &c.od.assigned_entries(0x1c13),
+                ob,
+                ib,
+                c.od.read_u32(0x1c32, 2),
+            )
+        });
         Some(AppLayout {
             ib,
             ob,
             n,
             tail: ib + ilen - 2,
+            drive,
         })
     }
 
@@ -270,10 +297,10 @@ impl Esc {
                 self.ram.copy_within(ob..ob + n, ib + 2);
             }
         }
-        self.app_cycles = self.app_cycles.wrapping_add(1);
+        self.app_mem.cycles = self.app_mem.cycles.wrapping_add(1);
         let tail = ib + ilen - 2;
         if tail >= ib + 2 {
-            self.ram[tail..tail + 2].copy_from_slice(&self.app_cycles.to_le_bytes());
+            self.ram[tail..tail + 2].copy_from_slice(&self.app_mem.cycles.to_le_bytes());
         }
     }
 

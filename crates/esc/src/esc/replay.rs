@@ -694,7 +694,7 @@ impl Esc {
             ram,
             app,
             al_state,
-            app_cycles,
+            app_mem,
             wd_last_write_ps,
             sync_pending,
             ..
@@ -708,7 +708,7 @@ impl Esc {
                 ram,
                 app.as_ref(),
                 *al_state,
-                app_cycles,
+                app_mem,
                 frame,
                 t_ps,
                 d,
@@ -733,7 +733,7 @@ impl Esc {
         }
         sys_access(dc, frame, &c.sys, t_ps);
         lrw_in(ram, frame, &c.lrw);
-        refresh_inputs(ram, *app, *al_state, app_cycles);
+        refresh_inputs(ram, *app, *al_state, app_mem);
         lrw_out(frame, ram, &c.lrw);
         diff_access(dc, frame, &c.diff);
         d.sys = d.sys.wrapping_add(c.sys.inc);
@@ -754,7 +754,7 @@ fn replay_simple(
     ram: &mut [u8],
     app: Option<&AppLayout>,
     al_state: AlState,
-    app_cycles: &mut u16,
+    app_mem: &mut super::process_data::AppMemory,
     frame: &mut [u8],
     t_ps: u64,
     d: &mut Deferred,
@@ -787,7 +787,7 @@ fn replay_simple(
         }
         Simple::Lrw(l) => {
             lrw_in(ram, frame, l);
-            refresh_inputs(ram, *app, al_state, app_cycles);
+            refresh_inputs(ram, *app, al_state, app_mem);
             lrw_out(frame, ram, l);
             d.lrw = d.lrw.wrapping_add(l.inc);
         }
@@ -796,7 +796,7 @@ fn replay_simple(
             d.lrw = d.lrw.wrapping_add(c.inc);
         }
         Simple::Read(c) => {
-            refresh_inputs(ram, *app, al_state, app_cycles);
+            refresh_inputs(ram, *app, al_state, app_mem);
             copy_out(frame, ram, c);
             d.lrw = d.lrw.wrapping_add(c.inc);
         }

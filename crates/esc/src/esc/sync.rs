@@ -70,7 +70,11 @@ pub(super) enum SyncReaction {
 /// The number of pulses at `start + k * cycle` (k >= 0) at or before `t` (`cycle` > 0).
 #[inline]
 fn pulses_through(t: u64, start: u64, cycle: u64) -> u64 {
-    if t < start { 0 } else { (t - start) / cycle + 1 }
+    if t < start {
+        0
+    } else {
+        (t - start) / cycle + 1
+    }
 }
 
 impl SyncMonitor {
@@ -92,7 +96,8 @@ impl SyncMonitor {
             return SyncReaction::None;
         };
         let cycle = u64::from(cycle);
-        let n = pulses_through(t_ns, start, cycle).saturating_sub(pulses_through(last, start, cycle));
+        let n =
+            pulses_through(t_ns, start, cycle).saturating_sub(pulses_through(last, start, cycle));
         let missed_now = n.saturating_sub(1);
         let new = missed_now.saturating_sub(self.counted_since_write);
         self.counted_since_write = 0;
@@ -109,7 +114,8 @@ impl SyncMonitor {
             return;
         }
         let cycle = u64::from(cycle);
-        let n = pulses_through(t_ns, start, cycle).saturating_sub(pulses_through(last, start, cycle));
+        let n =
+            pulses_through(t_ns, start, cycle).saturating_sub(pulses_through(last, start, cycle));
         let missed_now = n.saturating_sub(1);
         let new = missed_now.saturating_sub(self.counted_since_write);
         if new > 0 {
