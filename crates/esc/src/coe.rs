@@ -591,6 +591,18 @@ impl ObjectDictionary {
         }
         out
     }
+
+    /// Adds `object`, in index order, in place of one with the same index (a device
+    /// description's own objects over the communication objects [`Self::for_device`] makes).
+    pub fn insert(&mut self, object: Object) {
+        match self
+            .objects
+            .binary_search_by_key(&object.index, |o| o.index)
+        {
+            Ok(i) => self.objects[i] = object,
+            Err(i) => self.objects.insert(i, object),
+        }
+    }
 }
 
 fn o_max_sub(o: Option<&Object>) -> u8 {

@@ -179,7 +179,6 @@ impl Esc {
     /// message to the application, a read of the in buffer's last byte empties it.
     pub(super) fn mailbox_accessed(&mut self, hi: usize, write: bool, t_ps: u64) {
         let state = self.al_state;
-        let station = self.station_address();
         let Some(m) = self.mbx.as_deref_mut() else {
             return;
         };
@@ -200,7 +199,7 @@ impl Esc {
         m.out_full = true;
         let request = self.ram[buffer_in_ram(self.ram.len(), b)].to_vec();
         let room = usize::from(m.layout.in_len).saturating_sub(MAILBOX_HEADER_LEN);
-        let answer = answer(m, &request, state, station, room);
+        let answer = answer(m, &request, state, room);
         match answer {
             Some(msg) => {
                 let ready = t_ps.saturating_add(m.layout.response_ns.saturating_mul(1000));
@@ -241,13 +240,18 @@ fn put_in_buffer(ram: &mut [u8], b: super::process_data::SmBuffer, msg: &[u8]) {
     buf[..k].copy_from_slice(&msg[..k]);
 }
 
+/// The address in the header of the slave's answers: 0, the master's. ETG.1000.4 (table 29)
+/// has the address of the source where the master is the client, and real devices answer
+/// with 0 whatever their station address: the EL3004 and EK1914 (ethercrab's captures) and the
+/// Kollmorgen AKD (SOEM's), all in ../shared/captures/ (tests/captures_mailbox.rs).
+const ANSWER_ADDRESS: u16 = 0;
+
 /// The whole answer message (header and data) to the master's message `request` (the buffer),
 /// or `None` for one that gets no answer.
 fn answer(
     m: &mut MailboxState,
     request: &[u8],
     state: ecsync_wire::AlState,
-    station: u16,
     room: usize,
 ) -> Option<Vec<u8>> {
     let next_counter = |m: &mut MailboxState| {
@@ -261,7 +265,7 @@ fn answer(
     let error = |m: &mut MailboxState, code: MailboxErrorCode| {
         let mut out = vec![0u8; MAILBOX_HEADER_LEN + ecsync_wire::mailbox::MAILBOX_ERROR_LEN];
         let c = next_counter(m);
-        let _ = emit_mailbox_error(&mut out, station, c, code);
+        let _ = emit_mailbox_error(&mut out, ANSWER_ADDRESS, c, code);
         Some(out)
     };
     let Ok(msg) = Mailbox::new_checked(request) else {
@@ -293,7 +297,7 @@ fn answer(
     let c = next_counter(m);
     Mailbox::new_unchecked(&mut out[..]).set_header(&MailboxRepr {
         length: coe.len() as u16,
-        address: station,
+        address: ANSWER_ADDRESS,
         channel: 0,
         priority: 0,
         mailbox_type: MailboxType::Coe,
@@ -345,6 +349,8 @@ mod tests {
     #[test]
     fn an_sdo_upload_goes_through_sm0_and_comes_back_on_sm1() {
         let mut e = drive();
+        // A station address: the answers' header still carries 0, as real devices' do.
+        assert_eq!(put(&mut e, 0x0010, &[0x01, 0x10], 0), 1);
         // PRE-OP before the mailbox is set up: 0x0016.
         assert_eq!(put(&mut e, 0x0120, &[0x02, 0], 0), 1);
         let (_, st) = get(&mut e, 0x0130, 6, 0);
