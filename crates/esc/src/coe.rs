@@ -15,7 +15,9 @@
 //! as 16 bits), and the aborts a real drive gives: object or subindex missing, length wrong,
 //! read-only, written outside PRE-OP, subindex 0 not 0 while a mapping is written, toggle bit
 //! not alternated, unknown command. SDO Information: the OD list, object and entry
-//! descriptions, so `slaveinfo -sdo` lists the dictionary.
+//! descriptions, so `slaveinfo -sdo` lists the dictionary; an OD list longer than the mailbox
+//! goes in fragments, the fragments left counting down (a drive's dictionary of hundreds of
+//! objects needs several).
 //!
 //! Allocation happens here (a mailbox message is not on the cyclic path).
 
@@ -616,6 +618,18 @@ impl ObjectDictionary {
         }
         out
     }
+
+    /// Adds `object`, in index order, in place of one with the same index (a device
+    /// description's own objects over the communication objects [`Self::for_device`] makes).
+    pub fn insert(&mut self, object: Object) {
+        match self
+            .objects
+            .binary_search_by_key(&object.index, |o| o.index)
+        {
+            Ok(i) => self.objects[i] = object,
+            Err(i) => self.objects.insert(i, object),
+        }
+    }
 }
 
 fn o_max_sub(o: Option<&Object>) -> u8 {
@@ -649,6 +663,9 @@ pub struct SdoServer {
     /// The dictionary.
     pub od: ObjectDictionary,
     transfer: Option<Transfer>,
+    /// The fragments of an SDO Information response still to send, in order (see
+    /// [`SdoServer::next_fragment`]).
+    fragments: std::collections::VecDeque<Vec<u8>>,
 }
 
 impl SdoServer {
@@ -657,18 +674,22 @@ impl SdoServer {
         SdoServer {
             od: ObjectDictionary::for_device(dev),
             transfer: None,
+            fragments: std::collections::VecDeque::new(),
         }
     }
 
     /// Answers the CoE message `req` (the mailbox payload) in `state`, with at most `room`
     /// bytes of CoE data (the mailbox in's size less its header). `None`: a message that gets
-    /// no answer (an abort from the master, an emergency).
+    /// no answer (an abort from the master, an emergency). An SDO Information answer longer
+    /// than `room` comes as its first fragment; [`SdoServer::next_fragment`] gives the others.
     pub fn handle(
         &mut self,
         req: &[u8],
         state: AlState,
         room: usize,
     ) -> Result<Option<Vec<u8>>, MailboxFault> {
+        // A new message: what was left of an earlier answer is not sent any more.
+        self.fragments.clear();
         let c = coe::Coe::new_checked(req).map_err(|_| MailboxFault::SizeTooShort)?;
         match c.service() {
             Ok(CoeService::SdoRequest) => self.sdo(c.payload(), state, room).map(Some),
@@ -937,20 +958,13 @@ impl SdoServer {
                     4 | 5 => Vec::new(),
                     _ => return error(SdoAbortCode::UnsupportedAccess),
                 };
-                // (One fragment: the list of these dictionaries fits a mailbox of 128 bytes;
-                // fragments of a longer list are not sent, it is cut at the mailbox.)
-                let cap = room.saturating_sub(COE_HEADER_LEN + SDO_INFO_HEADER_LEN + 2) / 2;
-                coe::emit_sdo_info_header(
-                    &mut out[2..],
-                    SdoInfoOpcode::GetOdListResponse,
-                    false,
-                    0,
-                );
-                out.extend_from_slice(&list_type.to_le_bytes());
-                for i in indices.iter().take(cap) {
-                    out.extend_from_slice(&i.to_le_bytes());
+                // The list type, then the indices; in fragments when longer than the mailbox.
+                let mut data = Vec::with_capacity(2 + 2 * indices.len());
+                data.extend_from_slice(&list_type.to_le_bytes());
+                for i in &indices {
+                    data.extend_from_slice(&i.to_le_bytes());
                 }
-                out
+                self.fragmented(SdoInfoOpcode::GetOdListResponse, &data, room)
             }
             SdoInfoRequest::GetObjectDescription { index } => {
                 let Some(o) = self.od.object(index) else {
@@ -1004,6 +1018,42 @@ impl SdoServer {
                 out
             }
         }
+    }
+
+    /// The SDO Information response `opcode` with `data` (what follows the SDO Information
+    /// header), in as many fragments as `room` bytes of CoE per mailbox need (ETG.1000.6
+    /// section 5.6.3): each fragment has the CoE and SDO Information headers, the incomplete
+    /// bit on all but the last and the fragments still to come after it (counting down to 0),
+    /// and the data goes on from one to the next. Returns the first; the others wait for
+    /// [`SdoServer::next_fragment`]. Each fragment carries an even number of data bytes: SOEM
+    /// (`ec_readODlist`) takes an OD list fragment as whole 16-bit indices.
+    fn fragmented(&mut self, opcode: SdoInfoOpcode, data: &[u8], room: usize) -> Vec<u8> {
+        let head = COE_HEADER_LEN + SDO_INFO_HEADER_LEN;
+        // At least one index per fragment, whatever the mailbox.
+        let per_fragment = (room.saturating_sub(head) & !1).max(2);
+        let chunks: Vec<&[u8]> = if data.is_empty() {
+            vec![data]
+        } else {
+            data.chunks(per_fragment).collect()
+        };
+        let n = chunks.len();
+        let mut all = chunks.into_iter().enumerate().map(|(k, c)| {
+            let mut out = vec![0u8; head];
+            coe::emit_coe_header(&mut out, CoeService::SdoInformation, 0);
+            let left = (n - 1 - k) as u16;
+            coe::emit_sdo_info_header(&mut out[2..], opcode, left > 0, left);
+            out.extend_from_slice(c);
+            out
+        });
+        let first = all.next().unwrap_or_default();
+        self.fragments = all.collect();
+        first
+    }
+
+    /// The next fragment of the SDO Information response being sent, once the master has read
+    /// the one before; `None` when it was the last (or the answer was not fragmented).
+    pub fn next_fragment(&mut self) -> Option<Vec<u8>> {
+        self.fragments.pop_front()
     }
 
     fn pdo_mappable(&self, bit: u16) -> u16 {
@@ -1193,5 +1243,72 @@ mod tests {
         let r = info(&mut s, &[0x03, 0, 0, 0, 0x00, 0x20]);
         assert_eq!(r[2], 0x07, "SDO Info error");
         assert_eq!(u32::from_le_bytes([r[6], r[7], r[8], r[9]]), 0x0602_0000);
+    }
+
+    /// A dictionary of `extra` more objects than the servo drive's (0x2000, 0x2001, ...).
+    fn big_server(extra: u16) -> SdoServer {
+        let mut s = server();
+        for k in 0..extra {
+            s.od.insert(var(
+                0x2000 + k,
+                "Manufacturer object",
+                data_type::UINT32,
+                Access::ReadWrite,
+                vec![0; 4],
+            ));
+        }
+        s
+    }
+
+    #[test]
+    fn a_long_od_list_comes_in_fragments_counting_down() {
+        // 100 objects more than fit a 128-byte mailbox (122 bytes of CoE: 116 of data, 58
+        // indices a fragment).
+        let mut s = big_server(100);
+        let all: Vec<u16> = s.od.objects().iter().map(|o| o.index).collect();
+        let data_len = 2 + 2 * all.len();
+        let want_fragments = data_len.div_ceil(116);
+        assert!(want_fragments >= 3, "{} objects", all.len());
+        let req = [0x00, 0x80, 0x01, 0, 0, 0, 0x01, 0x00];
+        let mut got = Vec::new();
+        let mut fragment = s.handle(&req, AlState::PreOp, 122).unwrap();
+        let mut k = 0;
+        while let Some(f) = fragment {
+            assert!(f.len() <= 122, "fragment {k}: {} bytes", f.len());
+            // CoE header: SDO Information; the opcode 0x02 with the incomplete bit on all but
+            // the last; the fragments still to come.
+            assert_eq!(&f[..2], &[0x00, 0x80]);
+            let left = usize::from(u16::from_le_bytes([f[4], f[5]]));
+            assert_eq!(left, want_fragments - 1 - k, "fragment {k}");
+            assert_eq!(f[2], 0x02 | if left > 0 { 0x80 } else { 0 });
+            assert_eq!((f.len() - 6) % 2, 0, "whole indices");
+            got.extend_from_slice(&f[6..]);
+            k += 1;
+            fragment = s.next_fragment();
+        }
+        assert_eq!(k, want_fragments);
+        // The list type, then every index once, in order.
+        assert_eq!(&got[..2], &[0x01, 0x00]);
+        let indices: Vec<u16> = got[2..]
+            .chunks(2)
+            .map(|c| u16::from_le_bytes([c[0], c[1]]))
+            .collect();
+        assert_eq!(indices, all);
+    }
+
+    #[test]
+    fn a_new_request_drops_the_fragments_left_and_a_short_list_is_one_message() {
+        let mut s = big_server(100);
+        let req = [0x00, 0x80, 0x01, 0, 0, 0, 0x01, 0x00];
+        let first = s.handle(&req, AlState::PreOp, 122).unwrap().unwrap();
+        assert_eq!(first[2], 0x82, "incomplete");
+        let r = ask(&mut s, &[0x40, 0x18, 0x10, 1, 0, 0, 0, 0], AlState::PreOp);
+        assert_eq!(r[2], 0x43);
+        assert_eq!(s.next_fragment(), None, "the SDO answer ended the OD list");
+        // The servo drive's own list fits: one message, no fragment left.
+        let mut s = server();
+        let r = s.handle(&req, AlState::PreOp, 122).unwrap().unwrap();
+        assert_eq!((r[2], &r[4..6]), (0x02, &[0u8, 0][..]));
+        assert_eq!(s.next_fragment(), None);
     }
 }

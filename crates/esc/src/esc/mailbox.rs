@@ -183,7 +183,6 @@ impl Esc {
             self.sync_catch_up(t_ps);
         }
         let state = self.al_state;
-        let station = self.station_address();
         let Some(m) = self.mbx.as_deref_mut() else {
             return;
         };
@@ -198,13 +197,21 @@ impl Esc {
         }
         if !write {
             m.in_full = false;
+            // The next fragment of a long SDO Information answer, the application's time
+            // after the master has read the one before.
+            if m.pending.is_none()
+                && let Some(coe) = m.server.next_fragment()
+            {
+                let ready = t_ps.saturating_add(m.layout.response_ns.saturating_mul(1000));
+                m.pending = Some((ready, coe_message(m, &coe)));
+            }
             self.update_mailbox_status();
             return;
         }
         m.out_full = true;
         let request = self.ram[buffer_in_ram(self.ram.len(), b)].to_vec();
         let room = usize::from(m.layout.in_len).saturating_sub(MAILBOX_HEADER_LEN);
-        let answer = answer(m, &request, state, station, room);
+        let answer = answer(m, &request, state, room);
         match answer {
             Some(msg) => {
                 let ready = t_ps.saturating_add(m.layout.response_ns.saturating_mul(1000));
@@ -246,27 +253,24 @@ fn put_in_buffer(ram: &mut [u8], b: super::process_data::SmBuffer, msg: &[u8]) {
     buf[..k].copy_from_slice(&msg[..k]);
 }
 
+/// The address in the header of the slave's answers: 0, the master's. ETG.1000.4 (table 29)
+/// has the address of the source where the master is the client, and real devices answer
+/// with 0 whatever their station address: the EL3004 and EK1914 (ethercrab's captures) and the
+/// Kollmorgen AKD (SOEM's), all in ../shared/captures/ (tests/captures_mailbox.rs).
+const ANSWER_ADDRESS: u16 = 0;
+
 /// The whole answer message (header and data) to the master's message `request` (the buffer),
 /// or `None` for one that gets no answer.
 fn answer(
     m: &mut MailboxState,
     request: &[u8],
     state: ecsync_wire::AlState,
-    station: u16,
     room: usize,
 ) -> Option<Vec<u8>> {
-    let next_counter = |m: &mut MailboxState| {
-        m.own_counter = if m.own_counter >= 7 {
-            1
-        } else {
-            m.own_counter + 1
-        };
-        m.own_counter
-    };
     let error = |m: &mut MailboxState, code: MailboxErrorCode| {
         let mut out = vec![0u8; MAILBOX_HEADER_LEN + ecsync_wire::mailbox::MAILBOX_ERROR_LEN];
         let c = next_counter(m);
-        let _ = emit_mailbox_error(&mut out, station, c, code);
+        let _ = emit_mailbox_error(&mut out, ANSWER_ADDRESS, c, code);
         Some(out)
     };
     let Ok(msg) = Mailbox::new_checked(request) else {
@@ -294,18 +298,33 @@ fn answer(
             return error(m, MailboxErrorCode::ServiceNotSupported);
         }
     };
+    Some(coe_message(m, &coe))
+}
+
+/// The slave's counter for its next message, 1 to 7 in turn.
+fn next_counter(m: &mut MailboxState) -> u8 {
+    m.own_counter = if m.own_counter >= 7 {
+        1
+    } else {
+        m.own_counter + 1
+    };
+    m.own_counter
+}
+
+/// A CoE message `coe` of the slave's, its mailbox header in front with the next counter.
+fn coe_message(m: &mut MailboxState, coe: &[u8]) -> Vec<u8> {
     let mut out = vec![0u8; MAILBOX_HEADER_LEN + coe.len()];
     let c = next_counter(m);
     Mailbox::new_unchecked(&mut out[..]).set_header(&MailboxRepr {
         length: coe.len() as u16,
-        address: station,
+        address: ANSWER_ADDRESS,
         channel: 0,
         priority: 0,
         mailbox_type: MailboxType::Coe,
         counter: c,
     });
-    out[MAILBOX_HEADER_LEN..].copy_from_slice(&coe);
-    Some(out)
+    out[MAILBOX_HEADER_LEN..].copy_from_slice(coe);
+    out
 }
 
 #[cfg(test)]
@@ -350,6 +369,8 @@ mod tests {
     #[test]
     fn an_sdo_upload_goes_through_sm0_and_comes_back_on_sm1() {
         let mut e = drive();
+        // A station address: the answers' header still carries 0, as real devices' do.
+        assert_eq!(put(&mut e, 0x0010, &[0x01, 0x10], 0), 1);
         // PRE-OP before the mailbox is set up: 0x0016.
         assert_eq!(put(&mut e, 0x0120, &[0x02, 0], 0), 1);
         let (_, st) = get(&mut e, 0x0130, 6, 0);
@@ -426,6 +447,98 @@ mod tests {
         put(&mut e, 0x1000, &eoe, t0 + 1_000_000_000);
         let (w, r) = get(&mut e, 0x1080, 128, t0 + 1_300_000_000);
         assert_eq!((w, &r[..10]), (1, &[4, 0, 0, 0, 0, 0x20, 1, 0, 2, 0][..]));
+    }
+}
+
+#[cfg(test)]
+mod fragment_tests {
+    use super::super::testing::{dg, wkc};
+    use crate::clock::CrystalParams;
+    use crate::coe::{Access, Entry, Object, ObjectCode, data_type};
+    use crate::model::{DeviceInfo, EscModel};
+    use ecsync_wire::Command;
+
+    fn put(e: &mut super::Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
+        let mut d = dg(Command::Bwr, 0, ado, data);
+        e.process_datagram(&mut d, t_ps);
+        wkc(&d)
+    }
+
+    fn get(e: &mut super::Esc, ado: u16, n: usize, t_ps: u64) -> (u16, Vec<u8>) {
+        let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
+        e.process_datagram(&mut d, t_ps);
+        (wkc(&d), d[10..10 + n].to_vec())
+    }
+
+    #[test]
+    fn a_long_od_list_is_read_fragment_by_fragment_through_sm1() {
+        let mut e = super::Esc::new(
+            EscModel::servo_mii(),
+            DeviceInfo::servo_drive(7),
+            CrystalParams::default(),
+        );
+        e.set_links([true, false, false, false]);
+        let od = &mut e.sdo_server_mut().unwrap().od;
+        for k in 0..100u16 {
+            od.insert(Object {
+                index: 0x2000 + k,
+                name: "Manufacturer object".into(),
+                code: ObjectCode::Var,
+                entries: vec![Entry {
+                    subindex: 0,
+                    name: "Manufacturer object".into(),
+                    data_type: data_type::UINT32,
+                    bits: 32,
+                    access: Access::ReadOnly,
+                    value: vec![0; 4],
+                    pdo_mapping: 0,
+                }],
+            });
+        }
+        let objects = e.sdo_server().unwrap().od.objects().len();
+        put(
+            &mut e,
+            0x0800,
+            &[0x00, 0x10, 0x80, 0x00, 0x26, 0x00, 0x01, 0x00],
+            0,
+        );
+        put(
+            &mut e,
+            0x0808,
+            &[0x80, 0x10, 0x80, 0x00, 0x22, 0x00, 0x01, 0x00],
+            0,
+        );
+        put(&mut e, 0x0120, &[0x02, 0], 0);
+        // Get OD list, all objects (list type 1), counter 1.
+        let mut m = vec![8, 0, 0, 0, 0, 0x13, 0x00, 0x80, 0x01, 0, 0, 0, 0x01, 0x00];
+        m.resize(128, 0);
+        let t0 = 1_000_000_000;
+        assert_eq!(put(&mut e, 0x1000, &m, t0), 1);
+        let mut indices = 0;
+        let mut t = t0;
+        let mut counters = Vec::new();
+        loop {
+            // Each fragment 200 us after the request or after the master read the one before.
+            assert_eq!(get(&mut e, 0x080d, 1, t + 199_000_000).1[0] & 0x08, 0);
+            t += 200_000_000;
+            assert_eq!(get(&mut e, 0x080d, 1, t).1[0] & 0x08, 0x08);
+            let (w, r) = get(&mut e, 0x1080, 128, t);
+            assert_eq!(w, 1);
+            let len = usize::from(u16::from_le_bytes([r[0], r[1]]));
+            counters.push(r[5] >> 4);
+            assert_eq!(r[5] & 0x0f, 3, "CoE");
+            let left = u16::from_le_bytes([r[10], r[11]]);
+            assert_eq!(r[8], 0x02 | if left > 0 { 0x80 } else { 0 });
+            indices += (len - 6) / 2;
+            if left == 0 {
+                break;
+            }
+        }
+        // The list type and every object; the slave's counter goes on with each message.
+        assert_eq!(indices, 1 + objects);
+        assert_eq!(counters, [1, 2, 3]);
+        // Nothing more after the last one.
+        assert_eq!(get(&mut e, 0x1080, 128, t + 10_000_000_000).0, 0);
     }
 }
 

@@ -6,6 +6,7 @@
 
 use ecsync_esc::Segment;
 use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
+use pcap_file::pcapng::blocks::interface_description::InterfaceDescriptionOption;
 use pcap_file::pcapng::{Block, PcapNgReader};
 use std::path::PathBuf;
 
@@ -48,14 +49,44 @@ pub struct CapturedFrame {
 }
 
 /// Every enhanced packet of a pcapng file, in order.
+///
+/// Timestamps are in the units of the packet's interface (its `if_tsresol` option; pcapng's
+/// default, microseconds, without one): the ethercrab captures count nanoseconds, SOEM's
+/// microseconds. pcap-file hands the raw count over as if it were nanoseconds, so it is
+/// scaled here.
 pub fn read_pcapng(path: &std::path::Path) -> Vec<CapturedFrame> {
     let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let mut r = PcapNgReader::new(std::io::BufReader::new(file)).expect("pcapng header");
     let mut out = Vec::new();
     let mut t0 = None;
+    // Per interface: the timestamp unit as (numerator, denominator) of a nanosecond.
+    let mut units: Vec<(u128, u128)> = Vec::new();
     while let Some(b) = r.next_block() {
-        if let Block::EnhancedPacket(p) = b.expect("pcapng block") {
-            let t = p.timestamp.as_nanos() as u64;
+        let b = b.expect("pcapng block");
+        if let Block::InterfaceDescription(i) = &b {
+            let resol = i
+                .options
+                .iter()
+                .find_map(|o| match o {
+                    InterfaceDescriptionOption::IfTsResol(r) => Some(*r),
+                    _ => None,
+                })
+                .unwrap_or(6);
+            // Bit 7 clear: 10^-n s; set: 2^-n s.
+            let n = u32::from(resol & 0x7f);
+            let per_s: u128 = if resol & 0x80 == 0 {
+                10u128.pow(n)
+            } else {
+                1u128 << n
+            };
+            units.push((1_000_000_000, per_s));
+        }
+        if let Block::EnhancedPacket(p) = b {
+            let (num, den) = units
+                .get(p.interface_id as usize)
+                .copied()
+                .unwrap_or((1_000, 1));
+            let t = (p.timestamp.as_nanos() * num / den) as u64;
             let t0 = *t0.get_or_insert(t);
             out.push(CapturedFrame {
                 number: out.len() + 1,
