@@ -305,6 +305,20 @@ fn run_method(pair: &NetPair, method: &str) {
         "{method}: {lost} frames lost, {late} replies late"
     );
     assert_eq!(j["bad_wkc"], 0, "{method}: working counters");
+    // Every drive's SM-event-missed counter read over CoE in the cyclic phase, once a second:
+    // the last read in the run's last two seconds.
+    let counters = j["sm_events_missed"].as_array().unwrap();
+    let positions: Vec<u64> = counters
+        .iter()
+        .map(|c| c["position"].as_u64().unwrap())
+        .collect();
+    assert_eq!(positions, [1, 2, 3, 4, 5, 6], "{method}: {counters:?}");
+    for c in counters {
+        assert!(
+            c["read_s"].as_f64().unwrap() >= 8.0,
+            "{method}: read too early {c}"
+        );
+    }
     assert!(
         j["m_rs"]["n"].as_u64().unwrap() > 5_000,
         "{method}: M-rS measured"
