@@ -56,6 +56,9 @@ impl Esc {
     /// It stays so until the master acknowledges it (AL control with the acknowledge bit).
     pub fn raise_al_error(&mut self, code: AlStatusCode) {
         self.generation += 1;
+        // A device with CoE tells the master by an emergency too.
+        let [lo, hi] = u16::from(code).to_le_bytes();
+        self.send_emergency(super::mailbox::EMERGENCY_ESM_ERROR, 0x10, [lo, hi, 0, 0, 0]);
         if self.al_state == AlState::Op {
             self.al_state = AlState::SafeOp;
             // Out of OP: the process data watchdog no longer runs.

@@ -13,7 +13,14 @@
 //! - the repeat request: toggling SM1's activate bit 1 puts the last answer in the buffer again,
 //!   acknowledged in SM1's PDI control bit 1;
 //! - the mailbox counter: a message with the counter of the one before (not 0) is a repeat the
-//!   master sent after a lost answer, and is not processed twice.
+//!   master sent after a lost answer, and is not processed twice;
+//! - emergency messages (ETG.1000.6 5.6.4, CoE service 1): an error the application raises
+//!   (an AL error: sync error, watchdog, fatal sync error) is sent unasked as an emergency,
+//!   error code 0xA000 ("EtherCAT state machine transition error" of ETG.1000.6's table of
+//!   EtherCAT error codes; error register bit 4, communication error) with the AL status code
+//!   in the first two of its five manufacturer bytes. It waits in a queue of
+//!   [`EMERGENCY_QUEUE`] (the oldest dropped, as a slave stack's ring does) until SM1 is
+//!   empty and no answer is due, and goes before nothing the master asked for.
 
 use super::Esc;
 use crate::coe::{MailboxFault, SdoServer};
@@ -22,6 +29,11 @@ use ecsync_wire::mailbox::{
     MAILBOX_HEADER_LEN, Mailbox, MailboxErrorCode, MailboxRepr, MailboxType, emit_mailbox_error,
 };
 use ecsync_wire::register as reg;
+
+/// Emergencies an ESC keeps while SM1 is occupied.
+pub const EMERGENCY_QUEUE: usize = 4;
+/// CoE emergency error code of an AL state machine error (ETG.1000.6).
+pub const EMERGENCY_ESM_ERROR: u16 = 0xa000;
 
 /// The mailbox of one ESC.
 #[derive(Debug, Clone)]
@@ -43,6 +55,10 @@ pub(super) struct MailboxState {
     own_counter: u8,
     /// SM1's repeat request bit as last seen.
     repeat: bool,
+    /// Emergency messages (whole mailbox messages) waiting for SM1.
+    emergencies: std::collections::VecDeque<Vec<u8>>,
+    /// Emergencies sent (put into SM1).
+    emergencies_sent: u64,
 }
 
 impl MailboxState {
@@ -58,6 +74,8 @@ impl MailboxState {
             last: Vec::new(),
             last_counter: 0,
             own_counter: 0,
+            emergencies: std::collections::VecDeque::new(),
+            emergencies_sent: 0,
             repeat: false,
         }
     }
@@ -131,13 +149,24 @@ impl Esc {
         let Some(m) = self.mbx.as_deref_mut() else {
             return;
         };
-        let Some((ready, _)) = &m.pending else {
-            return;
-        };
         let Some(i) = m.in_sm else {
             return;
         };
-        if *ready > t_ps || m.in_full {
+        if m.in_full {
+            return;
+        }
+        let Some((ready, _)) = &m.pending else {
+            // No answer due: an emergency, if one waits.
+            if let Some(msg) = m.emergencies.pop_front() {
+                put_in_buffer(&mut self.ram, self.sms[i], &msg);
+                m.in_full = true;
+                m.emergencies_sent += 1;
+                m.last = msg;
+                self.update_mailbox_status();
+            }
+            return;
+        };
+        if *ready > t_ps {
             return;
         }
         let Some((_, msg)) = m.pending.take() else {
@@ -222,6 +251,29 @@ impl Esc {
         }
         self.update_mailbox_status();
         self.sync_settings_changed();
+    }
+
+    /// The application sends an emergency: CoE error `code`, error register `register`,
+    /// manufacturer bytes `data` (queued until SM1 is free; see the module documentation).
+    pub fn send_emergency(&mut self, code: u16, register: u8, data: [u8; 5]) {
+        let Some(m) = self.mbx.as_deref_mut() else {
+            return;
+        };
+        // CoE header: number 0, service 1 (emergency); then code, register, data.
+        let mut coe = vec![0x00, 0x10];
+        coe.extend_from_slice(&code.to_le_bytes());
+        coe.push(register);
+        coe.extend_from_slice(&data);
+        let msg = coe_message(m, &coe);
+        if m.emergencies.len() == EMERGENCY_QUEUE {
+            m.emergencies.pop_front();
+        }
+        m.emergencies.push_back(msg);
+    }
+
+    /// Emergencies this ESC has put into SM1 so far.
+    pub fn emergencies_sent(&self) -> u64 {
+        self.mbx.as_deref().map_or(0, |m| m.emergencies_sent)
     }
 
     /// The CoE server behind the mailbox, if the device has one.
@@ -732,5 +784,16 @@ mod sync_mode_tests {
         let st = get(&mut e, 0x0130, 6, t0 + 13 * ms);
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x001a));
         assert_eq!(e.sm_events_missed(), 2);
+        // And an emergency in SM1, unasked: CoE (type 3), service 1, error code 0xA000,
+        // error register 0x10, the AL status code in the manufacturer bytes.
+        let full = get(&mut e, 0x080d, 1, t0 + 14 * ms)[0] & 0x08 != 0;
+        assert!(full, "SM1 holds the emergency");
+        let m = get(&mut e, 0x1080, 128, t0 + 14 * ms);
+        assert_eq!((m[0], m[5] & 0x0f), (10, 3), "length 10, CoE: {m:02x?}");
+        assert_eq!(
+            &m[6..16],
+            &[0x00, 0x10, 0x00, 0xa0, 0x10, 0x1a, 0x00, 0x00, 0x00, 0x00]
+        );
+        assert_eq!(e.emergencies_sent(), 1);
     }
 }
