@@ -309,9 +309,16 @@ struct LatencyOut {
 struct SyncCounterRow {
     /// Network position, 1 = next to the master.
     position: u16,
+    /// 0x1C32:0B as last read.
     sm_events_missed: u16,
     /// When it was read, s after the cyclic phase's start.
     read_s: f64,
+    /// 0x1C32:0B as first read (its count since OP, the hand-over from the bring-up
+    /// included), and when.
+    first_sm_events_missed: u16,
+    first_read_s: f64,
+    /// Counted between the two reads: the cyclic phase's own.
+    missed_between_reads: u16,
 }
 
 #[derive(Debug, Serialize)]
@@ -759,10 +766,13 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         sm_events_missed: driver
             .sync_counters()
             .iter()
-            .map(|c| SyncCounterRow {
+            .map(|(f, c)| SyncCounterRow {
                 position: c.position + 1,
                 sm_events_missed: c.sm_events_missed,
                 read_s: c.read_ns.saturating_sub(first) as f64 / 1e9,
+                first_sm_events_missed: f.sm_events_missed,
+                first_read_s: f.read_ns.saturating_sub(first) as f64 / 1e9,
+                missed_between_reads: c.sm_events_missed.wrapping_sub(f.sm_events_missed),
             })
             .collect(),
         link_down_errors: link.link_down_errors(),
@@ -872,15 +882,19 @@ fn print_run(o: &RunOut) {
         let missed: Vec<String> = o
             .sm_events_missed
             .iter()
-            .map(|c| format!("{}: {}", c.position, c.sm_events_missed))
+            .map(|c| format!("{}: {}", c.position, c.missed_between_reads))
             .collect();
         let total: u64 = o
             .sm_events_missed
             .iter()
-            .map(|c| u64::from(c.sm_events_missed))
+            .map(|c| u64::from(c.missed_between_reads))
             .sum();
         println!(
-            "SM events missed (0x1C32:0B, the drives' own count of SYNC0 cycles without new outputs, read {:.1} s in){}: {}",
+            "SM events missed (0x1C32:0B, the drives' own count of SYNC0 cycles without new outputs, between its reads {:.1} s and {:.1} s in){}: {}",
+            o.sm_events_missed
+                .iter()
+                .map(|c| c.first_read_s)
+                .fold(f64::INFINITY, f64::min),
             o.sm_events_missed
                 .iter()
                 .map(|c| c.read_s)

@@ -323,8 +323,12 @@ fn run_method(pair: &NetPair, method: &str) {
         j["m_rs"]["n"].as_u64().unwrap() > 5_000,
         "{method}: M-rS measured"
     );
+    let missed: Vec<&serde_json::Value> = counters
+        .iter()
+        .map(|c| &c["missed_between_reads"])
+        .collect();
     println!(
-        "{method}: {cycles} cycles in {:.1} s; M-rS std {:.0} ns, rS-IS max {} ns; wake-up p99 {:.1} us",
+        "{method}: {cycles} cycles in {:.1} s; M-rS std {:.0} ns, rS-IS max {} ns; wake-up p99 {:.1} us; SM events missed between the reads {missed:?}",
         t0.elapsed().as_secs_f64(),
         j["m_rs"]["std"].as_f64().unwrap(),
         rs_is["max"],

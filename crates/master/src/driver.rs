@@ -332,7 +332,8 @@ struct RecoverySlot {
     /// The drives whose counters are read, and when next.
     sync_drives: Vec<SyncDrive>,
     next_sync_read_ns: Option<u64>,
-    sync_counters: Vec<SyncCounter>,
+    /// Each drive's first and last read.
+    sync_counters: Vec<(SyncCounter, SyncCounter)>,
     /// The frame out, its send timestamp and its sends so far.
     out: Option<(Vec<u8>, u64, u32)>,
     retry_at_ns: u64,
@@ -357,10 +358,10 @@ impl RecoverySlot {
                         match self
                             .sync_counters
                             .iter_mut()
-                            .find(|x| x.position == c.position)
+                            .find(|x| x.1.position == c.position)
                         {
-                            Some(x) => *x = c,
-                            None => self.sync_counters.push(c),
+                            Some(x) => x.1 = c,
+                            None => self.sync_counters.push((c, c)),
                         }
                     }
                 }
@@ -550,14 +551,16 @@ impl CyclicDriver {
         Ok(())
     }
 
-    /// The drives' SM-event-missed counters as last read (see
-    /// [`CyclicLimits::sync_counters_every_ns`]), in network order.
-    pub fn sync_counters(&self) -> Vec<SyncCounter> {
+    /// The drives' SM-event-missed counters as first and as last read (see
+    /// [`CyclicLimits::sync_counters_every_ns`]), in network order. The first read holds what
+    /// the drive counted since OP, the hand-over from the bring-up to the cyclic phase
+    /// included; the difference is the cyclic phase's own.
+    pub fn sync_counters(&self) -> Vec<(SyncCounter, SyncCounter)> {
         let mut v = self
             .recovery
             .as_ref()
             .map_or_else(Vec::new, |r| r.sync_counters.clone());
-        v.sort_by_key(|c| c.position);
+        v.sort_by_key(|c| c.0.position);
         v
     }
 

@@ -146,7 +146,11 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
         let count = tr.inner.segment().esc(x).sm_events_missed();
         assert_eq!(count - base[k], expected_new, "drive at {x}");
         // The master's last read (after cycle 600) is the drive's count.
-        let r = reads.iter().find(|r| usize::from(r.position) == x).unwrap();
+        let r = &reads
+            .iter()
+            .find(|r| usize::from(r.1.position) == x)
+            .unwrap()
+            .1;
         assert_eq!(u64::from(r.sm_events_missed), count, "drive at {x}: {r:?}");
     }
     assert!(driver.recoveries().is_empty(), "{:?}", driver.recoveries());
