@@ -168,13 +168,15 @@ fn statusword(s: DriveState, csp: bool) -> u16 {
 #[inline]
 pub(super) fn step(ram: &mut [u8], p: &DrivePlan, al_state: AlState, m: &mut DriveMemory) {
     let cw = get_u16(ram, p.controlword).unwrap_or(0);
-    let in_op = al_state == AlState::Op;
-    m.state = if in_op {
-        next_state(m.state, cw, m.last_controlword)
-    } else {
-        DriveState::SwitchOnDisabled
-    };
-    m.last_controlword = if in_op { cw } else { 0 };
+    if al_state != AlState::Op {
+        m.state = DriveState::SwitchOnDisabled;
+        m.last_controlword = 0;
+    } else if cw != m.last_controlword || m.state != DriveState::OperationEnabled {
+        // (Operation enabled under the same controlword stays so: the common cycle skips
+        // the table.)
+        m.state = next_state(m.state, cw, m.last_controlword);
+        m.last_controlword = cw;
+    }
     let mode = if p.modes == NONE {
         8
     } else {
@@ -182,11 +184,10 @@ pub(super) fn step(ram: &mut [u8], p: &DrivePlan, al_state: AlState, m: &mut Dri
     };
     // Cyclic synchronous position (8); the other cyclic modes (9 velocity, 10 torque) hold the
     // position here.
-    let enabled = m.state == DriveState::OperationEnabled;
-    let target = get_i32(ram, p.target_position).unwrap_or(m.demand);
     let before = m.position;
     let mut following = 0i32;
-    if enabled && mode == 8 {
+    if m.state == DriveState::OperationEnabled && mode == 8 {
+        let target = get_i32(ram, p.target_position).unwrap_or(m.demand);
         m.position = m.demand;
         m.demand = target;
         following = target.wrapping_sub(m.position);
@@ -194,12 +195,6 @@ pub(super) fn step(ram: &mut [u8], p: &DrivePlan, al_state: AlState, m: &mut Dri
         // Not following: the demand is where the axis stands (no jump when enabled again).
         m.demand = m.position;
     }
-    let per_cycle = i64::from(m.position.wrapping_sub(before));
-    let velocity = if p.cycle_ns > 0 {
-        (per_cycle * 1_000_000_000 / i64::from(p.cycle_ns)) as i32
-    } else {
-        0
-    };
     put(
         ram,
         p.statusword,
@@ -212,7 +207,13 @@ pub(super) fn step(ram: &mut [u8], p: &DrivePlan, al_state: AlState, m: &mut Dri
         put(ram, p.position_actual, &m.position.to_le_bytes());
     }
     if p.velocity_actual != NONE {
-        put(ram, p.velocity_actual, &velocity.to_le_bytes());
+        let per_cycle = i64::from(m.position.wrapping_sub(before));
+        let velocity = match p.cycle_ns {
+            0 => 0,
+            1_000_000 => per_cycle * 1_000,
+            c => per_cycle * 1_000_000_000 / i64::from(c),
+        };
+        put(ram, p.velocity_actual, &(velocity as i32).to_le_bytes());
     }
     if p.following_error != NONE {
         put(ram, p.following_error, &following.to_le_bytes());

@@ -44,6 +44,10 @@ pub(super) struct SyncMonitor {
     pub(super) dc_mode: bool,
     /// The system time of the last outputs, ns, while a sequence runs.
     last_write_ns: Option<u64>,
+    /// The first pulse after the last outputs, and the SYNC0 configuration (start, cycle) it
+    /// was worked out for: the common case, one pulse between two frames, takes no division.
+    next_pulse_ns: u64,
+    grid: (u64, u32),
     /// Pulses after the last outputs already counted as missed (by a read of the counter).
     counted_since_write: u64,
     /// 0x1C32:0B: SYNC0 pulses in OP with no outputs since the pulse before.
@@ -91,13 +95,28 @@ impl SyncMonitor {
             self.last_write_ns = None;
             return SyncReaction::None;
         };
+        let c = u64::from(cycle);
         let Some(last) = self.last_write_ns.replace(t_ns) else {
             self.counted_since_write = 0;
+            self.grid = (start, cycle);
+            self.next_pulse_ns = start + pulses_through(t_ns, start, c) * c;
             return SyncReaction::None;
         };
-        let cycle = u64::from(cycle);
-        let n =
-            pulses_through(t_ns, start, cycle).saturating_sub(pulses_through(last, start, cycle));
+        if self.grid != (start, cycle) {
+            // SYNC0 set up anew: the next pulse after the last outputs on the new grid.
+            self.grid = (start, cycle);
+            self.next_pulse_ns = start + pulses_through(last, start, c) * c;
+        }
+        // Pulses in (last, t]: none before the next pulse, one up to a cycle after it; a
+        // division only for more.
+        let n = if t_ns < self.next_pulse_ns {
+            0
+        } else if t_ns < self.next_pulse_ns + c {
+            1
+        } else {
+            (t_ns - self.next_pulse_ns) / c + 1
+        };
+        self.next_pulse_ns += n * c;
         let missed_now = n.saturating_sub(1);
         let new = missed_now.saturating_sub(self.counted_since_write);
         self.counted_since_write = 0;
