@@ -6,7 +6,10 @@
 //! name = "drive-1"
 //! model = "servo-mii"        # servo-mii | servo-mii-dc32 | ebus-terminal | ebus-terminal-no-dc
 //!                            # | junction-mii
-//! device = "servo-drive"     # servo-drive | coupler
+//! device = "servo-drive"     # servo-drive | coupler; with `esi`: the ESI device's type name
+//! # esi = "drives.xml"       # an ESI file (ETG.2000) describing the device, relative to this
+//!                            # file's folder; `device` selects one of its devices by its
+//!                            # <Type> text and may be left out when the file has one
 //! upstream = "master"        # "master" or the name of a slave listed before this one
 //! upstream_port = 1          # port of the upstream slave (not used for the master)
 //! entry_port = 0             # this slave's port towards the master
@@ -28,7 +31,10 @@ use crate::clock::CrystalParams;
 use crate::model::{DcSupport, DeviceInfo, EscModel, PortKind};
 use crate::segment::{SlaveSpec, Upstream};
 use serde::Deserialize;
+use std::collections::HashMap;
 use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// A configuration error located in its file: what every parser of a configuration or
 /// scenario file returns (this crate's segment, the lab's scenarios, the CLI's `run`).
@@ -204,6 +210,26 @@ pub fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
     None
 }
 
+/// The line of `key = ...` in the table whose header starts at `span` (the span toml gives a
+/// table of an array of tables covers its header only): the lines up to the next header.
+fn key_line_in(text: &str, span: std::ops::Range<usize>, key: &str) -> Option<usize> {
+    let start = span.start.min(text.len());
+    let mut at = start;
+    for (k, l) in text.get(start..)?.split_inclusive('\n').enumerate() {
+        if k > 0 && l.trim_start().starts_with('[') {
+            break;
+        }
+        if k > 0
+            && l.split_once('=')
+                .is_some_and(|(name, _)| name.trim() == key)
+        {
+            return Some(line_of(text, at));
+        }
+        at += l.len();
+    }
+    None
+}
+
 /// 1-based line of a byte offset.
 pub fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
@@ -263,9 +289,13 @@ pub struct SlaveConfig {
     /// ESC model.
     #[serde(default = "default_model")]
     pub model: String,
-    /// Device.
-    #[serde(default = "default_device")]
-    pub device: String,
+    /// Device: a built-in one (`servo-drive`, the default, or `coupler`), or with `esi` the
+    /// type name of one of the file's devices.
+    #[serde(default)]
+    pub device: Option<String>,
+    /// An ESI file describing the device, relative to the configuration file's folder.
+    #[serde(default)]
+    pub esi: Option<String>,
     /// "master" or the name of an earlier slave.
     pub upstream: String,
     /// Port of the upstream slave.
@@ -302,9 +332,6 @@ pub struct SlaveConfig {
 
 fn default_model() -> String {
     "servo-mii".into()
-}
-fn default_device() -> String {
-    "servo-drive".into()
 }
 fn default_upstream_port() -> u8 {
     1
@@ -351,6 +378,10 @@ impl SegmentConfig {
             ));
         }
         let mut names: Vec<&str> = Vec::with_capacity(self.slave.len());
+        // ESI files parsed so far: several slaves may use one.
+        let mut esi_cache: HashMap<PathBuf, Arc<crate::esi::EsiFile>> = HashMap::new();
+        // Devices built from them (a device's dictionary is shared by the slaves that are it).
+        let mut built: HashMap<(PathBuf, String), DeviceInfo> = HashMap::new();
         let mut specs = Vec::with_capacity(self.slave.len());
         for (i, sp) in self.slave.iter().enumerate() {
             let s = sp.get_ref();
@@ -380,17 +411,87 @@ impl SegmentConfig {
                 }
             };
             let serial = s.serial.unwrap_or(i as u32 + 1);
-            let device = match s.device.as_str() {
-                "servo-drive" => DeviceInfo::servo_drive(serial),
-                "coupler" => DeviceInfo::coupler(&s.name, serial),
-                other => {
-                    return Err(err(
-                        line,
-                        f("device"),
-                        format!("unknown device \"{other}\""),
-                        "use servo-drive or coupler",
-                    ));
+            let device = match &s.esi {
+                Some(esi) => {
+                    let key_at = key_line_in(text, sp.span(), "esi").or(line);
+                    let dev_at = key_line_in(text, sp.span(), "device").or(line);
+                    let path = Path::new(file).parent().unwrap_or(Path::new("")).join(esi);
+                    let parsed = match esi_cache.get(&path) {
+                        Some(p) => Arc::clone(p),
+                        None => {
+                            let p = match crate::esi::load(&path) {
+                                Ok(p) => Arc::new(p),
+                                Err(e) if e.kind == crate::esi::EsiErrorKind::Io => {
+                                    return Err(err(
+                                        key_at,
+                                        f("esi"),
+                                        format!("{}: {}", path.display(), e.message),
+                                        "give the path of an ESI file, relative to the folder of this file",
+                                    ));
+                                }
+                                Err(e) => {
+                                    return Err(err(
+                                        key_at,
+                                        f("esi"),
+                                        format!("the ESI file is not usable: {e}"),
+                                        "correct the ESI file at that line, or use another one",
+                                    ));
+                                }
+                            };
+                            esi_cache.insert(path.clone(), Arc::clone(&p));
+                            p
+                        }
+                    };
+                    let names = parsed
+                        .device_names()
+                        .iter()
+                        .map(|n| format!("\"{n}\""))
+                        .collect::<Vec<_>>()
+                        .join(", ");
+                    let chosen = match &s.device {
+                        Some(name) => parsed.device(name).ok_or_else(|| {
+                            err(
+                                dev_at,
+                                f("device"),
+                                format!("{} has no device \"{name}\"", path.display()),
+                                &format!("use one of its devices' <Type> names: {names}"),
+                            )
+                        })?,
+                        None if parsed.devices.len() == 1 => &parsed.devices[0],
+                        None => {
+                            return Err(err(
+                                key_at,
+                                f("device"),
+                                format!(
+                                    "{} describes {} devices",
+                                    path.display(),
+                                    parsed.devices.len()
+                                ),
+                                &format!("say which with device = one of {names}"),
+                            ));
+                        }
+                    };
+                    let key = (path, chosen.type_name.clone());
+                    let template = built
+                        .entry(key)
+                        .or_insert_with(|| chosen.device_info(serial));
+                    DeviceInfo {
+                        serial,
+                        ..template.clone()
+                    }
                 }
+                None => match s.device.as_deref().unwrap_or("servo-drive") {
+                    "servo-drive" => DeviceInfo::servo_drive(serial),
+                    "coupler" => DeviceInfo::coupler(&s.name, serial),
+                    other => {
+                        return Err(err(
+                            line,
+                            f("device"),
+                            format!("unknown device \"{other}\""),
+                            "use servo-drive or coupler, or describe the device with esi = \"file.xml\"",
+                        ));
+                    }
+                },
             };
             for (name, v, target) in [
                 (
