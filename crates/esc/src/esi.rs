@@ -24,9 +24,9 @@
 //! file, the line and the element (its path from the root); no input makes the parser panic.
 //!
 //! ```
-//! let xml = r#"<EtherCATInfo><Vendor><Id>#x0E5C</Id></Vendor><Descriptions><Devices>
+//! let xml = r##"<EtherCATInfo><Vendor><Id>#x0E5C</Id></Vendor><Descriptions><Devices>
 //!   <Device><Type ProductCode="#x10" RevisionNo="1">demo</Type><Name>Demo</Name></Device>
-//!   </Devices></Descriptions></EtherCATInfo>"#;
+//!   </Devices></Descriptions></EtherCATInfo>"##;
 //! let esi = ecsync_esc::esi::parse("demo.xml", xml).unwrap();
 //! let dev = esi.devices[0].device_info(7);
 //! assert_eq!((dev.vendor_id, dev.product_code, dev.serial), (0x0e5c, 0x10, 7));
@@ -248,8 +248,7 @@ const MAX_EEPROM_BYTES: usize = 65_536;
 const MIN_EEPROM_BYTES: usize = 128;
 
 impl EsiDevice {
-    /// The PDOs assigned by default to the SyncManager of `kind` (their `Sm` attribute names
-    /// a SyncManager of that kind).
+    /// The indices of the PDOs of `pdos` assigned by default (those with an `Sm` attribute).
     fn assigned(&self, pdos: &[PdoDescription]) -> Vec<u16> {
         pdos.iter()
             .filter(|p| p.sm.is_some())
