@@ -1150,10 +1150,14 @@ impl<'d, 'a> Types<'d, 'a> {
             .map_or(0, |b| self.code(b, depth + 1))
     }
 
-    /// The flags of an element (an Object or a SubItem): access and PDO mapping.
-    fn flags(&self, id: usize) -> (Access, u16) {
+    /// The flags of an element (an Object or a SubItem): access and PDO mapping; those of
+    /// `fallback` (the object's) when it has none, read-only at last.
+    fn flags(&self, id: usize, fallback: Option<usize>) -> (Access, u16) {
         let doc = self.doc;
-        let Some(f) = doc.child(id, "Flags") else {
+        let Some(f) = doc
+            .child(id, "Flags")
+            .or_else(|| fallback.and_then(|o| doc.child(o, "Flags")))
+        else {
             return (Access::ReadOnly, 0);
         };
         let access = match doc.child(f, "Access") {
@@ -1177,7 +1181,7 @@ impl<'d, 'a> Types<'d, 'a> {
 
     /// The entries a data type with SubItems lays out (subindex 0 first), and whether it is an
     /// array (a SubItem whose type has `ArrayInfo`).
-    fn slots(&self, t: usize) -> Result<(Vec<Slot>, bool), EsiError> {
+    fn slots(&self, t: usize, object: usize) -> Result<(Vec<Slot>, bool), EsiError> {
         let doc = self.doc;
         let mut out = Vec::new();
         let mut is_array = false;
@@ -1186,7 +1190,7 @@ impl<'d, 'a> Types<'d, 'a> {
             let name = doc.child_text(si, "Name").unwrap_or("").to_string();
             let type_name = doc.child_text(si, "Type").unwrap_or("");
             let bits: u16 = doc.opt_child_number(si, "BitSize")?.unwrap_or(0);
-            let (access, pdo_mapping) = self.flags(si);
+            let (access, pdo_mapping) = self.flags(si, Some(object));
             // ETG.2000 arrays: subindex 0 (the count), then one SubItem without a SubIdx whose
             // type is an array of `Elements` from `LBound` of the `BaseType`. A SubItem with a
             // SubIdx is one entry whatever its type (Ingenia's 0x58B2:01, an ARRAY [0..511] OF
@@ -1255,7 +1259,7 @@ impl<'d, 'a> Types<'d, 'a> {
         let has_subitems = def.is_some_and(|t| doc.child(t, "SubItem").is_some());
         if !has_subitems {
             // A VAR: one entry, subindex 0.
-            let (access, pdo_mapping) = self.flags(o);
+            let (access, pdo_mapping) = self.flags(o, None);
             let code = self.code(type_name, 0);
             let bits = bit_size
                 .or_else(|| def.and_then(|t| doc.opt_child_number(t, "BitSize").ok().flatten()))
@@ -1281,7 +1285,7 @@ impl<'d, 'a> Types<'d, 'a> {
                 entries: vec![e],
             });
         }
-        let (slots, is_array) = self.slots(def.unwrap_or(o))?;
+        let (slots, is_array) = self.slots(def.unwrap_or(o), o)?;
         let mut entries: Vec<Entry> = slots
             .into_iter()
             .map(|s| Entry {

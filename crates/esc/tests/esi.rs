@@ -682,8 +682,12 @@ esi = "virtual.xml"
     let _ = std::fs::remove_dir_all(&tmp);
 }
 
+/// Two Ingenia drives in a segment: each ESC's SII valid with its own serial, and its CoE
+/// server answering CoE messages (ETG.1000.6 5.6.2: an expedited upload of 0x1018:01, a normal
+/// upload of the 5-byte STRING 0x58AA, and the SDO Information entry description of 0x6040)
+/// with the ESI's values.
 #[test]
-fn a_segment_of_esi_drives_answers_the_ids_and_sii_read_back() {
+fn a_segment_of_esi_drives_answers_coe_with_the_esi_values() {
     let Some(dir) = esi_dir() else { return };
     let d = esi::load(&dir.join("ingenia-evs-net-01.xml"))
         .unwrap()
@@ -704,12 +708,37 @@ fn a_segment_of_esi_drives_answers_the_ids_and_sii_read_back() {
         entry_port: 0,
         cable_m: 1.0,
     };
-    let seg = Segment::new(&[spec(0), spec(1)]).unwrap();
+    let mut seg = Segment::new(&[spec(0), spec(1)]).unwrap();
     for i in 0..2 {
-        let esc = seg.esc(i);
-        assert!(sii::checksum_ok(esc.sii_image()));
-        let od = &esc.sdo_server().expect("a mailbox with CoE").od;
-        assert_eq!(od.read_u32(0x1018, 4), i as u32 + 1);
-        assert_eq!(od.read_u32(0x1c12, 1), 0x1600);
+        let img = seg.esc(i).sii_image().to_vec();
+        assert!(sii::checksum_ok(&img));
+        assert_eq!(sii::identity(&img).unwrap().serial, i as u32 + 1);
+        let s = seg.esc_mut(i).sdo_server_mut().expect("a mailbox with CoE");
+        // CoE header (service 2, SDO request), then the SDO: 0x40 initiate upload.
+        let mut ask = |sdo: &[u8]| {
+            let mut req = vec![0x00, 0x20];
+            req.extend_from_slice(sdo);
+            s.handle(&req, AlState::PreOp, 122).unwrap().unwrap()
+        };
+        let r = ask(&[0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0]);
+        // SDO response (service 3), expedited 4 bytes (0x43), 0x029C.
+        assert_eq!(r, [0x00, 0x30, 0x43, 0x18, 0x10, 0x01, 0x9c, 0x02, 0, 0]);
+        let r = ask(&[0x40, 0x12, 0x1c, 0x01, 0, 0, 0, 0]);
+        assert_eq!(
+            &r[2..8],
+            &[0x4b, 0x12, 0x1c, 0x01, 0x00, 0x16],
+            "0x1C12:01 = 0x1600"
+        );
+        // 0x58AA: normal upload (0x41), size 5, "0.0.1" (DefaultData 302e302e31, line 4412).
+        let r = ask(&[0x40, 0xaa, 0x58, 0x00, 0, 0, 0, 0]);
+        assert_eq!(&r[2..10], &[0x41, 0xaa, 0x58, 0x00, 5, 0, 0, 0]);
+        assert_eq!(&r[10..], b"0.0.1");
+        // SDO Information (service 8), get entry description (0x05) of 0x6040:00: UNSIGNED16,
+        // 16 bits, read and write in every state (0x3F) and RxPDO-mappable (0x40), the name
+        // "Control Word" (line 3633).
+        let req = [0x00, 0x80, 0x05, 0, 0, 0, 0x40, 0x60, 0x00, 0x00];
+        let r = s.handle(&req, AlState::PreOp, 122).unwrap().unwrap();
+        assert_eq!(&r[6..16], &[0x40, 0x60, 0, 0, 0x06, 0, 16, 0, 0x7f, 0]);
+        assert_eq!(&r[16..], b"Control Word");
     }
 }
