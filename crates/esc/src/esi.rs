@@ -191,11 +191,14 @@ impl CoeDetails {
 pub const MAILBOX_PROTOCOLS: [(&str, u16); 6] = [
     ("AoE", 0x0001),
     ("EoE", 0x0002),
-    ("CoE", 0x0004),
+    ("CoE", MAILBOX_COE),
     ("FoE", 0x0008),
     ("SoE", 0x0010),
     ("VoE", 0x0020),
 ];
+
+/// CoE's bit in the mailbox protocol word.
+pub const MAILBOX_COE: u16 = 0x0004;
 
 /// One `Device` of an ESI file.
 #[derive(Debug, Clone, PartialEq)]
@@ -311,8 +314,10 @@ impl EsiDevice {
                 continue;
             }
             let access = if p.fixed { ro } else { rw };
-            let mut entries = vec![u8_entry(0, "SubIndex 000", access, p.entries.len() as u8)];
-            for (k, e) in p.entries.iter().enumerate() {
+            // A mapping has at most 255 entries (subindices 1-255).
+            let n = p.entries.len().min(255);
+            let mut entries = vec![u8_entry(0, "SubIndex 000", access, n as u8)];
+            for (k, e) in p.entries.iter().take(n).enumerate() {
                 let v =
                     (u32::from(e.index) << 16) | (u32::from(e.subindex) << 8) | u32::from(e.bits);
                 entries.push(Entry {
@@ -332,10 +337,11 @@ impl EsiDevice {
                 entries,
             });
         }
-        for (index, name, assigned) in [
+        for (index, name, mut assigned) in [
             (0x1c12u16, "RxPDO assign", self.assigned(&self.rx_pdos)),
             (0x1c13, "TxPDO assign", self.assigned(&self.tx_pdos)),
         ] {
+            assigned.truncate(255);
             let pos = match objects.iter().position(|o| o.index == index) {
                 Some(p) => p,
                 None => {
@@ -394,12 +400,11 @@ impl EsiDevice {
     /// or FoE there would try them.
     pub fn device_info(&self, serial: u32) -> DeviceInfo {
         let mailbox = self.mailbox_layout();
-        let coe_bit = MAILBOX_PROTOCOLS[2].1;
         let sii = SiiContents {
             config_words: self.config_words,
             eeprom_bytes: self.eeprom_bytes.unwrap_or(DEFAULT_EEPROM_BYTES),
             mailbox_protocols: if mailbox.is_some() {
-                self.mailbox_protocols & coe_bit
+                self.mailbox_protocols & MAILBOX_COE
             } else {
                 0
             },
@@ -477,6 +482,9 @@ pub fn parse_bytes(file: &str, bytes: &[u8]) -> Result<EsiFile, EsiError> {
 
 /// Parses the text of an ESI file named `file`.
 pub fn parse(file: &str, text: &str) -> Result<EsiFile, EsiError> {
+    // A byte order mark (Windows tools write one) is not part of the document; it holds no
+    // newline, so the lines stay those of the file.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let doc = Doc::parse(file, text)?;
     doc.ethercat_info()
 }
@@ -1554,6 +1562,30 @@ mod tests {
         assert_eq!(od.read(0x1008, 0).unwrap(), b"ecsync virtual servo drive");
         // ConfigData's 16 bytes: words 0-6 kept, word 7 dropped.
         assert_eq!(d.config_words, Some([0x0c05, 0, 100, 0, 0, 0, 0]));
+    }
+
+    #[test]
+    fn latin1_files_and_byte_order_marks_are_read() {
+        let mut b = b"<?xml version=\"1.0\" encoding=\"ISO-8859-1\"?>\n".to_vec();
+        let body = SHIPPED.split_once("?>").unwrap().1.replace(
+            "ecsync virtual servo drive</Name>",
+            "drive 5 \u{b5}s</Name>",
+        );
+        // The body in ISO-8859-1: the one non-ASCII character as its single byte 0xB5.
+        b.extend(body.chars().map(|c| u8::try_from(u32::from(c)).unwrap()));
+        let f = parse_bytes("latin1.xml", &b).unwrap();
+        assert_eq!(f.devices[0].name, "drive 5 \u{b5}s");
+        // Not UTF-8 and not declared otherwise: an error at the line of the bad byte.
+        let bad = [
+            b"<EtherCATInfo>\n<Vendor>".as_slice(),
+            &[0xb5],
+            b"</Vendor>",
+        ]
+        .concat();
+        let e = parse_bytes("bad.xml", &bad).unwrap_err();
+        assert_eq!((e.kind, e.line), (EsiErrorKind::Xml, Some(2)), "{e}");
+        let bom = format!("\u{feff}{SHIPPED}");
+        assert_eq!(parse("bom.xml", &bom).unwrap().vendor_id, 0x0e5c);
     }
 
     /// Parses `bytes` and, if it is a description, builds everything from it: the device, its
