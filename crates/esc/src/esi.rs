@@ -409,8 +409,8 @@ impl EsiDevice {
                 0
             },
             coe_details: self.coe.map_or(0, CoeDetails::sii_byte),
-            group: self.group.clone(),
-            order: self.type_name.clone(),
+            group: truncated(&self.group, MAX_SII_STRING_BYTES).to_string(),
+            order: truncated(&self.type_name, MAX_SII_STRING_BYTES).to_string(),
             fmmus: self.fmmus.clone(),
             sync_managers: self
                 .sync_managers
@@ -431,7 +431,7 @@ impl EsiDevice {
             product_code: self.product_code,
             revision: self.revision,
             serial,
-            name: self.name.clone(),
+            name: truncated(&self.name, MAX_SII_STRING_BYTES).to_string(),
             alias: self.config_words.map_or(0, |w| w[4]),
             outputs: Self::assigned_entries(&self.rx_pdos),
             inputs: Self::assigned_entries(&self.tx_pdos),
@@ -441,6 +441,19 @@ impl EsiDevice {
             sii: Some(Arc::new(sii)),
         }
     }
+}
+
+/// The longest name the SII gets, bytes: ethercrab reads the SII's strings into 64-byte strings
+/// and refuses a device with a longer one (see [`DeviceInfo::name`]).
+const MAX_SII_STRING_BYTES: usize = 64;
+
+/// `s` cut to at most `max` bytes, at a character boundary.
+fn truncated(s: &str, max: usize) -> &str {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    &s[..end]
 }
 
 /// Reads and parses the ESI file at `path`.
@@ -1562,6 +1575,19 @@ mod tests {
         assert_eq!(od.read(0x1008, 0).unwrap(), b"ecsync virtual servo drive");
         // ConfigData's 16 bytes: words 0-6 kept, word 7 dropped.
         assert_eq!(d.config_words, Some([0x0c05, 0, 100, 0, 0, 0, 0]));
+    }
+
+    #[test]
+    fn long_names_are_cut_for_the_sii() {
+        let long = "\u{e9}".repeat(40);
+        let text = SHIPPED.replace(
+            "ecsync virtual servo drive</Name>",
+            &format!("{long}</Name>"),
+        );
+        let f = parse("long.xml", &text).unwrap();
+        assert_eq!(f.devices[0].name, long);
+        let dev = f.devices[0].device_info(1);
+        assert_eq!(dev.name, "\u{e9}".repeat(32), "64 bytes, whole characters");
     }
 
     #[test]
