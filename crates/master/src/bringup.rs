@@ -1459,8 +1459,8 @@ pub(crate) async fn configure_sync_mode(
                 ..
             }) => {}
             // A cycle time the drive does not let the master set (read-only, 0x06010002): it
-            // takes the cycle from its SYNC0 (ETG.1020 12.3: 0x1C32:02 is writable only if the
-            // drive supports it; Ingenia's EVS-NET-01 ESI has it `ro`).
+            // keeps its own and follows SYNC0. Devices differ here: ecsync's drive has 0x1C32:02
+            // rw in PRE-OP, Ingenia's EVS-NET-01 ESI has it `ro`.
             Err(MasterError::SdoAbort {
                 code: 0x0601_0002, ..
             }) if (index, sub) == (0x1c32, 2) => {}
