@@ -201,8 +201,9 @@ pub fn build(model: &EscModel, dev: &DeviceInfo) -> Vec<u8> {
     w.img
 }
 
-/// The PDO category flags (ETG.2010, PDO category: bit 0 mandatory, bit 1 assigned by
-/// default, bit 4 fixed content).
+/// The PDO category flags (ETG.2010 table 14, offset 6): 0x0001 PdoMandatory (ESI
+/// `Mandatory`), 0x0002 PdoDefault (ESI `Sm`: assigned by default), 0x0010 PdoFixedContent
+/// (ESI `Fixed`).
 fn pdo_flags(p: &PdoDescription) -> u16 {
     u16::from(p.mandatory) | (u16::from(p.sm.is_some()) << 1) | (u16::from(p.fixed) << 4)
 }
