@@ -16,6 +16,10 @@
 //!    0x1C12/0x1C13 read back, each equal to the device's own;
 //! 5. SYNC0 configuration, SAFE-OP and OP with process data exchanged through the PDO
 //!    mapping ethercrab read over CoE (SM2 = 16 B outputs, SM3 = 18 B inputs).
+//!
+//! And an Ingenia EVS-NET-01 built from its vendor's ESI (../shared/esi/): scanned, read over
+//! CoE in PRE-OP (identity, device type, PDO assignment and mapping, a CiA 402 default), in OP
+//! with the 11 bytes each way of its default PDOs.
 
 mod common;
 
