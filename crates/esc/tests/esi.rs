@@ -5,14 +5,15 @@
 
 mod common;
 
-use common::{esi_dir, shipped_esi};
+use common::{Bus, esi_dir, shipped_esi};
 use ecsync_esc::clock::CrystalParams;
 use ecsync_esc::coe::{ObjectDictionary, SdoServer};
 use ecsync_esc::esi::{self, EsiErrorKind};
 use ecsync_esc::model::{DeviceInfo, EscModel};
 use ecsync_esc::{Esc, Segment, SlaveSpec, Upstream};
-use ecsync_wire::AlState;
+use ecsync_wire::register::{self as reg, sii_control};
 use ecsync_wire::sii::{self, category};
+use ecsync_wire::{AlState, Command, DatagramAddress};
 
 /// A first-occurrence string search over the XML text, independent of the parser under test.
 struct Xml(String);
@@ -73,6 +74,27 @@ fn crc8(bytes: &[u8]) -> u8 {
         }
     }
     crc
+}
+
+/// Eight bytes of slave `pos`'s SII EEPROM from word `word`, read the way a master does it
+/// (ESC datasheet section II, "SII EEPROM interface"): the read command and the address
+/// written to 0x0502-0x0507, 0x0502 polled until not busy, the data read from 0x0508.
+fn sii_read(bus: &mut Bus, pos: u16, word: u32) -> [u8; 8] {
+    let at = |ado: u16| DatagramAddress::Position {
+        adp: 0u16.wrapping_sub(pos),
+        ado,
+    };
+    let mut cmd = sii_control::CMD_READ.to_le_bytes().to_vec();
+    cmd.extend_from_slice(&word.to_le_bytes());
+    assert_eq!(bus.one(Command::Apwr, at(reg::SII_CONTROL), &cmd).wkc, 1);
+    for _ in 0..10 {
+        let c = bus.one(Command::Aprd, at(reg::SII_CONTROL), &[0, 0]);
+        if u16::from_le_bytes([c.data[0], c.data[1]]) & sii_control::BUSY == 0 {
+            let d = bus.one(Command::Aprd, at(reg::SII_DATA), &[0; 8]);
+            return d.data.try_into().unwrap();
+        }
+    }
+    panic!("slave {pos}: the SII read stays busy");
 }
 
 /// The ESC of `dev` on a servo-mii model, as the segment powers it up.
@@ -682,7 +704,8 @@ esi = "virtual.xml"
     let _ = std::fs::remove_dir_all(&tmp);
 }
 
-/// Two Ingenia drives in a segment: each ESC's SII valid with its own serial, and its CoE
+/// Two Ingenia drives in a segment: each ESC's SII, read over EtherCAT, with the ESI's
+/// ConfigData, a valid checksum and its own serial; and each ESC's CoE
 /// server answering CoE messages (ETG.1000.6 5.6.2: an expedited upload of 0x1018:01, a normal
 /// upload of the 5-byte STRING 0x58AA, and the SDO Information entry description of 0x6040)
 /// with the ESI's values.
@@ -708,7 +731,26 @@ fn a_segment_of_esi_drives_answers_coe_with_the_esi_values() {
         entry_port: 0,
         cable_m: 1.0,
     };
-    let mut seg = Segment::new(&[spec(0), spec(1)]).unwrap();
+    let seg = Segment::new(&[spec(0), spec(1)]).unwrap();
+    // Each drive's SII words 0-15 read over EtherCAT: ConfigData (line 12405) as words 0-6,
+    // word 7 its CRC-8, then vendor, product, revision and serial.
+    let xml = Xml::read(&dir.join("ingenia-evs-net-01.xml"));
+    let config = hex_bytes(xml.between("<Eeprom>", "<ConfigData>", "</ConfigData>"));
+    let mut bus = Bus::new(seg);
+    for pos in 0..2u16 {
+        let words: Vec<u8> = (0..4)
+            .flat_map(|k| sii_read(&mut bus, pos, 4 * k))
+            .collect();
+        assert_eq!(&words[..14], &config[..], "slave {pos}: words 0-6");
+        assert_eq!(words[14], crc8(&words[..14]), "slave {pos}: word 7");
+        let dword = |w: usize| u32::from_le_bytes(words[2 * w..2 * w + 4].try_into().unwrap());
+        assert_eq!(
+            [dword(8), dword(10), dword(12), dword(14)],
+            [0x29c, 61_935_618, 327_685, u32::from(pos) + 1],
+            "slave {pos}: identity"
+        );
+    }
+    let mut seg = bus.seg;
     for i in 0..2 {
         let img = seg.esc(i).sii_image().to_vec();
         assert!(sii::checksum_ok(&img));
