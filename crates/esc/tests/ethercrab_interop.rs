@@ -351,11 +351,12 @@ fn ethercrab_scans_an_ingenia_drive_built_from_its_esi() {
             group.tx_rx(&maindevice).await?;
             thread::sleep(CYCLE);
         }
-        // The virtual drive echoes its outputs after the statusword.
+        // The virtual drive echoes its outputs after the statusword, a few cycles old at most
+        // (the paper segment's test allows three).
         let inp = sd.inputs_raw();
         let echoed = u32::from_le_bytes(inp[2..6].try_into().unwrap());
         assert!(
-            (47..50).contains(&echoed),
+            (46..50).contains(&echoed),
             "inputs echo the outputs ({echoed})"
         );
         Ok(())
