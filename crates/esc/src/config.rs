@@ -378,10 +378,7 @@ impl SegmentConfig {
             ));
         }
         let mut names: Vec<&str> = Vec::with_capacity(self.slave.len());
-        // ESI files parsed so far: several slaves may use one.
-        let mut esi_cache: HashMap<PathBuf, Arc<crate::esi::EsiFile>> = HashMap::new();
-        // Devices built from them (a device's dictionary is shared by the slaves that are it).
-        let mut built: HashMap<(PathBuf, String), DeviceInfo> = HashMap::new();
+        let mut esi_files = EsiFiles::default();
         let mut specs = Vec::with_capacity(self.slave.len());
         for (i, sp) in self.slave.iter().enumerate() {
             let s = sp.get_ref();
@@ -412,74 +409,14 @@ impl SegmentConfig {
             };
             let serial = s.serial.unwrap_or(i as u32 + 1);
             let device = match &s.esi {
-                Some(esi) => {
-                    let key_at = key_line_in(text, sp.span(), "esi").or(line);
-                    let dev_at = key_line_in(text, sp.span(), "device").or(line);
-                    let path = Path::new(file).parent().unwrap_or(Path::new("")).join(esi);
-                    let parsed = match esi_cache.get(&path) {
-                        Some(p) => Arc::clone(p),
-                        None => {
-                            let p = match crate::esi::load(&path) {
-                                Ok(p) => Arc::new(p),
-                                Err(e) if e.kind == crate::esi::EsiErrorKind::Io => {
-                                    return Err(err(
-                                        key_at,
-                                        f("esi"),
-                                        format!("{}: {}", path.display(), e.message),
-                                        "give the path of an ESI file, relative to the folder of this file",
-                                    ));
-                                }
-                                Err(e) => {
-                                    return Err(err(
-                                        key_at,
-                                        f("esi"),
-                                        format!("the ESI file is not usable: {e}"),
-                                        "correct the ESI file at that line, or use another one",
-                                    ));
-                                }
-                            };
-                            esi_cache.insert(path.clone(), Arc::clone(&p));
-                            p
-                        }
-                    };
-                    let names = parsed
-                        .device_names()
-                        .iter()
-                        .map(|n| format!("\"{n}\""))
-                        .collect::<Vec<_>>()
-                        .join(", ");
-                    let chosen = match &s.device {
-                        Some(name) => parsed.device(name).ok_or_else(|| {
-                            err(
-                                dev_at,
-                                f("device"),
-                                format!("{} has no device \"{name}\"", path.display()),
-                                &format!("use one of its devices' <Type> names: {names}"),
-                            )
-                        })?,
-                        None if parsed.devices.len() == 1 => &parsed.devices[0],
-                        None => {
-                            return Err(err(
-                                key_at,
-                                f("device"),
-                                format!(
-                                    "{} describes {} devices",
-                                    path.display(),
-                                    parsed.devices.len()
-                                ),
-                                &format!("say which with device = one of {names}"),
-                            ));
-                        }
-                    };
-                    let key = (path, chosen.type_name.clone());
-                    let template = built
-                        .entry(key)
-                        .or_insert_with(|| chosen.device_info(serial));
-                    DeviceInfo {
-                        serial,
-                        ..template.clone()
-                    }
-                }
+                Some(esi) => esi_files.device(
+                    &src,
+                    esi,
+                    s.device.as_deref(),
+                    serial,
+                    (f("esi"), key_line_in(text, sp.span(), "esi").or(line)),
+                    (f("device"), key_line_in(text, sp.span(), "device").or(line)),
+                )?,
                 None => match s.device.as_deref().unwrap_or("servo-drive") {
                     "servo-drive" => DeviceInfo::servo_drive(serial),
                     "coupler" => DeviceInfo::coupler(&s.name, serial),
@@ -615,6 +552,97 @@ impl SegmentConfig {
             ));
         }
         Ok(specs)
+    }
+}
+
+/// The ESI files a segment's slaves name, each parsed once, and the devices built from them,
+/// each built once (the slaves that are one device share its dictionary).
+#[derive(Default)]
+struct EsiFiles {
+    files: HashMap<PathBuf, Arc<crate::esi::EsiFile>>,
+    devices: HashMap<(PathBuf, String), DeviceInfo>,
+}
+
+impl EsiFiles {
+    /// The device `device` (a `<Type>` name; `None`: the file's only one) of the ESI file `esi`
+    /// (relative to the folder of the configuration file `src`) with serial number `serial`.
+    /// `esi_at` and `device_at` are the fields and lines errors name.
+    fn device(
+        &mut self,
+        src: &ConfigSource<'_>,
+        esi: &str,
+        device: Option<&str>,
+        serial: u32,
+        esi_at: (String, Option<usize>),
+        device_at: (String, Option<usize>),
+    ) -> Result<DeviceInfo, ConfigError> {
+        let path = Path::new(src.file)
+            .parent()
+            .unwrap_or(Path::new(""))
+            .join(esi);
+        let file = match self.files.get(&path) {
+            Some(f) => Arc::clone(f),
+            None => {
+                let f = crate::esi::load(&path).map_err(|e| {
+                    let (field, line) = esi_at.clone();
+                    if e.kind == crate::esi::EsiErrorKind::Io {
+                        src.at(
+                            line,
+                            field,
+                            format!("{}: {}", path.display(), e.message),
+                            "give the path of an ESI file, relative to the folder of this file",
+                        )
+                    } else {
+                        src.at(
+                            line,
+                            field,
+                            format!("the ESI file is not usable: {e}"),
+                            "correct the ESI file at that line, or use another one",
+                        )
+                    }
+                })?;
+                let f = Arc::new(f);
+                self.files.insert(path.clone(), Arc::clone(&f));
+                f
+            }
+        };
+        let names = file
+            .device_names()
+            .iter()
+            .map(|n| format!("\"{n}\""))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let chosen = match device {
+            Some(name) => file.device(name).ok_or_else(|| {
+                src.at(
+                    device_at.1,
+                    device_at.0.clone(),
+                    format!("{} has no device \"{name}\"", path.display()),
+                    format!("use one of its devices' <Type> names: {names}"),
+                )
+            })?,
+            None if file.devices.len() == 1 => &file.devices[0],
+            None => {
+                return Err(src.at(
+                    esi_at.1,
+                    device_at.0,
+                    format!(
+                        "{} describes {} devices",
+                        path.display(),
+                        file.devices.len()
+                    ),
+                    format!("say which with device = one of {names}"),
+                ));
+            }
+        };
+        let template = self
+            .devices
+            .entry((path, chosen.type_name.clone()))
+            .or_insert_with(|| chosen.device_info(serial));
+        Ok(DeviceInfo {
+            serial,
+            ..template.clone()
+        })
     }
 }
 

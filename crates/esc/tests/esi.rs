@@ -701,6 +701,33 @@ esi = "virtual.xml"
         e.message.contains("broken.xml:2: <EtherCATInfo/Vendor>"),
         "{e}"
     );
+
+    // A file of two devices: the slave must say which; the second one is built when named.
+    let shipped = std::fs::read_to_string(shipped_esi()).unwrap();
+    let (a, b) = (
+        shipped.find("      <Device ").unwrap(),
+        shipped.find("    </Devices>").unwrap(),
+    );
+    let second = shipped[a..b]
+        .replace(">ECSYNC-VIRT<", ">ECSYNC-VIRT-2<")
+        .replace("ProductCode=\"#x00004024\"", "ProductCode=\"#x00004025\"");
+    let two = format!("{}{second}{}", &shipped[..b], &shipped[b..]);
+    std::fs::write(tmp.join("two.xml"), two).unwrap();
+    let bad = net.replace("esi = \"virtual.xml\"", "esi = \"two.xml\"");
+    let e = ecsync_esc::config::parse_segment(&file, &bad).unwrap_err();
+    assert_eq!(
+        (e.field.as_str(), e.line),
+        ("segment.slave[2].device", Some(17)),
+        "{e}"
+    );
+    assert!(e.message.contains("describes 2 devices"), "{e}");
+    assert!(e.fix.contains("\"ECSYNC-VIRT\", \"ECSYNC-VIRT-2\""), "{e}");
+    let good = net.replace(
+        "esi = \"virtual.xml\"",
+        "esi = \"two.xml\"\ndevice = \"ECSYNC-VIRT-2\"",
+    );
+    let specs = ecsync_esc::config::parse_segment(&file, &good).unwrap();
+    assert_eq!(specs[2].device.product_code, 0x4025);
     let _ = std::fs::remove_dir_all(&tmp);
 }
 
