@@ -28,7 +28,8 @@ use ecsync_wire::mailbox::coe::{
     SdoAbortCode, SdoInfoOpcode, SdoInfoRequest, SdoRequest,
 };
 
-/// CiA data types (ETG.1000.6 table 64).
+/// CiA data types (ETG.1000.6 table 64; BYTE, WORD, DWORD and the bit strings from ETG.1020
+/// table 98), the codes SDO Information and the SII's PDO entries carry.
 pub mod data_type {
     /// BOOLEAN.
     pub const BOOL: u16 = 0x0001;
@@ -44,8 +45,120 @@ pub mod data_type {
     pub const UINT16: u16 = 0x0006;
     /// UNSIGNED32.
     pub const UINT32: u16 = 0x0007;
+    /// REAL32.
+    pub const REAL32: u16 = 0x0008;
     /// VISIBLE_STRING.
     pub const VISIBLE_STRING: u16 = 0x0009;
+    /// OCTET_STRING.
+    pub const OCTET_STRING: u16 = 0x000a;
+    /// UNICODE_STRING.
+    pub const UNICODE_STRING: u16 = 0x000b;
+    /// TIME_OF_DAY.
+    pub const TIME_OF_DAY: u16 = 0x000c;
+    /// TIME_DIFFERENCE.
+    pub const TIME_DIFFERENCE: u16 = 0x000d;
+    /// DOMAIN.
+    pub const DOMAIN: u16 = 0x000f;
+    /// INTEGER24.
+    pub const INT24: u16 = 0x0010;
+    /// REAL64.
+    pub const REAL64: u16 = 0x0011;
+    /// INTEGER40.
+    pub const INT40: u16 = 0x0012;
+    /// INTEGER48.
+    pub const INT48: u16 = 0x0013;
+    /// INTEGER56.
+    pub const INT56: u16 = 0x0014;
+    /// INTEGER64.
+    pub const INT64: u16 = 0x0015;
+    /// UNSIGNED24.
+    pub const UINT24: u16 = 0x0016;
+    /// UNSIGNED40.
+    pub const UINT40: u16 = 0x0018;
+    /// UNSIGNED48.
+    pub const UINT48: u16 = 0x0019;
+    /// UNSIGNED56.
+    pub const UINT56: u16 = 0x001a;
+    /// UNSIGNED64.
+    pub const UINT64: u16 = 0x001b;
+    /// BYTE.
+    pub const BYTE: u16 = 0x001e;
+    /// WORD.
+    pub const WORD: u16 = 0x001f;
+    /// DWORD.
+    pub const DWORD: u16 = 0x0020;
+    /// BITARR8.
+    pub const BITARR8: u16 = 0x002d;
+    /// BITARR16.
+    pub const BITARR16: u16 = 0x002e;
+    /// BITARR32.
+    pub const BITARR32: u16 = 0x002f;
+    /// BIT1; BIT2 to BIT8 follow (0x0031-0x0037).
+    pub const BIT1: u16 = 0x0030;
+
+    /// The code of an ESI data type name (ETG.2000 writes the IEC 61131 names: BOOL, SINT,
+    /// INT, DINT, USINT, UINT, UDINT, REAL, STRING(n), ...), `None` for a name that is not a
+    /// base type (a DT... record or array of the dictionary, an enum).
+    pub fn from_esi_name(name: &str) -> Option<u16> {
+        let name = name.trim();
+        if name.starts_with("STRING(") && name.ends_with(')') {
+            return Some(VISIBLE_STRING);
+        }
+        if name.starts_with("OCTET_STRING")
+            || (name.starts_with("ARRAY [")
+                && (name.ends_with("OF BYTE") || name.ends_with("OF USINT")))
+        {
+            return Some(OCTET_STRING);
+        }
+        if name.starts_with("UNICODE_STRING") || name.starts_with("WSTRING") {
+            return Some(UNICODE_STRING);
+        }
+        if let Some(n) = name.strip_prefix("BIT")
+            && let Ok(n) = n.parse::<u16>()
+            && (1..=8).contains(&n)
+        {
+            return Some(BIT1 + n - 1);
+        }
+        Some(match name {
+            "BOOL" | "BOOLEAN" => BOOL,
+            "SINT" | "INT8" | "INTEGER8" => INT8,
+            "INT" | "INT16" | "INTEGER16" => INT16,
+            "DINT" | "INT32" | "INTEGER32" => INT32,
+            "USINT" | "UINT8" | "UNSIGNED8" => UINT8,
+            "UINT" | "UINT16" | "UNSIGNED16" => UINT16,
+            "UDINT" | "UINT32" | "UNSIGNED32" => UINT32,
+            "REAL" | "REAL32" | "FLOAT" => REAL32,
+            "LREAL" | "REAL64" => REAL64,
+            "INT24" | "INTEGER24" => INT24,
+            "INT40" | "INTEGER40" => INT40,
+            "INT48" | "INTEGER48" => INT48,
+            "INT56" | "INTEGER56" => INT56,
+            "LINT" | "INT64" | "INTEGER64" => INT64,
+            "UINT24" | "UNSIGNED24" => UINT24,
+            "UINT40" | "UNSIGNED40" => UINT40,
+            "UINT48" | "UNSIGNED48" => UINT48,
+            "UINT56" | "UNSIGNED56" => UINT56,
+            "ULINT" | "UINT64" | "UNSIGNED64" => UINT64,
+            "BYTE" => BYTE,
+            "WORD" => WORD,
+            "DWORD" => DWORD,
+            "BITARR8" => BITARR8,
+            "BITARR16" => BITARR16,
+            "BITARR32" => BITARR32,
+            "TIME_OF_DAY" => TIME_OF_DAY,
+            "TIME_DIFFERENCE" => TIME_DIFFERENCE,
+            "DOMAIN" => DOMAIN,
+            _ => return None,
+        })
+    }
+
+    /// Whether values of this type are read as signed integers (for an ESI's DefaultValue).
+    pub fn is_signed(code: u16) -> bool {
+        matches!(
+            code,
+            INT8 | INT16 | INT24 | INT32 | INT40 | INT48 | INT56 | INT64
+        )
+    }
 }
 
 /// Who may write an entry when.
@@ -128,14 +241,18 @@ impl Object {
     /// The entries a complete access covers from `sub` (0 or 1): subindex 0 as 16 bits, then
     /// the entries up to the count subindex 0 holds.
     fn complete(&self, sub: u8) -> Vec<u8> {
-        let count = self.entries.first().map_or(0, |e| e.value[0]);
+        let count = self
+            .entries
+            .first()
+            .and_then(|e| e.value.first().copied())
+            .unwrap_or(0);
         let mut out = Vec::new();
         for e in &self.entries {
             if e.subindex < sub || e.subindex > count {
                 continue;
             }
             if e.subindex == 0 {
-                out.extend_from_slice(&[e.value[0], 0]);
+                out.extend_from_slice(&[e.value.first().copied().unwrap_or(0), 0]);
             } else {
                 out.extend_from_slice(&e.value);
             }
@@ -443,6 +560,38 @@ impl ObjectDictionary {
         ObjectDictionary { objects }
     }
 
+    /// A dictionary of `objects` (a device description's), in index order; of two objects with
+    /// one index the first is kept.
+    pub fn from_objects(mut objects: Vec<Object>) -> Self {
+        objects.sort_by_key(|o| o.index);
+        objects.dedup_by_key(|o| o.index);
+        ObjectDictionary { objects }
+    }
+
+    /// This dictionary (a device description's) made fit to serve `dev`: the communication
+    /// objects (below 0x2000) that [`ObjectDictionary::for_device`] has and this one lacks are
+    /// added (the ESC reads 0x1C32:01, a master 0x1018 and the PDO assignment), and the identity
+    /// 0x1018:01-04 is the device's own (its SII's): a real device answers its identity there,
+    /// while an ESI's DefaultData for 0x1018 are what its generator wrote (Ingenia's EVS-NET-01
+    /// gives product code 0x32 and revision 0 beside a `Type` of 0x03B11002 / 0x00050005).
+    pub fn completed_for(mut self, dev: &DeviceInfo) -> Self {
+        for o in ObjectDictionary::for_device(dev).objects {
+            if o.index < 0x2000 && self.object(o.index).is_none() {
+                self.objects.push(o);
+            }
+        }
+        self.objects.sort_by_key(|o| o.index);
+        for (sub, v) in [
+            (1u8, dev.vendor_id),
+            (2, dev.product_code),
+            (3, dev.revision),
+            (4, dev.serial),
+        ] {
+            self.set(0x1018, sub, &v.to_le_bytes());
+        }
+        self
+    }
+
     /// The objects, in index order.
     pub fn objects(&self) -> &[Object] {
         &self.objects
@@ -493,7 +642,11 @@ impl ObjectDictionary {
     ) -> Result<(), SdoAbortCode> {
         let mapping_object = matches!(index, 0x1600..=0x17ff | 0x1a00..=0x1bff | 0x1c12 | 0x1c13);
         let o = self.object(index).ok_or(SdoAbortCode::NoObject)?;
-        let count = o.entries.first().map_or(0, |e| e.value[0]);
+        let count = o
+            .entries
+            .first()
+            .and_then(|e| e.value.first().copied())
+            .unwrap_or(0);
         let max = o_max_sub(Some(o));
         let e = o.entry(sub).ok_or(SdoAbortCode::NoSubindex)?;
         match e.access {
@@ -515,7 +668,7 @@ impl ObjectDictionary {
             // ETG.1000.6: a mapping or assignment is changed with subindex 0 set to 0 first.
             return Err(SdoAbortCode::SubindexZeroMustBeZero);
         }
-        if mapping_object && sub == 0 && data[0] > max {
+        if mapping_object && sub == 0 && data.first().is_some_and(|&c| c > max) {
             return Err(SdoAbortCode::ValueTooHigh);
         }
         if let Some(e) = self.object_mut(index).and_then(|o| o.entry_mut(sub)) {
@@ -576,7 +729,10 @@ impl ObjectDictionary {
             at = 2;
             c
         } else {
-            o.entries.first().map_or(0, |e| e.value[0])
+            o.entries
+                .first()
+                .and_then(|e| e.value.first().copied())
+                .unwrap_or(0)
         };
         for s in 1..=count {
             let e = o.entry(s).ok_or(SdoAbortCode::ValueTooHigh)?;
@@ -669,10 +825,15 @@ pub struct SdoServer {
 }
 
 impl SdoServer {
-    /// A server for `dev`.
+    /// A server for `dev`: on the dictionary its description gives, completed
+    /// ([`ObjectDictionary::completed_for`]), else on the one built for it.
     pub fn new(dev: &DeviceInfo) -> Self {
+        let od = match &dev.dictionary {
+            Some(d) => ObjectDictionary::clone(d).completed_for(dev),
+            None => ObjectDictionary::for_device(dev),
+        };
         SdoServer {
-            od: ObjectDictionary::for_device(dev),
+            od,
             transfer: None,
             fragments: std::collections::VecDeque::new(),
         }

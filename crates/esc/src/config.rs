@@ -6,7 +6,10 @@
 //! name = "drive-1"
 //! model = "servo-mii"        # servo-mii | servo-mii-dc32 | ebus-terminal | ebus-terminal-no-dc
 //!                            # | junction-mii
-//! device = "servo-drive"     # servo-drive | coupler
+//! device = "servo-drive"     # servo-drive | coupler; with `esi`: the ESI device's type name
+//! # esi = "drives.xml"       # an ESI file (ETG.2000) describing the device, relative to this
+//!                            # file's folder; `device` selects one of its devices by its
+//!                            # <Type> text and may be left out when the file has one
 //! upstream = "master"        # "master" or the name of a slave listed before this one
 //! upstream_port = 1          # port of the upstream slave (not used for the master)
 //! entry_port = 0             # this slave's port towards the master
@@ -28,7 +31,10 @@ use crate::clock::CrystalParams;
 use crate::model::{DcSupport, DeviceInfo, EscModel, PortKind};
 use crate::segment::{SlaveSpec, Upstream};
 use serde::Deserialize;
+use std::collections::HashMap;
 use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// A configuration error located in its file: what every parser of a configuration or
 /// scenario file returns (this crate's segment, the lab's scenarios, the CLI's `run`).
@@ -204,6 +210,26 @@ pub fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
     None
 }
 
+/// The line of `key = ...` in the table whose header starts at `span` (the span toml gives a
+/// table of an array of tables covers its header only): the lines up to the next header.
+fn key_line_in(text: &str, span: std::ops::Range<usize>, key: &str) -> Option<usize> {
+    let start = span.start.min(text.len());
+    let mut at = start;
+    for (k, l) in text.get(start..)?.split_inclusive('\n').enumerate() {
+        if k > 0 && l.trim_start().starts_with('[') {
+            break;
+        }
+        if k > 0
+            && l.split_once('=')
+                .is_some_and(|(name, _)| name.trim() == key)
+        {
+            return Some(line_of(text, at));
+        }
+        at += l.len();
+    }
+    None
+}
+
 /// 1-based line of a byte offset.
 pub fn line_of(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
@@ -263,9 +289,13 @@ pub struct SlaveConfig {
     /// ESC model.
     #[serde(default = "default_model")]
     pub model: String,
-    /// Device.
-    #[serde(default = "default_device")]
-    pub device: String,
+    /// Device: a built-in one (`servo-drive`, the default, or `coupler`), or with `esi` the
+    /// type name of one of the file's devices.
+    #[serde(default)]
+    pub device: Option<String>,
+    /// An ESI file describing the device, relative to the configuration file's folder.
+    #[serde(default)]
+    pub esi: Option<String>,
     /// "master" or the name of an earlier slave.
     pub upstream: String,
     /// Port of the upstream slave.
@@ -302,9 +332,6 @@ pub struct SlaveConfig {
 
 fn default_model() -> String {
     "servo-mii".into()
-}
-fn default_device() -> String {
-    "servo-drive".into()
 }
 fn default_upstream_port() -> u8 {
     1
@@ -351,6 +378,7 @@ impl SegmentConfig {
             ));
         }
         let mut names: Vec<&str> = Vec::with_capacity(self.slave.len());
+        let mut esi_files = EsiFiles::default();
         let mut specs = Vec::with_capacity(self.slave.len());
         for (i, sp) in self.slave.iter().enumerate() {
             let s = sp.get_ref();
@@ -380,17 +408,27 @@ impl SegmentConfig {
                 }
             };
             let serial = s.serial.unwrap_or(i as u32 + 1);
-            let device = match s.device.as_str() {
-                "servo-drive" => DeviceInfo::servo_drive(serial),
-                "coupler" => DeviceInfo::coupler(&s.name, serial),
-                other => {
-                    return Err(err(
-                        line,
-                        f("device"),
-                        format!("unknown device \"{other}\""),
-                        "use servo-drive or coupler",
-                    ));
-                }
+            let device = match &s.esi {
+                Some(esi) => esi_files.device(
+                    &src,
+                    esi,
+                    s.device.as_deref(),
+                    serial,
+                    (f("esi"), key_line_in(text, sp.span(), "esi").or(line)),
+                    (f("device"), key_line_in(text, sp.span(), "device").or(line)),
+                )?,
+                None => match s.device.as_deref().unwrap_or("servo-drive") {
+                    "servo-drive" => DeviceInfo::servo_drive(serial),
+                    "coupler" => DeviceInfo::coupler(&s.name, serial),
+                    other => {
+                        return Err(err(
+                            line,
+                            f("device"),
+                            format!("unknown device \"{other}\""),
+                            "use servo-drive or coupler, or describe the device with esi = \"file.xml\"",
+                        ));
+                    }
+                },
             };
             for (name, v, target) in [
                 (
@@ -514,6 +552,97 @@ impl SegmentConfig {
             ));
         }
         Ok(specs)
+    }
+}
+
+/// The ESI files a segment's slaves name, each parsed once, and the devices built from them,
+/// each built once (the slaves that are one device share its dictionary).
+#[derive(Default)]
+struct EsiFiles {
+    files: HashMap<PathBuf, Arc<crate::esi::EsiFile>>,
+    devices: HashMap<(PathBuf, String), DeviceInfo>,
+}
+
+impl EsiFiles {
+    /// The device `device` (a `<Type>` name; `None`: the file's only one) of the ESI file `esi`
+    /// (relative to the folder of the configuration file `src`) with serial number `serial`.
+    /// `esi_at` and `device_at` are the fields and lines errors name.
+    fn device(
+        &mut self,
+        src: &ConfigSource<'_>,
+        esi: &str,
+        device: Option<&str>,
+        serial: u32,
+        esi_at: (String, Option<usize>),
+        device_at: (String, Option<usize>),
+    ) -> Result<DeviceInfo, ConfigError> {
+        let path = Path::new(src.file)
+            .parent()
+            .unwrap_or(Path::new(""))
+            .join(esi);
+        let file = match self.files.get(&path) {
+            Some(f) => Arc::clone(f),
+            None => {
+                let f = crate::esi::load(&path).map_err(|e| {
+                    let (field, line) = esi_at.clone();
+                    if e.kind == crate::esi::EsiErrorKind::Io {
+                        src.at(
+                            line,
+                            field,
+                            format!("{}: {}", path.display(), e.message),
+                            "give the path of an ESI file, relative to the folder of this file",
+                        )
+                    } else {
+                        src.at(
+                            line,
+                            field,
+                            format!("the ESI file is not usable: {e}"),
+                            "correct the ESI file at that line, or use another one",
+                        )
+                    }
+                })?;
+                let f = Arc::new(f);
+                self.files.insert(path.clone(), Arc::clone(&f));
+                f
+            }
+        };
+        let names = file
+            .device_names()
+            .iter()
+            .map(|n| format!("\"{n}\""))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let chosen = match device {
+            Some(name) => file.device(name).ok_or_else(|| {
+                src.at(
+                    device_at.1,
+                    device_at.0.clone(),
+                    format!("{} has no device \"{name}\"", path.display()),
+                    format!("use one of its devices' <Type> names: {names}"),
+                )
+            })?,
+            None if file.devices.len() == 1 => &file.devices[0],
+            None => {
+                return Err(src.at(
+                    esi_at.1,
+                    device_at.0,
+                    format!(
+                        "{} describes {} devices",
+                        path.display(),
+                        file.devices.len()
+                    ),
+                    format!("say which with device = one of {names}"),
+                ));
+            }
+        };
+        let template = self
+            .devices
+            .entry((path, chosen.type_name.clone()))
+            .or_insert_with(|| chosen.device_info(serial));
+        Ok(DeviceInfo {
+            serial,
+            ..template.clone()
+        })
     }
 }
 

@@ -26,6 +26,7 @@ pub mod coe;
 pub mod config;
 pub mod dc_unit;
 mod esc;
+pub mod esi;
 pub mod fault;
 pub mod model;
 pub mod pcap;

@@ -263,6 +263,92 @@ pub struct PdoEntry {
     pub name: String,
 }
 
+/// One PDO as a device description lists it (ETG.2000 `RxPdo`/`TxPdo`), for the SII's PDO
+/// categories.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PdoDescription {
+    /// The PDO's index (0x1600-0x17FF RxPDO, 0x1A00-0x1BFF TxPDO).
+    pub index: u16,
+    /// Name.
+    pub name: String,
+    /// The SyncManager it is assigned to by default (the ESI's `Sm` attribute); `None`: not
+    /// assigned by default.
+    pub sm: Option<u8>,
+    /// Its content cannot be changed (`Fixed`).
+    pub fixed: bool,
+    /// It must be assigned (`Mandatory`).
+    pub mandatory: bool,
+    /// Its entries.
+    pub entries: Vec<PdoEntry>,
+    /// The CiA data type code of each entry (0 where the description gives none).
+    pub entry_data_types: Vec<u16>,
+}
+
+/// One SyncManager as a device description lists it (ETG.2000 `Sm`), for the SII's
+/// SyncManager category.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SmDescription {
+    /// Physical start address.
+    pub start: u16,
+    /// Default length, bytes (`DefaultSize`).
+    pub default_len: u16,
+    /// Control byte (register 0x0804 of the SyncManager).
+    pub control: u8,
+    /// Enabled at start-up (`Enable`).
+    pub enable: bool,
+    /// The SII SyncManager type: 1 mailbox out, 2 mailbox in, 3 outputs, 4 inputs, 0 unused
+    /// (`ecsync_wire::sii::sm_type`).
+    pub sm_type: u8,
+}
+
+/// What a device's SII holds beyond its identity and mailbox words, when a device description
+/// (an ESI file) gives it: `None` in [`DeviceInfo::sii`] for the built-in devices, whose SII
+/// [`crate::sii_image::build`] derives from the other fields.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SiiContents {
+    /// SII words 0-6 (ESI `Eeprom/ConfigData`): PDI control, PDI configuration, SYNC pulse
+    /// length, extended PDI configuration, alias, reserved; word 7, the checksum, is computed.
+    /// `None`: the built-in defaults.
+    pub config_words: Option<[u16; 7]>,
+    /// EEPROM size, bytes (ESI `Eeprom/ByteSize`).
+    pub eeprom_bytes: usize,
+    /// The mailbox protocol word 0x1C (bit 0 AoE, 1 EoE, 2 CoE, 3 FoE, 4 SoE, 5 VoE).
+    pub mailbox_protocols: u16,
+    /// The general category's CoE details (ETG.2010 table 6).
+    pub coe_details: u8,
+    /// The group's name (the general category's group string).
+    pub group: String,
+    /// The order number string (the ESI's device type name).
+    pub order: String,
+    /// FMMU usage, one byte per FMMU: 1 outputs, 2 inputs, 3 mailbox state, 0 unused.
+    pub fmmus: Vec<u8>,
+    /// The SyncManagers in order.
+    pub sync_managers: Vec<SmDescription>,
+    /// Every RxPDO the description lists, assigned by default or not.
+    pub rx_pdos: Vec<PdoDescription>,
+    /// Every TxPDO the description lists.
+    pub tx_pdos: Vec<PdoDescription>,
+}
+
+/// A DC operation mode as an ESI lists it (ETG.2000 `Dc/OpMode`): what a master writes to the
+/// DC activation register 0x0980 in this mode, and the SYNC0 timing it sets up.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DcOpMode {
+    /// Name (e.g. `DC`, `FreeRun`).
+    pub name: String,
+    /// Description (`Desc`).
+    pub description: String,
+    /// `AssignActivate`: the value of 0x0980-0x0981 (0x0300: cyclic unit and SYNC0 active; 0:
+    /// no DC).
+    pub assign_activate: u16,
+    /// `CycleTimeSync0`, ns; 0 with a factor: the bus cycle times the factor.
+    pub cycle_time_sync0_ns: u32,
+    /// `CycleTimeSync0@Factor`: SYNC0's cycle as a multiple of the bus cycle, if given.
+    pub cycle_time_sync0_factor: Option<i32>,
+    /// `ShiftTimeSync0`, ns (may be negative).
+    pub shift_time_sync0_ns: i32,
+}
+
 /// The device behind the ESC: what its SII EEPROM says.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DeviceInfo {
@@ -285,6 +371,14 @@ pub struct DeviceInfo {
     /// The mailbox (SM0 out, SM1 in) with CoE behind it, as real drives have: the process
     /// data then sits on SM2 and SM3. `None`: no mailbox, the process data on SM0 and SM1.
     pub mailbox: Option<MailboxLayout>,
+    /// The object dictionary a device description gives, with its defaults (shared by the
+    /// copies of the device; each ESC's SDO server works on its own copy). `None`:
+    /// [`crate::coe::ObjectDictionary::for_device`] builds it from the fields above.
+    pub dictionary: Option<std::sync::Arc<crate::coe::ObjectDictionary>>,
+    /// The DC operation modes a device description lists (empty for the built-in devices).
+    pub dc_opmodes: Vec<DcOpMode>,
+    /// The SII's contents a device description gives; `None`: derived (see [`SiiContents`]).
+    pub sii: Option<std::sync::Arc<SiiContents>>,
 }
 
 /// Where a device's mailbox buffers are (the SII's standard mailbox words 0x18-0x1B).
@@ -328,13 +422,26 @@ impl DeviceInfo {
     /// The physical starts of the output and input buffers (SM2/SM3 behind a mailbox, else
     /// SM0/SM1).
     pub fn process_data_starts(&self) -> (u16, u16) {
-        match &self.mailbox {
+        // A description that places the process data SyncManagers (an ESI's Sm elements).
+        let described = |kind: u8| {
+            self.sii.as_ref().and_then(|c| {
+                c.sync_managers
+                    .iter()
+                    .find(|s| s.sm_type == kind)
+                    .map(|s| s.start)
+            })
+        };
+        let derived = match &self.mailbox {
             Some(m) => m.process_data_starts(),
             None => (
                 crate::sii_image::SM_OUTPUT_START,
                 crate::sii_image::SM_INPUT_START,
             ),
-        }
+        };
+        (
+            described(ecsync_wire::sii::sm_type::OUTPUTS).unwrap_or(derived.0),
+            described(ecsync_wire::sii::sm_type::INPUTS).unwrap_or(derived.1),
+        )
     }
 
     /// The same device with a standard mailbox and CoE (a real drive's layout).
@@ -398,6 +505,9 @@ impl DeviceInfo {
             ],
             // A drive has a mailbox with CoE, its process data on SM2/SM3.
             mailbox: Some(MailboxLayout::STANDARD),
+            dictionary: None,
+            dc_opmodes: Vec::new(),
+            sii: None,
         }
     }
 
@@ -413,6 +523,9 @@ impl DeviceInfo {
             outputs: vec![],
             inputs: vec![],
             mailbox: None,
+            dictionary: None,
+            dc_opmodes: Vec::new(),
+            sii: None,
         }
     }
 }

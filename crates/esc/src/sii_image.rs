@@ -1,7 +1,7 @@
 //! Builds a valid SII EEPROM image from a device description (ETG.1000.6 layout; see
 //! `ecsync_wire::sii`).
 
-use crate::model::{DeviceInfo, EscModel, PdoEntry};
+use crate::model::{DeviceInfo, EscModel, PdoDescription, PdoEntry, SiiContents};
 use ecsync_wire::sii::{self, category};
 
 /// EEPROM size: 16 Kbit (2 KiB), the size of the ESC configuration area's word 0x3E + 1.
@@ -80,8 +80,12 @@ fn pdo_category(index: u16, sm: u8, entries: &[PdoEntry], first_name_idx: u8) ->
 }
 
 /// The SII image of a device on an ESC model. Bytes past the categories read as 0xFF, as an
-/// erased EEPROM does.
+/// erased EEPROM does. A device whose description gives the SII's contents
+/// ([`DeviceInfo::sii`], from an ESI) gets them ([`build_described`]).
 pub fn build(model: &EscModel, dev: &DeviceInfo) -> Vec<u8> {
+    if let Some(c) = &dev.sii {
+        return build_described(model, dev, c);
+    }
     let mut w = Writer {
         img: vec![0u8; EEPROM_BYTES],
     };
@@ -192,6 +196,170 @@ pub fn build(model: &EscModel, dev: &DeviceInfo) -> Vec<u8> {
 
     let start = usize::from(sii::WORD_FIRST_CATEGORY) * 2;
     let end = (start + cats.len()).min(EEPROM_BYTES);
+    w.img[start..end].copy_from_slice(&cats[..end - start]);
+    w.img[end..].fill(0xff);
+    w.img
+}
+
+/// The PDO category flags (ETG.2010 table 14, offset 6): 0x0001 PdoMandatory (ESI
+/// `Mandatory`), 0x0002 PdoDefault (ESI `Sm`: assigned by default), 0x0010 PdoFixedContent
+/// (ESI `Fixed`).
+fn pdo_flags(p: &PdoDescription) -> u16 {
+    u16::from(p.mandatory) | (u16::from(p.sm.is_some()) << 1) | (u16::from(p.fixed) << 4)
+}
+
+/// The SII image of a device whose description gives its SII's contents (an ESI, ETG.2000 to
+/// ETG.2010): words 0-6 from its ConfigData with the checksum computed over them (word 7),
+/// the alias of word 4 the device's; the identity; the mailbox words and the protocols; the
+/// EEPROM size; strings (name, group, order number = the ESI's type name, PDO and entry
+/// names); the general category with CoE's details; FMMU usage; the SyncManagers as
+/// described, the process data ones as long as the default assignment lays out (the length
+/// the application checks at PRE-OP -> SAFE-OP); one PDO category per PDO, its SyncManager
+/// 0xFF when it is not assigned by default (no SyncManager has that number).
+pub fn build_described(model: &EscModel, dev: &DeviceInfo, c: &SiiContents) -> Vec<u8> {
+    let bytes = c
+        .eeprom_bytes
+        .max(usize::from(sii::WORD_FIRST_CATEGORY) * 2 + 4);
+    let mut w = Writer {
+        img: vec![0u8; bytes],
+    };
+    let esc_cfg: u16 = if model.dc.has_system_time() {
+        0x0c
+    } else {
+        0x00
+    };
+    let config = c.config_words.unwrap_or([
+        0x0005 | (esc_cfg << 8),
+        0,
+        SYNC_PULSE_LENGTH_10NS,
+        0,
+        0,
+        0,
+        0,
+    ]);
+    for (k, v) in config.iter().enumerate() {
+        w.word(k as u16, *v);
+    }
+    w.word(sii::WORD_ALIAS, dev.alias);
+    let mut head = [0u8; 14];
+    head.copy_from_slice(&w.img[..14]);
+    w.word(sii::WORD_CHECKSUM, u16::from(sii::config_checksum(&head)));
+    w.dword(sii::WORD_VENDOR_ID, dev.vendor_id);
+    w.dword(sii::WORD_PRODUCT_CODE, dev.product_code);
+    w.dword(sii::WORD_REVISION, dev.revision);
+    w.dword(sii::WORD_SERIAL, dev.serial);
+    if let Some(m) = &dev.mailbox {
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET, m.out_start);
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET + 1, m.out_len);
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET + 2, m.in_start);
+        w.word(sii::WORD_STD_RX_MAILBOX_OFFSET + 3, m.in_len);
+        w.word(sii::WORD_MAILBOX_PROTOCOL, c.mailbox_protocols);
+    }
+    // Word 0x3E: the size in Kbit less one.
+    w.word(
+        sii::WORD_SIZE,
+        ((bytes * 8 / 1024).clamp(1, 65_536) - 1) as u16,
+    );
+    w.word(sii::WORD_VERSION, 1);
+
+    // Strings: 1 name, 2 group, 3 order number, then the PDOs' and their entries' names (a
+    // string index is one byte: past 255 strings, names get index 0, none).
+    let mut strings: Vec<&str> = vec![&dev.name, &c.group, &c.order];
+    fn add<'s>(strings: &mut Vec<&'s str>, s: &'s str) -> u8 {
+        if s.is_empty() || strings.len() >= 255 {
+            return 0;
+        }
+        strings.push(s);
+        strings.len() as u8
+    }
+    let mut pdo_names: Vec<(u8, Vec<u8>)> = Vec::new();
+    for p in c.tx_pdos.iter().chain(&c.rx_pdos) {
+        let pi = add(&mut strings, &p.name);
+        let ei = p
+            .entries
+            .iter()
+            .map(|e| {
+                if e.index == 0 {
+                    0
+                } else {
+                    add(&mut strings, &e.name)
+                }
+            })
+            .collect();
+        pdo_names.push((pi, ei));
+    }
+    let mut s = vec![strings.len() as u8];
+    for st in &strings {
+        let b = &st.as_bytes()[..st.len().min(255)];
+        s.push(b.len() as u8);
+        s.extend_from_slice(b);
+    }
+    let mut cats = Vec::new();
+    push_category(&mut cats, category::STRINGS, s);
+
+    let mut general = vec![0u8; sii::general::LEN];
+    general[sii::general::GROUP_IDX] = if c.group.is_empty() { 0 } else { 2 };
+    general[sii::general::ORDER_IDX] = 3;
+    general[sii::general::NAME_IDX] = 1;
+    if dev.mailbox.is_some() {
+        general[sii::general::COE_DETAILS] = c.coe_details;
+    }
+    let ports = model
+        .ports
+        .iter()
+        .enumerate()
+        .fold(0u16, |acc, (p, k)| acc | (k.sii_nibble() << (4 * p)));
+    general[sii::general::PHYSICAL_PORT..sii::general::PHYSICAL_PORT + 2]
+        .copy_from_slice(&ports.to_le_bytes());
+    push_category(&mut cats, category::GENERAL, general);
+
+    if !c.fmmus.is_empty() {
+        push_category(&mut cats, category::FMMU, c.fmmus.clone());
+    }
+    if !c.sync_managers.is_empty() {
+        let mut sm = Vec::new();
+        for d in &c.sync_managers {
+            let len = match d.sm_type {
+                sii::sm_type::OUTPUTS => dev.output_bytes() as u16,
+                sii::sm_type::INPUTS => dev.input_bytes() as u16,
+                _ => d.default_len,
+            };
+            sm.extend_from_slice(&d.start.to_le_bytes());
+            sm.extend_from_slice(&len.to_le_bytes());
+            sm.extend_from_slice(&[d.control, 0x00, u8::from(d.enable), d.sm_type]);
+        }
+        push_category(&mut cats, category::SYNC_MANAGER, sm);
+    }
+    let kinds = std::iter::repeat_n(category::TXPDO, c.tx_pdos.len())
+        .chain(std::iter::repeat_n(category::RXPDO, c.rx_pdos.len()));
+    for ((p, kind), (name_idx, entry_idx)) in c
+        .tx_pdos
+        .iter()
+        .chain(&c.rx_pdos)
+        .zip(kinds)
+        .zip(&pdo_names)
+    {
+        let mut d = Vec::with_capacity(8 + 8 * p.entries.len());
+        d.extend_from_slice(&p.index.to_le_bytes());
+        d.push(p.entries.len().min(255) as u8);
+        d.push(p.sm.unwrap_or(0xff));
+        d.push(0); // DC sync
+        d.push(*name_idx);
+        d.extend_from_slice(&pdo_flags(p).to_le_bytes());
+        for (i, e) in p.entries.iter().enumerate().take(255) {
+            d.extend_from_slice(&e.index.to_le_bytes());
+            d.push(e.subindex);
+            d.push(entry_idx[i]);
+            d.push(p.entry_data_types.get(i).copied().unwrap_or(0) as u8);
+            d.push(e.bits);
+            d.extend_from_slice(&0u16.to_le_bytes());
+        }
+        push_category(&mut cats, kind, d);
+    }
+    cats.extend_from_slice(&category::END.to_le_bytes());
+
+    let start = usize::from(sii::WORD_FIRST_CATEGORY) * 2;
+    let end = (start + cats.len()).min(bytes);
     w.img[start..end].copy_from_slice(&cats[..end - start]);
     w.img[end..].fill(0xff);
     w.img

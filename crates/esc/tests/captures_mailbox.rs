@@ -799,6 +799,9 @@ fn akd() -> (Segment, Vec<Station>) {
             e(0x606c, 32),
         ],
         mailbox: Some(mbx),
+        dictionary: None,
+        dc_opmodes: Vec::new(),
+        sii: None,
     };
     let mut seg =
         Segment::new(&[spec(EscModel::servo_mii_dc32(), dev, Upstream::Master, 3)]).unwrap();

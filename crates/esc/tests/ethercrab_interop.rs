@@ -16,9 +16,16 @@
 //!    0x1C12/0x1C13 read back, each equal to the device's own;
 //! 5. SYNC0 configuration, SAFE-OP and OP with process data exchanged through the PDO
 //!    mapping ethercrab read over CoE (SM2 = 16 B outputs, SM3 = 18 B inputs).
+//!
+//! And an Ingenia EVS-NET-01 built from its vendor's ESI (../shared/esi/): scanned, read over
+//! CoE in PRE-OP (identity, device type, PDO assignment and mapping, a CiA 402 default), in OP
+//! with the 11 bytes each way of its default PDOs.
 
+mod common;
+
+use ecsync_esc::clock::CrystalParams;
 use ecsync_esc::model::{DcSupport, EscModel};
-use ecsync_esc::{Segment, SlaveSpec, frame_wire_time_ps, preset};
+use ecsync_esc::{Segment, SlaveSpec, Upstream, frame_wire_time_ps, preset};
 use ecsync_wire::sii::{self, category};
 use ethercrab::{
     DcSync, MainDevice, MainDeviceConfig, PduRx, PduStorage, PduTx, RegisterAddress, Timeouts,
@@ -62,6 +69,7 @@ type Storage = PduStorage<MAX_FRAMES, MAX_PDU_DATA>;
 static PDU_STORAGE_MII: Storage = PduStorage::new();
 static PDU_STORAGE_EBUS: Storage = PduStorage::new();
 static PDU_STORAGE_DC32: Storage = PduStorage::new();
+static PDU_STORAGE_ESI: Storage = PduStorage::new();
 
 /// A query run by the TX/RX thread on the segment it owns (the segment is not `Sync`).
 type Query = Box<dyn FnOnce(&mut Segment) + Send>;
@@ -241,6 +249,133 @@ fn ethercrab_brings_an_ebus_segment_to_op_with_dc() {
         })
         .collect();
     run(&PDU_STORAGE_EBUS, specs, EBUS_DELAY_TOLERANCE_NS, 0);
+}
+
+/// An Ingenia EVS-NET-01 servo drive built from its vendor's ESI (../shared/esi/, see its
+/// README.md), scanned by ethercrab: the identity and names from the SII the ESI gives
+/// (`Type`, `Name`, ConfigData), then over CoE in PRE-OP, through the mailbox at 0x1000/0x1400
+/// the ESI places, 0x1018:01, the PDO assignment and the mapping it names; then SAFE-OP and OP
+/// with the 11 bytes each way the default PDOs lay out (the values are the ESI's, written out
+/// by hand with their lines in tests/esi.rs).
+#[test]
+fn ethercrab_scans_an_ingenia_drive_built_from_its_esi() {
+    let Some(dir) = common::esi_dir() else { return };
+    let file = ecsync_esc::esi::load(&dir.join("ingenia-evs-net-01.xml")).expect("the ESI");
+    let serial = 0x00c0_ffee;
+    let spec = SlaveSpec {
+        model: EscModel::servo_mii(),
+        device: file.devices[0].device_info(serial),
+        crystal: CrystalParams::default(),
+        upstream: Upstream::Master,
+        entry_port: 0,
+        cable_m: 1.0,
+    };
+    let segment = Segment::new(&[spec]).expect("segment");
+    let (tx, rx, pdu_loop) = PDU_STORAGE_ESI.try_split().expect("split once");
+    let start = Instant::now();
+    let wire = Wire::spawn(segment, tx, rx, start);
+    let timeouts = Timeouts {
+        pdu: Duration::from_millis(500),
+        eeprom: Duration::from_millis(500),
+        ..Timeouts::default()
+    };
+    let maindevice = MainDevice::new(
+        pdu_loop,
+        timeouts,
+        MainDeviceConfig {
+            dc_static_sync_iterations: 100,
+            ..Default::default()
+        },
+    );
+    let result: Result<(), Error> = futures_lite::future::block_on(async {
+        let group = maindevice
+            .init_single_group::<MAX_SUBDEVICES, PDI_LEN>(|| {
+                u64::try_from(start.elapsed().as_nanos()).unwrap()
+            })
+            .await?;
+        assert_eq!(group.len(), 1);
+        let sd = group.subdevice(&maindevice, 0)?;
+        let id = sd.identity();
+        assert_eq!(
+            (id.vendor_id, id.product_id, id.revision, id.serial),
+            (0x29c, 61_935_618, 327_685, serial),
+            "SII identity: Vendor/Id, Type@ProductCode, Type@RevisionNo"
+        );
+        assert_eq!(sd.name(), "EVS-NET-01", "order string: the Type text");
+        assert_eq!(sd.description().await?.as_deref(), Some("EVS-NET-01"));
+
+        let vendor: u32 = sd.sdo_read(0x1018, 1).await?;
+        assert_eq!(vendor, 0x29c, "0x1018:01 over CoE");
+        let product: u32 = sd.sdo_read(0x1018, 2).await?;
+        assert_eq!(product, 61_935_618, "0x1018:02 over CoE: the Type's");
+        let device_type: u32 = sd.sdo_read(0x1000, 0).await?;
+        assert_eq!(device_type, 0x0002_0192, "0x1000: DefaultData 92010200");
+        let rx_count: u8 = sd.sdo_read(0x1c12, 0).await?;
+        let rx_pdo: u16 = sd.sdo_read(0x1c12, 1).await?;
+        let tx_pdo: u16 = sd.sdo_read(0x1c13, 1).await?;
+        assert_eq!(
+            (rx_count, rx_pdo, tx_pdo),
+            (1, 0x1600, 0x1a00),
+            "PDO assignment"
+        );
+        let first: u32 = sd.sdo_read(0x1600, 1).await?;
+        assert_eq!(first, 0x6040_0010, "0x1600:01: the controlword, 16 bits");
+        let tx_last: u32 = sd.sdo_read(0x1a00, 4).await?;
+        assert_eq!(
+            tx_last, 0x6061_0008,
+            "0x1A00:04: modes of operation display"
+        );
+        let window: u32 = sd.sdo_read(0x6065, 0).await?;
+        assert_eq!(window, 100, "0x6065: DefaultData 64000000");
+
+        // The process data ethercrab lays out from the mapping it reads over CoE.
+        let group = group.into_safe_op(&maindevice).await?;
+        let group = group.request_into_op(&maindevice).await?;
+        let t_op = Instant::now();
+        loop {
+            let r = group.tx_rx(&maindevice).await?;
+            if r.all_op() {
+                break;
+            }
+            assert!(t_op.elapsed() < Duration::from_secs(5), "not OP");
+            thread::sleep(CYCLE);
+        }
+        let sd = group.subdevice(&maindevice, 0)?;
+        assert_eq!((sd.outputs_raw().len(), sd.inputs_raw().len()), (11, 11));
+        // The drive runs CiA 402 on its ESI's default mapping (RPDO 1: controlword, position
+        // and velocity set-points, operation mode; TPDO 1: statusword, actual position and
+        // velocity, mode display): enabled and moved in cyclic synchronous position.
+        let target = |k: u32| 1_000 + 10 * k as i32;
+        for k in 0..50u32 {
+            {
+                let cw: u16 = match k {
+                    0..5 => 0x0006,
+                    5..10 => 0x0007,
+                    _ => 0x000f,
+                };
+                let mut o = sd.outputs_raw_mut();
+                o.fill(0);
+                o[..2].copy_from_slice(&cw.to_le_bytes());
+                o[2..6].copy_from_slice(&target(k).to_le_bytes());
+                o[10] = 8;
+            }
+            group.tx_rx(&maindevice).await?;
+            thread::sleep(CYCLE);
+        }
+        let inp = sd.inputs_raw();
+        let status = u16::from_le_bytes([inp[0], inp[1]]);
+        let position = i32::from_le_bytes(inp[2..6].try_into().unwrap());
+        assert_eq!((status, inp[10]), (0x1237, 8), "operation enabled in CSP");
+        // A cycle or a few old (the paper segment's test allows three).
+        assert!(
+            (target(45)..=target(48)).contains(&position),
+            "position actual {position} follows the targets"
+        );
+        Ok(())
+    });
+    let (segment, _) = wire.finish();
+    result.expect("ethercrab against the ESI drive");
+    assert_eq!(segment.esc(0).al_state(), ecsync_wire::AlState::Op);
 }
 
 /// `time_offset_ns`: ethercrab's EtherCAT time is the test's real time plus this.

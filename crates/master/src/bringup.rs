@@ -1431,7 +1431,8 @@ pub(crate) async fn configure_mailboxes(
 /// Part of [`Phase::PreOp`], in PRE-OP: a drive with CoE and a system time is switched to DC
 /// SYNC0 synchronisation the way masters do it (ETG.1020 section 12): 0x1C32:01 and 0x1C33:01
 /// = 2, and 0x1C32:02 the cycle time. An object the drive does not have is skipped (not every
-/// device has its SyncManager parameters); any other abort is an error.
+/// device has its SyncManager parameters), and so is a read-only cycle time; any other abort is
+/// an error.
 pub(crate) async fn configure_sync_mode(
     link: &Link,
     s: &SlaveInfo,
@@ -1457,6 +1458,12 @@ pub(crate) async fn configure_sync_mode(
                 code: 0x0602_0000 | 0x0609_0011,
                 ..
             }) => {}
+            // A cycle time the drive does not let the master set (read-only, 0x06010002): it
+            // keeps its own and follows SYNC0. Devices differ here: ecsync's drive has 0x1C32:02
+            // rw in PRE-OP, Ingenia's EVS-NET-01 ESI has it `ro`.
+            Err(MasterError::SdoAbort {
+                code: 0x0601_0002, ..
+            }) if (index, sub) == (0x1c32, 2) => {}
             Err(e) => return Err(e),
         }
     }

@@ -38,6 +38,39 @@ pub fn captures_dir() -> Option<PathBuf> {
     None
 }
 
+/// The folder of the vendors' ESI files (`../shared/esi/`, see its README.md), found as
+/// [`captures_dir`] finds the captures: `$ECSYNC_SHARED/esi`, `shared/esi` beside the
+/// repository, `/work/shared/esi`. `None` outside CI when none is there; in CI their absence
+/// fails the test.
+pub fn esi_dir() -> Option<PathBuf> {
+    let mut tried = Vec::new();
+    let candidates = std::env::var_os("ECSYNC_SHARED")
+        .map(|d| PathBuf::from(d).join("esi"))
+        .into_iter()
+        .chain([
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/esi"),
+            PathBuf::from("/work/shared/esi"),
+        ]);
+    for dir in candidates {
+        if dir.join("ingenia-evs-net-01.xml").is_file() {
+            return Some(dir);
+        }
+        tried.push(dir.display().to_string());
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "the ESI files are missing in CI (tried {}): they are part of shared/",
+        tried.join(", ")
+    );
+    eprintln!("SKIPPED: the ESI files are not at {}", tried.join(", "));
+    None
+}
+
+/// The ESI the project ships for its own virtual drive (`esi/` at the repository's root).
+pub fn shipped_esi() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../esi/ecsync-virtual-drive.xml")
+}
+
 /// One Ethernet frame of a capture.
 pub struct CapturedFrame {
     /// 1-based frame number, as Wireshark numbers it.
