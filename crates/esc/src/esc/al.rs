@@ -101,6 +101,10 @@ impl Esc {
             // A drive set to DC SYNC0 (0x1C32:01 = 2) waits for its sync signals before OP; with
             // SYNC0 not activated none comes (ETG.1020: 0x002D, no sync error).
             self.fail(AlStatusCode::NoSyncError);
+        } else if (from, to) == (SafeOp, Op) && self.sync0_faster_than_it_can() {
+            // SYNC0 faster than the drive's minimum cycle time (0x1C32:05): ETG.1020's 0x0036
+            // (SYNC0 cycle time not supported).
+            self.fail(AlStatusCode::DcSync0CycleTime);
         } else if (from, to) == (PreOp, SafeOp) {
             match self.check_process_data_config() {
                 Ok(()) => self.al_state = to,
@@ -137,6 +141,21 @@ impl Esc {
                 self.device.input_bytes() as u16,
             ),
         }
+    }
+
+    /// The drive is set to DC SYNC0 and its SYNC0 runs faster than 0x1C32:05 allows.
+    fn sync0_faster_than_it_can(&self) -> bool {
+        let Some(c) = self.sdo_server() else {
+            return false;
+        };
+        if c.od.read_u32(0x1c32, 1) != 2 {
+            return false;
+        }
+        let minimum = c.od.read_u32(0x1c32, 5);
+        self.dc
+            .as_ref()
+            .and_then(|d| d.sync0())
+            .is_some_and(|(_, cycle)| cycle > 0 && cycle < minimum)
     }
 
     /// The drive is set to DC SYNC0 over CoE and its SYNC0 does not run.
