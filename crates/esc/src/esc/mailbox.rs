@@ -679,6 +679,29 @@ mod sync_mode_tests {
         assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
     }
 
+    /// |0x092C| past the drive's PLL limit: 0x0032 with the next outputs, OP left.
+    #[test]
+    fn past_its_pll_limit_the_drive_leaves_op_with_0x0032() {
+        let mut e = safe_op(2, true);
+        put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
+        e.set_pll_error_limit_ns(1_000);
+        let ms = 1_000_000_000u64;
+        for k in 0..3 {
+            put(&mut e, 0x1100, &[0u8; 16], 3_500_000_000 + k * ms);
+        }
+        assert_eq!(get(&mut e, 0x0130, 2, 6_000_000_000)[0], 0x08, "locked: OP");
+        // The reference's time 5 us ahead: the filtered difference follows over the writes.
+        let now = e.dc().unwrap().system_time_ns(6_000_000_000);
+        for k in 0..200u64 {
+            let t = 6_000_000_000 + k * 10_000_000;
+            let sys = now + 5_000 + k * 10_000;
+            put(&mut e, 0x0910, &sys.to_le_bytes()[..4], t);
+            put(&mut e, 0x1100, &[0u8; 16], t);
+        }
+        let st = get(&mut e, 0x0130, 6, 9_000_000_000);
+        assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x0032));
+    }
+
     /// SYNC0 every 100 us, under the drive's minimum cycle time (0x1C32:05, 125 us): OP
     /// refused with 0x0036.
     #[test]

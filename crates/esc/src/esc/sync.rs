@@ -11,7 +11,13 @@
 //! past 0x10F1:02 (Sync Error Counter Limit) the application raises AL status code 0x001A
 //! (synchronization error) and goes to SAFE-OP. A SYNC0 switched off while the drive runs on it
 //! in OP is a fatal sync error (0x002C); a drive in DC mode whose SYNC0 is not active refuses
-//! OP with 0x002D (see `al.rs`).
+//! OP with 0x002D, one whose SYNC0 is faster than its minimum cycle time 0x0036 (see `al.rs`).
+//! A drive whose PLL follows SYNC0 loses lock when its clock is too far from the reference's:
+//! past its limit on |0x092C| (checked with each frame's outputs in DC mode) it raises 0x0032
+//! (PLL error) and leaves OP. ETG.1020 names the code but no object for the limit; the virtual
+//! drive keeps it as a firmware setting ([`Esc::set_pll_error_limit_ns`]), 0 (off) by
+//! default: bus shift's |0x092C| is microseconds by design, and a comparison measures the
+//! method.
 //!
 //! Assumptions, written down:
 //! - The outputs of a frame count when the frame's last bit has passed the ESC (the SyncManager
@@ -56,6 +62,8 @@ pub(super) struct SyncMonitor {
     error_counter: u32,
     /// 0x10F1:02; 0: no reaction.
     pub(super) limit: u32,
+    /// |0x092C| past this is a PLL error, ns; 0: off.
+    pub(super) pll_limit_ns: u32,
     /// 0x1C32:20: the last cycle had a missed SM event.
     pub(super) sync_error: bool,
     /// The counters changed since the OD was last brought up to date.
@@ -193,11 +201,17 @@ impl Esc {
             return;
         };
         let t_ns = dc.system_time_split(t_end_ps).0;
-        let r = self
-            .sync
-            .outputs_at(t_ns, dc.sync0(), self.al_state == AlState::Op);
+        let in_op = self.al_state == AlState::Op;
+        let pll_lost = self.sync.pll_limit_ns != 0
+            && in_op
+            && dc.sync0().is_some()
+            && dc.time_difference_ns().abs() > f64::from(self.sync.pll_limit_ns);
+        let r = self.sync.outputs_at(t_ns, dc.sync0(), in_op);
         self.update_sync_objects();
-        if r == SyncReaction::SyncError {
+        if pll_lost {
+            self.sync.stop();
+            self.raise_al_error(AlStatusCode::PllError);
+        } else if r == SyncReaction::SyncError {
             self.raise_al_error(AlStatusCode::SynchronizationError);
         }
     }
@@ -262,6 +276,12 @@ impl Esc {
             c.od.set(0x10f1, 2, &limit.to_le_bytes());
         }
         self.sync_settings_changed();
+    }
+
+    /// The drive's PLL limit on |0x092C| as its firmware keeps it, ns (0: off; see the module
+    /// documentation).
+    pub fn set_pll_error_limit_ns(&mut self, limit_ns: u32) {
+        self.sync.pll_limit_ns = limit_ns;
     }
 
     /// Whether the application runs on SYNC0 (set to DC SYNC0 mode over CoE, 0x1C32:01 = 2).
