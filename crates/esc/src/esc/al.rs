@@ -217,6 +217,7 @@ impl Esc {
         self.output_sm = out;
         self.input_sm = inp;
         self.app = self.app_layout();
+        self.app_mem.drive.inputs_lost();
         Ok(())
     }
 }

@@ -64,6 +64,16 @@ pub(super) struct DriveMemory {
     demand: i32,
     /// The position actual value, counts.
     position: i32,
+    /// The inputs as last written (statusword, mode, position, velocity, following error):
+    /// the same again is not written again (the input buffer is the application's alone).
+    written: Option<(u16, i8, i32, i32, i32)>,
+}
+
+impl DriveMemory {
+    /// The input buffer moved or was cleared: the next cycle writes every input.
+    pub(super) fn inputs_lost(&mut self) {
+        self.written = None;
+    }
 }
 
 impl DrivePlan {
@@ -195,11 +205,19 @@ pub(super) fn step(ram: &mut [u8], p: &DrivePlan, al_state: AlState, m: &mut Dri
         // Not following: the demand is where the axis stands (no jump when enabled again).
         m.demand = m.position;
     }
-    put(
-        ram,
-        p.statusword,
-        &statusword(m.state, (8..=10).contains(&mode)).to_le_bytes(),
-    );
+    let per_cycle = i64::from(m.position.wrapping_sub(before));
+    let velocity = match p.cycle_ns {
+        0 => 0,
+        1_000_000 => per_cycle * 1_000,
+        c => per_cycle * 1_000_000_000 / i64::from(c),
+    } as i32;
+    let sw = statusword(m.state, (8..=10).contains(&mode));
+    let now = (sw, mode, m.position, velocity, following);
+    if m.written == Some(now) {
+        return;
+    }
+    m.written = Some(now);
+    put(ram, p.statusword, &sw.to_le_bytes());
     if p.modes_display != NONE {
         put(ram, p.modes_display, &[mode as u8]);
     }
@@ -207,13 +225,7 @@ pub(super) fn step(ram: &mut [u8], p: &DrivePlan, al_state: AlState, m: &mut Dri
         put(ram, p.position_actual, &m.position.to_le_bytes());
     }
     if p.velocity_actual != NONE {
-        let per_cycle = i64::from(m.position.wrapping_sub(before));
-        let velocity = match p.cycle_ns {
-            0 => 0,
-            1_000_000 => per_cycle * 1_000,
-            c => per_cycle * 1_000_000_000 / i64::from(c),
-        };
-        put(ram, p.velocity_actual, &(velocity as i32).to_le_bytes());
+        put(ram, p.velocity_actual, &velocity.to_le_bytes());
     }
     if p.following_error != NONE {
         put(ram, p.following_error, &following.to_le_bytes());

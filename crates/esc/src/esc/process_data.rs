@@ -62,7 +62,7 @@ pub(super) struct AppMemory {
     /// The loopback's cycle counter.
     cycles: u16,
     /// The drive's state and position.
-    drive: DriveMemory,
+    pub(super) drive: DriveMemory,
 }
 
 /// Copies a few dozen bytes without a call into `memcpy`: the process data of one slave in the
@@ -181,6 +181,7 @@ impl Esc {
         self.mailbox_sms_changed();
         if self.input_sm.is_some() {
             self.app = self.app_layout();
+            self.app_mem.drive.inputs_lost();
         }
     }
 
