@@ -872,13 +872,36 @@ mod ethercrab_raw {
             let group = group.into_safe_op(&maindevice).await?;
             let group = group.request_into_op(&maindevice).await?;
             let mut all_op = false;
-            for _ in 0..1_000 {
+            // The outputs as the CoE mapping lays them (controlword, mode, padding, target
+            // position): each drive enabled through CiA 402 and sent to 1000 x (i + 1).
+            for k in 0..1_000u32 {
+                let cw: u16 = match k {
+                    0..300 => 0x0006,
+                    300..400 => 0x0007,
+                    _ => 0x000f,
+                };
+                for (i, sd) in group.iter(&maindevice).enumerate() {
+                    let mut o = sd.outputs_raw_mut();
+                    o[..2].copy_from_slice(&cw.to_le_bytes());
+                    o[2] = 8;
+                    o[4..8].copy_from_slice(&(1_000 * (i as i32 + 1)).to_le_bytes());
+                }
                 let now = Instant::now();
                 let r = group.tx_rx_dc(&maindevice).await?;
                 all_op |= r.all_op();
                 async_io::Timer::at(now + r.extra.next_cycle_wait).await;
             }
             assert!(all_op, "every drive reached OP");
+            for (i, sd) in group.iter(&maindevice).enumerate() {
+                let inp = sd.inputs_raw();
+                let status = u16::from_le_bytes([inp[0], inp[1]]);
+                let position = i32::from_le_bytes(inp[4..8].try_into().unwrap());
+                assert_eq!(
+                    (status, inp[2], position),
+                    (0x1237, 8, 1_000 * (i as i32 + 1)),
+                    "drive {i}: statusword, mode display, position actual"
+                );
+            }
             // 0x092C: every drive in sync with the reference.
             for (i, sd) in group.iter(&maindevice).enumerate() {
                 let raw = sd.register_read::<u32>(0x092cu16).await?;

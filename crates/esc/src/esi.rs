@@ -1571,7 +1571,7 @@ mod tests {
         assert_eq!((d.product_code, d.revision), (0x4024, 0x0001_0000));
         let od = d.dictionary();
         assert_eq!(od.read_u32(0x1c32, 2), 1_000_000, "cycle time 40420f00");
-        assert_eq!(od.read_u32(0x1c32, 5), 125_000);
+        assert_eq!(od.read_u32(0x1c32, 5), 31_250);
         assert_eq!(od.read(0x1008, 0).unwrap(), b"ecsync virtual servo drive");
         // ConfigData's 16 bytes: words 0-6 kept, word 7 dropped.
         assert_eq!(d.config_words, Some([0x0c05, 0, 100, 0, 0, 0, 0]));

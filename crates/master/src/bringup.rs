@@ -1662,6 +1662,24 @@ async fn enter_op(
         if r[0].wkc == count && status.state() == Ok(AlState::Op) && !status.error() {
             return Ok(());
         }
+        if status.error() || link.now_ns() > deadline {
+            // Who refused, and why: each slave's AL status and code (a drive's 0x002D, 0x0036,
+            // ... is the message the user needs, not the OR of the states).
+            for s in slaves {
+                let st = link
+                    .fprd(s.station, reg::AL_STATUS, 6, "AL status and code")
+                    .await?;
+                let a = AlStatus::new_checked(&st[..2])
+                    .map_err(|_| MasterError::BadReply("AL status"))?;
+                if a.error() {
+                    return Err(MasterError::StateChange {
+                        slave: s.station,
+                        state: AlState::Op,
+                        code: AlStatusCode::from(u16::from_le_bytes([st[4], st[5]])),
+                    });
+                }
+            }
+        }
         if link.now_ns() > deadline {
             return Err(MasterError::NetworkStateTimeout {
                 state: AlState::Op,

@@ -702,18 +702,18 @@ mod sync_mode_tests {
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x0032));
     }
 
-    /// SYNC0 every 100 us, under the drive's minimum cycle time (0x1C32:05, 125 us): OP
+    /// SYNC0 every 25 us, under the drive's minimum cycle time (0x1C32:05, 31.25 us): OP
     /// refused with 0x0036.
     #[test]
     fn sync0_faster_than_the_minimum_cycle_time_refuses_op_with_0x0036() {
         let mut e = safe_op(2, true);
         assert_eq!(
             e.sdo_server().unwrap().od.read_u32(0x1c32, 5),
-            125_000,
+            31_250,
             "the drive's minimum"
         );
         put(&mut e, 0x0981, &[0x00], 2_500_000_000);
-        put(&mut e, 0x09a0, &100_000u32.to_le_bytes(), 2_500_000_000);
+        put(&mut e, 0x09a0, &25_000u32.to_le_bytes(), 2_500_000_000);
         put(&mut e, 0x0981, &[0x03], 2_500_000_000);
         put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
         let st = get(&mut e, 0x0130, 6, 3_000_000_000);
