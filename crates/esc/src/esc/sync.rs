@@ -206,8 +206,9 @@ impl Esc {
             && in_op
             && dc.sync0().is_some()
             && dc.time_difference_ns().abs() > f64::from(self.sync.pll_limit_ns);
+        // (The OD's 0x1C32:0B and :20 are brought up to date when the master's next mailbox
+        // message comes, not here: the search of the dictionary costs more than the cycle.)
         let r = self.sync.outputs_at(t_ns, dc.sync0(), in_op);
-        self.update_sync_objects();
         if pll_lost {
             self.sync.stop();
             self.raise_al_error(AlStatusCode::PllError);
@@ -218,14 +219,13 @@ impl Esc {
 
     /// Before the application answers a mailbox message at `t_ps`: the counters up to now.
     pub(super) fn sync_catch_up(&mut self, t_ps: u64) {
-        if !self.sync.dc_mode || self.al_state != AlState::Op {
-            return;
+        if self.sync.dc_mode
+            && self.al_state == AlState::Op
+            && let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit())
+        {
+            let t_ns = dc.system_time_split(t_ps).0;
+            self.sync.catch_up(t_ns, dc.sync0());
         }
-        let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit()) else {
-            return;
-        };
-        let t_ns = dc.system_time_split(t_ps).0;
-        self.sync.catch_up(t_ns, dc.sync0());
         self.update_sync_objects();
     }
 
