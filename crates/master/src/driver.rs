@@ -507,9 +507,16 @@ impl CyclicDriver {
         eng: &mut CyclicEngine<S>,
         until_ns: u64,
     ) -> Result<(), Tr::Error> {
+        let lost_row = self.lost_row;
         let Some(rs) = self.recovery.as_mut() else {
             return Ok(());
         };
+        if !rs.recovering && lost_row > 0 {
+            // The counters' read waits for a network that answers (see `run`).
+            rs.running = None;
+            rs.out = None;
+            return Ok(());
+        }
         while rs.out.is_none() && tr.now_ns() < until_ns {
             let Some(e) = rs.running.as_mut() else {
                 break;
@@ -650,8 +657,16 @@ impl CyclicDriver {
                         outcome: None,
                     });
                 }
+                // A read of the drives' counters is not for a network that lost the last
+                // cycle's frames: one running is dropped (its frames would only queue up on a
+                // dead link), the next starts when frames come back.
+                if !rs.recovering && rs.running.is_some() && self.lost_row > 0 {
+                    rs.running = None;
+                    rs.out = None;
+                }
                 if let Some(every) = self.limits.sync_counters_every_ns
                     && rs.running.is_none()
+                    && self.lost_row == 0
                     && !eng.health().needs_recovery
                     && !rs.sync_drives.is_empty()
                 {
