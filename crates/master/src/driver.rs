@@ -284,30 +284,31 @@ pub struct SyncCounter {
 /// What the acyclic slot's procedure gives.
 enum JobResult {
     Recovery(Result<Recovered, MasterError>),
-    /// The counters read, and each drive's mailbox counter after.
-    SyncCounters(Result<Vec<SyncCounter>, MasterError>, Vec<u8>),
+    /// One drive's counter read (none: it has no 0x1C32:0B), and its mailbox counter after.
+    SyncCounters(Result<Option<SyncCounter>, MasterError>, u8),
 }
 
 /// Reads 0x1C32:0B of each drive of `drives` (position, station, mailbox), one after the
 /// other; a drive without the object is left out.
-async fn read_sync_counters(link: crate::io::Link, drives: Vec<SyncDrive>) -> JobResult {
-    let mut out = Vec::with_capacity(drives.len());
-    let mut counters: Vec<u8> = drives.iter().map(|d| d.counter).collect();
-    for (k, d) in drives.iter().enumerate() {
-        let mut c = crate::coe::SdoClient::going_on_from(&link, d.station, d.mailbox, d.counter);
-        let r = c.upload(0x1c32, 0x0b).await;
-        counters[k] = c.counter();
-        match r {
-            Ok(v) if v.len() >= 2 => out.push(SyncCounter {
-                position: d.position,
-                sm_events_missed: u16::from_le_bytes([v[0], v[1]]),
-                read_ns: link.now_ns(),
-            }),
-            Ok(_) | Err(MasterError::SdoAbort { .. }) => {}
-            Err(e) => return JobResult::SyncCounters(Err(e), counters),
-        }
-    }
-    JobResult::SyncCounters(Ok(out), counters)
+/// One drive's read (a job per drive: a lost cycle costs the read of one drive, not a round).
+async fn read_sync_counter(link: crate::io::Link, d: SyncDrive) -> JobResult {
+    let mut c = crate::coe::SdoClient::going_on_from(&link, d.station, d.mailbox, d.counter);
+    let r = c.upload(0x1c32, 0x0b).await;
+    let read = match r {
+        Ok(v) if v.len() >= 2 => Ok(Some(SyncCounter {
+            position: d.position,
+            sm_events_missed: u16::from_le_bytes([v[0], v[1]]),
+            read_ns: link.now_ns(),
+        })),
+        Ok(_) | Err(MasterError::SdoAbort { .. }) => Ok(None),
+        Err(e) => Err(e),
+    };
+    JobResult::SyncCounters(read, c.counter())
+}
+
+/// The mailbox counter after `c` (1 to 7, 0 only before the first message).
+fn mailbox_counter_after(c: u8) -> u8 {
+    if c >= 7 { 1 } else { c + 1 }
 }
 
 /// A drive whose counter is read.
@@ -332,6 +333,10 @@ struct RecoverySlot {
     /// The drives whose counters are read, and when next.
     sync_drives: Vec<SyncDrive>,
     next_sync_read_ns: Option<u64>,
+    /// The drive the round reads next (`sync_drives.len()`: no round under way), and the one
+    /// whose read runs.
+    sync_next: usize,
+    sync_reading: Option<usize>,
     /// Each drive's first and last read.
     sync_counters: Vec<(SyncCounter, SyncCounter)>,
     /// The frame out, its send timestamp and its sends so far.
@@ -341,28 +346,46 @@ struct RecoverySlot {
 }
 
 impl RecoverySlot {
+    /// Drops the running read of a drive's counter; the round takes the same drive again with
+    /// the next cycle answered. Its request may have reached the drive: the next goes out with
+    /// the counter after it, which the drive cannot take for a repeat whichever it saw last.
+    fn drop_counter_read(&mut self) {
+        if self.running.take().is_some()
+            && let Some(d) = self
+                .sync_reading
+                .take()
+                .and_then(|k| self.sync_drives.get_mut(k))
+        {
+            d.counter = mailbox_counter_after(d.counter);
+        }
+        self.out = None;
+    }
+
     /// The recovery ended at `now` with `r`: logged, and the engine told what it did (or a
     /// retry planned).
     fn finish<S: MasterSync>(&mut self, r: JobResult, now: u64, eng: &mut CyclicEngine<S>) {
         self.running = None;
         let r = match r {
             JobResult::Recovery(r) => r,
-            JobResult::SyncCounters(r, counters) => {
-                for (d, c) in self.sync_drives.iter_mut().zip(counters) {
-                    d.counter = c;
+            JobResult::SyncCounters(r, counter) => {
+                if let Some(d) = self
+                    .sync_reading
+                    .take()
+                    .and_then(|k| self.sync_drives.get_mut(k))
+                {
+                    d.counter = counter;
                 }
-                // A failed read (a drive gone) is the cyclic phase's to notice; the next read
-                // comes at its time.
-                if let Ok(v) = r {
-                    for c in v {
-                        match self
-                            .sync_counters
-                            .iter_mut()
-                            .find(|x| x.1.position == c.position)
-                        {
-                            Some(x) => x.1 = c,
-                            None => self.sync_counters.push((c, c)),
-                        }
+                // A failed read (a drive gone) is the cyclic phase's to notice; the round goes
+                // on with the next drive.
+                self.sync_next += 1;
+                if let Ok(Some(c)) = r {
+                    match self
+                        .sync_counters
+                        .iter_mut()
+                        .find(|x| x.1.position == c.position)
+                    {
+                        Some(x) => x.1 = c,
+                        None => self.sync_counters.push((c, c)),
                     }
                 }
                 return;
@@ -492,6 +515,8 @@ impl CyclicDriver {
             recovering: false,
             sync_drives,
             next_sync_read_ns: None,
+            sync_next: usize::MAX,
+            sync_reading: None,
             sync_counters: Vec::new(),
             out: None,
             retry_at_ns: 0,
@@ -513,8 +538,7 @@ impl CyclicDriver {
         };
         if !rs.recovering && lost_row > 0 {
             // The counters' read waits for a network that answers (see `run`).
-            rs.running = None;
-            rs.out = None;
+            rs.drop_counter_read();
             return Ok(());
         }
         while rs.out.is_none() && tr.now_ns() < until_ns {
@@ -659,10 +683,11 @@ impl CyclicDriver {
                 }
                 // A read of the drives' counters is not for a network that lost the last
                 // cycle's frames: one running is dropped (its frames would only queue up on a
-                // dead link), the next starts when frames come back.
+                // dead link) and starts again with the first cycle answered (not a period
+                // later: on a host whose stalls come in bursts a read each period could be
+                // dropped for seconds).
                 if !rs.recovering && rs.running.is_some() && self.lost_row > 0 {
-                    rs.running = None;
-                    rs.out = None;
+                    rs.drop_counter_read();
                 }
                 if let Some(every) = self.limits.sync_counters_every_ns
                     && rs.running.is_none()
@@ -673,11 +698,14 @@ impl CyclicDriver {
                     let due = *rs
                         .next_sync_read_ns
                         .get_or_insert(now.saturating_add(every));
-                    if now >= due {
+                    if rs.sync_next >= rs.sync_drives.len() && now >= due {
+                        // A round: every drive, one after the other.
                         rs.next_sync_read_ns = Some(now.saturating_add(every));
-                        let drives = rs.sync_drives.clone();
-                        rs.running =
-                            Some(Engine::new(move |link| read_sync_counters(link, drives)));
+                        rs.sync_next = 0;
+                    }
+                    if let Some(&d) = rs.sync_drives.get(rs.sync_next) {
+                        rs.sync_reading = Some(rs.sync_next);
+                        rs.running = Some(Engine::new(move |link| read_sync_counter(link, d)));
                         rs.recovering = false;
                     }
                 }

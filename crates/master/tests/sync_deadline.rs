@@ -179,3 +179,116 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
         );
     }
 }
+
+/// A host whose replies vanish in one cycle out of `every` (a busy host reading them after
+/// the next slot, or a lossy wire).
+struct LossyHost {
+    inner: SimTransport,
+    every: u64,
+    cycle: u64,
+}
+
+impl Transport for LossyHost {
+    type Error = <SimTransport as Transport>::Error;
+
+    fn now_ns(&mut self) -> u64 {
+        self.inner.now_ns()
+    }
+
+    fn sleep_until(&mut self, t_ns: u64) {
+        self.inner.sleep_until(t_ns);
+    }
+
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at_ns: u64,
+        fill: F,
+    ) -> Result<u64, Self::Error> {
+        self.inner.send_with(len, at_ns, fill)
+    }
+
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline_ns: u64,
+    ) -> Result<Option<Received>, Self::Error> {
+        if self.cycle % self.every == self.every / 2 {
+            // Everything this cycle would have read is gone.
+            while self.inner.recv(buf, deadline_ns)?.is_some() {}
+            return Ok(None);
+        }
+        self.inner.recv(buf, deadline_ns)
+    }
+
+    fn start_cycle(&mut self, cycle: u64) {
+        self.cycle = cycle;
+        self.inner.start_cycle(cycle);
+    }
+}
+
+/// A read of the counters that a lost cycle interrupts starts again with the next cycle
+/// answered: on a host that loses a cycle in seven the master still reads every drive each
+/// period, and its last read is the drive's count at the end.
+#[test]
+fn a_counter_read_cut_by_a_lost_cycle_starts_again_at_once() {
+    let mut sim = SimTransport::new(Segment::new(&preset::paper_2024()).unwrap());
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: 1_000,
+        lock_hold_checks: 50,
+        sync0_shift_ns: SHIFT_NS,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |l| bringup(l, cfg));
+    let net = sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
+    let cyc = CyclicConfig {
+        period_ns: PERIOD_NS as u32,
+        reference_station: net.slaves[usize::from(net.reference)].station,
+        pdi_len: net.pdi_len,
+        measure_init_frames: 2,
+        reference_offset_ns: 0,
+        lrw: net.lrw.clone(),
+    };
+    let first = (sim.now_ns() / PERIOD_NS + 2) * PERIOD_NS;
+    let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+    let mut tr = LossyHost {
+        inner: sim,
+        every: 7,
+        cycle: 0,
+    };
+    let every_ns = 50_000_000;
+    let mut driver = CyclicDriver::new(CyclicLimits {
+        max_cycles: Some(1_000),
+        sync_counters_every_ns: Some(every_ns),
+        ..CyclicLimits::default()
+    });
+    driver.set_recovery(
+        net.clone(),
+        RecoveryConfig {
+            cycle_ns: PERIOD_NS as u32,
+            sync0_shift_ns: SHIFT_NS,
+            sync0_lead_ns: 20_000_000,
+            timeouts: BringupTimeouts::default(),
+            static_drift_frames: 1_000,
+        },
+    );
+    let mut end_ns = 0;
+    driver
+        .run(&mut tr, &mut eng, 1_000, None, |t, _| end_ns = t.now_ns())
+        .unwrap();
+    let stats = driver.stats();
+    assert!(stats.lost >= 1_000 / 7, "the host lost cycles: {stats:?}");
+    let reads = driver.sync_counters();
+    assert_eq!(reads.len(), 6, "{reads:?}");
+    for (first, last) in &reads {
+        assert!(first.read_ns < last.read_ns, "{first:?} {last:?}");
+        // Read within the last period (and a few cycles for the read itself).
+        assert!(
+            last.read_ns + every_ns + 10 * PERIOD_NS >= end_ns,
+            "drive at {}: last read {} ms before the end",
+            last.position,
+            (end_ns - last.read_ns) / 1_000_000
+        );
+    }
+}
