@@ -854,10 +854,19 @@ figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:
         );
     }
     let r = &out.recommendation;
+    let not_ranked: String = r
+        .not_ranked
+        .iter()
+        .map(|n| format!("<p>Not ranked: {}</p>", esc(&n.why)))
+        .collect();
     let _ = write!(
         h,
-        "<div class=verdict><h2>Recommendation: {}</h2><p>{}</p><p>Ranking: {}.</p><p><small>Rule: {}.</small></p></div>",
-        esc(&r.method),
+        "<div class=verdict><h2>Recommendation: {}</h2><p>{}</p><p>Ranking: {}.</p>{not_ranked}<p><small>Rule: {}.</small></p></div>",
+        esc(if r.method.is_empty() {
+            "none"
+        } else {
+            &r.method
+        }),
         esc(&r.reason),
         esc(&r.ranking.join(" &gt; ")).replace("&amp;gt;", "&gt;"),
         esc(r.rule)

@@ -213,6 +213,43 @@ pub struct Recommendation {
     pub ranking: Vec<String>,
     /// The rule.
     pub rule: &'static str,
+    /// Methods left out of the ranking, and why (their figures describe too few frames).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub not_ranked: Vec<NotRanked>,
+}
+
+/// A method the verdict does not rank.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NotRanked {
+    /// The method.
+    pub method: String,
+    /// Why, in plain words.
+    pub why: String,
+}
+
+/// A method that lost more than this share of its frames with no fault scheduled is not
+/// ranked: its figures are those of the few frames that came back, and whatever made it
+/// lose them (a cycle too short for the network, a reply timeout) is the finding.
+pub const UNRANKED_LOST_SHARE: f64 = 0.1;
+
+/// The methods the verdict cannot judge (see [`UNRANKED_LOST_SHARE`]).
+fn not_ranked(methods: &BTreeMap<String, MethodOut>, order: &[String]) -> Vec<NotRanked> {
+    order
+        .iter()
+        .filter_map(|m| {
+            let mo = methods.get(m)?;
+            let lost = mo.ground_truth.lost_frames;
+            let share = lost as f64 / mo.cycles_done.max(1) as f64;
+            (mo.faults.is_empty() && lost > 0 && share > UNRANKED_LOST_SHARE).then(|| NotRanked {
+                method: m.clone(),
+                why: format!(
+                    "{m} lost {lost} of {} frames ({:.0} %) with no fault scheduled: the figures of the frames that came back do not describe it",
+                    mo.cycles_done,
+                    share * 100.0
+                ),
+            })
+        })
+        .collect()
 }
 
 /// The ranking rule, in words.
@@ -739,7 +776,7 @@ fn warnings(
             kind: "cycle_too_short",
             method: None,
             message: format!(
-                "the cyclic frame takes {} on the wire and up to {} from its send to its reply, more than the {} cycle: frames overlap cycles",
+                "the cycle's frames take {} on the wire and up to {} from the first one's send to the last one's reply, more than the {} cycle: frames overlap cycles (make the cycle longer)",
                 us(wire),
                 us(trip),
                 us(period)
@@ -846,12 +883,24 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
         let g = &mut m.ground_truth;
         g.holds_target = g.phase.n > 0 && g.offset_from_target_ns.abs() <= 0.1 * budget;
     }
-    let ranking = rank(&methods, &order);
+    let left_out = not_ranked(&methods, &order);
+    let rankable: Vec<String> = order
+        .iter()
+        .filter(|m| !left_out.iter().any(|n| &n.method == *m))
+        .cloned()
+        .collect();
+    let ranking = rank(&methods, &rankable);
+    let reason = if ranking.is_empty() && !left_out.is_empty() {
+        "none: every method lost most of its frames, so no figure here describes a method. Read the warnings: the cycle is likely too short for the network's frames (make it longer, or the reply timeout later).".to_string()
+    } else {
+        reason(&methods, &ranking, s.sync0_shift_pct)
+    };
     let recommendation = Recommendation {
         method: ranking.first().cloned().unwrap_or_default(),
-        reason: reason(&methods, &ranking, s.sync0_shift_pct),
+        reason,
         ranking: ranking.clone(),
         rule: RANKING_RULE,
+        not_ranked: left_out,
     };
     let warnings = warnings(c, &methods, &order, budget);
     SummaryOut {
@@ -886,9 +935,17 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
 pub fn verdict_text(out: &SummaryOut) -> String {
     let mut t = String::new();
     let r = &out.recommendation;
-    let _ = writeln!(t, "Recommendation: {}", r.method);
+    let pick = if r.method.is_empty() {
+        "none"
+    } else {
+        &r.method
+    };
+    let _ = writeln!(t, "Recommendation: {pick}");
     let _ = writeln!(t, "  {}", r.reason);
     let _ = writeln!(t, "  Ranking: {}", r.ranking.join(" > "));
+    for n in &r.not_ranked {
+        let _ = writeln!(t, "  Not ranked: {}", n.why);
+    }
     let _ = writeln!(t, "  (rule: {})", r.rule);
     if !out.warnings.is_empty() {
         let _ = writeln!(t);

@@ -287,7 +287,7 @@ pub struct RunResult {
     pub init_drift: Option<InitDrift>,
     /// A controller's own report (methods with a log).
     pub controller: Option<ControllerTruth>,
-    /// The cyclic frame's length on the wire, ns.
+    /// The cycle's frames on the wire, back to back, ns (one frame on a small network).
     pub frame_wire_ns: f64,
     /// The longest time from the frame's send timestamp to its reply, ns (late replies
     /// included).
@@ -623,6 +623,9 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
 /// A recovered slave's SYNC0 starts at least this long after the recovery reads the time, ns
 /// (the rest of the recovery's frames, one per cycle, come first).
 const RECOVERY_SYNC0_LEAD_NS: u64 = 20_000_000;
+/// What a reply may take past the cycle's frames' way back before it counts as lost (the
+/// host's receive path beyond its modelled latency), ns.
+const REPLY_MARGIN_NS: u64 = 100_000;
 
 /// FRMW frames of static drift compensation a recovery sends after a reset slave's offset.
 const RECOVERY_STATIC_DRIFT_FRAMES: u32 = 15_000;
@@ -738,6 +741,8 @@ pub struct Run {
     margins: Vec<f64>,
     /// Per DC slave: the frame of a cycle that carries its outputs, and that frame's wire time.
     out_frames: Vec<(usize, u64)>,
+    /// The cycle's frames back to back on the wire, ps.
+    cycle_wire_ps: u64,
     /// Per fault over: its real time, the good cycles in a row since, the first of them (real
     /// time), the re-lock time once found (ms).
     relock: Vec<Relock>,
@@ -843,10 +848,25 @@ impl Run {
             })
             .collect();
         // The cyclic phase's host: its receive latency; a lost frame is given up half a cycle
-        // after its send.
-        sim.set_rx_latency_ps((s.host.rx_latency_ns * 1000.0) as u64);
+        // after its send, or when the cycle's frames could have come back, if that is later
+        // (a large network's frames take milliseconds on the wire: half a cycle would count
+        // every one lost; the driver gives up at the next cycle's slot in any case).
+        let rx_latency_ps = (s.host.rx_latency_ns * 1000.0) as u64;
+        sim.set_rx_latency_ps(rx_latency_ps);
+        let cycle_wire_ps: u64 = (0..eng.frame_count())
+            .map(|k| frame_wire_time_ps(eng.frame_len_of(k)))
+            .sum();
+        let way_round_ps = 2 * sim
+            .segment()
+            .pu_offsets_ps()
+            .iter()
+            .flatten()
+            .max()
+            .copied()
+            .unwrap_or(0);
+        let comes_back_ns = (cycle_wire_ps + way_round_ps + rx_latency_ps) / 1000 + REPLY_MARGIN_NS;
         let mut driver = CyclicDriver::new(CyclicLimits {
-            reply_timeout_ns: period / 2,
+            reply_timeout_ns: (period / 2).max(comes_back_ns),
             lost_in_a_row: u64::MAX,
             ..CyclicLimits::default()
         });
@@ -915,6 +935,7 @@ impl Run {
             was_in_sync: false,
             margins: Vec::with_capacity(n_dc),
             out_frames,
+            cycle_wire_ps,
             relock: Vec::new(),
             lock_samples: Vec::new(),
             events_seen: 0,
@@ -1000,6 +1021,7 @@ impl Run {
             dc_slaves,
             margins,
             out_frames,
+            cycle_wire_ps,
             relock,
             lock_samples,
             events_seen,
@@ -1021,7 +1043,6 @@ impl Run {
             if i >= total {
                 return;
             }
-            let wire_ps = frame_wire_time_ps(rep.frame_len);
             if let Some(ft) = res.faults.as_mut() {
                 // Faults are judged over the whole cyclic phase (their times count from its
                 // start): DC held, and how soon it came back after each fault.
@@ -1107,7 +1128,7 @@ impl Run {
                     let rt = back.saturating_sub(sent) as f64 / 1000.0;
                     res.max_round_trip_ns = res.max_round_trip_ns.max(rt);
                 }
-                res.frame_wire_ns = wire_ps as f64 / 1000.0;
+                res.frame_wire_ns = *cycle_wire_ps as f64 / 1000.0;
             }
             if i < warmup {
                 // The init frames' drift: how the reference's system time runs against the

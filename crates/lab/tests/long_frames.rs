@@ -1,0 +1,90 @@
+//! A network whose cycle's frames take more than half the cycle on the wire (a long line):
+//! its replies are not counted lost (they come back well before the next cycle), and a cycle
+//! shorter than the frames' way round makes every method lose its frames: the verdict then
+//! ranks none, says why, and warns that the cycle is too short.
+
+use ecsync_lab::report::summarize;
+use std::fmt::Write as _;
+use std::sync::atomic::AtomicU64;
+
+/// A line of `n` servo drives with a `cycle_us` cycle, SYNC0 at 90 %.
+fn line(n: usize, cycle_us: u32) -> String {
+    let mut t = String::from("[segment]\nseed = 7\n");
+    let mut up = "master".to_string();
+    for i in 0..n {
+        let name = format!("d{i}");
+        let _ = writeln!(
+            t,
+            "[[segment.slave]]\nname = \"{name}\"\nmodel = \"servo-mii\"\ndevice = \"servo-drive\"\nupstream = \"{up}\"\ncable_m = 1.0\nppm = {:.1}",
+            (i as f64 * 7.3) % 80.0 - 40.0
+        );
+        if up != "master" {
+            let _ = writeln!(t, "upstream_port = 1");
+        }
+        up = name;
+    }
+    let _ = write!(
+        t,
+        "[host]\npreset = \"preempt-rt-idle\"\n\
+[run]\ncycle_us = {cycle_us}\nsync0_shift_pct = 90\nruns = 1\ncycles = 1500\nwarmup_s = 1\n\
+seed = 3\nmethods = [\"soem-pi\", \"dcm-master-shift\"]\nstatic_drift_frames = 2000\n"
+    );
+    t
+}
+
+#[test]
+fn frames_longer_than_half_the_cycle_come_back_and_a_cycle_too_short_ranks_nothing() {
+    // 150 drives: the cycle's frames take about 0.45 ms on the wire (more than half of a
+    // 0.8 ms cycle) and come back within it.
+    let text = line(150, 800);
+    let s = ecsync_lab::parse("line-150.toml", &text).unwrap();
+    let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
+    let out = summarize(&c);
+    for (m, mo) in &out.methods {
+        let g = &mo.ground_truth;
+        assert!(
+            mo.ground_truth.lost_frames == 0,
+            "{m}: {} of {} frames lost",
+            g.lost_frames,
+            mo.cycles_done
+        );
+    }
+    let wire_ns = c
+        .results
+        .iter()
+        .flatten()
+        .map(|r| r.frame_wire_ns)
+        .fold(0.0, f64::max);
+    assert!(
+        wire_ns > 400_000.0,
+        "the frames take {wire_ns} ns on the wire"
+    );
+    assert_eq!(
+        out.recommendation.ranking.len(),
+        2,
+        "{:?}",
+        out.recommendation
+    );
+    assert!(out.recommendation.not_ranked.is_empty());
+    assert!(
+        !out.warnings.iter().any(|w| w.kind == "cycle_too_short"),
+        "{:?}",
+        out.warnings
+    );
+
+    // The same line at 0.4 ms: the frames alone are longer than the cycle.
+    let text = line(150, 400);
+    let s = ecsync_lab::parse("line-150-short.toml", &text).unwrap();
+    let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
+    let out = summarize(&c);
+    let r = &out.recommendation;
+    assert_eq!(r.method, "", "{r:?}");
+    assert!(r.ranking.is_empty(), "{r:?}");
+    assert_eq!(r.not_ranked.len(), 2, "{r:?}");
+    assert!(r.reason.starts_with("none"), "{}", r.reason);
+    assert!(
+        out.warnings.iter().any(|w| w.kind == "cycle_too_short"),
+        "{:?}",
+        out.warnings
+    );
+}
