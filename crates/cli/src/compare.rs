@@ -8,6 +8,7 @@ use ecsync_esc::config::{ConfigSource, Problem};
 use ecsync_lab::compare::Options;
 use ecsync_lab::report::{csv, per_slave_text, summarize, table1_text, truth_text, verdict_text};
 use ecsync_lab::scenario::plural;
+use ecsync_lab::send::SendMode;
 use ecsync_master::output::write_atomic;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -168,6 +169,12 @@ pub struct Args {
     /// Methods to compare, comma-separated (default: the scenario's; all eight in the preset).
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     methods: Option<Vec<String>>,
+    /// Send modes every method runs with, comma-separated: plain (the letter's), spin (wake
+    /// early, busy-wait to the instant), txtime (hand the frame over early with its launch
+    /// time); default: the scenario's `[send] modes`, plain alone unless it says otherwise.
+    /// The modes' parameters are the scenario's `[send]` table.
+    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    send: Option<Vec<String>>,
     /// Runs with different seeds.
     #[arg(long)]
     runs: Option<u32>,
@@ -259,6 +266,20 @@ pub fn run(args: Args) -> Result<ExitCode> {
             .filter(|k| kinds.contains(k))
             .collect();
     }
+    if let Some(m) = &args.send {
+        given.push("--send");
+        let mut modes = Vec::with_capacity(m.len());
+        for x in m {
+            modes.push(
+                x.parse::<SendMode>()
+                    .map_err(|e| anyhow::anyhow!("--send: {e}"))?,
+            );
+        }
+        s.send_modes = SendMode::ALL
+            .into_iter()
+            .filter(|k| modes.contains(k))
+            .collect();
+    }
     if let Some(r) = args.runs {
         given.push("--runs");
         s.runs = r;
@@ -312,7 +333,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let total = (s.warmup_cycles + s.cycles) * u64::from(s.runs) * s.methods.len() as u64;
+    let total = (s.warmup_cycles + s.cycles) * u64::from(s.runs) * s.entries().len() as u64;
     let progress = AtomicU64::new(0);
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()
@@ -327,9 +348,9 @@ pub fn run(args: Args) -> Result<ExitCode> {
         );
         b.set_message(format!(
             "{} x {}",
-            s.methods
+            s.entries()
                 .iter()
-                .map(|m| m.name())
+                .map(|e| e.name())
                 .collect::<Vec<_>>()
                 .join(", "),
             plural(u64::from(s.runs), "run", "runs")
@@ -356,7 +377,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         .map_err(|_| anyhow::anyhow!("a simulation thread panicked"))?
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     let out = summarize(&cmp);
-    let order: Vec<String> = s.methods.iter().map(|m| m.name().to_string()).collect();
+    let order: Vec<String> = s.entries().iter().map(|e| e.name()).collect();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let json = serde_json::to_string_pretty(&out)?;

@@ -91,7 +91,7 @@ pub fn compare_with(
 ) -> Result<Comparison, RunError> {
     let t0 = Instant::now();
     let stopped = || opts.stop.is_some_and(|s| s.load(Ordering::Relaxed));
-    let methods = scenario.methods.clone();
+    let methods = scenario.entries();
     let runs = scenario.runs as usize;
     let threads = threads.max(1);
     let ups = parallel_map(runs, threads, |r| bring_up(scenario, r as u32));

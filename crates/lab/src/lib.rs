@@ -31,6 +31,7 @@ pub mod plots;
 pub mod report;
 pub mod run;
 pub mod scenario;
+pub mod send;
 pub mod tsn;
 
 /// The statistics live in ecsync-master, where the real master's `ecsync run` uses them too

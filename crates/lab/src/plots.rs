@@ -474,15 +474,12 @@ fn fig4<DB: DrawingBackend>(
     root.fill(&WHITE).map_err(err)?;
     let rows = root.split_evenly((order.len(), 2));
     for (i, name) in order.iter().enumerate() {
-        let Some(m) = c
-            .scenario
-            .methods
-            .iter()
-            .position(|x| x.name() == name.as_str())
-        else {
+        let entries = c.scenario.entries();
+        let Some(m) = entries.iter().position(|x| x.name() == *name) else {
             continue;
         };
-        let letter = crate::letter::letter_name(c.scenario.methods[m]);
+        let e = entries[m];
+        let letter = crate::letter::letter_name(e.kind);
         let label = if letter == "-" {
             name.clone()
         } else {

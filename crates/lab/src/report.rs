@@ -30,6 +30,7 @@
 use crate::compare::Comparison;
 use crate::letter::{self, Row};
 use crate::run::RunResult;
+use crate::send::Entry;
 use crate::stats::{QUANTILE_REL_ERROR, RESOLUTION_NS, Stats, Summary, mean_of};
 use ecsync_dc::MethodKind;
 use serde::Serialize;
@@ -179,6 +180,9 @@ pub struct MethodOut {
     pub lock_ms: f64,
     /// CPU time of this method's runs, s.
     pub wall_s: f64,
+    /// How the host sent its frames (absent: `plain`, the letter's way).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub send: Option<SendOut>,
     /// Per run: the faults played and how the method came through them (`compare --faults`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub faults: Vec<crate::run::FaultsTruth>,
@@ -213,6 +217,9 @@ pub struct Recommendation {
     pub ranking: Vec<String>,
     /// The rule.
     pub rule: &'static str,
+    /// What each send mode buys the pick's method, when the comparison ran more than one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub send_modes: Option<String>,
     /// Methods left out of the ranking, and why (their figures describe too few frames).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub not_ranked: Vec<NotRanked>,
@@ -231,6 +238,51 @@ pub struct NotRanked {
 /// ranked: its figures are those of the few frames that came back, and whatever made it
 /// lose them (a cycle too short for the network, a reply timeout) is the finding.
 pub const UNRANKED_LOST_SHARE: f64 = 0.1;
+
+/// For the pick's method, each send mode's figures against `plain`'s (`None` with one mode).
+fn send_note(
+    methods: &BTreeMap<String, MethodOut>,
+    order: &[String],
+    pick: Option<&String>,
+) -> Option<String> {
+    let pick = pick?;
+    let base = pick.split('+').next().unwrap_or(pick);
+    let same: Vec<&String> = order
+        .iter()
+        .filter(|m| m.split('+').next() == Some(base) && methods.contains_key(*m))
+        .collect();
+    if same.len() < 2 {
+        return None;
+    }
+    let mut t = format!("Send modes with {base}: ");
+    let parts: Vec<String> = same
+        .iter()
+        .map(|m| {
+            let mo = &methods[*m];
+            let g = &mo.ground_truth;
+            let mode = mo.send.as_ref().map_or("plain".to_string(), |s| s.mode.to_string());
+            let cost = match &mo.send {
+                Some(s) if s.mode == crate::send::SendMode::Spin => {
+                    format!(", {:.1} % of a core spun", s.spin_cpu_pct)
+                }
+                Some(s) if s.mode == crate::send::SendMode::Txtime => {
+                    format!(", {} launch times missed (frames dropped)", s.launch_misses)
+                }
+                _ => String::new(),
+            };
+            format!(
+                "{mode}: true phase RMS {} about the target, p99.9 {}, smallest safe shift {:.1} %, {} late frames{cost}",
+                us(g.phase_error.rms),
+                us(g.phase_error.p999_abs),
+                g.smallest_safe_shift_pct,
+                g.late_frames
+            )
+        })
+        .collect();
+    t.push_str(&parts.join("; "));
+    t.push_str(". What a mode buys is the send jitter after the method's decision (j_s, and j_c with txtime), which no method can filter: the phase spread and the shift it needs shrink by it.");
+    Some(t)
+}
 
 /// The methods the verdict cannot judge (see [`UNRANKED_LOST_SHARE`]).
 fn not_ranked(methods: &BTreeMap<String, MethodOut>, order: &[String]) -> Vec<NotRanked> {
@@ -341,7 +393,8 @@ fn shift_pct(latest_ns: f64, period: f64) -> f64 {
     }
 }
 
-fn method_out(c: &Comparison, m: usize, kind: MethodKind, letter_testbed: bool) -> MethodOut {
+fn method_out(c: &Comparison, m: usize, entry: Entry, letter_testbed: bool) -> MethodOut {
+    let kind = entry.kind;
     let s = &c.scenario;
     let period = f64::from(s.cycle_ns);
     let rs = &c.results[m];
@@ -456,7 +509,28 @@ fn method_out(c: &Comparison, m: usize, kind: MethodKind, letter_testbed: bool) 
         lock_ms: lock.iter().sum::<f64>() / lock.len().max(1) as f64,
         wall_s: c.method_wall_s[m],
         faults: rs.iter().filter_map(|r| r.faults.clone()).collect(),
+        send: (entry.send != crate::send::SendMode::Plain).then(|| {
+            let cycles: u64 = rs.iter().map(|r| r.cycles_done).sum();
+            SendOut {
+                mode: entry.send,
+                launch_misses: rs.iter().map(|r| r.launch_misses).sum(),
+                spin_cpu_pct: 100.0 * rs.iter().map(|r| r.spin_ns).sum::<f64>()
+                    / (cycles.max(1) as f64 * period),
+            }
+        }),
     }
+}
+
+/// What a send mode did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SendOut {
+    /// The mode.
+    pub mode: crate::send::SendMode,
+    /// Recorded cycles whose frames were handed over after their launch time less the
+    /// qdisc's delta and dropped (`txtime`'s deadline misses).
+    pub launch_misses: u64,
+    /// CPU time spent busy-waiting before the sends, % of the recorded cycles' time (`spin`).
+    pub spin_cpu_pct: f64,
 }
 
 /// The ranking keys of a method (smaller is better), NaN last.
@@ -790,9 +864,14 @@ fn warnings(
             w.push(Warning {
                 kind: "lost_frames",
                 method: Some(m.clone()),
-                message: if mo.faults.is_empty() {
+                message: if let Some(s) = mo.send.as_ref().filter(|s| s.launch_misses > 0) {
                     format!(
-                        "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle) or not at all",
+                        "{m}: {lost} of {} recorded frames were lost, {} of them handed to the kernel after their launch time (the host's jitter beyond the txtime lead: raise [send] txtime_lead_us)",
+                        mo.cycles_done, s.launch_misses
+                    )
+                } else if mo.faults.is_empty() {
+                    format!(
+                        "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle, or the cycle's frames' way back if longer) or not at all",
                         mo.cycles_done
                     )
                 } else {
@@ -850,11 +929,12 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
     let s = &c.scenario;
     let testbed = s.is_letter_testbed();
     let mut methods = BTreeMap::new();
-    for (m, &kind) in s.methods.iter().enumerate() {
-        methods.insert(kind.name().to_string(), method_out(c, m, kind, testbed));
+    let entries = s.entries();
+    for (m, &e) in entries.iter().enumerate() {
+        methods.insert(e.name(), method_out(c, m, e, testbed));
     }
     // The report's order, by name (the maps of summary.json are keyed by name).
-    let order: Vec<String> = s.methods.iter().map(|m| m.name().to_string()).collect();
+    let order: Vec<String> = entries.iter().map(Entry::name).collect();
     // The margin budget: the shift minus the target minus the frame's mean transit from the
     // reference to its end at the worst slave (shift - margin - phase, the same for every
     // method up to noise: the mean over methods).
@@ -895,8 +975,10 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
     } else {
         reason(&methods, &ranking, s.sync0_shift_pct)
     };
+    let send_note = send_note(&methods, &order, ranking.first());
     let recommendation = Recommendation {
         method: ranking.first().cloned().unwrap_or_default(),
+        send_modes: send_note,
         reason,
         ranking: ranking.clone(),
         rule: RANKING_RULE,
@@ -943,6 +1025,9 @@ pub fn verdict_text(out: &SummaryOut) -> String {
     let _ = writeln!(t, "Recommendation: {pick}");
     let _ = writeln!(t, "  {}", r.reason);
     let _ = writeln!(t, "  Ranking: {}", r.ranking.join(" > "));
+    if let Some(s) = &r.send_modes {
+        let _ = writeln!(t, "  {s}");
+    }
     for n in &r.not_ranked {
         let _ = writeln!(t, "  Not ranked: {}", n.why);
     }

@@ -3,6 +3,7 @@
 
 use crate::host::{CycleNoise, HostNoise, SharedNoise};
 use crate::scenario::Scenario;
+use crate::send::{Entry, SendMode, SendParams};
 use crate::stats::{Stats, Summary};
 use ecsync_dc::sync::MasterSync;
 use ecsync_dc::{Method, MethodKind};
@@ -246,8 +247,14 @@ pub struct ControllerTruth {
 /// What one run of one method measured.
 #[derive(Debug, Clone)]
 pub struct RunResult {
-    /// Method.
+    /// Method (and its send mode, see [`Entry::name`]).
     pub method: String,
+    /// How the host sent.
+    pub send: SendMode,
+    /// Frames dropped because they were handed over after their launch time (`txtime`).
+    pub launch_misses: u64,
+    /// CPU time the host spun before its sends over the recorded cycles, ns (`spin`).
+    pub spin_ns: f64,
     /// Run index.
     pub run: u32,
     /// Recorded cycles run (fewer than the scenario's when interrupted).
@@ -672,6 +679,9 @@ struct NoiseHost {
     first: u64,
     block: Arc<[CycleNoise]>,
     noise: HostNoise,
+    send: SendMode,
+    send_params: SendParams,
+    seed: u64,
 }
 
 impl HostModel for NoiseHost {
@@ -680,10 +690,7 @@ impl HostModel for NoiseHost {
             .checked_sub(self.first)
             .and_then(|k| self.block.get(k as usize).copied())
             .unwrap_or_else(|| self.noise.cycle(cycle));
-        HostDelays {
-            wake_to_send_ns: n.js_ns + n.em_ns,
-            tx_ns: n.tx_ns,
-        }
+        crate::send::apply(self.send, &self.send_params, n, self.seed, cycle).delays
     }
 }
 
@@ -716,6 +723,10 @@ pub struct Run {
     eng: CyclicEngine<Method>,
     driver: CyclicDriver,
     noise: HostNoise,
+    /// How the host sends, with what, and the run's seed its draws take.
+    send: SendMode,
+    send_params: SendParams,
+    send_seed: u64,
     /// The run's noise drawn once for all methods (see [`SharedNoise`]); without it, each step
     /// draws its own.
     shared_noise: Option<Arc<SharedNoise>>,
@@ -779,8 +790,10 @@ impl std::fmt::Debug for Run {
 }
 
 impl Run {
-    /// Method `kind` from the brought-up network `up` (which it copies).
-    pub fn new(s: &Scenario, up: &BroughtUp, kind: MethodKind) -> Result<Run, RunError> {
+    /// Method `entry.kind`, sending as `entry.send` says, from the brought-up network `up`
+    /// (which it copies).
+    pub fn new(s: &Scenario, up: &BroughtUp, entry: Entry) -> Result<Run, RunError> {
+        let kind = entry.kind;
         let mut sim = up.sim.fork();
         if let Some(f) = &s.faults
             && f.epoch == Epoch::Cyclic
@@ -887,9 +900,15 @@ impl Run {
             eng,
             driver,
             noise,
+            send: entry.send,
+            send_params: s.send,
+            send_seed: up.seed,
             shared_noise: None,
             res: RunResult {
-                method: kind.name().to_string(),
+                method: entry.name(),
+                send: entry.send,
+                launch_misses: 0,
+                spin_ns: 0.0,
                 run: up.run,
                 cycles_done: 0,
                 m_rs: Stats::new(),
@@ -1003,10 +1022,26 @@ impl Run {
             Some(sh) => sh.block(start, end - start),
             None => (start..end).map(|i| self.noise.cycle(i)).collect(),
         };
+        // What the send mode does with the recorded cycles' noise: CPU spun, launch times
+        // missed (the same pure function the transport applies).
+        if self.send != SendMode::Plain {
+            for (k, n) in block.iter().enumerate() {
+                let i = start + k as u64;
+                if i < self.warmup_cycles {
+                    continue;
+                }
+                let o = crate::send::apply(self.send, &self.send_params, *n, self.send_seed, i);
+                self.res.spin_ns += o.spin_ns;
+                self.res.launch_misses += u64::from(o.delays.dropped);
+            }
+        }
         self.sim.set_host(Box::new(NoiseHost {
             first: start,
             block,
             noise: self.noise,
+            send: self.send,
+            send_params: self.send_params,
+            seed: self.send_seed,
         }));
         let Run {
             sim,
@@ -1428,7 +1463,14 @@ pub fn run_one(
     progress: &AtomicU64,
 ) -> Result<RunResult, RunError> {
     let up = bring_up(s, run)?;
-    let mut r = Run::new(s, &up, kind)?;
+    let mut r = Run::new(
+        s,
+        &up,
+        Entry {
+            kind,
+            send: SendMode::Plain,
+        },
+    )?;
     while r.remaining() > 0 {
         let n = r.step(4096);
         progress.fetch_add(n, Ordering::Relaxed);

@@ -6,6 +6,7 @@
 //! registry ([`MethodParams`]).
 
 use crate::host::{HostParams, Jitter};
+use crate::send::{Entry, SendMode, SendParams};
 use ecsync_dc::method::{MethodContext, MethodKind, MethodParams, ParamError};
 use ecsync_esc::SlaveSpec;
 pub use ecsync_esc::config::Problem;
@@ -27,6 +28,21 @@ struct File {
     /// The methods' tables, read by the registry's names (ecsync-dc).
     #[serde(default)]
     methods: MethodParams,
+    /// How the host sends (crate::send).
+    #[serde(default)]
+    send: SendFile,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SendFile {
+    modes: Option<Vec<String>>,
+    spin_margin_us: Option<f64>,
+    spin_residual_ns: Option<f64>,
+    txtime_lead_us: Option<f64>,
+    txtime_delta_us: Option<f64>,
+    launch_jitter_ns: Option<f64>,
+    launch_to_wire_ns: Option<f64>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -135,6 +151,10 @@ pub struct Scenario {
     pub seed: u64,
     /// Methods to compare, in report order.
     pub methods: Vec<MethodKind>,
+    /// Send modes every method runs with (`[send] modes`; plain alone by default).
+    pub send_modes: Vec<SendMode>,
+    /// The send modes' parameters.
+    pub send: SendParams,
     /// Static drift compensation frames of the bring-up.
     pub static_drift_frames: u32,
     /// Every method's parameters (the `[methods.<name>]` tables; defaults where absent).
@@ -159,6 +179,18 @@ pub fn plural(n: u64, one: &str, many: &str) -> String {
 }
 
 impl Scenario {
+    /// The comparison's columns: every method with every send mode, method by method.
+    pub fn entries(&self) -> Vec<Entry> {
+        self.methods
+            .iter()
+            .flat_map(|&kind| {
+                self.send_modes
+                    .iter()
+                    .map(move |&send| Entry { kind, send })
+            })
+            .collect()
+    }
+
     /// SYNC0 shift, ns.
     pub fn sync0_shift_ns(&self) -> u32 {
         (f64::from(self.cycle_ns) * self.sync0_shift_pct / 100.0).round() as u32
@@ -243,6 +275,29 @@ impl Scenario {
                 "methods",
                 "no methods",
                 format!("name at least one of: {}", MethodKind::list()),
+            ));
+        }
+        if self.send_modes.is_empty() {
+            return Err(Problem::new(
+                "send",
+                "modes",
+                "no send modes",
+                "name at least one of: plain, spin, txtime",
+            ));
+        }
+        if let Err((field, message)) = self.send.validate(self.cycle_ns) {
+            // The file gives the long ones in us.
+            let key = match field {
+                "spin_margin_ns" => "spin_margin_us",
+                "txtime_lead_ns" => "txtime_lead_us",
+                "txtime_delta_ns" => "txtime_delta_us",
+                k => k,
+            };
+            return Err(Problem::new(
+                "send",
+                key,
+                message,
+                "give a time from 0 up to the cycle (txtime_delta_us at most txtime_lead_us)",
             ));
         }
         self.params.check().map_err(param_problem)?;
@@ -463,6 +518,24 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
             }
         }
     }
+    let sf = &f.send;
+    let mut send_modes = Vec::new();
+    for m in sf.modes.clone().unwrap_or_else(|| vec!["plain".into()]) {
+        match m.parse::<SendMode>() {
+            Ok(k) => send_modes.push(k),
+            Err(e) => return Err(err("send", "modes", e, "use plain, spin and/or txtime")),
+        }
+    }
+    let d = SendParams::default();
+    let us = |v: Option<f64>, dflt: f64| v.map_or(dflt, |x| x * 1000.0);
+    let send = SendParams {
+        spin_margin_ns: us(sf.spin_margin_us, d.spin_margin_ns),
+        spin_residual_ns: sf.spin_residual_ns.unwrap_or(d.spin_residual_ns),
+        txtime_lead_ns: us(sf.txtime_lead_us, d.txtime_lead_ns),
+        txtime_delta_ns: us(sf.txtime_delta_us, d.txtime_delta_ns),
+        launch_jitter_ns: sf.launch_jitter_ns.unwrap_or(d.launch_jitter_ns),
+        launch_to_wire_ns: sf.launch_to_wire_ns.unwrap_or(d.launch_to_wire_ns),
+    };
     let s = Scenario {
         name: file.to_string(),
         slaves,
@@ -487,6 +560,12 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
         static_drift_frames: r.static_drift_frames as u32,
         params: f.methods,
         faults: None,
+        // Report order, each once.
+        send_modes: SendMode::ALL
+            .into_iter()
+            .filter(|m| send_modes.contains(m))
+            .collect(),
+        send,
     };
     s.check().map_err(|p| src.locate(p))?;
     Ok(s)

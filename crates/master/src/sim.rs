@@ -163,6 +163,9 @@ pub struct HostDelays {
     pub wake_to_send_ns: f64,
     /// From the send timestamp to the frame's first bit on the wire, ns.
     pub tx_ns: f64,
+    /// The cycle's frames never reach the wire: handed to the kernel with a launch time that
+    /// had passed (SO_TXTIME's ETF qdisc drops them and reports a deadline miss).
+    pub dropped: bool,
 }
 
 /// Where a simulated host's per-cycle timing comes from (the lab's seeded noise).
@@ -186,6 +189,10 @@ pub struct SimTransport {
     host: Option<Box<dyn HostModel>>,
     /// This cycle's host delays, drawn at [`Transport::start_cycle`].
     delays: Option<HostDelays>,
+    /// This cycle's frames are dropped before the wire (a launch time missed), and how many
+    /// frames were so far.
+    drop_cycle: bool,
+    launch_misses: u64,
     /// Replies in flight, in the order they arrive: when each is complete at the master (real
     /// ps), its bytes; and spent buffers to reuse.
     inflight: std::collections::VecDeque<(u64, Vec<u8>)>,
@@ -221,6 +228,8 @@ impl SimTransport {
             rx_latency_ps: 3_000_000,
             host: None,
             delays: None,
+            drop_cycle: false,
+            launch_misses: 0,
             inflight: std::collections::VecDeque::new(),
             spare: Vec::new(),
             wire_free_ps: 0,
@@ -245,6 +254,8 @@ impl SimTransport {
             rx_latency_ps: self.rx_latency_ps,
             host: None,
             delays: None,
+            drop_cycle: false,
+            launch_misses: 0,
             inflight: self.inflight.clone(),
             spare: Vec::new(),
             wire_free_ps: self.wire_free_ps,
@@ -312,6 +323,12 @@ impl SimTransport {
     /// The last exchange in real time.
     pub fn last_exchange(&self) -> Exchange {
         self.last
+    }
+
+    /// Frames the host dropped before the wire because their launch time had passed when they
+    /// were handed over (see [`HostDelays::dropped`]).
+    pub fn launch_misses(&self) -> u64 {
+        self.launch_misses
     }
 
     /// The ground truth of frame `k` of the current cycle (as the segment's trace was right
@@ -476,6 +493,20 @@ impl Transport for SimTransport {
         let mut buf = self.spare.pop().unwrap_or_default();
         buf.resize(n, 0);
         fill(&mut buf);
+        if self.drop_cycle {
+            // Handed over too late for its launch time: the qdisc drops it; no wire time.
+            self.wire_free_ps -= frame_wire_time_ps(n);
+            self.launch_misses += 1;
+            self.spare.push(buf);
+            self.last = Exchange {
+                sent_ps: tx_ps,
+                received_ps: None,
+            };
+            if self.cycle_mode {
+                self.frame_in_cycle += 1;
+            }
+            return Ok(at_ns);
+        }
         if let Some(c) = &mut self.capture {
             let _ = c.record(tx_ps, &buf);
         }
@@ -542,6 +573,7 @@ impl Transport for SimTransport {
 
     fn start_cycle(&mut self, cycle: u64) {
         self.delays = self.host.as_ref().map(|h| h.cycle(cycle));
+        self.drop_cycle = self.delays.is_some_and(|d| d.dropped);
         self.cycle_mode = true;
         self.frame_in_cycle = 0;
     }
