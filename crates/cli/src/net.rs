@@ -19,7 +19,7 @@ use ecsync_master::transport::Transport as _;
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
 use ecsync_net::rt::{self, RtReport};
 use ecsync_net::sys::{PacketSocket, TimestampSupport};
-use ecsync_net::{NetError, RealLink};
+use ecsync_net::{NetError, RealLink, SendControl};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::PathBuf;
@@ -246,6 +246,19 @@ pub struct RunArgs {
     /// CPU to pin the cycle task to (default: the last).
     #[arg(long)]
     cpu: Option<usize>,
+    /// How the cycle task reaches its send instant: plain (sleep to it: late by the kernel's
+    /// wake-up latency), spin (wake --spin-margin-us early and busy-wait to the instant; the
+    /// CPU it costs is reported), txtime (hand the frame to the kernel early with its launch
+    /// time: needs the ETF qdisc, refused with what is missing where there is none).
+    #[arg(long, default_value = "plain", value_parser = ["plain", "spin", "txtime"])]
+    send: String,
+    /// `--send spin`: how early the task wakes before each send instant, microseconds.
+    #[arg(long, default_value_t = 50)]
+    spin_margin_us: u32,
+    /// `--send spin`: spin in odd cycles only, plain in even ones: the two side by side in one
+    /// run (same host, same moments), each one's wake-to-send jitter reported and their ratio.
+    #[arg(long)]
+    spin_alternate: bool,
     /// Method parameters from a scenario file instead of the preset's: its [methods.*] tables
     /// and run.target_phase_us (its segment and host describe a simulated network and are not
     /// read).
@@ -352,6 +365,8 @@ struct RunOut {
     rs_is: Summary,
     /// Wake-up latency of the cycle task.
     wake_latency: LatencyOut,
+    /// How the task reached its send instants, and what it cost.
+    send: SendOut,
     /// From the send timestamp to the kernel's transmit timestamp (the NIC path's j_c), ns.
     tx_path: Summary,
     /// From the send timestamp to the reply, ns.
@@ -384,6 +399,26 @@ struct ControllerOut {
     drift_ppm: f64,
     filtered_error_ns: f64,
     adjustment_ns: i64,
+}
+
+/// `--send` and what it did.
+#[derive(Debug, Serialize)]
+struct SendOut {
+    mode: String,
+    spin_margin_us: Option<u32>,
+    /// Spinning in odd cycles only (`--spin-alternate`).
+    alternate: bool,
+    /// From the cycle's scheduled start to its send timestamp (wake-up latency, the wait and
+    /// the frame's assembly), in cycles that slept to the instant.
+    wake_to_send_plain: Option<LatencyOut>,
+    /// The same in cycles that spun.
+    wake_to_send_spin: Option<LatencyOut>,
+    /// p99 of the spinning cycles over p99 of the sleeping ones (`--spin-alternate`).
+    spin_over_plain_p99: Option<f64>,
+    /// CPU time spent busy-waiting, % of the cyclic phase's time.
+    spin_cpu_pct: f64,
+    /// CPU time per spinning cycle, us.
+    spin_us_per_cycle: f64,
 }
 
 fn latency(s: &Stats) -> LatencyOut {
@@ -516,7 +551,17 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         }
         None => None,
     };
+    if args.send == "txtime" {
+        // Before anything goes out: a launch time the kernel ignores would be a lie.
+        ecsync_net::txtime::txtime_support(&args.iface).map_err(anyhow::Error::msg)?;
+    }
     let mut link = RealLink::open(&args.iface).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let spin = args.send == "spin";
+    link.set_send_control(SendControl {
+        spin_margin_ns: spin.then_some(u64::from(args.spin_margin_us) * 1000),
+        alternate: spin && args.spin_alternate,
+        ..SendControl::default()
+    });
     let mut exchanges = ExchangeStats::default();
     install_stop_handler();
     let rt = rt::setup(args.priority, args.cpu.map_or(rt::Pin::Last, rt::Pin::Cpu));
@@ -645,6 +690,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let mut m_rs = Stats::new();
     let mut rs_is = Stats::new();
     let mut wake = Stats::new();
+    let (mut w2s_plain, mut w2s_spin) = (Stats::new(), Stats::new());
+    let control = link.send_control();
     let mut tx_path = Stats::new();
     let mut rtt = Stats::new();
     let (mut cycles, mut lost, mut bad_wkc, mut held) = (0u64, 0u64, 0u64, 0u64);
@@ -667,6 +714,14 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         skipped += c.skipped_before;
         let r = &c.record;
         wake.add(c.wake_latency_ns as f64);
+        let w2s = r.send_ns.wrapping_sub(r.scheduled_ns) as i64 as f64;
+        if c.skipped_before == 0 {
+            if control.spins(r.cycle) {
+                w2s_spin.add(w2s);
+            } else {
+                w2s_plain.add(w2s);
+            }
+        }
         held += u64::from(r.reference_held);
         if r.receive_ns.is_none() {
             lost += 1;
@@ -747,6 +802,24 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         m_rs: m_rs.summary(),
         rs_is: rs_is.summary(),
         wake_latency: latency(&wake),
+        send: {
+            let spun = link.send_control();
+            let some = |s: &Stats| (s.summary().n > 0).then(|| latency(s));
+            let (p, sp) = (some(&w2s_plain), some(&w2s_spin));
+            SendOut {
+                mode: args.send.clone(),
+                spin_margin_us: spin.then_some(args.spin_margin_us),
+                alternate: control.alternate,
+                spin_over_plain_p99: match (&p, &sp) {
+                    (Some(p), Some(s)) if p.p99_us > 0.0 => Some(s.p99_us / p.p99_us),
+                    _ => None,
+                },
+                wake_to_send_plain: p,
+                wake_to_send_spin: sp,
+                spin_cpu_pct: 100.0 * spun.spun_ns as f64 / (duration_s * 1e9).max(1.0),
+                spin_us_per_cycle: spun.spun_ns as f64 / 1e3 / spun.spun_cycles.max(1) as f64,
+            }
+        },
         tx_path: tx_path.summary(),
         round_trip: rtt.summary(),
         controller,
@@ -944,6 +1017,29 @@ fn print_run(o: &RunOut) {
         "wake-up latency, us:   p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}",
         w.p50_us, w.p99_us, w.p999_us, w.max_us
     );
+    for (name, l) in [
+        ("sleeping", &o.send.wake_to_send_plain),
+        ("spinning", &o.send.wake_to_send_spin),
+    ] {
+        if let Some(l) = l {
+            println!(
+                "wake to send ({name}), us: p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}",
+                l.p50_us, l.p99_us, l.p999_us, l.max_us
+            );
+        }
+    }
+    if let Some(m) = o.send.spin_margin_us {
+        println!(
+            "spin: {m} us margin, {:.1} % of a core ({:.1} us per spinning cycle){}",
+            o.send.spin_cpu_pct,
+            o.send.spin_us_per_cycle,
+            o.send
+                .spin_over_plain_p99
+                .map_or(String::new(), |r| format!(
+                    ", p99 spinning / sleeping {r:.3}"
+                ))
+        );
+    }
     println!(
         "round trip, us:        mean {:.1}  p99 {:.1}  max {:.1}",
         us(o.round_trip.mean),

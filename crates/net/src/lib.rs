@@ -42,5 +42,6 @@ mod link;
 pub mod rt;
 pub mod serve;
 pub mod sys;
+pub mod txtime;
 
-pub use link::{HostClock, NetError, RealLink};
+pub use link::{HostClock, NetError, RealLink, SendControl};

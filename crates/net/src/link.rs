@@ -89,6 +89,33 @@ pub struct RealLink {
     tx_buf: Vec<u8>,
     /// Sends and receives refused because the interface was down.
     link_down: u64,
+    /// How the cyclic task reaches its send instant.
+    send: SendControl,
+    /// The cycle the driver is about to run (its start is the next wait), if one.
+    cycle_armed: Option<u64>,
+}
+
+/// How a real master's cyclic task reaches the instant it sends at.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SendControl {
+    /// Busy-wait the last this many ns before each cycle's start instead of sleeping through
+    /// them (`None`: sleep to the instant, the kernel's timer wakes the task as late as it
+    /// does).
+    pub spin_margin_ns: Option<u64>,
+    /// Spin in odd cycles only: the two ways side by side in one run, on the same host at the
+    /// same moments.
+    pub alternate: bool,
+    /// CPU time spent busy-waiting so far, ns, and the cycles that spun.
+    pub spun_ns: u64,
+    /// Cycles that spun.
+    pub spun_cycles: u64,
+}
+
+impl SendControl {
+    /// Whether cycle `cycle` spins.
+    pub fn spins(&self, cycle: u64) -> bool {
+        self.spin_margin_ns.is_some() && (!self.alternate || cycle % 2 == 1)
+    }
 }
 
 impl RealLink {
@@ -106,7 +133,19 @@ impl RealLink {
             clock: HostClock::new(),
             tx_rt: None,
             tx_buf: Vec::with_capacity(RECV_BUF_LEN),
+            send: SendControl::default(),
+            cycle_armed: None,
         })
+    }
+
+    /// Sets how the cyclic task reaches its send instants.
+    pub fn set_send_control(&mut self, c: SendControl) {
+        self.send = c;
+    }
+
+    /// How the cyclic task reaches its send instants, with what spinning cost so far.
+    pub fn send_control(&self) -> SendControl {
+        self.send
     }
 
     /// The clock.
@@ -146,9 +185,35 @@ impl Transport for RealLink {
     }
 
     fn sleep_until(&mut self, t_ns: u64) {
-        if t_ns > self.clock.now_ns() {
-            self.clock.sleep_until(t_ns);
+        let spin = match self.cycle_armed.take() {
+            Some(c) if self.send.spins(c) => self.send.spin_margin_ns,
+            _ => None,
+        };
+        let Some(margin) = spin else {
+            if t_ns > self.clock.now_ns() {
+                self.clock.sleep_until(t_ns);
+            }
+            return;
+        };
+        // The timer wakes the task `margin` early (late by the kernel's wake-up latency);
+        // the rest is a busy loop on the clock, which no scheduler latency delays unless the
+        // task is preempted in it.
+        let wake = t_ns.saturating_sub(margin);
+        if wake > self.clock.now_ns() {
+            self.clock.sleep_until(wake);
         }
+        let from = self.clock.now_ns();
+        let mut now = from;
+        while now < t_ns {
+            std::hint::spin_loop();
+            now = self.clock.now_ns();
+        }
+        self.send.spun_ns += now.saturating_sub(from);
+        self.send.spun_cycles += 1;
+    }
+
+    fn start_cycle(&mut self, cycle: u64) {
+        self.cycle_armed = Some(cycle);
     }
 
     fn send_with<F: FnOnce(&mut [u8])>(
