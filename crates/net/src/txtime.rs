@@ -11,13 +11,10 @@ use std::process::Command;
 /// Why `--send txtime` cannot run on `iface`, naming what is missing (`Ok` when the kernel has
 /// the ETF qdisc and the interface runs it).
 pub fn txtime_support(iface: &str) -> Result<(), String> {
-    match kernel_has_etf() {
-        Some(false) => {
-            return Err(format!(
-                "--send txtime needs the ETF qdisc (the kernel's launch-time queue) on {iface}, and this kernel has none: CONFIG_NET_SCH_ETF is not set (/proc/config.gz); fix: a kernel built with CONFIG_NET_SCH_ETF (and a NIC with launch-time offload for hardware precision), or --send spin"
-            ));
-        }
-        Some(true) | None => {}
+    if kernel_has_etf() == Some(false) {
+        return Err(format!(
+            "--send txtime needs the ETF qdisc (the kernel's launch-time queue) on {iface}, and this kernel has none: CONFIG_NET_SCH_ETF is not set (/proc/config.gz); fix: a kernel built with CONFIG_NET_SCH_ETF (and a NIC with launch-time offload for hardware precision), or --send spin"
+        ));
     }
     let out = Command::new("tc")
         .args(["qdisc", "show", "dev", iface])
