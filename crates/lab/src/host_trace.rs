@@ -478,6 +478,18 @@ impl HostFit {
     }
 }
 
+/// Parses `table` (a `[host]` table, [`HostFit::to_toml`]) in the place of the letter's
+/// scenario's own, as `compare` would read it.
+pub fn check_in_scenario(table: &str) -> Result<crate::Scenario, ConfigError> {
+    let body = table.split_once("[host]\n").map_or(table, |(_, b)| b);
+    let text = ecsync_esc::preset::PAPER_2024_TOML.replacen(
+        "preset = \"preempt-rt-stress\"\n",
+        body,
+        1,
+    );
+    crate::parse("fitted [host]", &text)
+}
+
 /// Measured wake-up latency quantiles of `rows`.
 pub fn wake_quantiles(rows: &[TraceRow], qs: &[f64]) -> Vec<f64> {
     let s = sorted(rows.iter().map(|r| r.wake_latency_ns));
