@@ -293,8 +293,8 @@ pub fn run(args: Args) -> Result<ExitCode> {
     if let Some(path) = &args.host_trace {
         use ecsync_lab::host_trace::{HostTrace, Replay, fit};
         let file = path.display().to_string();
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("--host-trace: cannot read {file}"))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("--host-trace: cannot read {file}"))?;
         let trace = HostTrace::parse(&file, &text).map_err(anyhow::Error::msg)?;
         // The model fitted to the trace stands for it where the simulator needs a mean (the
         // master's known lead), the trace gives every cycle's values.

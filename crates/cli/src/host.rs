@@ -89,10 +89,16 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
     use std::sync::atomic::{AtomicBool, Ordering};
     static STOP: AtomicBool = AtomicBool::new(false);
     if !(10..=1_000_000).contains(&a.cycle_us) {
-        bail!("--cycle-us: {} us; fix: give between 10 and 1000000", a.cycle_us);
+        bail!(
+            "--cycle-us: {} us; fix: give between 10 and 1000000",
+            a.cycle_us
+        );
     }
     if !(a.duration.is_finite() && a.duration > 0.0 && a.duration <= 86_400.0) {
-        bail!("--duration: {} s; fix: give between 0 and 86400 s", a.duration);
+        bail!(
+            "--duration: {} s; fix: give between 0 and 86400 s",
+            a.duration
+        );
     }
     let sock = match &a.iface {
         Some(i) => {
@@ -217,7 +223,9 @@ fn fit_cmd(a: FitArgs) -> Result<ExitCode> {
         let qs = [0.99, 0.999];
         let measured = wake_quantiles(second, &qs);
         let predicted = f.predicted_wake_quantiles(&qs, 2_000_000, 1);
-        println!("# check: model fitted on the first half against the second half's wake-up latency");
+        println!(
+            "# check: model fitted on the first half against the second half's wake-up latency"
+        );
         for (i, name) in ["p99", "p99.9"].iter().enumerate() {
             println!(
                 "# wake-up {name}: predicted {:.1} us, measured {:.1} us, error {:+.1} %",
@@ -229,4 +237,3 @@ fn fit_cmd(a: FitArgs) -> Result<ExitCode> {
     }
     Ok(ExitCode::SUCCESS)
 }
-

@@ -490,11 +490,7 @@ fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
     // The host's twin (`ecsync host fit` reads these as a trace): wake-up to the send
     // timestamp, and the send timestamp to the transport's TX stamp.
     write!(w, "{},", r.send_ns.saturating_sub(c.woke_ns))?;
-    field(
-        w,
-        c.tx_stamp_ns.map(|t| t as i64 - r.send_ns as i64),
-        '\n',
-    )
+    field(w, c.tx_stamp_ns.map(|t| t as i64 - r.send_ns as i64), '\n')
 }
 
 /// The per-cycle CSV's columns; `exec_ns` and `tx_delay_ns` were appended after `lost` (a

@@ -26,19 +26,33 @@ fn write_trace(path: &Path) {
         x ^= x << 17;
         let spread = x % 8_000;
         let wake = if c % 5_000 < 400 { 10 * spread } else { spread } + 50_000;
-        t.push_str(&format!("{c},{},{wake},{},{}\n", c * 1_000_000, 900 + x % 200, 14_000 + x % 900));
+        t.push_str(&format!(
+            "{c},{},{wake},{},{}\n",
+            c * 1_000_000,
+            900 + x % 200,
+            14_000 + x % 900
+        ));
     }
     std::fs::write(path, t).unwrap();
+}
+
+/// The value without the keys that measure the machine (at every depth).
+fn strip(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Object(m) => {
+            m.retain(|k, _| k != "wall_s" && k != "threads");
+            m.values_mut().for_each(strip);
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(strip),
+        _ => {}
+    }
 }
 
 /// summary.json without the machine's figures.
 fn summary(out: &Path) -> String {
     let text = std::fs::read_to_string(out.join("summary.json")).unwrap();
     let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    if let serde_json::Value::Object(m) = &mut v {
-        m.remove("wall_s");
-        m.remove("threads");
-    }
+    strip(&mut v);
     v.to_string()
 }
 
@@ -47,8 +61,20 @@ fn compare(trace: &Path, out: &Path, seed: &str) {
         .args(["compare", "--host-trace"])
         .arg(trace)
         .args([
-            "--runs", "1", "--cycles", "4000", "--warmup-s", "1", "--methods", "bus-shift,snap",
-            "--threads", "1", "--quiet", "--seed", seed, "--out",
+            "--runs",
+            "1",
+            "--cycles",
+            "4000",
+            "--warmup-s",
+            "1",
+            "--methods",
+            "bus-shift,snap",
+            "--threads",
+            "1",
+            "--quiet",
+            "--seed",
+            seed,
+            "--out",
         ])
         .arg(out)
         .output()
@@ -103,8 +129,14 @@ fn host_fit_writes_a_host_table_and_checks_the_second_half() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(out.contains("[host]") && out.contains("bursts = {"), "{out}");
-    assert!(out.contains("wake-up p99: predicted") && out.contains("wake-up p99.9: predicted"), "{out}");
+    assert!(
+        out.contains("[host]") && out.contains("bursts = {"),
+        "{out}"
+    );
+    assert!(
+        out.contains("wake-up p99: predicted") && out.contains("wake-up p99.9: predicted"),
+        "{out}"
+    );
     let written = std::fs::read_to_string(&table).unwrap();
     assert!(ecsync_lab::host_trace::check_in_scenario(&written).is_ok());
 }

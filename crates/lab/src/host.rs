@@ -162,7 +162,9 @@ impl Bursts {
             return false;
         }
         let epoch = cycle / self.epoch_cycles();
-        unit(splitmix64(seed ^ BURST_SALT ^ splitmix64(epoch ^ BURST_SALT))) <= self.p
+        unit(splitmix64(
+            seed ^ BURST_SALT ^ splitmix64(epoch ^ BURST_SALT),
+        )) <= self.p
     }
 
     /// Checks the numbers; returns the field at fault and why.

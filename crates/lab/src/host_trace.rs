@@ -255,7 +255,11 @@ fn phi(x: f64) -> f64 {
                                     + t * (1.488_515_87
                                         + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
             .exp();
-    if x >= 0.0 { 1.0 - 0.5 * erfc } else { 0.5 * erfc }
+    if x >= 0.0 {
+        1.0 - 0.5 * erfc
+    } else {
+        0.5 * erfc
+    }
 }
 
 /// Where the core's Gaussian ends and the pulses are counted, in core sigmas: the core lies
@@ -265,7 +269,7 @@ const TAIL_SIGMAS: f64 = 4.0;
 /// Fits a [`Jitter`] to deviations `x` (from the floor for a folded core, from the median
 /// otherwise; pulses go up): the core's sigma from two quantiles, the pulses from the cycles
 /// beyond [`TAIL_SIGMAS`] core sigmas. An exponential pulse added to the core exceeds a
-/// threshold t by an Exp(m) amount (memoryless), so m is the mean excess, and it exceeds t with
+/// threshold t by an Exp(m) amount (memoryless), so m is an excess quantile over its level, and it exceeds t with
 /// probability exp(-t/m) E[exp(c/m)], which gives the pulses' probability.
 fn fit_jitter(x: &[f64], folded: bool) -> Jitter {
     let s = sorted(x.iter().copied());
@@ -292,12 +296,25 @@ fn fit_jitter(x: &[f64], folded: bool) -> Jitter {
             1.0 - phi(TAIL_SIGMAS)
         };
         let k = beyond.len() as f64 / n - core_beyond * (1.0 - p);
-        if beyond.len() < 10 || k <= 0.0 {
+        // Pulses only where the cycles beyond the threshold stand out of the core's own
+        // (three standard deviations of their count, and ten).
+        let expected = core_beyond * (1.0 - p) * n;
+        if (beyond.len() as f64) < expected + 3.0 * expected.sqrt() + 10.0 || k <= 0.0 {
             p = 0.0;
             mean_ns = 0.0;
             break;
         }
-        mean_ns = beyond.iter().sum::<f64>() / beyond.len() as f64;
+        // The excess's quantile at level a over -ln(1 - a) (any a, for an exponential). A real
+        // host's tail is heavier than exponential (stalls of milliseconds), so a is taken
+        // where the whole distribution's p99 and p99.9 lie among the pulses (their geometric
+        // middle in 1 - a): the model errs alike on both, rather than meeting one of them.
+        let kf = beyond.len() as f64 / n;
+        let level = |q: f64| (1.0 - (1.0 - q) / kf).clamp(0.5, 0.999);
+        let a = 1.0 - ((1.0 - level(0.99)) * (1.0 - level(0.999))).sqrt();
+        mean_ns = sorted(beyond.iter().copied())
+            .get(0..)
+            .map_or(0.0, |b| quantile(b, a))
+            / -(1.0 - a).ln();
         let r = sigma / mean_ns;
         let e_core = if folded {
             2.0 * (r * r / 2.0).exp() * phi(r)
@@ -367,7 +384,10 @@ pub fn fit(rows: &[TraceRow], base: HostParams) -> HostFit {
     let quiet = if quiet.len() < 2 { wake.clone() } else { quiet };
     let floor = floor_of(&quiet);
     let js = fit_jitter(
-        &quiet.iter().map(|v| (v - floor).max(0.0)).collect::<Vec<_>>(),
+        &quiet
+            .iter()
+            .map(|v| (v - floor).max(0.0))
+            .collect::<Vec<_>>(),
         true,
     );
     let bursts = if n_burst == 0 || n_burst == burst.len() {
@@ -482,11 +502,8 @@ impl HostFit {
 /// scenario's own, as `compare` would read it.
 pub fn check_in_scenario(table: &str) -> Result<crate::Scenario, ConfigError> {
     let body = table.split_once("[host]\n").map_or(table, |(_, b)| b);
-    let text = ecsync_esc::preset::PAPER_2024_TOML.replacen(
-        "preset = \"preempt-rt-stress\"\n",
-        body,
-        1,
-    );
+    let text =
+        ecsync_esc::preset::PAPER_2024_TOML.replacen("preset = \"preempt-rt-stress\"\n", body, 1);
     crate::parse("fitted [host]", &text)
 }
 

@@ -7,12 +7,12 @@
 
 use crate::host::{Bursts, HostParams, Jitter};
 use crate::host_trace::Replay;
-use std::sync::Arc;
 use ecsync_dc::method::{MethodContext, MethodKind, MethodParams, ParamError};
 use ecsync_esc::SlaveSpec;
 pub use ecsync_esc::config::Problem;
 use ecsync_esc::config::{ConfigError, ConfigSource, SegmentConfig};
 use serde::Deserialize;
+use std::sync::Arc;
 
 /// The cycle times a scenario accepts, us: EtherCAT cycles run from tens of microseconds to
 /// about 100 ms.

@@ -77,7 +77,12 @@ fn the_fit_recovers_the_parameters_of_a_trace_drawn_from_the_model() {
     );
     near("js.sigma_ns", p.js.sigma_ns, t.js.sigma_ns, 0.05);
     near("js.tail_p", p.js.tail_p, t.js.tail_p, 0.2);
-    near("js.tail_mean_ns", p.js.tail_mean_ns, t.js.tail_mean_ns, 0.15);
+    near(
+        "js.tail_mean_ns",
+        p.js.tail_mean_ns,
+        t.js.tail_mean_ns,
+        0.15,
+    );
     near("bursts.p", p.bursts.p, t.bursts.p, 0.3);
     near(
         "bursts.mean_cycles",
@@ -85,7 +90,12 @@ fn the_fit_recovers_the_parameters_of_a_trace_drawn_from_the_model() {
         t.bursts.mean_cycles,
         0.3,
     );
-    near("bursts.js_scale", p.bursts.js_scale, t.bursts.js_scale, 0.15);
+    near(
+        "bursts.js_scale",
+        p.bursts.js_scale,
+        t.bursts.js_scale,
+        0.15,
+    );
     // The floor is counted in e_m: the simulator uses j_s + e_m.
     near("em_ns", p.em_ns, t.em_ns + floor, 0.01);
     near(
@@ -96,13 +106,25 @@ fn the_fit_recovers_the_parameters_of_a_trace_drawn_from_the_model() {
     );
     near("tx_latency_ns", p.tx_latency_ns, t.tx_latency_ns, 0.01);
     near("jc.sigma_ns", p.jc.sigma_ns, t.jc.sigma_ns, 0.1);
-    assert!(p.jc.tail_p < 0.001, "no pulses in the truth's j_c: {:?}", p.jc);
+    assert!(
+        p.jc.tail_p < 0.001,
+        "no pulses in the truth's j_c: {:?}",
+        p.jc
+    );
     // What a trace does not measure is the base's.
     assert_eq!(p.master_ppm, HostParams::preempt_rt_stress().master_ppm);
-    assert_eq!(p.rx_latency_ns, HostParams::preempt_rt_stress().rx_latency_ns);
+    assert_eq!(
+        p.rx_latency_ns,
+        HostParams::preempt_rt_stress().rx_latency_ns
+    );
     // And the table it writes is one a scenario takes, with the same numbers.
     let s = check_in_scenario(&f.to_toml("preempt-rt-stress", "drawn")).unwrap();
-    near("parsed js.sigma_ns", s.host.js.sigma_ns, p.js.sigma_ns, 1e-3);
+    near(
+        "parsed js.sigma_ns",
+        s.host.js.sigma_ns,
+        p.js.sigma_ns,
+        1e-3,
+    );
     near("parsed bursts.p", s.host.bursts.p, p.bursts.p, 1e-3);
 }
 
@@ -146,7 +168,11 @@ fn bursts_are_a_function_of_seed_and_cycle_and_leave_the_other_draws_alone() {
 fn bursty_trace() -> HostTrace {
     let mut t = String::from("cycle,wake_latency_ns,exec_ns,tx_delay_ns\n");
     for c in 0..60_000u64 {
-        let wake = if c % 2_000 < 300 { 500_000 } else { 50_000 + c % 7 };
+        let wake = if c % 2_000 < 300 {
+            500_000
+        } else {
+            50_000 + c % 7
+        };
         t.push_str(&format!("{c},{wake},1000,\n"));
     }
     HostTrace::parse("bursty.csv", &t).unwrap()
@@ -201,8 +227,14 @@ fn replay_is_a_function_of_the_seed() {
 fn a_malformed_trace_names_file_line_and_field() {
     let head = "# a comment\ncycle,wake_latency_ns,exec_ns,tx_delay_ns\n0,50000,900,\n";
     let e = HostTrace::parse("t.csv", &format!("{head}1,50000,abc,\n")).unwrap_err();
-    assert_eq!((e.file.as_str(), e.line, e.field.as_str()), ("t.csv", Some(4), "exec_ns"));
-    assert!(e.to_string().starts_with("t.csv:4: exec_ns: \"abc\""), "{e}");
+    assert_eq!(
+        (e.file.as_str(), e.line, e.field.as_str()),
+        ("t.csv", Some(4), "exec_ns")
+    );
+    assert!(
+        e.to_string().starts_with("t.csv:4: exec_ns: \"abc\""),
+        "{e}"
+    );
     assert!(!e.fix.is_empty());
     let e = HostTrace::parse("t.csv", &format!("{head}1,,900,\n")).unwrap_err();
     assert_eq!((e.line, e.field.as_str()), (Some(4), "wake_latency_ns"));

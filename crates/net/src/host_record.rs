@@ -88,8 +88,8 @@ pub fn record(
             {}
         }
         let len = {
-            let mut b = FrameBuilder::new(&mut buf, [0xff; 6], SRC_MAC)
-                .map_err(|_| NetError::Io {
+            let mut b =
+                FrameBuilder::new(&mut buf, [0xff; 6], SRC_MAC).map_err(|_| NetError::Io {
                     what: "frame",
                     source: std::io::Error::other("frame buffer too short"),
                 })?;
