@@ -480,7 +480,7 @@ mod tests {
     #[test]
     fn shared_blocks_are_the_cycles_noise_and_are_dropped_after_the_last_user() {
         let n = HostNoise::new(HostParams::preempt_rt_stress(), 3);
-        let shared = SharedNoise::new(n, 3);
+        let shared = SharedNoise::new(n.clone(), 3);
         for _ in 0..3 {
             let b = shared.block(1_000, 50);
             assert_eq!(b.len(), 50);
