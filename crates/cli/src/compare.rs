@@ -187,6 +187,13 @@ pub struct Args {
     /// Host preset (see below).
     #[arg(long)]
     host: Option<String>,
+    /// Replay this host trace (`ecsync host record`, or `ecsync run --csv`) instead of the host
+    /// model's j_s and e_m (and its TX delays where it has them), resampled in seeded blocks.
+    #[arg(long, conflicts_with = "host")]
+    host_trace: Option<PathBuf>,
+    /// Cycles per replayed block of --host-trace (bursts shorter than a block stay bursts).
+    #[arg(long, default_value_t = ecsync_lab::host_trace::DEFAULT_BLOCK_CYCLES, requires = "host_trace")]
+    host_block_cycles: u64,
     /// SYNC0 shift after the DC grid point, % of the cycle (0 ..< 100).
     #[arg(long, allow_negative_numbers = true)]
     shift_pct: Option<f64>,
@@ -303,6 +310,20 @@ pub fn run(args: Args) -> Result<ExitCode> {
             )
         })?;
         s.host_name = h.clone();
+    }
+    if let Some(path) = &args.host_trace {
+        use ecsync_lab::host_trace::{HostTrace, Replay, fit};
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("--host-trace: cannot read {file}"))?;
+        let trace = HostTrace::parse(&file, &text).map_err(anyhow::Error::msg)?;
+        // The model fitted to the trace stands for it where the simulator needs a mean (the
+        // master's known lead), the trace gives every cycle's values.
+        s.host = fit(&trace.rows, s.host).params;
+        let replay = Replay::new(trace, args.host_block_cycles)
+            .map_err(|e| anyhow::anyhow!("--host-block-cycles: {e}"))?;
+        s.host_name = format!("trace {file} (blocks of {} cycles)", replay.block_cycles());
+        s.host_trace = Some(std::sync::Arc::new(replay));
     }
     if let Some(p) = args.shift_pct {
         given.push("--shift-pct");

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 mod bench;
 mod bringup;
 mod compare;
+mod host;
 #[cfg(target_os = "linux")]
 mod net;
 mod source;
@@ -37,6 +38,9 @@ enum Command {
     /// with a synchronization method, in real time.
     #[cfg(target_os = "linux")]
     Run(net::RunArgs),
+    /// A twin of this host: `host record` measures its periodic loop cycle by cycle, `host fit`
+    /// fits the simulator's host model to the trace (`compare --host-trace` replays it).
+    Host(host::Args),
     /// TSN between master and slaves: the paper's UPPAAL models explored (`tsn models`) and
     /// its three networks built from real parts and measured (`tsn run`).
     Tsn(tsn::Args),
@@ -52,6 +56,7 @@ fn main() -> ExitCode {
         Command::Serve(a) => net::serve(a),
         #[cfg(target_os = "linux")]
         Command::Run(a) => net::run(a),
+        Command::Host(a) => host::run(a),
         Command::Tsn(a) => tsn::run(a),
     };
     match r {

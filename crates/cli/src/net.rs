@@ -521,10 +521,16 @@ fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
     field(w, r.lrw_wkc, ',')?;
     write!(w, "{},", c.wake_latency_ns)?;
     field(w, c.round_trip_ns, ',')?;
-    writeln!(w, "{}", u8::from(r.receive_ns.is_none()))
+    write!(w, "{},", u8::from(r.receive_ns.is_none()))?;
+    // The host's twin (`ecsync host fit` reads these as a trace): wake-up to the send
+    // timestamp, and the send timestamp to the transport's TX stamp.
+    write!(w, "{},", r.send_ns.saturating_sub(c.woke_ns))?;
+    field(w, c.tx_stamp_ns.map(|t| t as i64 - r.send_ns as i64), '\n')
 }
 
-const CSV_HEADER: &str = "cycle,scheduled_ns,send_ns,ref_time_ns,error_ns,correction_ns,max_abs_092c_ns,lrw_wkc,wake_latency_ns,round_trip_ns,lost";
+/// The per-cycle CSV's columns; `exec_ns` and `tx_delay_ns` were appended after `lost` (a
+/// reader of the older file keeps its columns where they were).
+const CSV_HEADER: &str = "cycle,scheduled_ns,send_ns,ref_time_ns,error_ns,correction_ns,max_abs_092c_ns,lrw_wkc,wake_latency_ns,round_trip_ns,lost,exec_ns,tx_delay_ns";
 
 pub fn run(args: RunArgs) -> Result<ExitCode> {
     if !(1..=1_000_000).contains(&args.cycle_us) {

@@ -101,7 +101,7 @@ pub fn compare_with(
         .iter()
         .map(|u| {
             Arc::new(SharedNoise::new(
-                HostNoise::new(scenario.host, u.seed()),
+                HostNoise::replaying(scenario.host, u.seed(), scenario.host_trace.clone()),
                 methods.len() as u32,
             ))
         })

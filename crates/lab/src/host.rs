@@ -9,7 +9,14 @@
 //! Every sample is a pure function of (seed, source, cycle index): a counter-based generator, so
 //! every method of a comparison sees exactly the same noise in the same cycle whatever it does
 //! (common random numbers), and a run is reproducible bit for bit.
+//!
+//! Correlated noise ([`Bursts`]): a loaded or virtual host has phases (stress-ng's bursts, a
+//! hypervisor's steal) in which j_s is several times larger for hundreds of cycles. Time is cut
+//! into epochs of a fixed length, each a burst or not by a hash of (seed, epoch) alone, so the
+//! regime too is a pure function of (seed, cycle), and the per-cycle draws are the same with or
+//! without bursts. A recorded trace can stand in for the model ([`crate::host_trace`]).
 
+use crate::host_trace::Replay;
 use ecsync_esc::rng::{SplitMix64, splitmix64, unit_from_bits as unit};
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
@@ -97,6 +104,93 @@ impl Jitter {
     }
 }
 
+/// Bursty phases of j_s: a fraction `p` of the cycles lies in bursts of mean length
+/// `mean_cycles`, in which j_s (core, pulses and clamp alike) is `js_scale` times larger.
+///
+/// Realised block-wise: epochs of `mean_cycles * (1 - p)` cycles, each a burst with probability
+/// `p` independently of the others, so runs of burst epochs are geometric with the mean length
+/// asked for and the regime of a cycle is a hash of (seed, epoch).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Bursts {
+    /// Fraction of the cycles in a burst (0: no bursts).
+    #[serde(default)]
+    pub p: f64,
+    /// Mean length of a burst, cycles.
+    #[serde(default = "d_burst_cycles")]
+    pub mean_cycles: f64,
+    /// Factor on j_s in a burst.
+    #[serde(default = "one")]
+    pub js_scale: f64,
+}
+
+fn d_burst_cycles() -> f64 {
+    1_000.0
+}
+
+impl Default for Bursts {
+    fn default() -> Self {
+        Bursts::NONE
+    }
+}
+
+/// Salt of the burst regime's hash, apart from the per-cycle stream's.
+const BURST_SALT: u64 = 0xb0b5_7e11_a5ed_0001;
+
+impl Bursts {
+    /// No bursts: every preset's regime.
+    pub const NONE: Bursts = Bursts {
+        p: 0.0,
+        mean_cycles: 1_000.0,
+        js_scale: 1.0,
+    };
+
+    /// Whether there are none.
+    pub fn is_none(&self) -> bool {
+        self.p <= 0.0 || self.js_scale == 1.0
+    }
+
+    /// Length of an epoch, cycles: a run of burst epochs is geometric with mean `1 / (1 - p)`
+    /// epochs, so that a burst lasts `mean_cycles` on average.
+    pub fn epoch_cycles(&self) -> u64 {
+        (self.mean_cycles * (1.0 - self.p)).round().max(1.0) as u64
+    }
+
+    /// Whether cycle `cycle` of the run seeded `seed` lies in a burst.
+    pub fn in_burst(&self, seed: u64, cycle: u64) -> bool {
+        if self.is_none() {
+            return false;
+        }
+        let epoch = cycle / self.epoch_cycles();
+        unit(splitmix64(
+            seed ^ BURST_SALT ^ splitmix64(epoch ^ BURST_SALT),
+        )) <= self.p
+    }
+
+    /// Checks the numbers; returns the field at fault and why.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        if !(0.0..1.0).contains(&self.p) {
+            return Err((
+                "p",
+                format!("{} is not a fraction of the cycles below 1", self.p),
+            ));
+        }
+        if !(self.mean_cycles.is_finite() && self.mean_cycles >= 1.0) {
+            return Err((
+                "mean_cycles",
+                format!("{} must be a number of cycles >= 1", self.mean_cycles),
+            ));
+        }
+        if !(self.js_scale.is_finite() && self.js_scale > 0.0 && self.js_scale <= 1_000.0) {
+            return Err((
+                "js_scale",
+                format!("{} must be a factor in (0, 1000]", self.js_scale),
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// The host's parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -117,6 +211,9 @@ pub struct HostParams {
     pub tx_latency_ns: f64,
     /// Latency from the reply's last bit to the receive timestamp, ns.
     pub rx_latency_ns: f64,
+    /// Bursty phases of j_s (none by default: the presets have none).
+    #[serde(default, skip_serializing_if = "Bursts::is_none")]
+    pub bursts: Bursts,
 }
 
 impl HostParams {
@@ -168,6 +265,7 @@ impl HostParams {
             },
             tx_latency_ns: 15_000.0,
             rx_latency_ns: 10_000.0,
+            bursts: Bursts::NONE,
         }
     }
 
@@ -228,15 +326,17 @@ impl HostParams {
             jc: Jitter::ZERO,
             tx_latency_ns: 15_000.0,
             rx_latency_ns: 10_000.0,
+            bursts: Bursts::NONE,
         }
     }
 }
 
-/// The host's noise for one run.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// The host's noise for one run: the model's, or a recorded trace's replayed in blocks.
+#[derive(Debug, Clone, PartialEq)]
 pub struct HostNoise {
     params: HostParams,
     seed: u64,
+    replay: Option<Arc<Replay>>,
 }
 
 /// One cycle's noise, ns.
@@ -253,7 +353,21 @@ pub struct CycleNoise {
 impl HostNoise {
     /// The noise of a run.
     pub fn new(params: HostParams, seed: u64) -> Self {
-        HostNoise { params, seed }
+        HostNoise {
+            params,
+            seed,
+            replay: None,
+        }
+    }
+
+    /// The noise of a run that replays `replay` (a recorded trace) instead of the model's j_s
+    /// and e_m, and its TX delay where the trace has one; `params` gives the rest.
+    pub fn replaying(params: HostParams, seed: u64, replay: Option<Arc<Replay>>) -> Self {
+        HostNoise {
+            params,
+            seed,
+            replay,
+        }
     }
 
     /// The noise of cycle `cycle`.
@@ -274,14 +388,27 @@ impl HostNoise {
             };
             j.sample(g, a, || unit(rng.next()))
         };
-        let js = draw(&p.js).max(0.0);
+        let mut js = draw(&p.js).max(0.0);
+        // The regime is hashed apart from the stream: the draws above are the same either way.
+        if p.bursts.in_burst(self.seed, cycle) {
+            js *= p.bursts.js_scale;
+        }
         let em = (p.em_ns + draw(&p.em_jitter)).max(0.0);
         let jc = draw(&p.jc);
-        CycleNoise {
+        let mut n = CycleNoise {
             js_ns: js,
             em_ns: em,
             tx_ns: (p.tx_latency_ns + jc).max(1_000.0),
+        };
+        if let Some(r) = &self.replay {
+            let row = r.row(self.seed, cycle);
+            n.js_ns = row.wake_latency_ns.max(0.0);
+            n.em_ns = row.exec_ns.max(0.0);
+            if let Some(tx) = row.tx_delay_ns {
+                n.tx_ns = tx.max(1_000.0);
+            }
         }
+        n
     }
 
     /// The parameters.
@@ -353,7 +480,7 @@ mod tests {
     #[test]
     fn shared_blocks_are_the_cycles_noise_and_are_dropped_after_the_last_user() {
         let n = HostNoise::new(HostParams::preempt_rt_stress(), 3);
-        let shared = SharedNoise::new(n, 3);
+        let shared = SharedNoise::new(n.clone(), 3);
         for _ in 0..3 {
             let b = shared.block(1_000, 50);
             assert_eq!(b.len(), 50);

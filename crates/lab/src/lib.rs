@@ -26,6 +26,7 @@
 
 pub mod compare;
 pub mod host;
+pub mod host_trace;
 pub mod letter;
 pub mod plots;
 pub mod report;

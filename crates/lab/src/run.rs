@@ -806,7 +806,7 @@ impl Run {
         let ref_station = net.slaves[reference].station;
 
         let method: Method = s.params.build(kind, &s.method_context());
-        let noise = HostNoise::new(s.host, up.seed);
+        let noise = HostNoise::replaying(s.host, up.seed, s.host_trace.clone());
         let period = u64::from(s.cycle_ns);
         let init_frames = method.init_cycles().min(s.warmup_cycles);
         let cyc_cfg = CyclicConfig {
@@ -1038,7 +1038,7 @@ impl Run {
         self.sim.set_host(Box::new(NoiseHost {
             first: start,
             block,
-            noise: self.noise,
+            noise: self.noise.clone(),
             send: self.send,
             send_params: self.send_params,
             seed: self.send_seed,

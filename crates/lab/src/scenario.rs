@@ -5,13 +5,15 @@
 //! ([`ConfigSource`] locates every one); the methods' tables and their checks are ecsync-dc's
 //! registry ([`MethodParams`]).
 
-use crate::host::{HostParams, Jitter};
+use crate::host::{Bursts, HostParams, Jitter};
+use crate::host_trace::Replay;
 use crate::send::{Entry, SendMode, SendParams};
 use ecsync_dc::method::{MethodContext, MethodKind, MethodParams, ParamError};
 use ecsync_esc::SlaveSpec;
 pub use ecsync_esc::config::Problem;
 use ecsync_esc::config::{ConfigError, ConfigSource, SegmentConfig};
 use serde::Deserialize;
+use std::sync::Arc;
 
 /// The cycle times a scenario accepts, us: EtherCAT cycles run from tens of microseconds to
 /// about 100 ms.
@@ -57,6 +59,7 @@ struct HostFile {
     jc: Option<Jitter>,
     tx_latency_ns: Option<f64>,
     rx_latency_ns: Option<f64>,
+    bursts: Option<Bursts>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -134,6 +137,9 @@ pub struct Scenario {
     pub host_name: String,
     /// The host.
     pub host: HostParams,
+    /// A recorded host trace replayed instead of the model's j_s, e_m (and TX delay where the
+    /// trace has it): `compare --host-trace`.
+    pub host_trace: Option<Arc<Replay>>,
     /// Cycle time and SYNC0 period, ns.
     pub cycle_ns: u32,
     /// SYNC0 shift after the DC grid point, % of the cycle.
@@ -405,6 +411,14 @@ fn check_host(host: &HostParams, cycle_ns: u32) -> Result<(), Problem> {
             ));
         }
     }
+    if let Err((field, why)) = host.bursts.validate() {
+        return Err(Problem::new(
+            "host.bursts",
+            field,
+            why,
+            "give p in [0, 1), mean_cycles >= 1 and js_scale in (0, 1000] (ecsync host fit writes them)",
+        ));
+    }
     let w = host.master_wander_ppm_per_sqrt_s;
     if !(w.is_finite() && (0.0..=10.0).contains(&w)) {
         return Err(Problem::new(
@@ -447,7 +461,8 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
         || h.em_jitter.is_some()
         || h.tx_latency_ns.is_some()
         || h.rx_latency_ns.is_some()
-        || h.master_wander_ppm_per_sqrt_s.is_some();
+        || h.master_wander_ppm_per_sqrt_s.is_some()
+        || h.bursts.is_some();
     if let Some(v) = h.master_ppm {
         host.master_ppm = v;
     }
@@ -471,6 +486,9 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
     }
     if let Some(v) = h.rx_latency_ns {
         host.rx_latency_ns = v;
+    }
+    if let Some(v) = h.bursts {
+        host.bursts = v;
     }
 
     // Run.
@@ -545,6 +563,7 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
             preset
         },
         host,
+        host_trace: None,
         cycle_ns,
         sync0_shift_pct: r.sync0_shift_pct,
         target_phase_ns,

@@ -9,6 +9,7 @@
 //!   [`ecsync_master::Transport`]: the bring-up and the cyclic phase run over it with the same
 //!   drivers as in the simulator ([`ecsync_master::driver`]).
 //! * [`serve`]: the virtual segment answering on an interface.
+//! * [`host_record`]: the timing of this host's periodic loop, cycle by cycle (`ecsync host record`).
 //! * [`rt`]: SCHED_FIFO, mlockall and CPU affinity when permitted, with a report of what was not.
 //!
 //! This crate holds what the architecture first placed in `ecsync-master` as its "Linux raw
@@ -38,6 +39,7 @@
 #![warn(missing_docs)]
 #![cfg(target_os = "linux")]
 
+pub mod host_record;
 mod link;
 pub mod rt;
 pub mod serve;
