@@ -265,6 +265,11 @@ pub struct RunArgs {
     /// long, s (0.05 ..= 2; 2 s resolves 0.02 ppm with 40 ns stamps).
     #[arg(long, default_value_t = 2.0)]
     rate_window_s: f64,
+    /// With --save-network: write the reference's crystal error as this, ppm, and every other
+    /// slave's from its measured error against the reference (default: the reference as
+    /// measured against this host's clock, which is only as good as the send stamps).
+    #[arg(long, allow_negative_numbers = true)]
+    reference_ppm: Option<f64>,
 }
 
 #[derive(Debug, Serialize)]
@@ -519,6 +524,11 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     }
     // Below 2^31 ns: a 32-bit receive time's difference between two latches stays unambiguous
     // only for that long, and the latches are 20 ms apart at most anyway.
+    if let Some(p) = args.reference_ppm {
+        if !(p.is_finite() && p.abs() <= 1000.0) {
+            bail!("--reference-ppm must lie in -1000 ..= 1000");
+        }
+    }
     if args.save_network.is_some()
         && !(args.rate_window_s.is_finite() && (0.05..=2.0).contains(&args.rate_window_s))
     {
@@ -627,8 +637,12 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         wall_s: t_up.elapsed().as_secs_f64(),
     };
     if let Some(path) = &args.save_network {
-        let t = ecsync_master::twin::twin_toml(&net, &format!("interface {}", args.iface))
-            .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
+        let t = ecsync_master::twin::twin_toml(
+            &net,
+            &format!("interface {}", args.iface),
+            args.reference_ppm,
+        )
+        .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
         write_atomic(path, t.toml.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!(

@@ -1109,6 +1109,33 @@ fn slope(x: &[f64], y: &[f64]) -> Option<f64> {
     (sxx > 0.0).then(|| sxy / sxx)
 }
 
+/// Slope of the floor of `y` on `x`: where `y` is a clock read at instants `x` stamped late by a
+/// delay that is never less than some least value but often more (a master's send stamps taken
+/// before the kernel and the wire, on a loaded host up to milliseconds more), the points near
+/// the least delay carry the rate, the others only their extra delay. Fitted by least squares,
+/// then again on the quarter of the points furthest below the line, three times.
+fn floor_slope(x: &[f64], y: &[f64]) -> Option<f64> {
+    let n = x.len().min(y.len());
+    let mut keep: Vec<usize> = (0..n).collect();
+    let mut b = slope(x, y)?;
+    for _ in 0..3 {
+        let xs: Vec<f64> = keep.iter().map(|&k| x[k]).collect();
+        let ys: Vec<f64> = keep.iter().map(|&k| y[k]).collect();
+        b = slope(&xs, &ys)?;
+        let mut by_residual: Vec<(f64, usize)> = (0..n).map(|k| (y[k] - b * x[k], k)).collect();
+        by_residual.sort_by(|a, c| a.0.total_cmp(&c.0));
+        // Latency makes y larger: the floor is the smallest residuals.
+        keep = by_residual
+            .iter()
+            .take((n / 4).max(2))
+            .map(|&(_, k)| k)
+            .collect();
+    }
+    let xs: Vec<f64> = keep.iter().map(|&k| x[k]).collect();
+    let ys: Vec<f64> = keep.iter().map(|&k| y[k]).collect();
+    slope(&xs, &ys).or(Some(b))
+}
+
 /// Every slave's crystal against the reference's: port receive times (0x0900, local time,
 /// uncorrected: the drift correction is reset first by writing 0x0930) latched every
 /// [`RATE_LATCH_STEP_NS`] over `window_ns` of master time; each slave's entry port stamps fitted
@@ -1197,7 +1224,7 @@ pub async fn measure_clock_rates(
             .filter(|r| (r - 1.0).abs() < PLAUSIBLE_RATE_ERROR)
             .map(|r| (r - 1.0) * 1e6);
     }
-    Ok(slope(&master, &reference_local)
+    Ok(floor_slope(&master, &reference_local)
         .filter(|r| (r - 1.0).abs() < PLAUSIBLE_RATE_ERROR)
         .map(|r| (r - 1.0) * 1e6))
 }

@@ -144,7 +144,13 @@ fn measurement_bias(specs: &[SlaveSpec], reference: usize) -> Result<Vec<Option<
 }
 
 /// Writes the twin of `net`; `source` says where it was measured (a comment in the file).
-pub fn twin_toml(net: &Network, source: &str) -> Result<Twin, TwinError> {
+/// `reference_ppm`: the reference's crystal error to write, the others' then follow from their
+/// measured errors against it (`None`: as measured against the master's clock).
+pub fn twin_toml(
+    net: &Network,
+    source: &str,
+    reference_ppm: Option<f64>,
+) -> Result<Twin, TwinError> {
     let n = net.slaves.len();
     if n == 0 {
         return Err(TwinError::Missing("any slave"));
@@ -218,7 +224,7 @@ pub fn twin_toml(net: &Network, source: &str) -> Result<Twin, TwinError> {
             }
         }
     }
-    let ref_vs_master = net.reference_ppm_vs_master;
+    let ref_vs_master = reference_ppm.or(net.reference_ppm_vs_master);
     if ref_vs_master.is_none() {
         notes.push(
             "the reference's crystal against the master was not measured: written as 0 ppm".into(),

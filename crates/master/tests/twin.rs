@@ -155,7 +155,7 @@ fn a_twin_has_the_original_s_delays_models_ports_and_crystals() {
         let reference = usize::from(net.reference);
         let truth = seg.true_delays_ns(reference);
         let truth_ppm = relative_ppm(&seg, reference);
-        let twin = twin_toml(&net, "the simulator").expect("a twin");
+        let twin = twin_toml(&net, "the simulator", None).expect("a twin");
         let twin_specs = parse_segment("twin.toml", &twin.toml)
             .unwrap_or_else(|e| panic!("the twin does not parse: {e}\n{}", twin.toml));
         let (net2, seg2) = bring_up(&twin_specs);
