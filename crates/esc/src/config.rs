@@ -15,6 +15,10 @@
 //! entry_port = 0             # this slave's port towards the master
 //! cable_m = 2.0
 //! ppm = 12.4                 # crystal error
+//! # Optional, as `ecsync run --save-network` writes them from a real network's SII:
+//! # vendor_id = 0x00000e5c, product_code = 0x00004024, revision = 0x00010000,
+//! # device_name = "..." (at most 64 bytes): override the device's identity and SII name.
+//! # forwarding_delay_ns, processing_delay_ns, link_phy_delay_ns: override the model's delays.
 //! ```
 //!
 //! ESC models ([`EscModel`]; 0x0008 as real chips of each class show it, see
