@@ -35,6 +35,10 @@ pub struct Args {
     /// 5 ms and sent again up to ten times.
     #[arg(long)]
     faults: Option<PathBuf>,
+    /// Also measure every crystal against the reference's from receive times latched over
+    /// this long, s (as `ecsync run --save-network` does; 0: not measured).
+    #[arg(long, default_value_t = 0.0)]
+    rate_window_s: f64,
 }
 
 #[derive(Debug, Serialize)]
@@ -53,6 +57,10 @@ struct SlaveOut {
     offset: Option<u64>,
     /// Written offset minus the offset that would have aligned the slave exactly, ns.
     offset_error_ns: Option<i64>,
+    /// The crystal's error against the reference's as measured (`--rate-window-s`), ppm.
+    ppm_vs_reference: Option<f64>,
+    /// The same from the segment's crystals (their configured ppm, without the wander), ppm.
+    true_ppm_vs_reference: Option<f64>,
 }
 
 #[derive(Debug, Serialize)]
@@ -101,6 +109,13 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let reference = (0..seg.len())
         .find(|&i| seg.esc(i).model().dc.has_system_time())
         .context("no slave has a DC system time to act as reference")?;
+    if !(args.rate_window_s.is_finite() && (0.0..=60.0).contains(&args.rate_window_s)) {
+        anyhow::bail!("--rate-window-s must lie in 0 ..= 60 s");
+    }
+    // The crystals' configured errors (network order), for the truth of the relative ppm.
+    let crystal_ppm: Vec<Option<f64>> = (0..seg.len())
+        .map(|i| seg.esc(i).dc().map(|d| d.clock().params().ppm))
+        .collect();
     let mut sim = SimTransport::new(seg);
     if let Some(p) = &args.pcap {
         sim.capture_to(p)
@@ -111,6 +126,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         static_drift_frames: args.static_drift,
         latch_rounds: args.latch_rounds,
         monitor_cycles: args.monitor_cycles,
+        rate_window_ns: (args.rate_window_s * 1e9) as u64,
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
@@ -187,6 +203,14 @@ pub fn run(args: Args) -> Result<ExitCode> {
                 delay_spread_ns: s.delay_spread_ns,
                 offset: s.offset,
                 offset_error_ns: offset_error[usize::from(s.position)],
+                ppm_vs_reference: s.ppm_vs_reference,
+                true_ppm_vs_reference: match (
+                    crystal_ppm[usize::from(s.position)],
+                    crystal_ppm[usize::from(net.reference)],
+                ) {
+                    (Some(p), Some(r)) => Some(((1.0 + p * 1e-6) / (1.0 + r * 1e-6) - 1.0) * 1e6),
+                    _ => None,
+                },
             })
             .collect(),
         lock: LockOut {

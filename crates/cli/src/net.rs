@@ -264,6 +264,25 @@ pub struct RunArgs {
     /// read).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Write a twin of the network to this file after the bring-up: a network TOML (the
+    /// format `compare`, `bringup` and `serve --config` read) with the topology, the SII's
+    /// identity and names, ESC models from 0x0000/0x0007/0x0008, cables solved from the
+    /// measured delays and the crystals measured against the reference.
+    #[arg(long)]
+    save_network: Option<PathBuf>,
+    /// Only scan: bring the network up to the delays, measure the crystals, write
+    /// --save-network and exit (nothing is written to the slaves but the latches).
+    #[arg(long, requires = "save_network")]
+    scan_only: bool,
+    /// With --save-network: the crystals are measured from receive times latched over this
+    /// long, s (0.05 ..= 2; 2 s resolves 0.02 ppm with 40 ns stamps).
+    #[arg(long, default_value_t = 2.0)]
+    rate_window_s: f64,
+    /// With --save-network: write the reference's crystal error as this, ppm, and every other
+    /// slave's from its measured error against the reference (default: the reference as
+    /// measured against this host's clock, which is only as good as the send stamps).
+    #[arg(long, allow_negative_numbers = true)]
+    reference_ppm: Option<f64>,
 }
 
 #[derive(Debug, Serialize)]
@@ -544,6 +563,18 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             bail!("--duration must be a number of seconds > 0");
         }
     }
+    // Below 2^31 ns: a 32-bit receive time's difference between two latches stays unambiguous
+    // only for that long, and the latches are 20 ms apart at most anyway.
+    if let Some(p) = args.reference_ppm {
+        if !(p.is_finite() && p.abs() <= 1000.0) {
+            bail!("--reference-ppm must lie in -1000 ..= 1000");
+        }
+    }
+    if args.save_network.is_some()
+        && !(args.rate_window_s.is_finite() && (0.05..=2.0).contains(&args.rate_window_s))
+    {
+        bail!("--rate-window-s must lie in 0.05 ..= 2 s");
+    }
     let cycle_ns = args.cycle_us * 1000;
     let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
     let (method, target_phase_ns) = method_for(&args, cycle_ns)?;
@@ -577,13 +608,24 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
 
     // Bring-up.
     let t_up = Instant::now();
+    let twin = args.save_network.is_some();
     let cfg = BringupConfig {
-        until: Stage::Op,
+        until: if args.scan_only {
+            Stage::Delays
+        } else {
+            Stage::Op
+        },
         static_drift_frames: args.static_drift,
         cycle_ns,
         sync0_shift_ns: shift_ns,
         monitor_cycles: 100,
         lock_hold_checks: 200,
+        rate_window_ns: if twin {
+            (args.rate_window_s * 1e9) as u64
+        } else {
+            0
+        },
+        read_sii_details: twin,
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
@@ -645,6 +687,33 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         sync0_start_ns: net.sync0.map(|s| s.start_ns),
         wall_s: t_up.elapsed().as_secs_f64(),
     };
+    if let Some(path) = &args.save_network {
+        let t = ecsync_master::twin::twin_toml(
+            &net,
+            &format!("interface {}", args.iface),
+            args.reference_ppm,
+        )
+        .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
+        write_atomic(path, t.toml.as_bytes())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        eprintln!(
+            "network twin: {} slaves written to {} (reference {}; its crystal {} against this host's clock)",
+            net.slaves.len(),
+            path.display(),
+            net.reference,
+            net.reference_ppm_vs_master
+                .map_or("not measured".to_string(), |p| format!("{p:+.2} ppm")),
+        );
+        for n in &t.notes {
+            eprintln!("  note: {n}");
+        }
+        if args.scan_only {
+            if json {
+                println!("{}", serde_json::to_string_pretty(&net)?);
+            }
+            return Ok(ExitCode::SUCCESS);
+        }
+    }
     if !json {
         print_bringup(&bring);
     }

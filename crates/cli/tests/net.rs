@@ -1727,6 +1727,167 @@ mod esi_drives {
     }
 }
 
+/// The preset's crystals against the reference's (position 0), ppm: the truth a twin's are
+/// checked against (the segment runs on this host's clock, so only relative figures compare).
+fn true_relative_ppm() -> Vec<f64> {
+    let specs = ecsync_esc::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
+    let r = specs[0].crystal.ppm;
+    specs
+        .iter()
+        .map(|s| ((1.0 + s.crystal.ppm * 1e-6) / (1.0 + r * 1e-6) - 1.0) * 1e6)
+        .collect()
+}
+
+/// `compare` on a scenario file, short (one run, 20 000 cycles), its ranking.
+fn ranking(scenario: &Path, out: &Path) -> Vec<String> {
+    let o = Command::new(ecsync())
+        .args([
+            "compare",
+            "--config",
+            scenario.to_str().unwrap(),
+            "--runs",
+            "1",
+            "--cycles",
+            "20000",
+            "--warmup-s",
+            "15",
+            "--seed",
+            "7",
+            "--host",
+            "preempt-rt-stress",
+            "--threads",
+            "2",
+            "--quiet",
+            "--json",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .expect("run ecsync compare");
+    assert!(
+        o.status.success(),
+        "compare --config {}: {}",
+        scenario.display(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("compare JSON");
+    j["recommendation"]["ranking"]
+        .as_array()
+        .expect("a ranking")
+        .iter()
+        .map(|m| m.as_str().unwrap_or_default().to_string())
+        .collect()
+}
+
+/// Issue 14's first acceptance: `run --scan-only --save-network` against `serve --preset
+/// paper-2024` writes a twin on which `bringup` finds every delay within 20 ns and every crystal
+/// against the reference within 0.1 ppm of the preset's truth, and `compare` ranks the methods
+/// as on the preset (same host, seed, run and method tables).
+#[test]
+fn a_twin_saved_over_veth_has_the_preset_s_delays_crystals_and_ranking() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(pair) = NetPair::new("tw") else {
+        return;
+    };
+    let dir = tmp("twin");
+    let twin = dir.join("twin.toml");
+    {
+        let _served = pair.serve(&[]);
+        let o = pair
+            .command(
+                &pair.ns_b,
+                &[
+                    "run",
+                    "--iface",
+                    &pair.if_b,
+                    "--scan-only",
+                    "--save-network",
+                    twin.to_str().unwrap(),
+                    // The reference's crystal against true time cannot be measured here (the
+                    // segment's true time is this host's clock, the master's own, and the
+                    // figure measured against it is ~10 ppm off, see the report); the preset's
+                    // is given, the others are the twin's measurement against it.
+                    "--reference-ppm",
+                    "12.4",
+                ],
+            )
+            .output()
+            .expect("run ecsync run --scan-only");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "ecsync run --scan-only: {stderr}");
+        eprintln!("{}", stderr.trim());
+    }
+    let text = std::fs::read_to_string(&twin).expect("the twin is written");
+    let specs = ecsync_esc::config::parse_segment("twin.toml", &text)
+        .unwrap_or_else(|e| panic!("the twin does not parse: {e}\n{text}"));
+    assert_eq!(specs.len(), 6, "{text}");
+    for s in &specs {
+        assert_eq!(s.model, ecsync_esc::model::EscModel::servo_mii(), "{text}");
+    }
+
+    // bringup on the twin: its true and measured delays, its crystals.
+    let o = Command::new(ecsync())
+        .args([
+            "bringup",
+            "--config",
+            twin.to_str().unwrap(),
+            "--json",
+            "--rate-window-s",
+            "2",
+            "--static-drift",
+            "2000",
+            "--monitor-cycles",
+            "10",
+        ])
+        .output()
+        .expect("run ecsync bringup");
+    assert!(
+        o.status.success(),
+        "bringup --config twin: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("bringup JSON");
+    let slaves = j["slaves"].as_array().expect("slaves");
+    let (truth, truth_ppm) = (true_delays(), true_relative_ppm());
+    assert_eq!(slaves.len(), truth.len());
+    let (mut worst_true_ns, mut worst_measured_ns, mut worst_ppm) = (0.0f64, 0.0f64, 0.0f64);
+    for (k, s) in slaves.iter().enumerate() {
+        let twin_true = s["true_delay_ns"].as_f64().expect("a true delay");
+        let twin_measured = s["delay_ns"].as_f64().expect("a measured delay");
+        let ppm = s["true_ppm_vs_reference"].as_f64().expect("a crystal");
+        worst_true_ns = worst_true_ns.max((twin_true - truth[k]).abs());
+        worst_measured_ns = worst_measured_ns.max((twin_measured - truth[k]).abs());
+        worst_ppm = worst_ppm.max((ppm - truth_ppm[k]).abs());
+        assert!(
+            (twin_true - truth[k]).abs() <= 20.0 && (twin_measured - truth[k]).abs() <= 20.0,
+            "slave {k}: the twin's delay is {twin_true:.1} ns (bringup measures {twin_measured:.1}), the preset's {:.1}\n{text}",
+            truth[k]
+        );
+        assert!(
+            (ppm - truth_ppm[k]).abs() <= 0.1,
+            "slave {k}: the twin's crystal is {ppm:+.4} ppm against the reference, the preset's {:+.4}\n{text}",
+            truth_ppm[k]
+        );
+    }
+    eprintln!(
+        "twin over veth: worst delay error {worst_true_ns:.1} ns (the twin's truth), {worst_measured_ns:.1} ns (bringup's measurement on it), worst crystal error against the reference {worst_ppm:.4} ppm"
+    );
+
+    // compare: the twin's segment with the preset's host, run and methods, against the preset.
+    let rest = preset::PAPER_2024_TOML
+        .find("\n[host]")
+        .map(|at| &preset::PAPER_2024_TOML[at..])
+        .expect("the preset has a [host] table");
+    let scenario = dir.join("twin-scenario.toml");
+    std::fs::write(&scenario, format!("{text}\n{rest}")).unwrap();
+    let preset_file = dir.join("paper-2024.toml");
+    std::fs::write(&preset_file, preset::PAPER_2024_TOML).unwrap();
+    let on_twin = ranking(&scenario, &dir.join("cmp-twin"));
+    let on_preset = ranking(&preset_file, &dir.join("cmp-preset"));
+    eprintln!("ranking on the twin: {on_twin:?}; on the preset: {on_preset:?}");
+    assert_eq!(on_twin, on_preset, "the twin ranks the methods otherwise");
+}
+
 /// Issue 14, acceptance 3 and 4's refusal: send-time control on the real path.
 mod send_control {
     use super::*;

@@ -15,6 +15,10 @@
 //! entry_port = 0             # this slave's port towards the master
 //! cable_m = 2.0
 //! ppm = 12.4                 # crystal error
+//! # Optional, as `ecsync run --save-network` writes them from a real network's SII:
+//! # vendor_id = 0x00000e5c, product_code = 0x00004024, revision = 0x00010000,
+//! # device_name = "..." (at most 64 bytes): override the device's identity and SII name.
+//! # forwarding_delay_ns, processing_delay_ns, link_phy_delay_ns: override the model's delays.
 //! ```
 //!
 //! ESC models ([`EscModel`]; 0x0008 as real chips of each class show it, see
@@ -328,6 +332,86 @@ pub struct SlaveConfig {
     /// Link PHY delay override, ns.
     #[serde(default)]
     pub link_phy_delay_ns: Option<f64>,
+    /// Vendor ID override (SII), e.g. as a twin of a real network read it.
+    #[serde(default)]
+    pub vendor_id: Option<u32>,
+    /// Product code override (SII).
+    #[serde(default)]
+    pub product_code: Option<u32>,
+    /// Revision override (SII).
+    #[serde(default)]
+    pub revision: Option<u32>,
+    /// The device name in the SII strings, overriding the device's (at most 64 bytes).
+    #[serde(default)]
+    pub device_name: Option<String>,
+}
+
+/// The ESC models a file names, with the model each name builds.
+pub const MODEL_NAMES: [&str; 5] = [
+    "servo-mii",
+    "servo-mii-dc32",
+    "ebus-terminal",
+    "ebus-terminal-no-dc",
+    "junction-mii",
+];
+
+/// The model a name in a file builds (`None`: no such model).
+pub fn model_named(name: &str) -> Option<EscModel> {
+    Some(match name {
+        "servo-mii" => EscModel::servo_mii(),
+        "servo-mii-dc32" => EscModel::servo_mii_dc32(),
+        "ebus-terminal" => EscModel::ebus_terminal(DcSupport::Full64),
+        "ebus-terminal-no-dc" => EscModel::ebus_terminal(DcSupport::None),
+        "junction-mii" => EscModel::junction_mii(),
+        _ => return None,
+    })
+}
+
+/// How well [`model_for_registers`] matched a real ESC's registers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelMatch {
+    /// ESC type (0x0000), features (0x0008) and port descriptor (0x0007) are the model's.
+    Exact,
+    /// Ports and DC width are the model's; the ESC type or other feature bits differ.
+    Ports,
+    /// Nothing fits well: the model with the most ports of the same kinds and the same DC.
+    Nearest,
+}
+
+/// The ESC model whose registers a real ESC's are: ESC type (0x0000), features (0x0008), port
+/// descriptor (0x0007). Exact when every model register agrees; else the model with the same
+/// port kinds and DC width (64-bit, 32-bit, none: features bits 2 and 3); else the one that
+/// agrees on most ports, DC first.
+pub fn model_for_registers(
+    esc_type: u8,
+    features: u16,
+    port_descriptor: u8,
+) -> (&'static str, ModelMatch) {
+    use ecsync_wire::register::features as f;
+    let dc_bits = features & (f::DC | f::DC_64BIT);
+    let models = MODEL_NAMES.map(|n| (n, model_named(n).unwrap_or_else(EscModel::servo_mii)));
+    if let Some((n, _)) = models.iter().find(|(_, m)| {
+        m.esc_type == esc_type && m.features() == features && m.port_descriptor() == port_descriptor
+    }) {
+        return (n, ModelMatch::Exact);
+    }
+    if let Some((n, _)) = models.iter().find(|(_, m)| {
+        m.port_descriptor() == port_descriptor && m.features() & (f::DC | f::DC_64BIT) == dc_bits
+    }) {
+        return (n, ModelMatch::Ports);
+    }
+    let score = |m: &EscModel| {
+        let ports = (0..4)
+            .filter(|p| (m.port_descriptor() >> (2 * p)) & 3 == (port_descriptor >> (2 * p)) & 3)
+            .count();
+        let dc = usize::from(m.features() & (f::DC | f::DC_64BIT) == dc_bits);
+        dc * 10 + ports
+    };
+    let best = models
+        .iter()
+        .max_by_key(|(_, m)| score(m))
+        .map_or("servo-mii", |(n, _)| n);
+    (best, ModelMatch::Nearest)
 }
 
 fn default_model() -> String {
@@ -392,23 +476,16 @@ impl SegmentConfig {
                     "give every slave its own name",
                 ));
             }
-            let mut model = match s.model.as_str() {
-                "servo-mii" => EscModel::servo_mii(),
-                "servo-mii-dc32" => EscModel::servo_mii_dc32(),
-                "ebus-terminal" => EscModel::ebus_terminal(DcSupport::Full64),
-                "ebus-terminal-no-dc" => EscModel::ebus_terminal(DcSupport::None),
-                "junction-mii" => EscModel::junction_mii(),
-                other => {
-                    return Err(err(
-                        line,
-                        f("model"),
-                        format!("unknown ESC model \"{other}\""),
-                        "use servo-mii, servo-mii-dc32, ebus-terminal, ebus-terminal-no-dc or junction-mii",
-                    ));
-                }
+            let Some(mut model) = model_named(&s.model) else {
+                return Err(err(
+                    line,
+                    f("model"),
+                    format!("unknown ESC model \"{}\"", s.model),
+                    "use servo-mii, servo-mii-dc32, ebus-terminal, ebus-terminal-no-dc or junction-mii",
+                ));
             };
             let serial = s.serial.unwrap_or(i as u32 + 1);
-            let device = match &s.esi {
+            let mut device = match &s.esi {
                 Some(esi) => esi_files.device(
                     &src,
                     esi,
@@ -430,6 +507,27 @@ impl SegmentConfig {
                     }
                 },
             };
+            if let Some(v) = s.vendor_id {
+                device.vendor_id = v;
+            }
+            if let Some(v) = s.product_code {
+                device.product_code = v;
+            }
+            if let Some(v) = s.revision {
+                device.revision = v;
+            }
+            if let Some(n) = &s.device_name {
+                // ethercrab refuses longer strings; the SII's string length is one byte.
+                if n.len() > 64 {
+                    return Err(err(
+                        key_line_in(text, sp.span(), "device_name").or(line),
+                        f("device_name"),
+                        format!("{} bytes, more than an SII name may have", n.len()),
+                        "give a name of at most 64 bytes",
+                    ));
+                }
+                device.name = n.clone();
+            }
             for (name, v, target) in [
                 (
                     "forwarding_delay_ns",

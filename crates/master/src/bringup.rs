@@ -89,6 +89,15 @@ pub struct BringupConfig {
     pub master_is_reference: bool,
     /// How long each wait of the bring-up may last.
     pub timeouts: BringupTimeouts,
+    /// Measure every slave's crystal against the reference's (and the reference's against the
+    /// master's clock) from port receive times latched over this much master time, ns, right
+    /// after the delays, while the local clocks are still uncorrected ([`measure_clock_rates`]).
+    /// 0: not measured. A twin of the network (`ecsync run --save-network`) needs it; 2 s
+    /// resolves 0.02 ppm with 40 ns stamps.
+    pub rate_window_ns: u64,
+    /// Read the SII's device name, mailbox and SyncManagers even when the bring-up stops after
+    /// the delays (a twin of the network names and types its devices from them).
+    pub read_sii_details: bool,
 }
 
 impl Default for BringupConfig {
@@ -109,6 +118,8 @@ impl Default for BringupConfig {
             esi: Vec::new(),
             master_is_reference: false,
             timeouts: BringupTimeouts::default(),
+            rate_window_ns: 0,
+            read_sii_details: false,
         }
     }
 }
@@ -293,6 +304,10 @@ pub struct SlaveInfo {
     pub product_code: u32,
     /// Serial number.
     pub serial: u32,
+    /// Revision number (SII).
+    pub revision: u32,
+    /// Port descriptor (0x0007): two bits per port, 0b11 MII, 0b10 EBUS, 0b00 none.
+    pub port_descriptor: u8,
     /// Device name from the SII strings.
     pub name: String,
     /// DC capability.
@@ -309,6 +324,10 @@ pub struct SlaveInfo {
     pub delay_spread_ns: Option<f64>,
     /// System time offset written to 0x0920.
     pub offset: Option<u64>,
+    /// Crystal error against the reference's, ppm: local time elapsed at this slave's entry
+    /// port over the reference's between latches [`BringupConfig::rate_window_ns`] apart, minus
+    /// one (`None`: not measured, or the slave has no receive times).
+    pub ppm_vs_reference: Option<f64>,
     /// Output bytes (RxPDO) and where they sit in the logical process image.
     pub outputs: (u32, u16),
     /// Input bytes (TxPDO) and where they sit in the logical process image.
@@ -422,6 +441,11 @@ pub struct Network {
     pub master_delay_ns: Option<f64>,
     /// Spread of the master delay over the rounds, ns.
     pub master_delay_spread_ns: Option<f64>,
+    /// The reference's crystal against the master's clock, ppm (a least-squares fit of its
+    /// entry port stamps on the master's send stamps over [`BringupConfig::rate_window_ns`]):
+    /// only as good as the master's send stamps, microseconds off on a loaded host, so a few
+    /// tenths of a ppm over 2 s (`None`: not measured).
+    pub reference_ppm_vs_master: Option<f64>,
 }
 
 /// Master time right before the last frame was sent.
@@ -481,7 +505,14 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         done_ns: 0,
         master_delay_ns: latch.master_delay_ns,
         master_delay_spread_ns: latch.master_delay_spread_ns,
+        reference_ppm_vs_master: None,
     };
+    if cfg.rate_window_ns > 0 {
+        net.reference_ppm_vs_master =
+            measure_clock_rates(&link, &mut net.slaves, reference.index, cfg.rate_window_ns)
+                .await
+                .map_err(|e| e.during(Phase::Delays))?;
+    }
     if cfg.until == Stage::Delays {
         return Ok(net.done_at(&link));
     }
@@ -736,7 +767,7 @@ async fn identify_slave(
         slave: station,
         what: "identity unreadable",
     })?;
-    let details = cfg.until > Stage::Delays;
+    let details = cfg.until > Stage::Delays || cfg.read_sii_details;
     let name = if !details {
         String::new()
     } else {
@@ -808,6 +839,8 @@ async fn identify_slave(
         vendor_id: identity.vendor_id,
         product_code: identity.product_code,
         serial: identity.serial,
+        revision: identity.revision,
+        port_descriptor: info[7],
         name,
         dc,
         open_ports: open,
@@ -816,6 +849,7 @@ async fn identify_slave(
         delay_ns: None,
         delay_spread_ns: None,
         offset: None,
+        ppm_vs_reference: None,
         outputs: (0, 0),
         inputs: (0, 0),
         sms,
@@ -1052,6 +1086,147 @@ async fn measure_delays(
         master_delay_ns,
         master_delay_spread_ns,
     })
+}
+
+/// Latches of [`measure_clock_rates`]: one every this long, ns (at most; fewer over a short
+/// window). Well under the 2.1 s in which a 32-bit receive time's difference stays unambiguous,
+/// and many points for the fit.
+const RATE_LATCH_STEP_NS: u64 = 20_000_000;
+
+/// Least-squares slope of `y` on `x` (`None` with fewer than two distinct `x`).
+fn slope(x: &[f64], y: &[f64]) -> Option<f64> {
+    let n = x.len().min(y.len());
+    if n < 2 {
+        return None;
+    }
+    let mx = x[..n].iter().sum::<f64>() / n as f64;
+    let my = y[..n].iter().sum::<f64>() / n as f64;
+    let (mut sxy, mut sxx) = (0.0, 0.0);
+    for k in 0..n {
+        sxy += (x[k] - mx) * (y[k] - my);
+        sxx += (x[k] - mx) * (x[k] - mx);
+    }
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+/// Slope of the floor of `y` on `x`: where `y` is a clock read at instants `x` stamped late by a
+/// delay that is never less than some least value but often more (a master's send stamps taken
+/// before the kernel and the wire, on a loaded host up to milliseconds more), the points near
+/// the least delay carry the rate, the others only their extra delay. Fitted by least squares,
+/// then again on the quarter of the points furthest below the line, three times.
+fn floor_slope(x: &[f64], y: &[f64]) -> Option<f64> {
+    let n = x.len().min(y.len());
+    let mut keep: Vec<usize> = (0..n).collect();
+    let mut b = slope(x, y)?;
+    for _ in 0..3 {
+        let xs: Vec<f64> = keep.iter().map(|&k| x[k]).collect();
+        let ys: Vec<f64> = keep.iter().map(|&k| y[k]).collect();
+        b = slope(&xs, &ys)?;
+        let mut by_residual: Vec<(f64, usize)> = (0..n).map(|k| (y[k] - b * x[k], k)).collect();
+        by_residual.sort_by(|a, c| a.0.total_cmp(&c.0));
+        // Latency makes y larger: the floor is the smallest residuals.
+        keep = by_residual
+            .iter()
+            .take((n / 4).max(2))
+            .map(|&(_, k)| k)
+            .collect();
+    }
+    let xs: Vec<f64> = keep.iter().map(|&k| x[k]).collect();
+    let ys: Vec<f64> = keep.iter().map(|&k| y[k]).collect();
+    slope(&xs, &ys).or(Some(b))
+}
+
+/// Every slave's crystal against the reference's: port receive times (0x0900, local time,
+/// uncorrected: the drift correction is reset first by writing 0x0930) latched every
+/// [`RATE_LATCH_STEP_NS`] over `window_ns` of master time; each slave's entry port stamps fitted
+/// on the reference's (least squares, so the 40 ns stamp resolution averages out over the many
+/// latches). Every latch frame reaches every slave a fixed time after the reference, so the
+/// ratio is the crystals' alone, whatever the master's send jitter. Records
+/// [`SlaveInfo::ppm_vs_reference`]; returns the reference's crystal against the master's clock,
+/// fitted on the master's send stamps (as good as they are).
+pub async fn measure_clock_rates(
+    link: &Link,
+    slaves: &mut [SlaveInfo],
+    reference: usize,
+    window_ns: u64,
+) -> Result<Option<f64>, MasterError> {
+    link.bwr(
+        reg::DC_SPEED_COUNTER_START,
+        &0x1000u16.to_le_bytes(),
+        "reset the drift correction",
+    )
+    .await?;
+    let n = slaves.len();
+    let latches = (window_ns / RATE_LATCH_STEP_NS).clamp(1, 10_000) + 1;
+    let step_ns = window_ns / (latches - 1);
+    let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
+    // Per slave: the entry port's stamps, unwrapped from 32 bits by adding each latch's
+    // difference to the one before, ns since the first latch.
+    let mut local: Vec<Vec<f64>> = vec![Vec::with_capacity(latches as usize); n];
+    let mut last: Vec<Option<u32>> = vec![None; n];
+    let mut master: Vec<f64> = Vec::with_capacity(latches as usize);
+    let start = link.now_ns();
+    for k in 0..latches {
+        link.sleep_until(start + k * step_ns).await;
+        let r = link
+            .pdu(
+                Command::Bwr,
+                position_addr(0, reg::DC_RECEIVE_TIME_PORT0),
+                vec![0; 4],
+                "latch receive times",
+            )
+            .await?;
+        let sent = r_sent(link);
+        if r.wkc != expected {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Bwr,
+                what: "latch receive times",
+                expected,
+                got: r.wkc,
+            });
+        }
+        let owners: Vec<usize> = (0..n)
+            .filter(|&i| slaves[i].dc != DcCapability::None)
+            .collect();
+        let reads: Vec<Pdu> = owners
+            .iter()
+            .map(|&i| {
+                Pdu::new(
+                    Command::Fprd,
+                    fp(slaves[i].station, reg::DC_RECEIVE_TIME_PORT0),
+                    vec![0; 16],
+                )
+            })
+            .collect();
+        let (replies, _) = link.pdus(&reads, "read receive times").await?;
+        for (r, &i) in replies.iter().zip(&owners) {
+            let e = 4 * usize::from(slaves[i].entry_port.min(3));
+            let (true, Some(b)) = (r.wkc == 1, r.data.get(e..e + 4)) else {
+                return Err(MasterError::WorkingCounter {
+                    command: Command::Fprd,
+                    what: "read receive times",
+                    expected: 1,
+                    got: r.wkc,
+                }
+                .at(Phase::Delays, slaves[i].id()));
+            };
+            let t = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            let prev = local[i].last().copied().unwrap_or(0.0);
+            let d = last[i].map_or(0, |l| dc_time::diff_u32(t, l));
+            local[i].push(prev + f64::from(d));
+            last[i] = Some(t);
+        }
+        master.push(sent.wrapping_sub(start) as f64);
+    }
+    let reference_local = local[reference].clone();
+    for (i, s) in slaves.iter_mut().enumerate() {
+        s.ppm_vs_reference = slope(&reference_local, &local[i])
+            .filter(|r| (r - 1.0).abs() < PLAUSIBLE_RATE_ERROR)
+            .map(|r| (r - 1.0) * 1e6);
+    }
+    Ok(floor_slope(&master, &reference_local)
+        .filter(|r| (r - 1.0).abs() < PLAUSIBLE_RATE_ERROR)
+        .map(|r| (r - 1.0) * 1e6))
 }
 
 /// [`Phase::Offsets`]: offsets from the last latch, written together with the delays in one

@@ -49,6 +49,7 @@ pub mod sii;
 pub mod sim;
 pub mod stats;
 pub mod transport;
+pub mod twin;
 
 pub use bringup::{
     BringupConfig, BringupTimeouts, Network, Phase, SlaveId, SlaveInfo, Stage, bringup,
