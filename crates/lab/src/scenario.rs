@@ -291,7 +291,7 @@ impl Scenario {
                 "name at least one of: plain, spin, txtime",
             ));
         }
-        if let Err((field, message)) = self.send.validate(self.cycle_ns) {
+        if let Err((field, message)) = self.send.validate(self.cycle_ns, &self.send_modes) {
             // The file gives the long ones in us.
             let key = match field {
                 "spin_margin_ns" => "spin_margin_us",

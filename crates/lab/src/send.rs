@@ -123,8 +123,15 @@ impl Default for SendParams {
 }
 
 impl SendParams {
-    /// Checks the numbers; the field at fault and why.
-    pub fn validate(&self, cycle_ns: u32) -> Result<(), (&'static str, String)> {
+    /// Checks the numbers the modes `modes` use (another mode's are not read); the field at
+    /// fault and why.
+    pub fn validate(
+        &self,
+        cycle_ns: u32,
+        modes: &[SendMode],
+    ) -> Result<(), (&'static str, String)> {
+        let spin = modes.contains(&SendMode::Spin);
+        let txtime = modes.contains(&SendMode::Txtime);
         for (f, v) in [
             ("spin_margin_ns", self.spin_margin_ns),
             ("spin_residual_ns", self.spin_residual_ns),
@@ -137,23 +144,28 @@ impl SendParams {
                 return Err((f, format!("{v} must be a finite number >= 0")));
             }
         }
-        for (f, v) in [
-            ("spin_margin_ns", self.spin_margin_ns),
-            ("txtime_lead_ns", self.txtime_lead_ns),
+        for (f, v, used) in [
+            ("spin_margin_ns", self.spin_margin_ns, spin),
+            ("txtime_lead_ns", self.txtime_lead_ns, txtime),
         ] {
-            if v >= f64::from(cycle_ns) {
+            if used && v >= f64::from(cycle_ns) {
                 return Err((
                     f,
-                    format!("{v} ns is not shorter than the {cycle_ns} ns cycle"),
+                    format!(
+                        "{} us is not shorter than the {} us cycle",
+                        v / 1e3,
+                        f64::from(cycle_ns) / 1e3
+                    ),
                 ));
             }
         }
-        if self.txtime_delta_ns > self.txtime_lead_ns {
+        if txtime && self.txtime_delta_ns > self.txtime_lead_ns {
             return Err((
                 "txtime_delta_ns",
                 format!(
-                    "{} ns is more than the lead of {} ns: every frame would miss its launch time",
-                    self.txtime_delta_ns, self.txtime_lead_ns
+                    "{} us is more than the lead of {} us: every frame would miss its launch time",
+                    self.txtime_delta_ns / 1e3,
+                    self.txtime_lead_ns / 1e3
                 ),
             ));
         }

@@ -93,10 +93,26 @@ fn a_bad_send_table_names_its_field() {
     let e = ecsync_lab::parse("p.toml", &text).unwrap_err();
     assert_eq!(e.field, "send.modes", "{e}");
     let text = format!(
-        "{}\n[send]\ntxtime_lead_us = 5\ntxtime_delta_us = 10\n",
+        "{}\n[send]\nmodes = [\"txtime\"]\ntxtime_lead_us = 5\ntxtime_delta_us = 10\n",
         ecsync_esc::preset::PAPER_2024_TOML
     );
     let e = ecsync_lab::parse("p.toml", &text).unwrap_err();
     assert_eq!(e.field, "send.txtime_delta_us", "{e}");
     assert!(e.line.is_some(), "{e}");
+    // A mode's numbers count only where the mode runs: a spin margin longer than the cycle
+    // is refused only when something spins.
+    let short = ecsync_esc::preset::PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 250");
+    assert_ne!(short, ecsync_esc::preset::PAPER_2024_TOML);
+    ecsync_lab::parse(
+        "p.toml",
+        &format!("{short}\n[send]\nspin_margin_us = 300\n"),
+    )
+    .unwrap();
+    let e = ecsync_lab::parse(
+        "p.toml",
+        &format!("{short}\n[send]\nmodes = [\"spin\"]\nspin_margin_us = 300\n"),
+    )
+    .unwrap_err();
+    assert_eq!(e.field, "send.spin_margin_us", "{e}");
+    assert!(e.message.contains("300 us"), "{e}");
 }
