@@ -1888,6 +1888,80 @@ fn a_twin_saved_over_veth_has_the_preset_s_delays_crystals_and_ranking() {
     assert_eq!(on_twin, on_preset, "the twin ranks the methods otherwise");
 }
 
+/// A twin saved by a run (not a scan): the reference's crystal against this host's clock comes
+/// from the cyclic phase (the reference's time against the send stamps over 12 s of cycles),
+/// not from the bring-up's 2 s of latches, and lands near the preset's 12.4 ppm without
+/// `--reference-ppm`; every other crystal still within 0.1 ppm of the preset's against it.
+#[test]
+fn a_twin_saved_after_a_run_has_the_reference_crystal_from_the_cyclic_phase() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(pair) = NetPair::new("tr") else {
+        return;
+    };
+    let dir = tmp("twin-run");
+    let twin = dir.join("twin.toml");
+    let _served = pair.serve(&[]);
+    let o = pair
+        .command(
+            &pair.ns_b,
+            &[
+                "run",
+                "--iface",
+                &pair.if_b,
+                "--method",
+                "median-fit",
+                "--duration",
+                "12",
+                "--timeout-us",
+                "100000",
+                "--save-network",
+                twin.to_str().unwrap(),
+                "--json",
+            ],
+        )
+        .output()
+        .expect("run ecsync run");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("over") && err.contains("cycles of the run"),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(&twin).unwrap();
+    let specs = ecsync_esc::config::parse_segment(twin.to_str().unwrap(), &text).unwrap();
+    let truth = ecsync_esc::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
+    let (got, want) = (specs[0].crystal.ppm, truth[0].crystal.ppm);
+    println!("twin after a run: reference {got:+.3} ppm against this host, preset {want:+.3} ppm");
+    // The preset's crystals wander (0.005 ppm/sqrt(s) and its host's send stamps jitter by tens
+    // of microseconds): 1 ppm is ten times what 12 s of cycles resolve here.
+    assert!(
+        (got - want).abs() < 1.0,
+        "reference {got} ppm, preset {want} ppm"
+    );
+    let rel = true_relative_ppm();
+    for (k, s) in specs.iter().enumerate() {
+        let r = ((1.0 + s.crystal.ppm * 1e-6) / (1.0 + got * 1e-6) - 1.0) * 1e6;
+        assert!(
+            (r - rel[k]).abs() < 0.1,
+            "slave {k}: {r} ppm against {}",
+            rel[k]
+        );
+    }
+    // And with nothing told: compare ranks the methods on the twin as on the preset.
+    let rest = preset::PAPER_2024_TOML
+        .find("\n[host]")
+        .map(|at| &preset::PAPER_2024_TOML[at..])
+        .expect("the preset has a [host] table");
+    let scenario = dir.join("twin-scenario.toml");
+    std::fs::write(&scenario, format!("{text}\n{rest}")).unwrap();
+    let preset_file = dir.join("paper-2024.toml");
+    std::fs::write(&preset_file, preset::PAPER_2024_TOML).unwrap();
+    let on_twin = ranking(&scenario, &dir.join("cmp-twin"));
+    let on_preset = ranking(&preset_file, &dir.join("cmp-preset"));
+    println!("ranking on the run's twin: {on_twin:?}; on the preset: {on_preset:?}");
+    assert_eq!(on_twin, on_preset, "the twin ranks the methods otherwise");
+}
+
 /// Issue 14, acceptance 3 and 4's refusal: send-time control on the real path.
 mod send_control {
     use super::*;
