@@ -1738,6 +1738,23 @@ fn true_relative_ppm() -> Vec<f64> {
         .collect()
 }
 
+/// `compare` on a twin's segment with the preset's host, run and method tables ranks the
+/// methods as `compare` on the preset does.
+fn ranks_as_the_preset(twin_text: &str, dir: &Path) {
+    let rest = preset::PAPER_2024_TOML
+        .find("\n[host]")
+        .map(|at| &preset::PAPER_2024_TOML[at..])
+        .expect("the preset has a [host] table");
+    let scenario = dir.join("twin-scenario.toml");
+    std::fs::write(&scenario, format!("{twin_text}\n{rest}")).unwrap();
+    let preset_file = dir.join("paper-2024.toml");
+    std::fs::write(&preset_file, preset::PAPER_2024_TOML).unwrap();
+    let on_twin = ranking(&scenario, &dir.join("cmp-twin"));
+    let on_preset = ranking(&preset_file, &dir.join("cmp-preset"));
+    println!("ranking on the twin: {on_twin:?}; on the preset: {on_preset:?}");
+    assert_eq!(on_twin, on_preset, "the twin ranks the methods otherwise");
+}
+
 /// `compare` on a scenario file, short (one run, 20 000 cycles), its ranking.
 fn ranking(scenario: &Path, out: &Path) -> Vec<String> {
     let o = Command::new(ecsync())
@@ -1874,18 +1891,7 @@ fn a_twin_saved_over_veth_has_the_preset_s_delays_crystals_and_ranking() {
     );
 
     // compare: the twin's segment with the preset's host, run and methods, against the preset.
-    let rest = preset::PAPER_2024_TOML
-        .find("\n[host]")
-        .map(|at| &preset::PAPER_2024_TOML[at..])
-        .expect("the preset has a [host] table");
-    let scenario = dir.join("twin-scenario.toml");
-    std::fs::write(&scenario, format!("{text}\n{rest}")).unwrap();
-    let preset_file = dir.join("paper-2024.toml");
-    std::fs::write(&preset_file, preset::PAPER_2024_TOML).unwrap();
-    let on_twin = ranking(&scenario, &dir.join("cmp-twin"));
-    let on_preset = ranking(&preset_file, &dir.join("cmp-preset"));
-    eprintln!("ranking on the twin: {on_twin:?}; on the preset: {on_preset:?}");
-    assert_eq!(on_twin, on_preset, "the twin ranks the methods otherwise");
+    ranks_as_the_preset(&text, &dir);
 }
 
 /// A twin saved by a run (not a scan): the reference's crystal against this host's clock comes
@@ -1948,18 +1954,7 @@ fn a_twin_saved_after_a_run_has_the_reference_crystal_from_the_cyclic_phase() {
         );
     }
     // And with nothing told: compare ranks the methods on the twin as on the preset.
-    let rest = preset::PAPER_2024_TOML
-        .find("\n[host]")
-        .map(|at| &preset::PAPER_2024_TOML[at..])
-        .expect("the preset has a [host] table");
-    let scenario = dir.join("twin-scenario.toml");
-    std::fs::write(&scenario, format!("{text}\n{rest}")).unwrap();
-    let preset_file = dir.join("paper-2024.toml");
-    std::fs::write(&preset_file, preset::PAPER_2024_TOML).unwrap();
-    let on_twin = ranking(&scenario, &dir.join("cmp-twin"));
-    let on_preset = ranking(&preset_file, &dir.join("cmp-preset"));
-    println!("ranking on the run's twin: {on_twin:?}; on the preset: {on_preset:?}");
-    assert_eq!(on_twin, on_preset, "the twin ranks the methods otherwise");
+    ranks_as_the_preset(&text, &dir);
 }
 
 /// Issue 14, acceptance 3 and 4's refusal: send-time control on the real path.

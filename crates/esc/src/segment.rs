@@ -1198,6 +1198,18 @@ impl Segment {
         }
     }
 
+    /// Twice the time from the master to the farthest processing unit, ps: how long a frame's
+    /// first bit takes round the segment and back, past its own length on the wire.
+    pub fn round_trip_ps(&self) -> u64 {
+        2 * self
+            .pu_offsets_ps()
+            .iter()
+            .flatten()
+            .max()
+            .copied()
+            .unwrap_or(0)
+    }
+
     /// True propagation delay from the reference's processing unit to each slave's, ns: what
     /// 0x0928 should hold. `None` for slaves the frame does not reach.
     pub fn true_delays_ns(&self, reference: usize) -> Vec<Option<f64>> {

@@ -869,14 +869,7 @@ impl Run {
         let cycle_wire_ps: u64 = (0..eng.frame_count())
             .map(|k| frame_wire_time_ps(eng.frame_len_of(k)))
             .sum();
-        let way_round_ps = 2 * sim
-            .segment()
-            .pu_offsets_ps()
-            .iter()
-            .flatten()
-            .max()
-            .copied()
-            .unwrap_or(0);
+        let way_round_ps = sim.segment().round_trip_ps();
         let comes_back_ns = (cycle_wire_ps + way_round_ps + rx_latency_ps) / 1000 + REPLY_MARGIN_NS;
         let mut driver = CyclicDriver::new(CyclicLimits {
             reply_timeout_ns: (period / 2).max(comes_back_ns),

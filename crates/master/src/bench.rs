@@ -76,15 +76,7 @@ impl CycleBench {
             .collect();
         // Back to back on the wire, then the last frame's way round the line.
         let wire_ps: u64 = frames.iter().map(|f| frame_wire_time_ps(f.len())).sum();
-        let round_ps = sim
-            .segment()
-            .pu_offsets_ps()
-            .iter()
-            .flatten()
-            .max()
-            .copied()
-            .unwrap_or(0)
-            * 2;
+        let round_ps = sim.segment().round_trip_ps();
         let ms = 1_000_000_000;
         let cycle_ps = (wire_ps + round_ps).div_ceil(ms).max(1) * ms;
         CycleBench {

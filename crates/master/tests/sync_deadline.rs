@@ -13,7 +13,7 @@ use ecsync_master::driver::{CyclicDriver, CyclicLimits};
 use ecsync_master::recovery::RecoveryConfig;
 use ecsync_master::sim::SimTransport;
 use ecsync_master::transport::{Received, Transport};
-use ecsync_master::{BringupConfig, Engine, Stage, bringup};
+use ecsync_master::{BringupConfig, Engine, Network, Stage, bringup};
 
 const PERIOD_NS: u64 = 1_000_000;
 const SHIFT_NS: u32 = 300_000;
@@ -60,8 +60,9 @@ impl Transport for LateHost {
     }
 }
 
-#[test]
-fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
+/// paper-2024 brought up to OP with SYNC0 at `SHIFT_NS` (the drives set to DC SYNC0 over
+/// CoE), and the cyclic engine whose first cycle starts two periods on.
+fn paper_2024_in_op() -> (SimTransport, Network, CyclicEngine<MedianSync>) {
     let mut sim = SimTransport::new(Segment::new(&preset::paper_2024()).unwrap());
     let cfg = BringupConfig {
         until: Stage::Op,
@@ -72,14 +73,6 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
     let net = sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
-    let drives: Vec<usize> = (0..sim.segment().len())
-        .filter(|&x| sim.segment().esc(x).runs_on_sync0())
-        .collect();
-    assert_eq!(
-        drives.len(),
-        6,
-        "every drive set to DC SYNC0 over CoE by the bring-up"
-    );
     let cyc = CyclicConfig {
         period_ns: PERIOD_NS as u32,
         reference_station: net.slaves[usize::from(net.reference)].station,
@@ -91,7 +84,32 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
     // Sent at the grid point: the frames pass the drives a few us after it, ~295 us before
     // SYNC0.
     let first = (sim.now_ns() / PERIOD_NS + 2) * PERIOD_NS;
-    let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+    let eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+    (sim, net, eng)
+}
+
+/// The recovery the drivers run beside the cycle (and the counters' reads in its slot).
+fn recovery() -> RecoveryConfig {
+    RecoveryConfig {
+        cycle_ns: PERIOD_NS as u32,
+        sync0_shift_ns: SHIFT_NS,
+        sync0_lead_ns: 20_000_000,
+        timeouts: BringupTimeouts::default(),
+        static_drift_frames: 1_000,
+    }
+}
+
+#[test]
+fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
+    let (sim, net, mut eng) = paper_2024_in_op();
+    let drives: Vec<usize> = (0..sim.segment().len())
+        .filter(|&x| sim.segment().esc(x).runs_on_sync0())
+        .collect();
+    assert_eq!(
+        drives.len(),
+        6,
+        "every drive set to DC SYNC0 over CoE by the bring-up"
+    );
     // Worked out by hand, pulses at grid + 300 us:
     // - cycle 100 sent 500 us late: after its SYNC0, before the next: 1 missed;
     // - cycles 200 and 201 both 500 us late: 1 missed (pulse 201 takes cycle 200's outputs,
@@ -116,16 +134,7 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
         sync_counters_every_ns: Some(100_000_000),
         ..CyclicLimits::default()
     });
-    driver.set_recovery(
-        net.clone(),
-        RecoveryConfig {
-            cycle_ns: PERIOD_NS as u32,
-            sync0_shift_ns: SHIFT_NS,
-            sync0_lead_ns: 20_000_000,
-            timeouts: BringupTimeouts::default(),
-            static_drift_frames: 1_000,
-        },
-    );
+    driver.set_recovery(net.clone(), recovery());
     // The count after cycle 20 (the hand-over from the bring-up to the cyclic phase may have
     // cost a pulse or two, counted as a drive would).
     let mut base: Vec<u64> = Vec::new();
@@ -232,26 +241,7 @@ impl Transport for LossyHost {
 /// period, and its last read is the drive's count at the end.
 #[test]
 fn a_counter_read_cut_by_a_lost_cycle_starts_again_at_once() {
-    let mut sim = SimTransport::new(Segment::new(&preset::paper_2024()).unwrap());
-    let cfg = BringupConfig {
-        until: Stage::Op,
-        static_drift_frames: 1_000,
-        lock_hold_checks: 50,
-        sync0_shift_ns: SHIFT_NS,
-        ..BringupConfig::default()
-    };
-    let mut engine = Engine::new(move |l| bringup(l, cfg));
-    let net = sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
-    let cyc = CyclicConfig {
-        period_ns: PERIOD_NS as u32,
-        reference_station: net.slaves[usize::from(net.reference)].station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: 2,
-        reference_offset_ns: 0,
-        lrw: net.lrw.clone(),
-    };
-    let first = (sim.now_ns() / PERIOD_NS + 2) * PERIOD_NS;
-    let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+    let (sim, net, mut eng) = paper_2024_in_op();
     let mut tr = LossyHost {
         inner: sim,
         every: 7,
@@ -263,16 +253,7 @@ fn a_counter_read_cut_by_a_lost_cycle_starts_again_at_once() {
         sync_counters_every_ns: Some(every_ns),
         ..CyclicLimits::default()
     });
-    driver.set_recovery(
-        net.clone(),
-        RecoveryConfig {
-            cycle_ns: PERIOD_NS as u32,
-            sync0_shift_ns: SHIFT_NS,
-            sync0_lead_ns: 20_000_000,
-            timeouts: BringupTimeouts::default(),
-            static_drift_frames: 1_000,
-        },
-    );
+    driver.set_recovery(net.clone(), recovery());
     let mut end_ns = 0;
     driver
         .run(&mut tr, &mut eng, 1_000, None, |t, _| end_ns = t.now_ns())
