@@ -147,9 +147,22 @@ pub fn after_help() -> String {
     for h in ecsync_lab::host::HostParams::PRESETS {
         t.push_str(&format!("  {h}\n"));
     }
+    // The defaults as the built-in preset gives them (read from it, so they cannot drift).
+    if let Ok(p) = ecsync_lab::parse("paper-2024", ecsync_esc::preset::PAPER_2024_TOML) {
+        let cycle_us = f64::from(p.cycle_ns) / 1000.0;
+        t.push_str(&format!(
+            "\nDefaults (from the scenario; the built-in preset paper-2024): {} x {} cycles after a {} s warm-up, cycle {} us, SYNC0 shift {} %, target phase {} us, seed {}.\n",
+            plural(u64::from(p.runs), "run", "runs"),
+            p.cycles,
+            p.warmup_cycles as f64 * cycle_us / 1e6,
+            cycle_us,
+            p.sync0_shift_pct,
+            p.target_phase_ns as f64 / 1000.0,
+            p.seed
+        ));
+    }
     t.push_str(
-        "\nDefaults (from the scenario; the built-in preset paper-2024): 5 runs x 1800000 cycles after a 120 s warm-up, cycle 1000 us, SYNC0 shift 30 %, target phase 0 us, seed 2024.\n\
-Ctrl-C stops within a second and writes the statistics of the cycles done (exit code 130).",
+        "Ctrl-C stops the runs within a second and writes the statistics of the cycles done (exit code 130).",
     );
     t
 }
@@ -387,8 +400,15 @@ pub fn run(args: Args) -> Result<ExitCode> {
     };
     let result = std::thread::scope(|sc| {
         let handle = sc.spawn(|| ecsync_lab::compare::compare_with(&s, threads, &progress, &opts));
+        let mut said = false;
         while !handle.is_finished() {
             bar.set_position(progress.load(Ordering::Relaxed));
+            if !said && STOP.load(Ordering::Relaxed) {
+                said = true;
+                bar.suspend(|| {
+                    eprintln!("ecsync: stopping; writing what the runs measured so far");
+                });
+            }
             std::thread::sleep(Duration::from_millis(50));
         }
         handle.join()
@@ -403,6 +423,10 @@ pub fn run(args: Args) -> Result<ExitCode> {
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let json = serde_json::to_string_pretty(&out)?;
     write_atomic(&args.out.join("summary.json"), json.as_bytes())?;
+    write_atomic(
+        &args.out.join("timing.json"),
+        serde_json::to_string_pretty(&out.timing())?.as_bytes(),
+    )?;
     write_atomic(&args.out.join("summary.csv"), csv(&out, &order).as_bytes())?;
     if args.faults.is_some() {
         write_atomic(
@@ -450,7 +474,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         print!("{table}");
         println!();
         println!(
-            "Wrote {}/{{summary.json, summary.csv, {}table1.txt, report.html, *.svg, *.png}} in {:.1} s on {}.",
+            "Wrote {}/{{summary.json, timing.json, summary.csv, {}table1.txt, report.html, *.svg, *.png}} in {:.1} s on {}.",
             args.out.display(),
             if s_has_faults { "faults.csv, " } else { "" },
             out.wall_s,

@@ -291,8 +291,9 @@ fn ctrl_c_stops_and_keeps_what_was_measured() {
             .any(|w| w["kind"] == "interrupted")
     );
     assert!(out.join("report.html").exists());
-    // It stopped promptly (the report is written after the stop; generous for a loaded VM).
-    assert!(took.as_secs() < 30, "{took:?}");
+    // How long the stop took, report written (printed for the record, not asserted: a
+    // loaded machine decides it). The runs look at the stop flag every 4 096 cycles.
+    eprintln!("SIGINT to exit, report written: {took:?}");
 }
 
 fn refused(args: &[&str]) -> String {
@@ -400,23 +401,26 @@ fn the_command_line_refuses_with_a_hint() {
 fn the_template_documents_every_host_field() {
     let t = ecsync_esc::preset::PAPER_2024_TOML;
     let host = &t[t.find("[host]").unwrap()..t.find("[run]").unwrap()];
-    for f in [
-        "preset",
-        "master_ppm",
-        "master_wander_ppm_per_sqrt_s",
-        "js",
-        "em_ns",
-        "em_jitter",
-        "jc",
-        "tx_latency_ns",
-        "rx_latency_ns",
-        "sigma_ns",
-        "folded",
-        "tail_p",
-        "tail_mean_ns",
-        "tail_sign",
-        "max_abs_ns",
-    ] {
+    // Every field the parser takes, read from its own source: a field added to [host] (or to
+    // a jitter process, or to the bursts) and not documented fails here.
+    let fields_of = |file: &str, item: &str| -> Vec<String> {
+        let src =
+            std::fs::read_to_string(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(file))
+                .unwrap();
+        let body = &src[src.find(item).unwrap_or_else(|| panic!("{item} in {file}"))..];
+        let body = &body[body.find('{').unwrap() + 1..body.find("\n}").unwrap()];
+        body.lines()
+            .map(str::trim)
+            .filter(|l| !l.starts_with("//") && !l.starts_with('#'))
+            .filter_map(|l| l.split_once(':').map(|(n, _)| n.trim_start_matches("pub ")))
+            .map(str::to_owned)
+            .collect()
+    };
+    let mut fields = fields_of("../lab/src/scenario.rs", "struct HostFile {");
+    fields.extend(fields_of("../lab/src/host.rs", "pub struct Jitter {"));
+    fields.extend(fields_of("../lab/src/host.rs", "pub struct Bursts {"));
+    assert!(fields.len() >= 18, "{fields:?}");
+    for f in &fields {
         assert!(
             host.contains(&format!("{f} =")),
             "[host] does not document {f}"
@@ -542,11 +546,11 @@ fn warnings_come_where_the_figures_are_at_risk() {
             "--cycles",
             "20000",
             "--warmup-s",
-            "3",
+            "11",
             "--shift-pct",
             "3",
             "--methods",
-            "dcm-master-shift",
+            "dcm-master-shift,median-fit,snap",
             "--threads",
             "1",
         ],
@@ -554,7 +558,26 @@ fn warnings_come_where_the_figures_are_at_risk() {
     );
     let k = warning_kinds(&j);
     assert!(k.contains(&"late_frames".into()), "{k:?}");
-    // A shift of 9 %: no late frame, but the tail takes over half the margin.
+    // The pick has the fewest late frames of all, and here they differ between the methods.
+    let late_of = |m: &str| {
+        j["methods"][m]["ground_truth"]["late_frames"]
+            .as_u64()
+            .unwrap()
+    };
+    let lates: Vec<u64> = ["dcm-master-shift", "median-fit", "snap"]
+        .iter()
+        .map(|m| late_of(m))
+        .collect();
+    let pick = j["recommendation"]["method"].as_str().unwrap();
+    assert_eq!(late_of(pick), *lates.iter().min().unwrap(), "{lates:?}");
+    assert!(lates.iter().max() > lates.iter().min(), "{lates:?}");
+    assert_eq!(j["recommendation"]["ranking"].as_array().unwrap().len(), 3);
+    // Just above the smallest safe shift the small shift's run found (the same seed, so the
+    // same frames): no late frame, but the jitter's tail takes over half the margin.
+    let safe = j["methods"]["dcm-master-shift"]["ground_truth"]["smallest_safe_shift_pct"]
+        .as_f64()
+        .unwrap();
+    let tight = format!("{:.1}", safe + 0.5);
     let out = tmp("tight-shift");
     let (j, stdout) = compare_json(
         &out,
@@ -564,9 +587,9 @@ fn warnings_come_where_the_figures_are_at_risk() {
             "--cycles",
             "20000",
             "--warmup-s",
-            "3",
+            "11",
             "--shift-pct",
-            "9",
+            &tight,
             "--methods",
             "dcm-master-shift",
             "--threads",
@@ -575,13 +598,10 @@ fn warnings_come_where_the_figures_are_at_risk() {
         None,
     );
     let k = warning_kinds(&j);
-    let late = j["methods"]["dcm-master-shift"]["ground_truth"]["late_frames"]
-        .as_u64()
-        .unwrap();
-    assert!(
-        k.contains(&"jitter_eats_margin".into()) || (late > 0 && k.contains(&"late_frames".into())),
-        "{k:?}"
-    );
+    let g = &j["methods"]["dcm-master-shift"]["ground_truth"];
+    assert_eq!(g["late_frames"].as_u64(), Some(0), "at {tight} %");
+    assert!(k.contains(&"jitter_eats_margin".into()), "{k:?}");
+    assert!(!k.contains(&"late_frames".into()), "{k:?}");
     assert!(
         stdout.contains("1 run x") && stdout.contains("on 1 thread."),
         "{stdout}"

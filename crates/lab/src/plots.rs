@@ -985,7 +985,7 @@ fn truth_table(h: &mut String, out: &SummaryOut, order: &[String]) {
     let _ = write!(
         h,
         "<h2>Ground truth</h2><p>Only a simulator has it; all runs pooled. The phase is when the frame reached the reference, after the DC grid point; every method aims at the target ({:.1} us) and SYNC0 fires at {:.1} us. A frame is late when its last bit passes a drive after that drive's SYNC0.</p>\
-<table><tr><th class=l>method</th><th>mean phase &minus; target (us)</th><th>phase std (us)</th><th>RMS about the target (us)</th><th>p99.9 &minus; target (us)</th><th>|phase &minus; target| p99.9 (us)</th><th>slave spread p99.9 (ns)</th><th>late frames</th><th>smallest safe SYNC0 shift (%)</th><th>SYNC0 margin min (us)</th><th>init drift offset (us)</th><th>in sync</th><th>lost frames</th><th>DC lock (ms)</th></tr>",
+<table><tr><th class=l>method</th><th>mean phase &minus; target (us)</th><th>phase std (us)</th><th>RMS about the target (us)</th><th>min &minus; target (us)</th><th>p99.9 &minus; target (us)</th><th>max &minus; target (us)</th><th>|phase &minus; target| p99.9 (us)</th><th>slave spread p99.9 (ns)</th><th>late frames</th><th>smallest safe SYNC0 shift (%)</th><th>SYNC0 margin min (us)</th><th>init drift offset (us)</th><th>in sync</th><th>lost frames</th><th>DC lock (ms)</th></tr>",
         out.target_phase_ns as f64 / 1000.0,
         out.sync0_shift_pct * f64::from(out.cycle_ns) / 1e5
     );
@@ -1001,12 +1001,14 @@ fn truth_table(h: &mut String, out: &SummaryOut, order: &[String]) {
         };
         let _ = write!(
             h,
-            "<tr{pick}><td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td><td>{}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
+            "<tr{pick}><td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td><td>{}</td><td>{:.1}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
             esc(m),
             us3(g.offset_from_target_ns),
             us3(g.phase.std),
             us3(g.phase_error.rms),
+            us3(g.phase.min - g.target_phase_ns as f64),
             us3(g.phase.p999 - g.target_phase_ns as f64),
+            us3(g.phase.max - g.target_phase_ns as f64),
             us3(g.phase_error.p999_abs),
             g.slave_ref_diff.p999_abs,
             g.late_frames,

@@ -178,7 +178,9 @@ pub struct MethodOut {
     pub cycles_done: u64,
     /// Time to DC lock in the bring-up, ms (mean over runs).
     pub lock_ms: f64,
-    /// CPU time of this method's runs, s.
+    /// CPU time of this method's runs, s (in timing.json, not summary.json: a scenario and a
+    /// seed give the same summary.json byte for byte on any machine).
+    #[serde(skip)]
     pub wall_s: f64,
     /// How the host sent its frames (absent: `plain`, the letter's way).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -369,10 +371,39 @@ pub struct SummaryOut {
     pub quantiles: QuantileNote,
     /// Results by method.
     pub methods: BTreeMap<String, MethodOut>,
+    /// Wall time of the comparison, s (in timing.json, see [`TimingOut`]).
+    #[serde(skip)]
+    pub wall_s: f64,
+    /// Threads (in timing.json).
+    #[serde(skip)]
+    pub threads: usize,
+}
+
+/// timing.json: what a comparison measured of the machine it ran on. Kept out of
+/// summary.json, which a scenario and a seed reproduce byte for byte.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TimingOut {
     /// Wall time of the comparison, s.
     pub wall_s: f64,
-    /// Threads.
+    /// Threads the runs were spread over.
     pub threads: usize,
+    /// CPU time of each method's runs, s.
+    pub methods_cpu_s: BTreeMap<String, f64>,
+}
+
+impl SummaryOut {
+    /// The machine's part of the comparison (timing.json).
+    pub fn timing(&self) -> TimingOut {
+        TimingOut {
+            wall_s: self.wall_s,
+            threads: self.threads,
+            methods_cpu_s: self
+                .methods
+                .iter()
+                .map(|(k, m)| (k.clone(), m.wall_s))
+                .collect(),
+        }
+    }
 }
 
 fn pooled(rs: &[RunResult], pick: fn(&RunResult) -> &Stats) -> Stats {
@@ -1117,12 +1148,14 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
     );
     let _ = writeln!(
         t,
-        "{:<18}{:>13}{:>11}{:>11}{:>14}{:>14}{:>14}{:>8}{:>12}{:>12}{:>9}",
+        "{:<18}{:>13}{:>11}{:>11}{:>12}{:>14}{:>12}{:>14}{:>14}{:>8}{:>12}{:>12}{:>9}",
         "method",
         "mean-target",
         "phase std",
         "RMS about",
+        "min-target",
         "p99.9-target",
+        "max-target",
         "|p-t| p99.9",
         "spread p99.9",
         "late",
@@ -1132,8 +1165,8 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
     );
     let _ = writeln!(
         t,
-        "{:<18}{:>13}{:>11}{:>11}{:>14}{:>14}{:>14}{:>8}{:>12}{:>12}{:>9}",
-        "", "us", "us", "target us", "us", "us", "ns", "frames", "%", "us", ""
+        "{:<18}{:>13}{:>11}{:>11}{:>12}{:>14}{:>12}{:>14}{:>14}{:>8}{:>12}{:>12}{:>9}",
+        "", "us", "us", "target us", "us", "us", "us", "us", "ns", "frames", "%", "us", ""
     );
     for m in order {
         let mo = &out.methods[m];
@@ -1144,12 +1177,14 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
         };
         let _ = writeln!(
             t,
-            "{:<18}{:>13.3}{:>11.3}{:>11.3}{:>14.3}{:>14.3}{:>14.1}{:>8}{:>12.1}{:>12.1}{:>9}",
+            "{:<18}{:>13.3}{:>11.3}{:>11.3}{:>12.3}{:>14.3}{:>12.3}{:>14.3}{:>14.1}{:>8}{:>12.1}{:>12.1}{:>9}",
             m,
             g.offset_from_target_ns / 1000.0,
             g.phase.std / 1000.0,
             g.phase_error.rms / 1000.0,
+            (g.phase.min - g.target_phase_ns as f64) / 1000.0,
             (g.phase.p999 - g.target_phase_ns as f64) / 1000.0,
+            (g.phase.max - g.target_phase_ns as f64) / 1000.0,
             g.phase_error.p999_abs / 1000.0,
             g.slave_ref_diff.p999_abs,
             g.late_frames,
