@@ -208,7 +208,12 @@ impl Scenario {
         let Ok(p) = parse("paper-2024", ecsync_esc::preset::PAPER_2024_TOML) else {
             return false;
         };
-        self.slaves == p.slaves && self.host == p.host && self.cycle_ns == p.cycle_ns
+        // Faults and a replayed host trace are not the letter's testbed, however alike the rest.
+        self.slaves == p.slaves
+            && self.host == p.host
+            && self.cycle_ns == p.cycle_ns
+            && self.faults.is_none()
+            && self.host_trace.is_none()
     }
 
     /// The method's initialisation frames (0 for methods without).
@@ -744,6 +749,17 @@ mod tests {
             "preset = \"preempt-rt-idle\"",
         );
         assert!(!parse("p.toml", &t).unwrap().is_letter_testbed());
+        // The letter's testbed with faults played is not the letter's either.
+        let mut s = parse("p.toml", &preset()).unwrap();
+        assert!(s.is_letter_testbed());
+        s.faults = Some(
+            ecsync_esc::fault::FaultSchedule::parse(
+                "faults-demo",
+                ecsync_esc::fault::FAULTS_DEMO_TOML,
+            )
+            .unwrap(),
+        );
+        assert!(!s.is_letter_testbed());
     }
 
     #[test]
