@@ -426,6 +426,50 @@ mod tests {
         assert_eq!(errs[2], 55_000 - 20_000);
     }
 
+    /// "In sync" comes after the error has stayed in its band for the hold time, not before,
+    /// and goes as soon as the filtered error leaves the band.
+    #[test]
+    fn in_sync_waits_out_the_hold_time_and_goes_when_the_error_leaves_the_band() {
+        let prm = DcmParams {
+            in_sync_hold_cycles: 10,
+            in_sync_limit_ns: 5_000,
+            ..DcmParams::default_for(0, P)
+        };
+        let mut c = Dcm::new(DcmMode::MasterShift, prm);
+        let p = u64::from(P);
+        let mut went_out = None;
+        for i in 0..400u64 {
+            // 100 ns off the target for 50 cycles, then a step of 200 us (open loop: the
+            // reference's time is given, whatever the controller does).
+            let off = if i < 50 { 100 } else { 200_000 };
+            c.update(&CycleInput {
+                cycle: i,
+                period_ns: P,
+                nominal_start_ns: i * p,
+                scheduled_start_ns: i * p,
+                send_ns: i * p + 20_000,
+                receive_ns: i * p + 70_000,
+                ref_time_ns: Some(1000 * p + i * p + off),
+            });
+            let log = c.controller_log().unwrap();
+            if i < 9 {
+                assert!(!log.in_sync, "in sync after {} cycles: {log:?}", i + 1);
+            } else if i < 50 {
+                // The tenth cycle in the band, and on while it stays there.
+                assert!(log.in_sync, "{i} {log:?}");
+            }
+            if i >= 50 && went_out.is_none() && !log.in_sync {
+                went_out = Some(i);
+                assert!(log.filtered_error_ns.abs() > 5_000.0, "{log:?}");
+            }
+            if went_out.is_none() && log.filtered_error_ns.abs() > 5_000.0 {
+                panic!("still in sync with a filtered error of {log:?}");
+            }
+        }
+        assert!(went_out.is_some(), "never left in sync");
+        assert!(!c.in_sync());
+    }
+
     /// Once in sync, a single outlier (a frame held back 80 us) is not used.
     #[test]
     fn the_validity_gate_drops_an_outlier_once_in_sync() {
