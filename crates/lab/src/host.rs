@@ -45,6 +45,19 @@ pub struct Jitter {
     /// Clamp of |sample|, ns.
     #[serde(default = "big")]
     pub max_abs_ns: f64,
+    /// Share of the pulses that come from a second, heavier class (0: one class). A real
+    /// host's tail is heavier than one exponential: many short preemptions and a few long
+    /// stalls. Which class a pulse is of is read from the same uniform that decided it comes
+    /// (below `tail_p`, it is uniform again), so a model without it draws exactly as before.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub tail_heavy_share: f64,
+    /// Mean size of the heavier class's pulses, ns.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub tail_heavy_mean_ns: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 fn one() -> f64 {
@@ -63,6 +76,8 @@ impl Jitter {
         tail_mean_ns: 0.0,
         tail_sign: 1.0,
         max_abs_ns: 1e9,
+        tail_heavy_share: 0.0,
+        tail_heavy_mean_ns: 0.0,
     };
 
     /// A sample from a standard normal `g`, a uniform deciding whether a pulse comes and, only
@@ -73,17 +88,23 @@ impl Jitter {
             v = v.abs();
         }
         if self.tail_p > 0.0 && u_pulse < self.tail_p {
-            v += self.pulse(u_size());
+            v += self.pulse(u_size(), u_pulse / self.tail_p);
         }
         v.clamp(-self.max_abs_ns, self.max_abs_ns)
     }
 
-    /// An exponential pulse. Out of line so that the logarithm is only computed for the rare
-    /// cycles that have one (the optimiser would otherwise compute it every time and select).
+    /// An exponential pulse, of the heavier class when `u_class` (uniform) is below its share.
+    /// Out of line so that the logarithm is only computed for the rare cycles that have one
+    /// (the optimiser would otherwise compute it every time and select).
     #[cold]
     #[inline(never)]
-    fn pulse(&self, u_size: f64) -> f64 {
-        self.tail_sign.signum() * -self.tail_mean_ns * u_size.ln()
+    fn pulse(&self, u_size: f64, u_class: f64) -> f64 {
+        let mean = if u_class < self.tail_heavy_share {
+            self.tail_heavy_mean_ns
+        } else {
+            self.tail_mean_ns
+        };
+        self.tail_sign.signum() * -mean * u_size.ln()
     }
 
     /// Checks the numbers; returns the field at fault and why.
@@ -92,6 +113,7 @@ impl Jitter {
             ("sigma_ns", self.sigma_ns),
             ("tail_mean_ns", self.tail_mean_ns),
             ("max_abs_ns", self.max_abs_ns),
+            ("tail_heavy_mean_ns", self.tail_heavy_mean_ns),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err((f, format!("{v} must be a finite number >= 0")));
@@ -99,6 +121,12 @@ impl Jitter {
         }
         if !(0.0..=1.0).contains(&self.tail_p) {
             return Err(("tail_p", format!("{} is not a probability", self.tail_p)));
+        }
+        if !(0.0..=1.0).contains(&self.tail_heavy_share) {
+            return Err((
+                "tail_heavy_share",
+                format!("{} is not a share (0 ..= 1)", self.tail_heavy_share),
+            ));
         }
         Ok(())
     }
@@ -251,6 +279,8 @@ impl HostParams {
                 tail_mean_ns: 8_000.0,
                 tail_sign: 1.0,
                 max_abs_ns: 90_000.0,
+                tail_heavy_share: 0.0,
+                tail_heavy_mean_ns: 0.0,
             },
             // The application's work is nearly constant; its variation is in j_s.
             em_ns: 20_000.0,
@@ -262,6 +292,8 @@ impl HostParams {
                 tail_mean_ns: 4_000.0,
                 tail_sign: -1.0,
                 max_abs_ns: 12_000.0,
+                tail_heavy_share: 0.0,
+                tail_heavy_mean_ns: 0.0,
             },
             tx_latency_ns: 15_000.0,
             rx_latency_ns: 10_000.0,
@@ -279,6 +311,8 @@ impl HostParams {
                 tail_mean_ns: 3_000.0,
                 tail_sign: 1.0,
                 max_abs_ns: 30_000.0,
+                tail_heavy_share: 0.0,
+                tail_heavy_mean_ns: 0.0,
             },
             jc: Jitter {
                 sigma_ns: 250.0,
@@ -287,6 +321,8 @@ impl HostParams {
                 tail_mean_ns: 1_500.0,
                 tail_sign: -1.0,
                 max_abs_ns: 8_000.0,
+                tail_heavy_share: 0.0,
+                tail_heavy_mean_ns: 0.0,
             },
             ..HostParams::preempt_rt_stress()
         }
@@ -302,6 +338,8 @@ impl HostParams {
                 tail_mean_ns: 120_000.0,
                 tail_sign: 1.0,
                 max_abs_ns: 900_000.0,
+                tail_heavy_share: 0.0,
+                tail_heavy_mean_ns: 0.0,
             },
             jc: Jitter {
                 sigma_ns: 2_000.0,
@@ -310,6 +348,8 @@ impl HostParams {
                 tail_mean_ns: 8_000.0,
                 tail_sign: -1.0,
                 max_abs_ns: 30_000.0,
+                tail_heavy_share: 0.0,
+                tail_heavy_mean_ns: 0.0,
             },
             ..HostParams::preempt_rt_stress()
         }
@@ -551,6 +591,8 @@ mod tests {
             tail_mean_ns: 100.0,
             tail_sign: -1.0,
             max_abs_ns: 1e9,
+            tail_heavy_share: 0.0,
+            tail_heavy_mean_ns: 0.0,
         };
         assert!(j.sample(0.3, 0.0, || 0.5) < 0.0);
     }

@@ -277,6 +277,17 @@ fn fit_jitter(x: &[f64], folded: bool) -> Jitter {
     let mut p = 0.0_f64;
     let mut sigma = 0.0;
     let mut mean_ns = 0.0;
+    let (mut heavy_share, mut heavy_mean_ns) = (0.0, 0.0);
+    let mut final_two: Option<(f64, f64, f64, f64)> = None;
+    // E[exp(c/m)] of the core c (|N(0, sigma)| folded): how the core lifts a pulse of mean m.
+    let e_core = |sigma: f64, m: f64| {
+        let r = sigma / m;
+        if folded {
+            2.0 * (r * r / 2.0).exp() * phi(r)
+        } else {
+            (r * r / 2.0).exp()
+        }
+    };
     for _ in 0..3 {
         // The pulses sit above the core's quantiles: read the core's at shifted levels.
         let lv = |a: f64| (a * (1.0 - p)).min(1.0);
@@ -302,26 +313,47 @@ fn fit_jitter(x: &[f64], folded: bool) -> Jitter {
         if (beyond.len() as f64) < expected + 3.0 * expected.sqrt() + 10.0 || k <= 0.0 {
             p = 0.0;
             mean_ns = 0.0;
+            final_two = None;
             break;
         }
-        // The excess's quantile at level a over -ln(1 - a) (any a, for an exponential). A real
-        // host's tail is heavier than exponential (stalls of milliseconds), so a is taken
-        // where the whole distribution's p99 and p99.9 lie among the pulses (their geometric
-        // middle in 1 - a): the model errs alike on both, rather than meeting one of them.
+        // One class first, to place the core (its quantiles shift with the pulses' share): the
+        // excess's quantile at level a over -ln(1 - a) (any a, for an exponential), a where
+        // the whole distribution's p99 and p99.9 lie among the pulses (their geometric middle).
         let kf = beyond.len() as f64 / n;
         let level = |q: f64| (1.0 - (1.0 - q) / kf).clamp(0.5, 0.999);
         let a = 1.0 - ((1.0 - level(0.99)) * (1.0 - level(0.999))).sqrt();
-        mean_ns = sorted(beyond.iter().copied())
-            .get(0..)
-            .map_or(0.0, |b| quantile(b, a))
-            / -(1.0 - a).ln();
-        let r = sigma / mean_ns;
-        let e_core = if folded {
-            2.0 * (r * r / 2.0).exp() * phi(r)
+        mean_ns = quantile(&sorted(beyond.iter().copied()), a) / -(1.0 - a).ln();
+        p = (k / ((-t / mean_ns).exp() * e_core(sigma, mean_ns))).clamp(0.0, 1.0);
+        // Then the tail's shape. The excesses over the threshold are, for each pulse class,
+        // exponential with the class's mean (memoryless: the core's part below the threshold
+        // does not matter). A real host's tail is heavier than one exponential (many short
+        // preemptions, a few stalls of milliseconds): two classes are fitted to the excesses
+        // (maximum likelihood) where they stand apart, each class's share of the cycles
+        // beyond the threshold taken back to its pulses' probability (a pulse of mean m takes
+        // the core past t with probability exp(-t/m) E[exp(c/m)]).
+        let (w_heavy, m_light, m_heavy) = fit_two_exponentials(&beyond);
+        if w_heavy > 0.0 {
+            let pulses = |share: f64, m: f64| k * share / ((-t / m).exp() * e_core(sigma, m));
+            let (p_light, p_heavy) = (pulses(1.0 - w_heavy, m_light), pulses(w_heavy, m_heavy));
+            final_two = Some((
+                (p_light + p_heavy).clamp(0.0, 1.0),
+                m_light,
+                p_heavy / (p_light + p_heavy),
+                m_heavy,
+            ));
         } else {
-            (r * r / 2.0).exp()
-        };
-        p = (k / ((-t / mean_ns).exp() * e_core)).clamp(0.0, 1.0);
+            final_two = None;
+        }
+    }
+    // The two classes replace the one where they were fitted (the core as the one class
+    // placed it).
+    if p > 0.0
+        && let Some((p2, m_light, share, m_heavy)) = final_two
+    {
+        p = p2;
+        mean_ns = m_light;
+        heavy_share = share;
+        heavy_mean_ns = m_heavy;
     }
     Jitter {
         sigma_ns: sigma,
@@ -330,7 +362,54 @@ fn fit_jitter(x: &[f64], folded: bool) -> Jitter {
         tail_mean_ns: mean_ns,
         tail_sign: 1.0,
         max_abs_ns: s.last().map_or(0.0, |m| m.abs()).max(TAIL_SIGMAS * sigma),
+        tail_heavy_share: heavy_share,
+        tail_heavy_mean_ns: heavy_mean_ns,
     }
+}
+
+/// A mixture of two exponentials fitted to `x` (all >= 0) by expectation maximisation:
+/// (weight of the heavier, mean of the lighter, mean of the heavier), ns. One exponential
+/// (weight 0) where the data do not hold two apart: fewer than 20 samples, or means within a
+/// factor of 2 of each other, or a heavier class of under 5 samples.
+pub fn fit_two_exponentials(x: &[f64]) -> (f64, f64, f64) {
+    let n = x.len() as f64;
+    let mean = x.iter().sum::<f64>() / n.max(1.0);
+    if x.len() < 20 || mean <= 0.0 {
+        return (0.0, mean.max(0.0), 0.0);
+    }
+    let s = sorted(x.iter().copied());
+    // Start: the lighter class from the median, the heavier from the top percent.
+    let mut m1 = (quantile(&s, 0.5) / std::f64::consts::LN_2).max(mean * 0.1);
+    let mut m2 = (quantile(&s, 0.99) / 100f64.ln()).max(2.0 * m1);
+    let mut w2 = 0.1;
+    for _ in 0..500 {
+        let (mut r_sum, mut r_x, mut q_x) = (0.0, 0.0, 0.0);
+        for &v in x {
+            let f1 = (1.0 - w2) / m1 * (-v / m1).exp();
+            let f2 = w2 / m2 * (-v / m2).exp();
+            let r = if f1 + f2 > 0.0 { f2 / (f1 + f2) } else { 1.0 };
+            r_sum += r;
+            r_x += r * v;
+            q_x += (1.0 - r) * v;
+        }
+        let (w_new, m2_new, m1_new) = (
+            r_sum / n,
+            r_x / r_sum.max(1e-12),
+            q_x / (n - r_sum).max(1e-12),
+        );
+        let done = (w_new - w2).abs() < 1e-9 && (m1_new / m1 - 1.0).abs() < 1e-9;
+        (w2, m1, m2) = (w_new, m1_new.max(1e-9), m2_new.max(1e-9));
+        if done || w2 <= 0.0 || w2 >= 1.0 {
+            break;
+        }
+    }
+    if m2 < m1 {
+        (w2, m1, m2) = (1.0 - w2, m2, m1);
+    }
+    if !(w2 > 0.0 && w2 < 1.0) || m2 < 2.0 * m1 || w2 * n < 5.0 {
+        return (0.0, mean, 0.0);
+    }
+    (w2, m1, m2)
 }
 
 /// Cycles per window of the burst detection: long enough for a robust median, short against
@@ -456,8 +535,16 @@ impl HostFit {
     pub fn to_toml(&self, preset: &str, source: &str) -> String {
         let p = &self.params;
         let j = |j: &Jitter| {
+            let heavy = if j.tail_heavy_share > 0.0 {
+                format!(
+                    ", tail_heavy_share = {:.6}, tail_heavy_mean_ns = {:.1}",
+                    j.tail_heavy_share, j.tail_heavy_mean_ns
+                )
+            } else {
+                String::new()
+            };
             format!(
-                "{{ sigma_ns = {:.1}, folded = {}, tail_p = {:.6}, tail_mean_ns = {:.1}, tail_sign = {:.1}, max_abs_ns = {:.1} }}",
+                "{{ sigma_ns = {:.1}, folded = {}, tail_p = {:.6}, tail_mean_ns = {:.1}, tail_sign = {:.1}, max_abs_ns = {:.1}{heavy} }}",
                 j.sigma_ns, j.folded, j.tail_p, j.tail_mean_ns, j.tail_sign, j.max_abs_ns
             )
         };

@@ -16,6 +16,7 @@ fn truth() -> HostParams {
             tail_mean_ns: 20_000.0,
             tail_sign: 1.0,
             max_abs_ns: 1e6,
+            ..Jitter::ZERO
         },
         em_ns: 20_000.0,
         em_jitter: Jitter {
@@ -29,6 +30,7 @@ fn truth() -> HostParams {
             tail_mean_ns: 0.0,
             tail_sign: 1.0,
             max_abs_ns: 1e6,
+            ..Jitter::ZERO
         },
         tx_latency_ns: 15_000.0,
         bursts: Bursts {
@@ -103,6 +105,11 @@ fn the_fit_recovers_the_parameters_of_a_trace_drawn_from_the_model() {
         p.em_jitter.sigma_ns,
         t.em_jitter.sigma_ns,
         0.1,
+    );
+    assert_eq!(
+        p.js.tail_heavy_share, 0.0,
+        "one class of pulses: {:?}",
+        p.js
     );
     near("tx_latency_ns", p.tx_latency_ns, t.tx_latency_ns, 0.01);
     near("jc.sigma_ns", p.jc.sigma_ns, t.jc.sigma_ns, 0.1);
@@ -255,4 +262,49 @@ fn a_malformed_trace_names_file_line_and_field() {
     let t = HostTrace::parse("run.csv", run).unwrap();
     assert_eq!(t.rows[0].exec_ns, 700.0);
     assert_eq!(t.rows[1].tx_delay_ns, None);
+}
+
+/// A tail of two pulse classes (many short preemptions, a few long stalls), drawn by the model:
+/// the fit finds both classes, and its model gives the trace's wake-up p99 and p99.9.
+#[test]
+fn the_fit_recovers_a_tail_of_two_pulse_classes() {
+    let t = HostParams {
+        js: Jitter {
+            sigma_ns: 3_000.0,
+            folded: true,
+            tail_p: 0.03,
+            tail_mean_ns: 15_000.0,
+            tail_sign: 1.0,
+            max_abs_ns: 1e7,
+            tail_heavy_share: 0.08,
+            tail_heavy_mean_ns: 400_000.0,
+        },
+        bursts: Bursts::NONE,
+        ..truth()
+    };
+    let floor = 20_000.0;
+    let rows = drawn(t, floor, 600_000, 5);
+    let f = fit(&rows, HostParams::preempt_rt_stress());
+    let j = f.params.js;
+    near("js.sigma_ns", j.sigma_ns, t.js.sigma_ns, 0.05);
+    near("js.tail_p", j.tail_p, t.js.tail_p, 0.15);
+    near("js.tail_mean_ns", j.tail_mean_ns, t.js.tail_mean_ns, 0.15);
+    near(
+        "js.tail_heavy_share",
+        j.tail_heavy_share,
+        t.js.tail_heavy_share,
+        0.2,
+    );
+    near(
+        "js.tail_heavy_mean_ns",
+        j.tail_heavy_mean_ns,
+        t.js.tail_heavy_mean_ns,
+        0.15,
+    );
+    let qs = [0.99, 0.999];
+    let want = ecsync_lab::host_trace::wake_quantiles(&rows, &qs);
+    let got = f.predicted_wake_quantiles(&qs, 600_000, 99);
+    for (k, q) in qs.iter().enumerate() {
+        near(&format!("wake-up p{}", q * 100.0), got[k], want[k], 0.1);
+    }
 }
