@@ -1645,6 +1645,11 @@ pub(crate) async fn configure_sync_mode(
                 code: 0x0602_0000 | 0x0609_0011,
                 ..
             }) => {}
+            // A sync mode the drive refuses (0x06090030, value range exceeded: its 0x1C32:04
+            // has no DC SYNC0): it runs on its own, as a drive without the objects does.
+            Err(MasterError::SdoAbort {
+                code: 0x0609_0030, ..
+            }) if sub == 1 => return Ok(()),
             // A cycle time the drive does not let the master set (read-only, 0x06010002): it
             // keeps its own and follows SYNC0. Devices differ here: ecsync's drive has 0x1C32:02
             // rw in PRE-OP, Ingenia's EVS-NET-01 ESI has it `ro`.
