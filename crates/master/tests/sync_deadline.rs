@@ -341,3 +341,38 @@ fn a_sync_error_limit_the_bring_up_writes_takes_the_drives_out_of_op() {
         }
     }
 }
+
+/// A drive whose supported sync modes (0x1C32:04 and 0x1C33:04) lack DC SYNC0 refuses
+/// 0x1C32:01 = 2 with 0x06090030 (as SSC's `CheckSyncTypeValue`): the bring-up leaves it in
+/// free run, as a drive without the objects, and brings the network to OP with the others
+/// on SYNC0.
+#[test]
+fn a_drive_without_dc_sync0_among_its_modes_stays_in_free_run() {
+    let mut sim = SimTransport::new(Segment::new(&preset::paper_2024()).unwrap());
+    for index in [0x1c32, 0x1c33] {
+        // Free run and SM-synchronous only.
+        sim.segment_mut()
+            .esc_mut(4)
+            .sdo_server_mut()
+            .unwrap()
+            .od
+            .set(index, 4, &0x0003u16.to_le_bytes());
+    }
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: 1_000,
+        lock_hold_checks: 50,
+        sync0_shift_ns: SHIFT_NS,
+        sync_error_limit: Some(4),
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |l| bringup(l, cfg));
+    sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
+    for x in 0..sim.segment().len() {
+        let e = sim.segment().esc(x);
+        assert_eq!(e.al_state(), ecsync_wire::AlState::Op, "drive at {x}");
+        assert_eq!(e.runs_on_sync0(), x != 4, "drive at {x}");
+        let od = &e.sdo_server().unwrap().od;
+        assert_eq!(od.read_u32(0x1c32, 1), if x == 4 { 0 } else { 2 });
+    }
+}
