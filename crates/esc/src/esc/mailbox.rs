@@ -21,6 +21,13 @@
 //!   in the first two of its five manufacturer bytes. It waits in a queue of
 //!   [`EMERGENCY_QUEUE`] (the oldest dropped, as a slave stack's ring does) until SM1 is
 //!   empty and no answer is due, and goes before nothing the master asked for.
+//! - a message the application cannot take gets a mailbox error reply (type 0, ETG.1000.4
+//!   table 30) where ETG's slave stack code (SSC) sends one, with SSC's code: 0x08 for a
+//!   length past the mailbox (`MBX_MailboxWriteInd`), 0x02 for a protocol other than CoE
+//!   (`MailboxServiceInd`), 0x04/0x05 for CoE services a slave does not serve or that do not
+//!   exist (`COE_ServiceInd`), 0x08/0x06 for SDO and SDO Information lengths (`sdoserv.c`; see
+//!   [`MailboxFault`]); the channel is not looked at, as SSC does not
+//!   (tests/mailbox_errors.rs).
 
 use super::Esc;
 use crate::coe::{MailboxFault, SdoServer};
