@@ -285,6 +285,12 @@ pub struct RunArgs {
     /// bring-up's 2 s of latches, only as good as their send stamps).
     #[arg(long, allow_negative_numbers = true)]
     reference_ppm: Option<f64>,
+    /// The sync error counter limit (0x10F1:02) to write over CoE to every drive set to DC
+    /// SYNC0, in PRE-OP: past it a drive leaves OP with AL status code 0x001A, which the run
+    /// reports and recovers (0: the drives only count; default: the scenario's
+    /// run.sync_error_limit with --config, else not written: each drive keeps its own).
+    #[arg(long)]
+    sync_error_limit: Option<u16>,
 }
 
 #[derive(Debug, Serialize)]
@@ -326,6 +332,24 @@ struct RecoveryRow {
     /// Slaves found out of OP with their configuration kept, and why (their AL status).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     left_op: Vec<String>,
+}
+
+/// A drive the recoveries found out of OP with its configuration kept, and why.
+#[derive(Debug, Serialize)]
+struct LeftOpRow {
+    /// Network position, 1 = next to the master.
+    slave: u16,
+    /// The state it was in.
+    state: String,
+    /// Its AL status code (0x001A: a sync error past --sync-error-limit), 0 without an
+    /// error indication.
+    al_status_code: u16,
+    /// What the code means.
+    reason: String,
+    /// When the recovery that found it started, and when it had it back in OP, s after the
+    /// cyclic phase's start.
+    found_s: f64,
+    back_in_op_s: Option<f64>,
 }
 
 /// Wake-up latency figures, µs.
@@ -401,6 +425,10 @@ struct RunOut {
     /// s after the cyclic phase's start, slaves brought back (positions, 1 = next to the
     /// master) or why it failed (tried again 50 ms later).
     recoveries: Vec<RecoveryRow>,
+    /// The drives that left OP on their own (an AL error: a sync error past the configured
+    /// limit, a process data watchdog), as the recoveries found them; absent when none did.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    left_op: Vec<LeftOpRow>,
     /// Each drive's SM-event-missed counter (0x1C32:0B) as last read over CoE in the cyclic
     /// phase (once a second): SYNC0 cycles the drive ran without new outputs, by its own
     /// count since it went to OP.
@@ -509,12 +537,14 @@ struct RunScenario {
     methods: MethodParams,
 }
 
-/// The `[run]` table's one value `ecsync run` takes (the cycle and the shift come from its
-/// flags).
+/// The `[run]` table's values `ecsync run` takes (the cycle and the shift come from its
+/// flags): where the frames aim, and the drives' sync error counter limit.
 #[derive(Debug, Default, Deserialize)]
 struct RunTable {
     #[serde(default)]
     target_phase_us: f64,
+    #[serde(default)]
+    sync_error_limit: Option<i64>,
 }
 
 /// A refused method parameter, located in the scenario file.
@@ -528,8 +558,9 @@ fn param_error(src: &ConfigSource<'_>, e: ParamError) -> anyhow::Error {
     anyhow::Error::msg(src.locate(p))
 }
 
-/// The method with the scenario's parameters, and the scenario's target phase, ns.
-fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64)> {
+/// The method with the scenario's parameters, the scenario's target phase, ns, and the sync
+/// error counter limit to write (`--sync-error-limit`, else the scenario's).
+fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64, Option<u16>)> {
     let (name, text) = match &args.config {
         Some(p) => (
             p.display().to_string(),
@@ -542,6 +573,18 @@ fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64)> {
     };
     let src = ConfigSource::new(&name, &text);
     let file: RunScenario = src.deserialize().map_err(anyhow::Error::msg)?;
+    // The words `compare` has for it (ecsync_lab::scenario), located in the file.
+    let file_limit = match file.run.sync_error_limit {
+        None => None,
+        Some(v) => Some(u16::try_from(v).map_err(|_| {
+            anyhow::Error::msg(src.locate(Problem::new(
+                "run",
+                "sync_error_limit",
+                format!("{v} is not a sync error counter limit (0x10F1:02 is an UNSIGNED16)"),
+                "give 0 to 65535 (4: ETG's slave stack code's default; 0: the drives only count), or leave it out to keep the drives' own",
+            )))
+        })?),
+    };
     let ctx = MethodContext {
         cycle_ns,
         target_phase_ns: MethodContext::target_phase_from_us(file.run.target_phase_us)
@@ -559,7 +602,11 @@ fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64)> {
     params
         .check_use(args.method, &ctx)
         .map_err(|e| param_error(&src, e))?;
-    Ok((params.build(args.method, &ctx), ctx.target_phase_ns))
+    Ok((
+        params.build(args.method, &ctx),
+        ctx.target_phase_ns,
+        args.sync_error_limit.or(file_limit),
+    ))
 }
 
 /// Writes `v` or nothing, then the separator (no allocation: this runs every cycle).
@@ -616,7 +663,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     }
     let cycle_ns = args.cycle_us * 1000;
     let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
-    let (method, target_phase_ns) = method_for(&args, cycle_ns)?;
+    let (method, target_phase_ns, sync_error_limit) = method_for(&args, cycle_ns)?;
     let mut csv = match &args.csv {
         Some(p) => {
             let f = std::fs::File::create(p)
@@ -665,6 +712,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             0
         },
         read_sii_details: twin,
+        sync_error_limit,
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
@@ -798,6 +846,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             sync0_lead_ns: 20_000_000,
             timeouts: ecsync_master::bringup::BringupTimeouts::default(),
             static_drift_frames: 15_000,
+            sync_error_limit,
         },
     );
     // Statistics without ranges: quantiles of bounded error however large a stall.
@@ -975,6 +1024,32 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 left_op: e.left_op(),
             })
             .collect(),
+        left_op: driver
+            .recoveries()
+            .iter()
+            .flat_map(|e| {
+                let s_of = |t: u64| t.saturating_sub(first) as f64 / 1e9;
+                let found = s_of(e.started_ns);
+                let back = e.ended_ns.map(s_of);
+                let l = match &e.outcome {
+                    Some(Ok(r)) => r.left_op.clone(),
+                    _ => Vec::new(),
+                };
+                l.into_iter().map(move |l| LeftOpRow {
+                    slave: l.position + 1,
+                    state: ecsync_wire::AlState::from_register(l.state)
+                        .map_or_else(|_| format!("state 0x{:X}", l.state), |s| s.to_string()),
+                    al_status_code: if l.error { l.code } else { 0 },
+                    reason: if l.error {
+                        ecsync_wire::AlStatusCode::from(l.code).to_string()
+                    } else {
+                        "no error indication".to_string()
+                    },
+                    found_s: found,
+                    back_in_op_s: back,
+                })
+            })
+            .collect(),
         sm_events_missed: driver
             .sync_counters()
             .iter()
@@ -1082,6 +1157,19 @@ fn print_run(o: &RunOut) {
             r.slaves,
             r.start_s,
             r.end_s.map_or(f64::NAN, |e| (e - r.start_s) * 1e3)
+        );
+    }
+    for l in &o.left_op {
+        println!(
+            "Drive {} left OP for {} with AL status code {} at {:.3} s{}.",
+            l.slave,
+            l.state,
+            l.reason,
+            l.found_s,
+            match l.back_in_op_s {
+                Some(t) => format!(", back in OP at {t:.3} s"),
+                None => ", not back in OP by the end".to_string(),
+            }
         );
     }
     if let Some(r) = o.recoveries.iter().find(|r| r.appeared > 0) {

@@ -1533,8 +1533,21 @@ mod soem {
                 ])
             );
         }
-        // The mapping SOEM built from the CoE PDO assignment: 34 bytes per drive.
-        assert_eq!(v["io_map"], 6 * 34);
+        // The mapping SOEM built from the CoE PDO assignment and mapping: 16 + 18 bytes for
+        // the drives left as they are, 8 + 8 for every other one, which the script's config
+        // function mapped anew in PRE-OP (from the SII SOEM would have 34 for every drive).
+        let short: Vec<bool> = v["short"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| b.as_bool().unwrap())
+            .collect();
+        assert_eq!(short, [false, true, false, true, false, true]);
+        for (k, m) in v["mapped"].as_array().unwrap().iter().enumerate() {
+            let want = if short[k] { [8, 8] } else { [16, 18] };
+            assert_eq!(m, &serde_json::json!(want), "drive {k}: outputs, inputs");
+        }
+        assert_eq!(v["io_map"], 3 * 34 + 3 * 16);
         assert_eq!(v["op"], true, "every drive in OP");
         assert_eq!(v["wkc"], v["expected_wkc"]);
         // Enabled through the CiA 402 state machine: operation enabled, following the

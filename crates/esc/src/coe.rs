@@ -336,7 +336,8 @@ fn sm_parameters(index: u16, name: &str, cycle_ns: u32) -> Object {
             entry(2, "Cycle time", data_type::UINT32, rw, u32v(cycle_ns)),
             entry(3, "Shift time", data_type::UINT32, ro, u32v(0)),
             // Bits 0 free run, 1 SM-synchronous, 2-4 DC (SYNC0, SYNC1, subordinated): free run,
-            // SM and DC SYNC0 (0x0007), with the shift settable (bit 5).
+            // SM and DC SYNC0 (0x0007), with the shift settable (bit 5). DC SYNC1 (3) is not
+            // among them: a write of 3 to :01 is refused (0x06090030, see `check_sync_mode`).
             entry(
                 4,
                 "Sync modes supported",
@@ -667,6 +668,9 @@ impl ObjectDictionary {
         if mapping_object && sub == 0 && data.first().is_some_and(|&c| c > max) {
             return Err(SdoAbortCode::ValueTooHigh);
         }
+        if matches!(index, 0x1c32 | 0x1c33) && sub == 1 && data.len() == 2 {
+            self.check_sync_mode(index, u16::from_le_bytes([data[0], data[1]]))?;
+        }
         if let Some(e) = self.object_mut(index).and_then(|o| o.entry_mut(sub)) {
             if is_string {
                 e.value = data.to_vec();
@@ -676,6 +680,37 @@ impl ObjectDictionary {
             }
         }
         Ok(())
+    }
+
+    /// Whether the drive takes sync mode `mode` in 0x1C32:01 or 0x1C33:01 (`index`), as SSC's
+    /// `CheckSyncTypeValue` decides from the supported modes of :04 (ETG.1020, "Sync modes
+    /// supported": bit 0 free run, bit 1 synchronous with the SM event, bit 2 DC SYNC0, bit 3
+    /// DC SYNC1): free run always; 1 (SM-synchronous) on 0x1C32 with outputs mapped, on 0x1C33
+    /// of an input-only device; 0x22 (synchronous with SM2) on 0x1C33 with outputs mapped; 2
+    /// and 3 where :04 has their bit. Any other value: 0x06090030, value range exceeded
+    /// (SSC's ABORTIDX_VALUE_EXCEEDED). A dictionary without :04 (a device description that
+    /// leaves it out) is not checked.
+    fn check_sync_mode(&self, index: u16, mode: u16) -> Result<(), SdoAbortCode> {
+        let Ok(supported) = self.read(index, 4) else {
+            return Ok(());
+        };
+        let bits = supported.first().copied().unwrap_or(0);
+        let outputs = !self.assigned_entries(0x1c12).is_empty();
+        let inputs = !self.assigned_entries(0x1c13).is_empty();
+        let ok = match mode {
+            0 => true,
+            1 if index == 0x1c32 => outputs && bits & 0x02 != 0,
+            1 => !outputs && inputs && bits & 0x02 != 0,
+            0x22 => index == 0x1c33 && outputs && bits & 0x02 != 0,
+            2 => bits & 0x04 != 0,
+            3 => bits & 0x08 != 0,
+            _ => false,
+        };
+        if ok {
+            Ok(())
+        } else {
+            Err(SdoAbortCode::ValueRange)
+        }
     }
 
     /// A write of one entry, or with `complete_access` of the object from `sub`.
@@ -818,6 +853,8 @@ pub struct SdoServer {
     /// The fragments of an SDO Information response still to send, in order (see
     /// [`SdoServer::next_fragment`]).
     fragments: std::collections::VecDeque<Vec<u8>>,
+    /// [`SdoServer::set_request_room`].
+    request_room: Option<usize>,
 }
 
 impl SdoServer {
@@ -832,6 +869,7 @@ impl SdoServer {
             od,
             transfer: None,
             fragments: std::collections::VecDeque::new(),
+            request_room: None,
         }
     }
 
@@ -848,10 +886,54 @@ impl SdoServer {
         // A new message: what was left of an earlier answer is not sent any more.
         self.fragments.clear();
         let c = coe::Coe::new_checked(req).map_err(|_| MailboxFault::SizeTooShort)?;
+        // SSC's `COE_ServiceInd`: the two services a slave serves, the others a master has no
+        // business sending (0x04), and numbers that are no service at all (0x05).
         match c.service() {
             Ok(CoeService::SdoRequest) => self.sdo(c.payload(), state, room).map(Some),
-            Ok(CoeService::SdoInformation) => Ok(Some(self.sdo_info(c.payload(), room))),
-            _ => Err(MailboxFault::ServiceNotSupported),
+            Ok(CoeService::SdoInformation) => self.sdo_info(c.payload(), room).map(Some),
+            Ok(_) => Err(MailboxFault::ServiceNotSupported),
+            Err(_) => Err(MailboxFault::InvalidHeader),
+        }
+    }
+
+    /// The size of the mailbox the master writes to, less its header (SM0's length - 6): an
+    /// SDO download longer than it fits is segmented, and its initiate fills the mailbox
+    /// (SSC checks this; `None`, the default: not checked).
+    pub fn set_request_room(&mut self, room: usize) {
+        self.request_room = Some(room);
+    }
+
+    /// SSC's length checks of an initiate request (`SDOS_SdoInd`): `p` is the SDO part, so
+    /// the mailbox length is `p.len() + 2`.
+    fn check_sdo_length(&self, req: &SdoRequest, p: &[u8]) -> Result<(), MailboxFault> {
+        let length = COE_HEADER_LEN + p.len();
+        // "a SDO Upload request has always a fixed size (2 Byte CoE-Header plus 8 Byte
+        // SDO-Header)", and so has an expedited download.
+        let fixed = COE_HEADER_LEN + SDO_LEN;
+        match *req {
+            SdoRequest::InitiateUpload { .. }
+            | SdoRequest::InitiateDownload {
+                expedited: true, ..
+            } if length != fixed => Err(MailboxFault::InvalidSize),
+            SdoRequest::InitiateDownload {
+                expedited: false,
+                size: Some(size),
+                ..
+            } => {
+                let size = size as usize;
+                let ok = match self.request_room {
+                    // Longer than the mailbox: segmented, the initiate fills the mailbox.
+                    Some(room) if fixed + size > room => length == room,
+                    // In one message: exactly the header and the data.
+                    _ => length == fixed + size,
+                };
+                if ok {
+                    Ok(())
+                } else {
+                    Err(MailboxFault::InvalidSize)
+                }
+            }
+            _ => Ok(()),
         }
     }
 
@@ -865,14 +947,16 @@ impl SdoServer {
         };
         let req = match s.request() {
             Ok(r) => r,
+            // An initiate (or abort) shorter than its 8 bytes: its length is not 10 (SSC).
             Err(ecsync_wire::WireError::Truncated { .. }) => {
-                return Err(MailboxFault::SizeTooShort);
+                return Err(MailboxFault::InvalidSize);
             }
             Err(_) => {
                 self.transfer = None;
                 return Ok(abort(SdoAbortCode::UnknownCommand));
             }
         };
+        self.check_sdo_length(&req, p)?;
         Ok(match self.sdo_request(req, &s, state, room) {
             Ok(out) => out,
             Err((i, si, code)) => {
@@ -1078,8 +1162,23 @@ impl SdoServer {
         }
     }
 
-    /// An SDO Information request's answer (an SDO Info error for what it cannot answer).
-    fn sdo_info(&mut self, p: &[u8], room: usize) -> Vec<u8> {
+    /// An SDO Information request's answer (an SDO Info error for what it cannot answer), or
+    /// the mailbox error of one too short for its opcode.
+    fn sdo_info(&mut self, p: &[u8], room: usize) -> Result<Vec<u8>, MailboxFault> {
+        // SSC's `SDOS_SdoInfoInd` checks the length first, against the opcode's fixed part:
+        // an entry description request has 10 bytes (CoE and SDO Information headers, index,
+        // subindex, value info), the others at least 8 (the headers and an index or list type).
+        let need = match p.first().map(|&op| op & 0x7f) {
+            Some(5) => 10,
+            _ => 8,
+        };
+        if COE_HEADER_LEN + p.len() < need {
+            return Err(MailboxFault::SizeTooShort);
+        }
+        Ok(self.sdo_info_answer(p, room))
+    }
+
+    fn sdo_info_answer(&mut self, p: &[u8], room: usize) -> Vec<u8> {
         let mut out = vec![0u8; COE_HEADER_LEN + SDO_INFO_HEADER_LEN];
         coe::emit_coe_header(&mut out, CoeService::SdoInformation, 0);
         let error = |code: SdoAbortCode| {
@@ -1089,6 +1188,8 @@ impl SdoServer {
             e.extend_from_slice(&code.code().to_le_bytes());
             e
         };
+        // An opcode that is no request (a response's, the error's, an unknown one): SSC
+        // answers ABORTIDX_COMMAND_SPECIFIER_UNKNOWN, 0x05040001, in an SDO Info error.
         let Ok(req) = coe::sdo_info_request(p) else {
             return error(SdoAbortCode::UnknownCommand);
         };
@@ -1122,6 +1223,14 @@ impl SdoServer {
                     data.extend_from_slice(&i.to_le_bytes());
                 }
                 self.fragmented(SdoInfoOpcode::GetOdListResponse, &data, room)
+            }
+            // "SDO Info access is only allowed for objects >= 0x1000" (SSC): below are the
+            // data type definitions, which this dictionary does not describe.
+            SdoInfoRequest::GetObjectDescription { index }
+            | SdoInfoRequest::GetEntryDescription { index, .. }
+                if index < 0x1000 =>
+            {
+                error(SdoAbortCode::UnsupportedAccess)
             }
             SdoInfoRequest::GetObjectDescription { index } => {
                 let Some(o) = self.od.object(index) else {
@@ -1222,13 +1331,23 @@ impl SdoServer {
     }
 }
 
-/// Why a mailbox message gets a mailbox error instead of a CoE answer.
+/// Why a mailbox message gets a mailbox error (ETG.1000.4 table 30, SSC's `MBXERR_*`) instead
+/// of a CoE answer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum MailboxFault {
-    /// Too short for its protocol's header.
+    /// Too short for what it carries (0x06): a CoE message without its CoE header (this
+    /// drive's reading: SSC reads the header past the length), an SDO Information request
+    /// shorter than its opcode's fixed part (SSC, `SDOS_SdoInfoInd`).
     SizeTooShort,
-    /// A CoE service the drive does not offer.
+    /// A CoE service a slave does not take from a master (0x04): emergency, SDO response, the
+    /// PDO services (SSC, `COE_ServiceInd`).
     ServiceNotSupported,
+    /// A CoE service number no service has (0x05: 0, 9-15; SSC, `COE_ServiceInd`).
+    InvalidHeader,
+    /// A length the SDO service does not have (0x08): an initiate upload or expedited
+    /// download whose mailbox length is not 10, a normal download whose length disagrees with
+    /// its complete size (SSC, `SDOS_SdoInd`).
+    InvalidSize,
 }
 
 #[cfg(test)]

@@ -811,3 +811,185 @@ fn a_segment_of_esi_drives_answers_coe_with_the_esi_values() {
         assert_eq!(&r[16..], b"Control Word");
     }
 }
+
+/// The elements `<tag ...>text</tag>` of `text` (not nested, `tag` followed by a space or
+/// `>`: `<Fmmu>` but not `<FmmuCount>`), as (the opening tag's attributes, the text).
+fn elements<'a>(text: &'a str, tag: &str) -> Vec<(&'a str, &'a str)> {
+    let open = format!("<{tag}");
+    let close = format!("</{tag}>");
+    let mut out = Vec::new();
+    let mut at = 0;
+    while let Some(i) = text[at..].find(&open) {
+        let from = at + i + open.len();
+        at = from;
+        if !matches!(text.as_bytes().get(from), Some(b' ' | b'>')) {
+            continue;
+        }
+        let gt = from + text[from..].find('>').unwrap();
+        let end = gt + text[gt..].find(&close).unwrap();
+        out.push((&text[from..gt], text[gt + 1..end].trim()));
+        at = end;
+    }
+    out
+}
+
+/// Attribute `name` of an opening tag's attributes.
+fn attr_of<'a>(attrs: &'a str, name: &str) -> Option<&'a str> {
+    let key = format!(" {name}=\"");
+    let a = attrs.find(&key)? + key.len();
+    Some(&attrs[a..a + attrs[a..].find('"')?])
+}
+
+/// Every ESI file in `../shared/esi/` (a file put there is tested too): each `Device` read by
+/// the string search above gives the device the crate builds, its SII's identity words, its
+/// SyncManager category (ETG.1000.6 table 23 via ETG.2010: start, length, control byte,
+/// status 0, enable, type 1 MBoxOut / 2 MBoxIn / 3 Outputs / 4 Inputs; the mailbox's length
+/// its DefaultSize, the process data's the bits of the PDOs assigned by default, those with an
+/// `Sm` attribute), its FMMU category (1 Outputs, 2 Inputs, 3 MBoxState), its standard
+/// mailbox words 0x18-0x1B (MBoxOut and MBoxIn start and DefaultSize) and word 0x1C (CoE, the
+/// only protocol served). The KickCAT files' values are also written out by hand with their
+/// lines, as a check of the search itself.
+#[test]
+fn every_esi_file_of_the_folder_makes_the_sii_its_xml_says() {
+    let Some(dir) = esi_dir() else { return };
+    let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("xml")))
+        .collect();
+    files.sort();
+    let names: Vec<String> = files
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    for known in [
+        "ingenia-evs-net-01.xml",
+        "test-complex.xml",
+        "test-sm-fmmu.xml",
+    ] {
+        assert!(names.iter().any(|n| n == known), "{known} in {names:?}");
+    }
+    for path in &files {
+        let name = path.display();
+        let xml = Xml::read(path);
+        let file = esi::load(path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let devices: Vec<(&str, &str)> = elements(&xml.0, "Device");
+        assert_eq!(file.devices.len(), devices.len(), "{name}");
+        let vendor = number(xml.between("<Vendor>", "<Id>", "</Id>"));
+        for (d, (_, block)) in file.devices.iter().zip(&devices) {
+            let ty = elements(block, "Type")[0].0;
+            let dev = d.device_info(9);
+            let id = (
+                vendor,
+                number(attr_of(ty, "ProductCode").unwrap()),
+                number(attr_of(ty, "RevisionNo").unwrap()),
+            );
+            assert_eq!(
+                (dev.vendor_id, dev.product_code, dev.revision),
+                id,
+                "{name}"
+            );
+            let esc = esc_of(&dev);
+            let img = esc.sii_image();
+            let w = |k: u16| sii::word(img, k).unwrap();
+            let dword = |k: u16| u32::from(w(k)) | u32::from(w(k + 1)) << 16;
+            assert_eq!(
+                (dword(sii::WORD_VENDOR_ID), dword(sii::WORD_PRODUCT_CODE)),
+                (id.0, id.1),
+                "{name}"
+            );
+            assert_eq!(dword(sii::WORD_REVISION), id.2, "{name}");
+            // The process data's bytes: the default-assigned PDOs' entries.
+            let pdo_bytes = |tag: &str| {
+                let bits: u32 = elements(block, tag)
+                    .iter()
+                    .filter(|(a, _)| attr_of(a, "Sm").is_some())
+                    .flat_map(|(_, t)| elements(t, "BitLen"))
+                    .map(|(_, b)| number(b))
+                    .sum();
+                bits.div_ceil(8) as u16
+            };
+            // The Device's SyncManagers (a `Dc/OpMode/Sm` names one, without StartAddress).
+            let sms: Vec<_> = elements(block, "Sm")
+                .into_iter()
+                .filter(|(a, _)| attr_of(a, "StartAddress").is_some())
+                .collect();
+            let mut want = Vec::new();
+            let mut mailbox = [None, None];
+            for (a, text) in &sms {
+                let start = number(attr_of(a, "StartAddress").unwrap()) as u16;
+                let (ty, len) = match *text {
+                    "MBoxOut" | "MBoxIn" => {
+                        let len = number(attr_of(a, "DefaultSize").unwrap()) as u16;
+                        mailbox[usize::from(*text == "MBoxIn")] = Some((start, len));
+                        (if *text == "MBoxOut" { 1 } else { 2 }, len)
+                    }
+                    "Outputs" => (3, pdo_bytes("RxPdo")),
+                    "Inputs" => (4, pdo_bytes("TxPdo")),
+                    t => panic!("{name}: an Sm of {t}"),
+                };
+                want.extend_from_slice(&start.to_le_bytes());
+                want.extend_from_slice(&len.to_le_bytes());
+                let control = number(attr_of(a, "ControlByte").unwrap()) as u8;
+                let enable = attr_of(a, "Enable").map_or(0, number) as u8;
+                want.extend_from_slice(&[control, 0, enable, ty]);
+            }
+            let got = sii::find_category(img, category::SYNC_MANAGER).unwrap();
+            assert_eq!(got.data, &want[..], "{name}: SyncManager category");
+            let fmmus: Vec<u8> = elements(block, "Fmmu")
+                .iter()
+                .map(|(_, t)| match *t {
+                    "Outputs" => 1,
+                    "Inputs" => 2,
+                    "MBoxState" => 3,
+                    _ => 0,
+                })
+                .collect();
+            // A category is whole words: an odd count is padded with an unused (0) FMMU.
+            let got = sii::find_category(img, category::FMMU).unwrap();
+            let n = fmmus.len();
+            assert_eq!(&got.data[..n], &fmmus[..], "{name}: FMMU category");
+            assert_eq!(got.data.len(), n.div_ceil(2) * 2, "{name}");
+            assert!(got.data[n..].iter().all(|&b| b == 0), "{name}");
+            if let [Some(out), Some(inp)] = mailbox {
+                assert_eq!(
+                    [w(0x18), w(0x19), w(0x1a), w(0x1b)],
+                    [out.0, out.1, inp.0, inp.1],
+                    "{name}: mailbox words"
+                );
+                assert_eq!(
+                    w(sii::WORD_MAILBOX_PROTOCOL),
+                    if block.contains("<CoE") { 0x0004 } else { 0 },
+                    "{name}"
+                );
+            }
+            // By hand from the files: test-sm-fmmu.xml lines 41-47, test-complex.xml 266-272.
+            match path.file_name().unwrap().to_str().unwrap() {
+                "test-sm-fmmu.xml" => {
+                    assert_eq!(fmmus, [1, 2, 3]);
+                    assert_eq!(
+                        want,
+                        [
+                            0x00, 0x10, 128, 0, 0x26, 0, 1, 1, // MBoxOut
+                            0x00, 0x14, 128, 0, 0x22, 0, 1, 2, // MBoxIn (virtual)
+                            0x00, 0x18, 2, 0, 0x64, 0, 1, 3, // Outputs: 0x7000:01, 16 bits
+                            0x00, 0x1c, 3, 0, 0x20, 0, 1, 4, // Inputs: 16 + 8 bits
+                        ]
+                    );
+                }
+                "test-complex.xml" => {
+                    assert_eq!(fmmus, [1, 2, 3]);
+                    assert_eq!(mailbox, [Some((0x1000, 0x80)), Some((0x1080, 0x80))]);
+                    // No PDOs: the process data SyncManagers are empty.
+                    assert_eq!(
+                        &want[16..],
+                        [
+                            0x00, 0x11, 0, 0, 0x64, 0, 1, 3, 0x00, 0x14, 0, 0, 0x20, 0, 1, 4
+                        ]
+                    );
+                }
+                _ => {}
+            }
+        }
+    }
+}

@@ -188,6 +188,10 @@ pub struct MethodOut {
     /// Per run: the faults played and how the method came through them (`compare --faults`).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub faults: Vec<crate::run::FaultsTruth>,
+    /// The drives the master found out of OP, every run's, with their AL status code (a sync
+    /// error past the configured `run.sync_error_limit`: 0x001A); absent when none did.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub left_op: Vec<crate::run::LeftOpOut>,
 }
 
 /// The letter's values of a method.
@@ -313,7 +317,7 @@ pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Warning {
     /// What kind: crystal_difference, off_target, jitter_eats_margin, late_frames,
-    /// cycle_too_short, interrupted, samples.
+    /// cycle_too_short, interrupted, samples, left_op.
     pub kind: &'static str,
     /// The method it concerns, if one.
     pub method: Option<String>,
@@ -540,6 +544,7 @@ fn method_out(c: &Comparison, m: usize, entry: Entry, letter_testbed: bool) -> M
         lock_ms: lock.iter().sum::<f64>() / lock.len().max(1) as f64,
         wall_s: c.method_wall_s[m],
         faults: rs.iter().filter_map(|r| r.faults.clone()).collect(),
+        left_op: rs.iter().flat_map(|r| r.left_op.iter().cloned()).collect(),
         send: (entry.send != crate::send::SendMode::Plain).then(|| {
             let cycles: u64 = rs.iter().map(|r| r.cycles_done).sum();
             SendOut {
@@ -911,6 +916,57 @@ fn warnings(
                         mo.cycles_done
                     )
                 },
+            });
+        }
+    }
+    // Drives that left OP on their own (with a fault schedule the faults' table and
+    // faults.csv tell what the faults did to whom).
+    if s.faults.is_none() {
+        for m in order {
+            let Some(mo) = methods.get(m).filter(|mo| !mo.left_op.is_empty()) else {
+                continue;
+            };
+            // Per slave and code: how often, the first time, and whether every one came back.
+            let mut groups: Vec<(u16, u16, &str, u32, f64, u32, bool)> = Vec::new();
+            for l in &mo.left_op {
+                match groups
+                    .iter_mut()
+                    .find(|g| (g.0, g.1) == (l.slave, l.al_status_code))
+                {
+                    Some(g) => {
+                        g.3 += 1;
+                        g.6 &= l.back_in_op_ms.is_some();
+                    }
+                    None => groups.push((
+                        l.slave,
+                        l.al_status_code,
+                        &l.reason,
+                        1,
+                        l.found_ms,
+                        l.run,
+                        l.back_in_op_ms.is_some(),
+                    )),
+                }
+            }
+            groups.sort_by_key(|g| (g.0, g.1));
+            let list: Vec<String> = groups
+                .iter()
+                .map(|&(slave, _, reason, n, first_ms, run, back)| {
+                    format!(
+                        "slave {slave} with AL status code {reason} {}, first at {:.3} s (run {run}){}",
+                        if n == 1 { "once".to_string() } else { format!("{n} times") },
+                        first_ms / 1e3,
+                        if back { ", brought back each time" } else { ", not back in OP by the end" }
+                    )
+                })
+                .collect();
+            w.push(Warning {
+                kind: "left_op",
+                method: Some(m.clone()),
+                message: format!(
+                    "{m}: drives left OP (the summary's left_op lists each time): {}",
+                    list.join("; ")
+                ),
             });
         }
     }

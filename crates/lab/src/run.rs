@@ -303,6 +303,31 @@ pub struct RunResult {
     pub samples_error: Option<String>,
     /// What the fault schedule did and how the master took it (`None`: no faults).
     pub faults: Option<FaultsTruth>,
+    /// The drives the master found out of OP with their configuration kept (an AL error of
+    /// their own: a sync error past the configured 0x10F1:02, a process data watchdog), in
+    /// the order its recoveries found them.
+    pub left_op: Vec<LeftOpOut>,
+}
+
+/// A slave the master's recovery found out of OP with its configuration kept, and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LeftOpOut {
+    /// The run.
+    pub run: u32,
+    /// Network position, 1 = next to the master.
+    pub slave: u16,
+    /// The state it was in ("SAFE-OP").
+    pub state: String,
+    /// Its AL status code (0x0134; 0x001A: synchronization error), 0 without an error
+    /// indication.
+    pub al_status_code: u16,
+    /// What the code means (`0x001a (synchronization error)`).
+    pub reason: String,
+    /// When the recovery that found it started, ms after the cyclic phase's start.
+    pub found_ms: f64,
+    /// When that recovery had it back in OP, ms after the cyclic phase's start (`None`: not
+    /// by the end of the run).
+    pub back_in_op_ms: Option<f64>,
 }
 
 /// The cycles around one fault: from its start to a second after its end.
@@ -603,6 +628,7 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
         sync0_shift_ns: s.sync0_shift_ns(),
         lock_hold_checks: 200,
         monitor_cycles: 10,
+        sync_error_limit: s.sync_error_limit,
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
@@ -886,6 +912,7 @@ impl Run {
                 sync0_lead_ns: RECOVERY_SYNC0_LEAD_NS,
                 timeouts: ecsync_master::bringup::BringupTimeouts::default(),
                 static_drift_frames: RECOVERY_STATIC_DRIFT_FRAMES,
+                sync_error_limit: s.sync_error_limit,
             },
         );
         Ok(Run {
@@ -924,6 +951,7 @@ impl Run {
                 max_round_trip_ns: 0.0,
                 samples_error: None,
                 faults: s.faults.as_ref().map(|_| FaultsTruth::default()),
+                left_op: Vec::new(),
             },
             series: [
                 Bands::new(s.cycles),
@@ -990,6 +1018,29 @@ impl Run {
         if *shared.noise() == self.noise {
             self.shared_noise = Some(shared);
         }
+    }
+
+    /// Has the master read every drive's SM-event-missed counter (0x1C32:0B) over CoE this
+    /// often, in the cycles' spare slot, as `ecsync run` does (a comparison does not: its
+    /// figures are the segment's own). The reads are [`Run::drive_counter_reads`].
+    pub fn read_drive_counters_every(&mut self, every_ns: u64) {
+        self.driver.set_sync_counters_every_ns(Some(every_ns));
+    }
+
+    /// The master's first and last read of each drive's 0x1C32:0B over CoE so far
+    /// ([`Run::read_drive_counters_every`]), in network order.
+    pub fn drive_counter_reads(
+        &self,
+    ) -> Vec<(
+        ecsync_master::driver::SyncCounter,
+        ecsync_master::driver::SyncCounter,
+    )> {
+        self.driver.sync_counters()
+    }
+
+    /// Cycles run so far (warm-up included).
+    pub fn cycles_run(&self) -> u64 {
+        self.next_cycle
     }
 
     /// Cycles still to run (warm-up included).
@@ -1397,6 +1448,28 @@ impl Run {
     /// The result (of the cycles run so far).
     pub fn finish(self) -> Result<RunResult, RunError> {
         let mut res = self.res;
+        let t0 = self.cyclic_start_ns;
+        let ms = |t: u64| t.saturating_sub(t0) as f64 / 1e6;
+        for e in self.driver.recoveries() {
+            let Some(Ok(r)) = &e.outcome else { continue };
+            for l in &r.left_op {
+                res.left_op.push(LeftOpOut {
+                    run: res.run,
+                    slave: l.position + 1,
+                    state: ecsync_wire::AlState::from_register(l.state)
+                        .map_or_else(|_| format!("state 0x{:X}", l.state), |s| s.to_string()),
+                    al_status_code: if l.error { l.code } else { 0 },
+                    reason: if l.error {
+                        ecsync_wire::AlStatusCode::from(l.code).to_string()
+                    } else {
+                        "no error indication".to_string()
+                    },
+                    found_ms: ms(e.started_ns),
+                    // The recovery ends once every slave it took on is in OP again.
+                    back_in_op_ms: e.ended_ns.map(ms),
+                });
+            }
+        }
         if let Some(ft) = res.faults.as_mut() {
             if let Some(p) = self.sim.faults() {
                 ft.events = p.events().to_vec();

@@ -83,6 +83,9 @@ struct RunFile {
     methods: Vec<String>,
     #[serde(default = "d_static")]
     static_drift_frames: i64,
+    /// 0x10F1:02 the master writes to every DC drive in PRE-OP (absent: not written).
+    #[serde(default)]
+    sync_error_limit: Option<i64>,
 }
 
 fn d_cycle() -> f64 {
@@ -122,6 +125,7 @@ impl Default for RunFile {
             seed: d_seed(),
             methods: d_methods(),
             static_drift_frames: d_static(),
+            sync_error_limit: None,
         }
     }
 }
@@ -163,6 +167,11 @@ pub struct Scenario {
     pub send: SendParams,
     /// Static drift compensation frames of the bring-up.
     pub static_drift_frames: u32,
+    /// The sync error counter limit (0x10F1:02) the master writes over CoE to every drive it
+    /// sets to DC SYNC0, in PRE-OP (`[run] sync_error_limit`; `None`: not written, each drive
+    /// keeps its own: the virtual drive's 0 counts without reacting). Past it a drive leaves
+    /// OP with AL status code 0x001A, and the comparison reports it.
+    pub sync_error_limit: Option<u16>,
     /// Every method's parameters (the `[methods.<name>]` tables; defaults where absent).
     pub params: MethodParams,
     /// Faults to play on every run (`compare --faults FILE`); `None`: none.
@@ -541,6 +550,18 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
             }
         }
     }
+    // SSC keeps 0x10F1:02 as an UNSIGNED16 (TOBJ10F1.u16SyncErrorCounterLimit).
+    let sync_error_limit = match r.sync_error_limit {
+        None => None,
+        Some(v) => Some(u16::try_from(v).map_err(|_| {
+            err(
+                "run",
+                "sync_error_limit",
+                format!("{v} is not a sync error counter limit (0x10F1:02 is an UNSIGNED16)"),
+                "give 0 to 65535: each missed SYNC0 adds 3 to the drive's counter and each good cycle takes 1 away, past the limit the drive leaves OP with 0x001A (ETG's slave stack code: 4 by default; 0 switches the reaction off); or leave it out to keep the drives' own",
+            )
+        })?),
+    };
     let sf = &f.send;
     let mut send_modes = Vec::new();
     for m in sf.modes.clone().unwrap_or_else(|| vec!["plain".into()]) {
@@ -582,6 +603,7 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
             .filter(|m| methods.contains(m))
             .collect(),
         static_drift_frames: r.static_drift_frames as u32,
+        sync_error_limit,
         params: f.methods,
         faults: None,
         // Report order, each once.
@@ -730,6 +752,46 @@ mod tests {
                 ..Default::default()
             }
         );
+    }
+
+    /// `[run] sync_error_limit`: absent, nothing is written; a value is the drives' 0x10F1:02;
+    /// one that is not an UNSIGNED16 is refused, located, with the range and what it does.
+    #[test]
+    fn the_sync_error_limit_is_read_and_checked() {
+        assert_eq!(parse("p.toml", &preset()).unwrap().sync_error_limit, None);
+        let with = |v: &str| {
+            preset().replace(
+                "static_drift_frames = 15000",
+                &format!("static_drift_frames = 15000\nsync_error_limit = {v}"),
+            )
+        };
+        assert_ne!(with("4"), preset(), "the replacement must apply");
+        assert_eq!(
+            parse("p.toml", &with("4")).unwrap().sync_error_limit,
+            Some(4)
+        );
+        assert_eq!(
+            parse("p.toml", &with("0")).unwrap().sync_error_limit,
+            Some(0)
+        );
+        for bad in ["-1", "65536"] {
+            let e = parse("p.toml", &with(bad)).unwrap_err();
+            assert_eq!(e.field, "run.sync_error_limit", "{bad}: {e}");
+            assert!(e.line.is_some(), "{e}");
+            assert!(
+                e.message.contains(bad) && e.message.contains("UNSIGNED16"),
+                "{e}"
+            );
+            assert!(
+                e.fix.contains("0 to 65535") && e.fix.contains("0x001A"),
+                "{e}"
+            );
+        }
+        // Not a whole number: serde's words, located at the key.
+        let e = parse("p.toml", &with("4.5")).unwrap_err();
+        assert!(e.to_string().contains("sync_error_limit"), "{e}");
+        let e = parse("p.toml", &with("\"4\"")).unwrap_err();
+        assert!(e.to_string().contains("sync_error_limit"), "{e}");
     }
 
     #[test]

@@ -98,6 +98,13 @@ pub struct BringupConfig {
     /// Read the SII's device name, mailbox and SyncManagers even when the bring-up stops after
     /// the delays (a twin of the network names and types its devices from them).
     pub read_sii_details: bool,
+    /// The sync error counter limit (0x10F1:02, ETG.1020's error settings) written over CoE to
+    /// every drive set to DC SYNC0, in PRE-OP with the sync mode, as a master's startup SDO
+    /// does (TwinCAT's startup list, IgH's `ecrt_slave_config_sdo16`). Past it a drive leaves
+    /// OP with AL status code 0x001A; 0 switches its reaction off (SSC V5.13, `DC_CheckWatchdog`:
+    /// a limit of 0 keeps the SM-Sync sequence valid). `None`: not written, every drive keeps
+    /// its own (the virtual drive's is 0).
+    pub sync_error_limit: Option<u16>,
 }
 
 impl Default for BringupConfig {
@@ -120,6 +127,7 @@ impl Default for BringupConfig {
             timeouts: BringupTimeouts::default(),
             rate_window_ns: 0,
             read_sii_details: false,
+            sync_error_limit: None,
         }
     }
 }
@@ -552,7 +560,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     .await
     .map_err(|e| e.during(Phase::PreOp))?;
     for s in &net.slaves {
-        configure_sync_mode(&link, s, cfg.cycle_ns)
+        configure_sync_mode(&link, s, cfg.cycle_ns, cfg.sync_error_limit)
             .await
             .map_err(|e| e.at(Phase::PreOp, s.id()))?;
     }
@@ -1605,13 +1613,15 @@ pub(crate) async fn configure_mailboxes(
 
 /// Part of [`Phase::PreOp`], in PRE-OP: a drive with CoE and a system time is switched to DC
 /// SYNC0 synchronisation the way masters do it (ETG.1020 section 12): 0x1C32:01 and 0x1C33:01
-/// = 2, and 0x1C32:02 the cycle time. An object the drive does not have is skipped (not every
-/// device has its SyncManager parameters), and so is a read-only cycle time; any other abort is
-/// an error.
+/// = 2, and 0x1C32:02 the cycle time; then, when one is configured, the sync error counter
+/// limit 0x10F1:02 ([`BringupConfig::sync_error_limit`]). An object the drive does not have is
+/// skipped (not every device has its SyncManager parameters or error settings), and so is a
+/// read-only cycle time; any other abort is an error.
 pub(crate) async fn configure_sync_mode(
     link: &Link,
     s: &SlaveInfo,
     cycle_ns: u32,
+    sync_error_limit: Option<u16>,
 ) -> Result<(), MasterError> {
     let Some(m) = s.mailbox.filter(|m| m.coe()) else {
         return Ok(());
@@ -1620,12 +1630,14 @@ pub(crate) async fn configure_sync_mode(
         return Ok(());
     }
     let mut c = crate::coe::SdoClient::new(link, s.station, m);
+    let limit = sync_error_limit.map(u16::to_le_bytes);
     let writes: [(u16, u8, &[u8]); 3] = [
         (0x1c32, 1, &2u16.to_le_bytes()),
         (0x1c32, 2, &cycle_ns.to_le_bytes()),
         (0x1c33, 1, &2u16.to_le_bytes()),
     ];
-    for (index, sub, v) in writes {
+    let limit_write = limit.as_ref().map(|v| (0x10f1u16, 2u8, &v[..]));
+    for (index, sub, v) in writes.into_iter().chain(limit_write) {
         match c.download(index, sub, v).await {
             Ok(()) => {}
             // Not there: the drive has no such parameter (0x06020000, 0x06090011).
@@ -1633,6 +1645,11 @@ pub(crate) async fn configure_sync_mode(
                 code: 0x0602_0000 | 0x0609_0011,
                 ..
             }) => {}
+            // A sync mode the drive refuses (0x06090030, value range exceeded: its 0x1C32:04
+            // has no DC SYNC0): it runs on its own, as a drive without the objects does.
+            Err(MasterError::SdoAbort {
+                code: 0x0609_0030, ..
+            }) if sub == 1 => return Ok(()),
             // A cycle time the drive does not let the master set (read-only, 0x06010002): it
             // keeps its own and follows SYNC0. Devices differ here: ecsync's drive has 0x1C32:02
             // rw in PRE-OP, Ingenia's EVS-NET-01 ESI has it `ro`.

@@ -489,6 +489,12 @@ impl CyclicDriver {
         }
     }
 
+    /// Reads the drives' SM-event-missed counters over CoE this often from now on
+    /// ([`CyclicLimits::sync_counters_every_ns`]; `None`: no more reads).
+    pub fn set_sync_counters_every_ns(&mut self, every_ns: Option<u64>) {
+        self.limits.sync_counters_every_ns = every_ns;
+    }
+
     /// Lets the driver bring slaves of `net` back when the engine sees them lose their
     /// configuration ([`crate::cyclic::Health::needs_recovery`]): a [`recover`] procedure runs
     /// one frame per cycle after the cyclic frames, while the cycle goes on for the rest.

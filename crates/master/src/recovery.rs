@@ -41,6 +41,9 @@ pub struct RecoveryConfig {
     /// its crystal's drift from them; the cyclic FRMW alone, one a cycle, takes seconds for
     /// tens of ppm).
     pub static_drift_frames: u32,
+    /// The sync error counter limit written again to a reset drive with its sync mode
+    /// ([`crate::BringupConfig::sync_error_limit`]; `None`: not written).
+    pub sync_error_limit: Option<u16>,
 }
 
 /// What a recovery did.
@@ -391,7 +394,8 @@ pub async fn recover(
         crate::bringup::request_state_with(&link, s.station, ack, &cfg.timeouts).await?;
         if reset.contains(&pos) {
             // Its CoE parameters were reset with it.
-            crate::bringup::configure_sync_mode(&link, s, cfg.cycle_ns).await?;
+            crate::bringup::configure_sync_mode(&link, s, cfg.cycle_ns, cfg.sync_error_limit)
+                .await?;
         }
         crate::bringup::configure_process_data(&link, std::slice::from_ref(s)).await?;
         request_state(&link, s.station, AlState::SafeOp, &cfg.timeouts).await?;

@@ -63,12 +63,20 @@ impl Transport for LateHost {
 /// paper-2024 brought up to OP with SYNC0 at `SHIFT_NS` (the drives set to DC SYNC0 over
 /// CoE), and the cyclic engine whose first cycle starts two periods on.
 fn paper_2024_in_op() -> (SimTransport, Network, CyclicEngine<MedianSync>) {
+    paper_2024_in_op_with(None)
+}
+
+/// [`paper_2024_in_op`] with the bring-up configured to write the sync error counter limit.
+fn paper_2024_in_op_with(
+    sync_error_limit: Option<u16>,
+) -> (SimTransport, Network, CyclicEngine<MedianSync>) {
     let mut sim = SimTransport::new(Segment::new(&preset::paper_2024()).unwrap());
     let cfg = BringupConfig {
         until: Stage::Op,
         static_drift_frames: 1_000,
         lock_hold_checks: 50,
         sync0_shift_ns: SHIFT_NS,
+        sync_error_limit,
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
@@ -96,6 +104,7 @@ fn recovery() -> RecoveryConfig {
         sync0_lead_ns: 20_000_000,
         timeouts: BringupTimeouts::default(),
         static_drift_frames: 1_000,
+        sync_error_limit: None,
     }
 }
 
@@ -271,5 +280,99 @@ fn a_counter_read_cut_by_a_lost_cycle_starts_again_at_once() {
             last.position,
             (end_ns - last.read_ns) / 1_000_000
         );
+    }
+}
+
+/// The limit as a master configures it: the bring-up writes 0x10F1:02 = 4 over CoE in PRE-OP
+/// (no firmware setter), each drive's dictionary holds it, and a host 2.1 periods late once
+/// (two pulses missed at once: 3 + 3 > 4, SSC's counting) takes every drive out of OP with
+/// 0x001A; the master reports it and its recovery, which writes the limit again only to a
+/// reset drive, brings them back. Without the configured limit the same host costs no OP.
+#[test]
+fn a_sync_error_limit_the_bring_up_writes_takes_the_drives_out_of_op() {
+    for limit in [None, Some(4u16)] {
+        let (sim, net, mut eng) = paper_2024_in_op_with(limit);
+        for x in 0..sim.segment().len() {
+            let od = &sim.segment().esc(x).sdo_server().unwrap().od;
+            // The virtual drive's own default is 0 (count, do not react).
+            assert_eq!(
+                od.read_u32(0x10f1, 2),
+                u32::from(limit.unwrap_or(0)),
+                "drive at {x}"
+            );
+        }
+        let mut tr = LateHost {
+            inner: sim,
+            late: vec![(300, 2 * PERIOD_NS + PERIOD_NS / 10)],
+            armed_ns: 0,
+        };
+        let mut driver = CyclicDriver::new(CyclicLimits {
+            max_cycles: Some(700),
+            ..CyclicLimits::default()
+        });
+        driver.set_recovery(
+            net.clone(),
+            RecoveryConfig {
+                sync_error_limit: limit,
+                ..recovery()
+            },
+        );
+        driver.run(&mut tr, &mut eng, 700, None, |_, _| {}).unwrap();
+        let left: Vec<String> = driver
+            .recoveries()
+            .iter()
+            .flat_map(|e| e.left_op())
+            .collect();
+        if limit.is_none() {
+            assert!(left.is_empty(), "no limit, no reaction: {left:?}");
+            continue;
+        }
+        for x in 0..tr.inner.segment().len() {
+            let who = format!("slave {} in SAFE-OP with AL error 0x001a", x + 1);
+            assert!(
+                left.iter().any(|l| l.starts_with(&who)),
+                "drive at {x} not reported: {left:?}"
+            );
+            assert_eq!(
+                tr.inner.segment().esc(x).al_state(),
+                ecsync_wire::AlState::Op,
+                "drive at {x} brought back"
+            );
+        }
+    }
+}
+
+/// A drive whose supported sync modes (0x1C32:04 and 0x1C33:04) lack DC SYNC0 refuses
+/// 0x1C32:01 = 2 with 0x06090030 (as SSC's `CheckSyncTypeValue`): the bring-up leaves it in
+/// free run, as a drive without the objects, and brings the network to OP with the others
+/// on SYNC0.
+#[test]
+fn a_drive_without_dc_sync0_among_its_modes_stays_in_free_run() {
+    let mut sim = SimTransport::new(Segment::new(&preset::paper_2024()).unwrap());
+    for index in [0x1c32, 0x1c33] {
+        // Free run and SM-synchronous only.
+        sim.segment_mut()
+            .esc_mut(4)
+            .sdo_server_mut()
+            .unwrap()
+            .od
+            .set(index, 4, &0x0003u16.to_le_bytes());
+    }
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: 1_000,
+        lock_hold_checks: 50,
+        sync0_shift_ns: SHIFT_NS,
+        sync_error_limit: Some(4),
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |l| bringup(l, cfg));
+    sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
+    for x in 0..sim.segment().len() {
+        let e = sim.segment().esc(x);
+        assert_eq!(e.al_state(), ecsync_wire::AlState::Op, "drive at {x}");
+        assert_eq!(e.runs_on_sync0(), x != 4, "drive at {x}");
+        let od = &e.sdo_server().unwrap().od;
+        assert_eq!(od.read_u32(0x1c32, 1), if x == 4 { 0 } else { 2 });
     }
 }

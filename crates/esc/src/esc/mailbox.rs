@@ -21,6 +21,13 @@
 //!   in the first two of its five manufacturer bytes. It waits in a queue of
 //!   [`EMERGENCY_QUEUE`] (the oldest dropped, as a slave stack's ring does) until SM1 is
 //!   empty and no answer is due, and goes before nothing the master asked for.
+//! - a message the application cannot take gets a mailbox error reply (type 0, ETG.1000.4
+//!   table 30) where ETG's slave stack code (SSC) sends one, with SSC's code: 0x08 for a
+//!   length past the mailbox (`MBX_MailboxWriteInd`), 0x02 for a protocol other than CoE
+//!   (`MailboxServiceInd`), 0x04/0x05 for CoE services a slave does not serve or that do not
+//!   exist (`COE_ServiceInd`), 0x08/0x06 for SDO and SDO Information lengths (`sdoserv.c`; see
+//!   [`MailboxFault`]); the channel is not looked at, as SSC does not
+//!   (tests/mailbox_errors.rs).
 
 use super::Esc;
 use crate::coe::{MailboxFault, SdoServer};
@@ -62,7 +69,8 @@ pub(super) struct MailboxState {
 }
 
 impl MailboxState {
-    pub(super) fn new(layout: MailboxLayout, server: SdoServer) -> Self {
+    pub(super) fn new(layout: MailboxLayout, mut server: SdoServer) -> Self {
+        server.set_request_room(usize::from(layout.out_len).saturating_sub(MAILBOX_HEADER_LEN));
         MailboxState {
             layout,
             server,
@@ -325,6 +333,8 @@ fn answer(
         let _ = emit_mailbox_error(&mut out, ANSWER_ADDRESS, c, code);
         Some(out)
     };
+    // A length past the mailbox: 0x08, SSC's `MBX_MailboxWriteInd` ("size specified in
+    // mailbox header too large"), before anything else (the counter too).
     let Ok(msg) = Mailbox::new_checked(request) else {
         return error(m, MailboxErrorCode::InvalidSize);
     };
@@ -335,9 +345,11 @@ fn answer(
         return None;
     }
     m.last_counter = counter;
-    if msg.channel() != 0 {
-        return error(m, MailboxErrorCode::InvalidChannel);
-    }
+    // The channel is not looked at: SSC's `MBX_MailboxWriteInd` never does (ETG.1000.4 has it
+    // reserved, 0), so a real slave answers a message with another channel as any other and
+    // never sends 0x03 (invalid channel).
+    // A protocol the slave does not have (this one has CoE only; the error type 0 from the
+    // master included): 0x02, SSC's `MailboxServiceInd` default.
     match msg.mailbox_type() {
         Ok(MailboxType::Coe) => {}
         _ => return error(m, MailboxErrorCode::UnsupportedProtocol),
@@ -345,9 +357,16 @@ fn answer(
     let coe = match m.server.handle(msg.payload(), state, room) {
         Ok(Some(c)) => c,
         Ok(None) => return None,
-        Err(MailboxFault::SizeTooShort) => return error(m, MailboxErrorCode::SizeTooShort),
-        Err(MailboxFault::ServiceNotSupported) => {
-            return error(m, MailboxErrorCode::ServiceNotSupported);
+        Err(f) => {
+            return error(
+                m,
+                match f {
+                    MailboxFault::SizeTooShort => MailboxErrorCode::SizeTooShort,
+                    MailboxFault::ServiceNotSupported => MailboxErrorCode::ServiceNotSupported,
+                    MailboxFault::InvalidHeader => MailboxErrorCode::InvalidHeader,
+                    MailboxFault::InvalidSize => MailboxErrorCode::InvalidSize,
+                },
+            );
         }
     };
     Some(coe_message(m, &coe))

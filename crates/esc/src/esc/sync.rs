@@ -31,6 +31,15 @@
 //!   a comparison that sweeps SYNC0 shifts measures the method, not a drive's reaction. A master
 //!   (or a test) writes a limit to make the drive react, as SSC's default of 4 does.
 //!
+//! 0x1C32:0C, "Cycle Time Too Small" (ETG.1020): the application's cycles shorter than its
+//! minimum cycle time 0x1C32:05, so that it could not finish them. On SYNC0 (DC mode) every
+//! pulse of a SYNC0 cycle under :05 counts (OP refuses such a cycle with 0x0036, so only a
+//! cycle time rewritten in OP gets there); synchronous with the SM event (0x1C32:01 = 1) the
+//! application runs on each outputs' arrival, and outputs that come less than :05 after the
+//! ones before count. (SSC counts its application still running when the next event comes;
+//! the virtual application takes :05 exactly, so this is that count.) In SM-synchronous mode
+//! the time is the ESC's local clock (system time where it has one); :0C is counted in OP.
+//!
 //! Counting happens lazily, when outputs arrive (and when the master reads the counter), so
 //! the cyclic path does one division per frame and allocates nothing: the pulses in the
 //! interval between two output writes are n; n - 1 of them found no new outputs.
@@ -40,6 +49,8 @@ use ecsync_wire::{AlState, AlStatusCode};
 
 /// The ETG.1020 sync mode of 0x1C32:01 that runs the application on SYNC0.
 pub const SYNC_MODE_DC_SYNC0: u32 = 2;
+/// The ETG.1020 sync mode of 0x1C32:01 that runs the application on each SM2 event.
+pub const SYNC_MODE_SM: u32 = 1;
 /// What a missed SM event adds to the sync error counter (SSC).
 const ERROR_PER_MISS: u32 = 3;
 
@@ -66,6 +77,14 @@ pub(super) struct SyncMonitor {
     pub(super) pll_limit_ns: u32,
     /// 0x1C32:20: the last cycle had a missed SM event.
     pub(super) sync_error: bool,
+    /// The application runs on each SM2 event (0x1C32:01 = 1).
+    pub(super) sm_mode: bool,
+    /// 0x1C32:05, the minimum cycle time, ns.
+    pub(super) min_cycle_ns: u32,
+    /// 0x1C32:0C: application cycles shorter than :05.
+    pub(super) too_small: u64,
+    /// The last SM2 event in SM-synchronous mode, in OP, ns.
+    last_sm_event_ns: Option<u64>,
     /// The counters changed since the OD was last brought up to date.
     pub(super) dirty: bool,
 }
@@ -125,6 +144,11 @@ impl SyncMonitor {
             (t_ns - self.next_pulse_ns) / c + 1
         };
         self.next_pulse_ns += n * c;
+        if cycle < self.min_cycle_ns && n > 0 {
+            // Every one of these pulses started a cycle shorter than the application needs.
+            self.too_small = self.too_small.saturating_add(n);
+            self.dirty = true;
+        }
         let missed_now = n.saturating_sub(1);
         let new = missed_now.saturating_sub(self.counted_since_write);
         self.counted_since_write = 0;
@@ -177,6 +201,22 @@ impl SyncMonitor {
         SyncReaction::None
     }
 
+    /// An SM2 event (outputs) at `t_ns` in SM-synchronous mode: one sooner than the minimum
+    /// cycle time after the one before is a cycle too small.
+    #[inline]
+    pub(super) fn sm_event_at(&mut self, t_ns: u64, in_op: bool) {
+        if !in_op {
+            self.last_sm_event_ns = None;
+            return;
+        }
+        if let Some(last) = self.last_sm_event_ns.replace(t_ns)
+            && t_ns.saturating_sub(last) < u64::from(self.min_cycle_ns)
+        {
+            self.too_small = self.too_small.saturating_add(1);
+            self.dirty = true;
+        }
+    }
+
     /// The sequence ends (the drive left OP, SYNC0 stopped): the next outputs start a new one.
     pub(super) fn stop(&mut self) {
         self.last_write_ns = None;
@@ -189,10 +229,24 @@ impl Esc {
     /// the SYNC0 deadline's check.
     #[inline]
     pub(super) fn end_of_frame(&mut self, t_end_ps: u64) {
-        if !std::mem::take(&mut self.sync_pending) || !self.sync.dc_mode {
+        if !std::mem::take(&mut self.sync_pending) {
             return;
         }
-        self.sync_outputs(t_end_ps);
+        if self.sync.dc_mode {
+            self.sync_outputs(t_end_ps);
+        } else if self.sync.sm_mode {
+            self.sync_sm_event(t_end_ps);
+        }
+    }
+
+    #[inline(never)]
+    fn sync_sm_event(&mut self, t_end_ps: u64) {
+        let t_ns = match self.dc.as_ref() {
+            Some(dc) if dc.is_64bit() => dc.system_time_split(t_end_ps).0,
+            _ => t_end_ps / 1000,
+        };
+        let in_op = self.al_state == AlState::Op;
+        self.sync.sm_event_at(t_ns, in_op);
     }
 
     #[inline(never)]
@@ -234,13 +288,17 @@ impl Esc {
         let Some(c) = self.sdo_server() else {
             return;
         };
-        let dc_mode = c.od.read_u32(0x1c32, 1) == SYNC_MODE_DC_SYNC0;
+        let mode = c.od.read_u32(0x1c32, 1);
+        let dc_mode = mode == SYNC_MODE_DC_SYNC0;
         let limit = c.od.read_u32(0x10f1, 2);
+        let min_cycle_ns = c.od.read_u32(0x1c32, 5);
         if dc_mode != self.sync.dc_mode {
             self.sync.stop();
         }
         self.sync.dc_mode = dc_mode;
+        self.sync.sm_mode = mode == SYNC_MODE_SM;
         self.sync.limit = limit;
+        self.sync.min_cycle_ns = min_cycle_ns;
     }
 
     /// The SYNC0 activation changed: a drive running on SYNC0 in OP whose SYNC0 stops has a
@@ -260,11 +318,14 @@ impl Esc {
         if !std::mem::take(&mut self.sync.dirty) {
             return;
         }
-        let (missed, error) = (self.sync.missed, self.sync.sync_error);
+        let (missed, error, too_small) =
+            (self.sync.missed, self.sync.sync_error, self.sync.too_small);
         if let Some(c) = self.sdo_server_mut() {
-            // UNSIGNED16: it stops at its maximum.
+            // UNSIGNED16: they stop at their maximum.
             let v = missed.min(u64::from(u16::MAX)) as u16;
             c.od.set(0x1c32, 0x0b, &v.to_le_bytes());
+            let v = too_small.min(u64::from(u16::MAX)) as u16;
+            c.od.set(0x1c32, 0x0c, &v.to_le_bytes());
             c.od.set(0x1c32, 0x20, &[u8::from(error)]);
         }
     }

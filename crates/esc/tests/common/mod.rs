@@ -4,7 +4,9 @@
 
 #![allow(dead_code)] // each test binary uses its own part
 
-use ecsync_esc::Segment;
+use ecsync_esc::clock::CrystalParams;
+use ecsync_esc::model::{DeviceInfo, EscModel};
+use ecsync_esc::{Esc, Segment};
 use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
 use pcap_file::pcapng::blocks::interface_description::InterfaceDescriptionOption;
 use pcap_file::pcapng::{Block, PcapNgReader};
@@ -212,4 +214,120 @@ pub fn u32_of(d: &[u8]) -> u32 {
 /// The little-endian u64 at the start of `d`.
 pub fn u64_of(d: &[u8]) -> u64 {
     u64::from_le_bytes(d[..8].try_into().unwrap())
+}
+
+// One drive's mailbox driven datagram by datagram (the mailbox and CoE tests).
+
+pub const BRD: u8 = 0x07;
+pub const BWR: u8 = 0x08;
+pub const MS: u64 = 1_000_000_000;
+
+/// A datagram of the datasheet's layout: command, index, ADP, ADO, length, IRQ, data, WKC.
+pub fn dg(cmd: u8, ado: u16, data: &[u8]) -> Vec<u8> {
+    let mut v = vec![cmd, 0, 0, 0];
+    v.extend_from_slice(&ado.to_le_bytes());
+    v.extend_from_slice(&(data.len() as u16).to_le_bytes());
+    v.extend_from_slice(&[0, 0]);
+    v.extend_from_slice(data);
+    v.extend_from_slice(&[0, 0]);
+    v
+}
+
+pub fn wkc(d: &[u8]) -> u16 {
+    u16::from_le_bytes([d[d.len() - 2], d[d.len() - 1]])
+}
+
+/// One drive (its ESC alone, driven datagram by datagram) with its mailbox SyncManagers set
+/// up, in PRE-OP; messages written into SM0 and answers read from SM1 1 ms later.
+pub struct MbxDrive {
+    pub e: Esc,
+    pub t_ps: u64,
+    /// The master's mailbox counter, 1 to 7 in turn.
+    pub counter: u8,
+    /// SM0's and SM1's start and length.
+    mbx: (u16, u16, u16, u16),
+}
+
+impl MbxDrive {
+    /// The servo drive.
+    pub fn servo() -> Self {
+        Self::with(DeviceInfo::servo_drive(7))
+    }
+
+    /// A drive of `dev` (its mailbox, 128 bytes at 0x1000 and 0x1080 unless it says
+    /// otherwise), the mailbox SyncManagers set up as its layout says, in PRE-OP.
+    pub fn with(dev: DeviceInfo) -> Self {
+        let l = dev.mailbox.expect("a mailbox");
+        let mut e = Esc::new(EscModel::servo_mii(), dev, CrystalParams::default());
+        e.set_links([true, false, false, false]);
+        let mut d = MbxDrive {
+            e,
+            t_ps: 0,
+            counter: 0,
+            mbx: (0, 0, 0, 0),
+        };
+        // SM0 mailbox written by the master (control 0x26), SM1 read (0x22), enabled.
+        let sm = |start: u16, len: u16, control: u8| {
+            let mut v = start.to_le_bytes().to_vec();
+            v.extend_from_slice(&len.to_le_bytes());
+            v.extend_from_slice(&[control, 0x00, 0x01, 0x00]);
+            v
+        };
+        d.put(0x0800, &sm(l.out_start, l.out_len, 0x26));
+        d.put(0x0808, &sm(l.in_start, l.in_len, 0x22));
+        d.mbx = (l.out_start, l.out_len, l.in_start, l.in_len);
+        d.put(0x0120, &[0x02, 0x00]);
+        assert_eq!(d.get(0x0130, 2).1, [0x02, 0x00], "PRE-OP");
+        d
+    }
+
+    pub fn put(&mut self, ado: u16, data: &[u8]) -> u16 {
+        let mut d = dg(BWR, ado, data);
+        self.e.process_datagram(&mut d, self.t_ps);
+        wkc(&d)
+    }
+
+    pub fn get(&mut self, ado: u16, n: usize) -> (u16, Vec<u8>) {
+        let mut d = dg(BRD, ado, &vec![0; n]);
+        self.e.process_datagram(&mut d, self.t_ps);
+        (wkc(&d), d[10..10 + n].to_vec())
+    }
+
+    /// The next master counter (1 to 7).
+    pub fn next_counter(&mut self) -> u8 {
+        self.counter = self.counter % 7 + 1;
+        self.counter
+    }
+
+    /// Writes mailbox message `msg` (header included, padded to the mailbox) and returns the
+    /// answer 1 ms later (`None`: SM1 stayed empty), cut to its header's length.
+    pub fn send_raw(&mut self, msg: &[u8]) -> Option<Vec<u8>> {
+        let (out_start, out_len, in_start, in_len) = self.mbx;
+        let mut m = msg.to_vec();
+        m.resize(usize::from(out_len), 0);
+        self.t_ps += MS;
+        assert_eq!(self.put(out_start, &m), 1, "SM0 takes the message");
+        self.t_ps += MS;
+        let (w, r) = self.get(in_start, usize::from(in_len));
+        if w == 0 {
+            return None;
+        }
+        let len = usize::from(u16::from_le_bytes([r[0], r[1]]));
+        Some(r[..6 + len.min(usize::from(in_len) - 6)].to_vec())
+    }
+
+    /// A message of type `ty` (4 bits) with `data` after the header, the length its own, the
+    /// next counter; its answer.
+    pub fn send(&mut self, ty: u8, data: &[u8]) -> Option<Vec<u8>> {
+        let c = self.next_counter();
+        let mut m = (data.len() as u16).to_le_bytes().to_vec();
+        m.extend_from_slice(&[0, 0, 0, ty | (c << 4)]);
+        m.extend_from_slice(data);
+        self.send_raw(&m)
+    }
+
+    /// A CoE message (type 3) with `data` after the mailbox header.
+    pub fn coe(&mut self, data: &[u8]) -> Vec<u8> {
+        self.send(3, data).expect("an answer")
+    }
 }
