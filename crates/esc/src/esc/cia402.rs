@@ -19,6 +19,13 @@
 //!   the velocity actual value 0x606C is the position's change per cycle scaled to counts per
 //!   second (the cycle time of 0x1C32:02). Without operation enabled the position holds.
 //!
+//! When it runs: the application steps as the frame's inputs pass the drive, once a cycle, not
+//! at the SYNC0 pulse itself. For frames before their SYNC0 (every frame the comparison calls
+//! on time) this is the same thing: the target taken is the one the pulse would take and the
+//! inputs read are those copied for the next frame. A late frame's target takes effect with
+//! that frame instead of at the next pulse (a real drive would run one cycle on the old
+//! target); the SYNC0 deadline itself, what 0x1C32:0B counts, is kept by the pulse (sync.rs).
+//!
 //! Assumptions, written down: an ideal axis (no dynamics beyond the one cycle of latency, no
 //! limits, no torque: 0x6077 stays 0); entries not named here (vendor objects, padding) keep
 //! zeros; entries must be whole bytes. A device without 0x6040 and 0x6041 mapped is not a
