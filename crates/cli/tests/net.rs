@@ -163,8 +163,39 @@ fn lines(p: &Path) -> usize {
     std::fs::read_to_string(p).map_or(0, |s| s.lines().count())
 }
 
-/// `ecsync run` with `method` for 10 s at 1 ms against `ecsync serve`, checked.
+thread_local! {
+    /// The wake-up p99 of the last `ecsync run` of this thread, us.
+    static LAST_WAKE_P99_US: std::cell::Cell<f64> = const { std::cell::Cell::new(f64::NAN) };
+}
+
+/// A wake-up p99 past this says the host, not the path, was in trouble: this shared VM has
+/// phases in which an idle guest's 1 ms timer wakes a millisecond late one cycle in a hundred
+/// (its quiet p99 is 80-150 us), and `serve`'s segment, which runs on the same cores in real
+/// time, then takes its frames late as well.
+const NOISY_HOST_P99_US: f64 = 400.0;
+
+/// `ecsync run` with `method` for 10 s at 1 ms against `ecsync serve`, checked; once more if
+/// the checks failed while the host was noisy (see [`NOISY_HOST_P99_US`]), and the second run
+/// must pass them all.
 fn run_method(pair: &NetPair, method: &str) {
+    LAST_WAKE_P99_US.with(|c| c.set(f64::NAN));
+    let first = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        run_method_once(pair, method);
+    }));
+    if let Err(e) = first {
+        let p99 = LAST_WAKE_P99_US.with(|c| c.get());
+        if p99 > NOISY_HOST_P99_US {
+            println!(
+                "{method}: the checks failed with the host's wake-up p99 at {p99:.0} us (noisy): once more"
+            );
+            run_method_once(pair, method);
+        } else {
+            std::panic::resume_unwind(e);
+        }
+    }
+}
+
+fn run_method_once(pair: &NetPair, method: &str) {
     let dir = tmp(method);
     let csv = dir.join("cycles.csv");
     let t0 = Instant::now();
@@ -195,6 +226,8 @@ fn run_method(pair: &NetPair, method: &str) {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "ecsync run --method {method}: {stderr}");
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON summary");
+    let p99 = j["wake_latency"]["p99_us"].as_f64().unwrap_or(f64::NAN);
+    LAST_WAKE_P99_US.with(|c| c.set(p99));
     let b = &j["bringup"];
     // Every slave found, delays within 20 ns of the preset's.
     let truth = true_delays();
