@@ -1037,14 +1037,9 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 };
                 l.into_iter().map(move |l| LeftOpRow {
                     slave: l.position + 1,
-                    state: ecsync_wire::AlState::from_register(l.state)
-                        .map_or_else(|_| format!("state 0x{:X}", l.state), |s| s.to_string()),
-                    al_status_code: if l.error { l.code } else { 0 },
-                    reason: if l.error {
-                        ecsync_wire::AlStatusCode::from(l.code).to_string()
-                    } else {
-                        "no error indication".to_string()
-                    },
+                    state: l.state_name(),
+                    al_status_code: l.al_status_code(),
+                    reason: l.reason(),
                     found_s: found,
                     back_in_op_s: back,
                 })

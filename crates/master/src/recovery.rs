@@ -78,11 +78,31 @@ pub struct LeftOp {
     pub code: u16,
 }
 
+impl LeftOp {
+    /// The state it was in, by name (or its register value where it is none).
+    pub fn state_name(&self) -> String {
+        AlState::from_register(self.state)
+            .map_or_else(|_| format!("state 0x{:X}", self.state), |s| s.to_string())
+    }
+
+    /// The AL status code it gave, 0 without the error indication.
+    pub fn al_status_code(&self) -> u16 {
+        if self.error { self.code } else { 0 }
+    }
+
+    /// Why, in words: the AL status code's meaning.
+    pub fn reason(&self) -> String {
+        if self.error {
+            ecsync_wire::AlStatusCode::from(self.code).to_string()
+        } else {
+            "no error indication".to_string()
+        }
+    }
+}
+
 impl std::fmt::Display for LeftOp {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let state = AlState::from_register(self.state)
-            .map_or_else(|_| format!("state 0x{:X}", self.state), |s| s.to_string());
-        write!(f, "slave {} in {state}", self.position + 1)?;
+        write!(f, "slave {} in {}", self.position + 1, self.state_name())?;
         if self.error {
             let code = ecsync_wire::AlStatusCode::from(self.code);
             write!(f, " with AL error {code}")?;
