@@ -479,21 +479,45 @@ fn run_through_faults(pair: &NetPair, method: &str, faults: &Path) {
         .skip(1)
         .filter_map(|l| l.split(',').nth(c)?.parse().ok())
         .collect();
-    let last: Vec<f64> = tail[tail.len().saturating_sub(900)..].to_vec();
-    let worst = last.iter().copied().fold(0.0f64, f64::max);
-    let bound = if method == "bus-shift" {
-        200_000.0
-    } else {
-        1_000.0
-    };
+    let mut last: Vec<f64> = tail[tail.len().saturating_sub(900)..].to_vec();
+    last.sort_by(f64::total_cmp);
+    let worst = last.last().copied().unwrap_or(f64::NAN);
+    let median = last[last.len() / 2];
     println!(
-        "{method}: {lost} of {cycles} cycles lost, recoveries {}, last second's |0x092C| max {worst} ns",
+        "{method}: {lost} of {cycles} cycles lost, recoveries {}, last second's |0x092C| median {median} ns, max {worst} ns",
         j["recoveries"]
     );
-    assert!(
-        worst < bound,
-        "{method}: |0x092C| {worst} ns in the last second"
-    );
+    if method == "bus-shift" {
+        // The master's timestamp is written to the reference every cycle, so |0x092C| shows
+        // this host's send jitter, which no threshold bounds on a shared machine (see
+        // run_method; a noisy phase of this VM gave a 219 us single cycle). Following means
+        // medians at the jitter's microseconds: the slaves follow the reference (|0x092C|)
+        // and the reference, whose time its power cycle reset, follows the master again
+        // (|t_ra - t_ms|).
+        assert!(
+            median < 10_000.0,
+            "{method}: median |0x092C| {median} ns in the last second"
+        );
+        let e = header.iter().position(|c| *c == "error_ns").unwrap();
+        let mut err: Vec<f64> = text
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.split(',').nth(e)?.parse::<f64>().ok())
+            .map(f64::abs)
+            .collect();
+        err = err.split_off(err.len().saturating_sub(900));
+        err.sort_by(f64::total_cmp);
+        let err_median = err[err.len() / 2];
+        assert!(
+            err_median < 20_000.0,
+            "{method}: median |t_ra - t_ms| {err_median} ns in the last second"
+        );
+    } else {
+        assert!(
+            worst < 1_000.0,
+            "{method}: |0x092C| {worst} ns in the last second"
+        );
+    }
 }
 
 #[test]

@@ -355,7 +355,7 @@ struct ShapeCache {
 const NOT_INDEX: u64 = !0xff00;
 
 /// Sets of the shape cache, and the shapes remembered at once.
-const SHAPE_SETS: usize = 64;
+const SHAPE_SETS: usize = 128;
 const SHAPE_SLOTS: usize = 2 * SHAPE_SETS;
 
 impl ShapeCache {
@@ -368,13 +368,24 @@ impl ShapeCache {
     }
 
     /// The set of a frame: its first datagram's command and address (never its index, which
-    /// a master changes every cycle to tell its replies apart).
+    /// a master changes every cycle to tell its replies apart). A logical command's set is
+    /// its address's kilobyte: the LRWs of a large network's cycle, a frame's worth of
+    /// logical addresses apart, then fall into sets of their own (a hash of the address put
+    /// three of 1 000 drives' 24 into one set, which then decoded two of them every cycle).
     #[inline]
     fn set_of(frame: &[u8]) -> usize {
         match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + 6) {
             Some(h) => {
                 let addr = u32::from_le_bytes([h[2], h[3], h[4], h[5]]);
-                (usize::from(h[0]) * 7 + (addr ^ addr >> 16 ^ addr >> 8) as usize) % SHAPE_SETS
+                let cmd = usize::from(h[0]);
+                let logical = ecsync_wire::Command::try_from(h[0])
+                    .is_ok_and(|c| c.address_mode() == ecsync_wire::AddressMode::Logical);
+                let spread = if logical {
+                    (addr >> 10) as usize
+                } else {
+                    (addr ^ addr >> 16 ^ addr >> 8) as usize
+                };
+                (cmd * 7 + spread) % SHAPE_SETS
             }
             None => 0,
         }
