@@ -62,53 +62,75 @@ fn rss_kib() -> Option<u64> {
     l.split_whitespace().nth(1)?.parse().ok()
 }
 
-/// `--slaves`: each line timed the same way, the ratios in one run.
+/// `--slaves`: each line timed the same way, the ratios in one run. The lines are brought up
+/// first and their repeats interleaved (every line once, then every line again): the phases
+/// in which a shared machine's neighbours slow it down fall on every line alike, not on
+/// whichever line was running then.
 fn run_lines(args: &Args) -> Result<ExitCode> {
-    let mut out: Vec<LineOut> = Vec::new();
+    struct Line {
+        b: CycleBench,
+        work: Vec<u8>,
+        cycles: u64,
+        walls: Vec<f64>,
+        rss_kib_per_slave: Option<f64>,
+    }
+    let mut lines: Vec<Line> = Vec::new();
     for &n in &args.slaves {
         let n = n as usize;
         let before = rss_kib();
-        let mut b = CycleBench::line(n);
+        let b = CycleBench::line(n);
         let after = rss_kib();
         let longest = b.frames.iter().map(Vec::len).max().unwrap_or(0);
-        let mut work = vec![0u8; longest];
-        let cycles = (args.cycles * 6 / n as u64).max(1);
-        b.run((cycles / 10).max(1), &mut work);
-        let mut walls = Vec::with_capacity(args.repeats as usize);
-        let mut wkc = 0;
-        for _ in 0..args.repeats {
-            let t0 = Instant::now();
-            wkc = b.run(cycles, &mut work);
-            walls.push(t0.elapsed().as_secs_f64());
-        }
-        ensure!(
-            wkc == b.expected_lrw_wkc,
-            "{n} drives: the segment answered the LRWs with working counter {wkc}, expected {}",
-            b.expected_lrw_wkc
-        );
-        walls.sort_by(f64::total_cmp);
-        let per = |w: f64| w * 1e9 / (cycles * n as u64) as f64;
-        let ns = per(walls[walls.len() / 2]);
-        let first = out.first().map_or(ns, |f| f.ns_per_slave_cycle);
-        out.push(LineOut {
-            slaves: n,
-            frames: b.frames.len(),
-            cycle_us: b.cycle_ps / 1_000_000,
-            cycles,
-            ns_per_slave_cycle: ns,
-            ns_per_slave_cycle_max: per(walls[walls.len() - 1]),
-            ns_per_slave_cycle_min: per(walls[0]),
-            ratio_to_first: ns / first,
+        lines.push(Line {
+            b,
+            work: vec![0u8; longest],
+            cycles: (args.cycles * 6 / n as u64).max(1),
+            walls: Vec::with_capacity(args.repeats as usize),
             rss_kib_per_slave: before
                 .zip(after)
                 .map(|(a, b)| b.saturating_sub(a) as f64 / n as f64),
+        });
+    }
+    for l in &mut lines {
+        l.b.run((l.cycles / 10).max(1), &mut l.work);
+    }
+    for _ in 0..args.repeats {
+        for l in &mut lines {
+            let t0 = Instant::now();
+            let wkc = l.b.run(l.cycles, &mut l.work);
+            l.walls.push(t0.elapsed().as_secs_f64());
+            ensure!(
+                wkc == l.b.expected_lrw_wkc,
+                "{} drives: the segment answered the LRWs with working counter {wkc}, expected {}",
+                l.b.slaves(),
+                l.b.expected_lrw_wkc
+            );
+        }
+    }
+    let mut out: Vec<LineOut> = Vec::new();
+    for l in &mut lines {
+        let n = l.b.slaves();
+        l.walls.sort_by(f64::total_cmp);
+        let per = |w: f64| w * 1e9 / (l.cycles * n as u64) as f64;
+        let ns = per(l.walls[l.walls.len() / 2]);
+        let first = out.first().map_or(ns, |f| f.ns_per_slave_cycle);
+        out.push(LineOut {
+            slaves: n,
+            frames: l.b.frames.len(),
+            cycle_us: l.b.cycle_ps / 1_000_000,
+            cycles: l.cycles,
+            ns_per_slave_cycle: ns,
+            ns_per_slave_cycle_max: per(l.walls[l.walls.len() - 1]),
+            ns_per_slave_cycle_min: per(l.walls[0]),
+            ratio_to_first: ns / first,
+            rss_kib_per_slave: l.rss_kib_per_slave,
         });
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         println!(
-            "lines of servo drives, the cyclic engine's frames back to back; {} repeats, the median:",
+            "lines of servo drives, the cyclic engine's frames back to back; {} repeats of every line, interleaved, the median:",
             args.repeats
         );
         println!("  drives  frames  cycle  ns/slave-cycle  ratio  memory/slave");

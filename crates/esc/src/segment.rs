@@ -371,7 +371,8 @@ impl ShapeCache {
     /// a master changes every cycle to tell its replies apart). A logical command's set is
     /// its address's kilobyte: the LRWs of a large network's cycle, a frame's worth of
     /// logical addresses apart, then fall into sets of their own (a hash of the address put
-    /// three of 1 000 drives' 24 into one set, which then decoded two of them every cycle).
+    /// three of a 1 000-drive cycle's LRWs into one set when each frame held a group of
+    /// slaves, and two of them were then decoded every cycle).
     #[inline]
     fn set_of(frame: &[u8]) -> usize {
         match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + 6) {

@@ -1515,28 +1515,40 @@ struct ProcessImage {
     lrw: Vec<crate::pdi::LrwChunk>,
 }
 
-/// Process data mapping (see [`crate::pdi::layout`]), recorded in each slave's `outputs` and
-/// `inputs`. No frames: the SyncManagers and FMMUs are written in [`Phase::ProcessData`].
+/// Process data mapping: outputs of all slaves, then inputs, in the logical image (recorded
+/// in each slave's `outputs` and `inputs`). No frames: the SyncManagers and FMMUs are written
+/// in [`Phase::ProcessData`].
 fn map_process_image(slaves: &mut [SlaveInfo]) -> ProcessImage {
-    let sm = |s: &SlaveInfo, kind: u8| s.sms.iter().find(|m| m.kind == kind).map(|m| m.len);
-    let sizes: Vec<(u16, u16)> = slaves
+    let mut logical = 0u32;
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 3) {
+            s.outputs = (logical, sm.len);
+            logical += u32::from(sm.len);
+        }
+    }
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 4) {
+            s.inputs = (logical, sm.len);
+            logical += u32::from(sm.len);
+        }
+    }
+    let pdi_len = logical;
+    // The LRWs of the cyclic exchange: one when the image fits a frame, else as many as it
+    // needs, split on slave boundaries.
+    let mut ranges: Vec<(u32, u32, u16)> = slaves
         .iter()
-        .map(|s| (sm(s, 3).unwrap_or(0), sm(s, 4).unwrap_or(0)))
+        .filter(|s| s.outputs.1 > 0)
+        .map(|s| (s.outputs.0, u32::from(s.outputs.1), 2))
+        .chain(
+            slaves
+                .iter()
+                .filter(|s| s.inputs.1 > 0)
+                .map(|s| (s.inputs.0, u32::from(s.inputs.1), 1)),
+        )
         .collect();
-    let l = crate::pdi::layout(&sizes);
-    // A slave without the SyncManager keeps (0, 0).
-    for (s, at) in slaves.iter_mut().zip(&l.slaves) {
-        if sm(s, 3).is_some() {
-            s.outputs = at.outputs;
-        }
-        if sm(s, 4).is_some() {
-            s.inputs = at.inputs;
-        }
-    }
-    ProcessImage {
-        pdi_len: l.pdi_len,
-        lrw: l.lrw,
-    }
+    ranges.sort_by_key(|r| r.0);
+    let lrw = crate::pdi::lrw_chunks(pdi_len, &ranges);
+    ProcessImage { pdi_len, lrw }
 }
 
 /// [`Phase::PreOp`], [`Phase::SafeOp`]: requests `state` from every slave in turn and waits

@@ -959,7 +959,11 @@ mod tests {
     /// carries the FRMW), the BRD in the last; the working counters add up.
     #[test]
     fn a_large_image_takes_several_frames() {
-        let lrw = crate::pdi::layout(&[(16, 18); 200]).lrw;
+        let mut ranges = Vec::new();
+        for i in 0..200u32 {
+            ranges.push((34 * i, 34, 3));
+        }
+        let lrw = crate::pdi::lrw_chunks(6800, &ranges);
         let cfg = CyclicConfig {
             period_ns: 4_000_000,
             reference_station: 0x1000,

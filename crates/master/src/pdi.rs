@@ -1,13 +1,11 @@
 //! The logical process image in LRW datagrams of at most a frame each.
 //!
-//! An image that fits one frame is every slave's outputs, then every slave's inputs, in one LRW.
-//! A larger one is split into groups of consecutive slaves, each group's outputs then its inputs
-//! in one LRW of at most a frame (as TwinCAT assigns slaves to frames), so that no slave's image
-//! is split and a slave's outputs and inputs travel in the same frame: the slave then acts in
-//! two frames of the cycle (the first one's DC datagrams and its own LRW), not three. The
-//! working counter each LRW must return is known: 2 for every slave whose outputs it writes, 1
-//! for every slave whose inputs it reads (datasheet: an LRW counts 1 for a read, 2 for a write,
-//! per slave and datagram).
+//! The bring-up maps every slave's outputs, then every slave's inputs, one after the other into
+//! the logical address space. A network whose image is larger than a frame's payload needs
+//! several LRWs: each covers a contiguous range that ends on a slave's boundary, so that no
+//! slave's image is split, and the working counter each must return is known: 2 for every
+//! slave whose outputs it writes, 1 for every slave whose inputs it reads (datasheet: an LRW
+//! counts 1 for a read, 2 for a write, per slave and datagram).
 
 use ecsync_wire::{DATAGRAM_OVERHEAD, ECAT_HEADER_LEN, ETH_HEADER_LEN, MAX_FRAME_LEN};
 
@@ -28,80 +26,44 @@ pub const FRAME_PAYLOAD: usize = MAX_FRAME_LEN - ETH_HEADER_LEN - ECAT_HEADER_LE
 /// The largest LRW data that fits a frame on its own.
 pub const MAX_LRW_DATA: usize = FRAME_PAYLOAD - DATAGRAM_OVERHEAD;
 
-/// Where one slave's process data sits in the logical image: `(logical address, bytes)` of
-/// its outputs and of its inputs (0 bytes: none, at the place it would have had).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct SlaveImage {
-    /// Outputs (RxPDO): logical address and bytes.
-    pub outputs: (u32, u16),
-    /// Inputs (TxPDO): logical address and bytes.
-    pub inputs: (u32, u16),
-}
-
-/// The logical image of slaves with `sizes` (output and input bytes each, in network order).
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
-pub struct ImageLayout {
-    /// Each slave's place, in the order of `sizes`.
-    pub slaves: Vec<SlaveImage>,
-    /// Bytes of the whole image.
-    pub pdi_len: u32,
-    /// Its LRWs, in logical order, contiguous.
-    pub lrw: Vec<LrwChunk>,
-}
-
-/// Lays out the image of slaves with `sizes` (see the module docs). A single slave larger than
-/// [`MAX_LRW_DATA`] gets an LRW of its own, which then does not fit a frame (the cyclic
-/// engine's frame plan refuses it).
-pub fn layout(sizes: &[(u16, u16)]) -> ImageLayout {
-    let bytes = |&(o, i): &(u16, u16)| u32::from(o) + u32::from(i);
-    let total: u32 = sizes.iter().map(bytes).sum();
+/// Splits the image of `ranges` (each slave's `(logical, len, wkc)` range, in logical order,
+/// outputs with wkc 2, inputs with 1) into LRWs of at most [`MAX_LRW_DATA`] bytes. One chunk
+/// when the whole image fits.
+pub fn lrw_chunks(pdi_len: u32, ranges: &[(u32, u32, u16)]) -> Vec<LrwChunk> {
+    if pdi_len == 0 {
+        return Vec::new();
+    }
     let max = MAX_LRW_DATA as u32;
-    // Groups of consecutive slaves [from, to): one when everything fits.
-    let mut groups: Vec<(usize, usize)> = Vec::new();
-    if total <= max {
-        groups.push((0, sizes.len()));
-    } else {
-        let (mut from, mut in_group) = (0, 0u32);
-        for (i, s) in sizes.iter().enumerate() {
-            if in_group + bytes(s) > max && in_group > 0 {
-                groups.push((from, i));
-                (from, in_group) = (i, 0);
-            }
-            in_group += bytes(s);
-        }
-        groups.push((from, sizes.len()));
+    if pdi_len <= max {
+        return vec![LrwChunk {
+            logical: 0,
+            len: pdi_len,
+            expected_wkc: ranges.iter().map(|r| r.2).sum(),
+        }];
     }
-    let mut out = ImageLayout {
-        slaves: vec![SlaveImage::default(); sizes.len()],
-        ..ImageLayout::default()
+    let mut out: Vec<LrwChunk> = Vec::new();
+    let mut cur = LrwChunk {
+        logical: 0,
+        len: 0,
+        expected_wkc: 0,
     };
-    let mut logical = 0u32;
-    for (from, to) in groups {
-        let start = logical;
-        let mut expected_wkc = 0u16;
-        for (s, &(o, _)) in out.slaves[from..to].iter_mut().zip(&sizes[from..to]) {
-            s.outputs = (logical, o);
-            logical += u32::from(o);
-            if o > 0 {
-                expected_wkc = expected_wkc.wrapping_add(2);
-            }
+    for &(logical, len, wkc) in ranges {
+        let end = logical + len;
+        if end - cur.logical > max && cur.len > 0 {
+            out.push(cur);
+            cur = LrwChunk {
+                logical: cur.logical + cur.len,
+                len: 0,
+                expected_wkc: 0,
+            };
         }
-        for (s, &(_, i)) in out.slaves[from..to].iter_mut().zip(&sizes[from..to]) {
-            s.inputs = (logical, i);
-            logical += u32::from(i);
-            if i > 0 {
-                expected_wkc = expected_wkc.wrapping_add(1);
-            }
-        }
-        if logical > start {
-            out.lrw.push(LrwChunk {
-                logical: start,
-                len: logical - start,
-                expected_wkc,
-            });
-        }
+        cur.len = end - cur.logical;
+        cur.expected_wkc += wkc;
     }
-    out.pdi_len = logical;
+    if cur.len > 0 || out.is_empty() {
+        out.push(cur);
+    }
+    // Gaps after the last range (none in the bring-up's packed image) stay out.
     out
 }
 
@@ -110,60 +72,42 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_small_image_is_every_output_then_every_input_in_one_lrw() {
-        let l = layout(&[(16, 18), (16, 18), (0, 4), (2, 0)]);
+    fn a_small_image_is_one_lrw() {
+        let r = [(0, 16, 2), (16, 16, 2), (32, 18, 1), (50, 18, 1)];
         assert_eq!(
-            l.lrw,
+            lrw_chunks(68, &r),
             [LrwChunk {
                 logical: 0,
-                len: 74,
-                expected_wkc: 2 + 2 + 2 + 1 + 1 + 1
+                len: 68,
+                expected_wkc: 6
             }]
         );
-        let at: Vec<_> = l.slaves.iter().map(|s| (s.outputs, s.inputs)).collect();
-        assert_eq!(
-            at,
-            [
-                ((0, 16), (34, 18)),
-                ((16, 16), (52, 18)),
-                ((32, 0), (70, 4)),
-                ((32, 2), (74, 0)),
-            ]
-        );
-        assert_eq!(l.pdi_len, 74);
     }
 
     #[test]
-    fn a_large_image_is_split_into_groups_of_whole_slaves() {
-        // 100 slaves of 16 output and 18 input bytes: 3400 bytes, 43 slaves to a frame.
-        let sizes = vec![(16u16, 18u16); 100];
-        let l = layout(&sizes);
-        assert_eq!(l.pdi_len, 3400);
-        assert_eq!(l.lrw.len(), 3, "{:?}", l.lrw);
+    fn a_large_image_is_split_on_slave_boundaries() {
+        // 100 slaves of 16 output and 18 input bytes: 3400 bytes.
+        let mut r = Vec::new();
+        for i in 0..100u32 {
+            r.push((16 * i, 16, 2));
+        }
+        for i in 0..100u32 {
+            r.push((1600 + 18 * i, 18, 1));
+        }
+        let c = lrw_chunks(3400, &r);
+        assert!(c.len() >= 3, "{c:?}");
         let mut at = 0;
-        for c in &l.lrw {
-            assert_eq!(c.logical, at, "contiguous");
-            assert!(c.len as usize <= MAX_LRW_DATA);
-            at += c.len;
-            // Every slave has both its outputs and its inputs in one chunk, or none there.
-            let inside =
-                |a: (u32, u16)| a.0 >= c.logical && a.0 + u32::from(a.1) <= c.logical + c.len;
-            let held: Vec<_> = l.slaves.iter().filter(|s| inside(s.outputs)).collect();
-            assert!(held.iter().all(|s| inside(s.inputs)));
-            assert_eq!(c.expected_wkc as usize, 3 * held.len());
-            // A frame's worth: the next slave would not have fitted.
-            assert!(c.len as usize + 34 > MAX_LRW_DATA || c.logical + c.len == 3400);
+        for k in &c {
+            assert_eq!(k.logical, at, "contiguous");
+            assert!(k.len as usize <= MAX_LRW_DATA);
+            // Ends on a slave's boundary.
+            assert!(r.iter().any(|x| x.0 + x.1 == k.logical + k.len));
+            at += k.len;
         }
         assert_eq!(at, 3400);
-        // No byte is two slaves'.
-        let mut bytes: Vec<u32> = l
-            .slaves
-            .iter()
-            .flat_map(|s| [s.outputs, s.inputs])
-            .flat_map(|(a, n)| a..a + u32::from(n))
-            .collect();
-        bytes.sort_unstable();
-        bytes.dedup();
-        assert_eq!(bytes.len(), 3400);
+        assert_eq!(
+            c.iter().map(|k| u32::from(k.expected_wkc)).sum::<u32>(),
+            300
+        );
     }
 }
