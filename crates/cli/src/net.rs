@@ -19,6 +19,7 @@ use ecsync_master::transport::Transport as _;
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
 use ecsync_net::rt::{self, RtReport};
 use ecsync_net::sys::{PacketSocket, TimestampSupport};
+use ecsync_net::tx_stamp::{TxStampMode, TxStampSource};
 use ecsync_net::{NetError, RealLink, SendControl};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -252,6 +253,14 @@ pub struct RunArgs {
     /// time: needs the ETF qdisc, refused with what is missing where there is none).
     #[arg(long, default_value = "plain", value_parser = ["plain", "spin", "txtime"])]
     send: String,
+    /// Which transmit timestamp a master-shift method takes as its send time t_ms: off (the
+    /// timestamp right before the send, the letter's), software (the kernel's, taken as the
+    /// frame goes to the device: the stack's latency leaves the measurement), hardware (the
+    /// NIC's, as the frame leaves: refused, naming what is missing, where the NIC has none),
+    /// auto (hardware where the NIC has it, else software). Bus-shift methods write their
+    /// send time into the frame before it leaves: off for them (auto), refused otherwise.
+    #[arg(long, default_value = "auto", value_parser = ["off", "software", "hardware", "auto"])]
+    tx_stamp: String,
     /// `--send spin`: how early the task wakes before each send instant, microseconds.
     #[arg(long, default_value_t = 50)]
     spin_margin_us: u32,
@@ -414,6 +423,8 @@ struct RunOut {
     send: SendOut,
     /// From the send timestamp to the kernel's transmit timestamp (the NIC path's j_c), ns.
     tx_path: Summary,
+    /// Where the master-shift method's send time t_ms came from (`--tx-stamp`).
+    t_ms: TmsOut,
     /// From the send timestamp to the reply, ns.
     round_trip: Summary,
     /// A controller's state at the end (DCM): in sync, the drift it learnt, its error.
@@ -485,6 +496,22 @@ impl RateFit {
     fn ppm(&self) -> Option<f64> {
         (self.m2_x > 0.0).then(|| (self.c_xy / self.m2_x - 1.0) * 1e6)
     }
+}
+
+/// `--tx-stamp` and what it did.
+#[derive(Debug, Serialize)]
+struct TmsOut {
+    /// The mode asked for.
+    mode: String,
+    /// What t_ms was: the send timestamp, the kernel's software stamp or the NIC's.
+    source: TxStampSource,
+    /// Why auto fell back (no hardware stamps: what the NIC lacks; a bus-shift method).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    note: Option<String>,
+    /// Cycles whose t_ms was the transmit stamp.
+    cycles_from_tx_stamp: u64,
+    /// Answered cycles whose stamp had not come: they kept the send timestamp.
+    cycles_without_tx_stamp: u64,
 }
 
 /// `--send` and what it did.
@@ -609,6 +636,67 @@ fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64, Option<u16>
     ))
 }
 
+/// Where t_ms comes from, for `--tx-stamp` on this interface and method (hardware stamps
+/// switched on here), and why auto settled for less; an error naming what is missing when the
+/// mode asked for cannot be had.
+fn tx_stamp_source(
+    args: &RunArgs,
+    master_shift: bool,
+    link: &mut RealLink,
+) -> Result<(TxStampSource, Option<String>)> {
+    let mode: TxStampMode = args.tx_stamp.parse().map_err(anyhow::Error::msg)?;
+    let iface = &args.iface;
+    if mode == TxStampMode::Off {
+        return Ok((TxStampSource::SendTimestamp, None));
+    }
+    if !master_shift {
+        if mode == TxStampMode::Auto {
+            return Ok((
+                TxStampSource::SendTimestamp,
+                Some(format!(
+                    "{} writes its send time into the frame before it leaves: no transmit stamp can be its t_ms",
+                    args.method
+                )),
+            ));
+        }
+        bail!(
+            "--tx-stamp {mode}: {} is a bus-shift method, which writes its send time into the frame before it leaves; a transmit stamp comes after; fix: --tx-stamp off, or a master-shift method",
+            args.method
+        );
+    }
+    let caps = ecsync_net::sys::nic_timestamping(iface)
+        .map_err(|e| anyhow::anyhow!("ethtool -T {iface} (ETHTOOL_GET_TS_INFO): {e}"))?;
+    let mut note = None;
+    if matches!(mode, TxStampMode::Hardware | TxStampMode::Auto) {
+        if caps.hardware_tx() {
+            match link.enable_hardware_tx_stamps(iface) {
+                Ok(_) => return Ok((TxStampSource::NicHardware, None)),
+                Err(e) if mode == TxStampMode::Hardware => bail!("--tx-stamp hardware: {e}"),
+                Err(e) => note = Some(e),
+            }
+        } else {
+            let missing = caps.hardware_missing().join(", ");
+            if mode == TxStampMode::Hardware {
+                bail!(
+                    "--tx-stamp hardware: {iface} has no hardware transmit timestamps: its driver lacks {missing} (ethtool -T {iface}); fix: a NIC with hardware timestamping, or --tx-stamp software"
+                );
+            }
+            note = Some(format!(
+                "{iface} has no hardware transmit timestamps: its driver lacks {missing}"
+            ));
+        }
+    }
+    if !link.timestamps().tx_software {
+        if mode == TxStampMode::Software {
+            bail!(
+                "--tx-stamp software: the kernel gives no software transmit timestamps on {iface} (SO_TIMESTAMPING refused); fix: --tx-stamp off"
+            );
+        }
+        return Ok((TxStampSource::SendTimestamp, note));
+    }
+    Ok((TxStampSource::KernelSoftware, note))
+}
+
 /// Writes `v` or nothing, then the separator (no allocation: this runs every cycle).
 fn field<T: std::fmt::Display>(w: &mut impl Write, v: Option<T>, sep: char) -> std::io::Result<()> {
     if let Some(v) = v {
@@ -629,8 +717,8 @@ fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
     write!(w, "{},", u8::from(r.receive_ns.is_none()))?;
     // The host's twin (`ecsync host fit` reads these as a trace): wake-up to the send
     // timestamp, and the send timestamp to the transport's TX stamp.
-    write!(w, "{},", r.send_ns.saturating_sub(c.woke_ns))?;
-    field(w, c.tx_stamp_ns.map(|t| t as i64 - r.send_ns as i64), '\n')
+    write!(w, "{},", c.stamp_ns.saturating_sub(c.woke_ns))?;
+    field(w, c.tx_stamp_ns.map(|t| t as i64 - c.stamp_ns as i64), '\n')
 }
 
 /// The per-cycle CSV's columns; `exec_ns` and `tx_delay_ns` were appended after `lost` (a
@@ -679,6 +767,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         ecsync_net::txtime::txtime_support(&args.iface).map_err(anyhow::Error::msg)?;
     }
     let mut link = RealLink::open(&args.iface).map_err(|e| anyhow::anyhow!("{e}"))?;
+    // Before anything goes out: a t_ms source the interface cannot give is refused.
+    let (t_ms_source, t_ms_note) = tx_stamp_source(&args, method.is_master_shift(), &mut link)?;
     let spin = args.send == "spin";
     link.set_send_control(SendControl {
         spin_margin_ns: spin.then_some(u64::from(args.spin_margin_us) * 1000),
@@ -834,6 +924,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         reply_timeout_ns: u64::from(args.timeout_us.max(1)) * 1000,
         // The drives' own count of SYNC0 cycles without new outputs, once a second.
         sync_counters_every_ns: Some(1_000_000_000),
+        t_ms_from_tx_stamp: t_ms_source != TxStampSource::SendTimestamp,
     };
     let mut driver = CyclicDriver::new(limits);
     // Slaves that lose their configuration (power-cycled) are brought back while the cycle
@@ -884,7 +975,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         if let (Some(t), Some(_), false) = (r.ref_time_ns, r.receive_ns, r.reference_held) {
             ref_rate.add(r.send_ns, t);
         }
-        let w2s = r.send_ns.wrapping_sub(r.scheduled_ns) as i64 as f64;
+        let w2s = c.stamp_ns.wrapping_sub(r.scheduled_ns) as i64 as f64;
         if c.skipped_before == 0 {
             if control.spins(r.cycle) {
                 w2s_spin.add(w2s);
@@ -909,7 +1000,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 rtt.add(t as f64);
             }
             if let Some(tx) = c.tx_stamp_ns {
-                tx_path.add(tx.wrapping_sub(r.send_ns) as i64 as f64);
+                tx_path.add(tx.wrapping_sub(c.stamp_ns) as i64 as f64);
             }
         }
         if let (Some(w), None) = (csv.as_mut(), csv_err.as_ref()) {
@@ -1009,6 +1100,13 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             }
         },
         tx_path: tx_path.summary(),
+        t_ms: TmsOut {
+            mode: args.tx_stamp.clone(),
+            source: t_ms_source,
+            note: t_ms_note,
+            cycles_from_tx_stamp: driver.t_ms_sources().0,
+            cycles_without_tx_stamp: driver.t_ms_sources().1,
+        },
         round_trip: rtt.summary(),
         controller,
         reference_held_cycles: held,
@@ -1275,6 +1373,23 @@ fn print_run(o: &RunOut) {
             us(o.tx_path.std),
             us(o.tx_path.max)
         );
+    }
+    let t = &o.t_ms;
+    let source = match t.source {
+        TxStampSource::SendTimestamp => "the send timestamp (before the send)",
+        TxStampSource::KernelSoftware => "the kernel's software transmit stamp",
+        TxStampSource::NicHardware => "the NIC's hardware transmit stamp",
+    };
+    print!("t_ms (--tx-stamp {}): {source}", t.mode);
+    if t.source != TxStampSource::SendTimestamp {
+        print!(
+            ", {} cycles ({} without a stamp kept the send timestamp)",
+            t.cycles_from_tx_stamp, t.cycles_without_tx_stamp
+        );
+    }
+    println!();
+    if let Some(n) = &t.note {
+        println!("  ({n})");
     }
     if let Some(p) = &o.csv {
         println!("per-cycle CSV: {p}");

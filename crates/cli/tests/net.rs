@@ -351,6 +351,50 @@ fn run_method_once(pair: &NetPair, method: &str) {
         "{method}: {lost} frames lost, {late} replies late"
     );
     assert_eq!(j["bad_wkc"], 0, "{method}: working counters");
+    // t_ms under `--tx-stamp auto` (the default): a master-shift method takes the kernel's
+    // software transmit stamp of the cycle's frame (a veth has no hardware stamps: the note
+    // names what it lacks), every answered cycle but a rare one whose stamp had not come; a
+    // bus-shift method its send timestamp, which goes into the frame before it leaves.
+    let t = &j["t_ms"];
+    let answered = cycles - lost;
+    let (stamped, unstamped) = (
+        t["cycles_from_tx_stamp"].as_u64().unwrap(),
+        t["cycles_without_tx_stamp"].as_u64().unwrap(),
+    );
+    if method.ends_with("bus-shift") {
+        assert_eq!(t["source"], "send_timestamp", "{method}: {t}");
+        assert_eq!((stamped, unstamped), (0, 0), "{method}: {t}");
+    } else {
+        assert_eq!(t["source"], "kernel_software", "{method}: {t}");
+        let note = t["note"].as_str().unwrap_or_default();
+        assert!(
+            note.contains("no hardware transmit timestamps"),
+            "{method}: {t}"
+        );
+        assert!(
+            stamped + unstamped <= answered && stamped + unstamped + 2 >= answered,
+            "{method}: {stamped} + {unstamped} of {answered} answered cycles"
+        );
+        assert!(unstamped * 100 <= answered, "{method}: {t}");
+        // The kernel stamps the frame after the send timestamp, never before.
+        let text = std::fs::read_to_string(&csv).unwrap();
+        let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+        let c_tx = header.iter().position(|c| *c == "tx_delay_ns").unwrap();
+        let delays: Vec<i64> = text
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.split(',').nth(c_tx)?.parse().ok())
+            .collect();
+        assert!(
+            delays.len() as u64 + 2 >= stamped,
+            "{method}: {} delays",
+            delays.len()
+        );
+        assert!(
+            delays.iter().all(|&d| d >= 0),
+            "{method}: a stamp before its send"
+        );
+    }
     // Every drive's SM-event-missed counter read over CoE in the cyclic phase, once a second:
     // the last read in the run's last two seconds.
     let counters = j["sm_events_missed"].as_array().unwrap();
@@ -2096,6 +2140,78 @@ mod send_control {
             sp["p999_us"].as_f64().unwrap(),
             s["spin_us_per_cycle"].as_f64().unwrap()
         );
+    }
+
+    /// A veth has no hardware transmit timestamps: `--tx-stamp hardware` is refused before
+    /// anything is sent, naming what the driver lacks as `ethtool -T` reports it (the
+    /// capabilities are the kernel's ETHTOOL_GET_TS_INFO answer); a transmit stamp for a
+    /// bus-shift method is refused too (it writes its send time into the frame before the
+    /// frame leaves).
+    #[test]
+    fn hardware_tx_stamps_are_refused_on_veth_naming_what_is_missing() {
+        let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(pair) = NetPair::new("h") else {
+            return;
+        };
+        // Independent truth: ethtool's own reading of the driver (.ci/run installs it).
+        match Command::new("ip")
+            .args(["netns", "exec", &pair.ns_b, "ethtool", "-T", &pair.if_b])
+            .output()
+        {
+            Ok(o) if o.status.success() => {
+                let t = String::from_utf8_lossy(&o.stdout);
+                assert!(t.contains("software-transmit"), "{t}");
+                assert!(!t.contains("hardware-transmit"), "{t}");
+                assert!(t.contains("PTP Hardware Clock: none"), "{t}");
+            }
+            other => {
+                assert!(
+                    std::env::var_os("CI").is_none(),
+                    "CI has ethtool: {other:?}"
+                );
+                println!("(no ethtool here: the veth's capabilities are not checked against it)");
+            }
+        }
+        for (method, mode, want) in [
+            ("median-fit", "hardware", "SOF_TIMESTAMPING_TX_HARDWARE"),
+            ("median-fit", "hardware", "PTP Hardware Clock"),
+            ("bus-shift", "software", "bus-shift method"),
+            ("dcm-bus-shift", "hardware", "bus-shift method"),
+        ] {
+            let t0 = Instant::now();
+            let o = pair
+                .command(
+                    &pair.ns_b,
+                    &[
+                        "run",
+                        "--iface",
+                        &pair.if_b,
+                        "--method",
+                        method,
+                        "--tx-stamp",
+                        mode,
+                        "--duration",
+                        "2",
+                    ],
+                )
+                .output()
+                .expect("run ecsync run");
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(!o.status.success(), "{method} {mode}: {err}");
+            assert!(err.contains(want), "{method} {mode}: {err}");
+            assert!(err.contains("fix:"), "{method} {mode}: {err}");
+            let last = err.trim().lines().last().unwrap_or_default().to_string();
+            assert!(
+                last.starts_with("ecsync: error:"),
+                "one clear line last: {err}"
+            );
+            // Refused before the bring-up (which takes seconds here).
+            assert!(
+                t0.elapsed().as_secs_f64() < 2.0,
+                "{method} {mode}: {:?}",
+                t0.elapsed()
+            );
+        }
     }
 
     /// This machine's kernel has no ETF qdisc: `--send txtime` is refused before anything is

@@ -201,6 +201,13 @@ pub struct CyclicLimits {
     /// the cycles' spare time (`None`: never). Drives with CoE and a system time only, as
     /// the bring-up set them to DC mode.
     pub sync_counters_every_ns: Option<u64>,
+    /// Hand the method the transport's transmit timestamp of the cycle's first frame as its
+    /// send time t_ms (the NIC's or the kernel's, taken after the scheduling and the stack's
+    /// latency, see [`Received::tx_stamp_ns`]) instead of the timestamp taken before the send;
+    /// a cycle whose stamp did not come keeps the latter and is counted
+    /// ([`CyclicDriver::t_ms_sources`]). For master-shift methods only: a bus-shift method
+    /// writes its send time into the frame before it leaves.
+    pub t_ms_from_tx_stamp: bool,
 }
 
 impl Default for CyclicLimits {
@@ -211,6 +218,7 @@ impl Default for CyclicLimits {
             lost_in_a_row: 100,
             reply_timeout_ns: 10_000_000,
             sync_counters_every_ns: None,
+            t_ms_from_tx_stamp: false,
         }
     }
 }
@@ -229,6 +237,9 @@ pub struct CycleReport {
     pub skipped_before: u64,
     /// The transmit timestamp of the transport (kernel or NIC), master time, ns.
     pub tx_stamp_ns: Option<u64>,
+    /// The send timestamp taken before the cycle's first frame went to the transport, master
+    /// time, ns (the record's `send_ns` unless t_ms came from the transmit timestamp).
+    pub stamp_ns: u64,
     /// Send timestamp to reply, ns.
     pub round_trip_ns: Option<u64>,
     /// Length of the cyclic frame, bytes.
@@ -470,6 +481,8 @@ pub struct CyclicDriver {
     last_good: Option<u64>,
     stats: ExchangeStats,
     recovery: Option<RecoverySlot>,
+    /// Cycles whose t_ms was the transmit timestamp, and those that had none to take.
+    t_ms_sources: (u64, u64),
 }
 
 impl CyclicDriver {
@@ -486,7 +499,14 @@ impl CyclicDriver {
             last_good: None,
             stats: ExchangeStats::default(),
             recovery: None,
+            t_ms_sources: (0, 0),
         }
+    }
+
+    /// With [`CyclicLimits::t_ms_from_tx_stamp`]: the cycles whose t_ms was the transport's
+    /// transmit timestamp, and the answered cycles that had none and kept the send timestamp.
+    pub fn t_ms_sources(&self) -> (u64, u64) {
+        self.t_ms_sources
     }
 
     /// Reads the drives' SM-event-missed counters over CoE this often from now on
@@ -817,7 +837,18 @@ impl CyclicDriver {
             let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
             let (record, tx_stamp_ns, round_trip_ns) = if pending == 0 {
                 let r = last.expect("every frame answered");
-                let rec = eng.complete_by(views, sent_ns, r.received_ns);
+                let t_ms = match (self.limits.t_ms_from_tx_stamp, r.tx_stamp_ns) {
+                    (false, _) => sent_ns,
+                    (true, Some(t)) => {
+                        self.t_ms_sources.0 += 1;
+                        t
+                    }
+                    (true, None) => {
+                        self.t_ms_sources.1 += 1;
+                        sent_ns
+                    }
+                };
+                let rec = eng.complete_by(views, t_ms, r.received_ns);
                 self.lost_row = 0;
                 self.last_good = Some(rec.cycle);
                 (
@@ -839,6 +870,7 @@ impl CyclicDriver {
                     wake_latency_ns: woke.wrapping_sub(scheduled) as i64,
                     skipped_before: skipped,
                     tx_stamp_ns,
+                    stamp_ns: sent_ns,
                     round_trip_ns,
                     frame_len: len,
                 },

@@ -44,6 +44,7 @@ mod link;
 pub mod rt;
 pub mod serve;
 pub mod sys;
+pub mod tx_stamp;
 pub mod txtime;
 
 pub use link::{HostClock, NetError, RealLink, SendControl};

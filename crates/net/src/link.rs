@@ -1,6 +1,7 @@
 //! Frames out, frames in, on a raw socket in real time: the real network's [`Transport`].
 
-use crate::sys::{self, OpenError, PacketSocket, Ready, TimestampSupport};
+use crate::sys::{self, NicTimestamping, OpenError, PacketSocket, Phc, Ready, TimestampSupport};
+use crate::tx_stamp::{PHC_READINGS, PHC_REFRESH_NS, PhcMap, TxStampSource, phc_offset_ns};
 use ecsync_master::transport::{Received, Transport};
 use std::io;
 
@@ -83,8 +84,15 @@ pub enum NetError {
 pub struct RealLink {
     sock: PacketSocket,
     clock: HostClock,
-    /// The kernel's transmit timestamp of the last frame sent (CLOCK_REALTIME), once read.
+    /// The transmit timestamp (CLOCK_REALTIME) of the last frame sent, or in the cyclic phase
+    /// of the cycle's first frame, once read.
     tx_rt: Option<u64>,
+    /// In the cyclic phase: frames sent since the cycle started (the first stamp read after
+    /// the first is that frame's: the error queue keeps the order of the sends).
+    sent_in_cycle: Option<u32>,
+    /// The NIC's PTP hardware clock and its mapping to CLOCK_REALTIME, with hardware
+    /// transmit stamps on; the next instant (CLOCK_REALTIME) the mapping is measured again.
+    phc: Option<(Phc, PhcMap, u64)>,
     /// The frame being sent.
     tx_buf: Vec<u8>,
     /// Sends and receives refused because the interface was down.
@@ -132,6 +140,8 @@ impl RealLink {
             link_down: 0,
             clock: HostClock::new(),
             tx_rt: None,
+            sent_in_cycle: None,
+            phc: None,
             tx_buf: Vec::with_capacity(RECV_BUF_LEN),
             send: SendControl::default(),
             cycle_armed: None,
@@ -158,10 +168,64 @@ impl RealLink {
         self.sock.timestamps()
     }
 
+    /// Switches `iface`'s NIC to hardware transmit timestamps and takes them as the frames'
+    /// transmit stamps from now on ([`Received::tx_stamp_ns`]), mapped from its PTP hardware
+    /// clock to the host's. Refused, naming what is missing, where the NIC has none.
+    pub fn enable_hardware_tx_stamps(&mut self, iface: &str) -> Result<NicTimestamping, String> {
+        let caps = self
+            .sock
+            .enable_hardware_tx_stamps(iface)
+            .map_err(|e| format!("hardware TX timestamps on {iface}: {e}"))?;
+        let index = caps
+            .phc_index
+            .ok_or_else(|| format!("{iface} has no PTP hardware clock"))?;
+        let phc = Phc::open(index).map_err(|e| format!("/dev/ptp{index}: {e}"))?;
+        let mut map = PhcMap::default();
+        measure_phc(&phc, &mut map)
+            .ok_or_else(|| format!("/dev/ptp{index} cannot be read (clock_gettime)"))?;
+        self.phc = Some((phc, map, sys::realtime_ns() + PHC_REFRESH_NS));
+        Ok(caps)
+    }
+
+    /// Where the transmit stamps come from: the NIC, the kernel, or nowhere.
+    pub fn tx_stamp_source(&self) -> Option<TxStampSource> {
+        if self.phc.is_some() {
+            Some(TxStampSource::NicHardware)
+        } else if self.sock.timestamps().tx_software {
+            Some(TxStampSource::KernelSoftware)
+        } else {
+            None
+        }
+    }
+
+    /// Reads the queued transmit stamps: the first of the cycle's first frame, in the cyclic
+    /// phase, is kept (a hardware one, with hardware stamps on); `discard` empties the queue.
+    fn read_tx_stamps(&mut self, discard: bool) -> Result<(), NetError> {
+        while let Some(m) = self.sock.take_tx_stamps().map_err(io_err("TX timestamp"))? {
+            if discard || self.tx_rt.is_some() {
+                continue;
+            }
+            self.tx_rt = match &self.phc {
+                Some((_, map, _)) => m.hardware_ns.and_then(|t| map.to_realtime_ns(t)),
+                None => m.software_ns,
+            };
+        }
+        Ok(())
+    }
+
     /// Whether the interface is promiscuous.
     pub fn promiscuous(&self) -> bool {
         self.sock.promiscuous()
     }
+}
+
+/// Measures the PHC's offset from CLOCK_REALTIME into `map` (the narrowest of a few
+/// readings); `None` if no reading worked.
+fn measure_phc(phc: &Phc, map: &mut PhcMap) -> Option<()> {
+    let readings: [(u64, u64, u64); PHC_READINGS] = std::array::from_fn(|_| phc.sandwich());
+    let (at, offset) = phc_offset_ns(&readings)?;
+    map.add(at, offset);
+    Some(())
 }
 
 fn io_err(what: &'static str) -> impl Fn(io::Error) -> NetError {
@@ -214,6 +278,7 @@ impl Transport for RealLink {
 
     fn start_cycle(&mut self, cycle: u64) {
         self.cycle_armed = Some(cycle);
+        self.sent_in_cycle = Some(0);
     }
 
     fn send_with<F: FnOnce(&mut [u8])>(
@@ -224,14 +289,24 @@ impl Transport for RealLink {
     ) -> Result<u64, NetError> {
         self.tx_buf.resize(len, 0);
         fill(&mut self.tx_buf);
-        // The transmit timestamps of earlier frames must not be taken for this one's.
-        while self
-            .sock
-            .take_tx_timestamp()
-            .map_err(io_err("TX timestamp"))?
-            .is_some()
-        {}
-        self.tx_rt = None;
+        // The transmit timestamps of earlier frames must not be taken for this one's (in the
+        // cyclic phase: for the cycle's first frame's).
+        let first = self.sent_in_cycle.is_none_or(|n| n == 0);
+        self.read_tx_stamps(first)?;
+        if first {
+            self.tx_rt = None;
+        }
+        if let Some(n) = &mut self.sent_in_cycle {
+            *n += 1;
+        }
+        if let Some((phc, map, next)) = &mut self.phc
+            && sys::realtime_ns() >= *next
+        {
+            // (Between frames of the bring-up, or before a cycle's first: not in a cycle's
+            // burst.)
+            measure_phc(phc, map);
+            *next = sys::realtime_ns() + PHC_REFRESH_NS;
+        }
         match self.sock.send(&self.tx_buf) {
             Ok(()) => {}
             // Lost on a link that is down: the reply's deadline tells the driver.
@@ -272,10 +347,7 @@ impl Transport for RealLink {
                     None => (now, false),
                 };
                 if self.tx_rt.is_none() {
-                    self.tx_rt = self
-                        .sock
-                        .take_tx_timestamp()
-                        .map_err(io_err("TX timestamp"))?;
+                    self.read_tx_stamps(false)?;
                 }
                 return Ok(Some(Received {
                     len: r.len.min(buf.len()),
@@ -301,13 +373,7 @@ impl Transport for RealLink {
                 Ready::ErrorQueue => {
                     // Read it, or the next wait returns at once (a busy loop that would starve a
                     // peer on the same CPU).
-                    let t = self
-                        .sock
-                        .take_tx_timestamp()
-                        .map_err(io_err("TX timestamp"))?;
-                    if self.tx_rt.is_none() {
-                        self.tx_rt = t;
-                    }
+                    self.read_tx_stamps(false)?;
                 }
                 Ready::Frame | Ready::Nothing => {}
             }

@@ -37,6 +37,46 @@ const SOF_TIMESTAMPING_TX_SOFTWARE: libc::c_uint = 1 << 1;
 const SOF_TIMESTAMPING_RX_SOFTWARE: libc::c_uint = 1 << 3;
 const SOF_TIMESTAMPING_SOFTWARE: libc::c_uint = 1 << 4;
 const SOF_TIMESTAMPING_OPT_TSONLY: libc::c_uint = 1 << 11;
+const SOF_TIMESTAMPING_TX_HARDWARE: libc::c_uint = 1 << 0;
+const SOF_TIMESTAMPING_RAW_HARDWARE: libc::c_uint = 1 << 6;
+// include/uapi/linux/sockios.h, ethtool.h and net_tstamp.h.
+const SIOCETHTOOL: libc::c_ulong = 0x8946;
+const SIOCSHWTSTAMP: libc::c_ulong = 0x89b0;
+const ETHTOOL_GET_TS_INFO: u32 = 0x41;
+const HWTSTAMP_TX_ON: i32 = 1;
+const HWTSTAMP_FILTER_NONE: i32 = 0;
+/// `CLOCKFD` of the kernel's posix-timers: a dynamic clock's id is `(~fd << 3) | CLOCKFD`.
+const CLOCKFD: libc::clockid_t = 3;
+
+/// `struct ethtool_ts_info` of ethtool.h.
+#[repr(C)]
+#[derive(Default)]
+struct EthtoolTsInfo {
+    cmd: u32,
+    so_timestamping: u32,
+    phc_index: i32,
+    tx_types: u32,
+    tx_reserved: [u32; 3],
+    rx_filters: u32,
+    rx_reserved: [u32; 3],
+}
+
+/// `struct hwtstamp_config` of net_tstamp.h.
+#[repr(C)]
+struct HwtstampConfig {
+    flags: i32,
+    tx_type: i32,
+    rx_filter: i32,
+}
+
+/// `struct ifreq` with its union as the data pointer (`ifr_data`): 16 bytes of name and the
+/// union's 24.
+#[repr(C)]
+struct IfreqData {
+    name: [libc::c_char; libc::IFNAMSIZ],
+    data: *mut libc::c_void,
+    pad: [u8; 16],
+}
 
 /// `struct packet_mreq` of if_packet.h.
 #[repr(C)]
@@ -199,6 +239,154 @@ pub struct TimestampSupport {
     pub rx_software: bool,
     /// Software transmit timestamps (taken by the driver as the frame went to the device).
     pub tx_software: bool,
+    /// Hardware transmit timestamps (the NIC's, in its PTP hardware clock's time), once
+    /// switched on by [`PacketSocket::enable_hardware_tx_stamps`].
+    pub tx_hardware: bool,
+}
+
+/// What an interface's driver says it can timestamp (`ethtool -T`, ETHTOOL_GET_TS_INFO).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub struct NicTimestamping {
+    /// The SOF_TIMESTAMPING_* capabilities.
+    pub so_timestamping: u32,
+    /// The PTP hardware clock's index (`/dev/ptpN`), if the NIC has one.
+    pub phc_index: Option<u32>,
+    /// The HWTSTAMP_TX_* modes the NIC supports, as bits.
+    pub tx_types: u32,
+}
+
+impl NicTimestamping {
+    /// The kernel's software transmit timestamps.
+    pub fn software_tx(&self) -> bool {
+        self.so_timestamping & SOF_TIMESTAMPING_TX_SOFTWARE != 0
+    }
+
+    /// Hardware transmit timestamps: all of the pieces [`NicTimestamping::hardware_missing`]
+    /// names are there.
+    pub fn hardware_tx(&self) -> bool {
+        self.hardware_missing().is_empty()
+    }
+
+    /// What hardware transmit timestamps need that the NIC lacks, in `ethtool -T`'s words.
+    pub fn hardware_missing(&self) -> Vec<&'static str> {
+        let mut m = Vec::new();
+        if self.so_timestamping & SOF_TIMESTAMPING_TX_HARDWARE == 0 {
+            m.push("hardware-transmit (SOF_TIMESTAMPING_TX_HARDWARE)");
+        }
+        if self.so_timestamping & SOF_TIMESTAMPING_RAW_HARDWARE == 0 {
+            m.push("hardware-raw-clock (SOF_TIMESTAMPING_RAW_HARDWARE)");
+        }
+        if self.phc_index.is_none() {
+            m.push("a PTP Hardware Clock (none)");
+        }
+        if self.tx_types & (1 << HWTSTAMP_TX_ON) == 0 {
+            m.push("Hardware Transmit Timestamp Mode on (HWTSTAMP_TX_ON)");
+        }
+        m
+    }
+}
+
+/// A socket for the interface ioctls (any socket of the namespace will do).
+fn ioctl_socket() -> io::Result<OwnedFd> {
+    // SAFETY: plain FFI call with constant arguments; the result is checked below.
+    let raw = unsafe { libc::socket(libc::AF_INET, libc::SOCK_DGRAM | libc::SOCK_CLOEXEC, 0) };
+    if raw < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    // SAFETY: `raw` is a new file descriptor that nothing else owns.
+    Ok(unsafe { OwnedFd::from_raw_fd(raw) })
+}
+
+/// An interface ioctl whose `ifr_data` points at `data`.
+fn ifreq_ioctl<T>(iface: &str, request: libc::c_ulong, data: &mut T) -> io::Result<()> {
+    let mut ifr = IfreqData {
+        name: [0; libc::IFNAMSIZ],
+        data: (data as *mut T).cast(),
+        pad: [0; 16],
+    };
+    if iface.len() >= libc::IFNAMSIZ || iface.as_bytes().contains(&0) {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "interface name",
+        ));
+    }
+    for (d, &b) in ifr.name.iter_mut().zip(iface.as_bytes()) {
+        *d = b as libc::c_char;
+    }
+    let sock = ioctl_socket()?;
+    // SAFETY: `ifr` is a live ifreq whose name is NUL-terminated (the array is zeroed past the
+    // name) and whose data pointer refers to `data`, a live value of the type `request`
+    // expects; the kernel reads and writes only within them.
+    let r = unsafe { libc::ioctl(sock.as_raw_fd(), request as _, &mut ifr) };
+    if r < 0 {
+        Err(io::Error::last_os_error())
+    } else {
+        Ok(())
+    }
+}
+
+/// What `iface`'s driver can timestamp (ETHTOOL_GET_TS_INFO). A driver without the call
+/// gets the kernel's software stamps only.
+pub fn nic_timestamping(iface: &str) -> io::Result<NicTimestamping> {
+    let mut info = EthtoolTsInfo {
+        cmd: ETHTOOL_GET_TS_INFO,
+        ..EthtoolTsInfo::default()
+    };
+    match ifreq_ioctl(iface, SIOCETHTOOL, &mut info) {
+        Ok(()) => Ok(NicTimestamping {
+            so_timestamping: info.so_timestamping,
+            phc_index: u32::try_from(info.phc_index).ok(),
+            tx_types: info.tx_types,
+        }),
+        Err(e) if e.raw_os_error() == Some(libc::EOPNOTSUPP) => Ok(NicTimestamping {
+            so_timestamping: SOF_TIMESTAMPING_TX_SOFTWARE
+                | SOF_TIMESTAMPING_RX_SOFTWARE
+                | SOF_TIMESTAMPING_SOFTWARE,
+            phc_index: None,
+            tx_types: 0,
+        }),
+        Err(e) => Err(e),
+    }
+}
+
+/// A PTP hardware clock (`/dev/ptpN`), read as a dynamic POSIX clock.
+#[derive(Debug)]
+pub struct Phc {
+    fd: OwnedFd,
+}
+
+impl Phc {
+    /// Opens `/dev/ptp{index}`.
+    pub fn open(index: u32) -> io::Result<Phc> {
+        let path = CString::new(format!("/dev/ptp{index}")).expect("no NUL in a number");
+        // SAFETY: `path` is a NUL-terminated string that outlives the call.
+        let raw = unsafe { libc::open(path.as_ptr(), libc::O_RDONLY | libc::O_CLOEXEC) };
+        if raw < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        // SAFETY: `raw` is a new file descriptor that nothing else owns.
+        Ok(Phc {
+            fd: unsafe { OwnedFd::from_raw_fd(raw) },
+        })
+    }
+
+    /// One reading of the PHC between two of CLOCK_REALTIME: (realtime before, PHC, realtime
+    /// after), ns.
+    pub fn sandwich(&self) -> (u64, u64, u64) {
+        let id = (!(self.fd.as_raw_fd() as libc::clockid_t) << 3) | CLOCKFD;
+        let before = realtime_ns();
+        let phc = clock_ns(id);
+        (before, phc, realtime_ns())
+    }
+}
+
+/// One transmit timestamp message of the socket's error queue.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct TxStamps {
+    /// The kernel's software stamp, CLOCK_REALTIME ns.
+    pub software_ns: Option<u64>,
+    /// The NIC's hardware stamp, its PTP hardware clock's ns.
+    pub hardware_ns: Option<u64>,
 }
 
 /// A frame received from a packet socket.
@@ -261,6 +449,8 @@ fn setsockopt<T>(fd: &OwnedFd, level: libc::c_int, name: libc::c_int, value: &T)
 struct Control {
     /// The first software timestamp (SCM_TIMESTAMPING's first entry, or SCM_TIMESTAMPNS).
     timestamp: Option<u64>,
+    /// The raw hardware timestamp (SCM_TIMESTAMPING's third entry), the PHC's time.
+    hw_timestamp: Option<u64>,
     /// The VLAN tag of PACKET_AUXDATA, when the kernel marks it valid.
     vlan: Option<VlanTag>,
 }
@@ -284,6 +474,7 @@ fn control_messages(msg: &libc::msghdr) -> Control {
                 {
                     let ts: [libc::timespec; 3] = std::ptr::read_unaligned(data.cast());
                     out.timestamp = timespec_ns(&ts[0]);
+                    out.hw_timestamp = timespec_ns(&ts[2]);
                 } else if h.cmsg_type == libc::SCM_TIMESTAMPNS
                     && avail >= size_of::<libc::timespec>()
                 {
@@ -425,11 +616,13 @@ impl PacketSocket {
             TimestampSupport {
                 rx_software: true,
                 tx_software: true,
+                tx_hardware: false,
             }
         } else {
             TimestampSupport {
                 rx_software: setsockopt(&fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPNS, &1i32).is_ok(),
                 tx_software: false,
+                tx_hardware: false,
             }
         };
         Ok(PacketSocket {
@@ -545,9 +738,49 @@ impl PacketSocket {
         }
     }
 
+    /// Switches on the NIC's hardware transmit timestamps of `iface` (SIOCSHWTSTAMP,
+    /// HWTSTAMP_TX_ON) and asks for them on this socket, the software ones kept. Refused
+    /// with what is missing where the NIC has none (see [`NicTimestamping::hardware_missing`]).
+    pub fn enable_hardware_tx_stamps(&mut self, iface: &str) -> io::Result<NicTimestamping> {
+        let caps = nic_timestamping(iface)?;
+        let missing = caps.hardware_missing();
+        if !missing.is_empty() {
+            return Err(io::Error::new(
+                io::ErrorKind::Unsupported,
+                format!(
+                    "{iface} has no hardware transmit timestamps: its driver lacks {} (ethtool -T {iface})",
+                    missing.join(", ")
+                ),
+            ));
+        }
+        let mut cfg = HwtstampConfig {
+            flags: 0,
+            tx_type: HWTSTAMP_TX_ON,
+            rx_filter: HWTSTAMP_FILTER_NONE,
+        };
+        ifreq_ioctl(iface, SIOCSHWTSTAMP, &mut cfg)?;
+        let flags: libc::c_uint = SOF_TIMESTAMPING_RX_SOFTWARE
+            | SOF_TIMESTAMPING_TX_SOFTWARE
+            | SOF_TIMESTAMPING_SOFTWARE
+            | SOF_TIMESTAMPING_TX_HARDWARE
+            | SOF_TIMESTAMPING_RAW_HARDWARE
+            | SOF_TIMESTAMPING_OPT_TSONLY;
+        setsockopt(&self.fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPING, &flags)?;
+        self.timestamps.tx_software = true;
+        self.timestamps.tx_hardware = true;
+        Ok(caps)
+    }
+
     /// The kernel's software transmit timestamp of a frame sent earlier (CLOCK_REALTIME ns),
     /// if one is queued.
     pub fn take_tx_timestamp(&self) -> io::Result<Option<u64>> {
+        Ok(self.take_tx_stamps()?.and_then(|s| s.software_ns))
+    }
+
+    /// The next transmit timestamp message queued for a frame sent earlier, if one is: the
+    /// kernel's software stamp (CLOCK_REALTIME ns) and the NIC's (PHC ns), each if given. With
+    /// hardware stamps on, the driver queues the two in separate messages.
+    pub fn take_tx_stamps(&self) -> io::Result<Option<TxStamps>> {
         if !self.timestamps.tx_software {
             return Ok(None);
         }
@@ -578,7 +811,11 @@ impl PacketSocket {
                 _ => Err(e),
             };
         }
-        Ok(control_messages(&msg).timestamp)
+        let c = control_messages(&msg);
+        Ok(Some(TxStamps {
+            software_ns: c.timestamp,
+            hardware_ns: c.hw_timestamp.filter(|_| self.timestamps.tx_hardware),
+        }))
     }
 
     /// Waits until a frame can be read, a transmit timestamp is queued, or `timeout_ns` passed.
