@@ -195,6 +195,20 @@ fn run_method(pair: &NetPair, method: &str) {
     }
 }
 
+/// The values of column `name` of a `run --csv` file, rows with it blank left out.
+fn csv_column(csv: &Path, name: &str) -> Vec<f64> {
+    let text = std::fs::read_to_string(csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let c = header
+        .iter()
+        .position(|c| *c == name)
+        .unwrap_or_else(|| panic!("no column {name} in {}", csv.display()));
+    lines
+        .filter_map(|l| l.split(',').nth(c)?.parse().ok())
+        .collect()
+}
+
 fn run_method_once(pair: &NetPair, method: &str) {
     let dir = tmp(method);
     let csv = dir.join("cycles.csv");
@@ -377,21 +391,14 @@ fn run_method_once(pair: &NetPair, method: &str) {
         );
         assert!(unstamped * 100 <= answered, "{method}: {t}");
         // The kernel stamps the frame after the send timestamp, never before.
-        let text = std::fs::read_to_string(&csv).unwrap();
-        let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
-        let c_tx = header.iter().position(|c| *c == "tx_delay_ns").unwrap();
-        let delays: Vec<i64> = text
-            .lines()
-            .skip(1)
-            .filter_map(|l| l.split(',').nth(c_tx)?.parse().ok())
-            .collect();
+        let delays = csv_column(&csv, "tx_delay_ns");
         assert!(
             delays.len() as u64 + 2 >= stamped,
             "{method}: {} delays",
             delays.len()
         );
         assert!(
-            delays.iter().all(|&d| d >= 0),
+            delays.iter().all(|&d| d >= 0.0),
             "{method}: a stamp before its send"
         );
     }
@@ -515,14 +522,7 @@ fn run_through_faults(pair: &NetPair, method: &str, faults: &Path) {
         j["recoveries"]
     );
     // Locked again at the end: the last second's |0x092C| of the cycles that came back.
-    let text = std::fs::read_to_string(&csv).unwrap();
-    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
-    let c = header.iter().position(|c| *c == "max_abs_092c_ns").unwrap();
-    let tail: Vec<f64> = text
-        .lines()
-        .skip(1)
-        .filter_map(|l| l.split(',').nth(c)?.parse().ok())
-        .collect();
+    let tail = csv_column(&csv, "max_abs_092c_ns");
     let mut last: Vec<f64> = tail[tail.len().saturating_sub(900)..].to_vec();
     last.sort_by(f64::total_cmp);
     let worst = last.last().copied().unwrap_or(f64::NAN);
@@ -542,11 +542,8 @@ fn run_through_faults(pair: &NetPair, method: &str, faults: &Path) {
             median < 10_000.0,
             "{method}: median |0x092C| {median} ns in the last second"
         );
-        let e = header.iter().position(|c| *c == "error_ns").unwrap();
-        let mut err: Vec<f64> = text
-            .lines()
-            .skip(1)
-            .filter_map(|l| l.split(',').nth(e)?.parse::<f64>().ok())
+        let mut err: Vec<f64> = csv_column(&csv, "error_ns")
+            .into_iter()
             .map(f64::abs)
             .collect();
         err = err.split_off(err.len().saturating_sub(900));
@@ -656,14 +653,7 @@ fn serve_and_run_survive_their_interfaces_going_down_for_50_ms() {
     // Two outages of 50 ms (and the time a veth takes to carry again).
     assert!((50..2_000).contains(&lost), "{lost} frames lost");
     // Locked at the end.
-    let text = std::fs::read_to_string(&csv).unwrap();
-    let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
-    let c = header.iter().position(|c| *c == "max_abs_092c_ns").unwrap();
-    let tail: Vec<f64> = text
-        .lines()
-        .skip(1)
-        .filter_map(|l| l.split(',').nth(c)?.parse().ok())
-        .collect();
+    let tail = csv_column(&csv, "max_abs_092c_ns");
     let worst = tail[tail.len().saturating_sub(500)..]
         .iter()
         .copied()

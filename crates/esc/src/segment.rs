@@ -14,7 +14,7 @@ use crate::esc::{Deferred, Esc, EscStats};
 use crate::model::{DeviceInfo, EscModel, PortKind};
 use ecsync_wire::{
     DATAGRAM_HEADER_LEN, ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN,
-    mark_returned_frame,
+    header_shape_key, mark_returned_frame,
 };
 use std::sync::Arc;
 
@@ -349,11 +349,6 @@ struct ShapeCache {
     last_id: u32,
 }
 
-/// A datagram header's first 8 bytes as a little-endian word without the index (byte 1): a
-/// frame whose datagram indices change from cycle to cycle (a master's tags) keeps its shape,
-/// and no ESC reads an index.
-const NOT_INDEX: u64 = !0xff00;
-
 /// Sets of the shape cache, and the shapes remembered at once.
 const SHAPE_SETS: usize = 128;
 const SHAPE_SLOTS: usize = 2 * SHAPE_SETS;
@@ -375,11 +370,13 @@ impl ShapeCache {
     /// slaves, and two of them were then decoded every cycle).
     #[inline]
     fn set_of(frame: &[u8]) -> usize {
-        match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + 6) {
+        match frame.get(FIRST_DATAGRAM..FIRST_DATAGRAM + DATAGRAM_HEADER_LEN) {
             Some(h) => {
-                let addr = u32::from_le_bytes([h[2], h[3], h[4], h[5]]);
-                let cmd = usize::from(h[0]);
-                let logical = ecsync_wire::Command::try_from(h[0])
+                let d = ecsync_wire::Datagram::new_unchecked(h);
+                let addr = d.address_raw();
+                let cmd = usize::from(d.command_code());
+                let logical = d
+                    .command()
                     .is_ok_and(|c| c.address_mode() == ecsync_wire::AddressMode::Logical);
                 let spread = if logical {
                     (addr >> 10) as usize
@@ -424,13 +421,10 @@ impl ShapeCache {
         };
         for (k, &at) in offsets.iter().enumerate() {
             let at = usize::from(at);
-            let h = &frame[at..at + DATAGRAM_HEADER_LEN];
-            let mut lo = [0u8; 8];
-            lo.copy_from_slice(&h[..8]);
-            s.words[k] = (
-                u64::from_le_bytes(lo) & NOT_INDEX,
-                u16::from_le_bytes([h[8], h[9]]),
-            );
+            let h: &[u8; DATAGRAM_HEADER_LEN] = frame[at..at + DATAGRAM_HEADER_LEN]
+                .try_into()
+                .expect("a header's length");
+            s.words[k] = header_shape_key(h);
         }
         s.offsets[..offsets.len()].copy_from_slice(offsets);
         let set = Self::set_of(frame);
@@ -465,11 +459,7 @@ impl Shape {
         let word = |at: usize| -> Option<(u64, u16)> {
             let h: &[u8; DATAGRAM_HEADER_LEN] =
                 frame.get(at..at + DATAGRAM_HEADER_LEN)?.try_into().ok()?;
-            let (lo, hi) = h.split_at(8);
-            Some((
-                u64::from_le_bytes(lo.try_into().ok()?) & NOT_INDEX,
-                u16::from_le_bytes([hi[0], hi[1]]),
-            ))
+            Some(header_shape_key(h))
         };
         let head = frame
             .get(HEAD_AT..FIRST_DATAGRAM)

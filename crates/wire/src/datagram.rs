@@ -14,6 +14,21 @@ const ADP_AT: usize = 2;
 const CIRCULATING: u16 = 1 << 14;
 const MORE_FOLLOWS: u16 = 1 << 15;
 
+/// A datagram header's shape as two words for equality: command, address, length and flags
+/// (bytes 0 and 2..8) and the IRQ field, without the index (byte 1), which a master changes from
+/// cycle to cycle to tell its replies apart and no slave reads. Two headers of one key make
+/// every ESC act alike (a simulator recognises a cycle's frames by it).
+#[inline]
+pub fn header_shape_key(header: &[u8; DATAGRAM_HEADER_LEN]) -> (u64, u16) {
+    let (lo, irq) = header.split_at(8);
+    let mut w = [0u8; 8];
+    w.copy_from_slice(lo);
+    (
+        u64::from_le_bytes(w) & !0xff00,
+        u16::from_le_bytes([irq[0], irq[1]]),
+    )
+}
+
 /// The 32-bit address field of a datagram, interpreted by the command's address mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum DatagramAddress {
@@ -290,6 +305,28 @@ mod tests {
         0x04, 0x07, 0x01, 0x10, 0x10, 0x09, 0x04, 0x80, 0x00, 0x00, 0xaa, 0xbb, 0xcc, 0xdd, 0x01,
         0x00,
     ];
+
+    #[test]
+    fn a_header_s_shape_key_leaves_out_the_index_only() {
+        let h: [u8; DATAGRAM_HEADER_LEN] = FPRD[..DATAGRAM_HEADER_LEN].try_into().unwrap();
+        let key = header_shape_key(&h);
+        let mut other = h;
+        other[1] = 0x42;
+        assert_eq!(
+            header_shape_key(&other),
+            key,
+            "another index, the same shape"
+        );
+        for at in (0..DATAGRAM_HEADER_LEN).filter(|&at| at != 1) {
+            let mut changed = h;
+            changed[at] ^= 0x01;
+            assert_ne!(
+                header_shape_key(&changed),
+                key,
+                "byte {at} is part of the shape"
+            );
+        }
+    }
 
     #[test]
     fn parses_hand_built_fprd() {

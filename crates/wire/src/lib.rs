@@ -50,6 +50,7 @@ pub use builder::FrameBuilder;
 pub use command::{AddressMode, Command};
 pub use datagram::{
     DATAGRAM_HEADER_LEN, DATAGRAM_OVERHEAD, Datagram, DatagramAddress, MAX_DATAGRAM_DATA, WKC_LEN,
+    header_shape_key,
 };
 pub use dl::{DL_STATUS_LEN, DlStatus, DlStatusRepr, PortStatus};
 pub use error::WireError;
