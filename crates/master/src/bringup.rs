@@ -1861,13 +1861,13 @@ async fn enter_op(
                 let st = link
                     .fprd(s.station, reg::AL_STATUS, 6, "AL status and code")
                     .await?;
-                let a = AlStatus::new_checked(&st[..2])
+                let a = AlStatus::new_checked(&st[..])
                     .map_err(|_| MasterError::BadReply("AL status"))?;
                 if a.error() {
                     return Err(MasterError::StateChange {
                         slave: s.station,
                         state: AlState::Op,
-                        code: AlStatusCode::from(u16::from_le_bytes([st[4], st[5]])),
+                        code: a.status_code().unwrap_or(AlStatusCode::NoError),
                     });
                 }
             }

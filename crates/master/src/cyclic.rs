@@ -582,7 +582,10 @@ impl<S: MasterSync> CyclicEngine<S> {
             };
             if let Some(at) = plan.frmw_data_at {
                 let outage = std::mem::take(&mut self.health.reference_lost_cycles);
-                let frmw_wkc = u16::from_le_bytes([r[at + 8], r[at + 9]]);
+                let frmw_wkc = r
+                    .get(at - DATAGRAM_HEADER_LEN..)
+                    .and_then(|d| ecsync_wire::Datagram::new_checked(d).ok())
+                    .map_or(0, |d| d.wkc());
                 if frmw_wkc > 0 {
                     let raw = u64::from_le_bytes(r[at..at + 8].try_into().unwrap_or([0; 8]));
                     // A 32-bit reference reads 0 in the upper half: extend next to the
