@@ -249,6 +249,14 @@ impl Transport for RealLink {
     }
 
     fn sleep_until(&mut self, t_ns: u64) {
+        // The PHC's mapping measured again when due, in the time the task would sleep anyway
+        // (never between a cycle's wake-up and its frames).
+        if let Some((phc, map, next)) = &mut self.phc
+            && sys::realtime_ns() >= *next
+        {
+            measure_phc(phc, map);
+            *next = sys::realtime_ns() + PHC_REFRESH_NS;
+        }
         let spin = match self.cycle_armed.take() {
             Some(c) if self.send.spins(c) => self.send.spin_margin_ns,
             _ => None,
@@ -298,14 +306,6 @@ impl Transport for RealLink {
         }
         if let Some(n) = &mut self.sent_in_cycle {
             *n += 1;
-        }
-        if let Some((phc, map, next)) = &mut self.phc
-            && sys::realtime_ns() >= *next
-        {
-            // (Between frames of the bring-up, or before a cycle's first: not in a cycle's
-            // burst.)
-            measure_phc(phc, map);
-            *next = sys::realtime_ns() + PHC_REFRESH_NS;
         }
         match self.sock.send(&self.tx_buf) {
             Ok(()) => {}
