@@ -184,7 +184,9 @@ pub struct Args {
     methods: Option<Vec<String>>,
     /// Send modes every method runs with, comma-separated: plain (the letter's), spin (wake
     /// early, busy-wait to the instant), txtime (hand the frame over early with its launch
-    /// time); default: the scenario's `[send] modes`, plain alone unless it says otherwise.
+    /// time), hwstamp (send as plain, t_ms from the NIC's hardware transmit stamp; master-shift
+    /// methods only); default: the scenario's `[send] modes`, plain alone unless it says
+    /// otherwise.
     /// The modes' parameters are the scenario's `[send]` table.
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     send: Option<Vec<String>>,

@@ -798,6 +798,8 @@ mod tests {
             assert_eq!(m.name(), kind.name());
             assert_eq!(m.init_cycles(), p.init_frames(kind));
             assert_eq!(kind.has_init_frames(), p.init_frames(kind) > 0);
+            // The kind's word agrees with the built method's own.
+            assert_eq!(kind.is_master_shift(), m.is_master_shift(), "{kind}");
         }
         // The aimed methods take the target: snap as ethercrab's shift into the cycle.
         assert_eq!(

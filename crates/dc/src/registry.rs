@@ -113,6 +113,14 @@ impl MethodKind {
         }
     }
 
+    /// Whether the method shifts the master (its sends follow the network's time) rather than
+    /// the network (it writes its send time into the reference's clock before the frame
+    /// leaves): only a master-shift method can take a transmit stamp, which comes after the
+    /// send, as its t_ms.
+    pub const fn is_master_shift(self) -> bool {
+        !matches!(self, MethodKind::BusShift | MethodKind::DcmBusShift)
+    }
+
     /// Whether the method spends initialisation frames before it corrects (their number is
     /// its `init_frames` parameter).
     pub const fn has_init_frames(self) -> bool {

@@ -274,6 +274,12 @@ fn send_note(
                 Some(s) if s.mode == crate::send::SendMode::Txtime => {
                     format!(", {} launch times missed (frames dropped)", s.launch_misses)
                 }
+                Some(s) if s.mode == crate::send::SendMode::Hwstamp => {
+                    format!(
+                        ", the method's M-rS std {:.3} us (t_ms from the NIC's stamp)",
+                        mo.m_rs_pooled.std / 1e3
+                    )
+                }
                 _ => String::new(),
             };
             format!(
@@ -287,6 +293,9 @@ fn send_note(
         .collect();
     t.push_str(&parts.join("; "));
     t.push_str(". What a mode buys is the send jitter after the method's decision (j_s, and j_c with txtime), which no method can filter: the phase spread and the shift it needs shrink by it.");
+    if same.iter().any(|m| m.ends_with("+hwstamp")) {
+        t.push_str(" A hardware transmit stamp buys a truer measurement, not a truer send: j_c leaves the method's t_ms, j_s still moves the frame.");
+    }
     Some(t)
 }
 

@@ -900,6 +900,8 @@ impl Run {
         let mut driver = CyclicDriver::new(CyclicLimits {
             reply_timeout_ns: (period / 2).max(comes_back_ns),
             lost_in_a_row: u64::MAX,
+            // (`hwstamp` runs only master-shift methods: see `SendMode::applies_to`.)
+            t_ms_from_tx_stamp: entry.send == SendMode::Hwstamp,
             ..CyclicLimits::default()
         });
         // Slaves that lose their configuration (a power cycle) are brought back while the

@@ -45,6 +45,7 @@ struct SendFile {
     txtime_delta_us: Option<f64>,
     launch_jitter_ns: Option<f64>,
     launch_to_wire_ns: Option<f64>,
+    hw_stamp_error_ns: Option<f64>,
 }
 
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -201,6 +202,7 @@ impl Scenario {
             .flat_map(|&kind| {
                 self.send_modes
                     .iter()
+                    .filter(move |m| m.applies_to(kind))
                     .map(move |&send| Entry { kind, send })
             })
             .collect()
@@ -302,7 +304,15 @@ impl Scenario {
                 "send",
                 "modes",
                 "no send modes",
-                "name at least one of: plain, spin, txtime",
+                "name at least one of: plain, spin, txtime, hwstamp",
+            ));
+        }
+        if self.entries().is_empty() {
+            return Err(Problem::new(
+                "send",
+                "modes",
+                "hwstamp alone with bus-shift methods only: nothing to run (a transmit stamp comes after the send, which a bus-shift method has already written into the frame)",
+                "add a master-shift method, or the send mode plain",
             ));
         }
         if let Err((field, message)) = self.send.validate(self.cycle_ns, &self.send_modes) {
@@ -567,7 +577,14 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
     for m in sf.modes.clone().unwrap_or_else(|| vec!["plain".into()]) {
         match m.parse::<SendMode>() {
             Ok(k) => send_modes.push(k),
-            Err(e) => return Err(err("send", "modes", e, "use plain, spin and/or txtime")),
+            Err(e) => {
+                return Err(err(
+                    "send",
+                    "modes",
+                    e,
+                    "use plain, spin, txtime and/or hwstamp",
+                ));
+            }
         }
     }
     let d = SendParams::default();
@@ -579,6 +596,7 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
         txtime_delta_ns: us(sf.txtime_delta_us, d.txtime_delta_ns),
         launch_jitter_ns: sf.launch_jitter_ns.unwrap_or(d.launch_jitter_ns),
         launch_to_wire_ns: sf.launch_to_wire_ns.unwrap_or(d.launch_to_wire_ns),
+        hw_stamp_error_ns: sf.hw_stamp_error_ns.unwrap_or(d.hw_stamp_error_ns),
     };
     let s = Scenario {
         name: file.to_string(),

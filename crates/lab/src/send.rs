@@ -14,6 +14,12 @@
 //!   leaves at the launch time plus the NIC's launch jitter, and t_ms is the launch time. A
 //!   frame handed over after its launch time less the qdisc's delta is dropped (ETF's
 //!   deadline miss, read back from the socket's error queue) and counted.
+//! * `hwstamp`: sent as `plain`, but the NIC stamps the frame in hardware as its first bit
+//!   leaves, and a master-shift method takes that stamp (mapped to the host's clock, within
+//!   `hw_stamp_error_ns`) as its t_ms: the stack's latency and j_c leave the method's
+//!   measurement. The frame still leaves when j_s lets it: what the mode buys is a truer
+//!   measurement, not a truer send. Bus-shift methods write their send time into the frame
+//!   before it leaves and have no such column.
 //!
 //! Every draw is a pure function of (seed, cycle), like the host's own noise: every method and
 //! mode of a run sees the same host.
@@ -36,11 +42,18 @@ pub enum SendMode {
     Spin,
     /// Hand the frame over early with its launch time.
     Txtime,
+    /// Send as plain; t_ms is the NIC's hardware transmit stamp.
+    Hwstamp,
 }
 
 impl SendMode {
     /// Every mode, in report order.
-    pub const ALL: [SendMode; 3] = [SendMode::Plain, SendMode::Spin, SendMode::Txtime];
+    pub const ALL: [SendMode; 4] = [
+        SendMode::Plain,
+        SendMode::Spin,
+        SendMode::Txtime,
+        SendMode::Hwstamp,
+    ];
 
     /// The mode's name as written in files and on the command line.
     pub fn name(self) -> &'static str {
@@ -48,7 +61,14 @@ impl SendMode {
             SendMode::Plain => "plain",
             SendMode::Spin => "spin",
             SendMode::Txtime => "txtime",
+            SendMode::Hwstamp => "hwstamp",
         }
+    }
+
+    /// Whether method `kind` runs with this mode: a transmit stamp comes after the send, which
+    /// a bus-shift method has written into the frame already.
+    pub fn applies_to(self, kind: ecsync_dc::MethodKind) -> bool {
+        self != SendMode::Hwstamp || kind.is_master_shift()
     }
 }
 
@@ -65,7 +85,7 @@ impl FromStr for SendMode {
         SendMode::ALL
             .into_iter()
             .find(|m| m.name() == s)
-            .ok_or_else(|| format!("no send mode \"{s}\": plain, spin or txtime"))
+            .ok_or_else(|| format!("no send mode \"{s}\": plain, spin, txtime or hwstamp"))
     }
 }
 
@@ -107,6 +127,10 @@ pub struct SendParams {
     pub launch_jitter_ns: f64,
     /// `txtime`: from the launch time to the first bit on the wire, ns.
     pub launch_to_wire_ns: f64,
+    /// `hwstamp`: the hardware transmit stamp's error against the first bit's true time on the
+    /// master's clock (standard deviation), ns: the PHC's resolution and its mapping to the
+    /// host clock.
+    pub hw_stamp_error_ns: f64,
 }
 
 impl Default for SendParams {
@@ -118,6 +142,7 @@ impl Default for SendParams {
             txtime_delta_ns: 10_000.0,
             launch_jitter_ns: 50.0,
             launch_to_wire_ns: 1_000.0,
+            hw_stamp_error_ns: 20.0,
         }
     }
 }
@@ -139,6 +164,7 @@ impl SendParams {
             ("txtime_delta_ns", self.txtime_delta_ns),
             ("launch_jitter_ns", self.launch_jitter_ns),
             ("launch_to_wire_ns", self.launch_to_wire_ns),
+            ("hw_stamp_error_ns", self.hw_stamp_error_ns),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err((f, format!("{v} must be a finite number >= 0")));
@@ -191,9 +217,23 @@ pub fn apply(mode: SendMode, p: &SendParams, n: CycleNoise, seed: u64, cycle: u6
                 wake_to_send_ns: work,
                 tx_ns: n.tx_ns,
                 dropped: false,
+                tx_stamp_error_ns: None,
             },
             spin_ns: 0.0,
         },
+        SendMode::Hwstamp => {
+            let mut rng = SplitMix64(splitmix64(seed ^ 0x4857_5354 ^ splitmix64(cycle)));
+            let g: f64 = StandardNormal.sample(&mut rng);
+            SendOutcome {
+                delays: HostDelays {
+                    wake_to_send_ns: work,
+                    tx_ns: n.tx_ns,
+                    dropped: false,
+                    tx_stamp_error_ns: Some(g * p.hw_stamp_error_ns),
+                },
+                spin_ns: 0.0,
+            }
+        }
         SendMode::Spin => {
             // Woken `margin` early: what the work leaves of the margin is spun away.
             let late = (work - p.spin_margin_ns).max(0.0);
@@ -204,6 +244,7 @@ pub fn apply(mode: SendMode, p: &SendParams, n: CycleNoise, seed: u64, cycle: u6
                     wake_to_send_ns: late + residual,
                     tx_ns: n.tx_ns,
                     dropped: false,
+                    tx_stamp_error_ns: None,
                 },
                 spin_ns: (p.spin_margin_ns - work).max(0.0) + residual,
             }
@@ -220,6 +261,7 @@ pub fn apply(mode: SendMode, p: &SendParams, n: CycleNoise, seed: u64, cycle: u6
                     wake_to_send_ns: 0.0,
                     tx_ns: (p.launch_to_wire_ns + g * p.launch_jitter_ns).max(0.0),
                     dropped,
+                    tx_stamp_error_ns: None,
                 },
                 spin_ns: 0.0,
             }
@@ -283,6 +325,31 @@ mod tests {
         let sd = (xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / xs.len() as f64).sqrt();
         assert!((mean - 1_000.0).abs() < 2.0, "{mean}");
         assert!((sd - 50.0).abs() < 2.0, "{sd}");
+    }
+
+    #[test]
+    fn hwstamp_sends_as_plain_and_stamps_within_its_error() {
+        let p = SendParams::default();
+        let plain = apply(SendMode::Plain, &p, noise(5_000.0), 1, 2);
+        let hw = apply(SendMode::Hwstamp, &p, noise(5_000.0), 1, 2);
+        assert_eq!(hw.delays.wake_to_send_ns, plain.delays.wake_to_send_ns);
+        assert_eq!(hw.delays.tx_ns, plain.delays.tx_ns);
+        assert_eq!(plain.delays.tx_stamp_error_ns, None);
+        let xs: Vec<f64> = (0..20_000)
+            .map(|c| {
+                apply(SendMode::Hwstamp, &p, noise(0.0), 9, c)
+                    .delays
+                    .tx_stamp_error_ns
+                    .unwrap()
+            })
+            .collect();
+        let mean = xs.iter().sum::<f64>() / xs.len() as f64;
+        let sd = (xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / xs.len() as f64).sqrt();
+        assert!(mean.abs() < 1.0, "{mean}");
+        assert!((sd - 20.0).abs() < 1.0, "{sd}");
+        assert!(SendMode::Hwstamp.applies_to(ecsync_dc::MethodKind::MedianFit));
+        assert!(!SendMode::Hwstamp.applies_to(ecsync_dc::MethodKind::BusShift));
+        assert!(SendMode::Txtime.applies_to(ecsync_dc::MethodKind::BusShift));
     }
 
     #[test]

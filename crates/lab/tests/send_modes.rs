@@ -116,3 +116,59 @@ fn a_bad_send_table_names_its_field() {
     assert_eq!(e.field, "send.spin_margin_us", "{e}");
     assert!(e.message.contains("300 us"), "{e}");
 }
+
+/// `hwstamp`: the frames leave as `plain`'s do (the true phase keeps the host's scheduling
+/// jitter j_s), but a master-shift method's t_ms is the NIC's hardware stamp of the first bit
+/// on the wire: the stack's latency and j_c leave its measurement, whose spread falls to the
+/// stamp's own error (20 ns, the parameter: the independent truth) and the MII ports' 40 ns
+/// receive grid. A bus-shift method gets no such column.
+#[test]
+fn hwstamp_takes_j_c_out_of_the_measurement_not_out_of_the_send() {
+    let mut s = ecsync_lab::parse("paper-2024", ecsync_esc::preset::PAPER_2024_TOML).unwrap();
+    s.methods = vec![
+        ecsync_dc::MethodKind::MedianFit,
+        ecsync_dc::MethodKind::BusShift,
+    ];
+    s.send_modes = vec![SendMode::Plain, SendMode::Hwstamp];
+    s.runs = 1;
+    s.cycles = 100_000;
+    assert_eq!(s.send.hw_stamp_error_ns, 20.0);
+    let names: Vec<String> = s.entries().iter().map(|e| e.name()).collect();
+    assert_eq!(names, ["median-fit", "median-fit+hwstamp", "bus-shift"]);
+    let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
+    let out = summarize(&c);
+    let plain = &out.methods["median-fit"];
+    let hw = &out.methods["median-fit+hwstamp"];
+    let (m_plain, m_hw) = (plain.m_rs_pooled.std, hw.m_rs_pooled.std);
+    let (p_plain, p_hw) = (
+        plain.ground_truth.phase_error.std,
+        hw.ground_truth.phase_error.std,
+    );
+    println!(
+        "M-rS std: plain {m_plain:.1} ns, hwstamp {m_hw:.1} ns; true phase std {p_plain:.0} / {p_hw:.0} ns"
+    );
+    assert!(m_hw < 0.1 * m_plain, "{m_hw} against {m_plain}");
+    assert!(
+        m_hw < 60.0,
+        "{m_hw} ns: more than the stamp's error and the 40 ns grid"
+    );
+    assert!(
+        (p_hw - p_plain).abs() < 0.05 * p_plain,
+        "{p_hw} against {p_plain}"
+    );
+    let note = out
+        .recommendation
+        .send_modes
+        .as_deref()
+        .expect("a send-mode note");
+    assert!(
+        note.contains("hwstamp:") && note.contains("truer measurement"),
+        "{note}"
+    );
+    // Alone with bus-shift methods, the mode is refused with the field and the fix.
+    let mut b = s.clone();
+    b.methods = vec![ecsync_dc::MethodKind::BusShift];
+    b.send_modes = vec![SendMode::Hwstamp];
+    let e = b.check().unwrap_err().to_string();
+    assert!(e.contains("modes") && e.contains("master-shift"), "{e}");
+}

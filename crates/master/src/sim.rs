@@ -166,6 +166,10 @@ pub struct HostDelays {
     /// The cycle's frames never reach the wire: handed to the kernel with a launch time that
     /// had passed (SO_TXTIME's ETF qdisc drops them and reports a deadline miss).
     pub dropped: bool,
+    /// The NIC stamps the cycle's first frame in hardware: the stamp is the master-clock time
+    /// of its first bit on the wire plus this error, ns (the PHC's resolution and its mapping
+    /// to the host's clock); `None`: no transmit stamp.
+    pub tx_stamp_error_ns: Option<f64>,
 }
 
 /// Where a simulated host's per-cycle timing comes from (the lab's seeded noise).
@@ -193,6 +197,9 @@ pub struct SimTransport {
     /// frames were so far.
     drop_cycle: bool,
     launch_misses: u64,
+    /// The hardware transmit stamp of this cycle's first frame, master ns (a host whose NIC
+    /// stamps, see [`HostDelays::tx_stamp_error_ns`]).
+    cycle_tx_stamp_ns: Option<u64>,
     /// Replies in flight, in the order they arrive: when each is complete at the master (real
     /// ps), its bytes; and spent buffers to reuse.
     inflight: std::collections::VecDeque<(u64, Vec<u8>)>,
@@ -230,6 +237,7 @@ impl SimTransport {
             delays: None,
             drop_cycle: false,
             launch_misses: 0,
+            cycle_tx_stamp_ns: None,
             inflight: std::collections::VecDeque::new(),
             spare: Vec::new(),
             wire_free_ps: 0,
@@ -256,6 +264,7 @@ impl SimTransport {
             delays: None,
             drop_cycle: false,
             launch_misses: 0,
+            cycle_tx_stamp_ns: None,
             inflight: self.inflight.clone(),
             spare: Vec::new(),
             wire_free_ps: self.wire_free_ps,
@@ -471,12 +480,19 @@ impl Transport for SimTransport {
         at_ns: u64,
         fill: F,
     ) -> Result<u64, Never> {
-        let tx_ps = match self.delays.take() {
+        let delays = self.delays.take();
+        let tx_ps = match delays {
             Some(d) => self.real_ps_at(at_ns) + (d.tx_ns * 1000.0) as u64,
             None => self.now_ps + self.tx_latency_ps,
         };
         // Frames leave one after the other.
         let tx_ps = tx_ps.max(self.wire_free_ps);
+        if let Some(err) = delays.and_then(|d| d.tx_stamp_error_ns)
+            && !self.drop_cycle
+        {
+            let stamp = self.master_clock.master_ns(tx_ps) as i64 + err.round() as i64;
+            self.cycle_tx_stamp_ns = Some(stamp as u64);
+        }
         self.wire_free_ps = tx_ps + frame_wire_time_ps(n);
         // A cycle's earlier frame keeps its ground truth before the segment's trace is
         // overwritten (one frame per cycle copies nothing).
@@ -559,7 +575,7 @@ impl Transport for SimTransport {
                 return Ok(Some(Received {
                     len: buf.len(),
                     received_ns: rx_ns,
-                    tx_stamp_ns: None,
+                    tx_stamp_ns: self.cycle_tx_stamp_ns,
                     stamped: true,
                     truncated: false,
                 }));
@@ -574,6 +590,7 @@ impl Transport for SimTransport {
     fn start_cycle(&mut self, cycle: u64) {
         self.delays = self.host.as_ref().map(|h| h.cycle(cycle));
         self.drop_cycle = self.delays.is_some_and(|d| d.dropped);
+        self.cycle_tx_stamp_ns = None;
         self.cycle_mode = true;
         self.frame_in_cycle = 0;
     }
