@@ -236,6 +236,16 @@ impl Esc {
         self.get_u16(reg::STATION_ADDRESS)
     }
 
+    /// The addresses a configured-address datagram (FPxx) names this ESC by: its station
+    /// address, and its alias while DL control enables it.
+    pub(crate) fn configured_addresses(&self) -> (u16, Option<u16>) {
+        (
+            self.station_address(),
+            self.alias_enabled()
+                .then(|| self.get_u16(reg::STATION_ALIAS)),
+        )
+    }
+
     /// Counters.
     pub fn stats(&self) -> EscStats {
         let mut s = self.stats;

@@ -12,9 +12,10 @@
 use crate::clock::{CrystalParams, PS_PER_NS};
 use crate::esc::{Deferred, Esc, EscStats};
 use crate::model::{DeviceInfo, EscModel, PortKind};
+use ecsync_wire::register as reg;
 use ecsync_wire::{
-    DATAGRAM_HEADER_LEN, ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, EcatFrame, MIN_FRAME_LEN,
-    header_shape_key, mark_returned_frame,
+    AddressMode, Command, DATAGRAM_HEADER_LEN, ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, EcatFrame,
+    MIN_FRAME_LEN, header_shape_key, mark_returned_frame,
 };
 use std::sync::Arc;
 
@@ -249,6 +250,8 @@ pub struct Segment {
     timing: Option<Arc<Timing>>,
     /// Per shape slot: the ESCs a frame of that shape does something at ([`VisitPlan`]).
     plans: Box<[Option<VisitPlan>]>,
+    /// The datagrams of the long frame being passed, by the station they name.
+    long: LongIndex,
     /// Bumped whenever an ESC's configuration generation changes or an ESC is handed out
     /// mutably: a visit plan holds only in the epoch it was made in.
     epoch: u64,
@@ -660,6 +663,7 @@ impl Segment {
             replay: true,
             timing: None,
             plans: vec![None; SHAPE_SLOTS].into_boxed_slice(),
+            long: LongIndex::default(),
             epoch: 0,
         })
     }
@@ -840,7 +844,8 @@ impl Segment {
     }
 
     /// Turns the replay of recorded frame shapes on or off (on by default; off runs every
-    /// datagram through the full decoding, for equivalence tests).
+    /// datagram through the full decoding at every ESC, long frames' too, for equivalence
+    /// tests).
     pub fn set_replay(&mut self, on: bool) {
         self.replay = on;
     }
@@ -969,6 +974,7 @@ impl Segment {
         // Port 0 of the first ESC marks the source address as locally administered (every
         // later one sets the same bit again).
         mark_returned_frame(frame);
+        self.long.usable = self.replay && matches!(kind, FrameKind::Long) && self.long.build(frame);
         let shape = match kind {
             FrameKind::Chain(ctx) => ctx.shape,
             _ => 0,
@@ -1095,7 +1101,16 @@ impl Segment {
             }
             FrameKind::Long => {
                 let generation = node.esc.generation();
-                let fx = process_long_frame(&mut node.esc, frame, t);
+                let fx = if self.long.usable {
+                    let offs = self.long.for_esc(node.esc.configured_addresses());
+                    let e = node.esc.process_frame(frame, offs, 0, t);
+                    FrameEffects {
+                        latch: e.latch_receive_times,
+                        loops_changed: e.loops_changed,
+                    }
+                } else {
+                    process_long_frame(&mut node.esc, frame, t)
+                };
                 pass.generation_changed |= node.esc.generation() != generation;
                 fx
             }
@@ -1241,6 +1256,84 @@ pub fn frame_is_processable(frame: &[u8]) -> bool {
         return false;
     };
     f.datagrams().all(|d| d.is_ok())
+}
+
+/// A long frame's datagrams (more than a shape holds: the bring-up's per-slave exchanges of a
+/// large network, one FPRD or FPWR per slave) sorted by the station they name, so that each ESC
+/// takes the ones that name it and those that address every ESC, in frame order, instead of
+/// walking hundreds it would pass by: the same effects (a configured-address datagram that names
+/// another station does nothing at an ESC but pass, FRMW aside, which every ESC takes) at a cost
+/// that no longer grows with the square of the network. Not used where a datagram of the frame
+/// could change whom a later one names (a write of the station address, the alias or DL control,
+/// a logical write) or where the chain is too long to list.
+#[derive(Debug, Clone, Default)]
+struct LongIndex {
+    /// Whether the frame being passed is indexed.
+    usable: bool,
+    /// Offsets of the datagrams every ESC takes (position, broadcast, logical, FRMW, NOP).
+    everyone: Vec<u16>,
+    /// (station, offset) of the other configured-address datagrams, sorted.
+    by_station: Vec<(u16, u16)>,
+    /// The offsets one ESC takes, in frame order.
+    subset: Vec<u16>,
+}
+
+impl LongIndex {
+    /// Indexes `frame`'s datagrams; false where it cannot be (see [`LongIndex`]).
+    fn build(&mut self, frame: &[u8]) -> bool {
+        let mut all = [0u16; 256];
+        let Some(m) = datagram_offsets(frame, &mut all).filter(|&m| m <= all.len()) else {
+            return false;
+        };
+        self.everyone.clear();
+        self.by_station.clear();
+        for &at in &all[..m] {
+            let d = ecsync_wire::Datagram::new_unchecked(&frame[usize::from(at)..]);
+            let Ok(cmd) = d.command() else {
+                self.everyone.push(at);
+                continue;
+            };
+            let (lo, hi) = (usize::from(d.ado()), usize::from(d.ado()) + d.data_len());
+            let names_whom = |a: usize, b: usize| lo < b && a < hi;
+            if cmd.writes()
+                && (cmd.address_mode() == AddressMode::Logical
+                    || names_whom(
+                        usize::from(reg::STATION_ADDRESS),
+                        usize::from(reg::STATION_ALIAS) + 2,
+                    )
+                    || names_whom(
+                        usize::from(reg::DL_CONTROL),
+                        usize::from(reg::DL_CONTROL) + 4,
+                    ))
+            {
+                return false;
+            }
+            if cmd.address_mode() == AddressMode::Configured && cmd != Command::Frmw {
+                self.by_station.push((d.adp(), at));
+            } else {
+                self.everyone.push(at);
+            }
+        }
+        self.by_station.sort_unstable();
+        true
+    }
+
+    /// The offsets an ESC named by `addresses` (station, alias) takes, in frame order.
+    fn for_esc(&mut self, (station, alias): (u16, Option<u16>)) -> &[u16] {
+        self.subset.clear();
+        self.subset.extend_from_slice(&self.everyone);
+        for a in std::iter::once(station).chain(alias.filter(|&a| a != station)) {
+            let from = self.by_station.partition_point(|&(s, _)| s < a);
+            self.subset.extend(
+                self.by_station[from..]
+                    .iter()
+                    .take_while(|&&(s, _)| s == a)
+                    .map(|&(_, at)| at),
+            );
+        }
+        self.subset.sort_unstable();
+        &self.subset
+    }
 }
 
 /// A frame with more datagrams than the replay handles: walked at each ESC, never cached.

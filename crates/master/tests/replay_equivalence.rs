@@ -190,3 +190,112 @@ fn replay_of_a_cycle_of_several_frames_is_exact() {
         );
     }
 }
+
+fn mixed_frame(dgs: &[(Command, u32, Vec<u8>)]) -> Vec<u8> {
+    let mut buf = vec![0u8; 1514];
+    let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0, 1, 2, 3, 4, 5]).unwrap();
+    for (i, (c, a, d)) in dgs.iter().enumerate() {
+        let addr = match c.address_mode() {
+            ecsync_wire::AddressMode::Logical => DatagramAddress::Logical(*a),
+            ecsync_wire::AddressMode::Configured => DatagramAddress::Configured {
+                adp: *a as u16,
+                ado: (*a >> 16) as u16,
+            },
+            _ => DatagramAddress::Position {
+                adp: *a as u16,
+                ado: (*a >> 16) as u16,
+            },
+        };
+        b.push(*c, i as u8, addr, d).unwrap();
+    }
+    let n = b.finish();
+    buf.truncate(n);
+    buf
+}
+
+/// Long frames (more datagrams than a shape holds: the bring-up's per-slave exchanges),
+/// which each ESC takes by the station they name: byte-identical frames and ESC states with
+/// the index and without it (replay off walks every datagram at every ESC), for frames of
+/// FPRD, FPWR, FRMW, APRD and BRD to stations that exist, that do not, and twice the same, and
+/// for the frames the index leaves alone: one that writes a station address before an FPRD to
+/// the new one in the same frame.
+#[test]
+fn long_frames_by_station_are_exact() {
+    let base = CycleBench::line(160);
+    let mut on: Segment = base.segment.clone();
+    let mut off: Segment = base.segment.clone();
+    off.set_replay(false);
+    let at = |st: u16, ado: u16| u32::from(st) | (u32::from(ado) << 16);
+    let mut x = 0x2545_f491_4f6c_dd1du64;
+    let mut next = |n: u64| {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x % n
+    };
+    let mut t = base.start_ps;
+    for round in 0..40 {
+        let mut dgs = Vec::new();
+        for _ in 0..30 + next(50) {
+            let st = 0x1000 + next(170) as u16;
+            dgs.push(match next(10) {
+                0 => (Command::Frmw, at(0x1000, 0x0910), vec![0; 8]),
+                1 => (
+                    Command::Aprd,
+                    at(0u16.wrapping_sub(next(160) as u16), 0x0130),
+                    vec![0; 2],
+                ),
+                2 => (Command::Brd, at(0, 0x0000), vec![0; 4]),
+                // A user RAM register every ESC has (ESC RAM, writable).
+                3 | 4 => (
+                    Command::Fpwr,
+                    at(st, 0x0f80),
+                    vec![round as u8, next(256) as u8],
+                ),
+                _ => (Command::Fprd, at(st, 0x0f80), vec![0; 2]),
+            });
+        }
+        if round == 20 {
+            // The station address of drive 5 moved (0x2000) and read at the new one.
+            dgs.insert(
+                0,
+                (
+                    Command::Fpwr,
+                    at(0x1005, 0x0010),
+                    0x2000u16.to_le_bytes().to_vec(),
+                ),
+            );
+            dgs.push((Command::Fprd, at(0x2000, 0x0010), vec![0; 2]));
+        }
+        if round == 21 {
+            dgs.insert(
+                0,
+                (
+                    Command::Fpwr,
+                    at(0x2000, 0x0010),
+                    0x1005u16.to_le_bytes().to_vec(),
+                ),
+            );
+        }
+        let f = mixed_frame(&dgs);
+        let (mut a, mut b) = (f.clone(), f);
+        assert_eq!(
+            on.process(&mut a, t),
+            off.process(&mut b, t),
+            "round {round}"
+        );
+        assert_eq!(a, b, "round {round}");
+        t += 1_000_000_000;
+    }
+    for pos in 0..on.len() {
+        assert_eq!(
+            on.esc_stats(pos).frames,
+            off.esc_stats(pos).frames,
+            "slave {pos}"
+        );
+        assert_eq!(
+            on.esc(pos).station_address(),
+            off.esc(pos).station_address()
+        );
+    }
+}

@@ -256,7 +256,7 @@ impl Esc {
     }
 
     /// Whether the station alias may address this ESC (DL control bit 24).
-    pub(super) fn alias_enabled(&self) -> bool {
+    pub(crate) fn alias_enabled(&self) -> bool {
         self.regs[usize::from(reg::DL_CONTROL) + 3] & 0x01 != 0
     }
 
