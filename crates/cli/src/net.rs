@@ -664,10 +664,10 @@ fn tx_stamp_source(
             args.method
         );
     }
-    let caps = ecsync_net::sys::nic_timestamping(iface)
-        .map_err(|e| anyhow::anyhow!("ethtool -T {iface} (ETHTOOL_GET_TS_INFO): {e}"))?;
     let mut note = None;
     if matches!(mode, TxStampMode::Hardware | TxStampMode::Auto) {
+        let caps = ecsync_net::sys::nic_timestamping(iface)
+            .map_err(|e| anyhow::anyhow!("ethtool -T {iface} (ETHTOOL_GET_TS_INFO): {e}"))?;
         if caps.hardware_tx() {
             match link.enable_hardware_tx_stamps(iface) {
                 Ok(_) => return Ok((TxStampSource::NicHardware, None)),

@@ -1265,7 +1265,8 @@ pub fn frame_is_processable(frame: &[u8]) -> bool {
 /// another station does nothing at an ESC but pass, FRMW aside, which every ESC takes) at a cost
 /// that no longer grows with the square of the network. Not used where a datagram of the frame
 /// could change whom a later one names (a write of the station address, the alias or DL control,
-/// a logical write) or where the chain is too long to list.
+/// a logical write, a read-write command, which writes at the physical R/W offset) or where the
+/// chain is too long to list.
 #[derive(Debug, Clone, Default)]
 struct LongIndex {
     /// Whether the frame being passed is indexed.
@@ -1295,6 +1296,13 @@ impl LongIndex {
             };
             let (lo, hi) = (usize::from(d.ado()), usize::from(d.ado()) + d.data_len());
             let names_whom = |a: usize, b: usize| lo < b && a < hi;
+            // (A read-write command writes at the physical R/W offset of 0x0108 from its
+            // address, which an earlier datagram may have set: not indexed at all.)
+            let read_write =
+                cmd.reads() && cmd.writes() && !matches!(cmd, Command::Frmw | Command::Armw);
+            if read_write {
+                return false;
+            }
             if cmd.writes()
                 && (cmd.address_mode() == AddressMode::Logical
                     || names_whom(

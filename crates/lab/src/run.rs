@@ -1205,7 +1205,7 @@ impl Run {
                 // From the wire to the reply, late replies included (a reply that came after
                 // its deadline still says how long the frame needs).
                 if let Some(back) = tr.last_exchange().received_ps {
-                    let sent = tr.real_ps_at(rec.send_ns);
+                    let sent = tr.real_ps_at(rep.stamp_ns);
                     let rt = back.saturating_sub(sent) as f64 / 1000.0;
                     res.max_round_trip_ns = res.max_round_trip_ns.max(rt);
                 }

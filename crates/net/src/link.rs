@@ -1,6 +1,6 @@
 //! Frames out, frames in, on a raw socket in real time: the real network's [`Transport`].
 
-use crate::sys::{self, NicTimestamping, OpenError, PacketSocket, Phc, Ready, TimestampSupport};
+use crate::sys::{self, OpenError, PacketSocket, Phc, Ready, TimestampSupport};
 use crate::tx_stamp::{PHC_READINGS, PHC_REFRESH_NS, PhcMap, TxStampSource, phc_offset_ns};
 use ecsync_master::transport::{Received, Transport};
 use std::io;
@@ -93,6 +93,11 @@ pub struct RealLink {
     /// The NIC's PTP hardware clock and its mapping to CLOCK_REALTIME, with hardware
     /// transmit stamps on; the next instant (CLOCK_REALTIME) the mapping is measured again.
     phc: Option<(Phc, PhcMap, u64)>,
+    /// The NIC's timestamping setting before hardware stamps were switched on.
+    hw_restore: Option<sys::HwStampSetting>,
+    /// CLOCK_REALTIME right before the cycle's first send: a stamp earlier than it is a
+    /// stale one of an earlier frame (a NIC that queued it late).
+    first_send_rt: u64,
     /// The frame being sent.
     tx_buf: Vec<u8>,
     /// Sends and receives refused because the interface was down.
@@ -142,6 +147,8 @@ impl RealLink {
             tx_rt: None,
             sent_in_cycle: None,
             phc: None,
+            hw_restore: None,
+            first_send_rt: 0,
             tx_buf: Vec::with_capacity(RECV_BUF_LEN),
             send: SendControl::default(),
             cycle_armed: None,
@@ -170,12 +177,12 @@ impl RealLink {
 
     /// Switches `iface`'s NIC to hardware transmit timestamps and takes them as the frames'
     /// transmit stamps from now on ([`Received::tx_stamp_ns`]), mapped from its PTP hardware
-    /// clock to the host's. Refused, naming what is missing, where the NIC has none.
-    pub fn enable_hardware_tx_stamps(&mut self, iface: &str) -> Result<NicTimestamping, String> {
-        let caps = self
-            .sock
-            .enable_hardware_tx_stamps(iface)
-            .map_err(|e| format!("hardware TX timestamps on {iface}: {e}"))?;
+    /// clock to the host's; the NIC's setting is put back when the link is dropped. Refused,
+    /// naming what is missing, where the NIC has none; nothing is changed then (the PHC is
+    /// opened and read before the NIC and the socket are switched).
+    pub fn enable_hardware_tx_stamps(&mut self, iface: &str) -> Result<(), String> {
+        let caps = sys::nic_timestamping(iface)
+            .map_err(|e| format!("ethtool -T {iface} (ETHTOOL_GET_TS_INFO): {e}"))?;
         let index = caps
             .phc_index
             .ok_or_else(|| format!("{iface} has no PTP hardware clock"))?;
@@ -183,8 +190,13 @@ impl RealLink {
         let mut map = PhcMap::default();
         measure_phc(&phc, &mut map)
             .ok_or_else(|| format!("/dev/ptp{index} cannot be read (clock_gettime)"))?;
+        let setting = self
+            .sock
+            .enable_hardware_tx_stamps(iface)
+            .map_err(|e| format!("hardware TX timestamps on {iface}: {e}"))?;
+        self.hw_restore = Some(setting);
         self.phc = Some((phc, map, sys::realtime_ns() + PHC_REFRESH_NS));
-        Ok(caps)
+        Ok(())
     }
 
     /// Where the transmit stamps come from: the NIC, the kernel, or nowhere.
@@ -205,10 +217,12 @@ impl RealLink {
             if discard || self.tx_rt.is_some() {
                 continue;
             }
-            self.tx_rt = match &self.phc {
+            let t = match &self.phc {
                 Some((_, map, _)) => m.hardware_ns.and_then(|t| map.to_realtime_ns(t)),
                 None => m.software_ns,
             };
+            // (The PHC's mapping may put a true stamp a little early: a microsecond of slack.)
+            self.tx_rt = t.filter(|&t| t + 1_000 >= self.first_send_rt);
         }
         Ok(())
     }
@@ -216,6 +230,14 @@ impl RealLink {
     /// Whether the interface is promiscuous.
     pub fn promiscuous(&self) -> bool {
         self.sock.promiscuous()
+    }
+}
+
+impl Drop for RealLink {
+    fn drop(&mut self) {
+        if let Some(s) = self.hw_restore.take() {
+            sys::restore_hw_tx_stamps(&s);
+        }
     }
 }
 
@@ -303,6 +325,7 @@ impl Transport for RealLink {
         self.read_tx_stamps(first)?;
         if first {
             self.tx_rt = None;
+            self.first_send_rt = sys::realtime_ns();
         }
         if let Some(n) = &mut self.sent_in_cycle {
             *n += 1;

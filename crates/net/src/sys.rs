@@ -42,6 +42,7 @@ const SOF_TIMESTAMPING_RAW_HARDWARE: libc::c_uint = 1 << 6;
 // include/uapi/linux/sockios.h, ethtool.h and net_tstamp.h.
 const SIOCETHTOOL: libc::c_ulong = 0x8946;
 const SIOCSHWTSTAMP: libc::c_ulong = 0x89b0;
+const SIOCGHWTSTAMP: libc::c_ulong = 0x89b1;
 const ETHTOOL_GET_TS_INFO: u32 = 0x41;
 const HWTSTAMP_TX_ON: i32 = 1;
 const HWTSTAMP_FILTER_NONE: i32 = 0;
@@ -347,6 +348,25 @@ pub fn nic_timestamping(iface: &str) -> io::Result<NicTimestamping> {
         }),
         Err(e) => Err(e),
     }
+}
+
+/// A NIC's hardware timestamping setting as it was before ecsync switched its transmit stamps
+/// on, to be put back.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct HwStampSetting {
+    iface: String,
+    tx_type: i32,
+    rx_filter: i32,
+}
+
+/// Puts a NIC's hardware timestamping setting back (best effort: the interface may be gone).
+pub fn restore_hw_tx_stamps(s: &HwStampSetting) {
+    let mut cfg = HwtstampConfig {
+        flags: 0,
+        tx_type: s.tx_type,
+        rx_filter: s.rx_filter,
+    };
+    let _ = ifreq_ioctl(&s.iface, SIOCSHWTSTAMP, &mut cfg);
 }
 
 /// A PTP hardware clock (`/dev/ptpN`), read as a dynamic POSIX clock.
@@ -739,9 +759,12 @@ impl PacketSocket {
     }
 
     /// Switches on the NIC's hardware transmit timestamps of `iface` (SIOCSHWTSTAMP,
-    /// HWTSTAMP_TX_ON) and asks for them on this socket, the software ones kept. Refused
-    /// with what is missing where the NIC has none (see [`NicTimestamping::hardware_missing`]).
-    pub fn enable_hardware_tx_stamps(&mut self, iface: &str) -> io::Result<NicTimestamping> {
+    /// HWTSTAMP_TX_ON, its receive filter left as it was: a ptp4l on the interface keeps its
+    /// receive stamps) and asks for them on this socket; the NIC's setting before is returned,
+    /// to be put back ([`restore_hw_tx_stamps`]). With hardware stamps on, the kernel queues no
+    /// software transmit stamp for the frames the NIC stamps. Refused with what is missing
+    /// where the NIC has none (see [`NicTimestamping::hardware_missing`]).
+    pub fn enable_hardware_tx_stamps(&mut self, iface: &str) -> io::Result<HwStampSetting> {
         let caps = nic_timestamping(iface)?;
         let missing = caps.hardware_missing();
         if !missing.is_empty() {
@@ -753,22 +776,43 @@ impl PacketSocket {
                 ),
             ));
         }
+        // The setting as it is (a driver without SIOCGHWTSTAMP: stamping off).
+        let mut before = HwtstampConfig {
+            flags: 0,
+            tx_type: 0,
+            rx_filter: HWTSTAMP_FILTER_NONE,
+        };
+        if ifreq_ioctl(iface, SIOCGHWTSTAMP, &mut before).is_err() {
+            before = HwtstampConfig {
+                flags: 0,
+                tx_type: 0,
+                rx_filter: HWTSTAMP_FILTER_NONE,
+            };
+        }
         let mut cfg = HwtstampConfig {
             flags: 0,
             tx_type: HWTSTAMP_TX_ON,
-            rx_filter: HWTSTAMP_FILTER_NONE,
+            rx_filter: before.rx_filter,
         };
         ifreq_ioctl(iface, SIOCSHWTSTAMP, &mut cfg)?;
+        let setting = HwStampSetting {
+            iface: iface.to_string(),
+            tx_type: before.tx_type,
+            rx_filter: before.rx_filter,
+        };
         let flags: libc::c_uint = SOF_TIMESTAMPING_RX_SOFTWARE
             | SOF_TIMESTAMPING_TX_SOFTWARE
             | SOF_TIMESTAMPING_SOFTWARE
             | SOF_TIMESTAMPING_TX_HARDWARE
             | SOF_TIMESTAMPING_RAW_HARDWARE
             | SOF_TIMESTAMPING_OPT_TSONLY;
-        setsockopt(&self.fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPING, &flags)?;
+        if let Err(e) = setsockopt(&self.fd, libc::SOL_SOCKET, libc::SO_TIMESTAMPING, &flags) {
+            restore_hw_tx_stamps(&setting);
+            return Err(e);
+        }
         self.timestamps.tx_software = true;
         self.timestamps.tx_hardware = true;
-        Ok(caps)
+        Ok(setting)
     }
 
     /// The kernel's software transmit timestamp of a frame sent earlier (CLOCK_REALTIME ns),
