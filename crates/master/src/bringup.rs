@@ -1146,7 +1146,7 @@ fn floor_slope(x: &[f64], y: &[f64]) -> Option<f64> {
 
 /// Every slave's crystal against the reference's: port receive times (0x0900, local time,
 /// uncorrected: the drift correction is reset first by writing 0x0930) latched every
-/// [`RATE_LATCH_STEP_NS`] over `window_ns` of master time; each slave's entry port stamps fitted
+/// `RATE_LATCH_STEP_NS` over `window_ns` of master time; each slave's entry port stamps fitted
 /// on the reference's (least squares, so the 40 ns stamp resolution averages out over the many
 /// latches). Every latch frame reaches every slave a fixed time after the reference, so the
 /// ratio is the crystals' alone, whatever the master's send jitter. Records
