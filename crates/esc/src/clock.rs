@@ -110,10 +110,12 @@ impl Split {
 }
 
 /// The local clock of one ESC.
+///
+/// `repr(C)`, the fields every read uses first (two cache lines), the crystal's parameters and
+/// the wander's random number generator (read only at a wander step) after them.
 #[derive(Debug, Clone)]
+#[repr(C)]
 pub struct LocalClock {
-    params: CrystalParams,
-    rng: ChaCha8Rng,
     /// Real time of the anchor, ps.
     anchor_ps: u64,
     /// Local time at the anchor.
@@ -131,6 +133,8 @@ pub struct LocalClock {
     c_drift: f64,
     slew_rate: f64,
     slew_remaining_ns: f64,
+    params: CrystalParams,
+    rng: ChaCha8Rng,
 }
 
 impl LocalClock {

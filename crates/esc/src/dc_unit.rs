@@ -107,22 +107,30 @@ fn round_fast(x: f64) -> i64 {
 }
 
 /// State of the DC unit.
+///
+/// `repr(C)`: the clock's hot part and what the cyclic frame's reads and the SYNC0 deadline
+/// use come first, on few cache lines (see [`crate::Esc`]'s layout).
 #[derive(Debug, Clone)]
+#[repr(C)]
 pub struct DcUnit {
     clock: LocalClock,
     sof_res: u64,
     sof_phase: u64,
-    is_64bit: bool,
     offset: u64,
     delay: u32,
-    // Time control loop.
-    speed_counter_start: u16,
-    dt_filter_depth: u8,
-    speed_filter_depth: u8,
-    dt_filtered: f64,
     /// 0x092C as read: `dt_filtered` (local - received) rounded and sign-magnitude encoded, kept
     /// in step with it (the cyclic frame reads it from every slave).
     diff_register: u32,
+    dt_filtered: f64,
+    start_time: u64,
+    sync0_cycle: u32,
+    is_64bit: bool,
+    activation: u8,
+    cyclic_control: u8,
+    // Time control loop.
+    dt_filter_depth: u8,
+    speed_counter_start: u16,
+    speed_filter_depth: u8,
     // Derived from the registers above, kept so the hot path divides nothing.
     dt_weight: f64,
     speed_gain: f64,
@@ -139,11 +147,7 @@ pub struct DcUnit {
     port_times: [u32; 4],
     pu_time: u64,
     // Cyclic unit.
-    cyclic_control: u8,
-    activation: u8,
     pulse_length: u16,
-    start_time: u64,
-    sync0_cycle: u32,
     sync1_cycle: u32,
     sync0_status_cleared_at: Option<u64>,
     latch_mode: u8,

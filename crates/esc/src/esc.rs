@@ -64,17 +64,67 @@ pub struct EscStats {
     pub replayed_frames: u64,
 }
 
+/// Aligns the ESC to a cache line: its hot fields come first (see [`Esc`]).
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(align(64))]
+struct CacheLine;
+
 /// A virtual ESC.
+///
+/// Laid out by hand (`repr(C)`): the fields a replayed cyclic frame reads come first, on a few
+/// cache lines (the program look-up and the watchdog on the first, the counters and flags on
+/// the second, then one line per program slot, the application, the DC unit, the SYNC0
+/// bookkeeping). In a network of hundreds of drives every ESC's state has left the cache by
+/// its next frame, and the cost of a visit is the lines it touches.
 #[derive(Debug, Clone)]
+#[repr(C)]
 pub struct Esc {
+    _align: [CacheLine; 0],
+    // Line 0: the program look-up and the watchdog's check.
+    /// Each program slot's shape and generation (empty slots carry the generation u64::MAX,
+    /// which no ESC reaches).
+    key_shapes: [u32; PROGRAM_SLOTS],
+    key_generations: [u64; PROGRAM_SLOTS],
+    /// Bumped by every change that could make a datagram act differently (register writes,
+    /// state changes); a recorded program is valid only for the generation it was recorded in.
+    generation: u64,
+    /// The process data watchdog's time while armed (OP, outputs triggering it), ps; 0: off.
+    wd_period_ps: u64,
+    // Line 1: what a replay updates.
+    /// The last write of the outputs, ps.
+    wd_last_write_ps: u64,
+    ram: Box<[u8]>,
+    /// Frames each slot's program replayed straight through and not yet in the ESC's
+    /// counters (one increment per frame instead of three; see [`Esc::stats`]).
+    replays: [u64; PROGRAM_SLOTS],
+    /// Each slot's program writes process RAM (the outputs): a replay restarts the process
+    /// data watchdog.
+    writes_ram: [bool; PROGRAM_SLOTS],
+    al_state: AlState,
+    /// The frame being processed wrote the outputs (the SYNC0 deadline is checked at its
+    /// end).
+    sync_pending: bool,
+    /// The outputs were written by the datagram being processed.
+    pd_written: bool,
+    /// The slot the next recording replaces when none is free.
+    next_slot: u8,
+    // Lines 2-5: each slot's straight-through steps.
+    fast: [replay::FastSlot; PROGRAM_SLOTS],
+    // The application and the DC unit.
+    app: Option<AppLayout>,
+    app_mem: process_data::AppMemory,
+    dc: Option<DcUnit>,
+    /// The SYNC0 deadline's bookkeeping.
+    sync: sync::SyncMonitor,
+    // Cold: what the full path and the bring-up use.
+    /// Programs recorded for the last few frame shapes: a cycle of several frames (the
+    /// first with the DC datagrams, the others with process data) keeps each one's.
+    programs: [Program; PROGRAM_SLOTS],
     model: EscModel,
     regs: Box<[u8; REG_SPACE]>,
     attr: Box<[u8; REG_SPACE]>,
-    ram: Box<[u8]>,
-    dc: Option<DcUnit>,
     dc_block: Box<[u8; DC_BLOCK_LEN]>,
     sii: SiiState,
-    al_state: AlState,
     al_error: bool,
     al_code: AlStatusCode,
     fmmus: [FmmuMapping; FMMUS],
@@ -86,35 +136,11 @@ pub struct Esc {
     loop_mode: [LoopMode; 4],
     output_sm: Option<usize>,
     input_sm: Option<usize>,
-    app: Option<AppLayout>,
-    app_mem: process_data::AppMemory,
     stats: EscStats,
     device: DeviceInfo,
-    /// Bumped by every change that could make a datagram act differently (register writes,
-    /// state changes); a recorded program is valid only for the generation it was recorded in.
-    generation: u64,
-    /// Programs recorded for the last few frame shapes: a cycle of several frames (the
-    /// first with the DC datagrams, the others with process data) keeps each one's.
-    programs: [Program; PROGRAM_SLOTS],
-    /// Each program's shape and generation, side by side: the look-up every frame makes
-    /// reads one cache line, not one per program.
-    program_keys: [(u32, u64); PROGRAM_SLOTS],
-    /// The slot the next recording replaces when none is free.
-    next_slot: u8,
     rec: Recorder,
     /// The mailbox and its CoE server (a device with a mailbox); boxed, it is rarely used.
     mbx: Option<Box<mailbox::MailboxState>>,
-    /// The process data watchdog's time while armed (OP, outputs triggering it), ps; 0: off.
-    wd_period_ps: u64,
-    /// The last write of the outputs, ps.
-    wd_last_write_ps: u64,
-    /// The outputs were written by the datagram being processed.
-    pd_written: bool,
-    /// The frame being processed wrote the outputs (the SYNC0 deadline is checked at its
-    /// end).
-    sync_pending: bool,
-    /// The SYNC0 deadline's bookkeeping.
-    sync: sync::SyncMonitor,
 }
 
 impl Esc {
@@ -169,7 +195,12 @@ impl Esc {
             programs: [Program::default(); PROGRAM_SLOTS],
             // No generation is u64::MAX: an empty slot matches no frame, shape 0 (never
             // recorded) included.
-            program_keys: [(0, u64::MAX); PROGRAM_SLOTS],
+            key_shapes: [0; PROGRAM_SLOTS],
+            key_generations: [u64::MAX; PROGRAM_SLOTS],
+            replays: [0; PROGRAM_SLOTS],
+            writes_ram: [false; PROGRAM_SLOTS],
+            fast: [replay::FastSlot::default(); PROGRAM_SLOTS],
+            _align: [],
             next_slot: 0,
             rec: Recorder::default(),
             mbx,
@@ -249,10 +280,10 @@ impl Esc {
     /// Counters.
     pub fn stats(&self) -> EscStats {
         let mut s = self.stats;
-        for p in &self.programs {
-            s.frames += p.replays;
-            s.replayed_frames += p.replays;
-            s.datagrams_counted += p.replays * u64::from(p.counted);
+        for (p, &replays) in self.programs.iter().zip(&self.replays) {
+            s.frames += replays;
+            s.replayed_frames += replays;
+            s.datagrams_counted += replays * u64::from(p.counted);
         }
         s
     }

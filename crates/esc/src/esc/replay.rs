@@ -420,16 +420,28 @@ pub(super) struct Program {
     ops: [Op; MAX_OPS],
     n: u8,
     pub(super) counted: u8,
-    /// `ops` as one straight-through step, when they are the cyclic frame's DC steps with or
-    /// without the process data.
-    cyclic: Option<CyclicSteps>,
-    /// `ops` as one straight-through step of process data.
-    simple: Option<Simple>,
-    /// Frames replayed by `cyclic` and not yet in the ESC's counters (one increment per frame
-    /// instead of three; see [`Esc::stats`]).
-    pub(super) replays: u64,
-    /// It writes process RAM (the outputs): a replay restarts the process data watchdog.
-    writes_ram: bool,
+}
+
+/// A recorded program as one straight-through step ([`Esc::replay_cyclic`]), if its steps are
+/// the cyclic frame's DC steps with or without the process data ([`CyclicSteps`]), or one step
+/// of process data ([`Simple`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(super) enum Straight {
+    /// The program is replayed op by op, if at all.
+    #[default]
+    None,
+    Cyclic(CyclicSteps),
+    Simple(Simple),
+}
+
+/// What a straight-through replay reads of one program slot, on a cache line of its own: in a
+/// large network every ESC's slots are out of the cache again by the next frame, and the
+/// steps (a few dozen bytes) are all a replay needs of the program (its ops, hundreds of bytes,
+/// stay cold).
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(64))]
+pub(crate) struct FastSlot {
+    pub(super) steps: Straight,
 }
 
 impl Default for Program {
@@ -440,10 +452,6 @@ impl Default for Program {
             ops: [Op::Nop; MAX_OPS],
             n: 0,
             counted: 0,
-            cyclic: None,
-            simple: None,
-            writes_ram: false,
-            replays: 0,
         }
     }
 }
@@ -481,7 +489,7 @@ impl Esc {
         // none.)
         let g = self.generation;
         // The slots in turn, as a small network's one frame always finds the first.
-        (0..PROGRAM_SLOTS).find(|&k| self.program_keys[k] == (shape, g))
+        (0..PROGRAM_SLOTS).find(|&k| self.key_shapes[k] == shape && self.key_generations[k] == g)
     }
 
     /// Whether a frame of `shape` would do nothing at this ESC but pass: `Some(true)` if its
@@ -508,10 +516,10 @@ impl Esc {
     pub(super) fn install(&mut self, recorded: &Program) {
         let g = self.generation;
         let k = match self
-            .program_keys
+            .key_shapes
             .iter()
-            .position(|&(s, _)| s == recorded.shape)
-            .or_else(|| self.program_keys.iter().position(|&(_, pg)| pg != g))
+            .position(|&s| s == recorded.shape)
+            .or_else(|| self.key_generations.iter().position(|&pg| pg != g))
         {
             Some(k) => k,
             None => {
@@ -522,46 +530,47 @@ impl Esc {
         };
         // The replays of the program replaced go into the counters.
         let old = &self.programs[k];
-        self.stats.frames += old.replays;
-        self.stats.replayed_frames += old.replays;
-        self.stats.datagrams_counted += old.replays * u64::from(old.counted);
+        let replays = std::mem::take(&mut self.replays[k]);
+        self.stats.frames += replays;
+        self.stats.replayed_frames += replays;
+        self.stats.datagrams_counted += replays * u64::from(old.counted);
         self.programs[k] = *recorded;
-        self.program_keys[k] = (recorded.shape, recorded.generation);
+        self.key_shapes[k] = recorded.shape;
+        self.key_generations[k] = recorded.generation;
         let prog = &mut self.programs[k];
         prog.n = fuse(&recorded.ops[..usize::from(recorded.n)], &mut prog.ops);
         let ops = &prog.ops[..usize::from(prog.n)];
-        prog.writes_ram = ops.iter().any(|op| match op {
+        self.writes_ram[k] = ops.iter().any(|op| match op {
             Op::ToRam { .. } | Op::WriteFused(_) => true,
             Op::LrwFused(l) => l.w_len > 0,
             _ => false,
         });
-        prog.cyclic = match *ops {
+        self.fast[k].steps = match *ops {
             [Op::SysFused(sys), Op::LrwFused(lrw), Op::DiffFused(diff)] => {
-                Some(CyclicSteps::new(None, sys, lrw, diff))
+                Straight::Cyclic(CyclicSteps::new(None, sys, lrw, diff))
             }
             [
                 Op::SysFused(pre),
                 Op::SysFused(sys),
                 Op::LrwFused(lrw),
                 Op::DiffFused(diff),
-            ] => Some(CyclicSteps::new(Some(pre), sys, lrw, diff)),
-            _ => None,
-        };
-        prog.simple = match *ops {
-            [Op::SysFused(sys), Op::DiffFused(diff)] => Some(Simple::Dc {
+            ] => Straight::Cyclic(CyclicSteps::new(Some(pre), sys, lrw, diff)),
+            [Op::SysFused(sys), Op::DiffFused(diff)] => Straight::Simple(Simple::Dc {
                 pre: None,
                 sys,
                 diff,
             }),
-            [Op::SysFused(pre), Op::SysFused(sys), Op::DiffFused(diff)] => Some(Simple::Dc {
-                pre: Some(pre),
-                sys,
-                diff,
-            }),
-            [Op::LrwFused(lrw)] => Some(Simple::Lrw(lrw)),
-            [Op::WriteFused(w)] => Some(Simple::Write(w)),
-            [Op::ReadFused(r)] => Some(Simple::Read(r)),
-            _ => None,
+            [Op::SysFused(pre), Op::SysFused(sys), Op::DiffFused(diff)] => {
+                Straight::Simple(Simple::Dc {
+                    pre: Some(pre),
+                    sys,
+                    diff,
+                })
+            }
+            [Op::LrwFused(lrw)] => Straight::Simple(Simple::Lrw(lrw)),
+            [Op::WriteFused(w)] => Straight::Simple(Simple::Write(w)),
+            [Op::ReadFused(r)] => Straight::Simple(Simple::Read(r)),
+            _ => Straight::None,
         };
     }
 
@@ -572,7 +581,7 @@ impl Esc {
         self.stats.replayed_frames += 1;
         self.stats.datagrams_counted += u64::from(self.programs[k].counted);
         self.replay_ops(k, frame, t_ps);
-        if self.programs[k].writes_ram {
+        if self.writes_ram[k] {
             self.outputs_written(t_ps);
         }
     }
@@ -688,8 +697,12 @@ impl Esc {
         let Some(k) = self.program_slot(shape) else {
             return false;
         };
+        // (k is below PROGRAM_SLOTS, a power of two: the mask spares the bounds check.)
+        let k = k & (PROGRAM_SLOTS - 1);
         let Esc {
-            programs,
+            fast,
+            replays,
+            writes_ram,
             dc,
             ram,
             app,
@@ -699,69 +712,57 @@ impl Esc {
             sync_pending,
             ..
         } = self;
-        // (k is below PROGRAM_SLOTS, a power of two: the mask spares the bounds check.)
-        let program = &mut programs[k & (PROGRAM_SLOTS - 1)];
-        let (Some(c), Some(dc), Some(app)) = (&program.cyclic, dc.as_mut(), app.as_ref()) else {
-            let done = replay_simple(
-                program,
-                dc,
-                ram,
-                app.as_ref(),
-                *al_state,
-                app_mem,
-                frame,
-                t_ps,
-                d,
-            );
-            if done && program.writes_ram {
+        let done = match (&fast[k].steps, dc.as_mut(), app.as_ref()) {
+            (Straight::Cyclic(c), Some(dc), Some(app)) => {
+                if c.layout != d.layout {
+                    d.flush(frame);
+                    d.layout = c.layout;
+                }
+                if let Some(pre) = &c.pre {
+                    sys_step(dc, frame, pre, t_ps);
+                }
+                sys_access(dc, frame, &c.sys, t_ps);
+                lrw_in(ram, frame, &c.lrw);
+                refresh_inputs(ram, *app, *al_state, app_mem);
+                lrw_out(frame, ram, &c.lrw);
+                diff_access(dc, frame, &c.diff);
+                d.sys = d.sys.wrapping_add(c.sys.inc);
+                d.lrw = d.lrw.wrapping_add(c.lrw.inc);
+                d.diff = d.diff.wrapping_add(c.diff.inc);
+                d.adp = d.adp.wrapping_add(1);
+                true
+            }
+            (Straight::Simple(simple), dc, Some(app)) => {
+                replay_simple(simple, dc, ram, app, *al_state, app_mem, frame, t_ps, d)
+            }
+            _ => false,
+        };
+        if done {
+            replays[k] += 1;
+            if writes_ram[k] {
                 *wd_last_write_ps = t_ps;
                 *sync_pending = true;
             }
-            return done;
-        };
-        program.replays += 1;
-        if program.writes_ram {
-            *wd_last_write_ps = t_ps;
-            *sync_pending = true;
         }
-        if c.layout != d.layout {
-            d.flush(frame);
-            d.layout = c.layout;
-        }
-        if let Some(pre) = &c.pre {
-            sys_step(dc, frame, pre, t_ps);
-        }
-        sys_access(dc, frame, &c.sys, t_ps);
-        lrw_in(ram, frame, &c.lrw);
-        refresh_inputs(ram, *app, *al_state, app_mem);
-        lrw_out(frame, ram, &c.lrw);
-        diff_access(dc, frame, &c.diff);
-        d.sys = d.sys.wrapping_add(c.sys.inc);
-        d.lrw = d.lrw.wrapping_add(c.lrw.inc);
-        d.diff = d.diff.wrapping_add(c.diff.inc);
-        d.adp = d.adp.wrapping_add(1);
-        true
+        done
     }
 }
 
-/// The [`Simple`] program of a frame that carries only process data, if `program` has one
-/// (see [`Esc::replay_cyclic`]). Out of line: the small network's one frame has the DC steps.
+/// A [`Simple`] program: the DC steps or the process data of one frame of a large network's
+/// cycle (see [`Esc::replay_cyclic`]); false, touching nothing, for DC steps without a DC unit. Out of line: the small network's one frame has the DC steps.
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
 fn replay_simple(
-    program: &mut Program,
-    dc: &mut Option<DcUnit>,
+    simple: &Simple,
+    dc: Option<&mut DcUnit>,
     ram: &mut [u8],
-    app: Option<&AppLayout>,
+    app: &AppLayout,
     al_state: AlState,
     app_mem: &mut super::process_data::AppMemory,
     frame: &mut [u8],
     t_ps: u64,
     d: &mut Deferred,
 ) -> bool {
-    let (Some(simple), Some(app)) = (&program.simple, app) else {
-        return false;
-    };
     let dc = match (simple, dc) {
         (Simple::Dc { .. }, None) => return false,
         (_, dc) => dc,
@@ -773,7 +774,7 @@ fn replay_simple(
     }
     match simple {
         Simple::Dc { pre, sys, diff } => {
-            let Some(dc) = dc.as_mut() else {
+            let Some(dc) = dc else {
                 return false;
             };
             if let Some(pre) = pre {
@@ -801,6 +802,5 @@ fn replay_simple(
             d.lrw = d.lrw.wrapping_add(c.inc);
         }
     }
-    program.replays += 1;
     true
 }
