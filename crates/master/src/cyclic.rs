@@ -150,6 +150,19 @@ pub struct Health {
     pub recovery_running: bool,
 }
 
+/// What the engine makes of a reference time that came back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Belief {
+    /// On the reference's timeline (or a new one taken): used, and the base the next times are
+    /// compared with.
+    Anchor,
+    /// Used by the method, but off the timeline (a bus-shift method's write that reached the
+    /// reference late): not a base for the next comparisons.
+    Used,
+    /// Not believed: held over.
+    Rejected,
+}
+
 /// |0x092C| beyond this is no slave's lock (a reset slave's register saturates), ns.
 pub const FAR_092C_NS: u32 = 1_000_000;
 /// A reference time this far from its extrapolation is a jump, ns (plus 200 ppm of the time
@@ -599,8 +612,11 @@ impl<S: MasterSync> CyclicEngine<S> {
                     };
                     let send_ns = corrected(raw_send_ns, self.health.master_clock_correction_ns);
                     let round_trip_ns = raw_receive_ns.wrapping_sub(raw_send_ns);
-                    if self.believe_reference(t, send_ns, round_trip_ns, outage) {
+                    let belief = self.believe_reference(t, send_ns, round_trip_ns, outage);
+                    if belief != Belief::Rejected {
                         rec.ref_time_ns = Some(t);
+                    }
+                    if belief == Belief::Anchor {
                         self.last_ref_ns = Some(t);
                         self.last_ref_cycle = self.cycle;
                         self.last_ref_send_ns =
@@ -702,7 +718,13 @@ impl<S: MasterSync> CyclicEngine<S> {
     /// (and 200 ppm of the time since) of the last time believed, moved on by the cycles
     /// since. A jump (the reference reset, its offset rewritten) holds the time until one
     /// continues the old timeline again (a recovery sets the reset reference's offset so).
-    fn believe_reference(&mut self, t: u64, send_ns: u64, round_trip_ns: u64, outage: u32) -> bool {
+    fn believe_reference(
+        &mut self,
+        t: u64,
+        send_ns: u64,
+        round_trip_ns: u64,
+        outage: u32,
+    ) -> Belief {
         // A method that writes the master's time into the reference every cycle (bus shift)
         // makes the reference's timeline itself: a jump is its own write (a frame held by a
         // bridge delivers an old time), and a reset reference takes the master's time again
@@ -714,14 +736,14 @@ impl<S: MasterSync> CyclicEngine<S> {
                 // reference keeps its own time however the master writes it (the writes steer
                 // its rate only) until a recovery has looked.
                 self.health.needs_recovery = true;
-                return false;
+                return Belief::Rejected;
             }
             // A few frames lost: nothing to look at.
             self.health.reference_held = false;
         }
         let Some(prev) = self.last_ref_ns else {
             self.health.reference_held = false;
-            return true;
+            return Belief::Anchor;
         };
         // Moved on by the cycles since, or by the master's time between the sends (a method
         // that drops or doubles a cycle sends a period early or late; a master whose own
@@ -765,11 +787,6 @@ impl<S: MasterSync> CyclicEngine<S> {
             }
             ok = true;
         }
-        if writes_time {
-            // The method's own writes make the timeline: only the master's step is looked for.
-            self.health.reference_held = false;
-            return true;
-        }
         if !ok {
             // A new timeline: taken once it runs on by itself for a while and no recovery is
             // wanted (a recovery that found no slave reset: the master's own time stepped
@@ -786,7 +803,9 @@ impl<S: MasterSync> CyclicEngine<S> {
             });
             match self.candidate {
                 Some((_, at)) if steady => {
-                    if self.cycle.wrapping_sub(at) >= ADOPT_CYCLES && !self.health.needs_recovery {
+                    if self.cycle.wrapping_sub(at) >= ADOPT_CYCLES
+                        && (writes_time || !self.health.needs_recovery)
+                    {
                         ok = true;
                         self.candidate = None;
                     }
@@ -798,6 +817,15 @@ impl<S: MasterSync> CyclicEngine<S> {
             }
         } else {
             self.candidate = None;
+        }
+        if writes_time {
+            // The method's own writes make the timeline: its time is used, and only the
+            // master's step is looked for. A time off the timeline (the frame left late after
+            // its timestamp, or was held up on its way: the write carried an old time) is no
+            // base to look for a step from, until it runs on by itself: the next frame back
+            // on the old timeline would look like a step of the master's clock.
+            self.health.reference_held = false;
+            return if ok { Belief::Anchor } else { Belief::Used };
         }
         if ok {
             self.health.reference_held = false;
@@ -811,7 +839,11 @@ impl<S: MasterSync> CyclicEngine<S> {
             }
             self.health.reference_held = true;
         }
-        ok
+        if ok {
+            Belief::Anchor
+        } else {
+            Belief::Rejected
+        }
     }
 
     /// The working counter and |0x092C| of a cycle that came back: slaves that lost their
@@ -911,6 +943,43 @@ mod tests {
         // Cycles 0-1 average h_mr; from cycle 3 on every start is a period later than the
         // nominal grid: still the same phase of the reference's grid, so φ stays 0.
         assert_eq!(m_rs, [None, None, Some(0), Some(0), Some(0), Some(0)]);
+    }
+
+    /// Bus shift over a busy host (a CI run over veth): one frame leaves 119 us after its send
+    /// timestamp, so its write reaches the reference late and the reference's time reads
+    /// 113 us ahead, with a longer round trip; the next frame is back on the old timeline. No
+    /// step of the master's clock: the late frame is no base to look for one from.
+    #[test]
+    fn a_bus_shift_write_that_left_late_is_no_master_clock_step() {
+        let p = 1_000_000u64;
+        let cfg = CyclicConfig {
+            period_ns: p as u32,
+            reference_station: 0x1000,
+            pdi_len: 0,
+            measure_init_frames: 2,
+            reference_offset_ns: 0,
+            lrw: Vec::new(),
+        };
+        let mut e = CyclicEngine::new(BusShift::default(), cfg, 10 * p).unwrap();
+        // (wake-up after the schedule, reference time - send, round trip), us; from the run.
+        let late = [(163, 113, 191), (74, 1, 205)];
+        for i in 0..40 {
+            let (wake, ahead, trip) = match i {
+                20 | 21 => late[i - 20],
+                _ => (60, 1, 70),
+            };
+            let send = e.scheduled_start_ns() + wake * 1000;
+            let mut f = e.frame_to_send(send).to_vec();
+            let at = e.plans[0].frmw_data_at.unwrap();
+            f[at..at + 8].copy_from_slice(&(send + ahead * 1000).to_le_bytes());
+            f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
+            let r = e.complete(Some(&f), send, send + trip * 1000);
+            assert!(r.ref_time_ns.is_some(), "cycle {i}: the time is used");
+        }
+        assert_eq!(e.health().master_clock_steps, 0, "{:?}", e.health());
+        assert_eq!(e.health().master_clock_correction_ns, 0);
+        // Every start on the nominal grid: the schedule was not moved.
+        assert_eq!(e.scheduled_start_ns(), 50 * p);
     }
 
     /// A host stall of 3 s: the engine skips the 3000 slots, the median method keeps its phase
