@@ -839,11 +839,7 @@ impl<S: MasterSync> CyclicEngine<S> {
             }
             self.health.reference_held = true;
         }
-        if ok {
-            Belief::Anchor
-        } else {
-            Belief::Rejected
-        }
+        if ok { Belief::Anchor } else { Belief::Rejected }
     }
 
     /// The working counter and |0x092C| of a cycle that came back: slaves that lost their
