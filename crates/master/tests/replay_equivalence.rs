@@ -299,3 +299,143 @@ fn long_frames_by_station_are_exact() {
         );
     }
 }
+
+/// A cycle's frames taken ESC by ESC ([`Segment::process_burst`]) against frame by frame: the
+/// same frames, outcomes, ground truth, counters and clocks, through changes of configuration
+/// between the cycles (an FMMU that makes a drive act in a frame it did nothing in, an AL state
+/// change and back), cycles of only some of the frames, and a pause of 300 ms, after which the
+/// first frame finds every drive's SyncManager watchdog expired (each leaves OP inside the
+/// burst, and takes the burst's later frames in full).
+#[test]
+fn a_burst_taken_esc_by_esc_is_exact() {
+    let base = CycleBench::line(160);
+    let n_frames = base.frames.len();
+    assert!(n_frames > 2, "{n_frames} frames");
+    let mut seq: Segment = base.segment.clone();
+    let mut bur: Segment = base.segment.clone();
+    let fp = |st: u16, ado: u16| DatagramAddress::Configured { adp: st, ado }.raw();
+    let mut t = base.start_ps;
+    let mut burst = base.frames.clone();
+    let mut outcomes = vec![
+        ecsync_esc::FrameOutcome {
+            returned_sof_ps: None,
+            processed: false,
+        };
+        n_frames
+    ];
+    let mut traces: Vec<Vec<Option<u64>>> = vec![Vec::new(); n_frames];
+    for cycle in 0..400 {
+        let interlude: Vec<Vec<u8>> = match cycle {
+            100 => {
+                let mut read = frame(&[(Command::Fprd, fp(0x1000 + 150, 0x0600), vec![0; 16])]);
+                seq.process(&mut read.clone(), t);
+                bur.process(&mut read, t);
+                let entry = ecsync_wire::EcatFrame::new_checked(&read[..])
+                    .unwrap()
+                    .datagrams()
+                    .next()
+                    .unwrap()
+                    .unwrap()
+                    .data()
+                    .to_vec();
+                vec![frame(&[(Command::Fpwr, fp(0x1000 + 60, 0x0600), entry)])]
+            }
+            150 => vec![frame(&[(
+                Command::Fpwr,
+                fp(0x1000 + 30, 0x0120),
+                vec![0x04, 0],
+            )])],
+            200 => vec![frame(&[(
+                Command::Fpwr,
+                fp(0x1000 + 30, 0x0120),
+                vec![0x08, 0],
+            )])],
+            _ => Vec::new(),
+        };
+        for f in interlude {
+            let (mut a, mut b) = (f.clone(), f);
+            assert_eq!(seq.process(&mut a, t), bur.process(&mut b, t));
+            assert_eq!(a, b);
+            t += 10_000_000;
+        }
+        if cycle == 300 {
+            // Nothing for 300 ms: the watchdogs (100 ms) run out.
+            t += 300_000_000_000;
+        }
+        // Cycles 250-259 send the first frames only (a sequence of plans of its own).
+        let sent = if (250..260).contains(&cycle) {
+            2
+        } else {
+            n_frames
+        };
+        let mut sent_ps = Vec::new();
+        let mut expected = Vec::new();
+        let mut t_frame = t;
+        for (k, f) in base.frames[..sent].iter().enumerate() {
+            sent_ps.push(t_frame);
+            let mut a = f.clone();
+            outcomes[k] = seq.process(&mut a, t_frame);
+            traces[k] = (0..seq.len()).map(|i| seq.trace().pu_ps(i)).collect();
+            expected.push(a);
+            burst[k].clone_from(f);
+            t_frame += ecsync_esc::frame_wire_time_ps(f.len());
+        }
+        let mut got = vec![
+            ecsync_esc::FrameOutcome {
+                returned_sof_ps: None,
+                processed: false,
+            };
+            sent
+        ];
+        let mut seen = vec![false; sent];
+        bur.process_burst(&mut burst[..sent], &sent_ps, &mut got, |k, tr| {
+            seen[k] = true;
+            let pu: Vec<Option<u64>> = (0..tr.len()).map(|i| tr.pu_ps(i)).collect();
+            assert_eq!(pu, traces[k], "cycle {cycle} frame {k}: ground truth");
+            assert_eq!(tr.sent_ps(), sent_ps[k]);
+        });
+        assert!(seen.iter().all(|&s| s), "every frame's trace");
+        assert_eq!(&got[..], &outcomes[..sent], "cycle {cycle}: outcomes");
+        for k in 0..sent {
+            assert_eq!(burst[k], expected[k], "cycle {cycle} frame {k}");
+        }
+        if cycle % 50 == 0 || cycle == 301 {
+            for i in 0..seq.len() {
+                let (sa, sb) = (seq.esc_stats(i), bur.esc_stats(i));
+                assert_eq!(
+                    (sa.frames, sa.datagrams_counted, sa.replayed_frames),
+                    (sb.frames, sb.datagrams_counted, sb.replayed_frames),
+                    "cycle {cycle}: slave {i} counters"
+                );
+            }
+        }
+        t += base.cycle_ps;
+    }
+    // Nearly every burst was taken ESC by ESC.
+    assert!(
+        bur.bursts_by_esc() > 350,
+        "{} bursts by ESC",
+        bur.bursts_by_esc()
+    );
+    // The drives left OP on their watchdogs, the same way both times.
+    let mut al = frame(&[(Command::Brd, 0x0130 << 16, vec![0; 2])]);
+    let mut al_b = al.clone();
+    seq.process(&mut al, t);
+    bur.process(&mut al_b, t);
+    assert_eq!(al, al_b);
+    for i in 0..seq.len() {
+        let (sa, sb) = (seq.esc_stats(i), bur.esc_stats(i));
+        assert_eq!(
+            (sa.frames, sa.datagrams_counted, sa.replayed_frames),
+            (sb.frames, sb.datagrams_counted, sb.replayed_frames),
+            "slave {i} counters"
+        );
+        let (da, db) = (seq.esc(i).dc().unwrap(), bur.esc(i).dc().unwrap());
+        assert_eq!(
+            da.system_time_split(t),
+            db.system_time_split(t),
+            "slave {i}"
+        );
+        assert_eq!(seq.esc(i).al_state(), bur.esc(i).al_state(), "slave {i}");
+    }
+}
