@@ -64,9 +64,6 @@ pub struct EscStats {
     pub replayed_frames: u64,
 }
 
-/// The bytes of an [`Esc`] a replayed cyclic frame may read: up to the cold fields.
-const HOT_BYTES: usize = core::mem::offset_of!(Esc, programs);
-
 /// Aligns the ESC to a cache line: its hot fields come first (see [`Esc`]).
 #[derive(Debug, Clone, Copy, Default)]
 #[repr(align(64))]
@@ -295,29 +292,6 @@ impl Esc {
     /// act differently (the segment's visit plans hold while no ESC's changes).
     pub(crate) fn generation(&self) -> u64 {
         self.generation
-    }
-
-    /// Asks the CPU to bring the lines a replayed cyclic frame reads into the cache (the
-    /// fields before the cold ones, see [`Esc`]), ahead of the visit: a large network's ESCs
-    /// do not stay in the cache from one cycle to the next, and the segment knows which ESC a
-    /// burst visits next ([`crate::Segment::process_burst`]). A hint only: it changes nothing.
-    #[inline(always)]
-    pub(crate) fn prefetch_hot(&self) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use core::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-            let base = (self as *const Esc).cast::<i8>();
-            let mut at = 0;
-            while at < HOT_BYTES {
-                // SAFETY: SSE is part of every x86-64 target, and a prefetch is a hint that
-                // reads nothing, whatever the address (`at` stays inside `self` anyway).
-                #[allow(unsafe_code)]
-                unsafe {
-                    _mm_prefetch::<_MM_HINT_T0>(base.wrapping_add(at))
-                };
-                at += 64;
-            }
-        }
     }
 
     /// Marks that a frame passed the processing unit.

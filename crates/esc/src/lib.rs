@@ -18,7 +18,7 @@
 //! let f = EcatFrame::new_checked(&buf[..n]).unwrap();
 //! assert_eq!(f.datagrams().next().unwrap().unwrap().wkc(), 3, "three slaves counted");
 //! ```
-#![deny(unsafe_code)]
+#![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
 pub mod clock;

@@ -255,43 +255,6 @@ pub struct Segment {
     /// Bumped whenever an ESC's configuration generation changes or an ESC is handed out
     /// mutably: a visit plan holds only in the epoch it was made in.
     epoch: u64,
-    /// Visit plans made so far: each plan's serial number.
-    plan_serial: u64,
-    /// The last burst's merged visits ([`Segment::process_burst`]).
-    burst: Burst,
-    /// Bursts taken ESC by ESC so far.
-    bursts_by_esc: u64,
-}
-
-/// A visit of a burst: frame `frame` at the slave at `pos` (network position), `pu_ps` after
-/// the frame left.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-struct BurstVisit {
-    /// The visit's index in the timing's `flat` (the sort key: the processing units' order).
-    v: u32,
-    frame: u32,
-    pos: u32,
-    pu_ps: u64,
-}
-
-/// How many visits ahead a burst asks for an ESC's lines: a few ESCs, far enough for a line to
-/// come from memory while the ESCs between are processed.
-const PREFETCH_VISITS: usize = 6;
-
-/// A cycle's frames taken ESC by ESC ([`Segment::process_burst`]): the visits of every frame's
-/// plan merged in the order the processing units see them, made once for a sequence of plans
-/// and reused while each frame's plan holds; and the burst's scratch (no allocation per burst).
-#[derive(Debug, Clone, Default)]
-struct Burst {
-    /// Per frame: its plan's shape slot and serial number.
-    key: Vec<(u32, u64)>,
-    /// The visits in the processing units' order, each unit's frames in the order they were
-    /// sent.
-    merged: Vec<BurstVisit>,
-    /// Per frame: its shape's context, its shape and its pass.
-    ctx: Vec<FrameCtx>,
-    shapes: Vec<u32>,
-    passes: Vec<Pass>,
 }
 
 /// The smallest network whose frames follow visit plans. Below, a cycle's one or few frames do
@@ -314,8 +277,6 @@ const PLAN_MIN_SLAVES: usize = 32;
 struct VisitPlan {
     shape: u32,
     epoch: u64,
-    /// Which plan this is (plans are numbered as they are made).
-    serial: u64,
     timing: Arc<Timing>,
     /// Indices into `timing.flat` of the ESCs the frame does something at, in order.
     visits: Vec<u32>,
@@ -704,9 +665,6 @@ impl Segment {
             plans: vec![None; SHAPE_SLOTS].into_boxed_slice(),
             long: LongIndex::default(),
             epoch: 0,
-            plan_serial: 0,
-            burst: Burst::default(),
-            bursts_by_esc: 0,
         })
     }
 
@@ -857,7 +815,6 @@ impl Segment {
         let mut p = self.end_plan(k).unwrap_or_else(|| VisitPlan {
             shape,
             epoch: self.epoch,
-            serial: 0,
             timing: tm.clone(),
             visits: Vec::new(),
             idle: Vec::new(),
@@ -866,8 +823,6 @@ impl Segment {
         });
         p.shape = shape;
         p.epoch = self.epoch;
-        self.plan_serial += 1;
-        p.serial = self.plan_serial;
         p.timing = tm.clone();
         p.visits.clear();
         p.idle.clear();
@@ -898,17 +853,6 @@ impl Segment {
     /// Ground truth of the last processed frame.
     pub fn trace(&self) -> &FrameTrace {
         &self.trace
-    }
-
-    /// Whether [`Segment::process_burst`] may take bursts ESC by ESC here (a large network,
-    /// replay on); elsewhere it passes them frame by frame.
-    pub fn takes_bursts(&self) -> bool {
-        self.replay && self.nodes.len() >= PLAN_MIN_SLAVES
-    }
-
-    /// Bursts of [`Segment::process_burst`] taken ESC by ESC (the others frame by frame).
-    pub fn bursts_by_esc(&self) -> u64 {
-        self.bursts_by_esc
     }
 
     /// Frames processed, malformed frames forwarded untouched, frames lost.
@@ -978,226 +922,6 @@ impl Segment {
         }
     }
 
-    /// Passes a burst of frames sent back to back (a cycle's) through the segment: the same as
-    /// [`Segment::process`] for each in turn (`frames[k]` leaving at `sent_ps[k]`, its outcome
-    /// in `outcomes[k]`), and `on_frame(k, trace)` after frame `k` with its ground truth.
-    ///
-    /// In a large network whose frames all follow visit plans, the burst is taken ESC by ESC
-    /// instead of frame by frame: each processing unit takes its frames one after the other,
-    /// while its state is in the cache, where frame by frame would bring it in once per frame.
-    /// This is exact: an ESC's state is changed by the frames it takes only, each frame's data
-    /// by the ESCs before it only, and every ESC takes its frames in the order they were sent
-    /// at their own times; the frames' way is the same for all of them, since a frame that
-    /// follows a plan changes no loop (every ESC recorded it, and a write of the DL control
-    /// register is never recorded). An ESC whose configuration one of the frames changes takes
-    /// the burst's later frames in full, as it would frame by frame.
-    pub fn process_burst(
-        &mut self,
-        frames: &mut [Vec<u8>],
-        sent_ps: &[u64],
-        outcomes: &mut [FrameOutcome],
-        mut on_frame: impl FnMut(usize, &FrameTrace),
-    ) {
-        assert!(
-            sent_ps.len() == frames.len() && outcomes.len() == frames.len(),
-            "a send time and an outcome per frame"
-        );
-        if frames.len() < 2 || !self.burst_by_esc(frames, sent_ps, outcomes, &mut on_frame) {
-            for (k, f) in frames.iter_mut().enumerate() {
-                outcomes[k] = self.process(f, sent_ps[k]);
-                on_frame(k, &self.trace);
-            }
-        }
-    }
-
-    /// [`Segment::process_burst`] ESC by ESC, if every frame follows a plan that holds; false
-    /// (nothing done) if not.
-    fn burst_by_esc(
-        &mut self,
-        frames: &mut [Vec<u8>],
-        sent_ps: &[u64],
-        outcomes: &mut [FrameOutcome],
-        on_frame: &mut impl FnMut(usize, &FrameTrace),
-    ) -> bool {
-        if !self.replay || self.nodes.len() < PLAN_MIN_SLAVES {
-            return false;
-        }
-        let Some(tm) = self.timing.clone() else {
-            return false;
-        };
-        if tm.flat.is_empty() {
-            return false;
-        }
-        let mut b = std::mem::take(&mut self.burst);
-        b.ctx.clear();
-        b.shapes.clear();
-        let mut same = b.key.len() == frames.len();
-        for (k, f) in frames.iter().enumerate() {
-            let planned = self.shapes.find(f).and_then(|(slot, ctx)| {
-                self.plans[slot]
-                    .as_ref()
-                    .filter(|p| p.holds(ctx.shape, self.epoch, &tm))
-                    .map(|p| (slot, p.serial, ctx))
-            });
-            let Some((slot, serial, ctx)) = planned else {
-                self.burst = b;
-                return false;
-            };
-            same = same && b.key[k] == (slot as u32, serial);
-            if !same {
-                b.key.truncate(k);
-                b.key.push((slot as u32, serial));
-            }
-            b.ctx.push(ctx);
-            b.shapes.push(ctx.shape);
-        }
-        if !same {
-            // A new sequence of plans: their visits merged (once; the burst's plans hold for
-            // as long as the segment does not change).
-            b.merged.clear();
-            for (k, &(slot, _)) in b.key.iter().enumerate() {
-                if let Some(p) = &self.plans[slot as usize] {
-                    b.merged.extend(p.visits.iter().map(|&v| {
-                        let (pos, pu_ps) = tm.flat[v as usize];
-                        BurstVisit {
-                            v,
-                            frame: k as u32,
-                            pos: pos as u32,
-                            pu_ps,
-                        }
-                    }));
-                }
-            }
-            b.merged.sort_unstable();
-        }
-        self.frames += frames.len() as u64;
-        for (k, f) in frames.iter_mut().enumerate() {
-            // Port 0 of the first ESC marks the source address (as in `process_flat`).
-            mark_returned_frame(f);
-            if let Some(p) = &mut self.plans[b.key[k].0 as usize] {
-                p.idle_frames += 1;
-            }
-        }
-        b.passes.clear();
-        b.passes.resize(frames.len(), Pass::default());
-        let mut j = 0;
-        while j < b.merged.len() {
-            let BurstVisit {
-                frame: k,
-                pos: i,
-                pu_ps: pu,
-                ..
-            } = b.merged[j];
-            let (k, i) = (k as usize, i as usize);
-            // The ESC a few visits on, when it is another one than the visit before it.
-            if let Some(ahead) = b.merged.get(j + PREFETCH_VISITS)
-                && b.merged[j + PREFETCH_VISITS - 1].pos != ahead.pos
-            {
-                self.nodes[ahead.pos as usize].esc.prefetch_hot();
-            }
-            let (frame, pass, t) = (&mut frames[k][..], &mut b.passes[k], sent_ps[k] + pu);
-            j += 1;
-            // The straight replay, as `visit` does; the full path out of line.
-            if self.nodes[i]
-                .esc
-                .replay_cyclic(frame, b.shapes[k], t, &mut pass.deferred)
-            {
-                continue;
-            }
-            let changes = pass.changes;
-            let kind = FrameKind::Chain(b.ctx[k]);
-            self.visit_in_full(i, t, frame, kind, &tm, sent_ps[k], pass);
-            // (As frame by frame: a change the full path makes ends the plans, one the
-            // straight replay makes (an expired watchdog) leaves an ESC the frames pass by as
-            // it was, and the plans hold.)
-            if b.passes[k].changes != changes {
-                j = self.burst_after_change(&mut b, j, k, frames, sent_ps, &tm);
-            }
-        }
-        let mut changed = false;
-        for (f, pass) in frames.iter_mut().zip(&mut b.passes) {
-            pass.deferred.flush(f);
-            debug_assert!(!pass.loops_changed, "a planned frame changed a loop");
-            changed |= pass.generation_changed || pass.loops_changed;
-        }
-        if changed {
-            // Some ESC acts differently from now on: no plan holds.
-            self.epoch += 1;
-        }
-        self.burst = b;
-        self.bursts_by_esc += 1;
-        if !Arc::ptr_eq(&self.trace.timing, &tm) {
-            self.trace.timing = tm.clone();
-        }
-        for (k, out) in outcomes.iter_mut().enumerate() {
-            *out = FrameOutcome {
-                returned_sof_ps: tm.back.map(|back| sent_ps[k] + back),
-                processed: true,
-            };
-            if tm.back.is_none() {
-                self.lost += 1;
-            }
-            self.trace.sent_ps = sent_ps[k];
-            on_frame(k, &self.trace);
-        }
-        true
-    }
-
-    /// Frame `k` of a burst changed the configuration of the ESC at merged visit `j - 1` in its
-    /// full path: the burst's later frames are taken there in full, each in turn, as frame by
-    /// frame they would (their plans no longer hold; the frames they passed the ESC by go
-    /// into its counters). Returns the next merged visit of another ESC.
-    ///
-    /// Frame by frame, the later frames would also visit every other ESC instead of passing it
-    /// by; for an ESC whose program for them is empty that only counts the frame, as passing
-    /// by does, unless its watchdog runs out just then (a replay counted as a decoding). No
-    /// planned frame's full path changes a configuration (its datagrams are recorded, so they
-    /// write no register), so this is for safety.
-    #[cold]
-    #[inline(never)]
-    fn burst_after_change(
-        &mut self,
-        b: &mut Burst,
-        mut j: usize,
-        k: usize,
-        frames: &mut [Vec<u8>],
-        sent_ps: &[u64],
-        tm: &Arc<Timing>,
-    ) -> usize {
-        let BurstVisit { v, pos, pu_ps, .. } = b.merged[j - 1];
-        let (i, pu) = (pos as usize, pu_ps);
-        while j < b.merged.len() && b.merged[j].v == v {
-            j += 1;
-        }
-        // The plans that pass this ESC by stop doing so: the frames they passed it by before
-        // the later ones go into its counters now.
-        for later in k + 1..frames.len() {
-            let slot = b.key[later].0;
-            let this_burst = b.key[later..].iter().filter(|x| x.0 == slot).count() as u64;
-            if let Some(p) = &mut self.plans[slot as usize]
-                && p.idle[i]
-            {
-                p.idle[i] = false;
-                self.nodes[i]
-                    .esc
-                    .count_passed_frames(p.idle_frames - this_burst);
-            }
-        }
-        for later in k + 1..frames.len() {
-            let kind = FrameKind::Chain(b.ctx[later]);
-            self.visit(
-                i,
-                pu,
-                &mut frames[later],
-                kind,
-                tm,
-                sent_ps[later],
-                &mut b.passes[later],
-            );
-        }
-        j
-    }
-
     /// How the ESCs take a frame that is not of a remembered shape (`None`: not EtherCAT),
     /// remembering its shape (and its slot in the shape cache, whose plan then ends).
     fn classify(&mut self, frame: &[u8]) -> Option<(FrameKind, Option<usize>)> {
@@ -1255,7 +979,11 @@ impl Segment {
             FrameKind::Chain(ctx) => ctx.shape,
             _ => 0,
         };
-        let mut pass = Pass::default();
+        let mut pass = Pass {
+            deferred: Deferred::default(),
+            generation_changed: false,
+            loops_changed: false,
+        };
         // A frame of a shape with a plan that holds visits only the ESCs it does something at.
         let mut planned = false;
         let plan = match slot {
@@ -1365,10 +1093,7 @@ impl Segment {
                 let offs = &ctx.offsets[..usize::from(ctx.n)];
                 let generation = node.esc.generation();
                 let e = node.esc.process_frame(frame, offs, ctx.shape, t);
-                if node.esc.generation() != generation {
-                    pass.generation_changed = true;
-                    pass.changes += 1;
-                }
+                pass.generation_changed |= node.esc.generation() != generation;
                 FrameEffects {
                     latch: e.latch_receive_times,
                     loops_changed: e.loops_changed,
@@ -1671,13 +1396,10 @@ fn datagram_offsets(frame: &[u8], out: &mut [u16]) -> Option<usize> {
 }
 
 /// What a frame's pass through the segment did so far.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug)]
 struct Pass {
     deferred: Deferred,
     generation_changed: bool,
-    /// ESCs whose generation the frame changed in their full path (a burst's frame then
-    /// leaves its plan at that ESC, see [`Segment::process_burst`]).
-    changes: u32,
     loops_changed: bool,
 }
 

@@ -29,11 +29,6 @@ pub struct CycleBench {
     pub lrw_wkc_at: Vec<(usize, usize)>,
     /// The sum of the LRW working counters every cycle must return (3 per drive in OP).
     pub expected_lrw_wkc: u16,
-    /// A cycle of several frames: each frame's buffer, send time and outcome (the burst the
-    /// segment takes, as the simulated transport hands it over).
-    burst: Vec<Vec<u8>>,
-    sent_ps: Vec<u64>,
-    outcomes: Vec<ecsync_esc::FrameOutcome>,
 }
 
 /// The bring-up the benches start from: a short static drift compensation and lock hold (the
@@ -91,9 +86,6 @@ impl CycleBench {
             cycle_ps,
             lrw_wkc_at,
             expected_lrw_wkc: net.expected_lrw_wkc,
-            burst: Vec::new(),
-            sent_ps: Vec::new(),
-            outcomes: Vec::new(),
         }
     }
 
@@ -144,9 +136,6 @@ impl CycleBench {
                 lrw_at + ecsync_wire::DATAGRAM_HEADER_LEN + net.pdi_len as usize,
             )],
             expected_lrw_wkc: net.expected_lrw_wkc,
-            burst: Vec::new(),
-            sent_ps: Vec::new(),
-            outcomes: Vec::new(),
         }
     }
 
@@ -186,63 +175,22 @@ impl CycleBench {
     }
 
     /// Runs `cycles` cycles; returns the sum of the last cycle's LRW working counters as a
-    /// check. `work` must hold the longest frame. A cycle of several frames is handed to the
-    /// segment as one burst ([`Segment::process_burst`]), as the simulated transport does.
+    /// check. `work` must hold the longest frame.
     pub fn run(&mut self, cycles: u64, work: &mut [u8]) -> u16 {
-        if self.frames.len() > 1 {
-            return self.run_bursts(cycles);
-        }
         let mut wkc = 0;
         for i in 0..cycles {
-            let t = self.start_ps + i * self.cycle_ps;
+            let mut t = self.start_ps + i * self.cycle_ps;
             wkc = 0;
             for (k, frame) in self.frames.iter().enumerate() {
                 let n = frame.len();
                 work[..n].copy_from_slice(frame);
                 let out = self.segment.process(&mut work[..n], t);
                 debug_assert!(out.returned_sof_ps.is_some());
+                t += frame_wire_time_ps(n);
                 for &(_, at) in self.lrw_wkc_at.iter().filter(|w| w.0 == k) {
                     if at + 1 < n {
                         wkc += u16::from_le_bytes([work[at], work[at + 1]]);
                     }
-                }
-            }
-        }
-        self.start_ps += cycles * self.cycle_ps;
-        wkc
-    }
-
-    fn run_bursts(&mut self, cycles: u64) -> u16 {
-        let n = self.frames.len();
-        self.burst.resize_with(n, Vec::new);
-        self.sent_ps.resize(n, 0);
-        self.outcomes.resize(
-            n,
-            ecsync_esc::FrameOutcome {
-                returned_sof_ps: None,
-                processed: false,
-            },
-        );
-        let mut wkc = 0;
-        for i in 0..cycles {
-            let mut t = self.start_ps + i * self.cycle_ps;
-            for (k, frame) in self.frames.iter().enumerate() {
-                self.burst[k].clone_from(frame);
-                self.sent_ps[k] = t;
-                t += frame_wire_time_ps(frame.len());
-            }
-            self.segment.process_burst(
-                &mut self.burst,
-                &self.sent_ps,
-                &mut self.outcomes,
-                |_, _| {},
-            );
-            debug_assert!(self.outcomes.iter().all(|o| o.returned_sof_ps.is_some()));
-            wkc = 0;
-            for &(k, at) in &self.lrw_wkc_at {
-                let f = &self.burst[k];
-                if at + 1 < f.len() {
-                    wkc += u16::from_le_bytes([f[at], f[at + 1]]);
                 }
             }
         }

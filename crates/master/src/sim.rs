@@ -213,26 +213,6 @@ pub struct SimTransport {
     cycle_mode: bool,
     capture: Option<PcapCapture<BufWriter<File>>>,
     faults: Option<FaultPlayer>,
-    /// A cycle's frames not yet through the segment: handed to it together, as a burst
-    /// ([`Segment::process_burst`]), when the master next waits or receives.
-    burst: Burst,
-    /// Whether a cycle's frames go through the segment as bursts (on by default).
-    bursts: bool,
-}
-
-/// The frames of a cycle held for one burst through the segment (only where nothing else
-/// touches the segment between them: no faults, no capture).
-#[derive(Debug, Clone, Default)]
-struct Burst {
-    /// Frames held.
-    len: usize,
-    /// Their bytes (the first `len`; the rest are spare buffers).
-    bufs: Vec<Vec<u8>>,
-    /// When each leaves, ps.
-    sent_ps: Vec<u64>,
-    /// Each one's place in its cycle.
-    in_cycle: Vec<usize>,
-    outcomes: Vec<ecsync_esc::FrameOutcome>,
 }
 
 impl std::fmt::Debug for SimTransport {
@@ -267,8 +247,6 @@ impl SimTransport {
             cycle_mode: false,
             capture: None,
             faults: None,
-            burst: Burst::default(),
-            bursts: true,
         }
     }
 
@@ -296,15 +274,12 @@ impl SimTransport {
             cycle_mode: false,
             capture: None,
             faults: self.faults.clone(),
-            burst: self.burst.clone(),
-            bursts: self.bursts,
         }
     }
 
     /// Plays `faults` from now on: the segment's on its frames, the host's on the cyclic
     /// task's wake-ups and the master's clock.
     pub fn set_faults(&mut self, faults: FaultPlayer) {
-        self.flush_burst();
         self.faults = Some(faults);
     }
 
@@ -315,13 +290,11 @@ impl SimTransport {
 
     /// The segment.
     pub fn segment(&self) -> &Segment {
-        debug_assert_eq!(self.burst.len, 0, "the segment read with frames held");
         &self.segment
     }
 
     /// The segment, to change (a test's direct frames).
     pub fn segment_mut(&mut self) -> &mut Segment {
-        self.flush_burst();
         &mut self.segment
     }
 
@@ -358,7 +331,6 @@ impl SimTransport {
 
     /// The last exchange in real time.
     pub fn last_exchange(&self) -> Exchange {
-        debug_assert_eq!(self.burst.len, 0, "the exchange read with frames held");
         self.last
     }
 
@@ -371,24 +343,14 @@ impl SimTransport {
     /// The ground truth of frame `k` of the current cycle (as the segment's trace was right
     /// after it passed); the last frame's is [`Segment::trace`].
     pub fn frame_trace(&self, k: usize) -> &FrameTrace {
-        debug_assert_eq!(self.burst.len, 0, "a trace read with frames held");
         match self.traces.get(k) {
             Some(t) if k + 1 < self.frame_in_cycle => t,
             _ => self.segment.trace(),
         }
     }
 
-    /// Hands a cycle's frames to the segment together, as a burst (on, the default), or
-    /// each as it is sent (off): the results are the same (a test compares them), bursts
-    /// cost less in large networks.
-    pub fn set_bursts(&mut self, on: bool) {
-        self.flush_burst();
-        self.bursts = on;
-    }
-
     /// Captures every frame (sent and returned) to a pcap file.
     pub fn capture_to(&mut self, path: &std::path::Path) -> Result<(), pcap_file_error::Error> {
-        self.flush_burst();
         self.capture = Some(PcapCapture::create(path).map_err(pcap_file_error::Error)?);
         Ok(())
     }
@@ -422,8 +384,7 @@ impl SimTransport {
     }
 
     /// The segment, the transport consumed.
-    pub fn into_segment(mut self) -> Segment {
-        self.flush_burst();
+    pub fn into_segment(self) -> Segment {
         self.segment
     }
 
@@ -468,83 +429,6 @@ impl SimTransport {
         }
     }
 
-    /// Whether frame `buf` (of the current cycle, leaving at `tx_ps`) can wait for the others:
-    /// in a network the segment takes bursts of ESC by ESC, when nothing else touches the
-    /// segment before the cycle's replies are looked for (no faults play, no capture records).
-    fn holds_for_burst(&self) -> bool {
-        self.bursts
-            && self.cycle_mode
-            && self.faults.is_none()
-            && self.capture.is_none()
-            && self.segment.takes_bursts()
-    }
-
-    /// Takes frame `buf`, leaving at `tx_ps` as frame `in_cycle` of its cycle, into the burst.
-    fn hold(&mut self, buf: Vec<u8>, tx_ps: u64, in_cycle: usize) {
-        let b = &mut self.burst;
-        if b.bufs.len() > b.len {
-            let old = std::mem::replace(&mut b.bufs[b.len], buf);
-            if old.capacity() > 0 {
-                self.spare.push(old);
-            }
-            b.sent_ps[b.len] = tx_ps;
-            b.in_cycle[b.len] = in_cycle;
-        } else {
-            b.bufs.push(buf);
-            b.sent_ps.push(tx_ps);
-            b.in_cycle.push(in_cycle);
-            b.outcomes.push(ecsync_esc::FrameOutcome {
-                returned_sof_ps: None,
-                processed: false,
-            });
-        }
-        b.len += 1;
-    }
-
-    /// Passes the frames held through the segment, as one burst: replies in flight and ground
-    /// truth exactly as if each had passed when it was sent.
-    fn flush_burst(&mut self) {
-        let n = self.burst.len;
-        if n == 0 {
-            return;
-        }
-        self.burst.len = 0;
-        let SimTransport {
-            segment,
-            burst,
-            traces,
-            ..
-        } = self;
-        segment.process_burst(
-            &mut burst.bufs[..n],
-            &burst.sent_ps[..n],
-            &mut burst.outcomes[..n],
-            |k, trace| {
-                let at = burst.in_cycle[k];
-                if traces.len() <= at {
-                    traces.resize(at + 1, trace.clone());
-                } else {
-                    traces[at].clone_from(trace);
-                }
-            },
-        );
-        for k in 0..n {
-            let buf = std::mem::take(&mut self.burst.bufs[k]);
-            let len = buf.len();
-            let back = self.burst.outcomes[k]
-                .returned_sof_ps
-                .map(|t| t + frame_wire_time_ps(len) + self.rx_latency_ps);
-            match back {
-                Some(t) => self.arrive(t, buf),
-                None => self.spare.push(buf),
-            }
-            self.last = Exchange {
-                sent_ps: self.burst.sent_ps[k],
-                received_ps: back,
-            };
-        }
-    }
-
     /// Moves to master time `t_ns` exactly (a host's wake-up or a deadline).
     fn set_master_now(&mut self, t_ns: u64) {
         self.now_ps = self.master_clock.real_ps_at(t_ns);
@@ -560,7 +444,6 @@ impl Transport for SimTransport {
     }
 
     fn sleep_until(&mut self, t_ns: u64) {
-        self.flush_burst();
         // The host's faults due now: a stall delays this wake-up, a step moves the clock.
         let stall_ns = match &mut self.faults {
             Some(f) => {
@@ -611,13 +494,9 @@ impl Transport for SimTransport {
             self.cycle_tx_stamp_ns = Some(stamp as u64);
         }
         self.wire_free_ps = tx_ps + frame_wire_time_ps(n);
-        let hold = !self.drop_cycle && self.holds_for_burst();
-        if !hold {
-            self.flush_burst();
-        }
         // A cycle's earlier frame keeps its ground truth before the segment's trace is
-        // overwritten (one frame per cycle copies nothing; a burst keeps each frame's).
-        if self.cycle_mode && self.frame_in_cycle > 0 && !hold {
+        // overwritten (one frame per cycle copies nothing).
+        if self.cycle_mode && self.frame_in_cycle > 0 {
             let k = self.frame_in_cycle - 1;
             let t = self.segment.trace().clone();
             if self.traces.len() <= k {
@@ -642,11 +521,6 @@ impl Transport for SimTransport {
             if self.cycle_mode {
                 self.frame_in_cycle += 1;
             }
-            return Ok(at_ns);
-        }
-        if hold {
-            self.hold(buf, tx_ps, self.frame_in_cycle);
-            self.frame_in_cycle += 1;
             return Ok(at_ns);
         }
         if let Some(c) = &mut self.capture {
@@ -689,7 +563,6 @@ impl Transport for SimTransport {
     }
 
     fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Never> {
-        self.flush_burst();
         if let Some(&(t_rx, _)) = self.inflight.front() {
             let rx_ns = self.master_clock.master_ns(t_rx);
             if rx_ns <= deadline_ns {
@@ -715,7 +588,6 @@ impl Transport for SimTransport {
     }
 
     fn start_cycle(&mut self, cycle: u64) {
-        self.flush_burst();
         self.delays = self.host.as_ref().map(|h| h.cycle(cycle));
         self.drop_cycle = self.delays.is_some_and(|d| d.dropped);
         self.cycle_tx_stamp_ns = None;
