@@ -72,8 +72,10 @@ pub(super) struct CopyStep {
 }
 
 /// A program of one step replayed straight through by [`Esc::replay_cyclic`]: the process
-/// data of a large network's frames that carry no DC datagram.
+/// data of a large network's frames that carry no DC datagram. Tagged by a byte of its own,
+/// as [`Straight`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
 pub(super) enum Simple {
     /// The DC steps without process data: the first frame of a large network's cycle at a
     /// slave whose process data another frame carries (a system time write first at the
@@ -89,21 +91,6 @@ pub(super) enum Simple {
     Write(CopyStep),
     /// Inputs only.
     Read(CopyStep),
-}
-
-impl Simple {
-    /// Where its working counter is, for [`Deferred`] (in the LRW's place).
-    fn layout(&self) -> u64 {
-        let wkc = match self {
-            // The counters of the system time and difference reads, and the BRD's position.
-            Simple::Dc { sys, diff, .. } => {
-                return u64::from(sys.wkc) | u64::from(diff.wkc) << 32 | u64::from(diff.adp) << 48;
-            }
-            Simple::Lrw(l) => l.wkc,
-            Simple::Write(c) | Simple::Read(c) => c.wkc,
-        };
-        u64::from(wkc) << 16
-    }
 }
 
 impl Op {
@@ -425,7 +412,11 @@ pub(super) struct Program {
 /// A recorded program as one straight-through step ([`Esc::replay_cyclic`]), if its steps are
 /// the cyclic frame's DC steps with or without the process data ([`CyclicSteps`]), or one step
 /// of process data ([`Simple`]).
+///
+/// Tagged by a byte of its own (`repr(u8)`): the replay tests it every frame, and a tag packed
+/// into the steps' niches takes several instructions to decode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[repr(u8)]
 pub(super) enum Straight {
     /// The program is replayed op by op, if at all.
     #[default]
@@ -443,6 +434,9 @@ pub(super) enum Straight {
 pub(crate) struct FastSlot {
     pub(super) steps: Straight,
 }
+
+// One cache line per slot.
+const _: () = assert!(core::mem::size_of::<FastSlot>() == 64);
 
 impl Default for Program {
     fn default() -> Self {
@@ -712,8 +706,14 @@ impl Esc {
             sync_pending,
             ..
         } = self;
-        let done = match (&fast[k].steps, dc.as_mut(), app.as_ref()) {
-            (Straight::Cyclic(c), Some(dc), Some(app)) => {
+        // The one-frame cycle's steps tested first, on their own (a match of the three
+        // together costs a dozen instructions more per frame).
+        let steps = &fast[k].steps;
+        let done = if let Straight::Cyclic(c) = steps {
+            let (Some(dc), Some(app)) = (dc.as_mut(), app.as_ref()) else {
+                return false;
+            };
+            {
                 if c.layout != d.layout {
                     d.flush(frame);
                     d.layout = c.layout;
@@ -732,10 +732,20 @@ impl Esc {
                 d.adp = d.adp.wrapping_add(1);
                 true
             }
-            (Straight::Simple(simple), dc, Some(app)) => {
-                replay_simple(simple, dc, ram, app, *al_state, app_mem, frame, t_ps, d)
-            }
-            _ => false,
+        } else if let (Straight::Simple(simple), Some(app)) = (steps, app.as_ref()) {
+            replay_simple(
+                simple,
+                dc.as_mut(),
+                ram,
+                app,
+                *al_state,
+                app_mem,
+                frame,
+                t_ps,
+                d,
+            )
+        } else {
+            false
         };
         if done {
             replays[k] += 1;
@@ -749,8 +759,10 @@ impl Esc {
 }
 
 /// A [`Simple`] program: the DC steps or the process data of one frame of a large network's
-/// cycle (see [`Esc::replay_cyclic`]); false, touching nothing, for DC steps without a DC unit. Out of line: the small network's one frame has the DC steps.
-#[inline(never)]
+/// cycle (see [`Esc::replay_cyclic`]); false, touching nothing, for DC steps without a DC unit.
+/// Inline: a drive of a large network takes three of these a cycle, and the call with its
+/// arguments cost about 30 instructions each.
+#[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn replay_simple(
     simple: &Simple,
@@ -763,20 +775,20 @@ fn replay_simple(
     t_ps: u64,
     d: &mut Deferred,
 ) -> bool {
-    let dc = match (simple, dc) {
-        (Simple::Dc { .. }, None) => return false,
-        (_, dc) => dc,
+    // (Each step's working-counter layout is worked out in its own arm: one match a frame.)
+    let switch_to = |layout: u64, d: &mut Deferred, frame: &mut [u8]| {
+        if layout != d.layout {
+            d.flush(frame);
+            d.layout = layout;
+        }
     };
-    let layout = simple.layout();
-    if layout != d.layout {
-        d.flush(frame);
-        d.layout = layout;
-    }
     match simple {
         Simple::Dc { pre, sys, diff } => {
             let Some(dc) = dc else {
                 return false;
             };
+            let layout = u64::from(sys.wkc) | u64::from(diff.wkc) << 32 | u64::from(diff.adp) << 48;
+            switch_to(layout, d, frame);
             if let Some(pre) = pre {
                 sys_step(dc, frame, pre, t_ps);
             }
@@ -787,16 +799,19 @@ fn replay_simple(
             d.adp = d.adp.wrapping_add(1);
         }
         Simple::Lrw(l) => {
+            switch_to(u64::from(l.wkc) << 16, d, frame);
             lrw_in(ram, frame, l);
             refresh_inputs(ram, *app, al_state, app_mem);
             lrw_out(frame, ram, l);
             d.lrw = d.lrw.wrapping_add(l.inc);
         }
         Simple::Write(c) => {
+            switch_to(u64::from(c.wkc) << 16, d, frame);
             copy_in(ram, frame, c);
             d.lrw = d.lrw.wrapping_add(c.inc);
         }
         Simple::Read(c) => {
+            switch_to(u64::from(c.wkc) << 16, d, frame);
             refresh_inputs(ram, *app, al_state, app_mem);
             copy_out(frame, ram, c);
             d.lrw = d.lrw.wrapping_add(c.inc);
