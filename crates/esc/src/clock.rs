@@ -285,7 +285,8 @@ impl LocalClock {
         self.move_anchor(t_ps);
     }
 
-    #[inline]
+    // (Inline: the cyclic frames move a DC unit's anchor once per drive and frame.)
+    #[inline(always)]
     fn move_anchor(&mut self, t_ps: u64) {
         if t_ps <= self.anchor_ps {
             return;

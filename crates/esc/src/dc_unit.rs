@@ -108,12 +108,12 @@ fn round_fast(x: f64) -> i64 {
 
 /// State of the DC unit.
 ///
-/// `repr(C)`: the clock's hot part and what the cyclic frame's reads and the SYNC0 deadline
-/// use come first, on few cache lines (see [`crate::Esc`]'s layout).
+/// `repr(C)`: what the cyclic frame's reads and the SYNC0 deadline use come first, then the
+/// clock's hot part, on consecutive cache lines; the clock's cold part last (see
+/// [`crate::Esc`]'s layout).
 #[derive(Debug, Clone)]
 #[repr(C)]
 pub struct DcUnit {
-    clock: LocalClock,
     sof_res: u64,
     sof_phase: u64,
     offset: u64,
@@ -151,6 +151,9 @@ pub struct DcUnit {
     sync1_cycle: u32,
     sync0_status_cleared_at: Option<u64>,
     latch_mode: u8,
+    /// Last: its hot part first, its crystal parameters and random generator after (the
+    /// unit's own fields a cyclic frame reads come before it, next to the SYNC0 monitor).
+    clock: LocalClock,
 }
 
 /// The low 32 bits of a little-endian value of up to 8 bytes (shorter values are zero-extended):

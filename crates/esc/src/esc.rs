@@ -73,8 +73,8 @@ struct CacheLine;
 ///
 /// Laid out by hand (`repr(C)`): the fields a replayed cyclic frame reads come first, on a few
 /// cache lines (the program look-up and the watchdog on the first, the counters and flags on
-/// the second, then one line per program slot, the application, the DC unit, the SYNC0
-/// bookkeeping). In a network of hundreds of drives every ESC's state has left the cache by
+/// the second, then one line per program slot, the application, the SYNC0 bookkeeping, the
+/// DC unit with its clock's cold part last). In a network of hundreds of drives every ESC's state has left the cache by
 /// its next frame, and the cost of a visit is the lines it touches.
 #[derive(Debug, Clone)]
 #[repr(C)]
@@ -110,12 +110,14 @@ pub struct Esc {
     next_slot: u8,
     // Lines 2-5: each slot's straight-through steps.
     fast: [replay::FastSlot; PROGRAM_SLOTS],
-    // The application and the DC unit.
+    // The application, the SYNC0 monitor and the DC unit.
     app: Option<AppLayout>,
     app_mem: process_data::AppMemory,
-    dc: Option<DcUnit>,
     /// The SYNC0 deadline's bookkeeping.
     sync: sync::SyncMonitor,
+    /// (Its own fields, then the clock's hot part, then the clock's cold part: the hot lines
+    /// of a replayed frame are consecutive.)
+    dc: Option<DcUnit>,
     // Cold: what the full path and the bring-up use.
     /// Programs recorded for the last few frame shapes: a cycle of several frames (the
     /// first with the DC datagrams, the others with process data) keeps each one's.
