@@ -895,6 +895,31 @@ mod tests {
         assert_eq!(m.frame_len(), f.len() - 20, "no FPWR for master shift");
     }
 
+    /// A cycle of one frame without process data, the reference at station 0x1000.
+    fn no_image_config(period_ns: u64) -> CyclicConfig {
+        CyclicConfig {
+            period_ns: period_ns as u32,
+            reference_station: 0x1000,
+            pdi_len: 0,
+            measure_init_frames: 2,
+            reference_offset_ns: 0,
+            lrw: Vec::new(),
+        }
+    }
+
+    /// The cycle's frame sent at `send` as it comes back: the reference's FRMW read `raw`.
+    fn reply_with_reference_time<S: MasterSync>(
+        e: &mut CyclicEngine<S>,
+        send: u64,
+        raw: u64,
+    ) -> Vec<u8> {
+        let mut f = e.frame_to_send(send).to_vec();
+        let at = e.plans[0].frmw_data_at.unwrap();
+        f[at..at + 8].copy_from_slice(&raw.to_le_bytes());
+        f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
+        f
+    }
+
     /// Starts every cycle one period late from cycle 3 on (a dropped cycle, as a snap does when
     /// a frame reaches the reference just before its grid point).
     struct DropsACycle;
@@ -916,24 +941,14 @@ mod tests {
     #[test]
     fn a_dropped_cycle_is_no_phase_error() {
         let p = 1_000_000u64;
-        let cfg = CyclicConfig {
-            period_ns: p as u32,
-            reference_station: 0x1000,
-            pdi_len: 0,
-            measure_init_frames: 2,
-            reference_offset_ns: 0,
-            lrw: Vec::new(),
-        };
+        let cfg = no_image_config(p);
         let mut e = CyclicEngine::new(DropsACycle, cfg, 10 * p).unwrap();
         let mut m_rs = Vec::new();
         for _ in 0..6 {
             // The frame leaves 20 us after the scheduled start and reaches the reference 7 us
             // later on its grid (reference time = master time + 3 ns).
             let send = e.scheduled_start_ns() + 20_000;
-            let mut f = e.frame_to_send(send).to_vec();
-            let at = e.plans[0].frmw_data_at.unwrap();
-            f[at..at + 8].copy_from_slice(&(send + 7_003).to_le_bytes());
-            f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
+            let f = reply_with_reference_time(&mut e, send, send + 7_003);
             m_rs.push(e.complete(Some(&f), send, send + 50_000).m_rs_ns);
         }
         // Cycles 0-1 average h_mr; from cycle 3 on every start is a period later than the
@@ -948,14 +963,7 @@ mod tests {
     #[test]
     fn a_bus_shift_write_that_left_late_is_no_master_clock_step() {
         let p = 1_000_000u64;
-        let cfg = CyclicConfig {
-            period_ns: p as u32,
-            reference_station: 0x1000,
-            pdi_len: 0,
-            measure_init_frames: 2,
-            reference_offset_ns: 0,
-            lrw: Vec::new(),
-        };
+        let cfg = no_image_config(p);
         let mut e = CyclicEngine::new(BusShift::default(), cfg, 10 * p).unwrap();
         // (wake-up after the schedule, reference time - send, round trip), us; from the run.
         let late = [(163, 113, 191), (74, 1, 205)];
@@ -965,10 +973,7 @@ mod tests {
                 _ => (60, 1, 70),
             };
             let send = e.scheduled_start_ns() + wake * 1000;
-            let mut f = e.frame_to_send(send).to_vec();
-            let at = e.plans[0].frmw_data_at.unwrap();
-            f[at..at + 8].copy_from_slice(&(send + ahead * 1000).to_le_bytes());
-            f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
+            let f = reply_with_reference_time(&mut e, send, send + ahead * 1000);
             let r = e.complete(Some(&f), send, send + trip * 1000);
             assert!(r.ref_time_ns.is_some(), "cycle {i}: the time is used");
         }
@@ -984,14 +989,7 @@ mod tests {
     #[test]
     fn skipped_cycles_keep_the_phase_and_the_reference_time() {
         let p = 1_000_000u64;
-        let cfg = CyclicConfig {
-            period_ns: p as u32,
-            reference_station: 0x1000,
-            pdi_len: 0,
-            measure_init_frames: 2,
-            reference_offset_ns: 0,
-            lrw: Vec::new(),
-        };
+        let cfg = no_image_config(p);
         let median = MedianSync::new(11, 0.01, 2);
         // The reference's 32-bit time wraps during the stall.
         let first = (1u64 << 32) * 7 - 6 * p;
@@ -1004,13 +1002,10 @@ mod tests {
                 assert_eq!(e.scheduled_start_ns(), first + 3005 * p);
             }
             let send = e.scheduled_start_ns() + 20_000;
-            let mut f = e.frame_to_send(send).to_vec();
-            let at = e.plans[0].frmw_data_at.unwrap();
             let t_ra = send + 7_003;
             // The first reply has the full time; a 32-bit reference's later ones only the low half.
             let raw = if i == 0 { t_ra } else { u64::from(t_ra as u32) };
-            f[at..at + 8].copy_from_slice(&raw.to_le_bytes());
-            f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
+            let f = reply_with_reference_time(&mut e, send, raw);
             let r = e.complete(Some(&f), send, send + 50_000);
             seen.push((r.cycle, r.ref_time_ns == Some(t_ra), r.m_rs_ns));
         }

@@ -213,6 +213,15 @@ impl Deferred {
         }
         *self = Deferred::default();
     }
+
+    /// The pending increments go to the frame first if the next step counts at other places.
+    #[inline(always)]
+    pub(crate) fn switch_layout(&mut self, layout: u64, frame: &mut [u8]) {
+        if layout != self.layout {
+            self.flush(frame);
+            self.layout = layout;
+        }
+    }
 }
 
 /// Fuses the common sequences of a recorded program into single steps (fewer dispatches).
@@ -713,25 +722,20 @@ impl Esc {
             let (Some(dc), Some(app)) = (dc.as_mut(), app.as_ref()) else {
                 return false;
             };
-            {
-                if c.layout != d.layout {
-                    d.flush(frame);
-                    d.layout = c.layout;
-                }
-                if let Some(pre) = &c.pre {
-                    sys_step(dc, frame, pre, t_ps);
-                }
-                sys_access(dc, frame, &c.sys, t_ps);
-                lrw_in(ram, frame, &c.lrw);
-                refresh_inputs(ram, *app, *al_state, app_mem);
-                lrw_out(frame, ram, &c.lrw);
-                diff_access(dc, frame, &c.diff);
-                d.sys = d.sys.wrapping_add(c.sys.inc);
-                d.lrw = d.lrw.wrapping_add(c.lrw.inc);
-                d.diff = d.diff.wrapping_add(c.diff.inc);
-                d.adp = d.adp.wrapping_add(1);
-                true
+            d.switch_layout(c.layout, frame);
+            if let Some(pre) = &c.pre {
+                sys_step(dc, frame, pre, t_ps);
             }
+            sys_access(dc, frame, &c.sys, t_ps);
+            lrw_in(ram, frame, &c.lrw);
+            refresh_inputs(ram, *app, *al_state, app_mem);
+            lrw_out(frame, ram, &c.lrw);
+            diff_access(dc, frame, &c.diff);
+            d.sys = d.sys.wrapping_add(c.sys.inc);
+            d.lrw = d.lrw.wrapping_add(c.lrw.inc);
+            d.diff = d.diff.wrapping_add(c.diff.inc);
+            d.adp = d.adp.wrapping_add(1);
+            true
         } else if let (Straight::Simple(simple), Some(app)) = (steps, app.as_ref()) {
             replay_simple(
                 simple,
@@ -776,19 +780,13 @@ fn replay_simple(
     d: &mut Deferred,
 ) -> bool {
     // (Each step's working-counter layout is worked out in its own arm: one match a frame.)
-    let switch_to = |layout: u64, d: &mut Deferred, frame: &mut [u8]| {
-        if layout != d.layout {
-            d.flush(frame);
-            d.layout = layout;
-        }
-    };
     match simple {
         Simple::Dc { pre, sys, diff } => {
             let Some(dc) = dc else {
                 return false;
             };
             let layout = u64::from(sys.wkc) | u64::from(diff.wkc) << 32 | u64::from(diff.adp) << 48;
-            switch_to(layout, d, frame);
+            d.switch_layout(layout, frame);
             if let Some(pre) = pre {
                 sys_step(dc, frame, pre, t_ps);
             }
@@ -799,19 +797,19 @@ fn replay_simple(
             d.adp = d.adp.wrapping_add(1);
         }
         Simple::Lrw(l) => {
-            switch_to(u64::from(l.wkc) << 16, d, frame);
+            d.switch_layout(u64::from(l.wkc) << 16, frame);
             lrw_in(ram, frame, l);
             refresh_inputs(ram, *app, al_state, app_mem);
             lrw_out(frame, ram, l);
             d.lrw = d.lrw.wrapping_add(l.inc);
         }
         Simple::Write(c) => {
-            switch_to(u64::from(c.wkc) << 16, d, frame);
+            d.switch_layout(u64::from(c.wkc) << 16, frame);
             copy_in(ram, frame, c);
             d.lrw = d.lrw.wrapping_add(c.inc);
         }
         Simple::Read(c) => {
-            switch_to(u64::from(c.wkc) << 16, d, frame);
+            d.switch_layout(u64::from(c.wkc) << 16, frame);
             refresh_inputs(ram, *app, al_state, app_mem);
             copy_out(frame, ram, c);
             d.lrw = d.lrw.wrapping_add(c.inc);
