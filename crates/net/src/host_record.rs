@@ -72,6 +72,7 @@ pub fn record(
     let t0 = (sys::monotonic_ns() / period + 3) * period;
     let end = t0.saturating_add(cfg.duration_ns);
     let mut k = 0u64;
+    let mut rt_map = crate::wall_clock::RealtimeMap::new();
     loop {
         let slot = t0 + k * period;
         if slot >= end || cfg.stop.is_some_and(|f| f.load(Ordering::Relaxed)) {
@@ -106,14 +107,18 @@ pub fn record(
             b.finish().max(60)
         };
         let send_mono = sys::monotonic_ns();
-        let send_rt = sys::realtime_ns();
+        // The stamp is on the wall clock: taken across a step of it, it says nothing.
+        let epoch = rt_map.epoch();
         let mut tx_delay_ns = None;
         if let Some(sock) = sock {
             sock.send(&buf[..len]).map_err(io("send"))?;
             let deadline = send_mono + tx_wait_ns;
             loop {
                 if let Some(t) = sock.take_tx_timestamp().map_err(io("TX timestamp"))? {
-                    tx_delay_ns = Some(t as i64 - send_rt as i64);
+                    match rt_map.to_monotonic_ns(t, epoch) {
+                        Some(m) => tx_delay_ns = Some(m as i64 - send_mono as i64),
+                        None => s.tx_stamps_missing += 1,
+                    }
                     break;
                 }
                 let now = sys::monotonic_ns();

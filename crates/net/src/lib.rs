@@ -10,6 +10,8 @@
 //!   drivers as in the simulator ([`ecsync_master::driver`]).
 //! * [`serve`]: the virtual segment answering on an interface.
 //! * [`host_record`]: the timing of this host's periodic loop, cycle by cycle (`ecsync host record`).
+//! * [`wall_clock`]: kernel stamps (CLOCK_REALTIME) onto the monotonic clock, minding steps
+//!   of the wall clock.
 //! * [`rt`]: SCHED_FIFO, mlockall and CPU affinity when permitted, with a report of what was not.
 //!
 //! This crate holds what the architecture first placed in `ecsync-master` as its "Linux raw
@@ -46,5 +48,6 @@ pub mod serve;
 pub mod sys;
 pub mod tx_stamp;
 pub mod txtime;
+pub mod wall_clock;
 
 pub use link::{HostClock, NetError, RealLink, SendControl};

@@ -2,6 +2,7 @@
 
 use crate::sys::{self, OpenError, PacketSocket, Phc, Ready, TimestampSupport};
 use crate::tx_stamp::{PHC_READINGS, PHC_REFRESH_NS, PhcMap, TxStampSource, phc_offset_ns};
+use crate::wall_clock::RealtimeMap;
 use ecsync_master::transport::{Received, Transport};
 use std::io;
 
@@ -50,12 +51,20 @@ impl HostClock {
     }
 
     /// Master time of a kernel timestamp (CLOCK_REALTIME ns since 1970), through the current
-    /// difference of the two clocks.
+    /// difference of the two clocks (a stamp from before a step of the wall clock lands off
+    /// by the step: [`RealtimeMap`] is the way that knows).
     pub fn from_realtime_ns(&self, rt_ns: u64) -> u64 {
-        let rt_minus_mono = sys::realtime_ns().wrapping_sub(sys::monotonic_ns());
-        rt_ns
-            .wrapping_sub(rt_minus_mono)
-            .wrapping_add(self.offset_ns)
+        let mut map = RealtimeMap::new();
+        let e = map.epoch();
+        self.from_monotonic_ns(
+            map.to_monotonic_ns(rt_ns, e)
+                .unwrap_or_else(sys::monotonic_ns),
+        )
+    }
+
+    /// Master time at CLOCK_MONOTONIC `mono_ns`.
+    pub fn from_monotonic_ns(&self, mono_ns: u64) -> u64 {
+        mono_ns.wrapping_add(self.offset_ns)
     }
 }
 
@@ -85,8 +94,10 @@ pub struct RealLink {
     sock: PacketSocket,
     clock: HostClock,
     /// The transmit timestamp (CLOCK_REALTIME) of the last frame sent, or in the cyclic phase
-    /// of the cycle's first frame, once read.
-    tx_rt: Option<u64>,
+    /// of the cycle's first frame, once read, and the wall clock's epoch it was read in.
+    tx_rt: Option<(u64, u64)>,
+    /// Kernel stamps onto the monotonic clock, minding steps of the wall clock.
+    rt_map: RealtimeMap,
     /// In the cyclic phase: frames sent since the cycle started (the first stamp read after
     /// the first is that frame's: the error queue keeps the order of the sends).
     sent_in_cycle: Option<u32>,
@@ -145,6 +156,7 @@ impl RealLink {
             link_down: 0,
             clock: HostClock::new(),
             tx_rt: None,
+            rt_map: RealtimeMap::new(),
             sent_in_cycle: None,
             phc: None,
             hw_restore: None,
@@ -213,6 +225,10 @@ impl RealLink {
     /// Reads the queued transmit stamps: the first of the cycle's first frame, in the cyclic
     /// phase, is kept (a hardware one, with hardware stamps on); `discard` empties the queue.
     fn read_tx_stamps(&mut self, discard: bool) -> Result<(), NetError> {
+        // The epoch the stamps were taken in: the one before this reading of the clocks' difference
+        // (a step seen now may lie between a stamp and this read).
+        let epoch = self.rt_map.epoch();
+        self.rt_map.refresh();
         while let Some(m) = self.sock.take_tx_stamps().map_err(io_err("TX timestamp"))? {
             if discard || self.tx_rt.is_some() {
                 continue;
@@ -222,7 +238,9 @@ impl RealLink {
                 None => m.software_ns,
             };
             // (The PHC's mapping may put a true stamp a little early: a microsecond of slack.)
-            self.tx_rt = t.filter(|&t| t + 1_000 >= self.first_send_rt);
+            self.tx_rt = t
+                .filter(|&t| t + 1_000 >= self.first_send_rt)
+                .map(|t| (t, epoch));
         }
         Ok(())
     }
@@ -346,6 +364,8 @@ impl Transport for RealLink {
         if buf.len() < RECV_BUF_LEN {
             buf.resize(RECV_BUF_LEN, 0);
         }
+        // A receive stamp is from this epoch of the wall clock or an earlier one.
+        let rx_epoch = self.rt_map.epoch();
         loop {
             let got = match self.sock.recv(buf) {
                 Ok(r) => r,
@@ -365,17 +385,25 @@ impl Transport for RealLink {
             };
             if let Some(r) = got {
                 let now = self.clock.now_ns();
-                let (received_ns, stamped) = match r.kernel_rx_realtime_ns {
-                    Some(t) => (self.clock.from_realtime_ns(t), true),
+                // A stamp across a step of the wall clock is no stamp: the frame counts
+                // unstamped (received now), its transmit stamp missing.
+                let rx_mono = r
+                    .kernel_rx_realtime_ns
+                    .and_then(|t| self.rt_map.to_monotonic_ns(t, rx_epoch));
+                let (received_ns, stamped) = match rx_mono {
+                    Some(m) => (self.clock.from_monotonic_ns(m), true),
                     None => (now, false),
                 };
                 if self.tx_rt.is_none() {
                     self.read_tx_stamps(false)?;
                 }
+                let tx_mono = self
+                    .tx_rt
+                    .and_then(|(t, e)| self.rt_map.to_monotonic_ns(t, e));
                 return Ok(Some(Received {
                     len: r.len.min(buf.len()),
                     received_ns,
-                    tx_stamp_ns: self.tx_rt.map(|t| self.clock.from_realtime_ns(t)),
+                    tx_stamp_ns: tx_mono.map(|m| self.clock.from_monotonic_ns(m)),
                     stamped,
                     truncated: r.truncated,
                 }));

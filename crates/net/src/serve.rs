@@ -139,6 +139,9 @@ pub fn serve<W: Write>(
     let mut buf = vec![0u8; 2048];
     let room = buf.len() - 4 * MAX_TAGS;
     let mut last_ps = 0u64;
+    // Kernel stamps onto the monotonic clock: a frame stamped across a step of the wall clock
+    // is taken as arriving now (its stamp would put it off by the step).
+    let mut rt_map = crate::wall_clock::RealtimeMap::new();
     // Replies to send later (a delay, a second responder's copy): when (monotonic ns), bytes.
     let mut later: std::collections::VecDeque<(u64, Vec<u8>)> = std::collections::VecDeque::new();
     let send = |sock: &PacketSocket, frame: &[u8], stats: &mut ServeStats| match sock.send(frame) {
@@ -161,6 +164,7 @@ pub fn serve<W: Write>(
                 send(sock, &f, &mut stats)?;
             }
         }
+        let rx_epoch = rt_map.epoch();
         let got = match sock.recv(&mut buf[..room]) {
             Ok(r) => r,
             Err(e) if link_is_down(&e) => {
@@ -204,10 +208,10 @@ pub fn serve<W: Write>(
             stats.marked_on_arrival += 1;
         }
         // The instant the frame arrived, on the segment's time line (ps since serving began).
-        let mono = match r.kernel_rx_realtime_ns {
-            Some(rt) => rt.wrapping_sub(sys::realtime_ns().wrapping_sub(sys::monotonic_ns())),
-            None => sys::monotonic_ns(),
-        };
+        let mono = r
+            .kernel_rx_realtime_ns
+            .and_then(|rt| rt_map.to_monotonic_ns(rt, rx_epoch))
+            .unwrap_or_else(sys::monotonic_ns);
         let t_ps = (mono.saturating_sub(t0_mono))
             .saturating_mul(1000)
             .max(last_ps);
