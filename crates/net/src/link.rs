@@ -225,8 +225,8 @@ impl RealLink {
     /// Reads the queued transmit stamps: the first of the cycle's first frame, in the cyclic
     /// phase, is kept (a hardware one, with hardware stamps on); `discard` empties the queue.
     fn read_tx_stamps(&mut self, discard: bool) -> Result<(), NetError> {
-        // The epoch the stamps were taken in: the one before this reading of the clocks' difference
-        // (a step seen now may lie between a stamp and this read).
+        // The epoch the stamps were taken in: the one before this reading of the clocks'
+        // difference (a step seen now may lie between a stamp and this read).
         let epoch = self.rt_map.epoch();
         self.rt_map.refresh();
         while let Some(m) = self.sock.take_tx_stamps().map_err(io_err("TX timestamp"))? {
@@ -385,8 +385,8 @@ impl Transport for RealLink {
             };
             if let Some(r) = got {
                 let now = self.clock.now_ns();
-                // A stamp across a step of the wall clock is no stamp: the frame counts
-                // unstamped (received now), its transmit stamp missing.
+                // A stamp across the step just seen goes on its side of the step; one across
+                // two is no stamp: the frame counts unstamped (received now).
                 let rx_mono = r
                     .kernel_rx_realtime_ns
                     .and_then(|t| self.rt_map.to_monotonic_ns(t, rx_epoch));
