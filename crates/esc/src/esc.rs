@@ -76,6 +76,11 @@ struct CacheLine;
 /// the second, then one line per program slot, the application, the SYNC0 bookkeeping, the
 /// DC unit with its clock's cold part last). In a network of hundreds of drives every ESC's state has left the cache by
 /// its next frame, and the cost of a visit is the lines it touches.
+///
+/// The large cold parts (the recorded programs, FMMUs, SyncManagers, the device description,
+/// the recorder; the clock's random generator) are boxed: an ESC is 1.2 KiB instead of 4.3,
+/// so that a large network's ESCs, visited in order, lie close together (at 1 000 drives a
+/// slave-cycle cost about 12 % less, measured side by side; the README's "Speed").
 #[derive(Debug, Clone)]
 #[repr(C)]
 pub struct Esc {
@@ -121,7 +126,7 @@ pub struct Esc {
     // Cold: what the full path and the bring-up use.
     /// Programs recorded for the last few frame shapes: a cycle of several frames (the
     /// first with the DC datagrams, the others with process data) keeps each one's.
-    programs: [Program; PROGRAM_SLOTS],
+    programs: Box<[Program; PROGRAM_SLOTS]>,
     model: EscModel,
     regs: Box<[u8; REG_SPACE]>,
     attr: Box<[u8; REG_SPACE]>,
@@ -129,18 +134,18 @@ pub struct Esc {
     sii: SiiState,
     al_error: bool,
     al_code: AlStatusCode,
-    fmmus: [FmmuMapping; FMMUS],
+    fmmus: Box<[FmmuMapping; FMMUS]>,
     /// Indices of active FMMUs with write / read enabled, lowest first.
     fmmu_writers: ([u8; FMMUS], u8),
     fmmu_readers: ([u8; FMMUS], u8),
-    sms: [SmBuffer; SMS],
+    sms: Box<[SmBuffer; SMS]>,
     link: [bool; 4],
     loop_mode: [LoopMode; 4],
     output_sm: Option<usize>,
     input_sm: Option<usize>,
     stats: EscStats,
-    device: DeviceInfo,
-    rec: Recorder,
+    device: Box<DeviceInfo>,
+    rec: Box<Recorder>,
     /// The mailbox and its CoE server (a device with a mailbox); boxed, it is rarely used.
     mbx: Option<Box<mailbox::MailboxState>>,
 }
@@ -180,10 +185,10 @@ impl Esc {
             al_state: AlState::Init,
             al_error: false,
             al_code: AlStatusCode::NoError,
-            fmmus: [FmmuMapping::default(); FMMUS],
+            fmmus: Box::new([FmmuMapping::default(); FMMUS]),
             fmmu_writers: ([0; FMMUS], 0),
             fmmu_readers: ([0; FMMUS], 0),
-            sms: [SmBuffer::default(); SMS],
+            sms: Box::new([SmBuffer::default(); SMS]),
             link: [false; 4],
             loop_mode: [LoopMode::Auto; 4],
             output_sm: None,
@@ -192,9 +197,9 @@ impl Esc {
             app_mem: process_data::AppMemory::default(),
             stats: EscStats::default(),
             model,
-            device,
+            device: Box::new(device),
             generation: 0,
-            programs: [Program::default(); PROGRAM_SLOTS],
+            programs: Box::new([Program::default(); PROGRAM_SLOTS]),
             // No generation is u64::MAX: an empty slot matches no frame, shape 0 (never
             // recorded) included.
             key_shapes: [0; PROGRAM_SLOTS],
@@ -204,7 +209,7 @@ impl Esc {
             fast: [replay::FastSlot::default(); PROGRAM_SLOTS],
             _align: [],
             next_slot: 0,
-            rec: Recorder::default(),
+            rec: Box::default(),
             mbx,
             wd_period_ps: 0,
             wd_last_write_ps: 0,
@@ -228,7 +233,7 @@ impl Esc {
             c.seed = crate::rng::SplitMix64(c.seed ^ t_ps).next();
             c
         });
-        let mut esc = Esc::new_at(self.model.clone(), self.device.clone(), crystal, t_ps);
+        let mut esc = Esc::new_at(self.model.clone(), (*self.device).clone(), crystal, t_ps);
         esc.sii = self.sii.clone();
         esc.sii.power_up();
         esc
