@@ -191,6 +191,79 @@ fn replay_of_a_cycle_of_several_frames_is_exact() {
     }
 }
 
+/// DCM in bus shift writes the reference's System Time Offset (0x0920) every cycle: in a large
+/// network the frames keep passing the drives they do nothing at (the write leaves every
+/// recorded program valid), and the replay with its visit plans still changes nothing: frames,
+/// outcomes, clocks and counters as with the replay off.
+#[test]
+fn an_offset_write_every_cycle_keeps_the_visit_plans_and_changes_nothing() {
+    let base = CycleBench::line(160);
+    let mut on: Segment = base.segment.clone();
+    let mut off: Segment = base.segment.clone();
+    off.set_replay(false);
+    let reference = 0x1000u16;
+    let fp = |ado: u16| {
+        DatagramAddress::Configured {
+            adp: reference,
+            ado,
+        }
+        .raw()
+    };
+    let mut read = frame(&[(Command::Fprd, fp(0x0920), vec![0; 8])]);
+    on.process(&mut read, base.start_ps);
+    let mut read_off = frame(&[(Command::Fprd, fp(0x0920), vec![0; 8])]);
+    off.process(&mut read_off, base.start_ps);
+    assert_eq!(read, read_off);
+    let offset = u64::from_le_bytes(
+        ecsync_wire::EcatFrame::new_checked(&read[..])
+            .unwrap()
+            .datagrams()
+            .next()
+            .unwrap()
+            .unwrap()
+            .data()
+            .try_into()
+            .unwrap(),
+    );
+    let mut t = base.start_ps + base.cycle_ps;
+    for cycle in 0..200u64 {
+        // The re-adjustment: a few ns either way, as DCM's filtered PI moves it.
+        let moved = offset.wrapping_add((cycle % 7) * 3).wrapping_sub(9);
+        let w = frame(&[(Command::Fpwr, fp(0x0920), moved.to_le_bytes().to_vec())]);
+        let (mut a, mut b) = (w.clone(), w);
+        assert_eq!(on.process(&mut a, t), off.process(&mut b, t));
+        assert_eq!(a, b, "cycle {cycle}: the offset write");
+        let mut t_frame = t + ecsync_esc::frame_wire_time_ps(a.len());
+        for (k, f) in base.frames.iter().enumerate() {
+            let (mut a, mut b) = (f.clone(), f.clone());
+            assert_eq!(on.process(&mut a, t_frame), off.process(&mut b, t_frame));
+            assert_eq!(a, b, "cycle {cycle}, frame {k}");
+            t_frame += ecsync_esc::frame_wire_time_ps(f.len());
+        }
+        t += base.cycle_ps;
+    }
+    // The plans held through the writes: frames passed drives by and are not yet in those
+    // drives' own counters (a plan that ends brings them up to date).
+    assert!(
+        (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
+        "no frame passed a drive by: the offset writes ended the visit plans"
+    );
+    for i in 0..on.len() {
+        let (sa, sb) = (on.esc_stats(i), off.esc_stats(i));
+        assert_eq!(
+            (sa.frames, sa.datagrams_counted),
+            (sb.frames, sb.datagrams_counted),
+            "slave {i} counters"
+        );
+        let (da, db) = (on.esc(i).dc().unwrap(), off.esc(i).dc().unwrap());
+        assert_eq!(
+            da.system_time_split(t),
+            db.system_time_split(t),
+            "slave {i}"
+        );
+    }
+}
+
 fn mixed_frame(dgs: &[(Command, u32, Vec<u8>)]) -> Vec<u8> {
     let mut buf = vec![0u8; 1514];
     let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0, 1, 2, 3, 4, 5]).unwrap();

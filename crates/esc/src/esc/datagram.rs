@@ -294,14 +294,14 @@ impl Esc {
                 let d = Datagram::new_unchecked(&frame[at..]);
                 (d.total_len(), at + d.wkc_offset())
             };
-            *self.rec = Recorder::start(recording);
+            self.rec = Recorder::start(recording);
             let wkc_before = u16::from_le_bytes([frame[wkc_at], frame[wkc_at + 1]]);
             out.merge(self.datagram_in_frame(&mut frame[at..at + total], t_ps));
             recording = recording
                 && self.rec.cacheable
                 && self.record(&mut prog, &frame[at..at + total], at, wkc_before);
         }
-        *self.rec = Recorder::default();
+        self.rec = Recorder::default();
         if recording && self.generation == generation {
             self.install(&prog);
         }

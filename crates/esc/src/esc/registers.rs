@@ -376,9 +376,18 @@ impl Esc {
             return true;
         }
         self.rec.uncacheable();
-        self.generation += 1;
         let lo = usize::from(ado);
         let hi = lo + data.len();
+        // A write of the System Time Offset or Delay (DCM in bus shift writes the reference's
+        // offset every cycle) changes the DC unit's state only, which every recorded step reads
+        // when it runs: the programs stay valid, and so do a large network's visit plans (a
+        // new generation every cycle ended them all, and every frame visited every ESC). The
+        // frame that writes is still not recorded here.
+        let dc_time_only = lo >= usize::from(reg::DC_SYSTEM_TIME_OFFSET)
+            && hi <= usize::from(reg::DC_SYSTEM_TIME_DIFF);
+        if !dc_time_only {
+            self.generation += 1;
+        }
         if self.mbx.is_some() {
             self.mailbox_tick(t_ps);
         }

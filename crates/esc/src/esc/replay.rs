@@ -501,7 +501,7 @@ impl Esc {
     /// ESCs they do nothing at ([`Esc::count_passed_frames`]).
     #[inline]
     pub(crate) fn replays_nothing(&self, shape: u32) -> Option<bool> {
-        self.program_slot(shape).map(|k| self.programs[k].n == 0)
+        self.program_slot(shape).map(|k| self.slot_ops[k] == 0)
     }
 
     /// Counts `frames` frames that passed the processing unit and did nothing, as the replay of
@@ -532,16 +532,21 @@ impl Esc {
             }
         };
         // The replays of the program replaced go into the counters.
-        let old = &self.programs[k];
         let replays = std::mem::take(&mut self.replays[k]);
         self.stats.frames += replays;
         self.stats.replayed_frames += replays;
-        self.stats.datagrams_counted += replays * u64::from(old.counted);
-        self.programs[k] = *recorded;
+        self.stats.datagrams_counted += replays * u64::from(self.slot_counted[k]);
         self.key_shapes[k] = recorded.shape;
         self.key_generations[k] = recorded.generation;
+        // The recorded ops go into the slot fused (the ops past `n` are never read: no copy
+        // of the whole program, which is hundreds of bytes and cold).
         let prog = &mut self.programs[k];
+        prog.shape = recorded.shape;
+        prog.generation = recorded.generation;
+        prog.counted = recorded.counted;
         prog.n = fuse(&recorded.ops[..usize::from(recorded.n)], &mut prog.ops);
+        self.slot_ops[k] = prog.n;
+        self.slot_counted[k] = prog.counted;
         let ops = &prog.ops[..usize::from(prog.n)];
         self.writes_ram[k] = ops.iter().any(|op| match op {
             Op::ToRam { .. } | Op::WriteFused(_) => true,
@@ -582,8 +587,10 @@ impl Esc {
     #[inline]
     pub(super) fn replay(&mut self, k: usize, frame: &mut [u8], t_ps: u64) {
         self.stats.replayed_frames += 1;
-        self.stats.datagrams_counted += u64::from(self.programs[k].counted);
-        self.replay_ops(k, frame, t_ps);
+        self.stats.datagrams_counted += u64::from(self.slot_counted[k]);
+        if self.slot_ops[k] > 0 {
+            self.replay_ops(k, frame, t_ps);
+        }
         if self.writes_ram[k] {
             self.outputs_written(t_ps);
         }
