@@ -18,6 +18,36 @@ fn frame(dgs: &[(Command, u32, Vec<u8>)]) -> Vec<u8> {
     buf
 }
 
+/// The data of a frame's first datagram.
+fn first_datagram_data(frame: &[u8]) -> Vec<u8> {
+    ecsync_wire::EcatFrame::new_checked(frame)
+        .unwrap()
+        .datagrams()
+        .next()
+        .unwrap()
+        .unwrap()
+        .data()
+        .to_vec()
+}
+
+/// Every ESC's counters and clock (at `t_ps`) the same with the replay on and off.
+fn same_counters_and_clocks(on: &Segment, off: &Segment, t_ps: u64) {
+    for i in 0..on.len() {
+        let (sa, sb) = (on.esc_stats(i), off.esc_stats(i));
+        assert_eq!(
+            (sa.frames, sa.datagrams_counted),
+            (sb.frames, sb.datagrams_counted),
+            "slave {i} counters"
+        );
+        let (da, db) = (on.esc(i).dc().unwrap(), off.esc(i).dc().unwrap());
+        assert_eq!(
+            da.system_time_split(t_ps),
+            db.system_time_split(t_ps),
+            "slave {i}"
+        );
+    }
+}
+
 #[test]
 fn replay_is_exact() {
     let base = CycleBench::paper_2024();
@@ -124,14 +154,7 @@ fn replay_of_a_cycle_of_several_frames_is_exact() {
                 on.process(&mut read, t);
                 off.process(&mut read_off, t);
                 assert_eq!(read, read_off);
-                let entry = ecsync_wire::EcatFrame::new_checked(&read[..])
-                    .unwrap()
-                    .datagrams()
-                    .next()
-                    .unwrap()
-                    .unwrap()
-                    .data()
-                    .to_vec();
+                let entry = first_datagram_data(&read);
                 assert_ne!(entry[12], 0, "drive 150's FMMU 0 is active");
                 vec![frame(&[(Command::Fpwr, fp(0x1000 + 60, 0x0600), entry)])]
             }
@@ -175,20 +198,7 @@ fn replay_of_a_cycle_of_several_frames_is_exact() {
         (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
         "no frame passed a drive by"
     );
-    for i in 0..on.len() {
-        let (sa, sb) = (on.esc_stats(i), off.esc_stats(i));
-        assert_eq!(
-            (sa.frames, sa.datagrams_counted),
-            (sb.frames, sb.datagrams_counted),
-            "slave {i} counters"
-        );
-        let (da, db) = (on.esc(i).dc().unwrap(), off.esc(i).dc().unwrap());
-        assert_eq!(
-            da.system_time_split(t),
-            db.system_time_split(t),
-            "slave {i}"
-        );
-    }
+    same_counters_and_clocks(&on, &off, t);
 }
 
 /// DCM in bus shift writes the reference's System Time Offset (0x0920) every cycle: in a large
@@ -214,17 +224,7 @@ fn an_offset_write_every_cycle_keeps_the_visit_plans_and_changes_nothing() {
     let mut read_off = frame(&[(Command::Fprd, fp(0x0920), vec![0; 8])]);
     off.process(&mut read_off, base.start_ps);
     assert_eq!(read, read_off);
-    let offset = u64::from_le_bytes(
-        ecsync_wire::EcatFrame::new_checked(&read[..])
-            .unwrap()
-            .datagrams()
-            .next()
-            .unwrap()
-            .unwrap()
-            .data()
-            .try_into()
-            .unwrap(),
-    );
+    let offset = u64::from_le_bytes(first_datagram_data(&read).try_into().unwrap());
     let mut t = base.start_ps + base.cycle_ps;
     for cycle in 0..200u64 {
         // The re-adjustment: a few ns either way, as DCM's filtered PI moves it.
@@ -248,20 +248,7 @@ fn an_offset_write_every_cycle_keeps_the_visit_plans_and_changes_nothing() {
         (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
         "no frame passed a drive by: the offset writes ended the visit plans"
     );
-    for i in 0..on.len() {
-        let (sa, sb) = (on.esc_stats(i), off.esc_stats(i));
-        assert_eq!(
-            (sa.frames, sa.datagrams_counted),
-            (sb.frames, sb.datagrams_counted),
-            "slave {i} counters"
-        );
-        let (da, db) = (on.esc(i).dc().unwrap(), off.esc(i).dc().unwrap());
-        assert_eq!(
-            da.system_time_split(t),
-            db.system_time_split(t),
-            "slave {i}"
-        );
-    }
+    same_counters_and_clocks(&on, &off, t);
 }
 
 fn mixed_frame(dgs: &[(Command, u32, Vec<u8>)]) -> Vec<u8> {
