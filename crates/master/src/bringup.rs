@@ -435,8 +435,7 @@ pub struct Network {
     pub lock: LockReport,
     /// SYNC0, when configured.
     pub sync0: Option<Sync0Config>,
-    /// Bytes of the logical process image (outputs then inputs, or slave by slave when it
-    /// takes several LRWs).
+    /// Bytes of the logical process image (outputs then inputs).
     pub pdi_len: u32,
     /// Its LRWs in the cyclic exchange (one when it fits a frame).
     #[serde(skip)]
@@ -1510,70 +1509,44 @@ async fn wait_for_lock(
 /// The logical process image, as [`map_process_image`] lays it out.
 #[derive(Debug, Clone, PartialEq, Eq)]
 struct ProcessImage {
-    /// Bytes (outputs then inputs, or slave by slave: see [`map_process_image`]).
+    /// Bytes (outputs then inputs).
     pdi_len: u32,
     /// Its LRWs in the cyclic exchange.
     lrw: Vec<crate::pdi::LrwChunk>,
 }
 
-/// Process data mapping (recorded in each slave's `outputs` and `inputs`). No frames: the
-/// SyncManagers and FMMUs are written in [`Phase::ProcessData`].
-///
-/// An image that fits one LRW is laid out as the masters of the field lay out a small one:
-/// the outputs of all slaves, then their inputs. A larger one is laid out slave by slave, each
-/// slave's outputs followed by its inputs, and split into LRWs on slave boundaries: a slave's
-/// outputs and inputs then travel in one datagram of one frame (its inputs answer the frame
-/// that carried its outputs, a lost frame costs whole slaves their exchange, not the outputs
-/// of some and the inputs of others), and each slave acts in two frames a cycle, the DC frame
-/// and its own, not three.
+/// Process data mapping: outputs of all slaves, then inputs, in the logical image (recorded
+/// in each slave's `outputs` and `inputs`). No frames: the SyncManagers and FMMUs are written
+/// in [`Phase::ProcessData`].
 fn map_process_image(slaves: &mut [SlaveInfo]) -> ProcessImage {
-    let sm_len = |s: &SlaveInfo, kind: u8| s.sms.iter().find(|m| m.kind == kind).map(|m| m.len);
-    let total: u32 = slaves
-        .iter()
-        .map(|s| u32::from(sm_len(s, 3).unwrap_or(0)) + u32::from(sm_len(s, 4).unwrap_or(0)))
-        .sum();
     let mut logical = 0u32;
-    // (The working counter of an LRW: 2 for each slave whose outputs it writes, 1 for each
-    // whose inputs it reads.)
-    let mut ranges: Vec<(u32, u32, u16)> = Vec::new();
-    if total as usize <= crate::pdi::MAX_LRW_DATA {
-        for s in slaves.iter_mut() {
-            if let Some(len) = sm_len(s, 3) {
-                s.outputs = (logical, len);
-                ranges.push((logical, u32::from(len), 2));
-                logical += u32::from(len);
-            }
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 3) {
+            s.outputs = (logical, sm.len);
+            logical += u32::from(sm.len);
         }
-        for s in slaves.iter_mut() {
-            if let Some(len) = sm_len(s, 4) {
-                s.inputs = (logical, len);
-                ranges.push((logical, u32::from(len), 1));
-                logical += u32::from(len);
-            }
-        }
-    } else {
-        for s in slaves.iter_mut() {
-            let start = logical;
-            let mut wkc = 0;
-            if let Some(len) = sm_len(s, 3) {
-                s.outputs = (logical, len);
-                logical += u32::from(len);
-                wkc += if len > 0 { 2 } else { 0 };
-            }
-            if let Some(len) = sm_len(s, 4) {
-                s.inputs = (logical, len);
-                logical += u32::from(len);
-                wkc += if len > 0 { 1 } else { 0 };
-            }
-            // One range per slave: the split never parts its outputs from its inputs.
-            if wkc > 0 {
-                ranges.push((start, logical - start, wkc));
-            }
+    }
+    for s in slaves.iter_mut() {
+        if let Some(sm) = s.sms.iter().find(|m| m.kind == 4) {
+            s.inputs = (logical, sm.len);
+            logical += u32::from(sm.len);
         }
     }
     let pdi_len = logical;
-    // Ranges with no bytes are not in the image.
-    ranges.retain(|r| r.1 > 0);
+    // The LRWs of the cyclic exchange: one when the image fits a frame, else as many as it
+    // needs, split on slave boundaries.
+    let mut ranges: Vec<(u32, u32, u16)> = slaves
+        .iter()
+        .filter(|s| s.outputs.1 > 0)
+        .map(|s| (s.outputs.0, u32::from(s.outputs.1), 2))
+        .chain(
+            slaves
+                .iter()
+                .filter(|s| s.inputs.1 > 0)
+                .map(|s| (s.inputs.0, u32::from(s.inputs.1), 1)),
+        )
+        .collect();
+    ranges.sort_by_key(|r| r.0);
     let lrw = crate::pdi::lrw_chunks(pdi_len, &ranges);
     ProcessImage { pdi_len, lrw }
 }

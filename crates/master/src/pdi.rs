@@ -1,8 +1,7 @@
 //! The logical process image in LRW datagrams of at most a frame each.
 //!
 //! The bring-up maps every slave's outputs, then every slave's inputs, one after the other into
-//! the logical address space when they fit one LRW, and slave by slave (each slave's outputs,
-//! then its inputs) when they do not. A network whose image is larger than a frame's payload needs
+//! the logical address space. A network whose image is larger than a frame's payload needs
 //! several LRWs: each covers a contiguous range that ends on a slave's boundary, so that no
 //! slave's image is split, and the working counter each must return is known: 2 for every
 //! slave whose outputs it writes, 1 for every slave whose inputs it reads (datasheet: an LRW
@@ -27,8 +26,8 @@ pub const FRAME_PAYLOAD: usize = MAX_FRAME_LEN - ETH_HEADER_LEN - ECAT_HEADER_LE
 /// The largest LRW data that fits a frame on its own.
 pub const MAX_LRW_DATA: usize = FRAME_PAYLOAD - DATAGRAM_OVERHEAD;
 
-/// Splits the image of `ranges` (`(logical, len, wkc)` ranges in logical order: a slave's
-/// outputs with wkc 2, its inputs with 1, or both together with 3) into LRWs of at most [`MAX_LRW_DATA`] bytes. One chunk
+/// Splits the image of `ranges` (each slave's `(logical, len, wkc)` range, in logical order,
+/// outputs with wkc 2, inputs with 1) into LRWs of at most [`MAX_LRW_DATA`] bytes. One chunk
 /// when the whole image fits.
 pub fn lrw_chunks(pdi_len: u32, ranges: &[(u32, u32, u16)]) -> Vec<LrwChunk> {
     if pdi_len == 0 {

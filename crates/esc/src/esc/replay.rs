@@ -563,18 +563,6 @@ impl Esc {
                 Op::LrwFused(lrw),
                 Op::DiffFused(diff),
             ] => Straight::Cyclic(CyclicSteps::new(Some(pre), sys, lrw, diff)),
-            // A large network's first frame: FRMW, BRD, then the LRW of the first slaves' process
-            // data. The same steps: the LRW neither reads nor changes the DC unit, so it may
-            // run before the time difference is read.
-            [Op::SysFused(sys), Op::DiffFused(diff), Op::LrwFused(lrw)] => {
-                Straight::Cyclic(CyclicSteps::new(None, sys, lrw, diff))
-            }
-            [
-                Op::SysFused(pre),
-                Op::SysFused(sys),
-                Op::DiffFused(diff),
-                Op::LrwFused(lrw),
-            ] => Straight::Cyclic(CyclicSteps::new(Some(pre), sys, lrw, diff)),
             [Op::SysFused(sys), Op::DiffFused(diff)] => Straight::Simple(Simple::Dc {
                 pre: None,
                 sys,
