@@ -50,16 +50,26 @@ struct LineOut {
     ns_per_slave_cycle_min: f64,
     /// `ns_per_slave_cycle` over the first line's.
     ratio_to_first: f64,
-    /// Resident memory the brought-up segment took, per slave, KiB (VmRSS before and after;
-    /// `None` where /proc is not there).
-    rss_kib_per_slave: Option<f64>,
+    /// Memory the brought-up segment holds, per slave, KiB: [`memory_kib`] before and after.
+    memory_kib_per_slave: Option<f64>,
 }
 
-/// Resident set size of this process, KiB (Linux /proc).
-fn rss_kib() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let l = s.lines().find(|l| l.starts_with("VmRSS:"))?;
-    l.split_whitespace().nth(1)?.parse().ok()
+/// Memory this process holds, KiB: with glibc, the bytes its heap has handed out (`mallinfo2`:
+/// the resident size grows in 2 MiB steps on the huge pages the simulator's heap asks for,
+/// see `heap`); elsewhere the resident set (Linux /proc); `None` without either.
+fn memory_kib() -> Option<u64> {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // SAFETY: mallinfo2 only reads the allocator's statistics.
+        let m = unsafe { libc::mallinfo2() };
+        Some(((m.uordblks + m.hblkhd) / 1024) as u64)
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    {
+        let s = std::fs::read_to_string("/proc/self/status").ok()?;
+        let l = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+        l.split_whitespace().nth(1)?.parse().ok()
+    }
 }
 
 /// `--slaves`: each line timed the same way, the ratios in one run. The lines are brought up
@@ -72,21 +82,21 @@ fn run_lines(args: &Args) -> Result<ExitCode> {
         work: Vec<u8>,
         cycles: u64,
         walls: Vec<f64>,
-        rss_kib_per_slave: Option<f64>,
+        memory_kib_per_slave: Option<f64>,
     }
     let mut lines: Vec<Line> = Vec::new();
     for &n in &args.slaves {
         let n = n as usize;
-        let before = rss_kib();
+        let before = memory_kib();
         let b = CycleBench::line(n);
-        let after = rss_kib();
+        let after = memory_kib();
         let longest = b.frames.iter().map(Vec::len).max().unwrap_or(0);
         lines.push(Line {
             b,
             work: vec![0u8; longest],
             cycles: (args.cycles * 6 / n as u64).max(1),
             walls: Vec::with_capacity(args.repeats as usize),
-            rss_kib_per_slave: before
+            memory_kib_per_slave: before
                 .zip(after)
                 .map(|(a, b)| b.saturating_sub(a) as f64 / n as f64),
         });
@@ -123,7 +133,7 @@ fn run_lines(args: &Args) -> Result<ExitCode> {
             ns_per_slave_cycle_max: per(l.walls[l.walls.len() - 1]),
             ns_per_slave_cycle_min: per(l.walls[0]),
             ratio_to_first: ns / first,
-            rss_kib_per_slave: l.rss_kib_per_slave,
+            memory_kib_per_slave: l.memory_kib_per_slave,
         });
     }
     if args.json {
@@ -136,7 +146,7 @@ fn run_lines(args: &Args) -> Result<ExitCode> {
         println!("  drives  frames  cycle  ns/slave-cycle  ratio  memory/slave");
         for l in &out {
             let mem = l
-                .rss_kib_per_slave
+                .memory_kib_per_slave
                 .map_or("-".to_string(), |m| format!("{m:.1} KiB"));
             println!(
                 "  {:>6}  {:>6}  {:>2} ms  {:>14.1}  {:>5.2}  {mem}",

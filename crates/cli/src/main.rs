@@ -6,6 +6,7 @@ use std::process::ExitCode;
 mod bench;
 mod bringup;
 mod compare;
+mod heap;
 mod host;
 #[cfg(target_os = "linux")]
 mod net;
@@ -48,6 +49,14 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // The simulating commands run on a heap of huge pages (see `heap`); the real-time ones
+    // (`serve`, `run`) fault no 2 MiB page in the middle of a cycle.
+    if matches!(
+        cli.command,
+        Command::Bringup(_) | Command::Compare(_) | Command::Bench(_) | Command::Tsn(_)
+    ) {
+        heap::use_huge_pages();
+    }
     let r = match cli.command {
         Command::Bringup(a) => bringup::run(a),
         Command::Compare(a) => compare::run(a),

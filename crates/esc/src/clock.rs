@@ -111,7 +111,7 @@ impl Split {
 
 /// The local clock of one ESC.
 ///
-/// `repr(C)`, the fields every read uses first (two cache lines), the crystal's parameters and
+/// `repr(C)`, the fields every read uses first (one cache line), the crystal's parameters and
 /// the wander's random number generator (read only at a wander step, boxed: its 300 bytes
 /// would sit between one ESC's hot lines and the next's) after them.
 #[derive(Debug, Clone)]
@@ -121,10 +121,6 @@ pub struct LocalClock {
     anchor_ps: u64,
     /// Local time at the anchor.
     anchor_local: Split,
-    /// Residue of the counter's values modulo 10 ns.
-    tick_residue: u64,
-    /// Current wander, as a fraction (not ppm).
-    wander: f64,
     /// `1 + oscillator_error()`, kept up to date with the wander (the rate's part that does
     /// not change with the control loop; the same operations as computing it every time).
     one_plus_osc: f64,
@@ -134,6 +130,11 @@ pub struct LocalClock {
     c_drift: f64,
     slew_rate: f64,
     slew_remaining_ns: f64,
+    // (The hot part ends here: 64 bytes.)
+    /// Residue of the counter's values modulo 10 ns.
+    tick_residue: u64,
+    /// Current wander, as a fraction (not ppm).
+    wander: f64,
     params: CrystalParams,
     rng: Box<ChaCha8Rng>,
 }

@@ -108,12 +108,15 @@ fn round_fast(x: f64) -> i64 {
 
 /// State of the DC unit.
 ///
-/// `repr(C)`: what the cyclic frame's reads and the SYNC0 deadline use come first, then the
-/// clock's hot part, on consecutive cache lines; the clock's cold part last (see
-/// [`crate::Esc`]'s layout).
+/// `repr(C)` and laid out by cache line: line 0 holds what the cyclic frame's reads and the
+/// SYNC0 deadline use, line 1 the time control loop's state, line 2 the clock's hot part;
+/// the registers the cyclic frames never touch, and the clock's cold part, come after (see
+/// [`crate::Esc`]'s layout: in a network of hundreds of drives, every line a cycle touches
+/// per drive is missed in the cache).
 #[derive(Debug, Clone)]
 #[repr(C)]
 pub struct DcUnit {
+    // Line 0.
     sof_res: u64,
     sof_phase: u64,
     offset: u64,
@@ -123,38 +126,45 @@ pub struct DcUnit {
     diff_register: u32,
     dt_filtered: f64,
     start_time: u64,
+    writes: u64,
     sync0_cycle: u32,
     is_64bit: bool,
     activation: u8,
     cyclic_control: u8,
-    // Time control loop.
-    dt_filter_depth: u8,
-    speed_counter_start: u16,
-    speed_filter_depth: u8,
-    // Derived from the registers above, kept so the hot path divides nothing.
+    /// `last_sample_*` hold the drift estimator's last sample.
+    has_last_sample: bool,
+    // Line 1: the time control loop, derived from the registers, kept so the hot path
+    // divides nothing.
     dt_weight: f64,
     speed_gain: f64,
     slew_rate: f64,
-    last_sample: Option<(u64, f64)>,
+    /// The last sample: when (ps), and the difference it aimed for.
+    last_sample_ps: u64,
+    last_sample_dt: f64,
     /// The drift residual's batch so far: unexplained change of `dt` (ns), elapsed (ns), writes.
     batch_change_ns: f64,
     batch_elapsed_ns: f64,
     batch_writes: u32,
     /// Writes per batch, `2^(speed counter filter depth / 2)`.
     batch_len: u32,
-    writes: u64,
-    // Latches.
+    /// Line 2: its hot part first (one line), its crystal parameters and random generator
+    /// after.
+    clock: LocalClock,
+    // Cold: the time control loop's registers, the latches, the cyclic unit's rest.
+    dt_filter_depth: u8,
+    speed_counter_start: u16,
+    speed_filter_depth: u8,
     port_times: [u32; 4],
     pu_time: u64,
-    // Cyclic unit.
     pulse_length: u16,
     sync1_cycle: u32,
     sync0_status_cleared_at: Option<u64>,
     latch_mode: u8,
-    /// Last: its hot part first, its crystal parameters and random generator after (the
-    /// unit's own fields a cyclic frame reads come before it, next to the SYNC0 monitor).
-    clock: LocalClock,
 }
+
+// The hot lines as laid out above.
+const _: () = assert!(core::mem::offset_of!(DcUnit, dt_weight) == 64);
+const _: () = assert!(core::mem::offset_of!(DcUnit, clock) == 128);
 
 /// The low 32 bits of a little-endian value of up to 8 bytes (shorter values are zero-extended):
 /// what the time control loop compares of a system time write.
@@ -202,7 +212,9 @@ impl DcUnit {
             dt_weight: 1.0 / 16.0,
             speed_gain: 1.0 / 4096.0,
             slew_rate: 1.0 / (10.0 * 4096.0),
-            last_sample: None,
+            has_last_sample: false,
+            last_sample_ps: 0,
+            last_sample_dt: 0.0,
             batch_change_ns: 0.0,
             batch_elapsed_ns: 0.0,
             batch_writes: 0,
@@ -676,7 +688,7 @@ impl DcUnit {
 
     /// The next write only seeds the drift estimator; the batch restarts.
     fn restart_estimator(&mut self) {
-        self.last_sample = None;
+        self.has_last_sample = false;
         self.batch_change_ns = 0.0;
         self.batch_elapsed_ns = 0.0;
         self.batch_writes = 0;
@@ -706,7 +718,8 @@ impl DcUnit {
         // (4) Drift estimation from consecutive differences.
         let slew_left = self.clock.slew_remaining_ns();
         let mut c = self.clock.drift_correction();
-        if let Some((t_prev, dt_expected)) = self.last_sample {
+        if self.has_last_sample {
+            let (t_prev, dt_expected) = (self.last_sample_ps, self.last_sample_dt);
             let elapsed_ns = (t_ps - t_prev) as i64 as f64 * 1e-3;
             if elapsed_ns >= 1_000.0 {
                 // dt_expected is the difference the previous write aimed for once its slew was
@@ -730,7 +743,9 @@ impl DcUnit {
         // (3) Slew the filtered difference away (the clock is at `t_ps` already).
         self.clock
             .retune_at_anchor(c, -self.dt_filtered, self.slew_rate);
-        self.last_sample = Some((t_ps, dt - self.dt_filtered));
+        self.has_last_sample = true;
+        self.last_sample_ps = t_ps;
+        self.last_sample_dt = dt - self.dt_filtered;
     }
 }
 

@@ -86,20 +86,15 @@ struct CacheLine;
 #[repr(C)]
 pub struct Esc {
     _align: [CacheLine; 0],
-    // Line 0: the program look-up and the watchdog's check.
-    /// Each program slot's shape and generation (empty slots carry the generation u64::MAX,
-    /// which no ESC reaches).
-    key_shapes: [u32; PROGRAM_SLOTS],
-    key_generations: [u64; PROGRAM_SLOTS],
+    // Line 0: what every visit of a cyclic frame reads and updates (the generation its
+    // program was recorded in, the watchdog's check, the counters and flags).
     /// Bumped by every change that could make a datagram act differently (register writes,
     /// state changes); a recorded program is valid only for the generation it was recorded in.
     generation: u64,
     /// The process data watchdog's time while armed (OP, outputs triggering it), ps; 0: off.
     wd_period_ps: u64,
-    // Line 1: what a replay updates.
     /// The last write of the outputs, ps.
     wd_last_write_ps: u64,
-    ram: Box<[u8]>,
     /// Frames each slot's program replayed straight through and not yet in the ESC's
     /// counters (one increment per frame instead of three; see [`Esc::stats`]).
     replays: [u64; PROGRAM_SLOTS],
@@ -114,21 +109,29 @@ pub struct Esc {
     pd_written: bool,
     /// The slot the next recording replaces when none is free.
     next_slot: u8,
-    // Lines 2-5: each slot's straight-through steps.
-    fast: [replay::FastSlot; PROGRAM_SLOTS],
-    // The application, the SYNC0 monitor and the DC unit.
-    app: Option<AppLayout>,
-    app_mem: process_data::AppMemory,
+    // Line 1: the program look-up.
+    /// Each slot's shape and generation (empty slots carry the generation u64::MAX,
+    /// which no ESC reaches).
+    key_shapes: [u32; PROGRAM_SLOTS],
+    key_generations: [u64; PROGRAM_SLOTS],
     /// Each slot's program: its op count and the datagrams whose working counter it counts
     /// (the program's `n` and `counted`, kept here with the hot fields: a replay op by op of
     /// an empty program, most ESCs' part of a large network's bring-up frames, then reads
     /// nothing of the boxed programs).
     slot_ops: [u8; PROGRAM_SLOTS],
     slot_counted: [u8; PROGRAM_SLOTS],
-    /// The SYNC0 deadline's bookkeeping.
+    // Lines 2-5: each slot's straight-through steps.
+    fast: [replay::FastSlot; PROGRAM_SLOTS],
+    // Lines 6-7: the process RAM and the application.
+    ram: Box<[u8]>,
+    app: Option<AppLayout>,
+    app_mem: process_data::AppMemory,
+    // Lines 8-9: the SYNC0 deadline's bookkeeping (what the outputs' check uses on line 8).
+    _align_sync: [CacheLine; 0],
     sync: sync::SyncMonitor,
-    /// (Its own fields, then the clock's hot part, then the clock's cold part: the hot lines
-    /// of a replayed frame are consecutive.)
+    // Lines 10-12: the DC unit's hot lines (its registers, its time control loop, its
+    // clock's hot part), its cold part after.
+    _align_dc: [CacheLine; 0],
     dc: Option<DcUnit>,
     // Cold: what the full path and the bring-up use.
     /// Programs recorded for the last few frame shapes: a cycle of several frames (the
@@ -157,6 +160,19 @@ pub struct Esc {
     mbx: Option<Box<mailbox::MailboxState>>,
 }
 
+// The hot lines as laid out above (a field added to a hot line must fit it).
+const _: () = {
+    use core::mem::offset_of;
+    assert!(offset_of!(Esc, key_shapes) == 64);
+    assert!(offset_of!(Esc, fast) == 128);
+    assert!(offset_of!(Esc, ram) == 384);
+    assert!(offset_of!(Esc, app_mem) + size_of::<process_data::AppMemory>() <= 512);
+    assert!(offset_of!(Esc, sync) == 512);
+    assert!(offset_of!(Esc, dc) == 640);
+    // (The DC unit's lines begin at the option's: no tag before them.)
+    assert!(size_of::<Option<DcUnit>>() == size_of::<DcUnit>());
+};
+
 impl Esc {
     /// Powers up an ESC: loads the SII image (identity, alias, pulse length) and starts its clock.
     pub fn new(model: EscModel, device: DeviceInfo, crystal: CrystalParams) -> Self {
@@ -174,6 +190,8 @@ impl Esc {
             ))
         });
         let mut esc = Esc {
+            _align_sync: [],
+            _align_dc: [],
             regs: Box::new([0; REG_SPACE]),
             attr: Box::new([0; REG_SPACE]),
             ram: vec![0; usize::from(model.ram_kib) * 1024].into_boxed_slice(),

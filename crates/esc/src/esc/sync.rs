@@ -55,39 +55,47 @@ pub const SYNC_MODE_SM: u32 = 1;
 const ERROR_PER_MISS: u32 = 3;
 
 /// The SYNC0 deadline's bookkeeping of one drive.
+///
+/// `repr(C)`: what each outputs' check reads and writes on one cache line (every drive's
+/// outputs in a cycle of hundreds of drives miss it), the counters read by the OD after it.
 #[derive(Debug, Clone, Copy, Default)]
+#[repr(C)]
 pub(super) struct SyncMonitor {
-    /// The device runs its application on SYNC0 (0x1C32:01 = 2), as last read from its OD.
-    pub(super) dc_mode: bool,
     /// The system time of the last outputs, ns, while a sequence runs.
     last_write_ns: Option<u64>,
     /// The first pulse after the last outputs, and the SYNC0 configuration (start, cycle) it
     /// was worked out for: the common case, one pulse between two frames, takes no division.
     next_pulse_ns: u64,
-    grid: (u64, u32),
+    grid_start: u64,
     /// Pulses after the last outputs already counted as missed (by a read of the counter).
     counted_since_write: u64,
-    /// 0x1C32:0B: SYNC0 pulses in OP with no outputs since the pulse before.
-    pub(super) missed: u64,
+    grid_cycle: u32,
     /// The SSC's sync error counter.
     error_counter: u32,
     /// 0x10F1:02; 0: no reaction.
     pub(super) limit: u32,
     /// |0x092C| past this is a PLL error, ns; 0: off.
     pub(super) pll_limit_ns: u32,
-    /// 0x1C32:20: the last cycle had a missed SM event.
-    pub(super) sync_error: bool,
-    /// The application runs on each SM2 event (0x1C32:01 = 1).
-    pub(super) sm_mode: bool,
     /// 0x1C32:05, the minimum cycle time, ns.
     pub(super) min_cycle_ns: u32,
+    /// The device runs its application on SYNC0 (0x1C32:01 = 2), as last read from its OD.
+    pub(super) dc_mode: bool,
+    /// 0x1C32:20: the last cycle had a missed SM event.
+    pub(super) sync_error: bool,
+    /// The counters changed since the OD was last brought up to date.
+    pub(super) dirty: bool,
+    /// The application runs on each SM2 event (0x1C32:01 = 1).
+    pub(super) sm_mode: bool,
+    // (One line up to here.)
+    /// 0x1C32:0B: SYNC0 pulses in OP with no outputs since the pulse before.
+    pub(super) missed: u64,
     /// 0x1C32:0C: application cycles shorter than :05.
     pub(super) too_small: u64,
     /// The last SM2 event in SM-synchronous mode, in OP, ns.
     last_sm_event_ns: Option<u64>,
-    /// The counters changed since the OD was last brought up to date.
-    pub(super) dirty: bool,
 }
+
+const _: () = assert!(core::mem::offset_of!(SyncMonitor, missed) == 64);
 
 /// What the monitor asks of the ESC.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -125,13 +133,13 @@ impl SyncMonitor {
         let c = u64::from(cycle);
         let Some(last) = self.last_write_ns.replace(t_ns) else {
             self.counted_since_write = 0;
-            self.grid = (start, cycle);
+            (self.grid_start, self.grid_cycle) = (start, cycle);
             self.next_pulse_ns = start + pulses_through(t_ns, start, c) * c;
             return SyncReaction::None;
         };
-        if self.grid != (start, cycle) {
+        if (self.grid_start, self.grid_cycle) != (start, cycle) {
             // SYNC0 set up anew: the next pulse after the last outputs on the new grid.
-            self.grid = (start, cycle);
+            (self.grid_start, self.grid_cycle) = (start, cycle);
             self.next_pulse_ns = start + pulses_through(last, start, c) * c;
         }
         // Pulses in (last, t]: none before the next pulse, one up to a cycle after it; a
