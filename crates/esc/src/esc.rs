@@ -48,6 +48,7 @@ use sii::SiiState;
 pub use datagram::DatagramEffects;
 pub use registers::LoopMode;
 pub(crate) use replay::Deferred;
+pub(crate) use replay::PlannedSteps;
 
 /// FMMUs and SyncManagers an ESC has at most (the register map's room).
 const FMMUS: usize = MAX_FMMUS as usize;
@@ -96,8 +97,12 @@ pub struct Esc {
     /// The last write of the outputs, ps.
     wd_last_write_ps: u64,
     /// Frames each slot's program replayed straight through and not yet in the ESC's
-    /// counters (one increment per frame instead of three; see [`Esc::stats`]).
-    replays: [u64; PROGRAM_SLOTS],
+    /// counters (one increment per frame instead of three; see [`Esc::stats`]; folded into
+    /// them before it wraps).
+    replays: [u32; PROGRAM_SLOTS],
+    /// Each slot's shape (a planned visit's replay counts into its slot while the slot still
+    /// holds the shape; see [`replay::PlannedSteps`]).
+    key_shapes: [u32; PROGRAM_SLOTS],
     /// Each slot's program writes process RAM (the outputs): a replay restarts the process
     /// data watchdog.
     writes_ram: [bool; PROGRAM_SLOTS],
@@ -109,10 +114,8 @@ pub struct Esc {
     pd_written: bool,
     /// The slot the next recording replaces when none is free.
     next_slot: u8,
-    // Line 1: the program look-up.
-    /// Each slot's shape and generation (empty slots carry the generation u64::MAX,
-    /// which no ESC reaches).
-    key_shapes: [u32; PROGRAM_SLOTS],
+    // Line 1: the rest of the program look-up.
+    /// Each slot's generation (empty slots carry u64::MAX, which no ESC reaches).
     key_generations: [u64; PROGRAM_SLOTS],
     /// Each slot's program: its op count and the datagrams whose working counter it counts
     /// (the program's `n` and `counted`, kept here with the hot fields: a replay op by op of
@@ -163,7 +166,7 @@ pub struct Esc {
 // The hot lines as laid out above (a field added to a hot line must fit it).
 const _: () = {
     use core::mem::offset_of;
-    assert!(offset_of!(Esc, key_shapes) == 64);
+    assert!(offset_of!(Esc, key_generations) == 64);
     assert!(offset_of!(Esc, fast) == 128);
     assert!(offset_of!(Esc, ram) == 384);
     assert!(offset_of!(Esc, app_mem) + size_of::<process_data::AppMemory>() <= 512);
@@ -315,6 +318,7 @@ impl Esc {
     pub fn stats(&self) -> EscStats {
         let mut s = self.stats;
         for (&counted, &replays) in self.slot_counted.iter().zip(&self.replays) {
+            let replays = u64::from(replays);
             s.frames += replays;
             s.replayed_frames += replays;
             s.datagrams_counted += replays * u64::from(counted);

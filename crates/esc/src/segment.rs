@@ -278,14 +278,24 @@ struct VisitPlan {
     shape: u32,
     epoch: u64,
     timing: Arc<Timing>,
-    /// Indices into `timing.flat` of the ESCs the frame does something at, in order.
-    visits: Vec<u32>,
+    /// The ESCs the frame does something at, in the walk's order, with their steps.
+    visits: Vec<PlannedVisit>,
     /// Per slave: the frame passes by it doing nothing.
     idle: Vec<bool>,
     /// Frames passed by the idle ESCs and not yet in their counters.
     idle_frames: u64,
-    /// No ESC is idle: the frame visits every one, in the walk's order.
-    all: bool,
+}
+
+/// One visit of a [`VisitPlan`]: the slave, when the frame reaches its processing unit, and
+/// its straight-through steps for the frame (`None`: replayed op by op or decoded, through
+/// [`Esc::process_frame`]). The plan's visits lie one after the other in the order they are
+/// made, so a large network's cycle reads its steps as a stream rather than from each ESC's
+/// program slots.
+#[derive(Debug, Clone, Copy)]
+struct PlannedVisit {
+    slave: u32,
+    pu_ps: u64,
+    steps: Option<crate::esc::PlannedSteps>,
 }
 
 impl VisitPlan {
@@ -819,7 +829,6 @@ impl Segment {
             visits: Vec::new(),
             idle: Vec::new(),
             idle_frames: 0,
-            all: false,
         });
         p.shape = shape;
         p.epoch = self.epoch;
@@ -827,14 +836,18 @@ impl Segment {
         p.visits.clear();
         p.idle.clear();
         p.idle.resize(self.nodes.len(), false);
-        for (v, &(i, _)) in tm.flat.iter().enumerate() {
-            if self.nodes[i].esc.replays_nothing(shape) == Some(true) {
+        for &(i, pu_ps) in &tm.flat {
+            let esc = &self.nodes[i].esc;
+            if esc.replays_nothing(shape) == Some(true) {
                 p.idle[i] = true;
             } else {
-                p.visits.push(v as u32);
+                p.visits.push(PlannedVisit {
+                    slave: i as u32,
+                    pu_ps,
+                    steps: esc.planned_steps(shape),
+                });
             }
         }
-        p.all = p.visits.len() == tm.flat.len();
         self.plans[k] = Some(p);
     }
 
@@ -992,7 +1005,7 @@ impl Segment {
                     planned = true;
                     p.idle_frames += 1;
                     // Only the visit list leaves the plan while the ESCs run (no copy of it).
-                    (!p.all).then(|| (k, std::mem::take(&mut p.visits)))
+                    Some((k, std::mem::take(&mut p.visits)))
                 }
                 Some(_) => {
                     self.end_plan(k);
@@ -1029,21 +1042,31 @@ impl Segment {
         pass.loops_changed
     }
 
-    /// The frame at the processing units of the ESCs at `visits` (indices into `tm.flat`).
+    /// The frame at the processing units of a plan's `visits`, each by its planned steps.
     /// Out of line: a small network's frames visit every ESC, in the loop above.
     #[inline(never)]
     fn visit_some(
         &mut self,
-        visits: &[u32],
+        visits: &[PlannedVisit],
         frame: &mut [u8],
         kind: FrameKind,
         tm: &Timing,
         t_send: u64,
         pass: &mut Pass,
     ) {
-        for &v in visits {
-            let (i, pu) = tm.flat[v as usize];
-            self.visit(i, pu, frame, kind, tm, t_send, pass);
+        for v in visits {
+            let i = v.slave as usize;
+            let t = t_send + v.pu_ps;
+            if let Some(steps) = &v.steps {
+                let esc = &mut self.nodes[i].esc;
+                if esc.replay_planned(steps, frame, t, &mut pass.deferred) {
+                    continue;
+                }
+                // Steps that no longer hold (the ESC changed since the plan was made, outside
+                // a frame's pass): the next frame makes the plan again.
+                pass.generation_changed |= esc.planned_stale(steps);
+            }
+            self.visit_in_full(i, t, frame, kind, tm, t_send, pass);
         }
     }
 

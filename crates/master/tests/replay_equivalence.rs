@@ -359,3 +359,61 @@ fn long_frames_by_station_are_exact() {
         );
     }
 }
+
+/// Frames of other shapes between the cycles take the program slots the cyclic frames' visit
+/// plans were made from (each ESC keeps four; five reads of other registers record five more
+/// programs every cycle): the plans' steps still hold (nothing changed the ESCs), their replays
+/// are counted straight into the counters, and everything stays as with the replay off.
+#[test]
+fn visit_plans_outlive_their_program_slots() {
+    let base = CycleBench::line(160);
+    let mut on: Segment = base.segment.clone();
+    let mut off: Segment = base.segment.clone();
+    off.set_replay(false);
+    let brd = |ado: u16, len: usize| {
+        let mut buf = vec![0u8; 1514];
+        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0, 1, 2, 3, 4, 5]).unwrap();
+        b.push(
+            Command::Brd,
+            0x40,
+            DatagramAddress::Position { adp: 0, ado },
+            &vec![0; len],
+        )
+        .unwrap();
+        let n = b.finish();
+        buf.truncate(n);
+        buf
+    };
+    let reads = [
+        brd(0x0130, 2),
+        brd(0x0000, 1),
+        brd(0x0008, 2),
+        brd(0x0110, 2),
+        brd(0x0010, 2),
+    ];
+    let mut t = base.start_ps;
+    for cycle in 0..120u64 {
+        let mut t_frame = t;
+        for (k, f) in base.frames.iter().enumerate() {
+            let (mut a, mut b) = (f.clone(), f.clone());
+            assert_eq!(on.process(&mut a, t_frame), off.process(&mut b, t_frame));
+            assert_eq!(a, b, "cycle {cycle}, frame {k}");
+            t_frame += ecsync_esc::frame_wire_time_ps(f.len());
+        }
+        // Every tenth cycle from the 30th on, the five reads (the plans are made by then).
+        if cycle >= 30 && cycle % 10 == 0 {
+            for r in &reads {
+                let (mut a, mut b) = (r.clone(), r.clone());
+                assert_eq!(on.process(&mut a, t_frame), off.process(&mut b, t_frame));
+                assert_eq!(a, b, "cycle {cycle}: a read");
+                t_frame += ecsync_esc::frame_wire_time_ps(r.len());
+            }
+        }
+        t += base.cycle_ps;
+    }
+    assert!(
+        (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
+        "no frame passed a drive by: the reads ended the visit plans"
+    );
+    same_counters_and_clocks(&on, &off, t);
+}

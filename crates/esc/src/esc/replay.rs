@@ -532,7 +532,7 @@ impl Esc {
             }
         };
         // The replays of the program replaced go into the counters.
-        let replays = std::mem::take(&mut self.replays[k]);
+        let replays = u64::from(std::mem::take(&mut self.replays[k]));
         self.stats.frames += replays;
         self.stats.replayed_frames += replays;
         self.stats.datagrams_counted += replays * u64::from(self.slot_counted[k]);
@@ -711,61 +711,209 @@ impl Esc {
         let k = k & (PROGRAM_SLOTS - 1);
         let Esc {
             fast,
-            replays,
-            writes_ram,
             dc,
             ram,
             app,
             al_state,
             app_mem,
-            wd_last_write_ps,
-            sync_pending,
             ..
         } = self;
-        // The one-frame cycle's steps tested first, on their own (a match of the three
-        // together costs a dozen instructions more per frame).
-        let steps = &fast[k].steps;
-        let done = if let Straight::Cyclic(c) = steps {
-            let (Some(dc), Some(app)) = (dc.as_mut(), app.as_ref()) else {
-                return false;
-            };
-            d.switch_layout(c.layout, frame);
-            if let Some(pre) = &c.pre {
-                sys_step(dc, frame, pre, t_ps);
-            }
-            sys_access(dc, frame, &c.sys, t_ps);
-            lrw_in(ram, frame, &c.lrw);
-            refresh_inputs(ram, *app, *al_state, app_mem);
-            lrw_out(frame, ram, &c.lrw);
-            diff_access(dc, frame, &c.diff);
-            d.sys = d.sys.wrapping_add(c.sys.inc);
-            d.lrw = d.lrw.wrapping_add(c.lrw.inc);
-            d.diff = d.diff.wrapping_add(c.diff.inc);
-            d.adp = d.adp.wrapping_add(1);
-            true
-        } else if let (Straight::Simple(simple), Some(app)) = (steps, app.as_ref()) {
-            replay_simple(
-                simple,
-                dc.as_mut(),
-                ram,
-                app,
-                *al_state,
-                app_mem,
-                frame,
-                t_ps,
-                d,
-            )
-        } else {
-            false
-        };
+        let done = run_straight(
+            &fast[k].steps,
+            dc,
+            ram,
+            app,
+            *al_state,
+            app_mem,
+            frame,
+            t_ps,
+            d,
+        );
         if done {
-            replays[k] += 1;
-            if writes_ram[k] {
-                *wd_last_write_ps = t_ps;
-                *sync_pending = true;
+            self.count_replay(k, t_ps);
+        }
+        done
+    }
+
+    /// A replay's bookkeeping: the slot's count, and the outputs' watchdog and SYNC0 check.
+    #[inline(always)]
+    fn count_replay(&mut self, k: usize, t_ps: u64) {
+        if self.replays[k] == u32::MAX {
+            self.fold_replays(k);
+        }
+        self.replays[k] += 1;
+        if self.writes_ram[k] {
+            self.wd_last_write_ps = t_ps;
+            self.sync_pending = true;
+        }
+    }
+
+    /// Slot `k`'s replays go into the counters (before its count would wrap).
+    #[cold]
+    #[inline(never)]
+    fn fold_replays(&mut self, k: usize) {
+        let replays = u64::from(std::mem::take(&mut self.replays[k]));
+        self.stats.frames += replays;
+        self.stats.replayed_frames += replays;
+        self.stats.datagrams_counted += replays * u64::from(self.slot_counted[k]);
+    }
+
+    /// The straight-through steps this ESC replays for frames of `shape`, resolved once for a
+    /// segment's visit plan ([`PlannedSteps`]); `None` if it has none for it in the current
+    /// generation.
+    pub(crate) fn planned_steps(&self, shape: u32) -> Option<PlannedSteps> {
+        let k = self.program_slot(shape)?;
+        let steps = self.fast[k].steps;
+        (!matches!(steps, Straight::None)).then_some(PlannedSteps {
+            generation: self.generation,
+            shape,
+            slot: k as u8,
+            counted: self.slot_counted[k],
+            writes_ram: self.writes_ram[k],
+            steps,
+        })
+    }
+
+    /// A cyclic frame at this ESC by the steps a visit plan resolved: what
+    /// [`Esc::replay_cyclic`] does, without looking the program up. Returns false, touching
+    /// nothing, if they no longer hold (the ESC's generation moved) or the watchdog expired;
+    /// the caller then flushes `d` and calls [`Esc::process_frame`].
+    #[inline(always)]
+    pub(crate) fn replay_planned(
+        &mut self,
+        p: &PlannedSteps,
+        frame: &mut [u8],
+        t_ps: u64,
+        d: &mut Deferred,
+    ) -> bool {
+        let done = self.replay_planned_steps(p, frame, t_ps, d);
+        if self.sync_pending {
+            self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+        }
+        done
+    }
+
+    /// Whether planned steps no longer hold at this ESC (see [`Esc::replay_planned`]).
+    pub(crate) fn planned_stale(&self, p: &PlannedSteps) -> bool {
+        self.generation != p.generation
+    }
+
+    #[inline(always)]
+    fn replay_planned_steps(
+        &mut self,
+        p: &PlannedSteps,
+        frame: &mut [u8],
+        t_ps: u64,
+        d: &mut Deferred,
+    ) -> bool {
+        if self.watchdog_check(t_ps) {
+            return false;
+        }
+        // The steps are the shape's program in the generation the plan was made in: they hold
+        // while it stands.
+        if self.generation != p.generation {
+            return false;
+        }
+        let Esc {
+            dc,
+            ram,
+            app,
+            al_state,
+            app_mem,
+            ..
+        } = self;
+        let done = run_straight(&p.steps, dc, ram, app, *al_state, app_mem, frame, t_ps, d);
+        if done {
+            let k = usize::from(p.slot) & (PROGRAM_SLOTS - 1);
+            if self.key_shapes[k] == p.shape {
+                self.count_replay(k, t_ps);
+            } else {
+                self.count_evicted_replay(p, t_ps);
             }
         }
         done
+    }
+
+    /// A planned replay whose program slot another shape's recording took since (the same
+    /// generation: the steps still hold): counted straight into the counters.
+    #[cold]
+    #[inline(never)]
+    fn count_evicted_replay(&mut self, p: &PlannedSteps, t_ps: u64) {
+        self.stats.frames += 1;
+        self.stats.replayed_frames += 1;
+        self.stats.datagrams_counted += u64::from(p.counted);
+        if p.writes_ram {
+            self.wd_last_write_ps = t_ps;
+            self.sync_pending = true;
+        }
+    }
+}
+
+/// One ESC's straight-through steps for a frame shape, as a segment's visit plan keeps them
+/// (a copy of its program slot's, resolved when the plan is made): a visit by plan reads the
+/// ESC's first line, not its program look-up and slot lines, and the plan's steps lie in
+/// visit order, where the cache's prefetcher finds them.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PlannedSteps {
+    generation: u64,
+    shape: u32,
+    slot: u8,
+    /// The program's counted datagrams and whether it writes the outputs (for a replay whose
+    /// slot was taken since).
+    counted: u8,
+    writes_ram: bool,
+    steps: Straight,
+}
+
+/// The straight-through steps (see [`Esc::replay_cyclic`]) on the ESC's parts; false,
+/// touching nothing, if they need a DC unit or an application the ESC lacks.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn run_straight(
+    steps: &Straight,
+    dc: &mut Option<DcUnit>,
+    ram: &mut [u8],
+    app: &Option<AppLayout>,
+    al_state: AlState,
+    app_mem: &mut super::process_data::AppMemory,
+    frame: &mut [u8],
+    t_ps: u64,
+    d: &mut Deferred,
+) -> bool {
+    // The one-frame cycle's steps tested first, on their own (a match of the three
+    // together costs a dozen instructions more per frame).
+    if let Straight::Cyclic(c) = steps {
+        let (Some(dc), Some(app)) = (dc.as_mut(), app.as_ref()) else {
+            return false;
+        };
+        d.switch_layout(c.layout, frame);
+        if let Some(pre) = &c.pre {
+            sys_step(dc, frame, pre, t_ps);
+        }
+        sys_access(dc, frame, &c.sys, t_ps);
+        lrw_in(ram, frame, &c.lrw);
+        refresh_inputs(ram, *app, al_state, app_mem);
+        lrw_out(frame, ram, &c.lrw);
+        diff_access(dc, frame, &c.diff);
+        d.sys = d.sys.wrapping_add(c.sys.inc);
+        d.lrw = d.lrw.wrapping_add(c.lrw.inc);
+        d.diff = d.diff.wrapping_add(c.diff.inc);
+        d.adp = d.adp.wrapping_add(1);
+        true
+    } else if let (Straight::Simple(simple), Some(app)) = (steps, app.as_ref()) {
+        replay_simple(
+            simple,
+            dc.as_mut(),
+            ram,
+            app,
+            al_state,
+            app_mem,
+            frame,
+            t_ps,
+            d,
+        )
+    } else {
+        false
     }
 }
 
