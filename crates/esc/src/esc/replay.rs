@@ -16,6 +16,52 @@ use crate::dc_unit::DcUnit;
 use ecsync_wire::AlState;
 use ecsync_wire::register as reg;
 
+/// The straight-through steps (see [`Esc::replay_cyclic`]) on an ESC's parts, destructured by
+/// the caller: `true` when they ran; `return false` from the caller, touching nothing, if they
+/// need a DC unit or an application the ESC lacks. A macro, not a function: the one-frame
+/// cycle's path took about 60 instructions a frame more through a function's references
+/// (paper-2024 under callgrind, 378.5 M against 384.1 M per 100 000 bench cycles).
+macro_rules! straight_steps {
+    ($steps:expr, $dc:ident, $ram:ident, $app:ident, $al_state:expr, $app_mem:ident, $frame:ident, $t_ps:ident, $d:ident) => {{
+        let steps: &Straight = $steps;
+        // The one-frame cycle's steps tested first, on their own (a match of the three
+        // together costs a dozen instructions more per frame).
+        if let Straight::Cyclic(c) = steps {
+            let (Some(dc), Some(app)) = ($dc.as_mut(), $app.as_ref()) else {
+                return false;
+            };
+            $d.switch_layout(c.layout, $frame);
+            if let Some(pre) = &c.pre {
+                sys_step(dc, $frame, pre, $t_ps);
+            }
+            sys_access(dc, $frame, &c.sys, $t_ps);
+            lrw_in($ram, $frame, &c.lrw);
+            refresh_inputs($ram, *app, $al_state, $app_mem);
+            lrw_out($frame, $ram, &c.lrw);
+            diff_access(dc, $frame, &c.diff);
+            $d.sys = $d.sys.wrapping_add(c.sys.inc);
+            $d.lrw = $d.lrw.wrapping_add(c.lrw.inc);
+            $d.diff = $d.diff.wrapping_add(c.diff.inc);
+            $d.adp = $d.adp.wrapping_add(1);
+            true
+        } else if let (Straight::Simple(simple), Some(app)) = (steps, $app.as_ref()) {
+            replay_simple(
+                simple,
+                $dc.as_mut(),
+                $ram,
+                app,
+                $al_state,
+                $app_mem,
+                $frame,
+                $t_ps,
+                $d,
+            )
+        } else {
+            false
+        }
+    }};
+}
+
 /// Frames with more datagrams than this are never recorded.
 pub(super) const MAX_PROGRAM_DATAGRAMS: usize = 8;
 /// Steps a program holds.
@@ -711,14 +757,18 @@ impl Esc {
         let k = k & (PROGRAM_SLOTS - 1);
         let Esc {
             fast,
+            replays,
+            writes_ram,
             dc,
             ram,
             app,
             al_state,
             app_mem,
+            wd_last_write_ps,
+            sync_pending,
             ..
         } = self;
-        let done = run_straight(
+        let done = straight_steps!(
             &fast[k].steps,
             dc,
             ram,
@@ -727,32 +777,27 @@ impl Esc {
             app_mem,
             frame,
             t_ps,
-            d,
+            d
         );
         if done {
-            self.count_replay(k, t_ps);
+            let (r, wrapped) = replays[k].overflowing_add(1);
+            replays[k] = r;
+            if writes_ram[k] {
+                *wd_last_write_ps = t_ps;
+                *sync_pending = true;
+            }
+            if wrapped {
+                self.fold_wrapped_replays(k);
+            }
         }
         done
     }
 
-    /// A replay's bookkeeping: the slot's count, and the outputs' watchdog and SYNC0 check.
-    #[inline(always)]
-    fn count_replay(&mut self, k: usize, t_ps: u64) {
-        if self.replays[k] == u32::MAX {
-            self.fold_replays(k);
-        }
-        self.replays[k] += 1;
-        if self.writes_ram[k] {
-            self.wd_last_write_ps = t_ps;
-            self.sync_pending = true;
-        }
-    }
-
-    /// Slot `k`'s replays go into the counters (before its count would wrap).
+    /// Slot `k`'s replay count wrapped to 0: its 2^32 replays go into the counters.
     #[cold]
     #[inline(never)]
-    fn fold_replays(&mut self, k: usize) {
-        let replays = u64::from(std::mem::take(&mut self.replays[k]));
+    fn fold_wrapped_replays(&mut self, k: usize) {
+        let replays = 1u64 << 32;
         self.stats.frames += replays;
         self.stats.replayed_frames += replays;
         self.stats.datagrams_counted += replays * u64::from(self.slot_counted[k]);
@@ -815,18 +860,30 @@ impl Esc {
             return false;
         }
         let Esc {
+            replays,
+            key_shapes,
             dc,
             ram,
             app,
             al_state,
             app_mem,
+            wd_last_write_ps,
+            sync_pending,
             ..
         } = self;
-        let done = run_straight(&p.steps, dc, ram, app, *al_state, app_mem, frame, t_ps, d);
+        let done = straight_steps!(&p.steps, dc, ram, app, *al_state, app_mem, frame, t_ps, d);
         if done {
             let k = usize::from(p.slot) & (PROGRAM_SLOTS - 1);
-            if self.key_shapes[k] == p.shape {
-                self.count_replay(k, t_ps);
+            if key_shapes[k] == p.shape {
+                let (r, wrapped) = replays[k].overflowing_add(1);
+                replays[k] = r;
+                if p.writes_ram {
+                    *wd_last_write_ps = t_ps;
+                    *sync_pending = true;
+                }
+                if wrapped {
+                    self.fold_wrapped_replays(k);
+                }
             } else {
                 self.count_evicted_replay(p, t_ps);
             }
@@ -863,58 +920,6 @@ pub(crate) struct PlannedSteps {
     counted: u8,
     writes_ram: bool,
     steps: Straight,
-}
-
-/// The straight-through steps (see [`Esc::replay_cyclic`]) on the ESC's parts; false,
-/// touching nothing, if they need a DC unit or an application the ESC lacks.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn run_straight(
-    steps: &Straight,
-    dc: &mut Option<DcUnit>,
-    ram: &mut [u8],
-    app: &Option<AppLayout>,
-    al_state: AlState,
-    app_mem: &mut super::process_data::AppMemory,
-    frame: &mut [u8],
-    t_ps: u64,
-    d: &mut Deferred,
-) -> bool {
-    // The one-frame cycle's steps tested first, on their own (a match of the three
-    // together costs a dozen instructions more per frame).
-    if let Straight::Cyclic(c) = steps {
-        let (Some(dc), Some(app)) = (dc.as_mut(), app.as_ref()) else {
-            return false;
-        };
-        d.switch_layout(c.layout, frame);
-        if let Some(pre) = &c.pre {
-            sys_step(dc, frame, pre, t_ps);
-        }
-        sys_access(dc, frame, &c.sys, t_ps);
-        lrw_in(ram, frame, &c.lrw);
-        refresh_inputs(ram, *app, al_state, app_mem);
-        lrw_out(frame, ram, &c.lrw);
-        diff_access(dc, frame, &c.diff);
-        d.sys = d.sys.wrapping_add(c.sys.inc);
-        d.lrw = d.lrw.wrapping_add(c.lrw.inc);
-        d.diff = d.diff.wrapping_add(c.diff.inc);
-        d.adp = d.adp.wrapping_add(1);
-        true
-    } else if let (Straight::Simple(simple), Some(app)) = (steps, app.as_ref()) {
-        replay_simple(
-            simple,
-            dc.as_mut(),
-            ram,
-            app,
-            al_state,
-            app_mem,
-            frame,
-            t_ps,
-            d,
-        )
-    } else {
-        false
-    }
 }
 
 /// A [`Simple`] program: the DC steps or the process data of one frame of a large network's
