@@ -100,8 +100,7 @@ pub struct Esc {
     /// counters (one increment per frame instead of three; see [`Esc::stats`]; folded into
     /// them before it wraps).
     replays: [u32; PROGRAM_SLOTS],
-    /// Each slot's shape (a planned visit's replay counts into its slot while the slot still
-    /// holds the shape; see [`replay::PlannedSteps`]).
+    /// Each slot's shape.
     key_shapes: [u32; PROGRAM_SLOTS],
     /// Each slot's program writes process RAM (the outputs): a replay restarts the process
     /// data watchdog.

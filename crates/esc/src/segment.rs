@@ -296,6 +296,9 @@ struct PlannedVisit {
     slave: u32,
     pu_ps: u64,
     steps: Option<crate::esc::PlannedSteps>,
+    /// Frames its steps replayed and not yet in the ESC's counters (brought up to date as the
+    /// idle frames are: the visit touches nothing of the ESC's counters).
+    replays: u64,
 }
 
 impl VisitPlan {
@@ -782,6 +785,11 @@ impl Segment {
                 s.frames += p.idle_frames;
                 s.replayed_frames += p.idle_frames;
             }
+            for v in p.visits.iter().filter(|v| v.slave as usize == pos) {
+                if let Some(steps) = &v.steps {
+                    steps.add_replays_to(&mut s, v.replays);
+                }
+            }
         }
         s
     }
@@ -800,6 +808,16 @@ impl Segment {
                 node.esc.count_passed_frames(p.idle_frames);
             }
             p.idle_frames = 0;
+        }
+        for v in &mut p.visits {
+            if let Some(steps) = &v.steps
+                && v.replays > 0
+            {
+                self.nodes[v.slave as usize]
+                    .esc
+                    .count_planned_replays(steps, v.replays);
+                v.replays = 0;
+            }
         }
         Some(p)
     }
@@ -845,6 +863,7 @@ impl Segment {
                     slave: i as u32,
                     pu_ps,
                     steps: esc.planned_steps(shape),
+                    replays: 0,
                 });
             }
         }
@@ -1016,8 +1035,8 @@ impl Segment {
             _ => None,
         };
         match plan {
-            Some((k, visits)) => {
-                self.visit_some(&visits, frame, kind, tm, t_send, &mut pass);
+            Some((k, mut visits)) => {
+                self.visit_some(&mut visits, frame, kind, tm, t_send, &mut pass);
                 if let Some(p) = &mut self.plans[k] {
                     p.visits = visits;
                 }
@@ -1047,7 +1066,7 @@ impl Segment {
     #[inline(never)]
     fn visit_some(
         &mut self,
-        visits: &[PlannedVisit],
+        visits: &mut [PlannedVisit],
         frame: &mut [u8],
         kind: FrameKind,
         tm: &Timing,
@@ -1060,6 +1079,7 @@ impl Segment {
             if let Some(steps) = &v.steps {
                 let esc = &mut self.nodes[i].esc;
                 if esc.replay_planned(steps, frame, t, &mut pass.deferred) {
+                    v.replays += 1;
                     continue;
                 }
                 // Steps that no longer hold (the ESC changed since the plan was made, outside

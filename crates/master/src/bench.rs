@@ -33,11 +33,16 @@ pub struct CycleBench {
 
 /// The bring-up the benches start from: a short static drift compensation and lock hold (the
 /// benches time the cycle, not the bring-up).
-fn bring_up(specs: &[SlaveSpec], static_drift_frames: u32) -> (Network, SimTransport) {
+fn bring_up(
+    specs: &[SlaveSpec],
+    static_drift_frames: u32,
+    cycle_ns: u32,
+) -> (Network, SimTransport) {
     let seg = Segment::new(specs).expect("a valid segment");
     let mut sim = SimTransport::new(seg);
     let cfg = BringupConfig {
         until: Stage::Op,
+        cycle_ns,
         static_drift_frames,
         lock_hold_checks: 100,
         monitor_cycles: 10,
@@ -54,10 +59,26 @@ impl CycleBench {
     /// A line of `n` servo drives (crystals spread over +-50 ppm), in OP, with the cyclic
     /// engine's frames; the cycle is the shortest whole millisecond the frames fit in.
     pub fn line(n: usize) -> Self {
-        let (net, sim) = bring_up(
-            &preset::line(n, 11),
-            BringupConfig::default().static_drift_frames,
-        );
+        let specs = preset::line(n, 11);
+        let drift = BringupConfig::default().static_drift_frames;
+        let ms = 1_000_000_000;
+        let (net, sim) = bring_up(&specs, drift, (ms / 1000) as u32);
+        let bench = Self::line_on(net, sim);
+        if bench.cycle_ps == ms {
+            return bench;
+        }
+        // The frames take longer than a millisecond: the network is brought up again with
+        // SYNC0 on their cycle, as a master would run it (on the millisecond, every drive
+        // would see several SYNC0 pulses a cycle and count all but one as missed).
+        let (net, sim) = bring_up(&specs, drift, (bench.cycle_ps / 1000) as u32);
+        let again = Self::line_on(net, sim);
+        debug_assert_eq!(again.cycle_ps, bench.cycle_ps);
+        again
+    }
+
+    /// The bench of a line brought up (`net` on `sim`): its frames, and the cycle they fit
+    /// in, whole milliseconds.
+    fn line_on(net: Network, sim: SimTransport) -> Self {
         let cfg = CyclicConfig {
             period_ns: 1_000_000,
             reference_station: net.slaves[usize::from(net.reference)].station,
@@ -91,7 +112,7 @@ impl CycleBench {
 
     /// Brings paper-2024 up (with a short static drift compensation) and builds the frame.
     pub fn paper_2024() -> Self {
-        let (net, sim) = bring_up(&preset::paper_2024(), 2_000);
+        let (net, sim) = bring_up(&preset::paper_2024(), 2_000, 1_000_000);
         let ref_station = net.slaves[usize::from(net.reference)].station;
         let mut buf = vec![0u8; 1514];
         let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC).expect("buffer");

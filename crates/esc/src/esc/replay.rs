@@ -811,8 +811,6 @@ impl Esc {
         let steps = self.fast[k].steps;
         (!matches!(steps, Straight::None)).then_some(PlannedSteps {
             generation: self.generation,
-            shape,
-            slot: k as u8,
             counted: self.slot_counted[k],
             writes_ram: self.writes_ram[k],
             steps,
@@ -860,8 +858,6 @@ impl Esc {
             return false;
         }
         let Esc {
-            replays,
-            key_shapes,
             dc,
             ram,
             app,
@@ -872,37 +868,27 @@ impl Esc {
             ..
         } = self;
         let done = straight_steps!(&p.steps, dc, ram, app, *al_state, app_mem, frame, t_ps, d);
-        if done {
-            let k = usize::from(p.slot) & (PROGRAM_SLOTS - 1);
-            if key_shapes[k] == p.shape {
-                let (r, wrapped) = replays[k].overflowing_add(1);
-                replays[k] = r;
-                if p.writes_ram {
-                    *wd_last_write_ps = t_ps;
-                    *sync_pending = true;
-                }
-                if wrapped {
-                    self.fold_wrapped_replays(k);
-                }
-            } else {
-                self.count_evicted_replay(p, t_ps);
-            }
+        // (The replay is counted by the plan: see `count_planned_replays`.)
+        if done && p.writes_ram {
+            *wd_last_write_ps = t_ps;
+            *sync_pending = true;
         }
         done
     }
 
-    /// A planned replay whose program slot another shape's recording took since (the same
-    /// generation: the steps still hold): counted straight into the counters.
-    #[cold]
-    #[inline(never)]
-    fn count_evicted_replay(&mut self, p: &PlannedSteps, t_ps: u64) {
-        self.stats.frames += 1;
-        self.stats.replayed_frames += 1;
-        self.stats.datagrams_counted += u64::from(p.counted);
-        if p.writes_ram {
-            self.wd_last_write_ps = t_ps;
-            self.sync_pending = true;
-        }
+    /// `n` replays of planned steps go into the counters (the segment counts them while its
+    /// plan holds).
+    pub(crate) fn count_planned_replays(&mut self, p: &PlannedSteps, n: u64) {
+        p.add_replays_to(&mut self.stats, n);
+    }
+}
+
+impl PlannedSteps {
+    /// `n` replays of these steps, added to `s`.
+    pub(crate) fn add_replays_to(&self, s: &mut super::EscStats, n: u64) {
+        s.frames += n;
+        s.replayed_frames += n;
+        s.datagrams_counted += n * u64::from(self.counted);
     }
 }
 
@@ -913,10 +899,8 @@ impl Esc {
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct PlannedSteps {
     generation: u64,
-    shape: u32,
-    slot: u8,
-    /// The program's counted datagrams and whether it writes the outputs (for a replay whose
-    /// slot was taken since).
+    /// The program's counted datagrams (the plan counts the replays) and whether it writes
+    /// the outputs.
     counted: u8,
     writes_ram: bool,
     steps: Straight,
