@@ -287,10 +287,10 @@ struct VisitPlan {
 }
 
 /// One visit of a [`VisitPlan`]: the slave, when the frame reaches its processing unit, and
-/// its straight-through steps for the frame (`None`: replayed op by op or decoded, through
-/// [`Esc::process_frame`]). The plan's visits lie one after the other in the order they are
-/// made, so a large network's cycle reads its steps as a stream rather than from each ESC's
-/// program slots.
+/// its one-step program for the frame (`None`: looked up by program slot, replayed op by op
+/// or decoded, as without a plan). The plan's visits lie one after the other in the order
+/// they are made, so a large network's cycle reads its steps as a stream rather than from
+/// each ESC's program slots.
 #[derive(Debug, Clone, Copy)]
 struct PlannedVisit {
     slave: u32,
@@ -300,6 +300,9 @@ struct PlannedVisit {
     /// idle frames are: the visit touches nothing of the ESC's counters).
     replays: u64,
 }
+
+// A visit on one cache line's worth of the plan.
+const _: () = assert!(size_of::<PlannedVisit>() <= 64);
 
 impl VisitPlan {
     fn holds(&self, shape: u32, epoch: u64, tm: &Arc<Timing>) -> bool {
@@ -1076,16 +1079,19 @@ impl Segment {
         for v in visits {
             let i = v.slave as usize;
             let t = t_send + v.pu_ps;
-            if let Some(steps) = &v.steps {
-                let esc = &mut self.nodes[i].esc;
-                if esc.replay_planned(steps, frame, t, &mut pass.deferred) {
-                    v.replays += 1;
-                    continue;
-                }
-                // Steps that no longer hold (the ESC changed since the plan was made, outside
-                // a frame's pass): the next frame makes the plan again.
-                pass.generation_changed |= esc.planned_stale(steps);
+            let Some(steps) = &v.steps else {
+                // No one-step program: by the ESC's program slot, as without a plan.
+                self.visit(i, v.pu_ps, frame, kind, tm, t_send, pass);
+                continue;
+            };
+            let esc = &mut self.nodes[i].esc;
+            if esc.replay_planned(steps, frame, t, &mut pass.deferred) {
+                v.replays += 1;
+                continue;
             }
+            // Steps that no longer hold (the ESC changed since the plan was made, outside a
+            // frame's pass): the next frame makes the plan again.
+            pass.generation_changed |= esc.planned_stale(steps);
             self.visit_in_full(i, t, frame, kind, tm, t_send, pass);
         }
     }

@@ -16,52 +16,6 @@ use crate::dc_unit::DcUnit;
 use ecsync_wire::AlState;
 use ecsync_wire::register as reg;
 
-/// The straight-through steps (see [`Esc::replay_cyclic`]) on an ESC's parts, destructured by
-/// the caller: `true` when they ran; `return false` from the caller, touching nothing, if they
-/// need a DC unit or an application the ESC lacks. A macro, not a function: the one-frame
-/// cycle's path took about 60 instructions a frame more through a function's references
-/// (paper-2024 under callgrind, 378.5 M against 384.1 M per 100 000 bench cycles).
-macro_rules! straight_steps {
-    ($steps:expr, $dc:ident, $ram:ident, $app:ident, $al_state:expr, $app_mem:ident, $frame:ident, $t_ps:ident, $d:ident) => {{
-        let steps: &Straight = $steps;
-        // The one-frame cycle's steps tested first, on their own (a match of the three
-        // together costs a dozen instructions more per frame).
-        if let Straight::Cyclic(c) = steps {
-            let (Some(dc), Some(app)) = ($dc.as_mut(), $app.as_ref()) else {
-                return false;
-            };
-            $d.switch_layout(c.layout, $frame);
-            if let Some(pre) = &c.pre {
-                sys_step(dc, $frame, pre, $t_ps);
-            }
-            sys_access(dc, $frame, &c.sys, $t_ps);
-            lrw_in($ram, $frame, &c.lrw);
-            refresh_inputs($ram, *app, $al_state, $app_mem);
-            lrw_out($frame, $ram, &c.lrw);
-            diff_access(dc, $frame, &c.diff);
-            $d.sys = $d.sys.wrapping_add(c.sys.inc);
-            $d.lrw = $d.lrw.wrapping_add(c.lrw.inc);
-            $d.diff = $d.diff.wrapping_add(c.diff.inc);
-            $d.adp = $d.adp.wrapping_add(1);
-            true
-        } else if let (Straight::Simple(simple), Some(app)) = (steps, $app.as_ref()) {
-            replay_simple(
-                simple,
-                $dc.as_mut(),
-                $ram,
-                app,
-                $al_state,
-                $app_mem,
-                $frame,
-                $t_ps,
-                $d,
-            )
-        } else {
-            false
-        }
-    }};
-}
-
 /// Frames with more datagrams than this are never recorded.
 pub(super) const MAX_PROGRAM_DATAGRAMS: usize = 8;
 /// Steps a program holds.
@@ -768,17 +722,44 @@ impl Esc {
             sync_pending,
             ..
         } = self;
-        let done = straight_steps!(
-            &fast[k].steps,
-            dc,
-            ram,
-            app,
-            *al_state,
-            app_mem,
-            frame,
-            t_ps,
-            d
-        );
+        // The one-frame cycle's steps tested first, on their own (a match of the three
+        // together costs a dozen instructions more per frame).
+        let done = {
+            let steps = &fast[k].steps;
+            if let Straight::Cyclic(c) = steps {
+                let (Some(dc), Some(app)) = (dc.as_mut(), app.as_ref()) else {
+                    return false;
+                };
+                d.switch_layout(c.layout, frame);
+                if let Some(pre) = &c.pre {
+                    sys_step(dc, frame, pre, t_ps);
+                }
+                sys_access(dc, frame, &c.sys, t_ps);
+                lrw_in(ram, frame, &c.lrw);
+                refresh_inputs(ram, *app, *al_state, app_mem);
+                lrw_out(frame, ram, &c.lrw);
+                diff_access(dc, frame, &c.diff);
+                d.sys = d.sys.wrapping_add(c.sys.inc);
+                d.lrw = d.lrw.wrapping_add(c.lrw.inc);
+                d.diff = d.diff.wrapping_add(c.diff.inc);
+                d.adp = d.adp.wrapping_add(1);
+                true
+            } else if let (Straight::Simple(simple), Some(app)) = (steps, app.as_ref()) {
+                replay_simple(
+                    simple,
+                    dc.as_mut(),
+                    ram,
+                    app,
+                    *al_state,
+                    app_mem,
+                    frame,
+                    t_ps,
+                    d,
+                )
+            } else {
+                false
+            }
+        };
         if done {
             let (r, wrapped) = replays[k].overflowing_add(1);
             replays[k] = r;
@@ -803,13 +784,17 @@ impl Esc {
         self.stats.datagrams_counted += replays * u64::from(self.slot_counted[k]);
     }
 
-    /// The straight-through steps this ESC replays for frames of `shape`, resolved once for a
-    /// segment's visit plan ([`PlannedSteps`]); `None` if it has none for it in the current
-    /// generation.
+    /// The one-step program ([`Simple`]) this ESC replays for frames of `shape`, resolved once
+    /// for a segment's visit plan ([`PlannedSteps`]); `None` if it has none for it in the
+    /// current generation (the visit then looks its program up by slot).
     pub(crate) fn planned_steps(&self, shape: u32) -> Option<PlannedSteps> {
         let k = self.program_slot(shape)?;
-        let steps = self.fast[k].steps;
-        (!matches!(steps, Straight::None)).then_some(PlannedSteps {
+        // (The one-frame cycle's steps stay with the slot: a plan holds only the one-step
+        // programs of a large network's frames, and so keeps its visits short.)
+        let Straight::Simple(steps) = self.fast[k].steps else {
+            return None;
+        };
+        Some(PlannedSteps {
             generation: self.generation,
             counted: self.slot_counted[k],
             writes_ram: self.writes_ram[k],
@@ -867,7 +852,20 @@ impl Esc {
             sync_pending,
             ..
         } = self;
-        let done = straight_steps!(&p.steps, dc, ram, app, *al_state, app_mem, frame, t_ps, d);
+        let Some(app) = app.as_ref() else {
+            return false;
+        };
+        let done = replay_simple(
+            &p.steps,
+            dc.as_mut(),
+            ram,
+            app,
+            *al_state,
+            app_mem,
+            frame,
+            t_ps,
+            d,
+        );
         // (The replay is counted by the plan: see `count_planned_replays`.)
         if done && p.writes_ram {
             *wd_last_write_ps = t_ps;
@@ -903,7 +901,7 @@ pub(crate) struct PlannedSteps {
     /// the outputs.
     counted: u8,
     writes_ram: bool,
-    steps: Straight,
+    steps: Simple,
 }
 
 /// A [`Simple`] program: the DC steps or the process data of one frame of a large network's
