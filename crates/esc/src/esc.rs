@@ -72,11 +72,13 @@ struct CacheLine;
 
 /// A virtual ESC.
 ///
-/// Laid out by hand (`repr(C)`): the fields a replayed cyclic frame reads come first, on a few
-/// cache lines (the program look-up and the watchdog on the first, the counters and flags on
-/// the second, then one line per program slot, the application, the SYNC0 bookkeeping, the
-/// DC unit with its clock's cold part last). In a network of hundreds of drives every ESC's state has left the cache by
-/// its next frame, and the cost of a visit is the lines it touches.
+/// Laid out by hand (`repr(C)`), by cache line: what a replayed cyclic frame reads and
+/// updates first (the generation, the watchdog's check, the replay counters and flags on line
+/// 0; the process RAM and the application on lines 1-2; the SYNC0 check on line 3; the DC
+/// unit's three hot lines on 5-7), then the program look-up and the straight-through steps
+/// (a large network's visit plans copy them once), then the cold parts. In a network of
+/// hundreds of drives every ESC's state has left the cache by its next frame, and the cost of
+/// a visit is the lines it touches.
 ///
 /// The large cold parts (the recorded programs, FMMUs, SyncManagers, the device description;
 /// the clock's random generator) are boxed: an ESC is 1.3 KiB instead of 4.3, so that a large
@@ -113,7 +115,21 @@ pub struct Esc {
     pd_written: bool,
     /// The slot the next recording replaces when none is free.
     next_slot: u8,
-    // Line 1: the rest of the program look-up.
+    // Lines 1-2: the process RAM and the application.
+    ram: Box<[u8]>,
+    app: Option<AppLayout>,
+    app_mem: process_data::AppMemory,
+    // Lines 3-4: the SYNC0 deadline's bookkeeping (what the outputs' check uses on line 3).
+    _align_sync: [CacheLine; 0],
+    sync: sync::SyncMonitor,
+    // Lines 5-7: the DC unit's hot lines (its registers, its time control loop, its
+    // clock's hot part), its cold part after.
+    _align_dc: [CacheLine; 0],
+    dc: Option<DcUnit>,
+    // The program look-up and the straight-through steps, which a large network's visit
+    // plans read once, when they are made (a small network's frames read them every time,
+    // from the L1 cache).
+    _align_slots: [CacheLine; 0],
     /// Each slot's generation (empty slots carry u64::MAX, which no ESC reaches).
     key_generations: [u64; PROGRAM_SLOTS],
     /// Each slot's program: its op count and the datagrams whose working counter it counts
@@ -122,19 +138,8 @@ pub struct Esc {
     /// nothing of the boxed programs).
     slot_ops: [u8; PROGRAM_SLOTS],
     slot_counted: [u8; PROGRAM_SLOTS],
-    // Lines 2-5: each slot's straight-through steps.
+    /// Each slot's straight-through steps, a line each.
     fast: [replay::FastSlot; PROGRAM_SLOTS],
-    // Lines 6-7: the process RAM and the application.
-    ram: Box<[u8]>,
-    app: Option<AppLayout>,
-    app_mem: process_data::AppMemory,
-    // Lines 8-9: the SYNC0 deadline's bookkeeping (what the outputs' check uses on line 8).
-    _align_sync: [CacheLine; 0],
-    sync: sync::SyncMonitor,
-    // Lines 10-12: the DC unit's hot lines (its registers, its time control loop, its
-    // clock's hot part), its cold part after.
-    _align_dc: [CacheLine; 0],
-    dc: Option<DcUnit>,
     // Cold: what the full path and the bring-up use.
     /// Programs recorded for the last few frame shapes: a cycle of several frames (the
     /// first with the DC datagrams, the others with process data) keeps each one's.
@@ -162,15 +167,15 @@ pub struct Esc {
     mbx: Option<Box<mailbox::MailboxState>>,
 }
 
-// The hot lines as laid out above (a field added to a hot line must fit it).
+// The hot lines as laid out above (a field added to a hot line must fit it): a large
+// network's visits read lines 0-3 and 5-7, consecutive (the adjacent-line prefetch brings
+// pairs).
 const _: () = {
     use core::mem::offset_of;
-    assert!(offset_of!(Esc, key_generations) == 64);
-    assert!(offset_of!(Esc, fast) == 128);
-    assert!(offset_of!(Esc, ram) == 384);
-    assert!(offset_of!(Esc, app_mem) + size_of::<process_data::AppMemory>() <= 512);
-    assert!(offset_of!(Esc, sync) == 512);
-    assert!(offset_of!(Esc, dc) == 640);
+    assert!(offset_of!(Esc, ram) == 64);
+    assert!(offset_of!(Esc, app_mem) + size_of::<process_data::AppMemory>() <= 192);
+    assert!(offset_of!(Esc, sync) == 192);
+    assert!(offset_of!(Esc, dc) == 320);
     // (The DC unit's lines begin at the option's: no tag before them.)
     assert!(size_of::<Option<DcUnit>>() == size_of::<DcUnit>());
 };
@@ -194,6 +199,7 @@ impl Esc {
         let mut esc = Esc {
             _align_sync: [],
             _align_dc: [],
+            _align_slots: [],
             regs: Box::new([0; REG_SPACE]),
             attr: Box::new([0; REG_SPACE]),
             ram: vec![0; usize::from(model.ram_kib) * 1024].into_boxed_slice(),
