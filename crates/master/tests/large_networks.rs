@@ -131,3 +131,32 @@ fn a_tree_of_512_slaves_with_3_and_4_port_junctions() {
     let (net, sim) = bring_up(&specs);
     check(&net, &sim, 512);
 }
+
+/// The bench's lines whose frames take longer than a millisecond run SYNC0 on their own cycle
+/// (`CycleBench::line` brings them up on it): over a hundred cycles no drive counts a missed
+/// SYNC0 pulse, and every LRW comes back with its full working counter. Brought up on the
+/// default millisecond, a 2 ms cycle's drives counted one missed pulse each every cycle.
+#[test]
+fn a_bench_line_longer_than_a_millisecond_runs_sync0_on_its_cycle() {
+    let mut b = ecsync_master::bench::CycleBench::line(512);
+    assert!(b.cycle_ps > 1_000_000_000, "cycle {} ps", b.cycle_ps);
+    let longest = b.frames.iter().map(Vec::len).max().unwrap();
+    let mut work = vec![0u8; longest];
+    // (Counted from the second cycle on: a drive counts the pulses it missed when its next
+    // outputs come, and the pause between the bring-up's last frames and the first cycle
+    // falls on the first.)
+    b.run(1, &mut work);
+    let missed_before: Vec<u64> = (0..b.segment.len())
+        .map(|i| b.segment.esc(i).sm_events_missed())
+        .collect();
+    let wkc = b.run(100, &mut work);
+    assert_eq!(wkc, b.expected_lrw_wkc);
+    let missed: Vec<(usize, u64)> = (0..b.segment.len())
+        .map(|i| (i, b.segment.esc(i).sm_events_missed() - missed_before[i]))
+        .filter(|&(_, m)| m > 0)
+        .collect();
+    assert!(
+        missed.is_empty(),
+        "drives that missed SYNC0 pulses: {missed:?}"
+    );
+}
