@@ -780,7 +780,8 @@ impl Segment {
 
     /// The counters of the ESC at network position `pos`, with the frames that passed it by
     /// (frames of a shape that does nothing at this ESC skip it in large networks and are
-    /// counted here).
+    /// counted here) and those its visit plans replayed (a plan counts them until it ends:
+    /// [`Esc::stats`] alone leaves both out).
     pub fn esc_stats(&self, pos: usize) -> EscStats {
         let mut s = self.nodes[pos].esc.stats();
         for p in self.plans.iter().flatten() {
