@@ -48,6 +48,25 @@ fn same_counters_and_clocks(on: &Segment, off: &Segment, t_ps: u64) {
     }
 }
 
+/// `frame` through both segments at `t_ps`: the same outcome and the same bytes back (`what`
+/// names it in a failure). Returns when the frame's last bit has left, the next one's send time.
+fn same_both_ways(on: &mut Segment, off: &mut Segment, frame: &[u8], t_ps: u64, what: &str) -> u64 {
+    let (mut a, mut b) = (frame.to_vec(), frame.to_vec());
+    assert_eq!(
+        on.process(&mut a, t_ps),
+        off.process(&mut b, t_ps),
+        "{what}"
+    );
+    assert_eq!(a, b, "{what}");
+    t_ps + ecsync_esc::frame_wire_time_ps(frame.len())
+}
+
+/// Whether frames passed some drive by under a visit plan that still holds: frames not yet in
+/// that drive's own counters (a plan that ends brings them up to date).
+fn plans_passed_drives_by(on: &Segment) -> bool {
+    (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames)
+}
+
 #[test]
 fn replay_is_exact() {
     let base = CycleBench::paper_2024();
@@ -194,10 +213,7 @@ fn replay_of_a_cycle_of_several_frames_is_exact() {
         t += base.cycle_ps;
     }
     // The frames passed drives by: frames not yet in those drives' own counters.
-    assert!(
-        (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
-        "no frame passed a drive by"
-    );
+    assert!(plans_passed_drives_by(&on), "no frame passed a drive by");
     same_counters_and_clocks(&on, &off, t);
 }
 
@@ -230,22 +246,17 @@ fn an_offset_write_every_cycle_keeps_the_visit_plans_and_changes_nothing() {
         // The re-adjustment: a few ns either way, as DCM's filtered PI moves it.
         let moved = offset.wrapping_add((cycle % 7) * 3).wrapping_sub(9);
         let w = frame(&[(Command::Fpwr, fp(0x0920), moved.to_le_bytes().to_vec())]);
-        let (mut a, mut b) = (w.clone(), w);
-        assert_eq!(on.process(&mut a, t), off.process(&mut b, t));
-        assert_eq!(a, b, "cycle {cycle}: the offset write");
-        let mut t_frame = t + ecsync_esc::frame_wire_time_ps(a.len());
+        let what = format!("cycle {cycle}: the offset write");
+        let mut t_frame = same_both_ways(&mut on, &mut off, &w, t, &what);
         for (k, f) in base.frames.iter().enumerate() {
-            let (mut a, mut b) = (f.clone(), f.clone());
-            assert_eq!(on.process(&mut a, t_frame), off.process(&mut b, t_frame));
-            assert_eq!(a, b, "cycle {cycle}, frame {k}");
-            t_frame += ecsync_esc::frame_wire_time_ps(f.len());
+            let what = format!("cycle {cycle}, frame {k}");
+            t_frame = same_both_ways(&mut on, &mut off, f, t_frame, &what);
         }
         t += base.cycle_ps;
     }
-    // The plans held through the writes: frames passed drives by and are not yet in those
-    // drives' own counters (a plan that ends brings them up to date).
+    // The plans held through the writes.
     assert!(
-        (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
+        plans_passed_drives_by(&on),
         "no frame passed a drive by: the offset writes ended the visit plans"
     );
     same_counters_and_clocks(&on, &off, t);
@@ -370,20 +381,8 @@ fn visit_plans_outlive_their_program_slots() {
     let mut on: Segment = base.segment.clone();
     let mut off: Segment = base.segment.clone();
     off.set_replay(false);
-    let brd = |ado: u16, len: usize| {
-        let mut buf = vec![0u8; 1514];
-        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0, 1, 2, 3, 4, 5]).unwrap();
-        b.push(
-            Command::Brd,
-            0x40,
-            DatagramAddress::Position { adp: 0, ado },
-            &vec![0; len],
-        )
-        .unwrap();
-        let n = b.finish();
-        buf.truncate(n);
-        buf
-    };
+    let brd =
+        |ado: u16, len: usize| mixed_frame(&[(Command::Brd, u32::from(ado) << 16, vec![0; len])]);
     let reads = [
         brd(0x0130, 2),
         brd(0x0000, 1),
@@ -395,24 +394,20 @@ fn visit_plans_outlive_their_program_slots() {
     for cycle in 0..120u64 {
         let mut t_frame = t;
         for (k, f) in base.frames.iter().enumerate() {
-            let (mut a, mut b) = (f.clone(), f.clone());
-            assert_eq!(on.process(&mut a, t_frame), off.process(&mut b, t_frame));
-            assert_eq!(a, b, "cycle {cycle}, frame {k}");
-            t_frame += ecsync_esc::frame_wire_time_ps(f.len());
+            let what = format!("cycle {cycle}, frame {k}");
+            t_frame = same_both_ways(&mut on, &mut off, f, t_frame, &what);
         }
         // Every tenth cycle from the 30th on, the five reads (the plans are made by then).
         if cycle >= 30 && cycle % 10 == 0 {
             for r in &reads {
-                let (mut a, mut b) = (r.clone(), r.clone());
-                assert_eq!(on.process(&mut a, t_frame), off.process(&mut b, t_frame));
-                assert_eq!(a, b, "cycle {cycle}: a read");
-                t_frame += ecsync_esc::frame_wire_time_ps(r.len());
+                let what = format!("cycle {cycle}: a read");
+                t_frame = same_both_ways(&mut on, &mut off, r, t_frame, &what);
             }
         }
         t += base.cycle_ps;
     }
     assert!(
-        (0..on.len()).any(|i| on.esc_stats(i).frames > on.esc(i).stats().frames),
+        plans_passed_drives_by(&on),
         "no frame passed a drive by: the reads ended the visit plans"
     );
     same_counters_and_clocks(&on, &off, t);

@@ -848,8 +848,6 @@ impl Esc {
             app,
             al_state,
             app_mem,
-            wd_last_write_ps,
-            sync_pending,
             ..
         } = self;
         let Some(app) = app.as_ref() else {
@@ -868,8 +866,7 @@ impl Esc {
         );
         // (The replay is counted by the plan: see `count_planned_replays`.)
         if done && p.writes_ram {
-            *wd_last_write_ps = t_ps;
-            *sync_pending = true;
+            self.outputs_written(t_ps);
         }
         done
     }
