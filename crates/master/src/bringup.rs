@@ -1823,13 +1823,24 @@ async fn enter_op(
     // take longer than a cycle): a slave in OP without outputs for its watchdog time (100 ms)
     // would fall back to SAFE-OP.
     let mut last_cyclic = link.now_ns();
-    for s in slaves {
+    for (n, s) in slaves.iter().enumerate() {
+        let sent = link.now_ns();
         link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
             .await
             .map_err(|e| e.at(Phase::Op, s.id()))?;
+        let round_trip_ns = link.now_ns().saturating_sub(sent);
         if link.now_ns().saturating_sub(last_cyclic) >= grid.cycle_ns {
             link.pdus(&cyclic.pdus, "cyclic").await?;
             last_cyclic = link.now_ns();
+        }
+        // Requests that one by one would take longer than a cycle (a large network's: a round
+        // trip each, ~1 s for a 1 000-drive line) leave the first drives in OP with their
+        // outputs late or missing, counting missed SYNC0 pulses (a drive with SSC's error
+        // limit leaves OP for it): the others go in one exchange (as many frames as it needs),
+        // right after a cycle's process data.
+        if n == 0 && round_trip_ns.saturating_mul(slaves.len() as u64) > grid.cycle_ns {
+            request_op_at_once(link, &slaves[1..], &op, cyclic, grid).await?;
+            break;
         }
     }
     let count = slaves.len() as u16;
@@ -1880,6 +1891,43 @@ async fn enter_op(
                 status: r[0].data[0],
             });
         }
+    }
+}
+
+/// Part of [`Phase::Op`] in a large network: OP requested from `slaves` in one exchange on the
+/// cycle grid, after the cycle's process data.
+async fn request_op_at_once(
+    link: &Link,
+    slaves: &[SlaveInfo],
+    op: &[u8],
+    cyclic: &CyclicFrame,
+    grid: &mut CycleGrid,
+) -> Result<(), MasterError> {
+    let requests: Vec<Pdu> = slaves
+        .iter()
+        .map(|s| {
+            Pdu::new(
+                Command::Fpwr,
+                DatagramAddress::Configured {
+                    adp: s.station,
+                    ado: reg::AL_CONTROL,
+                },
+                op.to_vec(),
+            )
+        })
+        .collect();
+    grid.tick(link).await;
+    link.pdus(&cyclic.pdus, "cyclic").await?;
+    let (replies, _) = link.pdus(&requests, "request OP").await?;
+    match slaves.iter().zip(&replies).find(|(_, r)| r.wkc != 1) {
+        Some((s, r)) => Err(MasterError::WorkingCounter {
+            command: Command::Fpwr,
+            what: "request OP",
+            expected: 1,
+            got: r.wkc,
+        }
+        .at(Phase::Op, s.id())),
+        None => Ok(()),
     }
 }
 

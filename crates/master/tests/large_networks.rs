@@ -160,3 +160,23 @@ fn a_bench_line_longer_than_a_millisecond_runs_sync0_on_its_cycle() {
         "drives that missed SYNC0 pulses: {missed:?}"
     );
 }
+
+/// A large line's bring-up asks every drive for OP at once, after a cycle's process data
+/// (`enter_op`): one by one, a 512-drive line's requests took a round trip each (~0.8 s), and
+/// its first drives sat in OP with their outputs late, counting 793 missed SYNC0 pulses each
+/// (a drive with SSC's error limit of 4 would have left OP). Counted at the end of the
+/// bring-up, before any bench cycle.
+#[test]
+fn a_large_line_goes_to_op_at_once() {
+    let b = ecsync_master::bench::CycleBench::line(512);
+    let worst = (0..b.segment.len())
+        .map(|i| (b.segment.esc(i).sm_events_missed(), i))
+        .max()
+        .unwrap();
+    assert!(
+        worst.0 <= 64,
+        "drive {} missed {} SYNC0 pulses",
+        worst.1,
+        worst.0
+    );
+}
