@@ -416,7 +416,8 @@ pub struct LockReport {
 /// SYNC0 as programmed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct Sync0Config {
-    /// Start time (system time), ns.
+    /// Start time (system time) of the first slave programmed, ns. The others start on the same
+    /// grid, whole cycles later where their programming came too close to it.
     pub start_ns: u64,
     /// Cycle, ns.
     pub cycle_ns: u32,
@@ -1746,12 +1747,29 @@ async fn start_sync0(
         )
         .await
         .map_err(|e| e.at(Phase::Sync0, dc.reference))?;
+    let read_at_ns = link.now_ns();
     let now_sys = u64::from_le_bytes(now_sys[..8].try_into().unwrap_or([0; 8]));
-    let start =
+    let first_start =
         ecsync_dc::sync0_start_time(now_sys, cfg.sync0_lead_ns, cfg.cycle_ns, cfg.sync0_shift_ns);
+    let mut start = first_start;
     let mut sync0 = None;
     for s in slaves.iter().filter(|s| s.dc == DcCapability::SystemTime) {
         let at = |e: MasterError| e.at(Phase::Sync0, s.id());
+        // A start time already past when SYNC0 is switched on fires only after the system
+        // time's low 32 bits wrap, 4.3 s later (the ESC compares those): a large network's
+        // slaves, programmed one by one (four round trips each), would pass the lead. A later
+        // slave's start moves on by whole cycles, on the same grid, once less than half the
+        // lead is left (the system time estimated by the master's clock since the read: their
+        // rates differ by parts per million).
+        let sys_now_ns = now_sys.wrapping_add(link.now_ns().saturating_sub(read_at_ns));
+        if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > start {
+            start = ecsync_dc::sync0_start_time(
+                sys_now_ns,
+                cfg.sync0_lead_ns,
+                cfg.cycle_ns,
+                cfg.sync0_shift_ns,
+            );
+        }
         link.fpwr(s.station, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
             .await
             .map_err(at)?;
@@ -1775,7 +1793,7 @@ async fn start_sync0(
             .await
             .map_err(at)?;
         sync0 = Some(Sync0Config {
-            start_ns: start,
+            start_ns: first_start,
             cycle_ns: cfg.cycle_ns,
             shift_ns: cfg.sync0_shift_ns,
         });
