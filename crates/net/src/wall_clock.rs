@@ -33,6 +33,12 @@ pub const STEP_NS: u64 = 20_000;
 /// preempted between them and the reading is retried.
 const READ_GAP_NS: u64 = 5_000;
 
+/// How far a converted stamp may be off the monotonic clock: the difference is read as the
+/// middle of two monotonic reads at most [`READ_GAP_NS`] apart, around the wall-clock read. A
+/// kernel stamp taken a microsecond after a send timestamp (a veth pair's) may come out before
+/// it by up to this much.
+pub const CONVERSION_ERROR_NS: u64 = READ_GAP_NS / 2;
+
 /// CLOCK_REALTIME minus CLOCK_MONOTONIC, ns (wrapping), and how many steps it took.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RealtimeMap {
