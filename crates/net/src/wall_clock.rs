@@ -34,7 +34,7 @@ pub const STEP_NS: u64 = 20_000;
 const READ_GAP_NS: u64 = 5_000;
 
 /// How far a converted stamp may be off the monotonic clock: the difference is read as the
-/// middle of two monotonic reads at most [`READ_GAP_NS`] apart, around the wall-clock read. A
+/// middle of two monotonic reads at most 5 us apart, around the wall-clock read. A
 /// kernel stamp taken a microsecond after a send timestamp (a veth pair's) may come out before
 /// it by up to this much.
 pub const CONVERSION_ERROR_NS: u64 = READ_GAP_NS / 2;
