@@ -1275,16 +1275,9 @@ async fn write_offsets(
         ));
         owners.extend([s.id(), s.id()]);
     }
-    let (r, _) = link.pdus(&writes, "write offsets and delays").await?;
-    if let Some((bad, &id)) = r.iter().zip(&owners).find(|(p, _)| p.wkc != 1) {
-        return Err(MasterError::WorkingCounter {
-            command: Command::Fpwr,
-            what: "write offsets and delays",
-            expected: 1,
-            got: bad.wkc,
-        }
-        .at(Phase::Offsets, id));
-    }
+    let what = "write offsets and delays";
+    let (r, _) = link.pdus(&writes, what).await?;
+    each_slave_answered(&r, &owners, what, Phase::Offsets)?;
     link.event(Event::OffsetsWritten);
     link.bwr(
         reg::DC_TIME_DIFF_FILTER_DEPTH,
@@ -1923,28 +1916,31 @@ async fn request_op_at_once(
 ) -> Result<(), MasterError> {
     let requests: Vec<Pdu> = slaves
         .iter()
-        .map(|s| {
-            Pdu::new(
-                Command::Fpwr,
-                DatagramAddress::Configured {
-                    adp: s.station,
-                    ado: reg::AL_CONTROL,
-                },
-                op.to_vec(),
-            )
-        })
+        .map(|s| Pdu::new(Command::Fpwr, fp(s.station, reg::AL_CONTROL), op.to_vec()))
         .collect();
+    let owners: Vec<SlaveId> = slaves.iter().map(SlaveInfo::id).collect();
     grid.tick(link).await;
     link.pdus(&cyclic.pdus, "cyclic").await?;
     let (replies, _) = link.pdus(&requests, "request OP").await?;
-    match slaves.iter().zip(&replies).find(|(_, r)| r.wkc != 1) {
-        Some((s, r)) => Err(MasterError::WorkingCounter {
+    each_slave_answered(&replies, &owners, "request OP", Phase::Op)
+}
+
+/// The replies to FPWRs each addressed to one slave (`owners[k]` for the k-th): the first no
+/// slave answered is the error of `phase`, at its slave.
+fn each_slave_answered(
+    replies: &[PduReply],
+    owners: &[SlaveId],
+    what: &'static str,
+    phase: Phase,
+) -> Result<(), MasterError> {
+    match replies.iter().zip(owners).find(|(r, _)| r.wkc != 1) {
+        Some((r, &id)) => Err(MasterError::WorkingCounter {
             command: Command::Fpwr,
-            what: "request OP",
+            what,
             expected: 1,
             got: r.wkc,
         }
-        .at(Phase::Op, s.id())),
+        .at(phase, id)),
         None => Ok(()),
     }
 }
