@@ -1275,9 +1275,16 @@ async fn write_offsets(
         ));
         owners.extend([s.id(), s.id()]);
     }
-    let what = "write offsets and delays";
-    let (r, _) = link.pdus(&writes, what).await?;
-    each_slave_answered(&r, &owners, what, Phase::Offsets)?;
+    let (r, _) = link.pdus(&writes, "write offsets and delays").await?;
+    if let Some((bad, &id)) = r.iter().zip(&owners).find(|(p, _)| p.wkc != 1) {
+        return Err(MasterError::WorkingCounter {
+            command: Command::Fpwr,
+            what: "write offsets and delays",
+            expected: 1,
+            got: bad.wkc,
+        }
+        .at(Phase::Offsets, id));
+    }
     link.event(Event::OffsetsWritten);
     link.bwr(
         reg::DC_TIME_DIFF_FILTER_DEPTH,
@@ -1834,24 +1841,13 @@ async fn enter_op(
     // take longer than a cycle): a slave in OP without outputs for its watchdog time (100 ms)
     // would fall back to SAFE-OP.
     let mut last_cyclic = link.now_ns();
-    for (n, s) in slaves.iter().enumerate() {
-        let sent = link.now_ns();
+    for s in slaves {
         link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
             .await
             .map_err(|e| e.at(Phase::Op, s.id()))?;
-        let round_trip_ns = link.now_ns().saturating_sub(sent);
         if link.now_ns().saturating_sub(last_cyclic) >= grid.cycle_ns {
             link.pdus(&cyclic.pdus, "cyclic").await?;
             last_cyclic = link.now_ns();
-        }
-        // Requests that one by one would take longer than a cycle (a large network's: a round
-        // trip each, ~1 s for a 1 000-drive line) leave the first drives in OP with their
-        // outputs late or missing, counting missed SYNC0 pulses (a drive with SSC's error
-        // limit leaves OP for it): the others go in one exchange (as many frames as it needs),
-        // right after a cycle's process data.
-        if n == 0 && round_trip_ns.saturating_mul(slaves.len() as u64) > grid.cycle_ns {
-            request_op_at_once(link, &slaves[1..], &op, cyclic, grid).await?;
-            break;
         }
     }
     let count = slaves.len() as u16;
@@ -1902,46 +1898,6 @@ async fn enter_op(
                 status: r[0].data[0],
             });
         }
-    }
-}
-
-/// Part of [`Phase::Op`] in a large network: OP requested from `slaves` in one exchange on the
-/// cycle grid, after the cycle's process data.
-async fn request_op_at_once(
-    link: &Link,
-    slaves: &[SlaveInfo],
-    op: &[u8],
-    cyclic: &CyclicFrame,
-    grid: &mut CycleGrid,
-) -> Result<(), MasterError> {
-    let requests: Vec<Pdu> = slaves
-        .iter()
-        .map(|s| Pdu::new(Command::Fpwr, fp(s.station, reg::AL_CONTROL), op.to_vec()))
-        .collect();
-    let owners: Vec<SlaveId> = slaves.iter().map(SlaveInfo::id).collect();
-    grid.tick(link).await;
-    link.pdus(&cyclic.pdus, "cyclic").await?;
-    let (replies, _) = link.pdus(&requests, "request OP").await?;
-    each_slave_answered(&replies, &owners, "request OP", Phase::Op)
-}
-
-/// The replies to FPWRs each addressed to one slave (`owners[k]` for the k-th): the first no
-/// slave answered is the error of `phase`, at its slave.
-fn each_slave_answered(
-    replies: &[PduReply],
-    owners: &[SlaveId],
-    what: &'static str,
-    phase: Phase,
-) -> Result<(), MasterError> {
-    match replies.iter().zip(owners).find(|(r, _)| r.wkc != 1) {
-        Some((r, &id)) => Err(MasterError::WorkingCounter {
-            command: Command::Fpwr,
-            what,
-            expected: 1,
-            got: r.wkc,
-        }
-        .at(phase, id)),
-        None => Ok(()),
     }
 }
 

@@ -162,15 +162,12 @@ fn a_bench_line_longer_than_a_millisecond_runs_sync0_on_its_cycle() {
 }
 
 /// A 512-drive line's bring-up (2 ms cycle, frames ~1.7 ms) programs SYNC0 one slave at a
-/// time, four round trips each (~2 s), and asks for OP. Every drive runs SYNC0 on one grid, and
-/// by the end of the bring-up it has started: a start time already past when SYNC0 is switched
-/// on fires only 2^32 ns later (the ESC compares the low 32 bits), which before was the fate
-/// of every drive after the 49th. And the drives go to OP at once: one by one, the requests
-/// took a round trip each and the first drives counted 745 missed SYNC0 pulses before the
-/// monitoring began (checked). (The bring-up's own cycles send their frames one after another,
-/// ~12 ms for the line's 2 ms: up to two of them pass between the requests and the monitor.)
+/// time, four round trips each (~2 s), longer than the start time's 100 ms lead. Every drive
+/// runs SYNC0 on one grid, and by the end of the bring-up it has started: a start time already
+/// past when SYNC0 is switched on fires only 2^32 ns later (the ESC compares the low 32 bits),
+/// off the grid, which before was the fate of every drive after the 49th (checked).
 #[test]
-fn a_large_line_runs_sync0_everywhere_and_goes_to_op_at_once() {
+fn a_large_line_runs_sync0_everywhere() {
     let specs = preset::line(512, 11);
     let cycle_ns = 2_000_000u32;
     let mut sim = SimTransport::new(Segment::new(&specs).unwrap());
@@ -182,22 +179,8 @@ fn a_large_line_runs_sync0_everywhere_and_goes_to_op_at_once() {
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
-    let mut missed_at_monitor = None;
-    sim.run_procedure(&mut engine, |s, _, events| {
-        use ecsync_master::{Event, bringup::Phase};
-        if events.contains(&Event::Phase(Phase::Monitor)) {
-            let seg = s.segment();
-            missed_at_monitor = (0..seg.len())
-                .map(|i| (seg.esc(i).sm_events_missed(), i))
-                .max();
-        }
-    })
-    .expect("bring-up");
-    let (worst, drive) = missed_at_monitor.expect("a monitor phase");
-    assert!(
-        worst <= 12,
-        "drive {drive} missed {worst} SYNC0 pulses before the monitor"
-    );
+    sim.run_procedure(&mut engine, |_, _, _| {})
+        .expect("bring-up");
     let seg = sim.segment();
     let now_ps = sim.now_ps();
     let first = seg.esc(0).dc().and_then(|d| d.sync0()).expect("SYNC0 on");
