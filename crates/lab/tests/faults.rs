@@ -1,6 +1,7 @@
 //! Faults in virtual time on the letter's network, each alone, for every method, judged by the
 //! simulator's ground truth: what the schedule dropped is all that is lost, DC stays locked
-//! (|0x092C| under 100 ns in every cycle that came back), a host stall skips its cycles without
+//! (every slave within 100 ns of the reference by the truth, |0x092C| within that and its
+//! reading error in every cycle that came back), a host stall skips its cycles without
 //! a burst, a second responder is counted as one.
 
 use ecsync_esc::fault::FaultSchedule;
@@ -41,7 +42,17 @@ fn random_loss_keeps_dc_locked(p: f64) {
         // Bus shift writes the master's jittered send time into the reference every cycle
         // (the letter's E-S2M): its |0x092C| is microseconds with or without loss.
         if m != "bus-shift" {
-            let bound = if m == "dcm-bus-shift" { 200 } else { 100 };
+            // DC held, by the truth: every slave within 100 ns of the reference in every
+            // recorded cycle (lost ones too: the clocks run on).
+            let truth = mo.ground_truth.slave_ref_diff.max_abs;
+            assert!(
+                truth < 100.0,
+                "{m}: a slave {truth:.1} ns from the reference at {p} loss"
+            );
+            // And as the master reads it: 0x092C compares two latches of the MII ports'
+            // 40 ns grid, so one reading may stray up to 80 ns from the truth (seen: 120 ns
+            // read while every slave stood within 43 ns, right after three frames lost).
+            let bound = if m == "dcm-bus-shift" { 200 } else { 100 + 80 };
             assert!(
                 f.max_rs_is_ns < bound,
                 "{m}: |0x092C| reached {} ns at {p} loss",

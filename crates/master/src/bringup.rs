@@ -548,11 +548,29 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         return Ok(net.done_at(&link));
     }
 
-    configure_mailboxes(&link, &net.slaves)
+    // From the lock on, every cycle's frames distribute the reference's time, as the cyclic
+    // frames will: the configuration below takes seconds in a large network.
+    link.keep_time(Some((dc.frmw(), u64::from(cfg.cycle_ns))));
+    let to_op = configure_and_start(&link, &cfg, &mut net, &dc, &mut grid).await;
+    link.keep_time(None);
+    to_op?;
+    Ok(net.done_at(&link))
+}
+
+/// PRE-OP, the mailboxes and sync mode, the process data, SYNC0, SAFE-OP and OP, then
+/// [`BringupConfig::monitor_cycles`] cycles of monitoring.
+async fn configure_and_start(
+    link: &Link,
+    cfg: &BringupConfig,
+    net: &mut Network,
+    dc: &DcGroup,
+    grid: &mut CycleGrid,
+) -> Result<(), MasterError> {
+    configure_mailboxes(link, &net.slaves)
         .await
         .map_err(|e| e.during(Phase::PreOp))?;
     request_all(
-        &link,
+        link,
         &net.slaves,
         AlState::PreOp,
         Phase::PreOp,
@@ -561,23 +579,23 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     .await
     .map_err(|e| e.during(Phase::PreOp))?;
     for s in &net.slaves {
-        configure_sync_mode(&link, s, cfg.cycle_ns, cfg.sync_error_limit)
+        configure_sync_mode(link, s, cfg.cycle_ns, cfg.sync_error_limit)
             .await
             .map_err(|e| e.at(Phase::PreOp, s.id()))?;
     }
-    net.expected_lrw_wkc = configure_process_data(&link, &net.slaves)
+    net.expected_lrw_wkc = configure_process_data(link, &net.slaves)
         .await
         .map_err(|e| e.during(Phase::ProcessData))?;
 
     link.event(Event::Phase(Phase::Sync0));
-    net.sync0 = start_sync0(&link, &cfg, &net.slaves, &dc)
+    net.sync0 = start_sync0(link, cfg, &net.slaves, dc)
         .await
         .map_err(|e| e.during(Phase::Sync0))?;
 
-    let cyclic = CyclicFrame::new(&dc, &net.lrw);
+    let cyclic = CyclicFrame::new(dc, &net.lrw);
     link.event(Event::Phase(Phase::SafeOp));
     request_all(
-        &link,
+        link,
         &net.slaves,
         AlState::SafeOp,
         Phase::SafeOp,
@@ -586,23 +604,23 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     .await
     .map_err(|e| e.during(Phase::SafeOp))?;
     link.event(Event::Phase(Phase::Op));
-    enter_op(&link, &cfg.timeouts, &net.slaves, &cyclic, &mut grid)
+    enter_op(link, &cfg.timeouts, &net.slaves, &cyclic, grid)
         .await
         .map_err(|e| e.during(Phase::Op))?;
 
     link.event(Event::Phase(Phase::Monitor));
     net.lock.max_abs_092c_after_lock_ns = monitor(
-        &link,
-        &cfg,
-        &dc,
+        link,
+        cfg,
+        dc,
         &cyclic,
         net.pdi_len,
         net.expected_lrw_wkc,
-        &mut grid,
+        grid,
     )
     .await
     .map_err(|e| e.during(Phase::Monitor))?;
-    Ok(net.done_at(&link))
+    Ok(())
 }
 
 impl Network {
@@ -1841,13 +1859,24 @@ async fn enter_op(
     // take longer than a cycle): a slave in OP without outputs for its watchdog time (100 ms)
     // would fall back to SAFE-OP.
     let mut last_cyclic = link.now_ns();
-    for s in slaves {
+    for (n, s) in slaves.iter().enumerate() {
+        let sent = link.now_ns();
         link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
             .await
             .map_err(|e| e.at(Phase::Op, s.id()))?;
+        let round_trip_ns = link.now_ns().saturating_sub(sent);
         if link.now_ns().saturating_sub(last_cyclic) >= grid.cycle_ns {
             link.pdus(&cyclic.pdus, "cyclic").await?;
             last_cyclic = link.now_ns();
+        }
+        // Requests that one by one would take longer than a cycle (a large network's: a round
+        // trip each, ~1 s for a 1 000-drive line) leave the first drives in OP with their
+        // outputs late or missing, counting missed SYNC0 pulses (a drive with SSC's error
+        // limit leaves OP for it): the others go in one exchange (as many frames as it needs),
+        // right after a cycle's process data.
+        if n == 0 && round_trip_ns.saturating_mul(slaves.len() as u64) > grid.cycle_ns {
+            request_op_at_once(link, &slaves[1..], &op, cyclic, grid).await?;
+            break;
         }
     }
     let count = slaves.len() as u16;
@@ -1898,6 +1927,43 @@ async fn enter_op(
                 status: r[0].data[0],
             });
         }
+    }
+}
+
+/// Part of [`Phase::Op`] in a large network: OP requested from `slaves` in one exchange on the
+/// cycle grid, after the cycle's process data.
+async fn request_op_at_once(
+    link: &Link,
+    slaves: &[SlaveInfo],
+    op: &[u8],
+    cyclic: &CyclicFrame,
+    grid: &mut CycleGrid,
+) -> Result<(), MasterError> {
+    let requests: Vec<Pdu> = slaves
+        .iter()
+        .map(|s| {
+            Pdu::new(
+                Command::Fpwr,
+                DatagramAddress::Configured {
+                    adp: s.station,
+                    ado: reg::AL_CONTROL,
+                },
+                op.to_vec(),
+            )
+        })
+        .collect();
+    grid.tick(link).await;
+    link.pdus(&cyclic.pdus, "cyclic").await?;
+    let (replies, _) = link.pdus(&requests, "request OP").await?;
+    match slaves.iter().zip(&replies).find(|(_, r)| r.wkc != 1) {
+        Some((s, r)) => Err(MasterError::WorkingCounter {
+            command: Command::Fpwr,
+            what: "request OP",
+            expected: 1,
+            got: r.wkc,
+        }
+        .at(Phase::Op, s.id())),
+        None => Ok(()),
     }
 }
 

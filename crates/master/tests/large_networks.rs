@@ -201,3 +201,83 @@ fn a_large_line_runs_sync0_everywhere() {
         );
     }
 }
+
+/// A large line's bring-up asks every drive for OP at once, after a cycle's process data
+/// (`enter_op`): one by one, a 512-drive line's requests took a round trip each (~0.8 s), and
+/// its first drives sat in OP with their outputs late, counting 793 missed SYNC0 pulses each
+/// (a drive with SSC's error limit of 4 would have left OP). Counted at the end of the
+/// bring-up, before any bench cycle.
+#[test]
+fn a_large_line_goes_to_op_at_once() {
+    let b = ecsync_master::bench::CycleBench::line(512);
+    let worst = (0..b.segment.len())
+        .map(|i| (b.segment.esc(i).sm_events_missed(), i))
+        .max()
+        .unwrap();
+    println!(
+        "512 drives: drive {} missed {} SYNC0 pulses",
+        worst.1, worst.0
+    );
+    assert!(
+        worst.0 <= 64,
+        "drive {} missed {} SYNC0 pulses",
+        worst.1,
+        worst.0
+    );
+}
+
+/// From the moment the master declares DC in sync, every slave's true system time stays
+/// within the lock threshold (100 ns) of the reference's, through the configuration that
+/// follows (mailboxes, PRE-OP, sync mode, process data, SYNC0, SAFE-OP, OP) and the
+/// monitoring. Those phases take seconds in a 256-drive line; the bring-up used to send no
+/// FRMW in them, and the drives ran free on the frequency the static drift compensation had
+/// left them with (2.8 us from the reference at the start of OP). The truth is the segment's:
+/// each clock's system time at the same real instant.
+#[test]
+fn a_large_lines_clocks_stay_together_through_the_configuration() {
+    let specs = preset::line(256, 11);
+    let mut sim = SimTransport::new(Segment::new(&specs).unwrap());
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        monitor_cycles: 50,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |l| bringup(l, cfg));
+    // (real time, the largest |slave - reference| then), every 32nd exchange.
+    let mut samples: Vec<(u64, f64)> = Vec::new();
+    let mut exchanges = 0u64;
+    let net = sim
+        .run_procedure(&mut engine, |tr, _, _| {
+            exchanges += 1;
+            if exchanges % 32 != 0 {
+                return;
+            }
+            let (seg, t_ps) = (tr.segment(), tr.last_exchange().sent_ps);
+            let Some(r) = seg.esc(0).dc().map(|d| d.system_time_split(t_ps)) else {
+                return;
+            };
+            let worst = (1..seg.len())
+                .filter_map(|i| seg.esc(i).dc().map(|d| d.system_time_split(t_ps)))
+                .map(|a| ((a.0.wrapping_sub(r.0) as i64) as f64 + (a.1 - r.1)).abs())
+                .fold(0.0f64, f64::max);
+            samples.push((t_ps, worst));
+        })
+        .expect("bring-up");
+    assert_eq!(net.reference, 0);
+    let declared_ps = sim.real_ps_at(net.lock.declared_ns.expect("DC declared in sync"));
+    let after: Vec<f64> = samples
+        .iter()
+        .filter(|(t, _)| *t >= declared_ps)
+        .map(|s| s.1)
+        .collect();
+    let worst = after.iter().copied().fold(0.0f64, f64::max);
+    println!(
+        "256 drives: largest true |slave - reference| after the lock {worst:.1} ns ({} samples)",
+        after.len()
+    );
+    assert!(after.len() > 100, "{} samples", after.len());
+    assert!(
+        worst <= 100.0,
+        "a drive {worst:.1} ns from the reference after the lock"
+    );
+}
