@@ -142,6 +142,7 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
     mut observe: impl FnMut(&mut Tr, &ProcedureExchange, &[Event]),
 ) -> Result<T, Tr::Error> {
     let mut buf = vec![0u8; 2048];
+    engine.send_back_to_back();
     loop {
         let now = tr.now_ns();
         let frame = match engine.poll(now) {
@@ -151,6 +152,24 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
                 continue;
             }
             Action::Send(f) => f.to_vec(),
+            Action::SendAll(frames) => {
+                let frames = frames.to_vec();
+                let done = exchange_all(tr, &frames, &mut buf, cfg, stats)?;
+                let exchanges: Vec<ProcedureExchange> = done
+                    .iter()
+                    .map(|(sent_ns, r, attempts)| ProcedureExchange {
+                        sent_ns: *sent_ns,
+                        received_ns: r.as_ref().ok().map(|r| r.received_ns),
+                        attempts: *attempts,
+                    })
+                    .collect();
+                engine.handle_replies(done.into_iter().map(|(_, r, _)| r).collect());
+                let events = engine.take_events();
+                for (k, ex) in exchanges.iter().enumerate() {
+                    observe(tr, ex, if k == 0 { &events } else { &[] });
+                }
+                continue;
+            }
         };
         let mut got = None;
         let mut attempts = 0;
@@ -184,6 +203,85 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
             &events,
         );
     }
+}
+
+/// Sends `frames` back to back and waits for their replies until `cfg.reply_timeout_ns` after
+/// the last send; a frame whose reply did not come is sent again alone, up to `cfg.retries`
+/// times. Per frame, in order: its last send timestamp, its reply (`Err(sends)`: lost after
+/// that many), its sends. Replies are matched to the earliest unanswered frame they answer (a
+/// line returns frames in the order sent).
+#[allow(clippy::type_complexity)]
+fn exchange_all<Tr: Transport>(
+    tr: &mut Tr,
+    frames: &[Vec<u8>],
+    buf: &mut Vec<u8>,
+    cfg: ProcedureConfig,
+    stats: &mut ExchangeStats,
+) -> Result<Vec<(u64, Result<crate::io::Reply, u32>, u32)>, Tr::Error> {
+    let mut sent = Vec::with_capacity(frames.len());
+    for f in frames {
+        let at = tr.send_time_ns(f.len());
+        sent.push(tr.send(f, at)?);
+        stats.sent += 1;
+    }
+    let mut got: Vec<Option<crate::io::Reply>> = vec![None; frames.len()];
+    let mut pending = frames.len();
+    let deadline = sent
+        .last()
+        .copied()
+        .unwrap_or(0)
+        .saturating_add(cfg.reply_timeout_ns);
+    while pending > 0 {
+        let Some(r) = tr.recv(buf, deadline)? else {
+            break;
+        };
+        let k = (!r.truncated)
+            .then(|| {
+                (0..frames.len()).find(|&k| got[k].is_none() && answers(&frames[k], &buf[..r.len]))
+            })
+            .flatten();
+        match k {
+            Some(k) => {
+                got[k] = Some(crate::io::Reply {
+                    frame: buf[..r.len].to_vec(),
+                    sent_ns: sent[k],
+                    received_ns: r.received_ns,
+                });
+                stats.replies += 1;
+                pending -= 1;
+            }
+            None => {
+                stats.stale += 1;
+                stats.truncated += u64::from(r.truncated);
+            }
+        }
+    }
+    let mut out = Vec::with_capacity(frames.len());
+    for (k, g) in got.into_iter().enumerate() {
+        if let Some(r) = g {
+            out.push((sent[k], Ok(r), 1));
+            continue;
+        }
+        stats.lost += 1;
+        let (mut attempts, mut sent_ns, mut reply) = (1, sent[k], None);
+        for _ in 0..cfg.retries {
+            attempts += 1;
+            match exchange(tr, &frames[k], buf, cfg.reply_timeout_ns, stats)? {
+                Some(r) => {
+                    sent_ns = r.sent_ns;
+                    reply = Some(crate::io::Reply {
+                        frame: buf[..r.received.len].to_vec(),
+                        sent_ns: r.sent_ns,
+                        received_ns: r.received.received_ns,
+                    });
+                    break;
+                }
+                None => sent_ns = tr.now_ns(),
+            }
+        }
+        out.push((sent_ns, reply.ok_or(attempts), attempts));
+    }
+    Ok(out)
 }
 
 /// When the cyclic driver stops by itself, and how long it waits for a reply.
@@ -574,6 +672,12 @@ impl CyclicDriver {
             let now = tr.now_ns();
             let frame = match e.poll(now) {
                 Action::Send(f) => f.to_vec(),
+                // Not asked for (`send_back_to_back`): never comes; told as not sent.
+                Action::SendAll(f) => {
+                    let n = f.len();
+                    e.handle_replies(vec![Err(0); n]);
+                    continue;
+                }
                 Action::WaitUntil(t) if t < until_ns => {
                     tr.sleep_until(t);
                     continue;
@@ -740,6 +844,11 @@ impl CyclicDriver {
                 {
                     match e.poll(now) {
                         Action::Send(f) => rs.out = Some((f.to_vec(), 0, 0)),
+                        // Not asked for (`send_back_to_back`): never comes; told as not sent.
+                        Action::SendAll(f) => {
+                            let n = f.len();
+                            e.handle_replies(vec![Err(0); n]);
+                        }
                         Action::WaitUntil(_) => {}
                         Action::Done(r) => rs.finish(r, now, eng),
                     }

@@ -50,6 +50,12 @@ struct Shared {
     last_received_ns: u64,
     /// The distribution of the system time that rides along the exchanges, if on.
     keep_time: Option<KeepTime>,
+    /// An exchange's frames to send back to back ([`Action::SendAll`]).
+    outgoing_all: Option<Vec<Vec<u8>>>,
+    /// Their replies, in order: each the reply or the sends after which it was given up.
+    replies: Option<Vec<Result<Reply, u32>>>,
+    /// The driver takes an exchange's frames back to back ([`Engine::send_back_to_back`]).
+    batches: bool,
 }
 
 /// The system time's distribution kept up between the cyclic frames ([`Link::keep_time`]).
@@ -123,6 +129,27 @@ impl Future for Exchange<'_> {
     }
 }
 
+struct BatchExchange<'a> {
+    link: &'a Link,
+    frames: Option<Vec<Vec<u8>>>,
+}
+
+impl Future for BatchExchange<'_> {
+    type Output = Vec<Result<Reply, u32>>;
+    fn poll(mut self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<Self::Output> {
+        let mut s = self.link.lock();
+        if let Some(f) = self.frames.take() {
+            s.outgoing_all = Some(f);
+            s.replies = None;
+            return Poll::Pending;
+        }
+        match s.replies.take() {
+            Some(r) => Poll::Ready(r),
+            None => Poll::Pending,
+        }
+    }
+}
+
 struct Sleep<'a> {
     link: &'a Link,
     until_ns: u64,
@@ -152,6 +179,58 @@ fn fits_with(pdus: &[Pdu], extra: &Pdu) -> bool {
         .map(|p| ecsync_wire::DATAGRAM_OVERHEAD + p.data.len())
         .sum();
     used <= room
+}
+
+/// What [`Link::build_frame`] put into a frame besides the datagrams asked for.
+#[derive(Debug)]
+struct Built {
+    /// The first datagram's index.
+    first_index: u8,
+    /// The time's FRMW, last in the frame, if it rides along.
+    extra: Option<Pdu>,
+}
+
+/// The error of an exchange whose frame with `pdus` was lost after `attempts` sends.
+fn lost(what: &'static str, pdus: &[Pdu], attempts: u32) -> MasterError {
+    MasterError::FrameLost {
+        what,
+        first: pdus.first().map(|p| (p.command, p.address)),
+        datagrams: pdus.len() as u16,
+        attempts,
+    }
+}
+
+/// The replies to `pdus` in a frame built as `built`, in order; the time's FRMW checked and
+/// left out (nobody waits for it).
+fn parse_reply(pdus: &[Pdu], built: &Built, reply: &Reply) -> Result<Vec<PduReply>, MasterError> {
+    let f = EcatFrame::new_checked(&reply.frame[..])
+        .map_err(|_| MasterError::BadReply("not an EtherCAT frame"))?;
+    let mut out = Vec::with_capacity(pdus.len());
+    for (i, d) in f.datagrams().enumerate() {
+        let d = d.map_err(|_| MasterError::BadReply("malformed datagram"))?;
+        let req = pdus
+            .get(i)
+            .or(built.extra.as_ref().filter(|_| i == pdus.len()))
+            .ok_or(MasterError::BadReply("extra datagram"))?;
+        if d.index() != built.first_index.wrapping_add(i as u8)
+            || d.command_code() != req.command.code()
+            || d.data_len() != req.data.len()
+        {
+            return Err(MasterError::BadReply("datagram index, command or length"));
+        }
+        if i == pdus.len() {
+            continue;
+        }
+        out.push(PduReply {
+            data: d.data().to_vec(),
+            wkc: d.wkc(),
+            address: d.address_raw(),
+        });
+    }
+    if out.len() != pdus.len() {
+        return Err(MasterError::BadReply("missing datagram"));
+    }
+    Ok(out)
 }
 
 impl Link {
@@ -233,8 +312,7 @@ impl Link {
             .map_or(0, |k| ecsync_wire::DATAGRAM_OVERHEAD + k.frmw.data.len());
         let room =
             ecsync_wire::MAX_FRAME_LEN - ecsync_wire::ETH_HEADER_LEN - ecsync_wire::ECAT_HEADER_LEN;
-        let mut out = Vec::with_capacity(pdus.len());
-        let mut first = None;
+        let mut parts = Vec::new();
         let mut start = 0;
         loop {
             let mut end = start;
@@ -247,105 +325,94 @@ impl Link {
                 used += need;
                 end += 1;
             }
-            let (r, reply) = self
-                .pdus_in_one_frame(&pdus[start..end], start == 0, what)
-                .await?;
-            out.extend(r);
-            first.get_or_insert(reply);
+            parts.push(start..end);
             start = end;
             if start >= pdus.len() {
                 break;
             }
         }
+        let mut out = Vec::with_capacity(pdus.len());
+        if parts.len() > 1 && self.lock().batches {
+            // Back to back, as the cyclic frames go: a large network's exchange takes one
+            // round trip, not one per frame.
+            let mut sent = Vec::with_capacity(parts.len());
+            let mut frames = Vec::with_capacity(parts.len());
+            for (k, r) in parts.iter().enumerate() {
+                let (frame, built) = self.build_frame(&pdus[r.clone()], k == 0, what)?;
+                frames.push(frame);
+                sent.push(built);
+            }
+            let replies = BatchExchange {
+                link: self,
+                frames: Some(frames),
+            }
+            .await;
+            let mut first = None;
+            for ((r, built), reply) in parts.into_iter().zip(&sent).zip(replies) {
+                let part = &pdus[r];
+                let reply = reply.map_err(|attempts| lost(what, part, attempts))?;
+                out.extend(parse_reply(part, built, &reply)?);
+                first.get_or_insert(reply);
+            }
+            return Ok((out, first.unwrap_or_default()));
+        }
+        let mut first = None;
+        for (k, r) in parts.into_iter().enumerate() {
+            let part = &pdus[r];
+            let (frame, built) = self.build_frame(part, k == 0, what)?;
+            let reply = self
+                .exchange(frame)
+                .await
+                .map_err(|attempts| lost(what, part, attempts))?;
+            out.extend(parse_reply(part, &built, &reply)?);
+            first.get_or_insert(reply);
+        }
         Ok((out, first.unwrap_or_default()))
     }
 
-    /// Sends the datagrams in one frame and returns their replies in order. The time's FRMW,
-    /// when it is kept up and due, goes last in the frame (`may_keep_time`: the exchange's
-    /// first frame, which has room for it).
-    async fn pdus_in_one_frame(
+    /// The frame of `pdus`, their indices taken from the link's. The time's FRMW, when it is
+    /// kept up and due, goes last in the frame (`may_keep_time`: the exchange's first frame,
+    /// which has room for it).
+    fn build_frame(
         &self,
         pdus: &[Pdu],
         may_keep_time: bool,
         what: &'static str,
-    ) -> Result<(Vec<PduReply>, Reply), MasterError> {
+    ) -> Result<(Vec<u8>, Built), MasterError> {
         let mut buf = vec![0u8; ecsync_wire::MAX_FRAME_LEN];
-        let first_index;
+        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)
+            .map_err(|_| MasterError::BadReply("frame buffer"))?;
+        let mut s = self.lock();
+        let now_ns = s.now_ns;
         let mut extra = None;
-        let n = {
-            let mut b = FrameBuilder::new(&mut buf, [0xff; 6], MASTER_MAC)
-                .map_err(|_| MasterError::BadReply("frame buffer"))?;
-            let mut s = self.lock();
-            let now_ns = s.now_ns;
-            if let Some(k) = s.keep_time.as_mut() {
-                let carries = pdus
-                    .iter()
-                    .any(|p| p.command == k.frmw.command && p.address == k.frmw.address);
-                if carries {
-                    k.last_ns = now_ns;
-                } else if may_keep_time
-                    && now_ns.saturating_sub(k.last_ns) >= k.interval_ns
-                    && fits_with(pdus, &k.frmw)
-                {
-                    k.last_ns = now_ns;
-                    extra = Some(k.frmw.clone());
-                }
-            }
-            first_index = s.next_index;
-            for (i, p) in pdus.iter().chain(extra.as_ref()).enumerate() {
-                b.push(
-                    p.command,
-                    first_index.wrapping_add(i as u8),
-                    DatagramAddress::Logical(p.address),
-                    &p.data,
-                )
-                .map_err(|_| {
-                    MasterError::Config(format!("{what}: a datagram larger than a frame"))
-                })?;
-            }
-            s.next_index =
-                first_index.wrapping_add((pdus.len() + usize::from(extra.is_some())) as u8);
-            b.finish()
-        };
-        buf.truncate(n);
-        let reply = self
-            .exchange(buf)
-            .await
-            .map_err(|attempts| MasterError::FrameLost {
-                what,
-                first: pdus.first().map(|p| (p.command, p.address)),
-                datagrams: pdus.len() as u16,
-                attempts,
-            })?;
-        let f = EcatFrame::new_checked(&reply.frame[..])
-            .map_err(|_| MasterError::BadReply("not an EtherCAT frame"))?;
-        let mut out = Vec::with_capacity(pdus.len());
-        for (i, d) in f.datagrams().enumerate() {
-            let d = d.map_err(|_| MasterError::BadReply("malformed datagram"))?;
-            // The time's FRMW last: checked, its reply not handed back (nobody waits for it).
-            let req = pdus
-                .get(i)
-                .or(extra.as_ref().filter(|_| i == pdus.len()))
-                .ok_or(MasterError::BadReply("extra datagram"))?;
-            if d.index() != first_index.wrapping_add(i as u8)
-                || d.command_code() != req.command.code()
-                || d.data_len() != req.data.len()
+        if let Some(k) = s.keep_time.as_mut() {
+            let carries = pdus
+                .iter()
+                .any(|p| p.command == k.frmw.command && p.address == k.frmw.address);
+            if carries {
+                k.last_ns = now_ns;
+            } else if may_keep_time
+                && now_ns.saturating_sub(k.last_ns) >= k.interval_ns
+                && fits_with(pdus, &k.frmw)
             {
-                return Err(MasterError::BadReply("datagram index, command or length"));
+                k.last_ns = now_ns;
+                extra = Some(k.frmw.clone());
             }
-            if i == pdus.len() {
-                continue;
-            }
-            out.push(PduReply {
-                data: d.data().to_vec(),
-                wkc: d.wkc(),
-                address: d.address_raw(),
-            });
         }
-        if out.len() != pdus.len() {
-            return Err(MasterError::BadReply("missing datagram"));
+        let first_index = s.next_index;
+        for (i, p) in pdus.iter().chain(extra.as_ref()).enumerate() {
+            b.push(
+                p.command,
+                first_index.wrapping_add(i as u8),
+                DatagramAddress::Logical(p.address),
+                &p.data,
+            )
+            .map_err(|_| MasterError::Config(format!("{what}: a datagram larger than a frame")))?;
         }
-        Ok((out, reply))
+        s.next_index = first_index.wrapping_add((pdus.len() + usize::from(extra.is_some())) as u8);
+        let n = b.finish();
+        buf.truncate(n);
+        Ok((buf, Built { first_index, extra }))
     }
 
     /// One datagram in its own frame.
@@ -452,6 +519,10 @@ pub enum Action<'a, T> {
     /// Send this frame now and hand its reply to [`Engine::handle_reply`] (or report loss with
     /// [`Engine::handle_lost`]).
     Send(&'a [u8]),
+    /// Send these frames now, back to back, and hand their replies to
+    /// [`Engine::handle_replies`], in the same order. Only for a driver that asked for it
+    /// ([`Engine::send_back_to_back`]).
+    SendAll(&'a [Vec<u8>]),
     /// Nothing to do before master time `t_ns`; poll again then.
     WaitUntil(u64),
     /// The procedure finished.
@@ -465,6 +536,7 @@ pub struct Engine<T> {
     link: Link,
     proc: Option<Proc<T>>,
     pending: Option<Vec<u8>>,
+    pending_all: Option<Vec<Vec<u8>>>,
     result: Option<T>,
 }
 
@@ -489,8 +561,16 @@ impl<T: 'static> Engine<T> {
             link,
             proc: Some(proc),
             pending: None,
+            pending_all: None,
             result: None,
         }
+    }
+
+    /// The driver sends the frames of an exchange that needs several back to back
+    /// ([`Action::SendAll`]); otherwise (the default) they come one at a time, each after the
+    /// last one's reply.
+    pub fn send_back_to_back(&mut self) {
+        self.link.lock().batches = true;
     }
 
     /// Advances the procedure at master time `now_ns`.
@@ -499,6 +579,9 @@ impl<T: 'static> Engine<T> {
         if self.pending.is_some() {
             // A frame is out; the driver must answer it first.
             return Action::Send(self.pending.as_deref().unwrap_or(&[]));
+        }
+        if self.pending_all.is_some() {
+            return Action::SendAll(self.pending_all.as_deref().unwrap_or(&[]));
         }
         if let Some(p) = self.proc.as_mut() {
             let mut cx = Context::from_waker(Waker::noop());
@@ -515,6 +598,11 @@ impl<T: 'static> Engine<T> {
             drop(s);
             self.pending = Some(f);
             return Action::Send(self.pending.as_deref().unwrap_or(&[]));
+        }
+        if let Some(f) = s.outgoing_all.take() {
+            drop(s);
+            self.pending_all = Some(f);
+            return Action::SendAll(self.pending_all.as_deref().unwrap_or(&[]));
         }
         match s.sleep_until {
             Some(t) => Action::WaitUntil(t),
@@ -536,6 +624,20 @@ impl<T: 'static> Engine<T> {
             sent_ns,
             received_ns,
         }));
+    }
+
+    /// The frames of [`Action::SendAll`] came back or were given up: one entry each, in their
+    /// order (`Err(sends)`: lost after that many sends). The master's clock moves to the last
+    /// reply's arrival; the link's last send and receive times are the last reply's.
+    pub fn handle_replies(&mut self, replies: Vec<Result<Reply, u32>>) {
+        self.pending_all = None;
+        let mut s = self.link.lock();
+        for r in replies.iter().flatten() {
+            s.now_ns = s.now_ns.max(r.received_ns);
+            s.last_sent_ns = r.sent_ns;
+            s.last_received_ns = r.received_ns;
+        }
+        s.replies = Some(replies);
     }
 
     /// The frame sent last was lost.
@@ -629,6 +731,7 @@ mod tests {
                     engine.handle_reply(&reply, now_ns, now_ns + 10_000);
                     now_ns += 10_000;
                 }
+                Action::SendAll(_) => panic!("frames at once, not asked for"),
                 Action::WaitUntil(t) => now_ns = now_ns.max(t),
                 Action::Done(v) => break v,
             }
@@ -649,5 +752,122 @@ mod tests {
             wkcs,
             vec![vec![1], vec![1, 1], vec![1], vec![1, 1], vec![1], vec![1]]
         );
+    }
+
+    /// Echoes `frame` with every datagram's working counter 1.
+    fn answered(frame: &[u8]) -> Vec<u8> {
+        let mut reply = frame.to_vec();
+        let mut at = ecsync_wire::ETH_HEADER_LEN + ecsync_wire::ECAT_HEADER_LEN;
+        for d in EcatFrame::new_checked(frame).unwrap().datagrams() {
+            let len = ecsync_wire::DATAGRAM_OVERHEAD + d.unwrap().data_len();
+            reply[at + len - 2] = 1;
+            at += len;
+        }
+        reply
+    }
+
+    /// 300 reads of 16 bytes need four frames: a driver that asked for it gets them at once
+    /// (their datagram indices running on from frame to frame), and the replies in the order
+    /// asked; one frame lost names its first datagram; without asking, the frames come one by
+    /// one, each after the last one's reply.
+    #[test]
+    fn an_exchange_of_several_frames_goes_back_to_back() {
+        let reads: Vec<Pdu> = (0..300u16)
+            .map(|i| {
+                Pdu::new(
+                    Command::Fprd,
+                    DatagramAddress::Configured {
+                        adp: 0x1000 + i,
+                        ado: 0x0910,
+                    },
+                    vec![0; 16],
+                )
+            })
+            .collect();
+        let make = |reads: Vec<Pdu>| {
+            move |link: Link| async move {
+                let first = link.pdus(&reads, "reads").await.map(|(r, _)| r.len());
+                let second = link.pdus(&reads, "reads").await.map(|(r, _)| r.len());
+                (first, second)
+            }
+        };
+        // Back to back, the second exchange's third frame lost.
+        let mut engine = Engine::new(make(reads.clone()));
+        engine.send_back_to_back();
+        let mut batches = Vec::new();
+        let mut lost_first = None;
+        let out = loop {
+            match engine.poll(0) {
+                Action::SendAll(frames) => {
+                    let frames = frames.to_vec();
+                    let indices: Vec<Vec<u8>> = frames
+                        .iter()
+                        .map(|f| {
+                            EcatFrame::new_checked(&f[..])
+                                .unwrap()
+                                .datagrams()
+                                .map(|d| d.unwrap().index())
+                                .collect()
+                        })
+                        .collect();
+                    let all: Vec<u8> = indices.concat();
+                    assert_eq!(all.len(), 300);
+                    assert!(all.windows(2).all(|w| w[1] == w[0].wrapping_add(1)));
+                    let lose = batches.len() == 1;
+                    batches.push(frames.len());
+                    let replies = frames
+                        .iter()
+                        .enumerate()
+                        .map(|(k, f)| {
+                            if lose && k == 2 {
+                                let f = EcatFrame::new_checked(&f[..]).unwrap();
+                                lost_first = f.datagrams().next().map(|d| d.unwrap().address_raw());
+                                Err(4)
+                            } else {
+                                Ok(Reply {
+                                    frame: answered(f),
+                                    sent_ns: 0,
+                                    received_ns: 1_000,
+                                })
+                            }
+                        })
+                        .collect();
+                    engine.handle_replies(replies);
+                }
+                Action::Send(_) => panic!("a frame alone"),
+                Action::WaitUntil(_) => panic!("a wait"),
+                Action::Done(v) => break v,
+            }
+        };
+        // 28 bytes a read, 53 to a frame.
+        assert_eq!(batches, vec![6, 6]);
+        assert_eq!(out.0.unwrap(), 300);
+        match out.1 {
+            Err(MasterError::FrameLost {
+                first, attempts, ..
+            }) => {
+                assert_eq!(attempts, 4);
+                assert_eq!(first.map(|f| f.1), lost_first);
+                assert_eq!(lost_first, Some(reads[2 * 53].address));
+            }
+            other => panic!("{other:?}"),
+        }
+        // One by one.
+        let mut engine = Engine::new(make(reads));
+        let mut frames = 0;
+        let out = loop {
+            match engine.poll(0) {
+                Action::Send(f) => {
+                    let reply = answered(f);
+                    frames += 1;
+                    engine.handle_reply(&reply, 0, 1_000);
+                }
+                Action::SendAll(_) => panic!("frames at once, not asked for"),
+                Action::WaitUntil(_) => panic!("a wait"),
+                Action::Done(v) => break v,
+            }
+        };
+        assert_eq!(frames, 12);
+        assert_eq!((out.0.unwrap(), out.1.unwrap()), (300, 300));
     }
 }

@@ -203,10 +203,12 @@ fn a_large_line_runs_sync0_everywhere() {
 }
 
 /// A large line's bring-up asks every drive for OP at once, after a cycle's process data
-/// (`enter_op`): one by one, a 512-drive line's requests took a round trip each (~0.8 s), and
-/// its first drives sat in OP with their outputs late, counting 793 missed SYNC0 pulses each
-/// (a drive with SSC's error limit of 4 would have left OP). Counted at the end of the
-/// bring-up, before any bench cycle.
+/// (`enter_op`), and sends an exchange's frames back to back: one by one, a 512-drive line's
+/// OP requests took a round trip each (~0.8 s) and its first drives sat in OP with their
+/// outputs late, counting 793 missed SYNC0 pulses each (a drive with SSC's error limit of 4
+/// would have left OP); with OP at once but a cycle's frames still sent each after the
+/// last one's reply (~12 ms of the 2 ms cycle), 54. Counted at the end of the bring-up, before any
+/// bench cycle.
 #[test]
 fn a_large_line_goes_to_op_at_once() {
     let b = ecsync_master::bench::CycleBench::line(512);
@@ -219,7 +221,7 @@ fn a_large_line_goes_to_op_at_once() {
         worst.1, worst.0
     );
     assert!(
-        worst.0 <= 64,
+        worst.0 <= 8,
         "drive {} missed {} SYNC0 pulses",
         worst.1,
         worst.0
