@@ -721,13 +721,7 @@ mod tests {
                     let f = f.to_vec();
                     sent.push(commands(&f));
                     // Every datagram answered by one slave.
-                    let mut reply = f.clone();
-                    let mut at = ecsync_wire::ETH_HEADER_LEN + ecsync_wire::ECAT_HEADER_LEN;
-                    for d in EcatFrame::new_checked(&f[..]).unwrap().datagrams() {
-                        let len = ecsync_wire::DATAGRAM_OVERHEAD + d.unwrap().data_len();
-                        reply[at + len - 2] = 1;
-                        at += len;
-                    }
+                    let reply = answered(&f);
                     engine.handle_reply(&reply, now_ns, now_ns + 10_000);
                     now_ns += 10_000;
                 }
@@ -756,11 +750,17 @@ mod tests {
 
     /// Echoes `frame` with every datagram's working counter 1.
     fn answered(frame: &[u8]) -> Vec<u8> {
+        let lens: Vec<usize> = EcatFrame::new_checked(frame)
+            .unwrap()
+            .datagrams()
+            .map(|d| d.unwrap().total_len())
+            .collect();
         let mut reply = frame.to_vec();
         let mut at = ecsync_wire::ETH_HEADER_LEN + ecsync_wire::ECAT_HEADER_LEN;
-        for d in EcatFrame::new_checked(frame).unwrap().datagrams() {
-            let len = ecsync_wire::DATAGRAM_OVERHEAD + d.unwrap().data_len();
-            reply[at + len - 2] = 1;
+        for len in lens {
+            ecsync_wire::Datagram::new_checked(&mut reply[at..])
+                .unwrap()
+                .set_wkc(1);
             at += len;
         }
         reply
