@@ -335,9 +335,19 @@ impl Link {
         if parts.len() > 1 && self.lock().batches {
             // Back to back, as the cyclic frames go: a large network's exchange takes one
             // round trip, not one per frame.
-            let mut sent = Vec::with_capacity(parts.len());
+            let mut sent: Vec<Built> = Vec::with_capacity(parts.len());
             let mut frames = Vec::with_capacity(parts.len());
             for (k, r) in parts.iter().enumerate() {
+                // A reply is matched to its frame by the first datagram's command and index:
+                // no two frames of the exchange start with the same index (a large exchange's
+                // indices wrap, and a second responder's copy of one frame would otherwise
+                // answer another).
+                {
+                    let mut s = self.lock();
+                    while sent.len() < 256 && sent.iter().any(|b| b.first_index == s.next_index) {
+                        s.next_index = s.next_index.wrapping_add(1);
+                    }
+                }
                 let (frame, built) = self.build_frame(&pdus[r.clone()], k == 0, what)?;
                 frames.push(frame);
                 sent.push(built);
@@ -869,5 +879,61 @@ mod tests {
         };
         assert_eq!(frames, 12);
         assert_eq!((out.0.unwrap(), out.1.unwrap()), (300, 300));
+    }
+
+    /// Frames of 32 datagrams: the ninth would start on the first one's index; it starts one
+    /// later, and every reply still reaches its datagram.
+    #[test]
+    fn no_two_frames_of_an_exchange_start_on_one_index() {
+        let reads: Vec<Pdu> = (0..300u16)
+            .map(|i| {
+                Pdu::new(
+                    Command::Fprd,
+                    DatagramAddress::Configured {
+                        adp: 0x1000 + i,
+                        ado: 0x0910,
+                    },
+                    vec![0; 34],
+                )
+            })
+            .collect();
+        let mut engine = Engine::new(move |link: Link| async move {
+            link.pdus(&reads, "reads").await.map(|(r, _)| r.len())
+        });
+        engine.send_back_to_back();
+        let mut firsts = Vec::new();
+        let out = loop {
+            match engine.poll(0) {
+                Action::SendAll(frames) => {
+                    let frames = frames.to_vec();
+                    firsts = frames
+                        .iter()
+                        .map(|f| EcatFrame::new_checked(&f[..]).unwrap().first_datagram_id())
+                        .collect();
+                    let replies = frames
+                        .iter()
+                        .map(|f| {
+                            Ok(Reply {
+                                frame: answered(f),
+                                sent_ns: 0,
+                                received_ns: 1_000,
+                            })
+                        })
+                        .collect();
+                    engine.handle_replies(replies);
+                }
+                Action::Send(_) => panic!("a frame alone"),
+                Action::WaitUntil(_) => panic!("a wait"),
+                Action::Done(v) => break v,
+            }
+        };
+        assert_eq!(out.unwrap(), 300);
+        assert_eq!(firsts.len(), 10);
+        let indices: Vec<u8> = firsts.iter().map(|f| f.unwrap().1).collect();
+        assert_eq!(indices[..9], [0, 32, 64, 96, 128, 160, 192, 224, 1]);
+        let mut unique = indices.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), indices.len(), "{indices:?}");
     }
 }
