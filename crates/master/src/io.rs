@@ -296,9 +296,10 @@ impl Link {
     }
 
     /// Sends the datagrams and returns their replies in order: in one frame when they fit, else
-    /// in as many frames as they need (each up to `MAX_FRAME_LEN`, in order, one after the
-    /// other), so that a network of any size can be asked everything at once. The reply is the
-    /// first frame's (its timestamps).
+    /// in as many frames as they need (each up to `MAX_FRAME_LEN`, in order), so that a network
+    /// of any size can be asked everything at once. The frames go back to back when the driver
+    /// asked for it ([`Engine::send_back_to_back`]), else each after the last one's reply. The
+    /// reply is the first frame's (its timestamps).
     pub async fn pdus(
         &self,
         pdus: &[Pdu],
