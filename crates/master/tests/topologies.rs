@@ -280,6 +280,9 @@ fn measured_delays_match_the_ground_truth() {
     assert!(without_dc.get() > 100);
 }
 
+/// A slave's system time at one instant: whole ns, the fraction, whether it is 64 bits wide.
+type SystemTime = (u64, f64, bool);
+
 /// From the declaration of sync on, through the configuration that follows (PRE-OP, SYNC0,
 /// SAFE-OP, OP) and the monitoring, every slave with a system time stays within the lock's
 /// 100 ns of the reference by the truth, on random topologies of up to 64 slaves with crystals
@@ -311,7 +314,7 @@ fn clocks_stay_together_from_the_lock_to_op() {
         };
         let mut engine = Engine::new(move |link| bringup(link, cfg));
         // (real time, every slave's system time then: None without one).
-        let mut seen: Vec<(u64, Vec<Option<(u64, f64, bool)>>)> = Vec::new();
+        let mut seen: Vec<(u64, Vec<Option<SystemTime>>)> = Vec::new();
         let mut exchanges = 0u64;
         let net = sim
             .run_procedure(&mut engine, |tr, _, _| {
