@@ -171,21 +171,8 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
                 continue;
             }
         };
-        let mut got = None;
-        let mut attempts = 0;
-        let mut sent_ns = 0;
-        for _ in 0..=cfg.retries {
-            attempts += 1;
-            let r = exchange(tr, &frame, &mut buf, cfg.reply_timeout_ns, stats)?;
-            match r {
-                Some(r) => {
-                    sent_ns = r.sent_ns;
-                    got = Some(r);
-                    break;
-                }
-                None => sent_ns = tr.now_ns(),
-            }
-        }
+        let (got, attempts, sent_ns) =
+            exchange_tries(tr, &frame, &mut buf, cfg, stats, cfg.retries + 1)?;
         match got {
             Some(r) => {
                 engine.handle_reply(&buf[..r.received.len], r.sent_ns, r.received.received_ns)
@@ -203,6 +190,28 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
             &events,
         );
     }
+}
+
+/// Sends `frame` up to `tries` times, each after the last one was lost: its reply (`None`: lost
+/// every time), the sends made, and the last send's timestamp (after a loss, the time it was
+/// given up).
+fn exchange_tries<Tr: Transport>(
+    tr: &mut Tr,
+    frame: &[u8],
+    buf: &mut Vec<u8>,
+    cfg: ProcedureConfig,
+    stats: &mut ExchangeStats,
+    tries: u32,
+) -> Result<(Option<Reply>, u32, u64), Tr::Error> {
+    let (mut sends, mut sent_ns) = (0, 0);
+    for _ in 0..tries {
+        sends += 1;
+        match exchange(tr, frame, buf, cfg.reply_timeout_ns, stats)? {
+            Some(r) => return Ok((Some(r), sends, r.sent_ns)),
+            None => sent_ns = tr.now_ns(),
+        }
+    }
+    Ok((None, sends, sent_ns))
 }
 
 /// Sends `frames` back to back and waits for their replies until `cfg.reply_timeout_ns` after
@@ -263,23 +272,14 @@ fn exchange_all<Tr: Transport>(
             continue;
         }
         stats.lost += 1;
-        let (mut attempts, mut sent_ns, mut reply) = (1, sent[k], None);
-        for _ in 0..cfg.retries {
-            attempts += 1;
-            match exchange(tr, &frames[k], buf, cfg.reply_timeout_ns, stats)? {
-                Some(r) => {
-                    sent_ns = r.sent_ns;
-                    reply = Some(crate::io::Reply {
-                        frame: buf[..r.received.len].to_vec(),
-                        sent_ns: r.sent_ns,
-                        received_ns: r.received.received_ns,
-                    });
-                    break;
-                }
-                None => sent_ns = tr.now_ns(),
-            }
-        }
-        out.push((sent_ns, reply.ok_or(attempts), attempts));
+        let (again, tries, last_ns) = exchange_tries(tr, &frames[k], buf, cfg, stats, cfg.retries)?;
+        let reply = again.map(|r| crate::io::Reply {
+            frame: buf[..r.received.len].to_vec(),
+            sent_ns: r.sent_ns,
+            received_ns: r.received.received_ns,
+        });
+        let sent_ns = if tries == 0 { sent[k] } else { last_ns };
+        out.push((sent_ns, reply.ok_or(1 + tries), 1 + tries));
     }
     Ok(out)
 }

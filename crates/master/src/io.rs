@@ -759,6 +759,22 @@ mod tests {
         );
     }
 
+    /// `n` FPRDs of `len` bytes, one to each of `n` stations.
+    fn reads(n: u16, len: usize) -> Vec<Pdu> {
+        (0..n)
+            .map(|i| {
+                Pdu::new(
+                    Command::Fprd,
+                    DatagramAddress::Configured {
+                        adp: 0x1000 + i,
+                        ado: 0x0910,
+                    },
+                    vec![0; len],
+                )
+            })
+            .collect()
+    }
+
     /// Echoes `frame` with every datagram's working counter 1.
     fn answered(frame: &[u8]) -> Vec<u8> {
         let lens: Vec<usize> = EcatFrame::new_checked(frame)
@@ -783,18 +799,7 @@ mod tests {
     /// one, each after the last one's reply.
     #[test]
     fn an_exchange_of_several_frames_goes_back_to_back() {
-        let reads: Vec<Pdu> = (0..300u16)
-            .map(|i| {
-                Pdu::new(
-                    Command::Fprd,
-                    DatagramAddress::Configured {
-                        adp: 0x1000 + i,
-                        ado: 0x0910,
-                    },
-                    vec![0; 16],
-                )
-            })
-            .collect();
+        let reads = reads(300, 16);
         let make = |reads: Vec<Pdu>| {
             move |link: Link| async move {
                 let first = link.pdus(&reads, "reads").await.map(|(r, _)| r.len());
@@ -886,18 +891,7 @@ mod tests {
     /// later, and every reply still reaches its datagram.
     #[test]
     fn no_two_frames_of_an_exchange_start_on_one_index() {
-        let reads: Vec<Pdu> = (0..300u16)
-            .map(|i| {
-                Pdu::new(
-                    Command::Fprd,
-                    DatagramAddress::Configured {
-                        adp: 0x1000 + i,
-                        ado: 0x0910,
-                    },
-                    vec![0; 34],
-                )
-            })
-            .collect();
+        let reads = reads(300, 34);
         let mut engine = Engine::new(move |link: Link| async move {
             link.pdus(&reads, "reads").await.map(|(r, _)| r.len())
         });
