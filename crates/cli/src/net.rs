@@ -444,7 +444,7 @@ struct RunOut {
     /// phase (once a second): SYNC0 cycles the drive ran without new outputs, by its own
     /// count since it went to OP.
     sm_events_missed: Vec<SyncCounterRow>,
-    /// Sends and receives the interface refused because it was down.
+    /// Sends and receives the interface refused: it was down, or its send queue stayed full.
     link_down_errors: u64,
     /// Steps of the host's clock the engine saw (the reference ran on while the master's time
     /// jumped: an NTP step, a `date -s`).
@@ -1308,7 +1308,7 @@ fn print_run(o: &RunOut) {
     }
     if o.link_down_errors > 0 {
         println!(
-            "The interface was down {} times (frames lost meanwhile; the run went on).",
+            "The interface was down or refused frames {} times (frames lost meanwhile; the run went on).",
             o.link_down_errors
         );
     }

@@ -50,7 +50,8 @@ pub struct RecordSummary {
     pub cycles: u64,
     /// Slots skipped because the task woke after they had passed.
     pub skipped: u64,
-    /// Frames sent whose TX timestamp did not come within the wait.
+    /// Frames sent whose TX timestamp did not come within the wait (or that the interface
+    /// refused: down, or its queue full).
     pub tx_stamps_missing: u64,
 }
 
@@ -110,8 +111,18 @@ pub fn record(
         // The stamp is on the wall clock: taken across a step of it, it says nothing.
         let epoch = rt_map.epoch();
         let mut tx_delay_ns = None;
-        if let Some(sock) = sock {
-            sock.send(&buf[..len]).map_err(io("send"))?;
+        // A frame the interface refused (down, or its queue full) has no stamp to wait for:
+        // counted missing, and the recording goes on.
+        let sent = match sock.map(|sock| sock.send(&buf[..len])) {
+            Some(Ok(())) => sock,
+            Some(Err(e)) if sys::link_is_down(&e) => {
+                s.tx_stamps_missing += 1;
+                None
+            }
+            Some(Err(e)) => return Err(io("send")(e)),
+            None => None,
+        };
+        if let Some(sock) = sent {
             let deadline = send_mono + tx_wait_ns;
             loop {
                 if let Some(t) = sock.take_tx_timestamp().map_err(io("TX timestamp"))? {

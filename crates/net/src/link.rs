@@ -272,15 +272,6 @@ fn io_err(what: &'static str) -> impl Fn(io::Error) -> NetError {
     move |source| NetError::Io { what, source }
 }
 
-/// Whether an I/O error says the interface is down or gone for now (a cable pulled): the
-/// frame is lost, and the master keeps trying, as it does with any lost frame.
-fn link_is_down(e: &io::Error) -> bool {
-    matches!(
-        e.raw_os_error(),
-        Some(libc::ENETDOWN) | Some(libc::ENXIO) | Some(libc::ENODEV) | Some(libc::ENOBUFS)
-    )
-}
-
 impl Transport for RealLink {
     type Error = NetError;
 
@@ -351,7 +342,7 @@ impl Transport for RealLink {
         match self.sock.send(&self.tx_buf) {
             Ok(()) => {}
             // Lost on a link that is down: the reply's deadline tells the driver.
-            Err(e) if link_is_down(&e) => self.link_down += 1,
+            Err(e) if sys::link_is_down(&e) => self.link_down += 1,
             Err(e) => return Err(io_err("send")(e)),
         }
         Ok(at_ns)
@@ -369,7 +360,7 @@ impl Transport for RealLink {
         loop {
             let got = match self.sock.recv(buf) {
                 Ok(r) => r,
-                Err(e) if link_is_down(&e) => {
+                Err(e) if sys::link_is_down(&e) => {
                     // No link: nothing can come before the deadline but the link itself.
                     self.link_down += 1;
                     let now = sys::monotonic_ns();
@@ -414,7 +405,7 @@ impl Transport for RealLink {
             }
             let ready = match self.sock.wait(deadline - now) {
                 Ok(r) => r,
-                Err(e) if link_is_down(&e) => {
+                Err(e) if sys::link_is_down(&e) => {
                     self.link_down += 1;
                     continue;
                 }

@@ -53,15 +53,6 @@ pub struct ServeStats {
     pub link_down_errors: u64,
 }
 
-/// Whether an I/O error says the interface is down or gone for now (a cable pulled, the veth
-/// peer's namespace being set up): serving tries again.
-fn link_is_down(e: &std::io::Error) -> bool {
-    matches!(
-        e.raw_os_error(),
-        Some(libc::ENETDOWN) | Some(libc::ENXIO) | Some(libc::ENODEV) | Some(libc::ENOBUFS)
-    )
-}
-
 /// Most VLAN tags a frame may carry (802.1ad S-tag outside, 802.1Q C-tag inside).
 const MAX_TAGS: usize = 2;
 
@@ -146,7 +137,7 @@ pub fn serve<W: Write>(
     let mut later: std::collections::VecDeque<(u64, Vec<u8>)> = std::collections::VecDeque::new();
     let send = |sock: &PacketSocket, frame: &[u8], stats: &mut ServeStats| match sock.send(frame) {
         Ok(()) => Ok(()),
-        Err(e) if link_is_down(&e) => {
+        Err(e) if sys::link_is_down(&e) => {
             stats.link_down_errors += 1;
             Ok(())
         }
@@ -167,7 +158,7 @@ pub fn serve<W: Write>(
         let rx_epoch = rt_map.epoch();
         let got = match sock.recv(&mut buf[..room]) {
             Ok(r) => r,
-            Err(e) if link_is_down(&e) => {
+            Err(e) if sys::link_is_down(&e) => {
                 // The interface is down: wait and try again, as a slave waits for its link.
                 stats.link_down_errors += 1;
                 std::thread::sleep(std::time::Duration::from_millis(10));
@@ -181,7 +172,7 @@ pub fn serve<W: Write>(
             });
             let ready = match sock.wait(wait_ns.min(50_000_000)) {
                 Ok(r) => r,
-                Err(e) if link_is_down(&e) => {
+                Err(e) if sys::link_is_down(&e) => {
                     stats.link_down_errors += 1;
                     std::thread::sleep(std::time::Duration::from_millis(10));
                     continue;

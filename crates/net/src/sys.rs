@@ -669,9 +669,12 @@ impl PacketSocket {
     }
 
     /// Sends one frame (as is: short frames are not padded). Waits up to a millisecond for
-    /// room in the socket's queue.
+    /// room in the socket's queue; if there is still none (the interface lost its carrier and
+    /// its queue stopped), the kernel's last refusal (EAGAIN or ENOBUFS) is returned, which
+    /// [`link_is_down`] reads as a frame lost for now, never a reason to stop.
     pub fn send(&self, frame: &[u8]) -> io::Result<()> {
-        for _ in 0..1000 {
+        let give_up_ns = monotonic_ns() + SEND_WAIT_NS;
+        loop {
             // SAFETY: `frame` is a live slice and its length is passed with it; the socket is
             // bound, so no destination address is needed.
             let r = unsafe {
@@ -694,15 +697,27 @@ impl PacketSocket {
             }
             let e = io::Error::last_os_error();
             match e.raw_os_error() {
-                Some(libc::EAGAIN) | Some(libc::ENOBUFS) => self.wait_writable(1_000),
+                Some(code @ (libc::EAGAIN | libc::ENOBUFS)) => {
+                    let now = monotonic_ns();
+                    if now >= give_up_ns {
+                        return Err(e);
+                    }
+                    if code == libc::EAGAIN {
+                        // The socket's own queue is full: wait until it has room.
+                        self.wait_writable(give_up_ns - now);
+                    } else {
+                        // The device refused the frame (its queue full, or a veth whose peer
+                        // cannot take more): the socket reads writable all along, so polling
+                        // would spin; try again a little later.
+                        std::thread::sleep(std::time::Duration::from_nanos(
+                            (give_up_ns - now).min(50_000),
+                        ));
+                    }
+                }
                 Some(libc::EINTR) => {}
                 _ => return Err(e),
             }
         }
-        Err(io::Error::new(
-            io::ErrorKind::TimedOut,
-            "the socket's send queue stayed full",
-        ))
     }
 
     /// Receives one frame if one is waiting (`None` if none is); frames the host sent itself
@@ -908,6 +923,24 @@ impl PacketSocket {
         // SAFETY: `p` and `ts` are live locals; one pollfd is passed; no signal mask.
         unsafe { libc::ppoll(&mut p, 1, &ts, std::ptr::null()) };
     }
+}
+
+/// How long [`PacketSocket::send`] waits for room in a full send queue, ns: a cycle's worth at
+/// the shortest cycles; longer, and a master whose link is down would stall its cycle waiting.
+const SEND_WAIT_NS: u64 = 1_000_000;
+
+/// Whether an I/O error says the interface is down, gone or stalled for now (a cable pulled,
+/// the peer's interface down, the veth peer's namespace being set up, a send queue that stayed
+/// full): the frame is lost, and a master or a served segment goes on, as with any lost frame.
+pub fn link_is_down(e: &io::Error) -> bool {
+    matches!(
+        e.raw_os_error(),
+        Some(libc::ENETDOWN)
+            | Some(libc::ENXIO)
+            | Some(libc::ENODEV)
+            | Some(libc::ENOBUFS)
+            | Some(libc::EAGAIN)
+    )
 }
 
 /// What [`PacketSocket::wait`] saw.
