@@ -76,8 +76,9 @@ struct LockOut {
     max_abs_diff_ns: f64,
     /// The same from the start of the run that held (includes the last of the convergence), ns.
     max_abs_diff_from_lock_start_ns: f64,
-    /// Largest |0x092C| read while monitoring, ns.
-    max_abs_092c_ns: u32,
+    /// Largest |0x092C| read while monitoring, ns; `null` if nothing was monitored
+    /// (`--monitor-cycles 0`).
+    max_abs_092c_ns: Option<u32>,
     frmw_frames: u64,
 }
 
@@ -222,7 +223,8 @@ pub fn run(args: Args) -> Result<ExitCode> {
                 .map(|t| t.saturating_sub(net.lock.drift_start_ns) as f64 / 1e6),
             max_abs_diff_ns,
             max_abs_diff_from_lock_start_ns,
-            max_abs_092c_ns: net.lock.max_abs_092c_after_lock_ns,
+            max_abs_092c_ns: (args.monitor_cycles > 0)
+                .then_some(net.lock.max_abs_092c_after_lock_ns),
             frmw_frames: net.lock.frmw_frames,
         },
         sync0_start_ns: net.sync0.map(|s| s.start_ns),
@@ -303,8 +305,13 @@ fn print_human(o: &Out) {
         );
     }
     println!(
-        "After that: largest true |slave - reference| difference {:.1} ns (from the start of the hold: {:.1} ns); largest |0x092C| read {} ns.",
-        o.lock.max_abs_diff_ns, o.lock.max_abs_diff_from_lock_start_ns, o.lock.max_abs_092c_ns
+        "After that: largest true |slave - reference| difference {:.1} ns (from the start of the hold: {:.1} ns); {}.",
+        o.lock.max_abs_diff_ns,
+        o.lock.max_abs_diff_from_lock_start_ns,
+        o.lock.max_abs_092c_ns.map_or(
+            "0x092C not read in OP (--monitor-cycles 0)".to_string(),
+            |m| format!("largest |0x092C| read {m} ns")
+        )
     );
     if let Some(s) = o.sync0_start_ns {
         println!(

@@ -45,6 +45,52 @@ fn paper_2024_bringup_json_meets_the_acceptance() {
     assert!(max < 100.0, "max |slave - reference| after lock: {max} ns");
 }
 
+/// With no monitoring nothing reads 0x092C in OP: the output says so rather than a 0 ns that
+/// reads as a measurement; with monitoring, the figure is there.
+#[test]
+fn no_monitoring_prints_no_0x092c_figure() {
+    let run = |cycles: &str| {
+        let out = ecsync()
+            .args([
+                "bringup",
+                "--preset",
+                "paper-2024",
+                "--monitor-cycles",
+                cycles,
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let json = ecsync()
+            .args([
+                "bringup",
+                "--preset",
+                "paper-2024",
+                "--json",
+                "--monitor-cycles",
+                cycles,
+            ])
+            .output()
+            .unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+        (
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            v["lock"]["max_abs_092c_ns"].clone(),
+        )
+    };
+    let (text, value) = run("0");
+    assert!(text.contains("0x092C not read in OP"), "{text}");
+    assert!(!text.contains("largest |0x092C| read"), "{text}");
+    assert!(value.is_null(), "{value}");
+    let (text, value) = run("10");
+    assert!(text.contains("largest |0x092C| read"), "{text}");
+    assert!(value.as_u64().is_some_and(|v| v < 100), "{value}");
+}
+
 /// tshark from Debian's packages (installed by .ci/run). Without it the test says so and passes
 /// only outside CI.
 fn tshark() -> Option<Command> {
