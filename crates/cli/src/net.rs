@@ -902,7 +902,6 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         .get(reference)
         .map(|s| s.station)
         .context("the bring-up found no reference clock")?;
-    let period = u64::from(cycle_ns);
     let cyc_cfg = CyclicConfig {
         period_ns: cycle_ns,
         reference_station: ref_station,
@@ -911,10 +910,16 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         reference_offset_ns: net.slaves[reference].offset.unwrap_or(0),
         lrw: net.lrw.clone(),
     };
-    // The reference's system time is the master's time after the bring-up: aim at its grid,
-    // at the target phase.
-    let now = link.now_ns();
-    let first = ((now / period + 2) * period).wrapping_add(target_phase_ns as u64);
+    // Aim at the reference's grid, at the target phase, where the bring-up's last reading
+    // put it against the master's clock.
+    let first = ecsync_master::cyclic::first_cycle_start_ns(
+        link.now_ns(),
+        net.reference_reading,
+        method.reference_write_kind(),
+        cycle_ns,
+        target_phase_ns,
+        0,
+    );
     let mut eng = CyclicEngine::new(method, cyc_cfg, first)
         .map_err(|e| anyhow::anyhow!("cyclic frame: {e}"))?;
     let limits = CyclicLimits {

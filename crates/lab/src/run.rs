@@ -843,16 +843,20 @@ impl Run {
             reference_offset_ns: net.slaves[reference].offset.unwrap_or(0),
             lrw: net.lrw.clone(),
         };
-        // The first cycle: frames aimed at the target phase of the reference's grid. The
-        // reference's system time is close to the master's clock after the bring-up (its offset
-        // is the master's time), so the grid is the master's multiples of P, plus the target,
-        // minus the mean time from the cycle start to the frame's arrival at the reference that
-        // the master knows of its own host (e_m and the NIC latency; j_s's mean it does not).
-        let now = sim.master_now_ns();
-        let lead = s.host.em_ns + s.host.tx_latency_ns;
-        let first = ((now / period + 2) * period)
-            .wrapping_add(s.target_phase_ns as u64)
-            .wrapping_sub(lead as u64);
+        // The first cycle: frames aimed at the target phase of the reference's grid, where
+        // the bring-up's last reading put it against the master's clock, less the mean time
+        // from the cycle's start to the frame's arrival at the reference that the master knows
+        // of its own host (e_m and the NIC latency; j_s's mean it does not). On a real host the
+        // reading holds the NIC's latency; the simulated bring-up runs without the host model,
+        // so it is taken off here.
+        let first = ecsync_master::cyclic::first_cycle_start_ns(
+            sim.master_now_ns(),
+            net.reference_reading,
+            method.reference_write_kind(),
+            s.cycle_ns,
+            s.target_phase_ns,
+            (s.host.em_ns + s.host.tx_latency_ns) as u64,
+        );
         let eng = CyclicEngine::new(method, cyc_cfg, first).map_err(RunError::Frame)?;
         let dc_slaves: Vec<usize> = (0..sim.segment().len())
             .filter(|&x| sim.segment().esc(x).dc().is_some())

@@ -455,6 +455,51 @@ pub struct Network {
     /// only as good as the master's send stamps, microseconds off on a loaded host, so a few
     /// tenths of a ppm over 2 s (`None`: not measured).
     pub reference_ppm_vs_master: Option<f64>,
+    /// The reference's system time as the bring-up's last FRMW read it, with the master's
+    /// time of that frame's send (`None` if the bring-up stopped before OP): where the
+    /// reference's grid lies against the master's clock when the cyclic phase begins. The
+    /// offsets made the two agree, but the reference's crystal has run against the master's
+    /// since, over the whole configuration (a large network's takes tens of seconds: a
+    /// 1 000-drive line's reference was 440 us from the master's time at its end).
+    #[serde(skip)]
+    pub reference_reading: Option<ReferenceReading>,
+}
+
+/// The reference's system time read by an FRMW, and when the master sent that frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ReferenceReading {
+    /// Master time right before the frame was sent, ns.
+    pub master_sent_ns: u64,
+    /// The reference's system time as the frame passed it (a 32-bit reference's extended next
+    /// to the master's time), ns.
+    pub reference_ns: u64,
+}
+
+impl ReferenceReading {
+    /// The reference's system time minus the master's time, ns. The frame's way from the
+    /// master's send to the reference (the NIC's latency, the wire) is in it: a cyclic frame
+    /// sent on this estimate passes the reference when the reference's time is where it
+    /// should be.
+    pub fn reference_minus_master_ns(&self) -> i64 {
+        self.reference_ns.wrapping_sub(self.master_sent_ns) as i64
+    }
+
+    fn of(reply: &PduReply, master_sent_ns: u64) -> Option<Self> {
+        if reply.wkc == 0 {
+            return None;
+        }
+        let raw = u64::from_le_bytes(reply.data.get(..8)?.try_into().ok()?);
+        // A 32-bit reference reads 0 in the upper half.
+        let reference_ns = if raw >> 32 == 0 {
+            ecsync_dc::sync::extend_reference_time(master_sent_ns, raw as u32)
+        } else {
+            raw
+        };
+        Some(ReferenceReading {
+            master_sent_ns,
+            reference_ns,
+        })
+    }
 }
 
 /// Master time right before the last frame was sent.
@@ -515,6 +560,7 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
         master_delay_ns: latch.master_delay_ns,
         master_delay_spread_ns: latch.master_delay_spread_ns,
         reference_ppm_vs_master: None,
+        reference_reading: None,
     };
     if cfg.rate_window_ns > 0 {
         net.reference_ppm_vs_master =
@@ -609,7 +655,7 @@ async fn configure_and_start(
         .map_err(|e| e.during(Phase::Op))?;
 
     link.event(Event::Phase(Phase::Monitor));
-    net.lock.max_abs_092c_after_lock_ns = monitor(
+    let (max_abs, reading) = monitor(
         link,
         cfg,
         dc,
@@ -620,6 +666,18 @@ async fn configure_and_start(
     )
     .await
     .map_err(|e| e.during(Phase::Monitor))?;
+    net.lock.max_abs_092c_after_lock_ns = max_abs;
+    net.reference_reading = match reading {
+        Some(r) => Some(r),
+        // Nothing monitored: one FRMW more, for where the reference's time stands.
+        None => {
+            let (r, _) = link
+                .pdus(&[dc.frmw()], "read the reference's time")
+                .await
+                .map_err(|e| e.during(Phase::Monitor))?;
+            r.first().and_then(|p| ReferenceReading::of(p, r_sent(link)))
+        }
+    };
     Ok(())
 }
 
@@ -1968,7 +2026,8 @@ async fn request_op_at_once(
 }
 
 /// [`Phase::Monitor`]: [`BringupConfig::monitor_cycles`] cycles of the cyclic frame in OP,
-/// the process data's working counter checked; returns the largest |0x092C| seen.
+/// the process data's working counter checked; returns the largest |0x092C| seen and the
+/// reference's time as the last cycle's FRMW read it.
 async fn monitor(
     link: &Link,
     cfg: &BringupConfig,
@@ -1977,14 +2036,16 @@ async fn monitor(
     pdi_len: u32,
     expected_lrw_wkc: u16,
     grid: &mut CycleGrid,
-) -> Result<u32, MasterError> {
+) -> Result<(u32, Option<ReferenceReading>), MasterError> {
     let k = cyclic.lrw_end;
     let mut max_abs = 0u32;
+    let mut reading = None;
     for _ in 0..cfg.monitor_cycles {
         grid.tick(link).await;
         let (r, _) = link.pdus(&cyclic.pdus, "cyclic").await?;
         let worst = dc.worst_of(&r[k..], Phase::Monitor)?;
         max_abs = max_abs.max(worst);
+        reading = ReferenceReading::of(&r[0], r_sent(link)).or(reading);
         let got: u16 = r[1..k].iter().map(|p| p.wkc).sum();
         if pdi_len > 0 && got != expected_lrw_wkc {
             return Err(MasterError::WorkingCounter {
@@ -1995,7 +2056,7 @@ async fn monitor(
             });
         }
     }
-    Ok(max_abs)
+    Ok((max_abs, reading))
 }
 
 /// Requests an AL state from one slave and waits until it is reached or refused, polling AL

@@ -11,12 +11,46 @@
 
 use crate::io::MASTER_MAC;
 use crate::pdi::LrwChunk;
+use crate::bringup::ReferenceReading;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
 };
 use ecsync_wire::dc_time::{decode_time_difference, diff_u64};
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, WireError};
+
+/// The master time at which the cyclic phase's first cycle starts: its frame, sent `lead_ns`
+/// after the cycle's start (the host's execution time, as far as the master knows it), passes
+/// the reference at a point of the reference's grid (the multiples of the period in its system
+/// time, on which SYNC0 fires) plus `target_phase_ns`, two periods or more after `now_ns`.
+///
+/// `reading` is where the bring-up last read the reference's time
+/// ([`Network::reference_reading`](crate::bringup::Network)): the offsets made the reference's
+/// time the master's, but its crystal has run against the master's since. A method that writes
+/// the master's time into the reference (`write` is [`ReferenceWrite::SystemTime`], the
+/// letter's bus shift) brings the reference's time back to the master's, so its frames aim at
+/// the master's grid; every other method aims at the reference's grid where it stands.
+pub fn first_cycle_start_ns(
+    now_ns: u64,
+    reading: Option<ReferenceReading>,
+    write: ReferenceWrite,
+    period_ns: u32,
+    target_phase_ns: i64,
+    lead_ns: u64,
+) -> u64 {
+    let p = u64::from(period_ns.max(1));
+    let d = match (reading, write) {
+        (Some(r), ReferenceWrite::None | ReferenceWrite::OffsetAdjust) => {
+            r.reference_minus_master_ns() as u64
+        }
+        (None, _) | (_, ReferenceWrite::SystemTime) => 0,
+    };
+    let reference_now = now_ns.wrapping_add(d);
+    ((reference_now / p + 2) * p)
+        .wrapping_add(target_phase_ns as u64)
+        .wrapping_sub(d)
+        .wrapping_sub(lead_ns)
+}
 
 /// How the cyclic frame is laid out.
 #[derive(Debug, Clone, PartialEq, Eq)]
