@@ -266,7 +266,7 @@ fn drives_count_the_ground_truths_sync0_misses_on_eight_random_networks() {
 /// nothing more.
 #[test]
 fn the_first_cycle_aims_at_the_reference_s_grid_on_twelve_random_networks() {
-    let mut rng = ChaCha8Rng::seed_from_u64(0x11_f1_257);
+    let mut rng = ChaCha8Rng::seed_from_u64(0x011f_1257);
     let js_mean_ns = 16_000.0 * (2.0f64 / std::f64::consts::PI).sqrt();
     let mut worst_ns = 0.0f64;
     for k in 0..12 {

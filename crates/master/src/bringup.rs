@@ -675,7 +675,8 @@ async fn configure_and_start(
                 .pdus(&[dc.frmw()], "read the reference's time")
                 .await
                 .map_err(|e| e.during(Phase::Monitor))?;
-            r.first().and_then(|p| ReferenceReading::of(p, r_sent(link)))
+            r.first()
+                .and_then(|p| ReferenceReading::of(p, r_sent(link)))
         }
     };
     Ok(())

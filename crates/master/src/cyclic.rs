@@ -9,9 +9,9 @@
 //! [`CyclicEngine::complete`]. The same engine runs against the virtual segment and on a raw
 //! socket.
 
+use crate::bringup::ReferenceReading;
 use crate::io::MASTER_MAC;
 use crate::pdi::LrwChunk;
-use crate::bringup::ReferenceReading;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
 };
