@@ -841,7 +841,15 @@ fn warnings(
                     us(d.offset_ns)
                 ),
                 (_, Ok(MethodKind::Snap)) => " (it counts its wait from the send, so the scheduling jitter and execution time land on the phase)".into(),
-                _ => String::new(),
+                // A controller that says it was still pulling in: the figure is its approach,
+                // not where it settles.
+                _ => match &mo.controller {
+                    Some(c) if !c.in_sync_at_end => format!(
+                        " (its controller reported in sync in {:.0} % of the recorded cycles and not at the end: still pulling in; a longer warm-up, --warmup-s, shows where it settles)",
+                        c.in_sync_fraction * 100.0
+                    ),
+                    _ => String::new(),
+                },
             };
             w.push(Warning {
                 kind: "off_target",
