@@ -79,6 +79,10 @@ struct LockOut {
     /// Largest |0x092C| read while monitoring, ns; `null` if nothing was monitored
     /// (`--monitor-cycles 0`).
     max_abs_092c_ns: Option<u32>,
+    /// 0x092C was read by one broadcast (a network whose reads per slave would not fit the
+    /// cycle): `max_abs_092c_ns` is the OR of every slave's magnitude, a bound on the largest.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    max_abs_092c_by_broadcast: bool,
     frmw_frames: u64,
 }
 
@@ -225,6 +229,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
             max_abs_diff_from_lock_start_ns,
             max_abs_092c_ns: (args.monitor_cycles > 0)
                 .then_some(net.lock.max_abs_092c_after_lock_ns),
+            max_abs_092c_by_broadcast: net.lock.max_abs_092c_by_broadcast,
             frmw_frames: net.lock.frmw_frames,
         },
         sync0_start_ns: net.sync0.map(|s| s.start_ns),
@@ -310,7 +315,11 @@ fn print_human(o: &Out) {
         o.lock.max_abs_diff_from_lock_start_ns,
         o.lock.max_abs_092c_ns.map_or(
             "0x092C not read in OP (--monitor-cycles 0)".to_string(),
-            |m| format!("largest |0x092C| read {m} ns")
+            |m| if o.lock.max_abs_092c_by_broadcast {
+                format!("|0x092C| read by one broadcast {m} ns (the OR of every slave's: a bound on the largest; this network's reads one by one would not fit its cycle)")
+            } else {
+                format!("largest |0x092C| read {m} ns")
+            }
         )
     );
     if let Some(s) = o.sync0_start_ns {

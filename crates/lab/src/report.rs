@@ -844,9 +844,9 @@ fn warnings(
                 // A controller that says it was still pulling in: the figure is its approach,
                 // not where it settles.
                 _ => match &mo.controller {
-                    Some(c) if !c.in_sync_at_end => format!(
-                        " (its controller reported in sync in {:.0} % of the recorded cycles and not at the end: still pulling in; a longer warm-up, --warmup-s, shows where it settles)",
-                        c.in_sync_fraction * 100.0
+                    Some(c) if c.time_to_sync_ms.is_none() => format!(
+                        " (its controller never reported in sync in {}: still pulling in; a longer warm-up, --warmup-s, shows where it settles)",
+                        if c.in_sync_fraction > 0.0 { "some runs" } else { "the recorded cycles" }
                     ),
                     _ => String::new(),
                 },

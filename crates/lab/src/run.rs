@@ -847,15 +847,17 @@ impl Run {
         // the bring-up's last reading put it against the master's clock, less the mean time
         // from the cycle's start to the frame's arrival at the reference that the master knows
         // of its own host (e_m and the NIC latency; j_s's mean it does not). On a real host the
-        // reading holds the NIC's latency; the simulated bring-up runs without the host model,
-        // so it is taken off here.
+        // reading holds the NIC's latency; the simulated bring-up runs with the ideal host's
+        // few microseconds instead of the host model's, so the reading holds those and the
+        // difference is taken off here.
         let first = ecsync_master::cyclic::first_cycle_start_ns(
             sim.master_now_ns(),
             net.reference_reading,
             method.reference_write_kind(),
             s.cycle_ns,
             s.target_phase_ns,
-            (s.host.em_ns + s.host.tx_latency_ns) as u64,
+            ((s.host.em_ns + s.host.tx_latency_ns) as u64)
+                .saturating_sub(sim.tx_latency_ps() / 1000),
         );
         let eng = CyclicEngine::new(method, cyc_cfg, first).map_err(RunError::Frame)?;
         let dc_slaves: Vec<usize> = (0..sim.segment().len())

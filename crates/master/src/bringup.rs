@@ -409,6 +409,11 @@ pub struct LockReport {
     pub declared_ns: Option<u64>,
     /// Largest |0x092C| seen while monitoring after lock, ns.
     pub max_abs_092c_after_lock_ns: u32,
+    /// The monitoring read 0x092C by one broadcast (a network whose reads per slave would not
+    /// fit the cycle): [`LockReport::max_abs_092c_after_lock_ns`] is the OR of every slave's
+    /// magnitude, a bound on the largest rather than the largest.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub max_abs_092c_by_broadcast: bool,
     /// FRMW frames sent before lock.
     pub frmw_frames: u64,
 }
@@ -675,17 +680,17 @@ async fn configure_and_start(
     .await
     .map_err(|e| e.during(Phase::Monitor))?;
     net.lock.max_abs_092c_after_lock_ns = max_abs;
+    net.lock.max_abs_092c_by_broadcast = !cyclic.per_slave;
     net.reference_reading = match reading {
         Some(r) => Some(r),
-        // Nothing monitored: one FRMW more, for where the reference's time stands.
-        None => {
-            let (r, _) = link
-                .pdus(&[dc.frmw()], "read the reference's time")
-                .await
-                .map_err(|e| e.during(Phase::Monitor))?;
-            r.first()
-                .and_then(|p| ReferenceReading::of(p, r_sent(link)))
-        }
+        // Nothing monitored: one FRMW more, for where the reference's time stands (lost, the
+        // first cycle aims at the master's own grid, as it would without the reading).
+        None => match link.pdus(&[dc.frmw()], "read the reference's time").await {
+            Ok((r, reply)) => r
+                .first()
+                .and_then(|p| ReferenceReading::of(p, reply.sent_ns)),
+            Err(_) => None,
+        },
     };
     Ok(())
 }
@@ -707,6 +712,7 @@ impl LockReport {
             drift_start_ns: 0,
             declared_ns: None,
             max_abs_092c_after_lock_ns: 0,
+            max_abs_092c_by_broadcast: false,
             frmw_frames: 0,
         }
     }
@@ -1587,6 +1593,7 @@ async fn wait_for_lock(
         drift_start_ns: drift_start,
         declared_ns: (synced.is_empty() || lock.is_locked()).then(|| link.now_ns()),
         max_abs_092c_after_lock_ns: 0,
+        max_abs_092c_by_broadcast: false,
         frmw_frames,
     };
     Ok(Locked { report, grid })
@@ -1946,6 +1953,17 @@ impl CyclicFrame {
             return dc.worst_of(&r[self.lrw_end..], phase);
         }
         let p = &r[self.lrw_end];
+        // Every slave with a system time answers (others may too).
+        let least = dc.synced.len() as u16 + 1;
+        if p.wkc < least {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Brd,
+                what: "read system time difference",
+                expected: least,
+                got: p.wkc,
+            }
+            .during(phase));
+        }
         let raw = u32::from_le_bytes(
             p.data
                 .get(..4)
@@ -2126,10 +2144,11 @@ async fn monitor(
     let mut reading = None;
     for _ in 0..cfg.monitor_cycles {
         grid.tick(link).await;
-        let (r, _) = link.pdus(&cyclic.pdus, "cyclic").await?;
+        // The FRMW is in the exchange's first frame, whose send time the reply carries.
+        let (r, first) = link.pdus(&cyclic.pdus, "cyclic").await?;
         let worst = cyclic.worst_of(dc, &r, Phase::Monitor)?;
         max_abs = max_abs.max(worst);
-        reading = ReferenceReading::of(&r[0], r_sent(link)).or(reading);
+        reading = ReferenceReading::of(&r[0], first.sent_ns).or(reading);
         let got: u16 = r[1..k].iter().map(|p| p.wkc).sum();
         if pdi_len > 0 && got != expected_lrw_wkc {
             return Err(MasterError::WorkingCounter {

@@ -22,7 +22,8 @@ use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, W
 /// The master time at which the cyclic phase's first cycle starts: its frame, sent `lead_ns`
 /// after the cycle's start (the host's execution time, as far as the master knows it), passes
 /// the reference at a point of the reference's grid (the multiples of the period in its system
-/// time, on which SYNC0 fires) plus `target_phase_ns`, two periods or more after `now_ns`.
+/// time, on which SYNC0 fires) plus `target_phase_ns`: the second grid point after `now_ns`
+/// (more than one period and at most two after it, before the target and the lead).
 ///
 /// `reading` is where the bring-up last read the reference's time
 /// ([`Network::reference_reading`](crate::bringup::Network)): the offsets made the reference's
@@ -46,7 +47,8 @@ pub fn first_cycle_start_ns(
         (None, _) | (_, ReferenceWrite::SystemTime) => 0,
     };
     let reference_now = now_ns.wrapping_add(d);
-    ((reference_now / p + 2) * p)
+    (reference_now / p + 2)
+        .wrapping_mul(p)
         .wrapping_add(target_phase_ns as u64)
         .wrapping_sub(d)
         .wrapping_sub(lead_ns)

@@ -324,6 +324,11 @@ impl SimTransport {
         self.tx_latency_ps = ps;
     }
 
+    /// The ideal host's latency from the send timestamp to the wire (the bring-up's), ps.
+    pub fn tx_latency_ps(&self) -> u64 {
+        self.tx_latency_ps
+    }
+
     /// Takes each cycle's wake-up, execution and NIC timing from `host` from now on.
     pub fn set_host(&mut self, host: Box<dyn HostModel>) {
         self.host = Some(host);

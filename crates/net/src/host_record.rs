@@ -138,9 +138,25 @@ pub fn record(
                     break;
                 }
                 // A frame coming in (the segment's answer) is no stamp: read it and go on.
-                if sock.wait(deadline - now).map_err(io("wait"))? == Ready::Frame {
-                    let mut rx = [0u8; 2048];
-                    let _ = sock.recv(&mut rx).map_err(io("receive"))?;
+                // The interface gone down meanwhile: no stamp is coming (counted missing).
+                match sock.wait(deadline - now) {
+                    Ok(Ready::Frame) => {
+                        let mut rx = [0u8; 2048];
+                        match sock.recv(&mut rx) {
+                            Ok(_) => {}
+                            Err(e) if sys::link_is_down(&e) => {
+                                s.tx_stamps_missing += 1;
+                                break;
+                            }
+                            Err(e) => return Err(io("receive")(e)),
+                        }
+                    }
+                    Ok(_) => {}
+                    Err(e) if sys::link_is_down(&e) => {
+                        s.tx_stamps_missing += 1;
+                        break;
+                    }
+                    Err(e) => return Err(io("wait")(e)),
                 }
             }
         }

@@ -433,6 +433,10 @@ pub struct PacketSocket {
     ifindex: libc::c_int,
     timestamps: TimestampSupport,
     promiscuous: bool,
+    /// A send gave up waiting for room in the queue: the next ones try once, without
+    /// waiting, until one goes out (a queue that stays full would otherwise cost a millisecond
+    /// a frame, tens of them a cycle in a large network's exchange).
+    queue_stuck: std::sync::atomic::AtomicBool,
 }
 
 fn timespec_ns(ts: &libc::timespec) -> Option<u64> {
@@ -650,6 +654,7 @@ impl PacketSocket {
             ifindex,
             timestamps,
             promiscuous,
+            queue_stuck: std::sync::atomic::AtomicBool::new(false),
         })
     }
 
@@ -671,9 +676,16 @@ impl PacketSocket {
     /// Sends one frame (as is: short frames are not padded). Waits up to a millisecond for
     /// room in the socket's queue; if there is still none (the interface lost its carrier and
     /// its queue stopped), the kernel's last refusal (EAGAIN or ENOBUFS) is returned, which
-    /// [`link_is_down`] reads as a frame lost for now, never a reason to stop.
+    /// [`link_is_down`] reads as a frame lost for now, never a reason to stop. After such a
+    /// refusal the next sends do not wait until one goes out.
     pub fn send(&self, frame: &[u8]) -> io::Result<()> {
-        let give_up_ns = monotonic_ns() + SEND_WAIT_NS;
+        use std::sync::atomic::Ordering::Relaxed;
+        let wait_ns = if self.queue_stuck.load(Relaxed) {
+            0
+        } else {
+            SEND_WAIT_NS
+        };
+        let give_up_ns = monotonic_ns() + wait_ns;
         loop {
             // SAFETY: `frame` is a live slice and its length is passed with it; the socket is
             // bound, so no destination address is needed.
@@ -686,6 +698,7 @@ impl PacketSocket {
                 )
             };
             if r >= 0 {
+                self.queue_stuck.store(false, Relaxed);
                 return if r as usize == frame.len() {
                     Ok(())
                 } else {
@@ -700,6 +713,7 @@ impl PacketSocket {
                 Some(code @ (libc::EAGAIN | libc::ENOBUFS)) => {
                     let now = monotonic_ns();
                     if now >= give_up_ns {
+                        self.queue_stuck.store(true, Relaxed);
                         return Err(e);
                     }
                     if code == libc::EAGAIN {
