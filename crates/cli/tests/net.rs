@@ -680,10 +680,11 @@ fn serve_and_run_survive_their_interfaces_going_down_for_50_ms() {
     assert!((50..2_000).contains(&lost), "{lost} frames lost");
 }
 
-/// The master's send queue full for 200 ms, then the served segment's (a token bucket of
-/// 8 kbit/s on the interface holds the frames, as a congested or stalled NIC queue does): each
-/// frame the socket cannot take is a lost frame, not the end of the run or of serving (the fresh-clone CI once saw a run stop with "the
-/// socket's send queue stayed full" when an interface came back up).
+/// The master's interface stalled for 400 ms, then the served segment's (a token bucket of
+/// 8 kbit/s holds the frames, as a congested or stalled NIC queue does): once the socket's send
+/// queue is full, each frame it cannot take is a lost frame, not the end of the run or of
+/// serving (the fresh-clone CI once saw a run stop with "the socket's send queue stayed full"
+/// when an interface came back up).
 #[test]
 fn run_survives_a_send_queue_that_stays_full() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
@@ -713,7 +714,7 @@ fn run_survives_a_send_queue_that_stays_full() {
                     "limit", "10000000",
                 ],
             );
-            std::thread::sleep(Duration::from_millis(200));
+            std::thread::sleep(Duration::from_millis(400));
             tc(ns, &["del", "dev", ifc, "root"]);
             std::thread::sleep(Duration::from_millis(1_000));
         }
@@ -721,9 +722,10 @@ fn run_survives_a_send_queue_that_stays_full() {
     let lost = j["lost_frames"].as_u64().unwrap();
     let refused = j["link_down_errors"].as_u64().unwrap();
     println!(
-        "send queues full for 200 ms each: {lost} frames lost, the master's interface refused {refused} sends"
+        "interfaces stalled for 400 ms each: {lost} frames lost, the master's interface refused {refused} sends"
     );
-    // The queue fills within the first few cycles and refuses from then on.
+    // The socket's queue (212 992 bytes by default, about 1.3 KiB of it a small frame) fills
+    // after some 170 cycles, and refuses from then on.
     assert!(refused > 0, "no send was refused: the queue never filled");
     assert!((50..2_000).contains(&lost), "{lost} frames lost");
 }
