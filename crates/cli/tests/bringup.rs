@@ -8,6 +8,17 @@ fn ecsync() -> Command {
     Command::new(env!("CARGO_BIN_EXE_ecsync"))
 }
 
+/// Runs `ecsync bringup` with `args`; it must succeed (its error printed if not).
+fn bringup_ok(args: &[&str]) -> std::process::Output {
+    let out = ecsync().arg("bringup").args(args).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 fn tmp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("ecsync-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -16,15 +27,7 @@ fn tmp(name: &str) -> PathBuf {
 
 #[test]
 fn paper_2024_bringup_json_meets_the_acceptance() {
-    let out = ecsync()
-        .args(["bringup", "--preset", "paper-2024", "--json"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = bringup_ok(&["--preset", "paper-2024", "--json"]);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let slaves = v["slaves"].as_array().unwrap();
     assert_eq!(slaves.len(), 6);
@@ -50,32 +53,14 @@ fn paper_2024_bringup_json_meets_the_acceptance() {
 #[test]
 fn no_monitoring_prints_no_0x092c_figure() {
     let run = |cycles: &str| {
-        let out = ecsync()
-            .args([
-                "bringup",
-                "--preset",
-                "paper-2024",
-                "--monitor-cycles",
-                cycles,
-            ])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let json = ecsync()
-            .args([
-                "bringup",
-                "--preset",
-                "paper-2024",
-                "--json",
-                "--monitor-cycles",
-                cycles,
-            ])
-            .output()
-            .unwrap();
+        let out = bringup_ok(&["--preset", "paper-2024", "--monitor-cycles", cycles]);
+        let json = bringup_ok(&[
+            "--preset",
+            "paper-2024",
+            "--json",
+            "--monitor-cycles",
+            cycles,
+        ]);
         let v: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
         (
             String::from_utf8_lossy(&out.stdout).into_owned(),

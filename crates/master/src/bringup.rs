@@ -493,25 +493,17 @@ impl ReferenceReading {
         if reply.wkc == 0 {
             return None;
         }
-        Some(Self::from_raw(
-            u64::from_le_bytes(reply.data.get(..8)?.try_into().ok()?),
-            master_sent_ns,
-        ))
-    }
-
-    /// The reading of the 8 bytes of 0x0910 `raw` by a frame the master sent at
-    /// `master_sent_ns`; a 32-bit reference reads 0 in the upper half, extended next to the
-    /// master's time.
-    fn from_raw(raw: u64, master_sent_ns: u64) -> Self {
+        let raw = u64::from_le_bytes(reply.data.get(..8)?.try_into().ok()?);
+        // A 32-bit reference reads 0 in the upper half.
         let reference_ns = if raw >> 32 == 0 {
             ecsync_dc::sync::extend_reference_time(master_sent_ns, raw as u32)
         } else {
             raw
         };
-        ReferenceReading {
+        Some(ReferenceReading {
             master_sent_ns,
             reference_ns,
-        }
+        })
     }
 }
 

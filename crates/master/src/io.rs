@@ -775,6 +775,15 @@ mod tests {
             .collect()
     }
 
+    /// `frame` answered (see [`answered`]), sent at 0 and back at 1 us.
+    fn answered_ok(frame: &[u8]) -> Result<Reply, u32> {
+        Ok(Reply {
+            frame: answered(frame),
+            sent_ns: 0,
+            received_ns: 1_000,
+        })
+    }
+
     /// Echoes `frame` with every datagram's working counter 1.
     fn answered(frame: &[u8]) -> Vec<u8> {
         let lens: Vec<usize> = EcatFrame::new_checked(frame)
@@ -840,11 +849,7 @@ mod tests {
                                 lost_first = f.datagrams().next().map(|d| d.unwrap().address_raw());
                                 Err(4)
                             } else {
-                                Ok(Reply {
-                                    frame: answered(f),
-                                    sent_ns: 0,
-                                    received_ns: 1_000,
-                                })
+                                answered_ok(f)
                             }
                         })
                         .collect();
@@ -905,16 +910,7 @@ mod tests {
                         .iter()
                         .map(|f| EcatFrame::new_checked(&f[..]).unwrap().first_datagram_id())
                         .collect();
-                    let replies = frames
-                        .iter()
-                        .map(|f| {
-                            Ok(Reply {
-                                frame: answered(f),
-                                sent_ns: 0,
-                                received_ns: 1_000,
-                            })
-                        })
-                        .collect();
+                    let replies = frames.iter().map(|f| answered_ok(f)).collect();
                     engine.handle_replies(replies);
                 }
                 Action::Send(_) => panic!("a frame alone"),
