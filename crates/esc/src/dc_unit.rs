@@ -96,6 +96,15 @@ fn rem10(x: u64) -> u64 {
     x - div5(x >> 1) * 10
 }
 
+/// [`dc_time::encode_time_difference`] with the sign bit moved into place rather than
+/// branched on.
+#[inline(always)]
+fn encode_time_difference_branch_free(local_minus_received_ns: i64) -> u32 {
+    let magnitude = local_minus_received_ns.unsigned_abs().min(0x7fff_ffff) as u32;
+    let smaller = ((local_minus_received_ns as u64) >> 63) as u32;
+    magnitude | smaller << 31
+}
+
 /// Rounds half away from zero without a libm call.
 #[inline]
 fn round_fast(x: f64) -> i64 {
@@ -264,7 +273,14 @@ impl DcUnit {
 
     /// System time at `t_ps` as (integer ns, fraction), unquantised (ground truth).
     pub fn system_time_split(&self, t_ps: u64) -> (u64, f64) {
-        let (ns, frac) = self.clock.local_exact_ns(t_ps);
+        self.system_time_split_in::<false>(t_ps)
+    }
+
+    /// [`DcUnit::system_time_split`], branch-free if `BRANCH_FREE` (a large network's
+    /// drives: [`LocalClock::advance_to_in`]); the same figures either way.
+    #[inline]
+    pub(crate) fn system_time_split_in<const BRANCH_FREE: bool>(&self, t_ps: u64) -> (u64, f64) {
+        let (ns, frac) = self.clock.local_exact_ns_in::<BRANCH_FREE>(t_ps);
         (ns.wrapping_add(self.offset), frac)
     }
 
@@ -408,7 +424,14 @@ impl DcUnit {
     /// control loop compares bits 31:0.
     #[inline]
     pub fn write_system_time(&mut self, data: &[u8], t_ps: u64) {
-        self.compare_system_time(low_u32(data), t_ps);
+        self.write_system_time_in::<false>(data, t_ps);
+    }
+
+    /// [`DcUnit::write_system_time`], the clock branch-free if `BRANCH_FREE` (a large
+    /// network's drives: [`LocalClock::advance_to_in`]); the same figures either way.
+    #[inline(always)]
+    pub(crate) fn write_system_time_in<const BRANCH_FREE: bool>(&mut self, data: &[u8], t_ps: u64) {
+        self.compare_system_time::<BRANCH_FREE>(low_u32(data), t_ps);
     }
 
     /// Applies a write of `data` to the registers at `addr..addr + data.len()` (absolute
@@ -416,7 +439,7 @@ impl DcUnit {
     pub fn write(&mut self, addr: u16, data: &[u8], t_ps: u64) -> DcWriteEffects {
         // The cyclic hot path: a system time write (FRMW/ARMW of 0x0910) touches nothing else.
         if addr == reg::DC_SYSTEM_TIME && data.len() <= 8 {
-            self.compare_system_time(low_u32(data), t_ps);
+            self.compare_system_time::<false>(low_u32(data), t_ps);
             return DcWriteEffects::default();
         }
         let mut fx = DcWriteEffects::default();
@@ -536,7 +559,7 @@ impl DcUnit {
             for (i, b) in v.iter_mut().enumerate() {
                 *b = byte(reg::DC_SYSTEM_TIME + i as u16).unwrap_or(0);
             }
-            self.compare_system_time(u32::from_le_bytes(v), t_ps);
+            self.compare_system_time::<false>(u32::from_le_bytes(v), t_ps);
         }
         fx
     }
@@ -682,8 +705,21 @@ impl DcUnit {
 
     #[inline]
     fn set_dt_filtered(&mut self, v: f64) {
+        self.set_dt_filtered_in::<false>(v);
+    }
+
+    /// `BRANCH_FREE`: the register's sign bit set without a branch (a large network's
+    /// drives, whose differences change sign from cycle to cycle: see
+    /// `LocalClock::advance_to_in`).
+    #[inline(always)]
+    fn set_dt_filtered_in<const BRANCH_FREE: bool>(&mut self, v: f64) {
         self.dt_filtered = v;
-        self.diff_register = dc_time::encode_time_difference(round_fast(v));
+        let ns = round_fast(v);
+        self.diff_register = if BRANCH_FREE {
+            encode_time_difference_branch_free(ns)
+        } else {
+            dc_time::encode_time_difference(ns)
+        };
     }
 
     /// The next write only seeds the drift estimator; the batch restarts.
@@ -695,8 +731,8 @@ impl DcUnit {
     }
 
     #[inline(always)]
-    fn compare_system_time(&mut self, received: u32, t_ps: u64) {
-        self.clock.advance_to(t_ps);
+    fn compare_system_time<const BRANCH_FREE: bool>(&mut self, received: u32, t_ps: u64) {
+        self.clock.advance_to_in::<BRANCH_FREE>(t_ps);
         let read = self
             .sof_at_anchor()
             .wrapping_add(self.offset)
@@ -713,7 +749,9 @@ impl DcUnit {
         self.writes += 1;
 
         // (2) Filtered difference.
-        self.set_dt_filtered(self.dt_filtered + (dt - self.dt_filtered) * self.dt_weight);
+        self.set_dt_filtered_in::<BRANCH_FREE>(
+            self.dt_filtered + (dt - self.dt_filtered) * self.dt_weight,
+        );
 
         // (4) Drift estimation from consecutive differences.
         let slew_left = self.clock.slew_remaining_ns();
@@ -742,7 +780,7 @@ impl DcUnit {
 
         // (3) Slew the filtered difference away (the clock is at `t_ps` already).
         self.clock
-            .retune_at_anchor(c, -self.dt_filtered, self.slew_rate);
+            .retune_at_anchor_in::<BRANCH_FREE>(c, -self.dt_filtered, self.slew_rate);
         self.has_last_sample = true;
         self.last_sample_ps = t_ps;
         self.last_sample_dt = dt - self.dt_filtered;
@@ -883,6 +921,33 @@ mod tests {
         u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0], 0);
         u.write(reg::DC_SYSTEM_TIME, &(u32::MAX - 59).to_le_bytes(), 0);
         assert_eq!(u.time_difference_ns(), 100.0);
+    }
+
+    #[test]
+    fn the_branch_free_time_difference_is_the_registers() {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let edges = [
+            0,
+            1,
+            -1,
+            0x7fff_ffff,
+            -0x7fff_ffff,
+            0x8000_0000,
+            -0x8000_0000,
+        ];
+        let edges = edges.into_iter().chain([i64::MAX, i64::MIN, i64::MIN + 1]);
+        let random = (0..100_000).map(|k| {
+            x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            // Small and large magnitudes alike.
+            (x as i64) >> (k % 64)
+        });
+        for d in edges.chain(random) {
+            assert_eq!(
+                encode_time_difference_branch_free(d),
+                dc_time::encode_time_difference(d),
+                "{d}"
+            );
+        }
     }
 
     #[test]

@@ -342,11 +342,12 @@ fn add_wkc(frame: &mut [u8], at: u16, inc: u16) {
 }
 
 /// The system time read or write of a [`SysStep`], without its working counter.
+/// `BRANCH_FREE`: a large network's drive (see `LocalClock::advance_to_in`).
 #[inline(always)]
-fn sys_access(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
+fn sys_access<const BRANCH_FREE: bool>(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
     let (a, l) = (usize::from(s.at), usize::from(s.len));
     if s.write {
-        dc.write_system_time(&frame[a..a + l], t_ps);
+        dc.write_system_time_in::<BRANCH_FREE>(&frame[a..a + l], t_ps);
     } else {
         dc.read_fast(reg::DC_SYSTEM_TIME, &mut frame[a..a + l], false, t_ps);
     }
@@ -354,7 +355,7 @@ fn sys_access(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
 
 #[inline(always)]
 fn sys_step(dc: &mut DcUnit, frame: &mut [u8], s: &SysStep, t_ps: u64) {
-    sys_access(dc, frame, s, t_ps);
+    sys_access::<false>(dc, frame, s, t_ps);
     add_wkc(frame, s.wkc, s.inc);
 }
 
@@ -734,7 +735,7 @@ impl Esc {
                 if let Some(pre) = &c.pre {
                     sys_step(dc, frame, pre, t_ps);
                 }
-                sys_access(dc, frame, &c.sys, t_ps);
+                sys_access::<false>(dc, frame, &c.sys, t_ps);
                 lrw_in(ram, frame, &c.lrw);
                 refresh_inputs(ram, *app, *al_state, app_mem);
                 lrw_out(frame, ram, &c.lrw);
@@ -816,7 +817,7 @@ impl Esc {
     ) -> bool {
         let done = self.replay_planned_steps(p, frame, t_ps, d);
         if self.sync_pending {
-            self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+            self.end_of_frame_in::<true>(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
         }
         done
     }
@@ -929,7 +930,7 @@ fn replay_simple(
             if let Some(pre) = pre {
                 sys_step(dc, frame, pre, t_ps);
             }
-            sys_access(dc, frame, sys, t_ps);
+            sys_access::<true>(dc, frame, sys, t_ps);
             diff_access(dc, frame, diff);
             d.sys = d.sys.wrapping_add(sys.inc);
             d.diff = d.diff.wrapping_add(diff.inc);

@@ -119,7 +119,7 @@ fn pulses_through(t: u64, start: u64, cycle: u64) -> u64 {
 impl SyncMonitor {
     /// Outputs arrived at system time `t_ns`, SYNC0 running from `start_ns` every `cycle_ns`
     /// (`None`: not running), the drive in OP or not.
-    #[inline]
+    #[inline(always)]
     pub(super) fn outputs_at(
         &mut self,
         t_ns: u64,
@@ -237,11 +237,18 @@ impl Esc {
     /// the SYNC0 deadline's check.
     #[inline]
     pub(super) fn end_of_frame(&mut self, t_end_ps: u64) {
+        self.end_of_frame_in::<false>(t_end_ps);
+    }
+
+    /// [`Esc::end_of_frame`]; `BRANCH_FREE` for a large network's drive (the system time
+    /// read without a branch on the clock's slew: `LocalClock::advance_to_in`).
+    #[inline]
+    pub(super) fn end_of_frame_in<const BRANCH_FREE: bool>(&mut self, t_end_ps: u64) {
         if !std::mem::take(&mut self.sync_pending) {
             return;
         }
         if self.sync.dc_mode {
-            self.sync_outputs(t_end_ps);
+            self.sync_outputs::<BRANCH_FREE>(t_end_ps);
         } else if self.sync.sm_mode {
             self.sync_sm_event(t_end_ps);
         }
@@ -258,11 +265,11 @@ impl Esc {
     }
 
     #[inline(never)]
-    fn sync_outputs(&mut self, t_end_ps: u64) {
+    fn sync_outputs<const BRANCH_FREE: bool>(&mut self, t_end_ps: u64) {
         let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit()) else {
             return;
         };
-        let t_ns = dc.system_time_split(t_end_ps).0;
+        let t_ns = dc.system_time_split_in::<BRANCH_FREE>(t_end_ps).0;
         let in_op = self.al_state == AlState::Op;
         let pll_lost = self.sync.pll_limit_ns != 0
             && in_op
