@@ -356,10 +356,10 @@ pub fn run(args: Args) -> Result<ExitCode> {
     }
     // The same checks as for the file, naming the flag where one set the value.
     s.check().map_err(|p| problem(p, &given, &name, &text))?;
-    if let Some(t) = args.threads {
-        if t == 0 {
-            bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
-        }
+    if let Some(t) = args.threads
+        && t == 0
+    {
+        bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
     }
     if let Some(dir) = &args.samples {
         std::fs::create_dir_all(dir)

@@ -736,17 +736,17 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     if !(0.0..100.0).contains(&args.shift_pct) {
         bail!("--shift-pct must lie in 0 ..< 100");
     }
-    if let Some(d) = args.duration {
-        if !(d.is_finite() && d > 0.0) {
-            bail!("--duration must be a number of seconds > 0");
-        }
+    if let Some(d) = args.duration
+        && !(d.is_finite() && d > 0.0)
+    {
+        bail!("--duration must be a number of seconds > 0");
     }
     // Below 2^31 ns: a 32-bit receive time's difference between two latches stays unambiguous
     // only for that long, and the latches are 20 ms apart at most anyway.
-    if let Some(p) = args.reference_ppm {
-        if !(p.is_finite() && p.abs() <= 1000.0) {
-            bail!("--reference-ppm must lie in -1000 ..= 1000");
-        }
+    if let Some(p) = args.reference_ppm
+        && !(p.is_finite() && p.abs() <= 1000.0)
+    {
+        bail!("--reference-ppm must lie in -1000 ..= 1000");
     }
     if args.save_network.is_some()
         && !(args.rate_window_s.is_finite() && (0.05..=2.0).contains(&args.rate_window_s))
@@ -1013,10 +1013,10 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 tx_path.add(tx.wrapping_sub(c.stamp_ns) as i64 as f64);
             }
         }
-        if let (Some(w), None) = (csv.as_mut(), csv_err.as_ref()) {
-            if let Err(e) = csv_row(w, c) {
-                csv_err = Some(e);
-            }
+        if let (Some(w), None) = (csv.as_mut(), csv_err.as_ref())
+            && let Err(e) = csv_row(w, c)
+        {
+            csv_err = Some(e);
         }
     });
     let duration_s = t_cyc.elapsed().as_secs_f64();

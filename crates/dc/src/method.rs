@@ -334,14 +334,14 @@ impl MethodParams {
     /// DCM's times against the cycle (so a DCM table a short cycle cannot use is refused only
     /// where DCM runs).
     pub fn check_use(&self, kind: MethodKind, ctx: &MethodContext) -> Result<(), ParamError> {
-        if let Some(n) = self.init_frames_param(kind) {
-            if n < 1 {
-                return Err(ParamError::method(
-                    kind,
-                    "init_frames",
-                    ParamProblem::InitFrames(n),
-                ));
-            }
+        if let Some(n) = self.init_frames_param(kind)
+            && n < 1
+        {
+            return Err(ParamError::method(
+                kind,
+                "init_frames",
+                ParamProblem::InitFrames(n),
+            ));
         }
         let d = match kind {
             MethodKind::DcmBusShift => &self.dcm_bus_shift,
@@ -372,10 +372,10 @@ impl MethodParams {
                 );
             }
         }
-        if let Some(v) = d.max_slew_ppm {
-            if !(v.is_finite() && (0.0..=1000.0).contains(&v)) {
-                return err("max_slew_ppm", ParamProblem::DcmSlew(v));
-            }
+        if let Some(v) = d.max_slew_ppm
+            && !(v.is_finite() && (0.0..=1000.0).contains(&v))
+        {
+            return err("max_slew_ppm", ParamProblem::DcmSlew(v));
         }
         let hold = d.in_sync_hold_ms;
         if !(hold.is_finite() && (0.0..=600_000.0).contains(&hold)) {

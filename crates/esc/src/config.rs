@@ -203,12 +203,11 @@ pub fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
             current = l.trim_matches(['[', ']']).trim().to_string();
             continue;
         }
-        if current == table {
-            if let Some((k, _)) = l.split_once('=') {
-                if k.trim() == key {
-                    return Some(i + 1);
-                }
-            }
+        if current == table
+            && let Some((k, _)) = l.split_once('=')
+            && k.trim() == key
+        {
+            return Some(i + 1);
         }
     }
     None

@@ -1036,10 +1036,10 @@ impl<'a> Doc<'a> {
             if profile_no.is_none() {
                 profile_no = self.opt_child_number(p, "ProfileNo")?;
             }
-            if let Some(dict) = self.child(p, "Dictionary") {
-                if objects.is_empty() {
-                    objects = self.dictionary(dict)?;
-                }
+            if let Some(dict) = self.child(p, "Dictionary")
+                && objects.is_empty()
+            {
+                objects = self.dictionary(dict)?;
             }
         }
 
@@ -1487,7 +1487,7 @@ pub fn parse_int(s: &str) -> Option<i128> {
 /// xs:hexBinary, whitespace ignored.
 pub fn parse_hex(s: &str) -> Option<Vec<u8>> {
     let digits: Vec<u8> = s.bytes().filter(|b| !b.is_ascii_whitespace()).collect();
-    if digits.len() % 2 != 0 {
+    if !digits.len().is_multiple_of(2) {
         return None;
     }
     digits

@@ -616,12 +616,11 @@ impl Segment {
             let start = ring_pos(entry);
             let mut children = Vec::new();
             for k in 1..5 {
-                if let Some(p) = RING[(start + k) % 5] {
-                    if let Some(l) = links[i][p] {
-                        if let Peer::Slave(c) = l.peer {
-                            children.push((usize::from(c), usize::from(l.peer_port)));
-                        }
-                    }
+                if let Some(p) = RING[(start + k) % 5]
+                    && let Some(l) = links[i][p]
+                    && let Peer::Slave(c) = l.peer
+                {
+                    children.push((usize::from(c), usize::from(l.peer_port)));
                 }
             }
             for c in children.into_iter().rev() {

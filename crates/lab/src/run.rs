@@ -1202,10 +1202,11 @@ impl Run {
                     running,
                 });
             }
-            if let (Some(c), Some(t)) = (rec.log, res.controller.as_mut()) {
-                if c.in_sync && t.first_in_sync_cycle.is_none() {
-                    t.first_in_sync_cycle = Some(i);
-                }
+            if let (Some(c), Some(t)) = (rec.log, res.controller.as_mut())
+                && c.in_sync
+                && t.first_in_sync_cycle.is_none()
+            {
+                t.first_in_sync_cycle = Some(i);
             }
             if i >= warmup {
                 // From the wire to the reply, late replies included (a reply that came after
@@ -1315,7 +1316,7 @@ impl Run {
             // The slaves' differences move slowly (the loops act once per cycle): every 8th
             // cycle is sampled.
             let mut spread = None;
-            if k % 8 == 0 {
+            if k.is_multiple_of(8) {
                 let mut worst = 0.0f64;
                 for &x in dc_slaves.iter() {
                     if x == reference || !runs_sync0(x) {
@@ -1512,10 +1513,10 @@ impl Run {
             });
         }
         if let Some(mut sk) = self.samples {
-            if sk.failed.is_none() {
-                if let Err(e) = sk.out.flush() {
-                    sk.failed = Some(format!("{}: {e}", sk.path));
-                }
+            if sk.failed.is_none()
+                && let Err(e) = sk.out.flush()
+            {
+                sk.failed = Some(format!("{}: {e}", sk.path));
             }
             res.samples_error = sk.failed;
         }

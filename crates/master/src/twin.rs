@@ -213,14 +213,14 @@ pub fn twin_toml(
     for (i, s) in specs.iter().enumerate() {
         if let (Some(target), true) = (targets[i], i > reference && s.cable_m == 0.0) {
             let seg = Segment::new(&specs).map_err(|e| TwinError::Topology(e.to_string()))?;
-            if let Some(Some(twin)) = seg.true_delays_ns(reference).get(i) {
-                if twin - target > 1.0 {
-                    notes.push(format!(
+            if let Some(Some(twin)) = seg.true_delays_ns(reference).get(i)
+                && twin - target > 1.0
+            {
+                notes.push(format!(
                         "slave {i}: the measured delay is {:.1} ns shorter than the {} model's own hop; written with no cable",
                         twin - target,
                         models[i]
                     ));
-                }
             }
         }
     }

@@ -255,7 +255,7 @@ fn a_large_lines_clocks_stay_together_through_the_configuration() {
     let net = sim
         .run_procedure(&mut engine, |tr, _, _| {
             exchanges += 1;
-            if exchanges % 32 != 0 {
+            if !exchanges.is_multiple_of(32) {
                 return;
             }
             let (seg, t_ps) = (tr.segment(), tr.last_exchange().sent_ps);

@@ -319,7 +319,7 @@ fn clocks_stay_together_from_the_lock_to_op() {
         let net = sim
             .run_procedure(&mut engine, |tr, _, _| {
                 exchanges += 1;
-                if exchanges % 16 != 0 {
+                if !exchanges.is_multiple_of(16) {
                     return;
                 }
                 let (seg, t_ps) = (tr.segment(), tr.last_exchange().sent_ps);

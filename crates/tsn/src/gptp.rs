@@ -540,18 +540,19 @@ impl TimeAwareSystem {
                 self.ports[port].pd_t1 = Some(tx_ns);
             }
             Message::PdelayResp { requesting, .. } => {
-                if let Some((req, seq, _)) = self.ports[port].pd_answer {
-                    if req == *requesting && seq == h.sequence_id {
-                        let hf = self.header(port, seq, 0, 0x7f);
-                        out.push(Outgoing {
-                            port,
-                            header: hf,
-                            message: Message::PdelayRespFollowUp {
-                                response_origin: Timestamp::from_ns(tx_ns),
-                                requesting: req,
-                            },
-                        });
-                    }
+                if let Some((req, seq, _)) = self.ports[port].pd_answer
+                    && req == *requesting
+                    && seq == h.sequence_id
+                {
+                    let hf = self.header(port, seq, 0, 0x7f);
+                    out.push(Outgoing {
+                        port,
+                        header: hf,
+                        message: Message::PdelayRespFollowUp {
+                            response_origin: Timestamp::from_ns(tx_ns),
+                            requesting: req,
+                        },
+                    });
                 }
             }
             Message::Sync => {

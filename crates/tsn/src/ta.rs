@@ -183,10 +183,10 @@ impl Network {
 
     fn cap(&self, vars: &mut Vars) {
         for c in &self.clocks {
-            if let Some(cap) = c.cap {
-                if vars[c.var] > cap {
-                    vars[c.var] = cap;
-                }
+            if let Some(cap) = c.cap
+                && vars[c.var] > cap
+            {
+                vars[c.var] = cap;
             }
         }
     }

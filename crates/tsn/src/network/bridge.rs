@@ -151,11 +151,11 @@ impl<'a> Bridge<'a> {
     fn send_best_effort(&mut self, ready_ps: u64, wire_ps: u64) -> (u64, u64) {
         let mut ready_ps = ready_ps.max(self.gptp_tx_free_ps);
         self.cross_traffic_to(ready_ps);
-        if let Some(ct) = &self.cross {
-            if ct.busy_until_ps > ready_ps {
-                ready_ps = ct.busy_until_ps;
-                self.held_by_cross_traffic += 1;
-            }
+        if let Some(ct) = &self.cross
+            && ct.busy_until_ps > ready_ps
+        {
+            ready_ps = ct.busy_until_ps;
+            self.held_by_cross_traffic += 1;
         }
         let ready = self.clock.master_ns(ready_ps);
         let start = self

@@ -276,10 +276,10 @@ impl Capture {
         if t_ps > self.until_ps {
             return;
         }
-        if let Some(c) = &mut self.file {
-            if let Err(e) = c.record(t_ps, frame) {
-                self.error.get_or_insert_with(|| e.to_string());
-            }
+        if let Some(c) = &mut self.file
+            && let Err(e) = c.record(t_ps, frame)
+        {
+            self.error.get_or_insert_with(|| e.to_string());
         }
     }
 }
