@@ -186,6 +186,7 @@ impl LocalClock {
 
     /// Local time advance over `dt_ns` real nanoseconds from the anchor, without crossing a
     /// wander grid point.
+    ///
     /// `BRANCH_FREE`: the same figure without a branch on whether a slew is running (see
     /// [`LocalClock::advance_to_in`]).
     #[inline]

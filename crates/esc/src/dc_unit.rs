@@ -100,9 +100,12 @@ fn rem10(x: u64) -> u64 {
 /// branched on.
 #[inline(always)]
 fn encode_time_difference_branch_free(local_minus_received_ns: i64) -> u32 {
-    let magnitude = local_minus_received_ns.unsigned_abs().min(0x7fff_ffff) as u32;
+    const SMALLER: u32 = dc_time::TIME_DIFFERENCE_LOCAL_SMALLER;
+    let magnitude = local_minus_received_ns
+        .unsigned_abs()
+        .min(u64::from(!SMALLER)) as u32;
     let smaller = ((local_minus_received_ns as u64) >> 63) as u32;
-    magnitude | smaller << 31
+    magnitude | (smaller * SMALLER)
 }
 
 /// Rounds half away from zero without a libm call.
