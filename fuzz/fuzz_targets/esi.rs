@@ -4,9 +4,9 @@
 //! of the input.
 #![no_main]
 
-use ecsync_esc::coe::SdoServer;
-use ecsync_esc::esi;
-use ecsync_esc::model::EscModel;
+use ecsync_sim::coe::SdoServer;
+use ecsync_sim::esi;
+use ecsync_sim::model::EscModel;
 use libfuzzer_sys::fuzz_target;
 
 /// The ESI of ecsync's virtual drive: a whole, valid file to start edits from.
@@ -21,7 +21,7 @@ fn exercise(bytes: &[u8]) {
                 for o in s.od.objects() {
                     let _ = s.od.read_complete(o.index, 0);
                 }
-                let img = ecsync_esc::sii_image::build(&EscModel::servo_mii(), &dev);
+                let img = ecsync_sim::sii_image::build(&EscModel::servo_mii(), &dev);
                 assert!(ecsync_wire::sii::checksum_ok(&img));
             }
         }

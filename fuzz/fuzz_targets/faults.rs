@@ -2,8 +2,8 @@
 //! small segment for a few hundred frames without one either.
 #![no_main]
 
-use ecsync_esc::fault::{FaultPlayer, FaultSchedule};
-use ecsync_esc::{Segment, preset};
+use ecsync_sim::fault::{FaultPlayer, FaultSchedule};
+use ecsync_sim::{Segment, preset};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

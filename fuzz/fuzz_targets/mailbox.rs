@@ -5,9 +5,9 @@
 //! response, an abort or a mailbox error) or none.
 #![no_main]
 
-use ecsync_esc::Esc;
-use ecsync_esc::clock::CrystalParams;
-use ecsync_esc::model::{DeviceInfo, EscModel};
+use ecsync_sim::Esc;
+use ecsync_sim::clock::CrystalParams;
+use ecsync_sim::model::{DeviceInfo, EscModel};
 use ecsync_wire::mailbox::coe::{Coe, CoeService, Sdo, sdo_info_request};
 use ecsync_wire::mailbox::{Mailbox, MailboxType};
 use libfuzzer_sys::fuzz_target;
@@ -58,7 +58,7 @@ fuzz_target!(|data: &[u8]| {
     );
     e.set_links([true, false, false, false]);
     let mut t = 0u64;
-    let mut run = |e: &mut Esc, cmd: u8, ado: u16, d: &[u8], t: u64| {
+    let run = |e: &mut Esc, cmd: u8, ado: u16, d: &[u8], t: u64| {
         let mut x = dg(cmd, ado, d);
         e.process_datagram(&mut x, t);
         x

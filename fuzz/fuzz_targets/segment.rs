@@ -2,7 +2,7 @@
 //! frames do to the ESCs' state (addresses, FMMUs, EEPROM commands, AL requests, DC registers).
 #![no_main]
 
-use ecsync_esc::{Segment, preset};
+use ecsync_sim::{Segment, preset};
 use libfuzzer_sys::fuzz_target;
 use std::sync::OnceLock;
 

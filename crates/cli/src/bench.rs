@@ -1,7 +1,7 @@
 //! `ecsync bench`: how fast the simulator runs.
 
 use anyhow::{Result, ensure};
-use ecsync_master::bench::CycleBench;
+use ecsync_sim::bench::CycleBench;
 use serde::Serialize;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -232,7 +232,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let (cmp_wall, cmp_rate) = if args.skip_compare || args.part.is_some() {
         (None, None)
     } else {
-        let s = ecsync_lab::parse("preset paper-2024", ecsync_esc::preset::PAPER_2024_TOML)
+        let s = ecsync_lab::parse("preset paper-2024", ecsync_sim::preset::PAPER_2024_TOML)
             .map_err(anyhow::Error::msg)?;
         let cycles = (s.cycles + s.warmup_cycles) * u64::from(s.runs) * s.methods.len() as u64;
         let progress = std::sync::atomic::AtomicU64::new(0);

@@ -2,10 +2,10 @@
 
 use crate::source::SourceArgs;
 use anyhow::{Context, Result};
-use ecsync_esc::Segment;
 use ecsync_master::bringup::{DcCapability, Stage};
-use ecsync_master::sim::SimTransport;
 use ecsync_master::{BringupConfig, Engine, Event, bringup};
+use ecsync_sim::Segment;
+use ecsync_sim::transport::SimTransport;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -144,13 +144,13 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let procedure = match &args.faults {
         Some(p) => {
             let mut sched =
-                ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
+                ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
             // The bring-up's own time: from its first frame.
-            sched.epoch = ecsync_esc::fault::Epoch::Start;
-            sim.set_faults(ecsync_esc::fault::FaultPlayer::new(sched, 0));
+            sched.epoch = ecsync_sim::fault::Epoch::Start;
+            sim.set_faults(ecsync_sim::fault::FaultPlayer::new(sched, 0));
             ecsync_lab::run::FAULTY_PROCEDURE
         }
-        None => ecsync_master::sim::SIM_PROCEDURE,
+        None => ecsync_sim::transport::SIM_PROCEDURE,
     };
     let result = sim.run_procedure_with(&mut engine, procedure, |tr, _, events| {
         let (seg, ex) = (tr.segment(), tr.last_exchange());

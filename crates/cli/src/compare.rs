@@ -4,12 +4,12 @@
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MethodKind;
-use ecsync_esc::config::{ConfigSource, Problem};
 use ecsync_lab::compare::Options;
+use ecsync_lab::output::write_atomic;
 use ecsync_lab::report::{csv, per_slave_text, summarize, table1_text, truth_text, verdict_text};
 use ecsync_lab::scenario::plural;
-use ecsync_lab::send::SendMode;
-use ecsync_master::output::write_atomic;
+use ecsync_sim::config::{ConfigSource, Problem};
+use ecsync_sim::send::SendMode;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -144,11 +144,11 @@ pub fn after_help() -> String {
         t.push_str(&format!("  {:<18} {}\n", m.name(), m.summary()));
     }
     t.push_str("\nHost presets (--host; default preempt-rt-stress, the letter's testbed):\n");
-    for h in ecsync_lab::host::HostParams::PRESETS {
+    for h in ecsync_sim::host::HostParams::PRESETS {
         t.push_str(&format!("  {h}\n"));
     }
     // The defaults as the built-in preset gives them (read from it, so they cannot drift).
-    if let Ok(p) = ecsync_lab::parse("paper-2024", ecsync_esc::preset::PAPER_2024_TOML) {
+    if let Ok(p) = ecsync_lab::parse("paper-2024", ecsync_sim::preset::PAPER_2024_TOML) {
         let cycle_us = f64::from(p.cycle_ns) / 1000.0;
         t.push_str(&format!(
             "\nDefaults (from the scenario; the built-in preset paper-2024): {} x {} cycles after a {} s warm-up, cycle {} us, SYNC0 shift {} %, target phase {} us, seed {}.\n",
@@ -207,7 +207,7 @@ pub struct Args {
     #[arg(long, conflicts_with = "host")]
     host_trace: Option<PathBuf>,
     /// Cycles per replayed block of --host-trace (bursts shorter than a block stay bursts).
-    #[arg(long, default_value_t = ecsync_lab::host_trace::DEFAULT_BLOCK_CYCLES, requires = "host_trace")]
+    #[arg(long, default_value_t = ecsync_sim::host_trace::DEFAULT_BLOCK_CYCLES, requires = "host_trace")]
     host_block_cycles: u64,
     /// SYNC0 shift after the DC grid point, % of the cycle (0 ..< 100).
     #[arg(long, allow_negative_numbers = true)]
@@ -267,7 +267,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let (name, text) = args.source.load()?;
     let mut s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
     if let Some(p) = &args.faults {
-        s.faults = Some(ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?);
+        s.faults = Some(ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?);
     }
     let mut given = Vec::new();
     if let Some(m) = &args.methods {
@@ -318,16 +318,16 @@ pub fn run(args: Args) -> Result<ExitCode> {
         s.warmup_cycles = (w * 1e9 / f64::from(s.cycle_ns)).round() as u64;
     }
     if let Some(h) = &args.host {
-        s.host = ecsync_lab::host::HostParams::preset(h).with_context(|| {
+        s.host = ecsync_sim::host::HostParams::preset(h).with_context(|| {
             format!(
                 "--host: unknown host preset \"{h}\"; fix: use one of: {}",
-                ecsync_lab::host::HostParams::PRESETS.join(", ")
+                ecsync_sim::host::HostParams::PRESETS.join(", ")
             )
         })?;
         s.host_name = h.clone();
     }
     if let Some(path) = &args.host_trace {
-        use ecsync_lab::host_trace::{HostTrace, Replay, fit};
+        use ecsync_sim::host_trace::{HostTrace, Replay, fit};
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("--host-trace: cannot read {file}"))?;

@@ -2,8 +2,8 @@
 //! `ecsync host fit` (the simulator's host model fitted to a trace, as a `[host]` table).
 
 use anyhow::{Context, Result, bail};
-use ecsync_lab::host::HostParams;
-use ecsync_lab::host_trace::{HostTrace, fit, wake_quantiles};
+use ecsync_sim::host::HostParams;
+use ecsync_sim::host_trace::{HostTrace, fit, wake_quantiles};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -148,7 +148,7 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
         rt.cpu,
         a.iface.as_deref().unwrap_or("none (tx_delay_ns absent)")
     )?;
-    writeln!(w, "{}", ecsync_lab::host_trace::TRACE_HEADER)?;
+    writeln!(w, "{}", ecsync_sim::host_trace::TRACE_HEADER)?;
     for c in &rows {
         write!(
             w,
@@ -165,7 +165,7 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
     let lat: Vec<f64> = rows.iter().map(|c| c.wake_latency_ns as f64).collect();
     let mut s = lat.clone();
     s.sort_by(f64::total_cmp);
-    let q = |p: f64| ecsync_lab::host_trace::quantile(&s, p) / 1000.0;
+    let q = |p: f64| ecsync_sim::host_trace::quantile(&s, p) / 1000.0;
     println!(
         "{} cycles of {} us recorded to {} ({fifo}; {} slots skipped{}): wake-up latency p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
         sum.cycles,
@@ -211,12 +211,12 @@ fn fit_cmd(a: FitArgs) -> Result<ExitCode> {
     let table = f.to_toml(&a.base, &source);
     // The table must be one a scenario takes: checked here as compare would, in the place of
     // the letter's scenario's own.
-    if let Err(e) = ecsync_lab::host_trace::check_in_scenario(&table) {
+    if let Err(e) = ecsync_lab::scenario::check_in_scenario(&table) {
         bail!("the fitted table is not one a scenario takes: {e}");
     }
     print!("{table}");
     if let Some(out) = &a.out {
-        ecsync_master::output::write_atomic(out, table.as_bytes())
+        ecsync_lab::output::write_atomic(out, table.as_bytes())
             .with_context(|| format!("cannot write {}", out.display()))?;
     }
     if a.check {

@@ -5,22 +5,22 @@ use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MasterSync as _;
 use ecsync_dc::method::{Method, MethodContext, MethodKind, MethodParams, ParamError};
-use ecsync_esc::Segment;
-use ecsync_esc::config::{ConfigSource, Problem};
-use ecsync_esc::pcap::PcapCapture;
+use ecsync_lab::output::write_atomic;
+use ecsync_lab::stats::{Stats, Summary};
 use ecsync_master::bringup::{DcCapability, Stage};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{
     CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, Stopped, run_procedure,
 };
-use ecsync_master::output::write_atomic;
-use ecsync_master::stats::{Stats, Summary};
 use ecsync_master::transport::Transport as _;
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
 use ecsync_net::rt::{self, RtReport};
 use ecsync_net::sys::{PacketSocket, TimestampSupport};
 use ecsync_net::tx_stamp::{TxStampMode, TxStampSource};
 use ecsync_net::{NetError, RealLink, SendControl};
+use ecsync_sim::Segment;
+use ecsync_sim::config::{ConfigSource, Problem};
+use ecsync_sim::pcap::PcapCapture;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::PathBuf;
@@ -72,7 +72,7 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
     let mut seg = Segment::new(&specs).context("building the segment")?;
     let mut faults = match &args.faults {
         Some(p) => {
-            let sched = ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
+            let sched = ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
             if let Some((n, f)) = sched
                 .faults
                 .iter()
@@ -85,7 +85,7 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
                     f.kind.name()
                 );
             }
-            Some(ecsync_esc::fault::FaultPlayer::new(sched, 0))
+            Some(ecsync_sim::fault::FaultPlayer::new(sched, 0))
         }
         None => None,
     };
@@ -599,7 +599,7 @@ fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64, Option<u16>
         ),
         None => (
             "preset paper-2024".to_string(),
-            ecsync_esc::preset::PAPER_2024_TOML.to_string(),
+            ecsync_sim::preset::PAPER_2024_TOML.to_string(),
         ),
     };
     let src = ConfigSource::new(&name, &text);
@@ -870,7 +870,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         wall_s: t_up.elapsed().as_secs_f64(),
     };
     if let Some(path) = &args.save_network {
-        let t = ecsync_master::twin::twin_toml(
+        let t = ecsync_sim::twin::twin_toml(
             &net,
             &format!("interface {}", args.iface),
             args.reference_ppm,
@@ -1027,9 +1027,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         && let Some(ppm) = ref_rate.ppm()
     {
         // The twin again, with the reference's crystal from the cyclic phase.
-        let t =
-            ecsync_master::twin::twin_toml(&net, &format!("interface {}", args.iface), Some(ppm))
-                .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
+        let t = ecsync_sim::twin::twin_toml(&net, &format!("interface {}", args.iface), Some(ppm))
+            .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
         write_atomic(path, t.toml.as_bytes())
             .with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!(

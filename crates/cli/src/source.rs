@@ -1,7 +1,7 @@
 //! Where a network description comes from: a built-in preset or a file.
 
 use anyhow::{Context, Result, bail};
-use ecsync_esc::SlaveSpec;
+use ecsync_sim::SlaveSpec;
 use std::path::PathBuf;
 
 /// `--preset NAME` or `--config FILE`.
@@ -24,13 +24,13 @@ impl SourceArgs {
                     .with_context(|| format!("cannot read {}", path.display()))?;
                 Ok((path.display().to_string(), text))
             }
-            (Some(name), None) => match ecsync_esc::preset::named(name) {
+            (Some(name), None) => match ecsync_sim::preset::named(name) {
                 Some(t) => Ok((format!("preset {name}"), t.to_string())),
                 None => bail!("unknown preset \"{name}\"; the built-in presets are: paper-2024"),
             },
             (None, None) => Ok((
                 "preset paper-2024".to_string(),
-                ecsync_esc::preset::PAPER_2024_TOML.to_string(),
+                ecsync_sim::preset::PAPER_2024_TOML.to_string(),
             )),
         }
     }

@@ -204,10 +204,10 @@ fn tsn_run(args: RunArgs) -> Result<ExitCode> {
     }
     let faults = match &args.faults {
         Some(p) => {
-            let f = ecsync_esc::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
+            let f = ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
             if let Some((n, x)) = f.faults.iter().enumerate().find(|(_, x)| {
                 x.kind.is_host_fault()
-                    || matches!(x.kind, ecsync_esc::fault::FaultKind::SecondResponder { .. })
+                    || matches!(x.kind, ecsync_sim::fault::FaultKind::SecondResponder { .. })
             }) {
                 anyhow::bail!(
                     "{}: fault[{n}].kind: \"{}\" is not played on the TSN network (its master's host and its one reply per frame); fix: remove it here (compare --faults plays it)",

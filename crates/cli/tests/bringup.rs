@@ -193,7 +193,7 @@ fn pcap_is_read_by_tsharks_ethercat_dissector_without_malformed_frames() {
 #[test]
 fn bad_config_names_file_line_field_and_fix() {
     let path = tmp("bad.toml");
-    let text = ecsync_esc::preset::PAPER_2024_TOML.replace("ppm = -31.7", "ppmm = -31.7");
+    let text = ecsync_sim::preset::PAPER_2024_TOML.replace("ppm = -31.7", "ppmm = -31.7");
     std::fs::write(&path, text).unwrap();
     let out = ecsync()
         .arg("bringup")

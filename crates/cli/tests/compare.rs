@@ -144,7 +144,7 @@ fn preempt_rt_stress_reproduces_the_letters_structure() {
 #[test]
 fn bad_scenarios_fail_with_a_located_message() {
     let dir = tmp("bad");
-    let base = ecsync_esc::preset::PAPER_2024_TOML;
+    let base = ecsync_sim::preset::PAPER_2024_TOML;
     for (from, to, expect) in [
         ("cycle_us = 1000", "cycle_us = -1000", "run.cycle_us"),
         ("window = 11 ", "window = 10 ", "methods.median.window"),

@@ -117,7 +117,7 @@ fn every_figure_is_recomputed_from_the_samples() {
     let samples = out.join("samples");
     let cfg = out.join("net.toml");
     // The preset with its reference drive's crystal moved: another network.
-    let text = ecsync_esc::preset::PAPER_2024_TOML.replacen("ppm = 12.4", "ppm = -20.5", 1);
+    let text = ecsync_sim::preset::PAPER_2024_TOML.replacen("ppm = 12.4", "ppm = -20.5", 1);
     std::fs::write(&cfg, text).unwrap();
     let o = ecsync()
         .args(["compare", "--quiet", "--runs", "2", "--cycles", "6000"])
@@ -317,7 +317,7 @@ fn the_command_line_refuses_with_a_hint() {
     for m in ecsync_dc::MethodKind::NAMES {
         assert!(h.contains(m), "{m} in --help");
     }
-    for p in ecsync_lab::host::HostParams::PRESETS {
+    for p in ecsync_sim::host::HostParams::PRESETS {
         assert!(h.contains(p), "{p} in --help");
     }
     assert!(
@@ -331,7 +331,7 @@ fn the_command_line_refuses_with_a_hint() {
     let f = dir.join("short.toml");
     std::fs::write(
         &f,
-        ecsync_esc::preset::PAPER_2024_TOML.replace("warmup_s = 120", "warmup_s = 5"),
+        ecsync_sim::preset::PAPER_2024_TOML.replace("warmup_s = 120", "warmup_s = 5"),
     )
     .unwrap();
     let file = refused(&["compare", "--config", f.to_str().unwrap(), "--quiet"]);
@@ -345,7 +345,7 @@ fn the_command_line_refuses_with_a_hint() {
     let f = dir.join("cycle.toml");
     std::fs::write(
         &f,
-        ecsync_esc::preset::PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 1000000"),
+        ecsync_sim::preset::PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 1000000"),
     )
     .unwrap();
     let e = refused(&["compare", "--config", f.to_str().unwrap()]);
@@ -356,7 +356,7 @@ fn the_command_line_refuses_with_a_hint() {
     let f = dir.join("jitter.toml");
     std::fs::write(
         &f,
-        ecsync_esc::preset::PAPER_2024_TOML.replace(
+        ecsync_sim::preset::PAPER_2024_TOML.replace(
             "preset = \"preempt-rt-stress\"",
             "preset = \"preempt-rt-stress\"\njs = { sigma_ns = 1e9 }",
         ),
@@ -372,7 +372,7 @@ fn the_command_line_refuses_with_a_hint() {
     let f = dir.join("unknown.toml");
     std::fs::write(
         &f,
-        format!("{}\n[extra]\nx = 1\n", ecsync_esc::preset::PAPER_2024_TOML),
+        format!("{}\n[extra]\nx = 1\n", ecsync_sim::preset::PAPER_2024_TOML),
     )
     .unwrap();
     let c = refused(&["compare", "--config", f.to_str().unwrap()]);
@@ -382,7 +382,7 @@ fn the_command_line_refuses_with_a_hint() {
     let f = dir.join("typo.toml");
     std::fs::write(
         &f,
-        ecsync_esc::preset::PAPER_2024_TOML.replacen("cable_m = 2.0", "cable_mm = 2.0", 1),
+        ecsync_sim::preset::PAPER_2024_TOML.replacen("cable_m = 2.0", "cable_mm = 2.0", 1),
     )
     .unwrap();
     let c = refused(&["compare", "--config", f.to_str().unwrap()]);
@@ -399,7 +399,7 @@ fn the_command_line_refuses_with_a_hint() {
 /// The template documents every [host] field.
 #[test]
 fn the_template_documents_every_host_field() {
-    let t = ecsync_esc::preset::PAPER_2024_TOML;
+    let t = ecsync_sim::preset::PAPER_2024_TOML;
     let host = &t[t.find("[host]").unwrap()..t.find("[run]").unwrap()];
     // Every field the parser takes, read from its own source: a field added to [host] (or to
     // a jitter process, or to the bursts) and not documented fails here.
@@ -417,8 +417,8 @@ fn the_template_documents_every_host_field() {
             .collect()
     };
     let mut fields = fields_of("../lab/src/scenario.rs", "struct HostFile {");
-    fields.extend(fields_of("../lab/src/host.rs", "pub struct Jitter {"));
-    fields.extend(fields_of("../lab/src/host.rs", "pub struct Bursts {"));
+    fields.extend(fields_of("../sim/src/host.rs", "pub struct Jitter {"));
+    fields.extend(fields_of("../sim/src/host.rs", "pub struct Bursts {"));
     assert!(fields.len() >= 18, "{fields:?}");
     for f in &fields {
         assert!(
@@ -513,7 +513,7 @@ fn warning_kinds(j: &serde_json::Value) -> Vec<String> {
 /// frame's round trip, jitter eating the margin, late frames; and "1 run", "1 thread".
 #[test]
 fn warnings_come_where_the_figures_are_at_risk() {
-    let base = ecsync_esc::preset::PAPER_2024_TOML;
+    let base = ecsync_sim::preset::PAPER_2024_TOML;
     // A 45 us cycle: the frame needs about 52 us from its send to its reply.
     let out = tmp("short-cycle");
     let text = base.replace("cycle_us = 1000", "cycle_us = 45");
@@ -612,11 +612,11 @@ fn warnings_come_where_the_figures_are_at_risk() {
 /// sync; the controller's log comes with the samples.
 #[test]
 fn dcm_with_the_cycle_start_set_value() {
-    let text = ecsync_esc::preset::PAPER_2024_TOML.replace(
+    let text = ecsync_sim::preset::PAPER_2024_TOML.replace(
         "[methods.dcm-master-shift]\nset_value_ref = \"frame-send\"",
         "[methods.dcm-master-shift]\nset_value_ref = \"cycle-start\"",
     );
-    assert_ne!(text, ecsync_esc::preset::PAPER_2024_TOML);
+    assert_ne!(text, ecsync_sim::preset::PAPER_2024_TOML);
     let out = tmp("cycle-start");
     let (j, _) = compare_json(
         &out,

@@ -138,5 +138,5 @@ fn host_fit_writes_a_host_table_and_checks_the_second_half() {
         "{out}"
     );
     let written = std::fs::read_to_string(&table).unwrap();
-    assert!(ecsync_lab::host_trace::check_in_scenario(&written).is_ok());
+    assert!(ecsync_lab::scenario::check_in_scenario(&written).is_ok());
 }

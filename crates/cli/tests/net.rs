@@ -7,7 +7,7 @@
 //! The tests make their namespaces themselves and skip, saying why, only where the machine
 //! refuses to (no root, no `ip`). They run one at a time: each master pins a SCHED_FIFO task.
 
-use ecsync_esc::{Segment, preset};
+use ecsync_sim::{Segment, preset};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -144,7 +144,7 @@ impl Drop for Served {
 
 /// The preset's propagation delays from the reference (position 0), ns.
 fn true_delays() -> Vec<f64> {
-    let specs = ecsync_esc::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
+    let specs = ecsync_sim::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
     let seg = Segment::new(&specs).unwrap();
     seg.true_delays_ns(0)
         .into_iter()
@@ -925,7 +925,7 @@ mod ethercrab_raw {
         let path = dir.join("segment.toml");
         std::fs::write(&path, &text).unwrap();
         let _served = pair.serve(&["--config", path.to_str().unwrap()]);
-        let specs = ecsync_esc::config::parse_segment("segment.toml", &text).unwrap();
+        let specs = ecsync_sim::config::parse_segment("segment.toml", &text).unwrap();
         let seg = Segment::new(&specs).unwrap();
         let n = seg.len();
         let truth: Vec<f64> = seg
@@ -1653,7 +1653,7 @@ mod soem {
         let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON");
         println!("{v}");
         assert_eq!(v["slaves"], 6, "SOEM found the six drives");
-        let dev = ecsync_esc::model::DeviceInfo::servo_drive(0);
+        let dev = ecsync_sim::model::DeviceInfo::servo_drive(0);
         for (i, d) in v["drives"].as_array().unwrap().iter().enumerate() {
             assert_eq!(d["name"], dev.name.as_str(), "drive {i}: SII name");
             assert_eq!(d["man"], dev.vendor_id, "drive {i}: vendor from the SII");
@@ -1789,7 +1789,7 @@ mod esi_drives {
             return;
         };
         let (path, text) = network(&dir);
-        let specs = ecsync_esc::config::parse_segment(path.to_str().unwrap(), &text).unwrap();
+        let specs = ecsync_sim::config::parse_segment(path.to_str().unwrap(), &text).unwrap();
         let seg = Segment::new(&specs).unwrap();
         let devices: Vec<_> = (0..seg.len())
             .map(|i| seg.esc(i).device().clone())
@@ -1907,7 +1907,7 @@ mod esi_drives {
 /// The preset's crystals against the reference's (position 0), ppm: the truth a twin's are
 /// checked against (the segment runs on this host's clock, so only relative figures compare).
 fn true_relative_ppm() -> Vec<f64> {
-    let specs = ecsync_esc::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
+    let specs = ecsync_sim::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
     let r = specs[0].crystal.ppm;
     specs
         .iter()
@@ -2012,11 +2012,11 @@ fn a_twin_saved_over_veth_has_the_preset_s_delays_crystals_and_ranking() {
         eprintln!("{}", stderr.trim());
     }
     let text = std::fs::read_to_string(&twin).expect("the twin is written");
-    let specs = ecsync_esc::config::parse_segment("twin.toml", &text)
+    let specs = ecsync_sim::config::parse_segment("twin.toml", &text)
         .unwrap_or_else(|e| panic!("the twin does not parse: {e}\n{text}"));
     assert_eq!(specs.len(), 6, "{text}");
     for s in &specs {
-        assert_eq!(s.model, ecsync_esc::model::EscModel::servo_mii(), "{text}");
+        assert_eq!(s.model, ecsync_sim::model::EscModel::servo_mii(), "{text}");
     }
 
     // bringup on the twin: its true and measured delays, its crystals.
@@ -2111,8 +2111,8 @@ fn a_twin_saved_after_a_run_has_the_reference_crystal_from_the_cyclic_phase() {
         "{err}"
     );
     let text = std::fs::read_to_string(&twin).unwrap();
-    let specs = ecsync_esc::config::parse_segment(twin.to_str().unwrap(), &text).unwrap();
-    let truth = ecsync_esc::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
+    let specs = ecsync_sim::config::parse_segment(twin.to_str().unwrap(), &text).unwrap();
+    let truth = ecsync_sim::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
     let (got, want) = (specs[0].crystal.ppm, truth[0].crystal.ppm);
     println!("twin after a run: reference {got:+.3} ppm against this host, preset {want:+.3} ppm");
     // The preset's crystals wander (0.005 ppm/sqrt(s) and its host's send stamps jitter by tens

@@ -21,7 +21,7 @@ fn tmp(name: &str) -> PathBuf {
 /// paper-2024 at a 4 % shift, one run of 5000 cycles of dcm-master-shift, and `extra` in its
 /// `[run]` table, written to `dir`.
 fn scenario(dir: &std::path::Path, extra: &str) -> PathBuf {
-    let mut t = ecsync_esc::preset::PAPER_2024_TOML.to_string();
+    let mut t = ecsync_sim::preset::PAPER_2024_TOML.to_string();
     for (from, to) in [
         ("sync0_shift_pct = 30", "sync0_shift_pct = 4".to_string()),
         ("runs = 5", "runs = 1".to_string()),

@@ -1,9 +1,9 @@
 //! A comparison: every method in every run, in parallel across cores, collected in a fixed
 //! order so that the result does not depend on scheduling.
 
-use crate::host::{HostNoise, SharedNoise};
 use crate::run::{BroughtUp, Run, RunError, RunResult, bring_up};
 use crate::scenario::Scenario;
+use ecsync_sim::host::{HostNoise, SharedNoise};
 use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};

@@ -7,7 +7,7 @@
 //!
 //! ```
 //! use ecsync_dc::MethodKind;
-//! use ecsync_esc::preset::PAPER_2024_TOML;
+//! use ecsync_sim::preset::PAPER_2024_TOML;
 //!
 //! let s = ecsync_lab::parse("paper-2024.toml", PAPER_2024_TOML).unwrap();
 //! assert_eq!(s.slaves.len(), 6);
@@ -25,19 +25,14 @@
 #![warn(missing_docs)]
 
 pub mod compare;
-pub mod host;
-pub mod host_trace;
 pub mod letter;
+pub mod output;
 pub mod plots;
 pub mod report;
 pub mod run;
 pub mod scenario;
-pub mod send;
+pub mod stats;
 pub mod tsn;
-
-/// The statistics live in ecsync-master, where the real master's `ecsync run` uses them too
-/// without the simulator; the lab's modules keep naming them `crate::stats`.
-pub use ecsync_master::stats;
 
 pub use compare::{Comparison, compare};
 pub use scenario::{Scenario, parse};

@@ -10,10 +10,10 @@
 //! * `fig4_histograms`: the letter's Fig. 4 layout (M-rS and rS-IS of each method).
 
 use crate::compare::Comparison;
+use crate::output::write_atomic;
 use crate::report::{SummaryOut, verdict_text};
 use crate::run::{Band, RunResult};
 use crate::stats::{Dist, Stats};
-use ecsync_master::output::write_atomic;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::fmt::Write as _;

@@ -30,9 +30,9 @@
 use crate::compare::Comparison;
 use crate::letter::{self, Row};
 use crate::run::RunResult;
-use crate::send::Entry;
 use crate::stats::{QUANTILE_REL_ERROR, RESOLUTION_NS, Stats, Summary, mean_of};
 use ecsync_dc::MethodKind;
+use ecsync_sim::send::Entry;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -268,13 +268,13 @@ fn send_note(
             let g = &mo.ground_truth;
             let mode = mo.send.as_ref().map_or("plain".to_string(), |s| s.mode.to_string());
             let cost = match &mo.send {
-                Some(s) if s.mode == crate::send::SendMode::Spin => {
+                Some(s) if s.mode == ecsync_sim::send::SendMode::Spin => {
                     format!(", {:.1} % of a core spun", s.spin_cpu_pct)
                 }
-                Some(s) if s.mode == crate::send::SendMode::Txtime => {
+                Some(s) if s.mode == ecsync_sim::send::SendMode::Txtime => {
                     format!(", {} launch times missed (frames dropped)", s.launch_misses)
                 }
-                Some(s) if s.mode == crate::send::SendMode::Hwstamp => {
+                Some(s) if s.mode == ecsync_sim::send::SendMode::Hwstamp => {
                     format!(
                         ", the method's M-rS std {:.3} us (t_ms from the NIC's stamp)",
                         mo.m_rs_pooled.std / 1e3
@@ -554,7 +554,7 @@ fn method_out(c: &Comparison, m: usize, entry: Entry, letter_testbed: bool) -> M
         wall_s: c.method_wall_s[m],
         faults: rs.iter().filter_map(|r| r.faults.clone()).collect(),
         left_op: rs.iter().flat_map(|r| r.left_op.iter().cloned()).collect(),
-        send: (entry.send != crate::send::SendMode::Plain).then(|| {
+        send: (entry.send != ecsync_sim::send::SendMode::Plain).then(|| {
             let cycles: u64 = rs.iter().map(|r| r.cycles_done).sum();
             SendOut {
                 mode: entry.send,
@@ -570,7 +570,7 @@ fn method_out(c: &Comparison, m: usize, entry: Entry, letter_testbed: bool) -> M
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SendOut {
     /// The mode.
-    pub mode: crate::send::SendMode,
+    pub mode: ecsync_sim::send::SendMode,
     /// Recorded cycles whose frames were handed over after their launch time less the
     /// qdisc's delta and dropped (`txtime`'s deadline misses).
     pub launch_misses: u64,

@@ -1,21 +1,21 @@
 //! One run of one method: bring the segment up, run the cyclic phase with the host's noise,
 //! measure what the letter measures and what only the simulator knows.
 
-use crate::host::{CycleNoise, HostNoise, SharedNoise};
 use crate::scenario::Scenario;
-use crate::send::{Entry, SendMode, SendParams};
 use crate::stats::{Stats, Summary};
 use ecsync_dc::sync::MasterSync;
 use ecsync_dc::{Method, MethodKind};
-use ecsync_esc::clock::CrystalParams;
-use ecsync_esc::fault::{Epoch, FaultCounts, FaultEvent, FaultKind, FaultPlayer};
-use ecsync_esc::rng::splitmix64;
-use ecsync_esc::{Segment, frame_wire_time_ps};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{CycleReport, CyclicDriver, CyclicLimits};
-use ecsync_master::sim::{HostDelays, HostModel, MasterClock, SIM_EPOCH_NS, SimTransport};
 use ecsync_master::{Engine, MasterError};
+use ecsync_sim::clock::CrystalParams;
+use ecsync_sim::fault::{Epoch, FaultCounts, FaultEvent, FaultKind, FaultPlayer};
+use ecsync_sim::host::{CycleNoise, HostNoise, SharedNoise};
+use ecsync_sim::rng::splitmix64;
+use ecsync_sim::send::{Entry, SendMode, SendParams};
+use ecsync_sim::transport::{HostDelays, HostModel, MasterClock, SIM_EPOCH_NS, SimTransport};
+use ecsync_sim::{Segment, frame_wire_time_ps};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -599,7 +599,7 @@ impl BroughtUp {
 }
 
 /// The crystals of run `run` (the same hardware in every run; the wander differs).
-pub fn run_specs(s: &Scenario, run: u32) -> Vec<ecsync_esc::SlaveSpec> {
+pub fn run_specs(s: &Scenario, run: u32) -> Vec<ecsync_sim::SlaveSpec> {
     let seed = run_seed(s.seed, run);
     let mut specs = s.slaves.clone();
     for (i, sp) in specs.iter_mut().enumerate() {
@@ -617,7 +617,7 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
     sim.set_master_clock(MasterClock::new(CrystalParams {
         ppm: s.host.master_ppm,
         wander_ppm_per_sqrt_s: s.host.master_wander_ppm_per_sqrt_s,
-        wander_step_ps: ecsync_esc::clock::DEFAULT_WANDER_STEP_PS,
+        wander_step_ps: ecsync_sim::clock::DEFAULT_WANDER_STEP_PS,
         initial_local_ns: SIM_EPOCH_NS,
         seed: splitmix64(seed ^ 0x4a57_e700),
     }));
@@ -716,7 +716,7 @@ impl HostModel for NoiseHost {
             .checked_sub(self.first)
             .and_then(|k| self.block.get(k as usize).copied())
             .unwrap_or_else(|| self.noise.cycle(cycle));
-        crate::send::apply(self.send, &self.send_params, n, self.seed, cycle).delays
+        ecsync_sim::send::apply(self.send, &self.send_params, n, self.seed, cycle).delays
     }
 }
 
@@ -1082,7 +1082,8 @@ impl Run {
                 if i < self.warmup_cycles {
                     continue;
                 }
-                let o = crate::send::apply(self.send, &self.send_params, *n, self.send_seed, i);
+                let o =
+                    ecsync_sim::send::apply(self.send, &self.send_params, *n, self.send_seed, i);
                 self.res.spin_ns += o.spin_ns;
                 self.res.launch_misses += u64::from(o.delays.dropped);
             }

@@ -1,17 +1,17 @@
 //! Scenarios: a segment, a host, and how to run the comparison, in one TOML file. Errors name
 //! the file, the line, the field and the fix; nothing panics on bad input. The same checks run
 //! on a scenario whose values the command line changed ([`Scenario::check`]), so a value is
-//! refused with the same words wherever it came from. The errors are ecsync-esc's
+//! refused with the same words wherever it came from. The errors are ecsync-sim's
 //! ([`ConfigSource`] locates every one); the methods' tables and their checks are ecsync-dc's
 //! registry ([`MethodParams`]).
 
-use crate::host::{Bursts, HostParams, Jitter};
-use crate::host_trace::Replay;
-use crate::send::{Entry, SendMode, SendParams};
 use ecsync_dc::method::{MethodContext, MethodKind, MethodParams, ParamError};
-use ecsync_esc::SlaveSpec;
-pub use ecsync_esc::config::Problem;
-use ecsync_esc::config::{ConfigError, ConfigSource, SegmentConfig};
+use ecsync_sim::SlaveSpec;
+pub use ecsync_sim::config::Problem;
+use ecsync_sim::config::{ConfigError, ConfigSource, SegmentConfig};
+use ecsync_sim::host::{Bursts, HostParams, Jitter};
+use ecsync_sim::host_trace::Replay;
+use ecsync_sim::send::{Entry, SendMode, SendParams};
 use serde::Deserialize;
 use std::sync::Arc;
 
@@ -30,7 +30,7 @@ struct File {
     /// The methods' tables, read by the registry's names (ecsync-dc).
     #[serde(default)]
     methods: MethodParams,
-    /// How the host sends (crate::send).
+    /// How the host sends (ecsync_sim::send).
     #[serde(default)]
     send: SendFile,
 }
@@ -176,7 +176,7 @@ pub struct Scenario {
     /// Every method's parameters (the `[methods.<name>]` tables; defaults where absent).
     pub params: MethodParams,
     /// Faults to play on every run (`compare --faults FILE`); `None`: none.
-    pub faults: Option<ecsync_esc::fault::FaultSchedule>,
+    pub faults: Option<ecsync_sim::fault::FaultSchedule>,
 }
 
 /// The problem a refused method parameter is, located in the scenario like any other.
@@ -216,7 +216,7 @@ impl Scenario {
     /// Whether this is the letter's testbed (the paper-2024 segment, its host and cycle), the
     /// only scenario on which the letter's Table 1 values are a comparison.
     pub fn is_letter_testbed(&self) -> bool {
-        let Ok(p) = parse("paper-2024", ecsync_esc::preset::PAPER_2024_TOML) else {
+        let Ok(p) = parse("paper-2024", ecsync_sim::preset::PAPER_2024_TOML) else {
             return false;
         };
         // Faults and a replayed host trace are not the letter's testbed, however alike the rest.
@@ -635,12 +635,21 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
     Ok(s)
 }
 
+/// Parses `table` (a `[host]` table, [`ecsync_sim::host_trace::HostFit::to_toml`]) in the place of the letter's
+/// scenario's own, as `compare` would read it.
+pub fn check_in_scenario(table: &str) -> Result<Scenario, ConfigError> {
+    let body = table.split_once("[host]\n").map_or(table, |(_, b)| b);
+    let text =
+        ecsync_sim::preset::PAPER_2024_TOML.replacen("preset = \"preempt-rt-stress\"\n", body, 1);
+    parse("fitted [host]", &text)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     fn preset() -> String {
-        ecsync_esc::preset::PAPER_2024_TOML.to_string()
+        ecsync_sim::preset::PAPER_2024_TOML.to_string()
     }
 
     #[test]
@@ -833,9 +842,9 @@ mod tests {
         let mut s = parse("p.toml", &preset()).unwrap();
         assert!(s.is_letter_testbed());
         s.faults = Some(
-            ecsync_esc::fault::FaultSchedule::parse(
+            ecsync_sim::fault::FaultSchedule::parse(
                 "faults-demo",
-                ecsync_esc::fault::FAULTS_DEMO_TOML,
+                ecsync_sim::fault::FAULTS_DEMO_TOML,
             )
             .unwrap(),
         );

@@ -4,9 +4,9 @@
 //! reading error in every cycle that came back), a host stall skips its cycles without
 //! a burst, a second responder is counted as one.
 
-use ecsync_esc::fault::FaultSchedule;
-use ecsync_esc::preset::PAPER_2024_TOML;
 use ecsync_lab::report::summarize;
+use ecsync_sim::fault::FaultSchedule;
+use ecsync_sim::preset::PAPER_2024_TOML;
 use std::sync::atomic::AtomicU64;
 
 /// The paper network, one run of 4 000 recorded cycles after the 10 s warm-up the methods'
@@ -391,7 +391,7 @@ fn every_method_comes_back_from_each_fault_of_the_faults_demo_within_a_second() 
     s.warmup_cycles = 10_000;
     s.cycles = 60_000;
     s.faults =
-        Some(FaultSchedule::parse("faults-demo", ecsync_esc::fault::FAULTS_DEMO_TOML).unwrap());
+        Some(FaultSchedule::parse("faults-demo", ecsync_sim::fault::FAULTS_DEMO_TOML).unwrap());
     let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
     let out = summarize(&c);
     for (m, mo) in &out.methods {

@@ -3,8 +3,9 @@
 //! replayed trace's bursts stay bursts, replay is a function of the seed, and a malformed trace
 //! is refused with its file, line and column.
 
-use ecsync_lab::host::{Bursts, HostNoise, HostParams, Jitter};
-use ecsync_lab::host_trace::{HostTrace, Replay, TraceRow, check_in_scenario, fit};
+use ecsync_lab::scenario::check_in_scenario;
+use ecsync_sim::host::{Bursts, HostNoise, HostParams, Jitter};
+use ecsync_sim::host_trace::{HostTrace, Replay, TraceRow, fit};
 
 /// A host with every part of the model in use, each part identifiable from a trace.
 fn truth() -> HostParams {
@@ -302,7 +303,7 @@ fn the_fit_recovers_a_tail_of_two_pulse_classes() {
         0.15,
     );
     let qs = [0.99, 0.999];
-    let want = ecsync_lab::host_trace::wake_quantiles(&rows, &qs);
+    let want = ecsync_sim::host_trace::wake_quantiles(&rows, &qs);
     let got = f.predicted_wake_quantiles(&qs, 600_000, 99);
     for (k, q) in qs.iter().enumerate() {
         near(&format!("wake-up p{}", q * 100.0), got[k], want[k], 0.1);

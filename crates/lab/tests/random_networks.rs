@@ -148,7 +148,7 @@ fn power_cycles_are_recovered_on_twelve_random_networks() {
             "[[fault]]\nat_s = 11\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = {victim}\n\n\
              [[fault]]\nat_s = 13\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = \"reference\"\n"
         );
-        s.faults = Some(ecsync_esc::fault::FaultSchedule::parse("faults.toml", &faults).unwrap());
+        s.faults = Some(ecsync_sim::fault::FaultSchedule::parse("faults.toml", &faults).unwrap());
         let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0))
             .unwrap_or_else(|e| panic!("network {k}: {e}\n{text}"));
         let out = summarize(&c);

@@ -6,14 +6,14 @@
 //! model directly, the independent truth) exceed the lead less the qdisc's delta. `spin` sits
 //! between the two and reports what it spun.
 
-use ecsync_lab::host::HostNoise;
 use ecsync_lab::report::summarize;
-use ecsync_lab::send::SendMode;
+use ecsync_sim::host::HostNoise;
+use ecsync_sim::send::SendMode;
 use std::sync::atomic::AtomicU64;
 
 #[test]
 fn txtime_takes_the_send_jitter_out_and_counts_the_launch_times_missed() {
-    let mut s = ecsync_lab::parse("paper-2024", ecsync_esc::preset::PAPER_2024_TOML).unwrap();
+    let mut s = ecsync_lab::parse("paper-2024", ecsync_sim::preset::PAPER_2024_TOML).unwrap();
     assert_eq!(s.host_name, "preempt-rt-stress");
     s.methods = vec![ecsync_dc::MethodKind::MedianFit];
     s.send_modes = SendMode::ALL.to_vec();
@@ -88,21 +88,21 @@ fn txtime_takes_the_send_jitter_out_and_counts_the_launch_times_missed() {
 fn a_bad_send_table_names_its_field() {
     let text = format!(
         "{}\n[send]\nmodes = [\"plain\", \"etf\"]\n",
-        ecsync_esc::preset::PAPER_2024_TOML
+        ecsync_sim::preset::PAPER_2024_TOML
     );
     let e = ecsync_lab::parse("p.toml", &text).unwrap_err();
     assert_eq!(e.field, "send.modes", "{e}");
     let text = format!(
         "{}\n[send]\nmodes = [\"txtime\"]\ntxtime_lead_us = 5\ntxtime_delta_us = 10\n",
-        ecsync_esc::preset::PAPER_2024_TOML
+        ecsync_sim::preset::PAPER_2024_TOML
     );
     let e = ecsync_lab::parse("p.toml", &text).unwrap_err();
     assert_eq!(e.field, "send.txtime_delta_us", "{e}");
     assert!(e.line.is_some(), "{e}");
     // A mode's numbers count only where the mode runs: a spin margin longer than the cycle
     // is refused only when something spins.
-    let short = ecsync_esc::preset::PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 250");
-    assert_ne!(short, ecsync_esc::preset::PAPER_2024_TOML);
+    let short = ecsync_sim::preset::PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 250");
+    assert_ne!(short, ecsync_sim::preset::PAPER_2024_TOML);
     ecsync_lab::parse(
         "p.toml",
         &format!("{short}\n[send]\nspin_margin_us = 300\n"),
@@ -124,7 +124,7 @@ fn a_bad_send_table_names_its_field() {
 /// receive grid. A bus-shift method gets no such column.
 #[test]
 fn hwstamp_takes_j_c_out_of_the_measurement_not_out_of_the_send() {
-    let mut s = ecsync_lab::parse("paper-2024", ecsync_esc::preset::PAPER_2024_TOML).unwrap();
+    let mut s = ecsync_lab::parse("paper-2024", ecsync_sim::preset::PAPER_2024_TOML).unwrap();
     s.methods = vec![
         ecsync_dc::MethodKind::MedianFit,
         ecsync_dc::MethodKind::BusShift,

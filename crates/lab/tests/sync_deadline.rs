@@ -15,7 +15,7 @@ use ecsync_dc::MethodKind;
 use ecsync_lab::report::summarize;
 use ecsync_lab::run::{Run, bring_up};
 use ecsync_lab::scenario::Scenario;
-use ecsync_lab::send::{Entry, SendMode};
+use ecsync_sim::send::{Entry, SendMode};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicU64;
 
@@ -23,7 +23,7 @@ use std::sync::atomic::AtomicU64;
 /// used here have no initialisation frames), SYNC0 at `shift_pct`, `methods` (a TOML list),
 /// and `extra` lines in its `[run]` table.
 fn scenario(shift_pct: f64, cycles: u64, methods: &str, extra: &str) -> Scenario {
-    let mut t = ecsync_esc::preset::PAPER_2024_TOML.to_string();
+    let mut t = ecsync_sim::preset::PAPER_2024_TOML.to_string();
     for (from, to) in [
         (
             "sync0_shift_pct = 30",

@@ -1,55 +1,56 @@
 //! A sans-IO EtherCAT master engine: the DC bring-up (scan, SII identity, topology, propagation
-//! delays, offsets, static drift compensation, SYNC0, state machine) written once as `async`
-//! procedures over a [`Link`], and run by transports that do the I/O: [`sim::SimTransport`]
-//! against the virtual segment in virtual time, a raw socket on a real network. What a run of
-//! the cyclic phase measures is summarised by [`stats`] (the simulator's lab and the real
-//! master alike) and written by [`output`].
+//! delays, offsets, static drift compensation, SYNC0, state machine), the cyclic phase and the
+//! recovery from faults, written once as `async` procedures over a [`Link`] and driven by a
+//! [`Transport`] that does the I/O: the virtual segment in virtual time (`ecsync-sim`), a raw
+//! socket on a real network (`ecsync-net`), the TSN bridge (`ecsync-tsn`).
 //!
-//! The bring-up of a line of three simulated slaves up to lock, in virtual time:
+//! It owns the engine, the drivers ([`driver`], [`cyclic`]) and the `Transport` trait; it depends
+//! on the wire format (`ecsync-wire`) and the DC algorithms (`ecsync-dc`) only, never on a
+//! simulator: a master on real hardware takes nothing of the virtual segment with it.
+//!
+//! The engine does no I/O of its own: it says what it needs ([`Action`]) and is told what
+//! happened. Driven by hand with no slave on the wire (every frame lost), the bring-up gives up
+//! at the scan and says which exchange went unanswered:
 //!
 //! ```
-//! use ecsync_esc::{Segment, preset};
-//! use ecsync_master::sim::SimTransport;
-//! use ecsync_master::{BringupConfig, Engine, Stage, bringup};
+//! use ecsync_master::{Action, BringupConfig, Engine, MasterError, Phase, bringup};
 //!
-//! let mut sim = SimTransport::new(Segment::new(&preset::line(3, 1)).unwrap());
-//! let cfg = BringupConfig {
-//!     until: Stage::Lock,
-//!     static_drift_frames: 2_000,
-//!     lock_hold_checks: 5,
-//!     ..BringupConfig::default()
+//! let mut engine = Engine::new(|link| bringup(link, BringupConfig::default()));
+//! let mut now_ns = 0;
+//! let mut frames = 0;
+//! let result = loop {
+//!     match engine.poll(now_ns) {
+//!         Action::Send(frame) => {
+//!             // An EtherCAT frame (EtherType 0x88A4) that nobody answers.
+//!             assert_eq!(frame[12..14], [0x88, 0xa4]);
+//!             frames += 1;
+//!             now_ns += 1_000_000;
+//!             engine.handle_lost();
+//!         }
+//!         Action::SendAll(_) => engine.handle_lost(),
+//!         Action::WaitUntil(t_ns) => now_ns = t_ns,
+//!         Action::Done(result) => break result,
+//!     }
 //! };
-//! let mut engine = Engine::new(move |link| bringup(link, cfg));
-//! let net = sim.run_procedure(&mut engine, |_, _, _| {}).expect("bring-up");
-//!
-//! assert_eq!(net.slaves.len(), 3);
-//! assert_eq!(net.reference, 0);
-//! // The measured propagation delays agree with the segment's ground truth within 20 ns.
-//! let truth = sim.segment().true_delays_ns(usize::from(net.reference));
-//! for s in &net.slaves {
-//!     let t = truth[usize::from(s.position)].unwrap();
-//!     assert!((s.delay_ns.unwrap() - t).abs() <= 20.0);
-//! }
-//! assert!(net.lock.converged);
+//! assert!(frames > 0);
+//! // The scan's first broadcast read, counting the slaves, was lost.
+//! let e = result.unwrap_err();
+//! assert_eq!(e.phase(), Some(Phase::Scan));
+//! assert!(matches!(e.root(), MasterError::FrameLost { what: "count slaves", .. }), "{e}");
 //! ```
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod bench;
 pub mod bringup;
 pub mod coe;
 pub mod cyclic;
 pub mod driver;
 mod error;
 pub mod io;
-pub mod output;
 pub mod pdi;
 pub mod recovery;
 pub mod sii;
-pub mod sim;
-pub mod stats;
 pub mod transport;
-pub mod twin;
 
 pub use bringup::{
     BringupConfig, BringupTimeouts, Network, Phase, SlaveId, SlaveInfo, Stage, bringup,

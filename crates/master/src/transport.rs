@@ -1,6 +1,6 @@
 //! What the master engine needs of a network and a host, and nothing more: a clock, a way to
 //! wait, frames out and frames in with their timestamps. The in-process segment
-//! ([`crate::sim::SimTransport`]), the raw socket (`ecsync-net`) and the TSN network
+//! (`ecsync_sim::transport::SimTransport`), the raw socket (`ecsync-net`) and the TSN network
 //! (`ecsync-tsn`) implement it; the one bring-up driver and the one cyclic driver
 //! ([`crate::driver`]) run the engine over any of them, so the real path differs from the
 //! simulator only here.

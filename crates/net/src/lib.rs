@@ -1,5 +1,5 @@
 //! ecsync on a real network (Linux): the master engine of `ecsync-master` over an AF_PACKET raw
-//! socket, in real time, and the virtual segment of `ecsync-esc` served on a network interface so
+//! socket, in real time, and the virtual segment of `ecsync-sim` served on a network interface so
 //! that any EtherCAT master can be tested against it without hardware.
 //!
 //! * [`sys`]: the only code that talks to the OS (sockets, kernel timestamps, clocks, real-time

@@ -20,9 +20,9 @@
 
 use crate::link::NetError;
 use crate::sys::{self, PacketSocket, Ready, TPID_8021AD, TPID_8021Q, VlanTag};
-use ecsync_esc::Segment;
-use ecsync_esc::fault::{FaultPlayer, FrameFate};
-use ecsync_esc::pcap::PcapCapture;
+use ecsync_sim::Segment;
+use ecsync_sim::fault::{FaultPlayer, FrameFate};
+use ecsync_sim::pcap::PcapCapture;
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
 

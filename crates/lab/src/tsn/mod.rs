@@ -25,14 +25,14 @@ pub mod scenario;
 use crate::run::{Envelope, Series};
 use crate::stats::{Stats, Summary};
 use ecsync_dc::BusShift;
-use ecsync_esc::frame_wire_time_ps;
-use ecsync_esc::pcap::PcapCapture;
 use ecsync_master::bringup::{BringupConfig, EsiTiming, Network, Stage, bringup};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{
     CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, run_procedure,
 };
 use ecsync_master::{Engine, MasterError};
+use ecsync_sim::frame_wire_time_ps;
+use ecsync_sim::pcap::PcapCapture;
 pub use ecsync_tsn::network::Blocked;
 use ecsync_tsn::network::{NetworkError, TIMEOUT_PS, TsnNetwork};
 pub use scenario::{TsnScenario, Variant};
@@ -169,7 +169,7 @@ pub struct TsnOptions {
     /// Capture only this many seconds of cyclic operation (the bring-up is always captured).
     pub pcap_cycles: u64,
     /// A fault schedule played on each variant's segment (`tsn run --faults`).
-    pub faults: Option<ecsync_esc::fault::FaultSchedule>,
+    pub faults: Option<ecsync_sim::fault::FaultSchedule>,
 }
 
 /// Runs one variant of the scenario.
@@ -181,7 +181,7 @@ pub fn run_variant(
     let t0 = std::time::Instant::now();
     let mut net = TsnNetwork::new(s.network_params(), variant)?;
     if let Some(f) = &opts.faults {
-        net.set_faults(ecsync_esc::fault::FaultPlayer::new(f.clone(), s.seed));
+        net.set_faults(ecsync_sim::fault::FaultPlayer::new(f.clone(), s.seed));
     }
     let pcap = opts.pcap_dir.as_ref().map(|dir| pcap_path(dir, variant));
     if let Some(path) = &pcap {
@@ -528,7 +528,7 @@ mod tests {
     /// counted consistently.
     #[test]
     fn random_networks_run_and_m3_never_holds() {
-        let mut rng = ecsync_esc::rng::SplitMix64(0x7357);
+        let mut rng = ecsync_sim::rng::SplitMix64(0x7357);
         for case in 0..6 {
             let mut s = scenario::preset();
             let cycle = s.bridge.cycle_ns;

@@ -7,9 +7,9 @@ use super::{BridgeParams, Capture, Noise, stamp, wire_ns};
 use crate::gptp::TimeAwareSystem;
 use crate::gptp_msg;
 use crate::gptp_net::{GptpMedium, Transmission};
-use ecsync_esc::frame_wire_time_ps;
 use ecsync_master::io::MASTER_MAC;
-use ecsync_master::sim::MasterClock;
+use ecsync_sim::frame_wire_time_ps;
+use ecsync_sim::transport::MasterClock;
 
 /// The bridge's MAC address (the source of its gPTP messages).
 pub const BRIDGE_MAC: [u8; 6] = [0x00, 0x1b, 0x21, 0xec, 0x00, 0x02];

@@ -43,12 +43,12 @@ use crate::gptp::{Config as GptpConfig, SystemIdentity, TimeAwareSystem};
 use crate::gptp_net::{ExchangeCounts, GptpNetwork};
 use crate::qbv::{PortSchedule, Window};
 use bridge::{BRIDGE, Bridge, CrossTraffic, GptpWire, MASTER};
-use ecsync_esc::clock::{CrystalParams, DEFAULT_WANDER_STEP_PS};
-use ecsync_esc::pcap::PcapCapture;
-use ecsync_esc::rng::SplitMix64;
-use ecsync_esc::{Segment, SlaveSpec, TopologyError, frame_wire_time_ps};
-use ecsync_master::sim::MasterClock;
 use ecsync_master::transport::{Never, Received, Transport};
+use ecsync_sim::clock::{CrystalParams, DEFAULT_WANDER_STEP_PS};
+use ecsync_sim::pcap::PcapCapture;
+use ecsync_sim::rng::SplitMix64;
+use ecsync_sim::transport::MasterClock;
+use ecsync_sim::{Segment, SlaveSpec, TopologyError, frame_wire_time_ps};
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::fs::File;
@@ -339,17 +339,17 @@ pub struct TsnNetwork<'a> {
     trips: VecDeque<(Trip, Vec<u8>)>,
     /// A fault schedule played on the segment's frames (the segment's kinds; a second
     /// responder's copy and the master host's faults are not played on this network).
-    faults: Option<ecsync_esc::fault::FaultPlayer>,
+    faults: Option<ecsync_sim::fault::FaultPlayer>,
 }
 
 impl<'a> TsnNetwork<'a> {
     /// Plays `faults` on the segment's frames from now on.
-    pub fn set_faults(&mut self, faults: ecsync_esc::fault::FaultPlayer) {
+    pub fn set_faults(&mut self, faults: ecsync_sim::fault::FaultPlayer) {
         self.faults = Some(faults);
     }
 
     /// The fault player, if one plays.
-    pub fn faults(&self) -> Option<&ecsync_esc::fault::FaultPlayer> {
+    pub fn faults(&self) -> Option<&ecsync_sim::fault::FaultPlayer> {
         self.faults.as_ref()
     }
 
@@ -618,7 +618,7 @@ impl<'a> TsnNetwork<'a> {
         };
         let fate = match &mut self.faults {
             Some(f) => f.before_frame(&mut self.segment, frame, t_seg),
-            None => ecsync_esc::fault::FrameFate::default(),
+            None => ecsync_sim::fault::FrameFate::default(),
         };
         let returned = if fate.lost_out {
             None
@@ -804,7 +804,7 @@ mod tests {
             kp: 0.7,
             ki: 0.3,
         };
-        (ecsync_esc::preset::paper_2024(), master, bridge, gptp)
+        (ecsync_sim::preset::paper_2024(), master, bridge, gptp)
     }
 
     fn params<'a>(

@@ -2,8 +2,8 @@
 //! the line the gPTP servo steers over the crystal's reading.
 
 use crate::gptp::TimeAwareSystem;
-use ecsync_esc::clock::floor_split;
-use ecsync_master::sim::MasterClock;
+use ecsync_sim::clock::floor_split;
+use ecsync_sim::transport::MasterClock;
 
 /// The master's hardware clock: a crystal ([`MasterClock`]: its ppm and wander, real time to
 /// crystal nanoseconds and back), and in M3 a rate and phase the gPTP servo sets over the
@@ -105,7 +105,7 @@ impl Phc {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ecsync_esc::clock::CrystalParams;
+    use ecsync_sim::clock::CrystalParams;
 
     fn phc() -> Phc {
         let crystal = MasterClock::new(CrystalParams {
