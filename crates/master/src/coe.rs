@@ -6,8 +6,8 @@
 //! back as [`MasterError::SdoAbort`] with the slave's code.
 
 use crate::MasterError;
-use crate::bringup::MailboxInfo;
 use crate::io::Link;
+use crate::network::MailboxInfo;
 use ecsync_wire::mailbox::coe::{self, COE_HEADER_LEN, CoeService, SDO_LEN};
 use ecsync_wire::mailbox::{MAILBOX_HEADER_LEN, Mailbox, MailboxRepr, MailboxType};
 use ecsync_wire::register as reg;

@@ -9,8 +9,8 @@
 //! [`CyclicEngine::complete`]. The same engine runs against the virtual segment and on a raw
 //! socket.
 
-use crate::bringup::ReferenceReading;
 use crate::io::MASTER_MAC;
+use crate::network::ReferenceReading;
 use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
@@ -26,7 +26,7 @@ use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, W
 /// (more than one period and at most two after it, before the target and the lead).
 ///
 /// `reading` is where the bring-up last read the reference's time
-/// ([`Network::reference_reading`](crate::bringup::Network)): the offsets made the reference's
+/// ([`Network::reference_reading`](crate::network::Network)): the offsets made the reference's
 /// time the master's, but its crystal has run against the master's since. A method that writes
 /// the master's time into the reference (`write` is [`ReferenceWrite::SystemTime`], the
 /// letter's bus shift) brings the reference's time back to the master's, so its frames aim at
@@ -69,7 +69,7 @@ pub struct CyclicConfig {
     /// The System Time Offset (0x0920) the bring-up wrote to the reference: a method that
     /// adjusts the offset ([`ReferenceWrite::OffsetAdjust`]) writes this plus its adjustment.
     pub reference_offset_ns: u64,
-    /// The process image's LRWs ([`crate::bringup::Network::lrw`]); empty: one LRW of
+    /// The process image's LRWs ([`crate::network::Network::lrw`]); empty: one LRW of
     /// `pdi_len` bytes at logical address 0.
     pub lrw: Vec<LrwChunk>,
 }

@@ -17,10 +17,10 @@
 //!   its slot; the driver skips the slots that passed and runs the cycle whose slot is now (as a
 //!   PLC task skips an overrun), rather than sending the missed frames back to back.
 
-use crate::bringup::Network;
 use crate::cyclic::{CycleRecord, CyclicEngine};
 use crate::error::MasterError;
 use crate::io::{Action, Engine, Event};
+use crate::network::Network;
 use crate::recovery::{Recovered, RecoveryConfig, recover};
 use crate::transport::{Received, Transport};
 use ecsync_dc::MasterSync;
@@ -425,7 +425,7 @@ fn mailbox_counter_after(c: u8) -> u8 {
 struct SyncDrive {
     position: u16,
     station: u16,
-    mailbox: crate::bringup::MailboxInfo,
+    mailbox: crate::network::MailboxInfo,
     /// The mailbox counter of the last message this driver sent it. The bring-up's last
     /// (configuring the sync mode) were 1 to 3; 0 here: the first read goes out with 1, and
     /// a drive that took three messages before does not take it for a repeat.
@@ -621,7 +621,7 @@ impl CyclicDriver {
             .slaves
             .iter()
             .enumerate()
-            .filter(|(_, s)| s.dc == crate::bringup::DcCapability::SystemTime)
+            .filter(|(_, s)| s.dc == crate::network::DcCapability::SystemTime)
             .filter_map(|(k, s)| {
                 let m = s.mailbox.filter(|m| m.coe())?;
                 Some(SyncDrive {

@@ -1,4 +1,4 @@
-use crate::bringup::{Phase, SlaveId};
+use crate::network::{Phase, SlaveId};
 use ecsync_wire::{AlState, AlStatusCode, Command};
 
 /// "BRD 0x0000:0x0130 and 2 more datagrams": what a lost frame carried.

@@ -32,7 +32,7 @@ pub struct Reply {
 pub enum Event {
     /// A bring-up phase begins (reported for the phases a progress line names, see
     /// [`crate::bringup::bringup`]).
-    Phase(crate::bringup::Phase),
+    Phase(crate::network::Phase),
     /// System time offsets and delays were written (ground truth can be compared now).
     OffsetsWritten,
 }

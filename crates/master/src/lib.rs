@@ -47,6 +47,7 @@ pub mod cyclic;
 pub mod driver;
 mod error;
 pub mod io;
+pub mod network;
 pub mod pdi;
 pub mod recovery;
 pub mod sii;

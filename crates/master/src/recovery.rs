@@ -19,9 +19,10 @@
 //! 4. takes it to PRE-OP, configures its SyncManagers and FMMUs, to SAFE-OP and to OP (the
 //!    cyclic frames bring it its process data meanwhile).
 
-use crate::bringup::{BringupTimeouts, DcCapability, Network, SlaveInfo, request_state};
+use crate::bringup::{BringupTimeouts, request_state};
 use crate::error::MasterError;
 use crate::io::{Link, Pdu};
+use crate::network::{DcCapability, Network, SlaveInfo};
 use ecsync_wire::register as reg;
 use ecsync_wire::{AlControlRepr, AlState, Command, DatagramAddress};
 

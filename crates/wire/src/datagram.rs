@@ -68,6 +68,11 @@ impl DatagramAddress {
             ado,
         }
     }
+
+    /// Configured address of the slave with station address (or alias) `station`.
+    pub const fn configured(station: u16, ado: u16) -> Self {
+        DatagramAddress::Configured { adp: station, ado }
+    }
 }
 
 /// A typed view over one datagram: `buffer` starts at the command byte and holds at least the

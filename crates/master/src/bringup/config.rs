@@ -1,0 +1,166 @@
+//! How far the bring-up goes and how long it waits: [`BringupConfig`], [`BringupTimeouts`].
+
+use crate::MasterError;
+
+/// Forwarding and processing delay of an ESC, as a master learns them from the ESI. Needed for
+/// exact delays when ESCs of different kinds share a segment (see `ecsync_dc::topology`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct EsiTiming {
+    /// Vendor ID.
+    pub vendor_id: u32,
+    /// Product code.
+    pub product_code: u32,
+    /// Forwarding delay tF, ns.
+    pub forwarding_ns: i32,
+    /// Processing delay tP, ns.
+    pub processing_ns: i32,
+}
+
+/// Where the bring-up stops.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Stage {
+    /// After measuring propagation delays (identity only from the SII, nothing written).
+    Delays,
+    /// After offsets, static drift compensation and lock.
+    Lock,
+    /// After SYNC0, process data mapping and OP, with the cyclic frame monitored.
+    Op,
+}
+
+/// How far to bring the network up and how.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BringupConfig {
+    /// Where to stop.
+    pub until: Stage,
+    /// Latches of the receive times whose delays are averaged.
+    pub latch_rounds: u32,
+    /// The latch rounds are spread over this much master time, ns: long enough that each
+    /// slave's clock rate relative to the master can be measured from its first and last port 0
+    /// stamps (20 ms at 25 ppm is 500 ns of drift, a clear signal over the 40 ns stamp
+    /// resolution) and the spans corrected for it, short against the rest of the bring-up.
+    pub latch_window_ns: u64,
+    /// The least gap between two latch rounds, ns, however many rounds share the window: a
+    /// frame and its read-back must have left the segment before the next latch.
+    pub latch_min_gap_ns: u64,
+    /// Separate FRMW frames of static drift compensation (the datasheet recommends ~15000).
+    pub static_drift_frames: u32,
+    /// Read every slave's 0x092C after this many static drift frames.
+    pub check_every_frames: u32,
+    /// Lock when every |0x092C| stays below this, ns.
+    pub lock_threshold_ns: u32,
+    /// ... for this many consecutive checks.
+    pub lock_hold_checks: u32,
+    /// Cycle time of the cyclic phase and SYNC0, ns.
+    pub cycle_ns: u32,
+    /// SYNC0 shift: SYNC0 fires this long after the cycle's grid point, ns.
+    pub sync0_shift_ns: u32,
+    /// How far ahead of the current system time SYNC0 starts, ns.
+    pub sync0_lead_ns: u64,
+    /// Cycles to run in the cyclic frame after OP, monitoring 0x092C.
+    pub monitor_cycles: u32,
+    /// ESI timing of known ESCs.
+    pub esi: Vec<EsiTiming>,
+    /// The master stamps its frames in hardware (send: first bit on the wire; receive: first
+    /// bit of the returned frame) and is itself the DC reference, as in the TSN paper: measure
+    /// its delay to the reference from the latch frames' round trips and set the reference's
+    /// system time to the master's clock at the frame's arrival (instead of at its send).
+    pub master_is_reference: bool,
+    /// How long each wait of the bring-up may last.
+    pub timeouts: BringupTimeouts,
+    /// Measure every slave's crystal against the reference's (and the reference's against the
+    /// master's clock) from port receive times latched over this much master time, ns, right
+    /// after the delays, while the local clocks are still uncorrected ([`measure_clock_rates`](super::measure_clock_rates)).
+    /// 0: not measured. A twin of the network (`ecsync run --save-network`) needs it; 2 s
+    /// resolves 0.02 ppm with 40 ns stamps.
+    pub rate_window_ns: u64,
+    /// Read the SII's device name, mailbox and SyncManagers even when the bring-up stops after
+    /// the delays (a twin of the network names and types its devices from them).
+    pub read_sii_details: bool,
+    /// The sync error counter limit (0x10F1:02, ETG.1020's error settings) written over CoE to
+    /// every drive set to DC SYNC0, in PRE-OP with the sync mode, as a master's startup SDO
+    /// does (TwinCAT's startup list, IgH's `ecrt_slave_config_sdo16`). Past it a drive leaves
+    /// OP with AL status code 0x001A; 0 switches its reaction off (SSC V5.13, `DC_CheckWatchdog`:
+    /// a limit of 0 keeps the SM-Sync sequence valid). `None`: not written, every drive keeps
+    /// its own (the virtual drive's is 0).
+    pub sync_error_limit: Option<u16>,
+}
+
+impl Default for BringupConfig {
+    fn default() -> Self {
+        BringupConfig {
+            until: Stage::Op,
+            latch_rounds: 64,
+            latch_window_ns: 20_000_000,
+            latch_min_gap_ns: 2_000,
+            static_drift_frames: 15_000,
+            check_every_frames: 100,
+            lock_threshold_ns: 100,
+            lock_hold_checks: 1_000,
+            cycle_ns: 1_000_000,
+            sync0_shift_ns: 300_000,
+            sync0_lead_ns: 100_000_000,
+            monitor_cycles: 1_000,
+            esi: Vec::new(),
+            master_is_reference: false,
+            timeouts: BringupTimeouts::default(),
+            rate_window_ns: 0,
+            read_sii_details: false,
+            sync_error_limit: None,
+        }
+    }
+}
+
+impl BringupConfig {
+    /// Checks what the bring-up cannot run with (before any frame is sent).
+    pub(super) fn validate(&self) -> Result<(), MasterError> {
+        if self.cycle_ns == 0 || self.sync0_shift_ns >= self.cycle_ns {
+            return Err(MasterError::Config(format!(
+                "cycle {} ns and SYNC0 shift {} ns: the shift must lie within the cycle",
+                self.cycle_ns, self.sync0_shift_ns
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// How long the bring-up waits for the network, master time. Each wait polls by exchanging
+/// frames, so a timeout bounds both the time and the frames a dead or refusing slave costs.
+/// (How long one frame is waited for, and how often a lost one is sent again, is the driver's
+/// [`crate::driver::ProcedureConfig`].)
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BringupTimeouts {
+    /// How long a slave's SII EEPROM may stay busy with one command, ns. 100 ms: an EEPROM
+    /// read of 8 bytes over I2C takes well under a millisecond, SOEM allows 20 ms and ethercrab
+    /// 10 ms; the margin covers slow EEPROMs and a host that stalls during the poll, and a
+    /// missing EEPROM still fails in a tenth of a second.
+    pub sii_busy_timeout_ns: u64,
+    /// How long one slave may take to report a requested AL state (PRE-OP, SAFE-OP), ns. 5 s:
+    /// a slave's application may take seconds to accept a state (it checks its SyncManagers,
+    /// starts its firmware's tasks); ethercrab waits 5 s, SOEM 2 s.
+    pub state_timeout_ns: u64,
+    /// The pause between two reads of AL status while waiting for a state, ns. 100 us: a state
+    /// reached is seen within a tenth of a millisecond, and the wait costs at most one frame
+    /// per 100 us on the wire.
+    pub state_poll_interval_ns: u64,
+    /// How long the whole network may take to report OP with the cyclic frame running, ns.
+    /// 10 s, twice a single state change: a slave enters OP only once it has seen valid
+    /// process data and its SYNC0 running, and all slaves must get there.
+    pub op_timeout_ns: u64,
+    /// Give up if the network is not locked this long after the static drift compensation,
+    /// ns. 30 s: the time control loops pull in a few ppm of crystal difference in seconds;
+    /// the timeout runs from the end of the static drift compensation, whose length grows with
+    /// the network, so large networks get the same allowance.
+    pub lock_timeout_ns: u64,
+}
+
+impl Default for BringupTimeouts {
+    fn default() -> Self {
+        BringupTimeouts {
+            sii_busy_timeout_ns: crate::sii::BUSY_TIMEOUT_NS,
+            state_timeout_ns: 5_000_000_000,
+            state_poll_interval_ns: 100_000,
+            op_timeout_ns: 10_000_000_000,
+            lock_timeout_ns: 30_000_000_000,
+        }
+    }
+}

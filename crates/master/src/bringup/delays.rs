@@ -1,0 +1,352 @@
+//! Propagation delays from latched port receive times, and the crystals' rates.
+
+use super::config::BringupConfig;
+use crate::MasterError;
+use crate::io::{Link, Pdu};
+use crate::network::{DcCapability, Phase, SlaveInfo};
+use ecsync_dc::{SlavePorts, TreeNode, build_tree, propagation_delays};
+use ecsync_wire::register::{self as reg};
+use ecsync_wire::{Command, DatagramAddress, dc_time};
+
+/// What the last latch of [`measure_delays`] leaves for the offsets.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Latch {
+    /// Master time right before the last latch frame was sent, ns.
+    pub(super) sent_ns: u64,
+    /// Each slave's processing unit receive time (0x0918) of the last latch, ns (0 where the
+    /// slave has no system time).
+    pub(super) pu_stamps_ns: Vec<u64>,
+    /// With [`BringupConfig::master_is_reference`]: the master's delay to the reference, ns
+    /// (mean over the rounds).
+    pub(super) master_delay_ns: Option<f64>,
+    /// Its spread (max - min) over the rounds, ns.
+    pub(super) master_delay_spread_ns: Option<f64>,
+}
+
+/// [`Phase::Delays`]: propagation delays, averaged over latch rounds with the send instant
+/// dithered across the receive stamps' 40 ns resolution. Records each slave's parent, entry
+/// port and delay; returns the last latch for the offsets.
+pub(super) async fn measure_delays(
+    link: &Link,
+    cfg: &BringupConfig,
+    slaves: &mut [SlaveInfo],
+    reference: usize,
+) -> Result<Latch, MasterError> {
+    let n = slaves.len();
+    let rounds = cfg.latch_rounds.max(1);
+    let mut sums = vec![0.0f64; n];
+    let mut mins = vec![f64::INFINITY; n];
+    let mut maxs = vec![f64::NEG_INFINITY; n];
+    let mut last_pu = vec![0u64; n];
+    let mut latch_sent_ns = 0;
+    let mut tree = vec![TreeNode::default(); n];
+    let mut delays = vec![None; n];
+    // The rounds are spread over the latch window so that each slave's clock rate relative to
+    // the master can be measured from its first and last port 0 stamps and the spans corrected
+    // for it.
+    let gap_ns = (cfg.latch_window_ns / u64::from(rounds)).max(cfg.latch_min_gap_ns);
+    let mut all_ports: Vec<Vec<SlavePorts>> = Vec::with_capacity(rounds as usize);
+    let mut sent_at: Vec<u64> = Vec::with_capacity(rounds as usize);
+    let mut round_trips: Vec<f64> = Vec::with_capacity(rounds as usize);
+    for round in 0..rounds {
+        let dither = u64::from(round) * LATCH_DITHER_NS / u64::from(rounds);
+        let t = link.now_ns() + gap_ns + dither;
+        link.sleep_until(t).await;
+        let r = link
+            .pdu(
+                Command::Bwr,
+                DatagramAddress::position(0, reg::DC_RECEIVE_TIME_PORT0),
+                vec![0; 4],
+                "latch receive times",
+            )
+            .await?;
+        let latch_sent = link.last_sent_ns();
+        round_trips.push(link.last_received_ns().wrapping_sub(latch_sent) as i64 as f64);
+        let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
+        if r.wkc != expected {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Bwr,
+                what: "latch receive times",
+                expected,
+                got: r.wkc,
+            });
+        }
+        let mut ports = vec![SlavePorts::default(); n];
+        // One FPRD of the four receive times per slave that has them, batched into as few
+        // frames as fit; the processing unit's 64-bit stamp only in the last round (offsets).
+        let last = round + 1 == rounds;
+        let mut reads = Vec::new();
+        let mut owners = Vec::new();
+        for (i, s) in slaves.iter().enumerate() {
+            ports[i].open = s.open_ports;
+            if let Some(e) = cfg
+                .esi
+                .iter()
+                .find(|e| e.vendor_id == s.vendor_id && e.product_code == s.product_code)
+            {
+                ports[i].forwarding_ns = e.forwarding_ns;
+                ports[i].processing_ns = e.processing_ns;
+            }
+            if s.dc == DcCapability::None {
+                continue;
+            }
+            reads.push(Pdu::new(
+                Command::Fprd,
+                DatagramAddress::configured(s.station, reg::DC_RECEIVE_TIME_PORT0),
+                vec![0; 16],
+            ));
+            owners.push((i, false));
+            if last && s.dc == DcCapability::SystemTime {
+                reads.push(Pdu::new(
+                    Command::Fprd,
+                    DatagramAddress::configured(s.station, reg::DC_RECEIVE_TIME_PU),
+                    vec![0; 8],
+                ));
+                owners.push((i, true));
+            }
+        }
+        let (replies, _) = link.pdus(&reads, "read receive times").await?;
+        for (r, &(i, is_pu)) in replies.iter().zip(&owners) {
+            if r.wkc != 1 {
+                return Err(MasterError::WorkingCounter {
+                    command: Command::Fprd,
+                    what: "read receive times",
+                    expected: 1,
+                    got: r.wkc,
+                }
+                .at(Phase::Delays, slaves[i].id()));
+            }
+            let t = &r.data;
+            if is_pu {
+                last_pu[i] = u64::from_le_bytes(t[..8].try_into().unwrap_or([0; 8]));
+            } else {
+                ports[i].times = Some(core::array::from_fn(|p| {
+                    u32::from_le_bytes([t[4 * p], t[4 * p + 1], t[4 * p + 2], t[4 * p + 3]])
+                }));
+            }
+        }
+        all_ports.push(ports);
+        sent_at.push(latch_sent);
+        latch_sent_ns = latch_sent;
+    }
+    // Clock rates from the first and last latch: local time elapsed at the entry port over
+    // master time elapsed.
+    let master_span = sent_at
+        .last()
+        .copied()
+        .unwrap_or(0)
+        .saturating_sub(sent_at[0]) as f64;
+    if rounds > 1 && master_span > 0.0 {
+        for i in 0..n {
+            let (Some(a), Some(b)) = (
+                all_ports[0][i].times,
+                all_ports[all_ports.len() - 1][i].times,
+            ) else {
+                continue;
+            };
+            let e = ecsync_dc::topology::entry_port(&all_ports[0][i]).unwrap_or(0);
+            let local = f64::from(dc_time::diff_u32(b[usize::from(e)], a[usize::from(e)]));
+            let rate = local / master_span;
+            // Only plausible rates are used; anything else is a misread.
+            if (rate - 1.0).abs() < PLAUSIBLE_RATE_ERROR {
+                for round in all_ports.iter_mut() {
+                    round[i].clock_rate = rate;
+                }
+            }
+        }
+    }
+    let (mut md_sum, mut md_min, mut md_max) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
+    for (round, ports) in all_ports.iter().enumerate() {
+        build_tree(ports, &mut tree)?;
+        propagation_delays(ports, &tree, reference, &mut delays)?;
+        if cfg.master_is_reference {
+            // Master -> first slave, then on to the reference (its delay relative to the
+            // first slave is minus the first slave's delay relative to it).
+            if let (Some(d0), Some(first)) = (
+                ecsync_dc::master_delay_ns(round_trips[round], &ports[0], tree[0].entry_port),
+                delays[0],
+            ) {
+                let d = d0 - first;
+                md_sum += d;
+                md_min = md_min.min(d);
+                md_max = md_max.max(d);
+            }
+        }
+        for (i, d) in delays.iter().enumerate() {
+            if let Some(d) = d {
+                sums[i] += d;
+                mins[i] = mins[i].min(*d);
+                maxs[i] = maxs[i].max(*d);
+            }
+        }
+    }
+    let (master_delay_ns, master_delay_spread_ns) = if cfg.master_is_reference && md_min.is_finite()
+    {
+        (Some(md_sum / f64::from(rounds)), Some(md_max - md_min))
+    } else {
+        (None, None)
+    };
+    for (i, s) in slaves.iter_mut().enumerate() {
+        s.parent = tree[i].parent;
+        s.entry_port = tree[i].entry_port;
+        if s.dc == DcCapability::SystemTime && delays[i].is_some() {
+            s.delay_ns = Some(sums[i] / f64::from(rounds));
+            s.delay_spread_ns = Some(maxs[i] - mins[i]);
+        }
+    }
+    Ok(Latch {
+        sent_ns: latch_sent_ns,
+        pu_stamps_ns: last_pu,
+        master_delay_ns,
+        master_delay_spread_ns,
+    })
+}
+
+/// Latches of [`measure_clock_rates`]: one every this long, ns (at most; fewer over a short
+/// window). Well under the 2.1 s in which a 32-bit receive time's difference stays unambiguous,
+/// and many points for the fit.
+pub(super) const RATE_LATCH_STEP_NS: u64 = 20_000_000;
+
+/// Least-squares slope of `y` on `x` (`None` with fewer than two distinct `x`).
+pub(super) fn slope(x: &[f64], y: &[f64]) -> Option<f64> {
+    let n = x.len().min(y.len());
+    if n < 2 {
+        return None;
+    }
+    let mx = x[..n].iter().sum::<f64>() / n as f64;
+    let my = y[..n].iter().sum::<f64>() / n as f64;
+    let (mut sxy, mut sxx) = (0.0, 0.0);
+    for k in 0..n {
+        sxy += (x[k] - mx) * (y[k] - my);
+        sxx += (x[k] - mx) * (x[k] - mx);
+    }
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+/// Slope of the floor of `y` on `x`: where `y` is a clock read at instants `x` stamped late by a
+/// delay that is never less than some least value but often more (a master's send stamps taken
+/// before the kernel and the wire, on a loaded host up to milliseconds more), the points near
+/// the least delay carry the rate, the others only their extra delay. Fitted by least squares,
+/// then again on the quarter of the points furthest below the line, three times.
+pub(super) fn floor_slope(x: &[f64], y: &[f64]) -> Option<f64> {
+    let n = x.len().min(y.len());
+    let mut keep: Vec<usize> = (0..n).collect();
+    let mut b = slope(x, y)?;
+    for _ in 0..3 {
+        let xs: Vec<f64> = keep.iter().map(|&k| x[k]).collect();
+        let ys: Vec<f64> = keep.iter().map(|&k| y[k]).collect();
+        b = slope(&xs, &ys)?;
+        let mut by_residual: Vec<(f64, usize)> = (0..n).map(|k| (y[k] - b * x[k], k)).collect();
+        by_residual.sort_by(|a, c| a.0.total_cmp(&c.0));
+        // Latency makes y larger: the floor is the smallest residuals.
+        keep = by_residual
+            .iter()
+            .take((n / 4).max(2))
+            .map(|&(_, k)| k)
+            .collect();
+    }
+    let xs: Vec<f64> = keep.iter().map(|&k| x[k]).collect();
+    let ys: Vec<f64> = keep.iter().map(|&k| y[k]).collect();
+    slope(&xs, &ys).or(Some(b))
+}
+
+/// Every slave's crystal against the reference's: port receive times (0x0900, local time,
+/// uncorrected: the drift correction is reset first by writing 0x0930) latched every
+/// `RATE_LATCH_STEP_NS` over `window_ns` of master time; each slave's entry port stamps fitted
+/// on the reference's (least squares, so the 40 ns stamp resolution averages out over the many
+/// latches). Every latch frame reaches every slave a fixed time after the reference, so the
+/// ratio is the crystals' alone, whatever the master's send jitter. Records
+/// [`SlaveInfo::ppm_vs_reference`]; returns the reference's crystal against the master's clock,
+/// fitted on the master's send stamps (as good as they are).
+pub async fn measure_clock_rates(
+    link: &Link,
+    slaves: &mut [SlaveInfo],
+    reference: usize,
+    window_ns: u64,
+) -> Result<Option<f64>, MasterError> {
+    link.bwr(
+        reg::DC_SPEED_COUNTER_START,
+        &0x1000u16.to_le_bytes(),
+        "reset the drift correction",
+    )
+    .await?;
+    let n = slaves.len();
+    let latches = (window_ns / RATE_LATCH_STEP_NS).clamp(1, 10_000) + 1;
+    let step_ns = window_ns / (latches - 1);
+    let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
+    // Per slave: the entry port's stamps, unwrapped from 32 bits by adding each latch's
+    // difference to the one before, ns since the first latch.
+    let mut local: Vec<Vec<f64>> = vec![Vec::with_capacity(latches as usize); n];
+    let mut last: Vec<Option<u32>> = vec![None; n];
+    let mut master: Vec<f64> = Vec::with_capacity(latches as usize);
+    let start = link.now_ns();
+    for k in 0..latches {
+        link.sleep_until(start + k * step_ns).await;
+        let r = link
+            .pdu(
+                Command::Bwr,
+                DatagramAddress::position(0, reg::DC_RECEIVE_TIME_PORT0),
+                vec![0; 4],
+                "latch receive times",
+            )
+            .await?;
+        let sent = link.last_sent_ns();
+        if r.wkc != expected {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Bwr,
+                what: "latch receive times",
+                expected,
+                got: r.wkc,
+            });
+        }
+        let owners: Vec<usize> = (0..n)
+            .filter(|&i| slaves[i].dc != DcCapability::None)
+            .collect();
+        let reads: Vec<Pdu> = owners
+            .iter()
+            .map(|&i| {
+                Pdu::new(
+                    Command::Fprd,
+                    DatagramAddress::configured(slaves[i].station, reg::DC_RECEIVE_TIME_PORT0),
+                    vec![0; 16],
+                )
+            })
+            .collect();
+        let (replies, _) = link.pdus(&reads, "read receive times").await?;
+        for (r, &i) in replies.iter().zip(&owners) {
+            let e = 4 * usize::from(slaves[i].entry_port.min(3));
+            let (true, Some(b)) = (r.wkc == 1, r.data.get(e..e + 4)) else {
+                return Err(MasterError::WorkingCounter {
+                    command: Command::Fprd,
+                    what: "read receive times",
+                    expected: 1,
+                    got: r.wkc,
+                }
+                .at(Phase::Delays, slaves[i].id()));
+            };
+            let t = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            let prev = local[i].last().copied().unwrap_or(0.0);
+            let d = last[i].map_or(0, |l| dc_time::diff_u32(t, l));
+            local[i].push(prev + f64::from(d));
+            last[i] = Some(t);
+        }
+        master.push(sent.wrapping_sub(start) as f64);
+    }
+    let reference_local = local[reference].clone();
+    for (i, s) in slaves.iter_mut().enumerate() {
+        s.ppm_vs_reference = slope(&reference_local, &local[i])
+            .filter(|r| (r - 1.0).abs() < PLAUSIBLE_RATE_ERROR)
+            .map(|r| (r - 1.0) * 1e6);
+    }
+    Ok(floor_slope(&master, &reference_local)
+        .filter(|r| (r - 1.0).abs() < PLAUSIBLE_RATE_ERROR)
+        .map(|r| (r - 1.0) * 1e6))
+}
+
+/// The delay rounds dither their send instant across this span, ns: the receive time stamps'
+/// resolution, so that the mean over the rounds resolves below it.
+const LATCH_DITHER_NS: u64 = 40;
+
+/// A clock rate (a slave's local time over master time) further than this from 1 is a
+/// misread, not a crystal (crystals are within 100 ppm).
+const PLAUSIBLE_RATE_ERROR: f64 = 1e-3;

@@ -1,0 +1,443 @@
+//! SYNC0, the state machine up to OP and the monitoring of the cyclic frame.
+
+use super::clocks::{CycleGrid, DcGroup};
+use super::config::{BringupConfig, BringupTimeouts};
+use crate::MasterError;
+use crate::io::{Link, Pdu, PduReply};
+use crate::network::{DcCapability, Phase, ReferenceReading, SlaveInfo, Sync0Config};
+use ecsync_wire::register::{self as reg};
+use ecsync_wire::{
+    AlControlRepr, AlState, AlStatus, AlStatusCode, Command, DatagramAddress, dc_time,
+};
+
+/// [`Phase::Sync0`]: SYNC0 on the absolute grid of the reference's system time, programmed in
+/// every slave with a system time. `None` if there is none to program (not reached: the
+/// reference has one).
+pub(super) async fn start_sync0(
+    link: &Link,
+    cfg: &BringupConfig,
+    slaves: &[SlaveInfo],
+    dc: &DcGroup,
+) -> Result<Option<Sync0Config>, MasterError> {
+    let now_sys = link
+        .fprd(
+            dc.reference.station,
+            reg::DC_SYSTEM_TIME,
+            8,
+            "read system time",
+        )
+        .await
+        .map_err(|e| e.at(Phase::Sync0, dc.reference))?;
+    let read_at_ns = link.now_ns();
+    let now_sys = u64::from_le_bytes(now_sys[..8].try_into().unwrap_or([0; 8]));
+    let first_start =
+        ecsync_dc::sync0_start_time(now_sys, cfg.sync0_lead_ns, cfg.cycle_ns, cfg.sync0_shift_ns);
+    let mut start = first_start;
+    let mut sync0 = None;
+    for s in slaves.iter().filter(|s| s.dc == DcCapability::SystemTime) {
+        let at = |e: MasterError| e.at(Phase::Sync0, s.id());
+        // A start time already past when SYNC0 is switched on fires only after the system
+        // time's low 32 bits wrap, 4.3 s later (the ESC compares those): a large network's
+        // slaves, programmed one by one (four round trips each), would pass the lead. A later
+        // slave's start moves on by whole cycles, on the same grid, once less than half the
+        // lead is left (the system time estimated by the master's clock since the read: their
+        // rates differ by parts per million).
+        let sys_now_ns = now_sys.wrapping_add(link.now_ns().saturating_sub(read_at_ns));
+        if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > start {
+            start = ecsync_dc::sync0_start_time(
+                sys_now_ns,
+                cfg.sync0_lead_ns,
+                cfg.cycle_ns,
+                cfg.sync0_shift_ns,
+            );
+        }
+        link.fpwr(s.station, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
+            .await
+            .map_err(at)?;
+        link.fpwr(
+            s.station,
+            reg::DC_SYNC0_CYCLE,
+            &cfg.cycle_ns.to_le_bytes(),
+            "SYNC0 cycle",
+        )
+        .await
+        .map_err(at)?;
+        link.fpwr(
+            s.station,
+            reg::DC_START_TIME,
+            &start.to_le_bytes(),
+            "SYNC0 start",
+        )
+        .await
+        .map_err(at)?;
+        link.fpwr(s.station, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
+            .await
+            .map_err(at)?;
+        sync0 = Some(Sync0Config {
+            start_ns: first_start,
+            cycle_ns: cfg.cycle_ns,
+            shift_ns: cfg.sync0_shift_ns,
+        });
+    }
+    Ok(sync0)
+}
+
+/// The cyclic frame of OP: the FRMW first (its send is the reference's time), the process
+/// image's LRWs, then every synced slave's 0x092C. In a network where those reads (and the OP
+/// wait's read of AL status) would not fit half a cycle, one BRD of 0x092C instead, as the
+/// cyclic engine reads it, and the AL status BRD with it: one exchange a cycle that ends
+/// within the cycle. A 512-drive line's exchange with a read per slave took 2.6 ms of its 2 ms
+/// cycle, and its drives missed a SYNC0 pulse every few cycles of the OP wait and monitoring.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(super) struct CyclicFrame {
+    pub(super) pdus: Vec<Pdu>,
+    /// The LRWs are `pdus[1..lrw_end]`.
+    pub(super) lrw_end: usize,
+    /// Each synced slave's 0x092C is read after the LRWs (else one BRD of it, then one of AL
+    /// status).
+    pub(super) per_slave: bool,
+}
+
+impl CyclicFrame {
+    pub(super) fn new(
+        dc: &DcGroup,
+        lrw: &[crate::pdi::LrwChunk],
+        slaves: &[SlaveInfo],
+        cycle_ns: u32,
+    ) -> Self {
+        let mut pdus = vec![dc.frmw()];
+        pdus.extend(lrw.iter().map(|c| {
+            Pdu::new(
+                Command::Lrw,
+                DatagramAddress::Logical(c.logical),
+                vec![0; c.len as usize],
+            )
+        }));
+        let lrw_end = pdus.len();
+        let reads: Vec<Pdu> = dc.difference_reads().collect();
+        let per_slave_ns = exchange_estimate_ns(pdus.iter().chain(&reads), slaves)
+            + exchange_estimate_ns([&al_status_brd()], slaves);
+        let per_slave = per_slave_ns <= u64::from(cycle_ns) / 2;
+        if per_slave {
+            pdus.extend(reads);
+        } else {
+            pdus.push(Pdu::new(
+                Command::Brd,
+                DatagramAddress::position(0, reg::DC_SYSTEM_TIME_DIFF),
+                vec![0; 4],
+            ));
+            pdus.push(al_status_brd());
+        }
+        CyclicFrame {
+            pdus,
+            lrw_end,
+            per_slave,
+        }
+    }
+
+    /// The largest |0x092C| a cycle's replies show. From the BRD, the OR of every slave's
+    /// magnitude: no smaller than the largest, so a bound that holds.
+    pub(super) fn worst_of(
+        &self,
+        dc: &DcGroup,
+        r: &[PduReply],
+        phase: Phase,
+    ) -> Result<u32, MasterError> {
+        if self.per_slave {
+            return dc.worst_of(&r[self.lrw_end..], phase);
+        }
+        let p = &r[self.lrw_end];
+        // Every slave with a system time answers (others may too).
+        let least = dc.synced.len() as u16 + 1;
+        if p.wkc < least {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Brd,
+                what: "read system time difference",
+                expected: least,
+                got: p.wkc,
+            }
+            .during(phase));
+        }
+        let raw = u32::from_le_bytes(
+            p.data
+                .get(..4)
+                .and_then(|d| d.try_into().ok())
+                .ok_or(MasterError::BadReply("system time difference"))?,
+        );
+        Ok(dc_time::decode_time_difference(raw).unsigned_abs())
+    }
+
+    /// The reply of the AL status BRD when it rides along.
+    pub(super) fn al_status<'a>(&self, r: &'a [PduReply]) -> Option<&'a PduReply> {
+        (!self.per_slave).then(|| r.get(self.lrw_end + 1)).flatten()
+    }
+}
+
+/// A broadcast read of AL status: every slave's state OR-ed, the working counter the slaves
+/// that answered.
+pub(super) fn al_status_brd() -> Pdu {
+    Pdu::new(
+        Command::Brd,
+        DatagramAddress::position(0, reg::AL_STATUS),
+        vec![0; 2],
+    )
+}
+
+/// About how long an exchange of `pdus` takes on a 100 Mbit/s network, ns: every byte of its
+/// frames on the wire (Ethernet's header, checksum, preamble and gap with each frame), and the
+/// way to the farthest slave and back (its measured delay, twice).
+pub(super) fn exchange_estimate_ns<'a>(
+    pdus: impl IntoIterator<Item = &'a Pdu>,
+    slaves: &[SlaveInfo],
+) -> u64 {
+    use ecsync_wire::{ECAT_HEADER_LEN, ETH_HEADER_LEN, MAX_FRAME_LEN};
+    // The headers before the datagrams; checksum, preamble and the gap after.
+    pub(super) const FRAME_OVERHEAD: usize = ETH_HEADER_LEN + ECAT_HEADER_LEN + 4 + 8 + 12;
+    pub(super) const ROOM: usize = MAX_FRAME_LEN - ETH_HEADER_LEN - ECAT_HEADER_LEN;
+    let bytes: usize = pdus
+        .into_iter()
+        .map(|p| ecsync_wire::DATAGRAM_HEADER_LEN + p.data.len() + 2)
+        .sum();
+    let frames = bytes.div_ceil(ROOM).max(1);
+    let far_ns = slaves
+        .iter()
+        .filter_map(|s| s.delay_ns)
+        .fold(0.0f64, f64::max);
+    (bytes + frames * FRAME_OVERHEAD) as u64 * 80 + 2 * far_ns.max(0.0) as u64
+}
+
+/// [`Phase::Op`]: requests OP from every slave, then runs the cyclic frame until a broadcast
+/// read of AL status shows every slave in OP (a slave goes to OP only with process data
+/// flowing).
+pub(super) async fn enter_op(
+    link: &Link,
+    timeouts: &BringupTimeouts,
+    slaves: &[SlaveInfo],
+    cyclic: &CyclicFrame,
+    grid: &mut CycleGrid,
+) -> Result<(), MasterError> {
+    let op = AlControlRepr::request(AlState::Op).to_bytes();
+    // The process data keeps coming while the requests go out one by one (a large network's
+    // take longer than a cycle): a slave in OP without outputs for its watchdog time (100 ms)
+    // would fall back to SAFE-OP.
+    let mut last_cyclic = link.now_ns();
+    for (n, s) in slaves.iter().enumerate() {
+        let sent = link.now_ns();
+        link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
+            .await
+            .map_err(|e| e.at(Phase::Op, s.id()))?;
+        let round_trip_ns = link.now_ns().saturating_sub(sent);
+        if link.now_ns().saturating_sub(last_cyclic) >= grid.cycle_ns {
+            link.pdus(&cyclic.pdus, "cyclic").await?;
+            last_cyclic = link.now_ns();
+        }
+        // Requests that one by one would take longer than a cycle (a large network's: a round
+        // trip each, ~1 s for a 1 000-drive line) leave the first drives in OP with their
+        // outputs late or missing, counting missed SYNC0 pulses (a drive with SSC's error
+        // limit leaves OP for it): the others go in one exchange (as many frames as it needs),
+        // right after a cycle's process data.
+        if n == 0 && round_trip_ns.saturating_mul(slaves.len() as u64) > grid.cycle_ns {
+            request_op_at_once(link, &slaves[1..], &op, cyclic, grid).await?;
+            break;
+        }
+    }
+    let count = slaves.len() as u16;
+    // Cycle until every slave reports OP.
+    let deadline = link.now_ns() + timeouts.op_timeout_ns;
+    loop {
+        grid.tick(link).await;
+        let (cycle, _) = link.pdus(&cyclic.pdus, "cyclic").await?;
+        let al = match cyclic.al_status(&cycle) {
+            Some(al) => al.clone(),
+            None => {
+                let (r, _) = link.pdus(&[al_status_brd()], "AL status").await?;
+                r.into_iter()
+                    .next()
+                    .ok_or(MasterError::BadReply("AL status"))?
+            }
+        };
+        // The slaves' AL status OR-ed: OP, and none shows the error indication.
+        let status =
+            AlStatus::new_checked(&al.data[..]).map_err(|_| MasterError::BadReply("AL status"))?;
+        if al.wkc == count && status.state() == Ok(AlState::Op) && !status.error() {
+            return Ok(());
+        }
+        if status.error() || link.now_ns() > deadline {
+            // Who refused, and why: each slave's AL status and code (a drive's 0x002D, 0x0036,
+            // ... is the message the user needs, not the OR of the states).
+            for s in slaves {
+                let st = link
+                    .fprd(s.station, reg::AL_STATUS, 6, "AL status and code")
+                    .await?;
+                let a = AlStatus::new_checked(&st[..])
+                    .map_err(|_| MasterError::BadReply("AL status"))?;
+                if a.error() {
+                    return Err(MasterError::StateChange {
+                        slave: s.station,
+                        state: AlState::Op,
+                        code: a.status_code().unwrap_or(AlStatusCode::NoError),
+                    });
+                }
+            }
+        }
+        if link.now_ns() > deadline {
+            return Err(MasterError::NetworkStateTimeout {
+                state: AlState::Op,
+                answered: al.wkc,
+                expected: count,
+                status: al.data[0],
+            });
+        }
+    }
+}
+
+/// Part of [`Phase::Op`] in a large network: OP requested from `slaves` in one exchange on the
+/// cycle grid, after the cycle's process data.
+pub(super) async fn request_op_at_once(
+    link: &Link,
+    slaves: &[SlaveInfo],
+    op: &[u8],
+    cyclic: &CyclicFrame,
+    grid: &mut CycleGrid,
+) -> Result<(), MasterError> {
+    let requests: Vec<Pdu> = slaves
+        .iter()
+        .map(|s| {
+            Pdu::new(
+                Command::Fpwr,
+                DatagramAddress::Configured {
+                    adp: s.station,
+                    ado: reg::AL_CONTROL,
+                },
+                op.to_vec(),
+            )
+        })
+        .collect();
+    grid.tick(link).await;
+    link.pdus(&cyclic.pdus, "cyclic").await?;
+    let (replies, _) = link.pdus(&requests, "request OP").await?;
+    match slaves.iter().zip(&replies).find(|(_, r)| r.wkc != 1) {
+        Some((s, r)) => Err(MasterError::WorkingCounter {
+            command: Command::Fpwr,
+            what: "request OP",
+            expected: 1,
+            got: r.wkc,
+        }
+        .at(Phase::Op, s.id())),
+        None => Ok(()),
+    }
+}
+
+/// [`Phase::Monitor`]: [`BringupConfig::monitor_cycles`] cycles of the cyclic frame in OP,
+/// the process data's working counter checked; returns the largest |0x092C| seen and the
+/// reference's time as the last cycle's FRMW read it.
+pub(super) async fn monitor(
+    link: &Link,
+    cfg: &BringupConfig,
+    dc: &DcGroup,
+    cyclic: &CyclicFrame,
+    pdi_len: u32,
+    expected_lrw_wkc: u16,
+    grid: &mut CycleGrid,
+) -> Result<(u32, Option<ReferenceReading>), MasterError> {
+    let k = cyclic.lrw_end;
+    let mut max_abs = 0u32;
+    let mut reading = None;
+    for _ in 0..cfg.monitor_cycles {
+        grid.tick(link).await;
+        // The FRMW is in the exchange's first frame, whose send time the reply carries.
+        let (r, first) = link.pdus(&cyclic.pdus, "cyclic").await?;
+        let worst = cyclic.worst_of(dc, &r, Phase::Monitor)?;
+        max_abs = max_abs.max(worst);
+        reading = ReferenceReading::of(&r[0], first.sent_ns).or(reading);
+        let got: u16 = r[1..k].iter().map(|p| p.wkc).sum();
+        if pdi_len > 0 && got != expected_lrw_wkc {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Lrw,
+                what: "process data",
+                expected: expected_lrw_wkc,
+                got,
+            });
+        }
+    }
+    Ok((max_abs, reading))
+}
+
+/// Requests an AL state from one slave and waits until it is reached or refused, polling AL
+/// status every [`BringupTimeouts::state_poll_interval_ns`] for up to
+/// [`BringupTimeouts::state_timeout_ns`].
+pub async fn request_state(
+    link: &Link,
+    station: u16,
+    state: AlState,
+    timeouts: &BringupTimeouts,
+) -> Result<(), MasterError> {
+    request_state_with(link, station, AlControlRepr::request(state), timeouts).await
+}
+
+/// [`request_state`] with the whole AL control value (an error acknowledge with it).
+pub async fn request_state_with(
+    link: &Link,
+    station: u16,
+    control: AlControlRepr,
+    timeouts: &BringupTimeouts,
+) -> Result<(), MasterError> {
+    let state = control.state;
+    let request = control.to_bytes();
+    link.fpwr(station, reg::AL_CONTROL, &request, "AL control")
+        .await?;
+    let start = link.now_ns();
+    loop {
+        // AL status and, four bytes on, the AL status code, in one read.
+        let v = link
+            .fprd(
+                station,
+                reg::AL_STATUS,
+                ecsync_wire::al::AL_STATUS_BLOCK_LEN,
+                "AL status",
+            )
+            .await?;
+        let status =
+            AlStatus::new_checked(&v[..]).map_err(|_| MasterError::BadReply("AL status"))?;
+        if status.error() {
+            return Err(MasterError::StateChange {
+                slave: station,
+                state,
+                // The read reaches the code (the datagram has the length asked for).
+                code: status.status_code().unwrap_or(AlStatusCode::NoError),
+            });
+        }
+        if status.state_raw() == state.code() {
+            return Ok(());
+        }
+        if link.now_ns().saturating_sub(start) > timeouts.state_timeout_ns {
+            return Err(MasterError::StateTimeout {
+                slave: station,
+                state,
+            });
+        }
+        let t = link.now_ns() + timeouts.state_poll_interval_ns;
+        link.sleep_until(t).await;
+    }
+}
+
+impl ReferenceReading {
+    /// The reading a reply carries of the reference's system time (0x0910: the FRMW's or a
+    /// read's), whose frame left at `master_sent_ns`; `None` if the reference did not answer.
+    pub(crate) fn of(reply: &PduReply, master_sent_ns: u64) -> Option<Self> {
+        if reply.wkc == 0 {
+            return None;
+        }
+        let raw = u64::from_le_bytes(reply.data.get(..8)?.try_into().ok()?);
+        // A 32-bit reference reads 0 in the upper half.
+        let reference_ns = if raw >> 32 == 0 {
+            ecsync_dc::sync::extend_reference_time(master_sent_ns, raw as u32)
+        } else {
+            raw
+        };
+        Some(ReferenceReading {
+            master_sent_ns,
+            reference_ns,
+        })
+    }
+}
