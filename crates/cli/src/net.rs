@@ -4,6 +4,7 @@
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MasterSync as _;
+use ecsync_dc::fit::LineFit;
 use ecsync_dc::method::{Method, MethodContext, MethodKind, MethodParams, ParamError};
 use ecsync_lab::output::write_atomic;
 use ecsync_lab::stats::{Stats, Summary};
@@ -468,37 +469,32 @@ struct ControllerOut {
 /// Cycles of the run a twin's reference crystal is fitted over at least (10 s at 1 ms).
 const RATE_FIT_MIN_CYCLES: u64 = 10_000;
 
-/// A least-squares slope fitted as the samples come (Welford's updates: no sums of squares of
-/// nanosecond timestamps to cancel), x and y taken from their first sample.
+/// The reference's time against the master's send stamps, fitted as the samples come (the one
+/// least-squares line, [`LineFit`]), x and y taken from their first sample so that the fit
+/// works on offsets, not on nanosecond timestamps since the epoch.
 #[derive(Debug, Default)]
 struct RateFit {
-    n: u64,
     first: Option<(u64, u64)>,
-    mean_x: f64,
-    mean_y: f64,
-    m2_x: f64,
-    c_xy: f64,
+    fit: LineFit,
 }
 
 impl RateFit {
     fn add(&mut self, x: u64, y: u64) {
         let (x0, y0) = *self.first.get_or_insert((x, y));
-        let (x, y) = (
+        self.fit.add(
             x.wrapping_sub(x0) as i64 as f64,
             y.wrapping_sub(y0) as i64 as f64,
         );
-        self.n += 1;
-        let n = self.n as f64;
-        let dx = x - self.mean_x;
-        self.mean_x += dx / n;
-        self.mean_y += (y - self.mean_y) / n;
-        self.m2_x += dx * (x - self.mean_x);
-        self.c_xy += dx * (y - self.mean_y);
+    }
+
+    /// Samples fitted.
+    fn len(&self) -> u64 {
+        self.fit.len()
     }
 
     /// (slope - 1) in ppm.
     fn ppm(&self) -> Option<f64> {
-        (self.m2_x > 0.0).then(|| (self.c_xy / self.m2_x - 1.0) * 1e6)
+        self.fit.slope().map(|b| (b - 1.0) * 1e6)
     }
 }
 
@@ -1023,7 +1019,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     if let Some(path) = &args.save_network
         && args.reference_ppm.is_none()
         && eng.sync().is_master_shift()
-        && ref_rate.n >= RATE_FIT_MIN_CYCLES
+        && ref_rate.len() >= RATE_FIT_MIN_CYCLES
         && let Some(ppm) = ref_rate.ppm()
     {
         // The twin again, with the reference's crystal from the cyclic phase.
@@ -1033,7 +1029,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             .with_context(|| format!("cannot write {}", path.display()))?;
         eprintln!(
             "network twin: the reference's crystal {ppm:+.2} ppm against this host's clock over {} cycles of the run, written to {}",
-            ref_rate.n,
+            ref_rate.len(),
             path.display()
         );
     }

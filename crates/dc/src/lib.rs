@@ -41,6 +41,7 @@
 extern crate std;
 
 pub mod dcm;
+pub mod fit;
 pub mod lock;
 pub mod method;
 pub mod offset;

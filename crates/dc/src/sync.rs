@@ -32,6 +32,7 @@
 //! DC/master nanoseconds and every difference is taken with wrapping arithmetic (a 32-bit
 //! reference time is extended to 64 bits with [`crate::sync::extend_reference_time`] first).
 
+use crate::fit::LineFit;
 use crate::offset::round_ns;
 use crate::registry::MethodKind;
 use ecsync_wire::dc_time::{diff_u64, extend_u32};
@@ -340,37 +341,6 @@ pub fn grid_phase(t_ns: u64, target_phase_ns: i64, period_ns: u32) -> i64 {
     wrap_phase(r, period_ns)
 }
 
-/// An online least-squares line `y = a + b x` (Welford's updates: no large sums cancel).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-struct LineFit {
-    n: f64,
-    mx: f64,
-    my: f64,
-    cxx: f64,
-    cxy: f64,
-}
-
-impl LineFit {
-    fn add(&mut self, x: f64, y: f64) {
-        self.n += 1.0;
-        let dx = x - self.mx;
-        self.mx += dx / self.n;
-        self.my += (y - self.my) / self.n;
-        self.cxx += dx * (x - self.mx);
-        self.cxy += dx * (y - self.my);
-    }
-
-    /// `(a, b)`; with fewer than two distinct x the slope is 0.
-    fn line(&self) -> (f64, f64) {
-        let b = if self.cxx > 0.0 {
-            self.cxy / self.cxx
-        } else {
-            0.0
-        };
-        (self.my - b * self.mx, b)
-    }
-}
-
 /// `median-fit`: the letter's median filter and gain, but `h_mr` and the master-to-reference
 /// drift fitted together over the initialisation frames (least squares), so that it holds the
 /// target phase whatever the crystals.
@@ -422,20 +392,8 @@ impl MedianFit {
             gain,
             init_frames,
             target_phase_ns,
-            fit_y: LineFit {
-                n: 0.0,
-                mx: 0.0,
-                my: 0.0,
-                cxx: 0.0,
-                cxy: 0.0,
-            },
-            fit_p: LineFit {
-                n: 0.0,
-                mx: 0.0,
-                my: 0.0,
-                cxx: 0.0,
-                cxy: 0.0,
-            },
+            fit_y: LineFit::new(),
+            fit_p: LineFit::new(),
             first: None,
             ready: false,
             h_mr: 0.0,
@@ -475,7 +433,7 @@ impl MedianFit {
         // phases themselves would carry the scheduling jitter's outliers, a host stall of
         // milliseconds near either end of the init weighing most.)
         let b_p = -b_y;
-        let a_p = self.fit_p.my - b_p * self.fit_p.mx;
+        let a_p = self.fit_p.mean_y() - b_p * self.fit_p.mean_x();
         self.h_mr = a_y + a_p;
         self.drift_per_cycle = b_p;
         self.phase_at_init_end = a_p + b_p * self.init_frames as f64;

@@ -3,6 +3,7 @@
 
 use crate::scenario::Scenario;
 use crate::stats::{Stats, Summary};
+use ecsync_dc::fit::LineFit;
 use ecsync_dc::sync::MasterSync;
 use ecsync_dc::{Method, MethodKind};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
@@ -669,35 +670,6 @@ pub const FAULTY_PROCEDURE: ecsync_master::driver::ProcedureConfig =
         reply_timeout_ns: 5_000_000,
         retries: 10,
     };
-
-/// An online least-squares line (Welford's updates).
-#[derive(Debug, Clone, Copy, Default)]
-struct LineFit {
-    n: f64,
-    mx: f64,
-    my: f64,
-    cxx: f64,
-    cxy: f64,
-}
-
-impl LineFit {
-    fn add(&mut self, x: f64, y: f64) {
-        self.n += 1.0;
-        let dx = x - self.mx;
-        self.mx += dx / self.n;
-        self.my += (y - self.my) / self.n;
-        self.cxx += dx * (x - self.mx);
-        self.cxy += dx * (y - self.my);
-    }
-
-    fn slope(&self) -> f64 {
-        if self.cxx > 0.0 {
-            self.cxy / self.cxx
-        } else {
-            0.0
-        }
-    }
-}
 
 /// The host's noise of a block of cycles as the simulated host's timing (cycles outside the
 /// block are drawn on the spot).
@@ -1506,7 +1478,7 @@ impl Run {
         let [a, b, c] = self.series;
         res.series = [a.finish(), b.finish(), c.finish()];
         if self.init_frames >= 2 && self.next_cycle >= self.init_frames {
-            let d = self.init_fit.slope();
+            let d = self.init_fit.slope().unwrap_or(0.0);
             res.init_drift = Some(InitDrift {
                 frames: self.init_frames,
                 drift_ns_per_cycle: d,

@@ -4,6 +4,7 @@ use super::config::BringupConfig;
 use crate::MasterError;
 use crate::io::{Link, Pdu};
 use crate::network::{DcCapability, Phase, SlaveInfo};
+use ecsync_dc::fit::LineFit;
 use ecsync_dc::{SlavePorts, TreeNode, build_tree, propagation_delays};
 use ecsync_wire::register::{self as reg};
 use ecsync_wire::{Command, DatagramAddress, dc_time};
@@ -208,19 +209,8 @@ pub(super) async fn measure_delays(
 pub(super) const RATE_LATCH_STEP_NS: u64 = 20_000_000;
 
 /// Least-squares slope of `y` on `x` (`None` with fewer than two distinct `x`).
-pub(super) fn slope(x: &[f64], y: &[f64]) -> Option<f64> {
-    let n = x.len().min(y.len());
-    if n < 2 {
-        return None;
-    }
-    let mx = x[..n].iter().sum::<f64>() / n as f64;
-    let my = y[..n].iter().sum::<f64>() / n as f64;
-    let (mut sxy, mut sxx) = (0.0, 0.0);
-    for k in 0..n {
-        sxy += (x[k] - mx) * (y[k] - my);
-        sxx += (x[k] - mx) * (x[k] - mx);
-    }
-    (sxx > 0.0).then(|| sxy / sxx)
+fn slope(x: &[f64], y: &[f64]) -> Option<f64> {
+    LineFit::of(x.iter().copied().zip(y.iter().copied())).slope()
 }
 
 /// Slope of the floor of `y` on `x`: where `y` is a clock read at instants `x` stamped late by a
@@ -228,7 +218,7 @@ pub(super) fn slope(x: &[f64], y: &[f64]) -> Option<f64> {
 /// before the kernel and the wire, on a loaded host up to milliseconds more), the points near
 /// the least delay carry the rate, the others only their extra delay. Fitted by least squares,
 /// then again on the quarter of the points furthest below the line, three times.
-pub(super) fn floor_slope(x: &[f64], y: &[f64]) -> Option<f64> {
+fn floor_slope(x: &[f64], y: &[f64]) -> Option<f64> {
     let n = x.len().min(y.len());
     let mut keep: Vec<usize> = (0..n).collect();
     let mut b = slope(x, y)?;
