@@ -403,7 +403,7 @@ fn fault_windows<DB: DrawingBackend>(
             .fold(1.0f64, f64::max);
         let kind = runs
             .iter()
-            .find_map(|r| r.2.windows.get(k).map(|w| (w.fault, w.kind)))
+            .find_map(|r| r.2.windows.get(k).map(|w| (w.fault, w.kind.as_str())))
             .unwrap_or((k, ""));
         let mut chart = ChartBuilder::on(row)
             .caption(format!("fault {}: {}", kind.0, kind.1), ("sans-serif", 14))
@@ -902,7 +902,7 @@ fn faults_table(h: &mut String, out: &SummaryOut, order: &[String]) {
     if out.methods.values().all(|m| m.faults.is_empty()) {
         return;
     }
-    let kinds: Vec<&str> = out
+    let kinds = out
         .methods
         .values()
         .find_map(|m| m.faults.first())
@@ -913,7 +913,7 @@ fn faults_table(h: &mut String, out: &SummaryOut, order: &[String]) {
         "<h2>Faults</h2><p>All runs. Dropped: frames the schedule lost; lost: cycles whose frame did not come back; recovered: slaves the master configured again (network positions); held: cycles the master did not believe the reference's time and held over. Re-lock: from the fault's end to the first of 100 cycles in a row with |0x092C| under the method's lock band (100 ns, or twice the 99.9th percentile it holds outside the faults' windows if more: the letter's bus shift writes the master's jitter into the reference), its M-rS within its error band (twice the 99.9th percentile of its distance from its median outside the windows, at least 1 us), the reference believed and every slave's process data (the worst run). Every fault's edges and every recovery: <a href=\"faults.csv\">faults.csv</a>.</p><table><tr><th class=l>method</th><th>dropped</th><th>lost</th><th>late</th><th>duplicates</th><th>skipped</th><th>held</th><th>recovered</th><th>max |0x092C| ns</th><th>lock band |0x092C| ns</th><th>M-rS band ns</th>"
     );
     for k in &kinds {
-        let _ = write!(h, "<th>re-lock after {} ms</th>", esc(k));
+        let _ = write!(h, "<th>re-lock after {} ms</th>", esc(k.as_str()));
     }
     let _ = write!(h, "</tr>");
     for m in order {

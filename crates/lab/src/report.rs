@@ -994,7 +994,7 @@ fn warnings(
         for (run, f) in mo.faults.iter().enumerate() {
             for (k, ms) in f.relock_ms.iter().enumerate() {
                 if ms.is_none() {
-                    let kind = f.relock_kinds.get(k).copied().unwrap_or("fault");
+                    let kind = f.relock_kinds.get(k).map_or("fault", |k| k.as_str());
                     never.push(format!("{kind} (run {run})"));
                 }
             }

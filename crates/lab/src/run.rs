@@ -11,7 +11,7 @@ use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{CycleReport, CyclicDriver, CyclicLimits};
 use ecsync_master::{Engine, MasterError};
 use ecsync_sim::clock::CrystalParams;
-use ecsync_sim::fault::{Epoch, FaultCounts, FaultEvent, FaultKind, FaultPlayer};
+use ecsync_sim::fault::{Edge, Epoch, FaultCounts, FaultEvent, FaultKind, FaultPlayer, KindName};
 use ecsync_sim::host::{CycleNoise, HostNoise, SharedNoise};
 use ecsync_sim::rng::splitmix64;
 use ecsync_sim::send::{Entry, SendMode, SendParams};
@@ -332,12 +332,12 @@ pub struct LeftOpOut {
 }
 
 /// The cycles around one fault: from its start to a second after its end.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct FaultWindow {
     /// The fault's entry in the schedule, and its kind.
     pub fault: usize,
     /// Its kind.
-    pub kind: &'static str,
+    pub kind: KindName,
     /// When it started, real time, ps.
     pub start_ps: u64,
     /// Until when cycles are kept, real time, ps.
@@ -402,7 +402,7 @@ pub struct FaultsTruth {
     /// under 100 ns.
     pub max_rs_is_ns: u32,
     /// The kind of the fault each of `relock_ms` is of.
-    pub relock_kinds: Vec<&'static str>,
+    pub relock_kinds: Vec<KindName>,
     /// Per fault start: the cycles from it to a second after its end (for the report's plot;
     /// not in summary.json).
     #[serde(skip)]
@@ -766,7 +766,7 @@ pub struct Run {
 /// The way back to lock after one fault (see [`FaultsTruth::relock_ms`]).
 #[derive(Debug, Clone, Copy)]
 struct Relock {
-    kind: &'static str,
+    kind: KindName,
     start_ps: u64,
 }
 
@@ -1113,7 +1113,7 @@ impl Run {
                     // without (a step, a stall, loss to the end of the run).
                     for e in &p.events()[*events_seen..] {
                         let f = &p.schedule().faults[e.fault];
-                        if e.edge == "start" {
+                        if e.edge == Edge::Start {
                             ft.windows.push(FaultWindow {
                                 fault: e.fault,
                                 kind: e.kind,
@@ -1129,7 +1129,7 @@ impl Run {
                                 f.kind,
                                 FaultKind::HostStall { .. } | FaultKind::ClockStep { .. }
                             );
-                        if (e.edge == "end") == windowed {
+                        if (e.edge == Edge::End) == windowed {
                             relock.push(Relock {
                                 kind: e.kind,
                                 start_ps: e.t_ps,

@@ -5,7 +5,7 @@
 //! a burst, a second responder is counted as one.
 
 use ecsync_lab::report::summarize;
-use ecsync_sim::fault::FaultSchedule;
+use ecsync_sim::fault::{Edge, FaultSchedule, KindName};
 use ecsync_sim::preset::PAPER_2024_TOML;
 use std::sync::atomic::AtomicU64;
 
@@ -227,8 +227,15 @@ fn a_pulled_cable_behind_drive_3_brings_drives_4_to_6_back_in_sync() {
     for (m, ms) in relock_ms(&out) {
         let mo = &out.methods[&m];
         let f = &mo.faults[0];
-        let kinds: Vec<(&str, &str)> = f.events.iter().map(|e| (e.kind, e.edge)).collect();
-        assert_eq!(kinds, [("link_down", "start"), ("link_down", "end")], "{m}");
+        let kinds: Vec<(KindName, Edge)> = f.events.iter().map(|e| (e.kind, e.edge)).collect();
+        assert_eq!(
+            kinds,
+            [
+                (KindName::LinkDown, Edge::Start),
+                (KindName::LinkDown, Edge::End)
+            ],
+            "{m}"
+        );
         // 50 ms of drives 4-6 gone: their process data is missing from the working counter.
         assert!(
             (45..=60).contains(&mo.ground_truth.bad_wkc),

@@ -1,0 +1,313 @@
+//! Faults: a schedule of what goes wrong on a segment and its master's host, in one TOML format
+//! (`[[fault]]` entries), and the player that makes it happen, frame by frame, in virtual time
+//! ([`FaultPlayer`] in the simulator's transport) and on a served interface (`ecsync serve
+//! --faults`), so that the same faults meet the simulator's master and any real one.
+//!
+//! ```toml
+//! seed = 7            # optional: the draws of random faults (else the run's seed)
+//! epoch = "cyclic"    # at_s counts from the first frame with process data (LRW); "start":
+//!                     # from the first frame of all (the bring-up)
+//!
+//! [[fault]]
+//! at_s = 0.0
+//! kind = "loss"
+//! probability = 0.1   # or frames = N: a burst of N frames in a row
+//!
+//! [[fault]]
+//! at_s = 20.0
+//! for_s = 0.2         # how long the slave stays off
+//! kind = "power_cycle"
+//! slave = "reference" # or a network position, 1 = the slave next to the master
+//!
+//! [[fault]]
+//! at_s = 40.0
+//! for_s = 0.05
+//! kind = "link_down"  # the cable behind slave 3 pulled: the segment behind it is gone
+//! slave = 3           # and port 1 (the default) of slave 3 is looped
+//! ```
+//!
+//! Kinds: `loss`, `corrupt` (the frame's FCS broken on its way back: the slaves acted on it, the
+//! master's NIC drops it), `delay` (`extra_us` on every reply while it lasts), `power_cycle`
+//! (the slave off for `for_s`, then up again from reset: registers, AL Init, a new power-up
+//! time of its clock; the SII is kept; the slaves behind it are cut off meanwhile),
+//! `link_down` (`slave`, `port`), `hot_connect` (`slaves`: the last N slaves absent until
+//! `at_s`), `host_stall` (`stall_ms`: the master's cyclic task wakes that
+//! late once), `clock_step` (`step_us`, signed: the master's clock jumps), `second_responder`
+//! (every frame answered twice while it lasts, the copy `lag_us` later), `al_error` (`slave`,
+//! `code`, 0x001A by default: the slave's application raises an AL error and falls back from
+//! OP to SAFE-OP, as a drive does on a synchronization error). Random draws are a
+//! hash of the seed and the frame's number since the epoch: every method of a comparison loses
+//! the same frames.
+
+use serde::Deserialize;
+use std::fmt;
+
+mod player;
+mod schedule;
+
+pub use player::{Edge, FaultCounts, FaultEvent, FaultPlayer, FrameFate};
+
+/// The built-in schedule `faults-demo`: the paper network's faults (5 % loss, the
+/// reference's power cycle at 20 s, the cable behind drive 3 pulled at 40 s, a 10 ms host
+/// stall at 60 s).
+pub const FAULTS_DEMO_TOML: &str = include_str!("../../../../presets/faults-demo.toml");
+
+/// The built-in schedules by name.
+pub const BUILT_IN: [(&str, &str); 1] = [("faults-demo", FAULTS_DEMO_TOML)];
+
+/// The default time a power-cycled slave stays off, ns.
+pub const DEFAULT_OFF_NS: u64 = 200_000_000;
+
+/// Where `at_s` counts from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Epoch {
+    /// The first frame that carries process data (an LRW): the cyclic phase.
+    #[default]
+    Cyclic,
+    /// The first frame of all: the bring-up.
+    Start,
+}
+
+/// Which slave a fault hits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SlaveRef {
+    /// Network position, 0-based (the file's `slave = 1` is position 0).
+    Position(usize),
+    /// The reference clock: the first slave with a DC unit.
+    Reference,
+}
+
+/// What goes wrong.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FaultKind {
+    /// Frames lost with this probability each (or a burst: `burst` frames in a row).
+    Loss {
+        /// Probability per frame (1.0 for a burst).
+        probability: f64,
+        /// A burst of this many frames instead of a window of time.
+        burst: Option<u32>,
+    },
+    /// Frames whose FCS breaks on the way back: processed by the slaves, dropped by the NIC.
+    Corrupt {
+        /// Probability per frame.
+        probability: f64,
+        /// A burst of this many frames.
+        burst: Option<u32>,
+    },
+    /// Every reply later by this much.
+    Delay {
+        /// Extra delay, ns.
+        extra_ns: u64,
+    },
+    /// A slave switched off, and on again at the end of the window.
+    PowerCycle {
+        /// The slave.
+        slave: SlaveRef,
+    },
+    /// A port's cable pulled, plugged in again at the end of the window.
+    LinkDown {
+        /// The slave.
+        slave: SlaveRef,
+        /// Its port.
+        port: u8,
+    },
+    /// The master's cyclic task wakes this much late, once.
+    HostStall {
+        /// Stall, ns.
+        stall_ns: u64,
+    },
+    /// The master's clock jumps.
+    ClockStep {
+        /// Step, ns (negative: back).
+        step_ns: i64,
+    },
+    /// The last `slaves` slaves of the network are not connected until the fault starts
+    /// (their cables plugged in then): slaves that appear at the end (hot connect).
+    HotConnect {
+        /// How many.
+        slaves: u16,
+    },
+    /// The slave's application raises an AL error (ETG.1000.6): the error indication with
+    /// `code` in AL status, OP left for SAFE-OP.
+    AlError {
+        /// The slave.
+        slave: SlaveRef,
+        /// The AL status code.
+        code: u16,
+    },
+    /// A second device answers every frame again.
+    SecondResponder {
+        /// The copy's lag behind the reply, ns.
+        lag_ns: u64,
+    },
+}
+
+impl FaultKind {
+    /// The kind's name, as the file gives it.
+    pub fn name(&self) -> KindName {
+        match self {
+            FaultKind::Loss { .. } => KindName::Loss,
+            FaultKind::Corrupt { .. } => KindName::Corrupt,
+            FaultKind::Delay { .. } => KindName::Delay,
+            FaultKind::PowerCycle { .. } => KindName::PowerCycle,
+            FaultKind::LinkDown { .. } => KindName::LinkDown,
+            FaultKind::HostStall { .. } => KindName::HostStall,
+            FaultKind::ClockStep { .. } => KindName::ClockStep,
+            FaultKind::SecondResponder { .. } => KindName::SecondResponder,
+            FaultKind::HotConnect { .. } => KindName::HotConnect,
+            FaultKind::AlError { .. } => KindName::AlError,
+        }
+    }
+
+    /// Whether the fault is the master host's (stall, clock step): played by the simulator's
+    /// transport, not by a served segment.
+    pub fn is_host_fault(&self) -> bool {
+        matches!(
+            self,
+            FaultKind::HostStall { .. } | FaultKind::ClockStep { .. }
+        )
+    }
+}
+
+/// The kinds of fault, by the name a schedule's `kind` gives them (the [`FaultKind`] without
+/// its parameters). Its [`Display`](fmt::Display), `FromStr` and serialized form are that name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum KindName {
+    /// `loss`
+    Loss,
+    /// `corrupt`
+    Corrupt,
+    /// `delay`
+    Delay,
+    /// `power_cycle`
+    PowerCycle,
+    /// `link_down`
+    LinkDown,
+    /// `host_stall`
+    HostStall,
+    /// `clock_step`
+    ClockStep,
+    /// `second_responder`
+    SecondResponder,
+    /// `hot_connect`
+    HotConnect,
+    /// `al_error`
+    AlError,
+}
+
+impl KindName {
+    /// Every kind, in the order the documentation lists them.
+    pub const ALL: [KindName; 10] = [
+        KindName::Loss,
+        KindName::Corrupt,
+        KindName::Delay,
+        KindName::PowerCycle,
+        KindName::LinkDown,
+        KindName::HostStall,
+        KindName::ClockStep,
+        KindName::SecondResponder,
+        KindName::HotConnect,
+        KindName::AlError,
+    ];
+
+    /// The name in the file.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            KindName::Loss => "loss",
+            KindName::Corrupt => "corrupt",
+            KindName::Delay => "delay",
+            KindName::PowerCycle => "power_cycle",
+            KindName::LinkDown => "link_down",
+            KindName::HostStall => "host_stall",
+            KindName::ClockStep => "clock_step",
+            KindName::SecondResponder => "second_responder",
+            KindName::HotConnect => "hot_connect",
+            KindName::AlError => "al_error",
+        }
+    }
+
+    /// The parameters an entry of this kind may give, besides `at_s`, `for_s` and `kind`.
+    pub fn parameters(self) -> &'static [&'static str] {
+        match self {
+            KindName::Loss | KindName::Corrupt => &["probability", "frames"],
+            KindName::Delay => &["extra_us"],
+            KindName::PowerCycle => &["slave"],
+            KindName::LinkDown => &["slave", "port"],
+            KindName::HostStall => &["stall_ms"],
+            KindName::ClockStep => &["step_us"],
+            KindName::SecondResponder => &["lag_us"],
+            KindName::HotConnect => &["slaves"],
+            KindName::AlError => &["slave", "code"],
+        }
+    }
+
+    /// The names, comma-separated, for an error's fix.
+    pub fn list() -> String {
+        Self::ALL.map(Self::as_str).join(", ")
+    }
+}
+
+impl fmt::Display for KindName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for KindName {
+    type Err = ();
+
+    fn from_str(s: &str) -> Result<Self, ()> {
+        Self::ALL.into_iter().find(|k| k.as_str() == s).ok_or(())
+    }
+}
+
+impl serde::Serialize for KindName {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.as_str())
+    }
+}
+
+/// One entry of the schedule.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fault {
+    /// When it starts, ns after the epoch.
+    pub at_ns: u64,
+    /// How long it lasts, ns (`None`: to the end; instantaneous kinds ignore it).
+    pub for_ns: Option<u64>,
+    /// What.
+    pub kind: FaultKind,
+}
+
+impl Fault {
+    /// Whether `t_ns` (after the epoch) is inside the fault's window.
+    fn covers(&self, t_ns: u64) -> bool {
+        t_ns >= self.at_ns
+            && self
+                .for_ns
+                .is_none_or(|d| t_ns < self.at_ns.saturating_add(d))
+    }
+}
+
+/// A parsed fault schedule.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct FaultSchedule {
+    /// Seed of the random draws (`None`: the run's).
+    pub seed: Option<u64>,
+    /// Where `at_s` counts from.
+    pub epoch: Epoch,
+    /// The faults, in the file's order.
+    pub faults: Vec<Fault>,
+}
+
+impl fmt::Display for SlaveRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            SlaveRef::Position(p) => write!(f, "slave {}", p + 1),
+            SlaveRef::Reference => write!(f, "the reference"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
