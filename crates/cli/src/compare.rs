@@ -188,8 +188,8 @@ pub struct Args {
     /// methods only); default: the scenario's `[send] modes`, plain alone unless it says
     /// otherwise.
     /// The modes' parameters are the scenario's `[send]` table.
-    #[arg(long, value_delimiter = ',', num_args = 1..)]
-    send: Option<Vec<String>>,
+    #[arg(long, value_delimiter = ',', num_args = 1.., value_parser = clap::value_parser!(SendMode))]
+    send: Option<Vec<SendMode>>,
     /// Runs with different seeds.
     #[arg(long)]
     runs: Option<u32>,
@@ -288,15 +288,8 @@ pub fn run(args: Args) -> Result<ExitCode> {
             .filter(|k| kinds.contains(k))
             .collect();
     }
-    if let Some(m) = &args.send {
+    if let Some(modes) = &args.send {
         given.push("--send");
-        let mut modes = Vec::with_capacity(m.len());
-        for x in m {
-            modes.push(
-                x.parse::<SendMode>()
-                    .map_err(|e| anyhow::anyhow!("--send: {e}"))?,
-            );
-        }
         s.send_modes = SendMode::ALL
             .into_iter()
             .filter(|k| modes.contains(k))

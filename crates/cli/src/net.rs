@@ -13,7 +13,7 @@ use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{
     CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, Stopped, run_procedure,
 };
-use ecsync_master::transport::Transport as _;
+use ecsync_master::transport::{SendMode, Transport as _};
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
 use ecsync_net::rt::{self, RtReport};
 use ecsync_net::sys::{PacketSocket, TimestampSupport};
@@ -188,6 +188,14 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
 }
 
 /// What `ecsync run --help` says after the options: the methods, from the registry.
+/// `run --send`: the modes a real send has (a hardware transmit stamp is `--tx-stamp`), as
+/// [`SendMode`]s.
+fn real_send_mode() -> impl clap::builder::TypedValueParser<Value = SendMode> {
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(["plain", "spin", "txtime"])
+        .try_map(|s| s.parse::<SendMode>())
+}
+
 fn run_after_help() -> String {
     let mut t = String::from("Methods (--method):\n");
     for m in MethodKind::ALL {
@@ -252,8 +260,8 @@ pub struct RunArgs {
     /// wake-up latency), spin (wake --spin-margin-us early and busy-wait to the instant; the
     /// CPU it costs is reported), txtime (hand the frame to the kernel early with its launch
     /// time: needs the ETF qdisc, refused with what is missing where there is none).
-    #[arg(long, default_value = "plain", value_parser = ["plain", "spin", "txtime"])]
-    send: String,
+    #[arg(long, default_value = "plain", value_parser = real_send_mode())]
+    send: SendMode,
     /// Which transmit timestamp a master-shift method takes as its send time t_ms: off (the
     /// timestamp right before the send, the letter's), software (the kernel's, taken as the
     /// frame goes to the device: the stack's latency leaves the measurement), hardware (the
@@ -517,7 +525,7 @@ struct TmsOut {
 /// `--send` and what it did.
 #[derive(Debug, Serialize)]
 struct SendOut {
-    mode: String,
+    mode: SendMode,
     spin_margin_us: Option<u32>,
     /// Spinning in odd cycles only (`--spin-alternate`).
     alternate: bool,
@@ -762,14 +770,14 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         }
         None => None,
     };
-    if args.send == "txtime" {
+    if args.send == SendMode::Txtime {
         // Before anything goes out: a launch time the kernel ignores would be a lie.
         ecsync_net::txtime::txtime_support(&args.iface).map_err(anyhow::Error::msg)?;
     }
     let mut link = RealLink::open(&args.iface).map_err(|e| anyhow::anyhow!("{e}"))?;
     // Before anything goes out: a t_ms source the interface cannot give is refused.
     let (t_ms_source, t_ms_note) = tx_stamp_source(&args, method.is_master_shift(), &mut link)?;
-    let spin = args.send == "spin";
+    let spin = args.send == SendMode::Spin;
     link.set_send_control(SendControl {
         spin_margin_ns: spin.then_some(u64::from(args.spin_margin_us) * 1000),
         alternate: spin && args.spin_alternate,
@@ -1091,7 +1099,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             let some = |s: &Stats| (s.summary().n > 0).then(|| latency(s));
             let (p, sp) = (some(&w2s_plain), some(&w2s_spin));
             SendOut {
-                mode: args.send.clone(),
+                mode: args.send,
                 spin_margin_us: spin.then_some(args.spin_margin_us),
                 alternate: control.alternate,
                 spin_over_plain_p99: match (&p, &sp) {

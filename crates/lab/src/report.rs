@@ -32,7 +32,7 @@ use crate::letter::{self, Row};
 use crate::run::RunResult;
 use crate::stats::{QUANTILE_REL_ERROR, RESOLUTION_NS, Stats, Summary, mean_of};
 use ecsync_dc::MethodKind;
-use ecsync_sim::send::Entry;
+use ecsync_sim::send::{Entry, SendMode};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -151,6 +151,9 @@ pub struct ControllerOut {
 /// One method's results.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MethodOut {
+    /// The method and its send mode (the map's key is its [`Entry::name`]).
+    #[serde(skip)]
+    pub entry: Entry,
     /// What it is.
     pub description: &'static str,
     /// The letter's name for it.
@@ -251,15 +254,15 @@ fn send_note(
     order: &[String],
     pick: Option<&String>,
 ) -> Option<String> {
-    let pick = pick?;
-    let base = pick.split('+').next().unwrap_or(pick);
+    let pick = methods.get(pick?)?.entry.kind;
     let same: Vec<&String> = order
         .iter()
-        .filter(|m| m.split('+').next() == Some(base) && methods.contains_key(*m))
+        .filter(|m| methods.get(*m).is_some_and(|mo| mo.entry.kind == pick))
         .collect();
     if same.len() < 2 {
         return None;
     }
+    let base = pick.name();
     let mut t = format!("Send modes with {base}: ");
     let parts: Vec<String> = same
         .iter()
@@ -268,13 +271,13 @@ fn send_note(
             let g = &mo.ground_truth;
             let mode = mo.send.as_ref().map_or("plain".to_string(), |s| s.mode.to_string());
             let cost = match &mo.send {
-                Some(s) if s.mode == ecsync_sim::send::SendMode::Spin => {
+                Some(s) if s.mode == SendMode::Spin => {
                     format!(", {:.1} % of a core spun", s.spin_cpu_pct)
                 }
-                Some(s) if s.mode == ecsync_sim::send::SendMode::Txtime => {
+                Some(s) if s.mode == SendMode::Txtime => {
                     format!(", {} launch times missed (frames dropped)", s.launch_misses)
                 }
-                Some(s) if s.mode == ecsync_sim::send::SendMode::Hwstamp => {
+                Some(s) if s.mode == SendMode::Hwstamp => {
                     format!(
                         ", the method's M-rS std {:.3} us (t_ms from the NIC's stamp)",
                         mo.m_rs_pooled.std / 1e3
@@ -293,7 +296,10 @@ fn send_note(
         .collect();
     t.push_str(&parts.join("; "));
     t.push_str(". What a mode buys is the send jitter after the method's decision (j_s, and j_c with txtime), which no method can filter: the phase spread and the shift it needs shrink by it.");
-    if same.iter().any(|m| m.ends_with("+hwstamp")) {
+    if same
+        .iter()
+        .any(|m| methods[*m].entry.send == SendMode::Hwstamp)
+    {
         t.push_str(" A hardware transmit stamp buys a truer measurement, not a truer send: j_c leaves the method's t_ms, j_s still moves the frame.");
     }
     Some(t)
@@ -513,6 +519,7 @@ fn method_out(c: &Comparison, m: usize, entry: Entry, letter_testbed: bool) -> M
         }
     });
     MethodOut {
+        entry,
         description: kind.summary(),
         letter_name: letter::letter_name(kind),
         m_rs: col(0).into(),
@@ -834,13 +841,16 @@ fn warnings(
         }
         let off = g.offset_from_target_ns;
         if off.abs() > 0.1 * budget_ns {
-            let why = match (&mo.init_drift, m.parse::<MethodKind>()) {
-                (Some(d), Ok(MethodKind::Median | MethodKind::PiM2s)) => format!(
+            // The init drift explains a plain send's offset; under another send mode the
+            // mode's own lead dominates it, and the drift's part would read as the reason.
+            let plain = mo.entry.send == SendMode::Plain;
+            let why = match (&mo.init_drift, mo.entry.kind) {
+                (Some(d), MethodKind::Median | MethodKind::PiM2s) if plain => format!(
                     " (the drift over its {} init frames accounts for {})",
                     d.frames,
                     us(d.offset_ns)
                 ),
-                (_, Ok(MethodKind::Snap)) => " (it counts its wait from the send, so the scheduling jitter and execution time land on the phase)".into(),
+                (_, MethodKind::Snap) if plain => " (it counts its wait from the send, so the scheduling jitter and execution time land on the phase)".into(),
                 // A controller that says it was still pulling in: the figure is its approach,
                 // not where it settles.
                 _ => match &mo.controller {

@@ -146,3 +146,63 @@ impl<T: Transport> Transport for HostStall<T> {
         self.inner.start_cycle(cycle);
     }
 }
+
+/// How the host hands a cyclic frame to the wire: the modes `compare` simulates and `ecsync
+/// run` implements (its `--send`; hardware transmit stamps are its `--tx-stamp`).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum SendMode {
+    /// Timestamp and send when the task gets there (the letter's testbed).
+    Plain,
+    /// Wake early, busy-wait to the instant.
+    Spin,
+    /// Hand the frame over early with its launch time.
+    Txtime,
+    /// Send as plain; t_ms is the NIC's hardware transmit stamp.
+    Hwstamp,
+}
+
+impl SendMode {
+    /// Every mode, in report order.
+    pub const ALL: [SendMode; 4] = [
+        SendMode::Plain,
+        SendMode::Spin,
+        SendMode::Txtime,
+        SendMode::Hwstamp,
+    ];
+
+    /// The mode's name as written in files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            SendMode::Plain => "plain",
+            SendMode::Spin => "spin",
+            SendMode::Txtime => "txtime",
+            SendMode::Hwstamp => "hwstamp",
+        }
+    }
+
+    /// Whether method `kind` runs with this mode: a transmit stamp comes after the send, which
+    /// a bus-shift method has written into the frame already.
+    pub fn applies_to(self, kind: ecsync_dc::MethodKind) -> bool {
+        self != SendMode::Hwstamp || kind.is_master_shift()
+    }
+}
+
+impl std::fmt::Display for SendMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for SendMode {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        SendMode::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| format!("no send mode \"{s}\": plain, spin, txtime or hwstamp"))
+    }
+}

@@ -29,65 +29,8 @@ use crate::rng::{SplitMix64, splitmix64};
 use crate::transport::HostDelays;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
-use std::fmt;
-use std::str::FromStr;
 
-/// A send mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum SendMode {
-    /// Timestamp and send when the task gets there (the letter's testbed).
-    Plain,
-    /// Wake early, busy-wait to the instant.
-    Spin,
-    /// Hand the frame over early with its launch time.
-    Txtime,
-    /// Send as plain; t_ms is the NIC's hardware transmit stamp.
-    Hwstamp,
-}
-
-impl SendMode {
-    /// Every mode, in report order.
-    pub const ALL: [SendMode; 4] = [
-        SendMode::Plain,
-        SendMode::Spin,
-        SendMode::Txtime,
-        SendMode::Hwstamp,
-    ];
-
-    /// The mode's name as written in files and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            SendMode::Plain => "plain",
-            SendMode::Spin => "spin",
-            SendMode::Txtime => "txtime",
-            SendMode::Hwstamp => "hwstamp",
-        }
-    }
-
-    /// Whether method `kind` runs with this mode: a transmit stamp comes after the send, which
-    /// a bus-shift method has written into the frame already.
-    pub fn applies_to(self, kind: ecsync_dc::MethodKind) -> bool {
-        self != SendMode::Hwstamp || kind.is_master_shift()
-    }
-}
-
-impl fmt::Display for SendMode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for SendMode {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        SendMode::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| format!("no send mode \"{s}\": plain, spin, txtime or hwstamp"))
-    }
-}
+pub use ecsync_master::transport::SendMode;
 
 /// One column of a comparison: a method and the send mode it runs with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
