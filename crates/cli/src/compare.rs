@@ -320,7 +320,8 @@ pub fn run(args: Args) -> Result<ExitCode> {
         s.host_name = h.clone();
     }
     if let Some(path) = &args.host_trace {
-        use ecsync_sim::host_trace::{HostTrace, Replay, fit};
+        use ecsync_sim::host_fit::fit;
+        use ecsync_sim::host_trace::{HostTrace, Replay};
         let file = path.display().to_string();
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("--host-trace: cannot read {file}"))?;

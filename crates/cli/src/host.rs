@@ -3,7 +3,8 @@
 
 use anyhow::{Context, Result, bail};
 use ecsync_sim::host::HostParams;
-use ecsync_sim::host_trace::{HostTrace, fit, wake_quantiles};
+use ecsync_sim::host_fit::{fit, wake_quantiles};
+use ecsync_sim::host_trace::HostTrace;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -165,7 +166,7 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
     let lat: Vec<f64> = rows.iter().map(|c| c.wake_latency_ns as f64).collect();
     let mut s = lat.clone();
     s.sort_by(f64::total_cmp);
-    let q = |p: f64| ecsync_sim::host_trace::quantile(&s, p) / 1000.0;
+    let q = |p: f64| ecsync_sim::host_fit::quantile(&s, p) / 1000.0;
     println!(
         "{} cycles of {} us recorded to {} ({fifo}; {} slots skipped{}): wake-up latency p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us",
         sum.cycles,

@@ -635,7 +635,7 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
     Ok(s)
 }
 
-/// Parses `table` (a `[host]` table, [`ecsync_sim::host_trace::HostFit::to_toml`]) in the place of the letter's
+/// Parses `table` (a `[host]` table, [`ecsync_sim::host_fit::HostFit::to_toml`]) in the place of the letter's
 /// scenario's own, as `compare` would read it.
 pub fn check_in_scenario(table: &str) -> Result<Scenario, ConfigError> {
     let body = table.split_once("[host]\n").map_or(table, |(_, b)| b);

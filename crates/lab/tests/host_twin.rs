@@ -5,7 +5,8 @@
 
 use ecsync_lab::scenario::check_in_scenario;
 use ecsync_sim::host::{Bursts, HostNoise, HostParams, Jitter};
-use ecsync_sim::host_trace::{HostTrace, Replay, TraceRow, fit};
+use ecsync_sim::host_fit::fit;
+use ecsync_sim::host_trace::{HostTrace, Replay, TraceRow};
 
 /// A host with every part of the model in use, each part identifiable from a trace.
 fn truth() -> HostParams {
@@ -303,7 +304,7 @@ fn the_fit_recovers_a_tail_of_two_pulse_classes() {
         0.15,
     );
     let qs = [0.99, 0.999];
-    let want = ecsync_sim::host_trace::wake_quantiles(&rows, &qs);
+    let want = ecsync_sim::host_fit::wake_quantiles(&rows, &qs);
     let got = f.predicted_wake_quantiles(&qs, 600_000, 99);
     for (k, q) in qs.iter().enumerate() {
         near(&format!("wake-up p{}", q * 100.0), got[k], want[k], 0.1);

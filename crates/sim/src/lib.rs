@@ -66,6 +66,7 @@ mod esc;
 pub mod esi;
 pub mod fault;
 pub mod host;
+pub mod host_fit;
 pub mod host_trace;
 pub mod model;
 pub mod pcap;

@@ -1,6 +1,11 @@
 //! What a virtual slave is: its ESC model (ports, delays, DC capability, memory sizes) and its
 //! device description (identity, name, process data), from which the SII image is built.
 
+/// Physical start of the output SyncManager (SM0) buffer of a device without a mailbox.
+pub const SM_OUTPUT_START: u16 = 0x1000;
+/// Physical start of the input SyncManager (SM1) buffer of a device without a mailbox.
+pub const SM_INPUT_START: u16 = 0x1100;
+
 /// Physical layer of a port.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -433,10 +438,7 @@ impl DeviceInfo {
         };
         let derived = match &self.mailbox {
             Some(m) => m.process_data_starts(),
-            None => (
-                crate::sii_image::SM_OUTPUT_START,
-                crate::sii_image::SM_INPUT_START,
-            ),
+            None => (SM_OUTPUT_START, SM_INPUT_START),
         };
         (
             described(ecsync_wire::sii::sm_type::OUTPUTS).unwrap_or(derived.0),

@@ -7,10 +7,7 @@ use ecsync_wire::sii::{self, category};
 /// EEPROM size: 16 Kbit (2 KiB), the size of the ESC configuration area's word 0x3E + 1.
 pub const EEPROM_BYTES: usize = 2048;
 
-/// Physical start of the output SyncManager (SM0) buffer.
-pub const SM_OUTPUT_START: u16 = 0x1000;
-/// Physical start of the input SyncManager (SM1) buffer.
-pub const SM_INPUT_START: u16 = 0x1100;
+pub use crate::model::{SM_INPUT_START, SM_OUTPUT_START};
 /// SM0 control byte: buffered mode, ECAT writes, PDI interrupt, watchdog trigger.
 pub const SM_OUTPUT_CONTROL: u8 = 0x64;
 /// SM1 control byte: buffered mode, ECAT reads, PDI interrupt.

@@ -1,0 +1,205 @@
+use super::*;
+
+const US: u64 = 1_000_000; // ps
+
+fn unit(ppm: f64, start: u64) -> DcUnit {
+    DcUnit::new(DcParams {
+        sof_resolution_ns: 10,
+        crystal: CrystalParams {
+            ppm,
+            initial_local_ns: start,
+            ..Default::default()
+        },
+        is_64bit: true,
+    })
+}
+
+#[test]
+fn sof_skips_the_tick_quantisation_exactly() {
+    let mut x = 0x0bad_cafe_f00d_1234u64;
+    for seed in 0..40u64 {
+        for res in [10, 40, 80, 1_000] {
+            let u = DcUnit::new(DcParams {
+                sof_resolution_ns: res,
+                crystal: CrystalParams {
+                    initial_local_ns: seed * 7 + 3,
+                    seed: seed.wrapping_mul(0x9e37_79b9_7f4a_7c15),
+                    ..Default::default()
+                },
+                is_64bit: true,
+            });
+            let check = |v: u64| {
+                assert_eq!(
+                    u.sof(v),
+                    u.sof(u.clock.quantise(v)),
+                    "{v} res {res} seed {seed}"
+                );
+            };
+            let lo = u.sof_phase + 10;
+            (lo..lo + 2_000).for_each(check);
+            for _ in 0..2_000 {
+                x = x
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                check(x.max(lo));
+                check((x >> 20).max(lo));
+            }
+        }
+    }
+}
+
+#[test]
+fn constant_remainders_match_the_operator() {
+    let mut x = 0x0123_4567_89ab_cdefu64;
+    let edges = [
+        0,
+        1,
+        9,
+        10,
+        39,
+        40,
+        41,
+        u64::MAX,
+        u64::MAX - 1,
+        u64::MAX - 39,
+    ];
+    for i in 0..100_000u64 {
+        x = x
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        for v in [x, x >> (i % 64), edges[(i % 10) as usize]] {
+            assert_eq!(rem40(v), v % 40, "{v}");
+            assert_eq!(rem10(v), v % 10, "{v}");
+        }
+    }
+}
+
+#[test]
+fn reading_system_time_adds_the_offset() {
+    let mut u = unit(0.0, 5_000);
+    u.write(reg::DC_SYSTEM_TIME_OFFSET, &1_000_000u64.to_le_bytes(), 0);
+    let mut block = [0u8; DC_BLOCK_LEN];
+    u.refresh(&mut block, 0x0910, 0x0918, 2 * US);
+    let v = u64::from_le_bytes(block[0x10..0x18].try_into().unwrap());
+    assert_eq!(v, 5_000 + 2_000 + 1_000_000);
+}
+
+#[test]
+fn sign_magnitude_difference_after_a_write() {
+    // The register description of 0x092C: bits 30:0 = |local copy - received|, bit 31 = 1
+    // when the local copy is smaller than the received time, 0 when greater or equal; reset
+    // value 0x00000000.
+    let mut u = unit(0.0, 0);
+    let read = |u: &mut DcUnit| {
+        let mut block = [0u8; DC_BLOCK_LEN];
+        u.refresh(&mut block, 0x092c, 0x0930, 100 * US);
+        u32::from_le_bytes(block[0x2c..0x30].try_into().unwrap())
+    };
+    assert_eq!(read(&mut u), 0x0000_0000, "reset value");
+    u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0], 0);
+    assert_eq!(read(&mut u), 0x0000_0000, "after a filter depth write");
+    // Local system time at t = 100 us is 100_000; write 100_300 with delay 0: the local copy
+    // is 300 ns smaller than the received time, so bit 31 is set and the magnitude 300.
+    u.write(reg::DC_SYSTEM_TIME, &100_300u64.to_le_bytes(), 100 * US);
+    assert_eq!(read(&mut u), 0x8000_0000 | 300);
+    assert_eq!(u.time_difference_ns(), -300.0);
+    // With a delay of 500 ns the local copy minus the delay (99_500) is 200 ns greater than
+    // the received 99_300: bit 31 clear.
+    u.write(reg::DC_SYSTEM_TIME_DELAY, &500u32.to_le_bytes(), 100 * US);
+    u.write(reg::DC_SYSTEM_TIME, &99_300u64.to_le_bytes(), 100 * US);
+    assert_eq!(read(&mut u), 200);
+    assert_eq!(u.time_difference_ns(), 200.0);
+    // Equal ("greater than or equal"): bit 31 clear, the register reads 0x00000000.
+    u.write(reg::DC_SYSTEM_TIME, &99_500u64.to_le_bytes(), 100 * US);
+    assert_eq!(read(&mut u), 0x0000_0000);
+    // Writing the speed counter start resets the register to 0.
+    u.write(reg::DC_SYSTEM_TIME, &99_000u64.to_le_bytes(), 100 * US);
+    assert_eq!(read(&mut u), 500);
+    u.write(
+        reg::DC_SPEED_COUNTER_START,
+        &0x1000u16.to_le_bytes(),
+        100 * US,
+    );
+    assert_eq!(read(&mut u), 0x0000_0000);
+}
+
+#[test]
+fn a_32_bit_write_compares_across_the_wrap() {
+    // Local system time just after a 2^32 wrap, written value just before it.
+    let mut u = unit(0.0, (1u64 << 32) + 40);
+    u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0], 0);
+    u.write(reg::DC_SYSTEM_TIME, &(u32::MAX - 59).to_le_bytes(), 0);
+    assert_eq!(u.time_difference_ns(), 100.0);
+}
+
+#[test]
+fn the_branch_free_time_difference_is_the_registers() {
+    let mut x = 0x9e37_79b9_7f4a_7c15u64;
+    let edges = [
+        0,
+        1,
+        -1,
+        0x7fff_ffff,
+        -0x7fff_ffff,
+        0x8000_0000,
+        -0x8000_0000,
+    ];
+    let edges = edges.into_iter().chain([i64::MAX, i64::MIN, i64::MIN + 1]);
+    let random = (0..100_000).map(|k| {
+        x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        // Small and large magnitudes alike.
+        (x as i64) >> (k % 64)
+    });
+    for d in edges.chain(random) {
+        assert_eq!(
+            encode_time_difference_branch_free(d),
+            dc_time::encode_time_difference(d),
+            "{d}"
+        );
+    }
+}
+
+#[test]
+fn the_loop_pulls_a_drifting_clock_onto_the_reference() {
+    // A reference with a perfect clock; this unit runs 80 ppm fast. System time writes every
+    // 20 us (static drift compensation), then every 1 ms.
+    let mut u = unit(80.0, 0);
+    u.write(reg::DC_SPEED_COUNTER_START, &0x1000u16.to_le_bytes(), 0);
+    u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &0x0c00u16.to_le_bytes(), 0);
+    let mut t = 0;
+    for _ in 0..15_000 {
+        t += 20 * US;
+        let reference = t / 1000;
+        u.write(reg::DC_SYSTEM_TIME, &reference.to_le_bytes(), t);
+    }
+    let mut worst = 0.0f64;
+    for _ in 0..2_000 {
+        t += 1_000 * US;
+        let reference = t / 1000;
+        u.write(reg::DC_SYSTEM_TIME, &reference.to_le_bytes(), t);
+        worst = worst.max(u.time_difference_ns().abs());
+    }
+    assert!(worst < 100.0, "worst |dt| after lock {worst} ns");
+    let c = u.clock().drift_correction();
+    assert!((c + 80e-6).abs() < 2e-6, "drift correction {c}");
+}
+
+#[test]
+fn sync0_pulses_on_the_start_time_grid() {
+    let mut u = unit(0.0, 0);
+    u.write(reg::DC_SYNC0_CYCLE, &1_000_000u32.to_le_bytes(), 0);
+    u.write(reg::DC_START_TIME, &5_250_000u64.to_le_bytes(), 0);
+    u.write(reg::DC_ACTIVATION, &[0x03], 0);
+    assert_eq!(u.next_sync0_after(0), Some(5_250_000));
+    assert_eq!(u.next_sync0_after(5_250_000), Some(6_250_000));
+    assert_eq!(u.next_sync0_after(7_000_000), Some(7_250_000));
+}
+
+#[test]
+fn sync0_start_in_the_past_waits_for_the_32_bit_wrap() {
+    let mut u = unit(0.0, 10_000_000);
+    u.write(reg::DC_SYNC0_CYCLE, &1_000_000u32.to_le_bytes(), 0);
+    u.write(reg::DC_START_TIME, &1_000u64.to_le_bytes(), 0);
+    u.write(reg::DC_ACTIVATION, &[0x03], 0);
+    assert_eq!(u.sync0().unwrap().0, 1_000 + (1 << 32));
+}
