@@ -10,7 +10,7 @@
 //! * `tx_delay_ns` (optional, may be empty): from the send timestamp to the kernel's (or NIC's)
 //!   TX timestamp; empty where none was taken.
 //!
-//! The model the fit writes ([`HostParams`]): the wake-up latency is a floor plus j_s (a folded
+//! The model the fit writes ([`HostParams`](crate::host::HostParams)): the wake-up latency is a floor plus j_s (a folded
 //! Gaussian, exponential pulses, bursts in which it is scaled); the floor is counted in e_m, since
 //! the simulator's host only uses j_s + e_m (the wake-up to the send). Replay resamples blocks of
 //! consecutive cycles (a moving-block bootstrap), each block's start a hash of (seed, block), so
