@@ -25,6 +25,7 @@
 #![warn(missing_docs)]
 
 pub mod compare;
+mod html;
 pub mod letter;
 pub mod output;
 pub mod plots;

@@ -2,8 +2,9 @@
 //! and report.html, and the findings the paper claims, checked.
 
 use super::{TsnScenario, Variant, VariantResult};
+use crate::html::esc;
 use crate::output::write_atomic;
-use crate::plots::{COLORS, draw_envelopes, draw_hist, err, esc, fonts};
+use crate::plots::{COLORS, draw_envelopes, draw_hist, err, fonts};
 use crate::stats::Summary;
 use ecsync_tsn::qbv::GateControlEntry;
 use plotters::coord::Shift;

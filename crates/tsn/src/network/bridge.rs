@@ -3,13 +3,41 @@
 //! and the master.
 
 use super::phc::Phc;
-use super::{BridgeParams, Capture, Noise, stamp, wire_ns};
+use super::wire::{Capture, Noise, stamp, wire_ns};
 use crate::gptp::TimeAwareSystem;
 use crate::gptp_msg;
 use crate::gptp_net::{GptpMedium, Transmission};
+use crate::qbv::PortSchedule;
 use ecsync_master::io::MASTER_MAC;
 use ecsync_sim::frame_wire_time_ps;
 use ecsync_sim::transport::MasterClock;
+
+/// The bridge.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BridgeParams {
+    /// Crystal error, ppm.
+    pub ppm: f64,
+    /// Crystal wander, ppm per sqrt(s).
+    pub wander_ppm_per_sqrt_s: f64,
+    /// Bridge clock at the start, ns.
+    pub initial_ns: u64,
+    /// Store-and-forward residence after a frame is received, before its egress, ns.
+    pub residence_ns: u64,
+    /// Gate cycle, ns.
+    pub cycle_ns: u64,
+    /// Local time at which gate cycles start (modulo the cycle), ns.
+    pub base_ns: u64,
+    /// Egress towards the slaves.
+    pub ethercat_port: PortSchedule,
+    /// Egress towards the master.
+    pub master_port: PortSchedule,
+    /// Share of the best-effort time the master-facing wire carries cross traffic.
+    pub cross_traffic_load: f64,
+    /// Size of a cross-traffic frame, bytes.
+    pub cross_traffic_frame_bytes: u64,
+    /// gPTP priority1.
+    pub priority1: u8,
+}
 
 /// The bridge's MAC address (the source of its gPTP messages).
 pub const BRIDGE_MAC: [u8; 6] = [0x00, 0x1b, 0x21, 0xec, 0x00, 0x02];

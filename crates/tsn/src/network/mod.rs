@@ -35,8 +35,9 @@
 
 mod bridge;
 mod phc;
+mod wire;
 
-pub use bridge::BRIDGE_MAC;
+pub use bridge::{BRIDGE_MAC, BridgeParams};
 pub use phc::Phc;
 
 use crate::gptp::{Config as GptpConfig, SystemIdentity, TimeAwareSystem};
@@ -46,13 +47,13 @@ use bridge::{BRIDGE, Bridge, CrossTraffic, GptpWire, MASTER};
 use ecsync_master::transport::{Never, Received, Transport};
 use ecsync_sim::clock::{CrystalParams, DEFAULT_WANDER_STEP_PS};
 use ecsync_sim::pcap::PcapCapture;
-use ecsync_sim::rng::SplitMix64;
 use ecsync_sim::transport::MasterClock;
 use ecsync_sim::{Segment, SlaveSpec, TopologyError, frame_wire_time_ps};
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::fs::File;
 use std::io::BufWriter;
+use wire::{Capture, Noise, stamp, wire_ns};
 
 /// 100BASE-TX: two PHYs per link, ns (the segment's MII hop uses the same figure).
 pub const PHY_PAIR_NS: f64 = 300.0;
@@ -126,33 +127,6 @@ pub struct MasterParams {
     pub cable_m: f64,
     /// How far into the EtherCAT window (bridge side) the master aims its frames, ns.
     pub launch_margin_ns: u64,
-    /// gPTP priority1.
-    pub priority1: u8,
-}
-
-/// The bridge.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BridgeParams {
-    /// Crystal error, ppm.
-    pub ppm: f64,
-    /// Crystal wander, ppm per sqrt(s).
-    pub wander_ppm_per_sqrt_s: f64,
-    /// Bridge clock at the start, ns.
-    pub initial_ns: u64,
-    /// Store-and-forward residence after a frame is received, before its egress, ns.
-    pub residence_ns: u64,
-    /// Gate cycle, ns.
-    pub cycle_ns: u64,
-    /// Local time at which gate cycles start (modulo the cycle), ns.
-    pub base_ns: u64,
-    /// Egress towards the slaves.
-    pub ethercat_port: PortSchedule,
-    /// Egress towards the master.
-    pub master_port: PortSchedule,
-    /// Share of the best-effort time the master-facing wire carries cross traffic.
-    pub cross_traffic_load: f64,
-    /// Size of a cross-traffic frame, bytes.
-    pub cross_traffic_frame_bytes: u64,
     /// gPTP priority1.
     pub priority1: u8,
 }
@@ -241,58 +215,6 @@ pub struct GptpFigures {
     pub counts: ExchangeCounts,
     /// Messages that waited for cross traffic in flight.
     pub held_by_cross_traffic: u64,
-}
-
-/// SplitMix64 (the host noise's stream): the seeded noise of launch jitter and cross traffic.
-#[derive(Debug, Clone)]
-struct Noise(SplitMix64);
-
-impl Noise {
-    fn new(seed: u64) -> Self {
-        Noise(SplitMix64(seed))
-    }
-    /// Uniform in (0, 1].
-    fn unit(&mut self) -> f64 {
-        self.0.next_unit()
-    }
-    /// Standard normal (Box-Muller).
-    fn normal(&mut self) -> f64 {
-        let (u, v) = (self.unit(), self.unit());
-        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-    }
-}
-
-/// The capture at the master's port, up to a real time.
-#[derive(Debug, Default)]
-struct Capture {
-    file: Option<PcapCapture<BufWriter<File>>>,
-    until_ps: u64,
-    /// The first record that could not be written (the capture's own I/O).
-    error: Option<String>,
-}
-
-impl Capture {
-    fn record(&mut self, t_ps: u64, frame: &[u8]) {
-        if t_ps > self.until_ps {
-            return;
-        }
-        if let Some(c) = &mut self.file
-            && let Err(e) = c.record(t_ps, frame)
-        {
-            self.error.get_or_insert_with(|| e.to_string());
-        }
-    }
-}
-
-/// A hardware timestamp: the clock's reading on the timestamper's grid of `g` ns.
-fn stamp(g: u64, ns: u64) -> u64 {
-    let g = g.max(1);
-    ns / g * g
-}
-
-/// A frame's time on the wire, whole ns.
-fn wire_ns(len: usize) -> u64 {
-    frame_wire_time_ps(len) / 1000
 }
 
 /// One frame's trip.
