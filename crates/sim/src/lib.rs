@@ -70,6 +70,7 @@ pub mod host_fit;
 pub mod host_trace;
 pub mod model;
 pub mod pcap;
+pub mod phy;
 pub mod preset;
 pub mod rng;
 mod segment;
@@ -79,7 +80,7 @@ pub mod transport;
 pub mod twin;
 
 pub use esc::{DatagramEffects, Esc, EscStats, LoopMode};
+pub use phy::{BYTE_TIME_PS, CABLE_PS_PER_M, frame_wire_time_ps};
 pub use segment::{
-    BYTE_TIME_PS, CABLE_PS_PER_M, FrameOutcome, FrameTrace, Segment, SlaveSpec, TopologyError,
-    Upstream, frame_is_processable, frame_wire_time_ps,
+    FrameOutcome, FrameTrace, Segment, SlaveSpec, TopologyError, Upstream, frame_is_processable,
 };

@@ -266,11 +266,11 @@ impl Esc {
         self.watchdog_check(t_ps);
         if let Some(k) = self.program_slot(shape) {
             self.replay(k, frame, t_ps);
-            self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+            self.end_of_frame(t_ps + crate::phy::frame_wire_time_ps(frame.len()));
             return DatagramEffects::default();
         }
         let fx = self.process_frame_full(frame, offsets, shape, t_ps);
-        self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+        self.end_of_frame(t_ps + crate::phy::frame_wire_time_ps(frame.len()));
         fx
     }
 
@@ -363,7 +363,7 @@ impl Esc {
                 break;
             }
         }
-        self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+        self.end_of_frame(t_ps + crate::phy::frame_wire_time_ps(frame.len()));
         out
     }
 }

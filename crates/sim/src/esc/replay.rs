@@ -688,7 +688,7 @@ impl Esc {
     ) -> bool {
         let done = self.replay_cyclic_steps(frame, shape, t_ps, d);
         if self.sync_pending {
-            self.end_of_frame(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+            self.end_of_frame(t_ps + crate::phy::frame_wire_time_ps(frame.len()));
         }
         done
     }
@@ -817,7 +817,7 @@ impl Esc {
     ) -> bool {
         let done = self.replay_planned_steps(p, frame, t_ps, d);
         if self.sync_pending {
-            self.end_of_frame_in::<true>(t_ps + crate::segment::frame_wire_time_ps(frame.len()));
+            self.end_of_frame_in::<true>(t_ps + crate::phy::frame_wire_time_ps(frame.len()));
         }
         done
     }

@@ -1,0 +1,498 @@
+//! A segment of virtual ESCs joined by cables, and the path a frame takes through it.
+//!
+//! A frame sent by the master at real time `t` enters the first ESC's entry port after the
+//! master cable's delay. In each ESC the frame visits the ports in the datasheet's processing
+//! order 0 -> processing unit -> 3 -> 1 -> 2 -> 0: an open port sends it down the cable and
+//! receives it back later, a closed or unconnected port loops it back inside the ESC. Leaving a
+//! port costs the forwarding delay tF, or the processing delay tP when the frame came through the
+//! processing unit. The first bit's arrival at each port is what the receive time latches see,
+//! and the arrival at the processing unit is when its datagrams act: all in picoseconds of real
+//! time, so cable lengths of centimetres and frame lengths (80 ns per byte) are exact.
+
+use crate::clock::{CrystalParams, PS_PER_NS};
+use crate::esc::{Deferred, Esc, EscStats};
+use crate::model::{DeviceInfo, EscModel, PortKind};
+use ecsync_wire::register as reg;
+use ecsync_wire::{
+    AddressMode, Command, DATAGRAM_HEADER_LEN, ETH_HEADER_LEN, ETHERTYPE_ETHERCAT, EcatFrame,
+    header_shape_key, mark_returned_frame,
+};
+use std::sync::Arc;
+
+mod plans;
+mod process;
+mod topology;
+use plans::{SHAPE_SLOTS, ShapeCache, VisitPlan};
+use process::LongIndex;
+use topology::{Link, Node, Peer, RING, Timing, build_plan, ps, ring_pos};
+
+// A shape is compared byte for byte (never decoded): the Ethernet type and EtherCAT header as
+// one word, then each datagram header.
+const HEAD_AT: usize = ETH_HEADER_LEN - 2;
+const FIRST_DATAGRAM: usize = EcatFrame::<&[u8]>::first_datagram_offset();
+
+use crate::phy::CABLE_PS_PER_M;
+
+/// Where a slave's entry port is connected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Upstream {
+    /// The master's network interface.
+    Master,
+    /// Port `port` of slave `index` (an index into the spec's list).
+    Slave {
+        /// Index of the upstream slave in the spec.
+        index: usize,
+        /// Port of the upstream slave.
+        port: u8,
+    },
+}
+
+/// One slave of a segment description.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SlaveSpec {
+    /// The ESC model.
+    pub model: EscModel,
+    /// The device.
+    pub device: DeviceInfo,
+    /// The DC unit's crystal.
+    pub crystal: CrystalParams,
+    /// What the entry port is connected to.
+    pub upstream: Upstream,
+    /// This slave's port towards the master (normally 0).
+    pub entry_port: u8,
+    /// Cable length to the upstream device, m.
+    pub cable_m: f64,
+}
+
+/// Why a segment description cannot be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TopologyError {
+    /// No slaves.
+    #[error("the segment has no slaves")]
+    Empty,
+    /// Not exactly one slave connected to the master.
+    #[error("exactly one slave must be connected to the master, found {0}")]
+    MasterLinks(usize),
+    /// An upstream index that does not name an earlier slave.
+    #[error("slave {slave}: upstream slave {upstream} does not exist or is not listed before it")]
+    BadUpstream {
+        /// The slave.
+        slave: usize,
+        /// Its upstream index.
+        upstream: usize,
+    },
+    /// A port that the model does not implement.
+    #[error("slave {slave}: port {port} is not implemented by its ESC model")]
+    NoSuchPort {
+        /// The slave.
+        slave: usize,
+        /// The port.
+        port: u8,
+    },
+    /// Two cables on one port.
+    #[error("slave {slave}: port {port} is connected twice")]
+    PortInUse {
+        /// The slave.
+        slave: usize,
+        /// The port.
+        port: u8,
+    },
+    /// A negative or non-finite cable length or delay.
+    #[error("slave {slave}: {what} must be a finite number >= 0")]
+    BadNumber {
+        /// The slave.
+        slave: usize,
+        /// Which number.
+        what: &'static str,
+    },
+}
+
+/// The ground truth of one frame's way: when its first bit reached each slave's processing
+/// unit. Cheap to keep (it shares the segment's timing, which every frame of an unchanged
+/// segment follows), so a cycle of several frames keeps each one's.
+#[derive(Debug, Clone)]
+pub struct FrameTrace {
+    sent_ps: u64,
+    timing: Arc<Timing>,
+}
+
+impl FrameTrace {
+    /// Real time the frame's first bit reached the processing unit of the slave at network
+    /// position `pos`, ps (`None`: it did not).
+    #[inline]
+    pub fn pu_ps(&self, pos: usize) -> Option<u64> {
+        self.timing
+            .pu
+            .get(pos)
+            .copied()
+            .flatten()
+            .map(|o| self.sent_ps + o)
+    }
+
+    /// When the frame left the master, ps.
+    pub fn sent_ps(&self) -> u64 {
+        self.sent_ps
+    }
+
+    /// Number of slaves.
+    pub fn len(&self) -> usize {
+        self.timing.pu.len()
+    }
+
+    /// Whether the segment has no slaves.
+    pub fn is_empty(&self) -> bool {
+        self.timing.pu.is_empty()
+    }
+}
+
+/// What happened to a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameOutcome {
+    /// Real time the returned frame's first bit reaches the master, ps; `None` if it was lost.
+    pub returned_sof_ps: Option<u64>,
+    /// Whether the datagrams were processed (a malformed frame is forwarded untouched).
+    pub processed: bool,
+}
+
+/// A virtual EtherCAT segment.
+#[derive(Debug, Clone)]
+pub struct Segment {
+    nodes: Vec<Node>,
+    first: u16,
+    /// The last frame's way.
+    trace: FrameTrace,
+    /// The way of a frame that reaches no slave (destroyed at the first port).
+    unreached: Arc<Timing>,
+    /// Slave index in network (auto-increment) order -> index in the spec.
+    spec_index: Vec<usize>,
+    frames: u64,
+    malformed: u64,
+    lost: u64,
+    /// The frame shapes seen recently (a cycle's frames each have their own).
+    shapes: ShapeCache,
+    replay: bool,
+    /// The frame's timing through the segment, relative to its send time: the same for every
+    /// frame while the loops do not change (see [`Timing`]).
+    timing: Option<Arc<Timing>>,
+    /// Per shape slot: the ESCs a frame of that shape does something at ([`VisitPlan`]).
+    plans: Box<[Option<VisitPlan>]>,
+    /// The datagrams of the long frame being passed, by the station they name.
+    long: LongIndex,
+    /// Bumped whenever an ESC's configuration generation changes or an ESC is handed out
+    /// mutably: a visit plan holds only in the epoch it was made in.
+    epoch: u64,
+}
+
+// A visit on one cache line's worth of the plan.
+
+impl Segment {
+    /// Builds a segment. Slaves are renumbered in network order: the order in which a frame
+    /// passes their processing units, which is their auto-increment position.
+    pub fn new(spec: &[SlaveSpec]) -> Result<Self, TopologyError> {
+        if spec.is_empty() {
+            return Err(TopologyError::Empty);
+        }
+        let masters = spec
+            .iter()
+            .filter(|s| s.upstream == Upstream::Master)
+            .count();
+        if masters != 1 {
+            return Err(TopologyError::MasterLinks(masters));
+        }
+        let mut links: Vec<[Option<Link>; 4]> = vec![[None; 4]; spec.len()];
+        for (i, s) in spec.iter().enumerate() {
+            if !(s.cable_m.is_finite() && s.cable_m >= 0.0) {
+                return Err(TopologyError::BadNumber {
+                    slave: i,
+                    what: "cable_m",
+                });
+            }
+            for (what, v) in [
+                ("forwarding_delay_ns", s.model.forwarding_delay_ns),
+                ("processing_delay_ns", s.model.processing_delay_ns),
+                ("link_phy_delay_ns", s.model.link_phy_delay_ns),
+            ] {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(TopologyError::BadNumber { slave: i, what });
+                }
+            }
+            let ep = s.entry_port;
+            if ep > 3 || s.model.ports[usize::from(ep)] == PortKind::None {
+                return Err(TopologyError::NoSuchPort { slave: i, port: ep });
+            }
+            if links[i][usize::from(ep)].is_some() {
+                return Err(TopologyError::PortInUse { slave: i, port: ep });
+            }
+            let cable = s.cable_m * CABLE_PS_PER_M;
+            match s.upstream {
+                Upstream::Master => {
+                    let delay = ps(s.model.link_phy_delay_ns) + cable.round() as u64;
+                    links[i][usize::from(ep)] = Some(Link {
+                        peer: Peer::Master,
+                        peer_port: 0,
+                        delay_ps: delay,
+                    });
+                }
+                Upstream::Slave { index, port } => {
+                    if index >= i {
+                        return Err(TopologyError::BadUpstream {
+                            slave: i,
+                            upstream: index,
+                        });
+                    }
+                    let up = &spec[index];
+                    if port > 3 || up.model.ports[usize::from(port)] == PortKind::None {
+                        return Err(TopologyError::NoSuchPort { slave: index, port });
+                    }
+                    if links[index][usize::from(port)].is_some() {
+                        return Err(TopologyError::PortInUse { slave: index, port });
+                    }
+                    let phy = (s.model.link_phy_delay_ns + up.model.link_phy_delay_ns) / 2.0;
+                    let delay = ps(phy) + cable.round() as u64;
+                    links[i][usize::from(ep)] = Some(Link {
+                        peer: Peer::Slave(index as u16),
+                        peer_port: port,
+                        delay_ps: delay,
+                    });
+                    links[index][usize::from(port)] = Some(Link {
+                        peer: Peer::Slave(i as u16),
+                        peer_port: ep,
+                        delay_ps: delay,
+                    });
+                }
+            }
+        }
+        // Network order: depth-first in processing order from the master's slave.
+        let first = spec
+            .iter()
+            .position(|s| s.upstream == Upstream::Master)
+            .unwrap_or(0);
+        let mut order = Vec::with_capacity(spec.len());
+        let mut stack = vec![(first, usize::from(spec[first].entry_port))];
+        while let Some((i, entry)) = stack.pop() {
+            order.push(i);
+            // Children in processing order after the entry port, pushed in reverse so the first
+            // is visited first.
+            let start = ring_pos(entry);
+            let mut children = Vec::new();
+            for k in 1..5 {
+                if let Some(p) = RING[(start + k) % 5]
+                    && let Some(l) = links[i][p]
+                    && let Peer::Slave(c) = l.peer
+                {
+                    children.push((usize::from(c), usize::from(l.peer_port)));
+                }
+            }
+            for c in children.into_iter().rev() {
+                stack.push(c);
+            }
+        }
+        let mut new_index = vec![0u16; spec.len()];
+        for (pos, &i) in order.iter().enumerate() {
+            new_index[i] = pos as u16;
+        }
+        let nodes: Vec<Node> = order
+            .iter()
+            .map(|&i| {
+                let s = &spec[i];
+                let mut l = links[i];
+                for link in l.iter_mut().flatten() {
+                    if let Peer::Slave(p) = link.peer {
+                        link.peer = Peer::Slave(new_index[usize::from(p)]);
+                    }
+                }
+                let mut esc = Esc::new(s.model.clone(), s.device.clone(), s.crystal);
+                esc.set_links([
+                    l[0].is_some(),
+                    l[1].is_some(),
+                    l[2].is_some(),
+                    l[3].is_some(),
+                ]);
+                let plan = build_plan(&esc, &l, usize::from(s.entry_port));
+                Node {
+                    esc,
+                    links: l,
+                    entry_port: s.entry_port,
+                    forwarding_ps: ps(s.model.forwarding_delay_ns),
+                    processing_ps: ps(s.model.processing_delay_ns),
+                    plan,
+                    off: false,
+                }
+            })
+            .collect();
+        let n = nodes.len();
+        let unreached = Arc::new(Timing::unreached(n));
+        Ok(Segment {
+            trace: FrameTrace {
+                sent_ps: 0,
+                timing: unreached.clone(),
+            },
+            unreached,
+            nodes,
+            first: 0,
+            spec_index: order,
+            frames: 0,
+            malformed: 0,
+            lost: 0,
+            shapes: ShapeCache::new(),
+            replay: true,
+            timing: None,
+            plans: vec![None; SHAPE_SLOTS].into_boxed_slice(),
+            long: LongIndex::default(),
+            epoch: 0,
+        })
+    }
+
+    /// Number of slaves.
+    pub fn len(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Whether the segment has no slaves (never true for a built segment).
+    pub fn is_empty(&self) -> bool {
+        self.nodes.is_empty()
+    }
+
+    /// The ESC at network position `pos`.
+    pub fn esc(&self, pos: usize) -> &Esc {
+        &self.nodes[pos].esc
+    }
+
+    /// Mutable ESC at network position `pos`. A change to its loops is seen by the next frame
+    /// (the way through the segment is worked out again).
+    pub fn esc_mut(&mut self, pos: usize) -> &mut Esc {
+        let node = &mut self.nodes[pos];
+        // The caller may change anything: the way is walked again, from the plan again.
+        node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+        self.timing = None;
+        // Its counters are brought up to date first, and no plan holds past this.
+        self.end_plans();
+        self.epoch += 1;
+        &mut self.nodes[pos].esc
+    }
+
+    /// Pulls (`up` false) or plugs in again the cable at port `port` of the slave at network
+    /// position `pos`: both ends lose or regain their link, and a port in auto mode closes or
+    /// opens (the datasheet's loop control), so the segment behind a pulled cable is gone and
+    /// the port loops frames back. A slave that is switched off keeps its links down. Returns
+    /// false if there is no cable there.
+    pub fn set_link(&mut self, pos: usize, port: usize, up: bool) -> bool {
+        let Some(l) = self
+            .nodes
+            .get(pos)
+            .and_then(|n| n.links.get(port).copied().flatten())
+        else {
+            return false;
+        };
+        let here = up && !self.nodes[pos].off;
+        self.set_port_link(pos, port, here);
+        if let Peer::Slave(q) = l.peer {
+            let q = usize::from(q);
+            let there = up && !self.nodes[q].off;
+            self.set_port_link(q, usize::from(l.peer_port), there);
+        }
+        true
+    }
+
+    fn set_port_link(&mut self, pos: usize, port: usize, up: bool) {
+        let esc = self.esc_mut(pos);
+        let mut links = esc.links();
+        links[port] = up;
+        esc.set_links(links);
+        let node = &mut self.nodes[pos];
+        node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
+    }
+
+    /// Switches the slave at network position `pos` off at real time `t_ps`: its links go
+    /// down (the slaves behind it are cut off) until [`Segment::power_on`].
+    pub fn power_off(&mut self, pos: usize, _t_ps: u64) {
+        for port in 0..4 {
+            self.set_link(pos, port, false);
+        }
+        self.nodes[pos].off = true;
+    }
+
+    /// Switches the slave at network position `pos` on again at real time `t_ps`: it starts
+    /// from reset ([`Esc::power_cycled`]) and its cables link again.
+    pub fn power_on(&mut self, pos: usize, t_ps: u64) {
+        self.end_plans();
+        self.epoch += 1;
+        self.timing = None;
+        let node = &mut self.nodes[pos];
+        node.esc = node.esc.power_cycled(t_ps);
+        node.off = false;
+        for port in 0..4 {
+            self.set_link(pos, port, true);
+        }
+    }
+
+    /// The port through which frames enter the slave at network position `pos` (its upstream
+    /// cable).
+    pub fn entry_port(&self, pos: usize) -> usize {
+        usize::from(self.nodes[pos].entry_port)
+    }
+
+    /// Whether the slave at network position `pos` is switched off.
+    pub fn is_powered_off(&self, pos: usize) -> bool {
+        self.nodes[pos].off
+    }
+
+    /// The counters of the ESC at network position `pos`, with the frames that passed it by
+    /// (frames of a shape that does nothing at this ESC skip it in large networks and are
+    /// counted here) and those its visit plans replayed (a plan counts them until it ends:
+    /// [`Esc::stats`] alone leaves both out).
+    pub fn esc_stats(&self, pos: usize) -> EscStats {
+        let mut s = self.nodes[pos].esc.stats();
+        for p in self.plans.iter().flatten() {
+            if p.idle.get(pos).copied().unwrap_or(false) {
+                s.frames += p.idle_frames;
+                s.replayed_frames += p.idle_frames;
+            }
+            for v in p.visits.iter().filter(|v| v.slave as usize == pos) {
+                if let Some(steps) = &v.steps {
+                    steps.add_replays_to(&mut s, v.replays);
+                }
+            }
+        }
+        s
+    }
+
+    /// Index in the spec of the slave at network position `pos`.
+    pub fn spec_index(&self, pos: usize) -> usize {
+        self.spec_index[pos]
+    }
+
+    /// Turns the replay of recorded frame shapes on or off (on by default; off runs every
+    /// datagram through the full decoding at every ESC, long frames' too, for equivalence
+    /// tests).
+    pub fn set_replay(&mut self, on: bool) {
+        self.replay = on;
+    }
+
+    /// Ground truth of the last processed frame.
+    pub fn trace(&self) -> &FrameTrace {
+        &self.trace
+    }
+
+    /// Frames processed, malformed frames forwarded untouched, frames lost.
+    pub fn frame_counts(&self) -> (u64, u64, u64) {
+        (self.frames, self.malformed, self.lost)
+    }
+
+    /// Advances every clock to `t_ps` (wander, slews); call between frames when time passes.
+    pub fn advance_to(&mut self, t_ps: u64) {
+        for n in &mut self.nodes {
+            if let Some(dc) = n.esc.dc_mut() {
+                dc.advance_to(t_ps);
+            }
+        }
+    }
+}
+
+/// Whether a frame is an EtherCAT command frame whose datagram chain is well formed.
+pub fn frame_is_processable(frame: &[u8]) -> bool {
+    let Ok(f) = EcatFrame::new_checked(frame) else {
+        return false;
+    };
+    f.datagrams().all(|d| d.is_ok())
+}

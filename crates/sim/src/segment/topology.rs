@@ -1,0 +1,228 @@
+//! The segment's shape: slaves, cables and ports, and the way a frame walks them (its timing
+//! relative to its send time, walked again only when a loop changes).
+
+use super::*;
+
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Peer {
+    Master,
+    Slave(u16),
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Link {
+    pub(super) peer: Peer,
+    pub(super) peer_port: u8,
+    pub(super) delay_ps: u64,
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct Node {
+    pub(super) esc: Esc,
+    pub(super) links: [Option<Link>; 4],
+    pub(super) entry_port: u8,
+    pub(super) forwarding_ps: u64,
+    pub(super) processing_ps: u64,
+    /// What a frame entering at `entry_port` meets, in processing order (rebuilt when the
+    /// master changes the loop settings).
+    pub(super) plan: Plan,
+    /// Switched off (a power cycle in progress): its links are down.
+    pub(super) off: bool,
+}
+
+/// One element of a frame's way through an ESC.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Step {
+    /// The processing unit.
+    Pu,
+    /// An open port with a cable: out and back.
+    Port(u8, Link),
+    /// A port forced open without a link: the frame is lost there.
+    Lost,
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Plan {
+    pub(super) steps: [Step; 5],
+    pub(super) len: u8,
+}
+
+pub(super) fn build_plan(esc: &Esc, links: &[Option<Link>; 4], entry: usize) -> Plan {
+    let mut plan = Plan {
+        steps: [Step::Pu; 5],
+        len: 0,
+    };
+    let start = ring_pos(entry);
+    for k in 1..5 {
+        let step = match RING[(start + k) % 5] {
+            None => Step::Pu,
+            Some(p) => match esc.port_forwards(p) {
+                Ok(true) => match links[p] {
+                    Some(l) => Step::Port(p as u8, l),
+                    None => continue,
+                },
+                Ok(false) => continue,
+                Err(()) => Step::Lost,
+            },
+        };
+        plan.steps[usize::from(plan.len)] = step;
+        plan.len += 1;
+    }
+    plan
+}
+
+/// Where a frame's first bit is, relative to the moment it left the master: the traversal's
+/// timing depends on the topology, the delays and the loop settings only, never on the frame.
+/// One walk of the ports ([`Segment::walk`]) computes it; every frame, replayed or decoded,
+/// then meets the processing units in its order at its times.
+#[derive(Debug)]
+pub(super) struct Timing {
+    /// Per slave: arrival at the processing unit, ps after the send (`None`: not reached).
+    pub(super) pu: Vec<Option<u64>>,
+    /// Per slave: arrival at each port, ps after the send.
+    pub(super) ports: Vec<[Option<u64>; 4]>,
+    /// Per slave: the port the frame came in through.
+    pub(super) in_port: Vec<u8>,
+    /// Back at the master, ps after the send; `None` if the frame is lost on the way.
+    pub(super) back: Option<u64>,
+    /// The slaves in the order their processing units see the frame, with their `pu`.
+    pub(super) flat: Vec<(usize, u64)>,
+}
+
+impl Timing {
+    pub(super) fn unreached(n: usize) -> Timing {
+        Timing {
+            pu: vec![None; n],
+            ports: vec![[None; 4]; n],
+            in_port: vec![0; n],
+            back: None,
+            flat: Vec::new(),
+        }
+    }
+}
+
+pub(super) fn ps(ns: f64) -> u64 {
+    (ns * PS_PER_NS as f64).round() as u64
+}
+
+/// The processing order after port `p`: 0 -> PU -> 3 -> 1 -> 2 -> 0. `None` stands for the
+/// processing unit.
+pub(super) const RING: [Option<usize>; 5] = [Some(0), None, Some(3), Some(1), Some(2)];
+
+pub(super) fn ring_pos(port: usize) -> usize {
+    RING.iter().position(|x| *x == Some(port)).unwrap_or(0)
+}
+
+impl Segment {
+    /// The frame's way through the segment, by walking the ports in processing order from the
+    /// master's slave: the one walk every frame's timing and the ground truth come from.
+    pub(super) fn walk(&self) -> Timing {
+        let n = self.nodes.len();
+        let mut t = Timing::unreached(n);
+        let first = usize::from(self.first);
+        let entry = usize::from(self.nodes[first].entry_port);
+        // (The master's cable pulled, or the first slave off: every frame is lost.)
+        if let Some(l) = self.nodes[first].links[entry]
+            && self.nodes[first].esc.links()[entry]
+        {
+            t.back = self
+                .walk_from(first, entry, l.delay_ps, &mut t)
+                .map(|b| b + l.delay_ps);
+        }
+        t
+    }
+
+    /// The walk inside slave `idx`, entered through `in_port` at `t_in`: where it returns the
+    /// frame (`None`: lost in it or below it).
+    pub(super) fn walk_from(
+        &self,
+        idx: usize,
+        in_port: usize,
+        t_in: u64,
+        t: &mut Timing,
+    ) -> Option<u64> {
+        let node = &self.nodes[idx];
+        let plan = if in_port == usize::from(node.entry_port) {
+            node.plan
+        } else {
+            build_plan(&node.esc, &node.links, in_port)
+        };
+        t.ports[idx][in_port] = Some(t_in);
+        t.in_port[idx] = in_port as u8;
+        let mut t_cur = t_in;
+        let mut through_pu = false;
+        for step in &plan.steps[..usize::from(plan.len)] {
+            match *step {
+                Step::Pu => {
+                    through_pu = true;
+                    t.pu[idx] = Some(t_cur);
+                    t.flat.push((idx, t_cur));
+                }
+                Step::Lost => return None,
+                Step::Port(p, link) => {
+                    let d = if through_pu {
+                        node.processing_ps
+                    } else {
+                        node.forwarding_ps
+                    };
+                    through_pu = false;
+                    // A second cable to the master (redundancy) is not modelled.
+                    let Peer::Slave(peer) = link.peer else {
+                        return None;
+                    };
+                    let back = self.walk_from(
+                        usize::from(peer),
+                        usize::from(link.peer_port),
+                        t_cur + d + link.delay_ps,
+                        t,
+                    )?;
+                    t_cur = back + link.delay_ps;
+                    t.ports[idx][usize::from(p)] = Some(t_cur);
+                }
+            }
+        }
+        Some(
+            t_cur
+                + if through_pu {
+                    node.processing_ps
+                } else {
+                    node.forwarding_ps
+                },
+        )
+    }
+
+    /// Time from the master sending a frame to its first bit reaching each slave's processing
+    /// unit, ps (`None`: not reached): the static ground truth of propagation (the same for
+    /// every frame while the loops do not change).
+    pub fn pu_offsets_ps(&self) -> Vec<Option<u64>> {
+        match &self.timing {
+            Some(t) => t.pu.clone(),
+            None => self.walk().pu,
+        }
+    }
+
+    /// Twice the time from the master to the farthest processing unit, ps: how long a frame's
+    /// first bit takes round the segment and back, past its own length on the wire.
+    pub fn round_trip_ps(&self) -> u64 {
+        2 * self
+            .pu_offsets_ps()
+            .iter()
+            .flatten()
+            .max()
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// True propagation delay from the reference's processing unit to each slave's, ns: what
+    /// 0x0928 should hold. `None` for slaves the frame does not reach.
+    pub fn true_delays_ns(&self, reference: usize) -> Vec<Option<f64>> {
+        let off = self.pu_offsets_ps();
+        let r = off[reference];
+        off.iter()
+            .map(|o| match (o, r) {
+                (Some(o), Some(r)) => Some((*o as f64 - r as f64) / PS_PER_NS as f64),
+                _ => None,
+            })
+            .collect()
+    }
+}
