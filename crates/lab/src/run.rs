@@ -3,9 +3,9 @@
 
 use crate::scenario::Scenario;
 use crate::stats::{Stats, Summary};
+use ecsync_dc::Method;
 use ecsync_dc::fit::LineFit;
 use ecsync_dc::sync::MasterSync;
-use ecsync_dc::{Method, MethodKind};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{CycleReport, CyclicDriver, CyclicLimits};
@@ -22,7 +22,6 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// A point of a time series: min and max of a quantity over a block of cycles, ns.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -1495,28 +1494,4 @@ impl Run {
         }
         Ok(res)
     }
-}
-
-/// Runs method `kind` in run `run` of the scenario, bring-up included. `progress` counts
-/// simulated cycles.
-pub fn run_one(
-    s: &Scenario,
-    kind: MethodKind,
-    run: u32,
-    progress: &AtomicU64,
-) -> Result<RunResult, RunError> {
-    let up = bring_up(s, run)?;
-    let mut r = Run::new(
-        s,
-        &up,
-        Entry {
-            kind,
-            send: SendMode::Plain,
-        },
-    )?;
-    while r.remaining() > 0 {
-        let n = r.step(4096);
-        progress.fetch_add(n, Ordering::Relaxed);
-    }
-    r.finish()
 }

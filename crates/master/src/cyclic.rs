@@ -15,7 +15,7 @@ use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
 };
-use ecsync_wire::dc_time::{decode_time_difference, diff_u64};
+use ecsync_wire::dc_time::diff_u64;
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, WireError};
 
@@ -449,14 +449,6 @@ impl<S: MasterSync> CyclicEngine<S> {
         &self.frames[0]
     }
 
-    /// The command and index of frame `k`'s first datagram in the current cycle (what its
-    /// reply repeats): the index is the frame's tag ([`CyclicEngine::tag_of`]).
-    pub fn frame_id_of(&self, k: usize) -> Option<(u8, u8)> {
-        self.plans[k]
-            .id
-            .map(|(cmd, _)| (cmd, self.tag_of(self.cycle, k)))
-    }
-
     /// The tag of frame `k` of cycle `cycle`: the index its first datagram carries. It changes
     /// from frame to frame and cycle to cycle (modulo 256), so that a reply names the cycle it
     /// answers: a late reply of an earlier cycle, or a second copy of one, is told from the
@@ -485,12 +477,6 @@ impl<S: MasterSync> CyclicEngine<S> {
                 (id == (cmd, tag) || Some(id) == held_cmd.map(|c| (c, tag))).then_some((ago, k))
             })
         })
-    }
-
-    /// Frame `k`'s template: its datagrams' commands and indices, which a reply must answer
-    /// (the per-cycle values aside, the frame as sent).
-    pub fn frame_of(&self, k: usize) -> &[u8] {
-        &self.plans[k].template
     }
 
     /// Skips `cycles` whole cycles without a frame: the task woke so late that their slots had
@@ -736,20 +722,6 @@ impl<S: MasterSync> CyclicEngine<S> {
         rec
     }
 
-    /// Completes the cycle whose (single) frame was processed in place in the buffer
-    /// [`CyclicEngine::frame_to_send`] returned (`returned`: it came back).
-    pub fn complete_in_place(
-        &mut self,
-        returned: bool,
-        send_ns: u64,
-        receive_ns: u64,
-    ) -> CycleRecord {
-        let frame = std::mem::take(&mut self.frames[0]);
-        let rec = self.complete(returned.then_some(&frame[..]), send_ns, receive_ns);
-        self.frames[0] = frame;
-        rec
-    }
-
     /// Whether the reference's time `t` continues its timeline: within [`REFERENCE_JUMP_NS`]
     /// (and 200 ppm of the time since) of the last time believed, moved on by the cycles
     /// since. A jump (the reference reset, its offset rewritten) holds the time until one
@@ -891,11 +863,6 @@ impl<S: MasterSync> CyclicEngine<S> {
         if h.short_wkc_cycles >= SUSPECT_CYCLES || h.far_092c_cycles >= SUSPECT_CYCLES {
             h.needs_recovery = true;
         }
-    }
-
-    /// Decodes a 0x092C register value (for callers that read it per slave).
-    pub fn decode_092c(raw: u32) -> i32 {
-        decode_time_difference(raw)
     }
 }
 

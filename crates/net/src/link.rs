@@ -50,18 +50,6 @@ impl HostClock {
         sys::sleep_until_monotonic(self.to_monotonic_ns(t_ns));
     }
 
-    /// Master time of a kernel timestamp (CLOCK_REALTIME ns since 1970), through the current
-    /// difference of the two clocks (a stamp from before a step of the wall clock lands off
-    /// by the step: [`RealtimeMap`] is the way that knows).
-    pub fn from_realtime_ns(&self, rt_ns: u64) -> u64 {
-        let mut map = RealtimeMap::new();
-        let e = map.epoch();
-        self.from_monotonic_ns(
-            map.to_monotonic_ns(rt_ns, e)
-                .unwrap_or_else(sys::monotonic_ns),
-        )
-    }
-
     /// Master time at CLOCK_MONOTONIC `mono_ns`.
     pub fn from_monotonic_ns(&self, mono_ns: u64) -> u64 {
         mono_ns.wrapping_add(self.offset_ns)

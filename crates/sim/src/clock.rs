@@ -248,17 +248,6 @@ impl LocalClock {
         self.anchor_local.ns
     }
 
-    /// Local time at `t_ps` (exact, with fraction), advancing the anchor only when a wander step
-    /// lies before `t_ps`: for clocks that are only read (no control loop), such as the
-    /// master's, this skips the anchor bookkeeping on every read.
-    #[inline]
-    pub fn read_exact_ns(&mut self, t_ps: u64) -> (u64, f64) {
-        if t_ps >= self.next_wander_ps {
-            self.advance_to(t_ps);
-        }
-        self.local_exact_ns(t_ps)
-    }
-
     /// Real time of the next wander step, ps: the rate is constant until then.
     pub fn next_wander_ps(&self) -> u64 {
         self.next_wander_ps

@@ -267,13 +267,6 @@ impl DcUnit {
         if self.is_64bit { s } else { s & 0xffff_ffff }
     }
 
-    /// System time at `t_ps` without quantisation, in ns with fraction (ground truth).
-    pub fn system_time_exact(&self, t_ps: u64) -> f64 {
-        let (ns, frac) = self.clock.local_exact_ns(t_ps);
-        // Relative to an arbitrary 2^40 ns window is enough for differences between clocks.
-        ns.wrapping_add(self.offset) as f64 + frac
-    }
-
     /// System time at `t_ps` as (integer ns, fraction), unquantised (ground truth).
     pub fn system_time_split(&self, t_ps: u64) -> (u64, f64) {
         self.system_time_split_in::<false>(t_ps)
@@ -306,11 +299,6 @@ impl DcUnit {
     /// signed as [`dc_time::decode_time_difference`] decodes it).
     pub fn time_difference_ns(&self) -> f64 {
         self.dt_filtered
-    }
-
-    /// Number of system time writes the loop has processed.
-    pub fn loop_writes(&self) -> u64 {
-        self.writes
     }
 
     /// Latches receive times: `ports[p]` is the real time the frame's first bit reached port p,

@@ -319,11 +319,6 @@ impl SimTransport {
         self.rx_latency_ps = ps;
     }
 
-    /// The ideal host's latency from the send timestamp to the wire, ps.
-    pub fn set_tx_latency_ps(&mut self, ps: u64) {
-        self.tx_latency_ps = ps;
-    }
-
     /// The ideal host's latency from the send timestamp to the wire (the bring-up's), ps.
     pub fn tx_latency_ps(&self) -> u64 {
         self.tx_latency_ps

@@ -295,15 +295,6 @@ impl PortSchedule {
         self.longest_open_ns
     }
 
-    /// The longest window, ns.
-    pub fn longest_window_ns(&self) -> u64 {
-        self.windows
-            .iter()
-            .map(|w| w.close_ns - w.open_ns)
-            .max()
-            .unwrap_or(0)
-    }
-
     /// Share of the cycle the EtherCAT gate is open.
     pub fn open_fraction(&self) -> f64 {
         let open: u64 = self.windows.iter().map(|w| w.close_ns - w.open_ns).sum();

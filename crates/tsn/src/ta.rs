@@ -195,19 +195,6 @@ impl Network {
         e.guard.as_ref().is_none_or(|g| g(vars))
     }
 
-    /// Every successor of `s` (actions, then the unit delay).
-    pub fn successors(&self, s: &State, out: &mut Vec<State>) {
-        let idx = self.index();
-        out.clear();
-        let mut scratch = Scratch::default();
-        self.successors_indexed(&idx, s, &mut scratch, &mut |loc, vars| {
-            out.push(State {
-                loc: loc.to_vec(),
-                vars: vars.to_vec(),
-            })
-        });
-    }
-
     /// Calls `emit` with each successor's locations and variables (scratch buffers: nothing is
     /// allocated per successor).
     fn successors_indexed(

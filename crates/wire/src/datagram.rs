@@ -333,6 +333,32 @@ mod tests {
         }
     }
 
+    /// The setters write the header where ETG.1000.4 puts it (byte 1 index, bytes 2-5 ADP and
+    /// ADO little-endian, bytes 8-9 IRQ), leaving the other bytes alone: the FPRD above
+    /// rewritten into the same FPRD with index 0x42, station 0x2003, register 0x0920, IRQ 0x0506.
+    #[test]
+    fn setters_write_the_header_fields_in_place() {
+        let mut b = FPRD;
+        let mut d = Datagram::new_checked(&mut b[..]).unwrap();
+        d.set_index(0x42);
+        d.set_address_raw(0x0920_2003);
+        d.set_irq(0x0506);
+        let want: [u8; 16] = [
+            0x04, 0x42, 0x03, 0x20, 0x20, 0x09, 0x04, 0x80, 0x06, 0x05, 0xaa, 0xbb, 0xcc, 0xdd,
+            0x01, 0x00,
+        ];
+        assert_eq!(b, want);
+        let d = Datagram::new_checked(&b[..]).unwrap();
+        assert_eq!(
+            (d.index(), d.address_raw(), d.irq()),
+            (0x42, 0x0920_2003, 0x0506)
+        );
+        assert_eq!(
+            d.address(),
+            Some(DatagramAddress::configured(0x2003, 0x0920))
+        );
+    }
+
     #[test]
     fn parses_hand_built_fprd() {
         let d = Datagram::new_checked(&FPRD[..]).unwrap();

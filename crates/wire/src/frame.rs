@@ -231,6 +231,30 @@ impl<'a> Iterator for DatagramIter<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The source MAC is bytes 6-11 of the Ethernet header (after the destination's 0-5).
+    #[test]
+    fn set_src_mac_writes_the_ethernet_source() {
+        let mut buf = [0u8; 64];
+        let n = {
+            let mut b = crate::FrameBuilder::new(&mut buf, [0xff; 6], [1, 2, 3, 4, 5, 6]).unwrap();
+            b.push_zeroed(Command::Brd, 0, crate::DatagramAddress::position(0, 0), 2)
+                .unwrap();
+            b.finish()
+        };
+        let mut f = EcatFrame::new_checked(&mut buf[..n]).unwrap();
+        f.set_src_mac([0x02, 0x00, 0x00, 0x0e, 0xca, 0x75]);
+        assert_eq!(
+            &buf[..12],
+            &[
+                0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0x02, 0x00, 0x00, 0x0e, 0xca, 0x75
+            ]
+        );
+        assert_eq!(
+            EcatFrame::new_checked(&buf[..n]).unwrap().src_mac(),
+            [0x02, 0, 0, 0x0e, 0xca, 0x75]
+        );
+    }
     use crate::Command;
 
     // A BRD of AL status (0x0130, 2 bytes) as a master sends it: broadcast destination, source

@@ -772,6 +772,8 @@ mod tests {
             (m.length(), m.address(), m.counter(), m.mailbox_type()),
             (10, 0x1001, 3, Ok(MailboxType::Coe))
         );
+        // Byte 5: the counter in bits 6:4, the type in bits 3:0 (CoE = 3).
+        assert_eq!(m.type_code(), 3);
         assert_eq!(m.payload().len(), 10);
         assert!(matches!(
             Mailbox::new_checked(&buf[..15]),

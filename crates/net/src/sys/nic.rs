@@ -33,11 +33,6 @@ pub struct NicTimestamping {
 }
 
 impl NicTimestamping {
-    /// The kernel's software transmit timestamps.
-    pub fn software_tx(&self) -> bool {
-        self.so_timestamping & SOF_TIMESTAMPING_TX_SOFTWARE != 0
-    }
-
     /// Hardware transmit timestamps: all of the pieces [`NicTimestamping::hardware_missing`]
     /// names are there.
     pub fn hardware_tx(&self) -> bool {

@@ -151,14 +151,6 @@ pub mod data_type {
             _ => return None,
         })
     }
-
-    /// Whether values of this type are read as signed integers (for an ESI's DefaultValue).
-    pub fn is_signed(code: u16) -> bool {
-        matches!(
-            code,
-            INT8 | INT16 | INT24 | INT32 | INT40 | INT48 | INT56 | INT64
-        )
-    }
 }
 
 /// Who may write an entry when.
