@@ -5,7 +5,8 @@ use crate::MasterError;
 use crate::io::{Link, Pdu};
 use crate::network::{DcCapability, MailboxInfo, Phase, SlaveId, SlaveInfo, SmConfig};
 use crate::sii::{SiiReader, pdo_bits_for_sm};
-use ecsync_wire::register::{self as reg, dl_status, features};
+use ecsync_wire::dl::DlStatus;
+use ecsync_wire::register::{self as reg, features};
 use ecsync_wire::sii::{self, category};
 use ecsync_wire::{AlControlRepr, AlState, Command, DatagramAddress};
 
@@ -156,10 +157,9 @@ pub(super) async fn identify_slave(
     }
     let info = &r[0].data;
     let feats = u16::from_le_bytes([info[8], info[9]]);
-    let dls = u16::from_le_bytes([r[2].data[0], r[2].data[1]]);
-    let open = core::array::from_fn(|p| {
-        dls & dl_status::link(p) != 0 && dls & dl_status::loop_closed(p) == 0
-    });
+    let dls = DlStatus::new_checked(&r[2].data[..])
+        .map_err(|_| MasterError::BadReply("DL status shorter than its register"))?;
+    let open = dls.ports().map(|p| p.open());
     let mut sii =
         SiiReader::new(link, station).with_busy_timeout_ns(cfg.timeouts.sii_busy_timeout_ns);
     sii.take_ownership().await?;
