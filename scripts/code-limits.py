@@ -166,6 +166,8 @@ def crate_graph(src):
     return g, byp
 
 def expand(tree):
+    # `X as Y` keeps X, the name that is defined somewhere.
+    tree = re.sub(r'\s+as\s+\w+', '', tree)
     tree = re.sub(r'\s+', '', tree)
     def rec(prefix, t):
         if '{' not in t:
