@@ -151,12 +151,33 @@ pub fn twin_toml(
     source: &str,
     reference_ppm: Option<f64>,
 ) -> Result<Twin, TwinError> {
-    let n = net.slaves.len();
-    if n == 0 {
+    if net.slaves.is_empty() {
         return Err(TwinError::Missing("any slave"));
     }
     let reference = usize::from(net.reference);
     let mut notes = Vec::new();
+    let (models, mut specs) = model_specs(net, &mut notes);
+    solve_twin_cables(net, reference, &models, &mut specs, &mut notes)?;
+    let ref_vs_master = reference_ppm.or(net.reference_ppm_vs_master);
+    if ref_vs_master.is_none() {
+        notes.push(
+            "the reference's crystal against the master was not measured: written as 0 ppm".into(),
+        );
+    }
+    let t = write_toml(net, source, ref_vs_master, &models, &specs, &notes);
+    let cables_m = specs.iter().map(|s| s.cable_m).collect();
+    Ok(Twin {
+        toml: t,
+        models,
+        cables_m,
+        notes,
+    })
+}
+
+/// Each slave's model (by its ESC registers) and the segment's spec before the cables are
+/// solved; a note where no model fits exactly.
+fn model_specs(net: &Network, notes: &mut Vec<String>) -> (Vec<&'static str>, Vec<SlaveSpec>) {
+    let n = net.slaves.len();
     let mut models = Vec::with_capacity(n);
     let mut specs: Vec<SlaveSpec> = Vec::with_capacity(n);
     for (i, s) in net.slaves.iter().enumerate() {
@@ -194,25 +215,37 @@ pub fn twin_toml(
             cable_m: if i == 0 { UNMEASURED_CABLE_M } else { 0.0 },
         });
     }
+    (models, specs)
+}
+
+/// The cables solved from the measured delays, then again for the measured delays less the
+/// master's measurement bias on the twin; a note where a delay is shorter than a model's hop.
+fn solve_twin_cables(
+    net: &Network,
+    reference: usize,
+    models: &[&'static str],
+    specs: &mut [SlaveSpec],
+    notes: &mut Vec<String>,
+) -> Result<(), TwinError> {
     if net.slaves[reference].delay_ns.is_none() {
         return Err(TwinError::Missing("the propagation delays"));
     }
     let measured: Vec<Option<f64>> = net.slaves.iter().map(|s| s.delay_ns).collect();
-    solve_cables(&mut specs, &measured, reference)?;
+    solve_cables(specs, &measured, reference)?;
     // The master's measurement has a bias of its own where the models' internal delays differ
     // along a path (an EBUS leaf behind an MII port: tens of ns). Measured on the twin, the same
     // bias shows, so the cables are solved again for the measured delays less the bias: then the
     // twin's measurement is the real one, and its true delays the real network's.
-    let bias = measurement_bias(&specs, reference)?;
+    let bias = measurement_bias(specs, reference)?;
     let targets: Vec<Option<f64>> = measured
         .iter()
         .zip(&bias)
         .map(|(m, b)| m.map(|m| m + b.unwrap_or(0.0)))
         .collect();
-    solve_cables(&mut specs, &targets, reference)?;
+    solve_cables(specs, &targets, reference)?;
     for (i, s) in specs.iter().enumerate() {
         if let (Some(target), true) = (targets[i], i > reference && s.cable_m == 0.0) {
-            let seg = Segment::new(&specs).map_err(|e| TwinError::Topology(e.to_string()))?;
+            let seg = Segment::new(specs).map_err(|e| TwinError::Topology(e.to_string()))?;
             if let Some(Some(twin)) = seg.true_delays_ns(reference).get(i)
                 && twin - target > 1.0
             {
@@ -224,12 +257,18 @@ pub fn twin_toml(
             }
         }
     }
-    let ref_vs_master = reference_ppm.or(net.reference_ppm_vs_master);
-    if ref_vs_master.is_none() {
-        notes.push(
-            "the reference's crystal against the master was not measured: written as 0 ppm".into(),
-        );
-    }
+    Ok(())
+}
+
+/// The twin's TOML text.
+fn write_toml(
+    net: &Network,
+    source: &str,
+    ref_vs_master: Option<f64>,
+    models: &[&'static str],
+    specs: &[SlaveSpec],
+    notes: &[String],
+) -> String {
     let mut t = String::new();
     let _ = writeln!(
         t,
@@ -247,7 +286,7 @@ pub fn twin_toml(
         t,
         "# [host], [run] and [methods.*] tables of a preset to `compare` on it."
     );
-    for note in &notes {
+    for note in notes {
         let _ = writeln!(t, "# note: {note}");
     }
     let _ = writeln!(t, "\n[segment]\nseed = 1");
@@ -293,11 +332,5 @@ pub fn twin_toml(
         let ppm = ((1.0 + ref_vs_master.unwrap_or(0.0) * 1e-6) * (1.0 + rel * 1e-6) - 1.0) * 1e6;
         let _ = writeln!(t, "ppm = {:.4}  # {rel:+.4} ppm against the reference", ppm);
     }
-    let cables_m = specs.iter().map(|s| s.cable_m).collect();
-    Ok(Twin {
-        toml: t,
-        models,
-        cables_m,
-        notes,
-    })
+    t
 }
