@@ -34,6 +34,7 @@ pub mod plots;
 pub mod report;
 pub mod run;
 pub mod scenario;
+pub mod session;
 pub mod stats;
 pub mod tsn;
 

@@ -1,0 +1,156 @@
+//! One run of one method: bring the segment up, run the cyclic phase with the host's noise,
+//! measure what the letter measures and what only the simulator knows.
+
+use crate::scenario::Scenario;
+use crate::session::{Aim, Session, SessionConfig, SessionError};
+use crate::stats::{Stats, Summary};
+use ecsync_dc::Method;
+use ecsync_dc::fit::LineFit;
+use ecsync_dc::sync::MasterSync;
+use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
+use ecsync_master::cyclic::CyclicEngine;
+use ecsync_master::driver::{CycleReport, CyclicLimits};
+use ecsync_master::{Engine, MasterError};
+use ecsync_sim::clock::CrystalParams;
+use ecsync_sim::fault::{Edge, Epoch, FaultCounts, FaultEvent, FaultKind, FaultPlayer, KindName};
+use ecsync_sim::host::{CycleNoise, HostNoise, SharedNoise};
+use ecsync_sim::rng::splitmix64;
+use ecsync_sim::send::{Entry, SendMode, SendParams};
+use ecsync_sim::transport::{HostDelays, HostModel, MasterClock, SIM_EPOCH_NS, SimTransport};
+use ecsync_sim::{Segment, frame_wire_time_ps};
+use observe::{GridSpec, GroundTruth, Observers, SampleSink};
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
+use std::sync::Arc;
+
+mod cyclic;
+mod observe;
+mod result;
+
+pub use cyclic::Run;
+pub use result::*;
+
+/// Why a run could not complete.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The bring-up failed.
+    #[error("bring-up failed: {0}")]
+    Bringup(#[from] MasterError),
+    /// The cyclic frame does not fit.
+    #[error("cyclic frame: {0}")]
+    Frame(ecsync_wire::WireError),
+    /// The per-cycle samples could not be written.
+    #[error("writing the samples to {path}: {err}")]
+    Samples {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        err: std::io::Error,
+    },
+}
+
+/// The seed of run `run`.
+pub fn run_seed(base: u64, run: u32) -> u64 {
+    splitmix64(base ^ splitmix64(u64::from(run) + 1))
+}
+
+/// A run's network after its bring-up: every method of the run continues from a copy of it
+/// (the bring-up does not depend on the method, and it is the same hardware and seed).
+#[derive(Debug)]
+pub struct BroughtUp {
+    sim: SimTransport,
+    net: Network,
+    seed: u64,
+    run: u32,
+}
+
+impl BroughtUp {
+    /// The run's seed (of its noise and crystals).
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// The network as the bring-up found and configured it.
+    pub fn network(&self) -> &Network {
+        &self.net
+    }
+
+    /// The simulator's transport after the bring-up (its segment's ground truth, its faults).
+    pub fn sim(&self) -> &SimTransport {
+        &self.sim
+    }
+}
+
+/// The crystals of run `run` (the same hardware in every run; the wander differs).
+pub fn run_specs(s: &Scenario, run: u32) -> Vec<ecsync_sim::SlaveSpec> {
+    let seed = run_seed(s.seed, run);
+    let mut specs = s.slaves.clone();
+    for (i, sp) in specs.iter_mut().enumerate() {
+        sp.crystal.seed = splitmix64(seed ^ (0x5eed_0000 + i as u64) ^ sp.crystal.seed);
+    }
+    specs
+}
+
+/// Brings up the network of run `run` of the scenario.
+pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
+    let seed = run_seed(s.seed, run);
+    let specs = run_specs(s, run);
+    let segment = Segment::new(&specs).map_err(|e| MasterError::Config(e.to_string()))?;
+    let mut sim = SimTransport::new(segment);
+    sim.set_master_clock(MasterClock::new(CrystalParams {
+        ppm: s.host.master_ppm,
+        wander_ppm_per_sqrt_s: s.host.master_wander_ppm_per_sqrt_s,
+        wander_step_ps: ecsync_sim::clock::DEFAULT_WANDER_STEP_PS,
+        initial_local_ns: SIM_EPOCH_NS,
+        seed: splitmix64(seed ^ 0x4a57_e700),
+    }));
+    let cfg = BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: s.static_drift_frames,
+        cycle_ns: s.cycle_ns,
+        sync0_shift_ns: s.sync0_shift_ns(),
+        lock_hold_checks: 200,
+        monitor_cycles: 10,
+        sync_error_limit: s.sync_error_limit,
+        ..BringupConfig::default()
+    };
+    let mut engine = Engine::new(move |link| bringup(link, cfg));
+    // Faults counted from the first frame play on the bring-up too: a lost datagram is then
+    // waited for a few milliseconds and sent again, as on a real network.
+    // Slaves that appear later are not there for the bring-up, whatever the epoch.
+    if let Some(f) = &s.faults {
+        FaultPlayer::new(f.clone(), seed).prepare(sim.segment_mut());
+    }
+    let net = match &s.faults {
+        Some(f) if f.epoch == Epoch::Start => {
+            sim.set_faults(FaultPlayer::new(f.clone(), seed));
+            sim.run_procedure_with(&mut engine, FAULTY_PROCEDURE, |_, _, _| {})?
+        }
+        _ => sim.run_procedure(&mut engine, |_, _, _| {})?,
+    };
+    Ok(BroughtUp {
+        sim,
+        net,
+        seed,
+        run,
+    })
+}
+
+/// A recovered slave's SYNC0 starts at least this long after the recovery reads the time, ns
+/// (the rest of the recovery's frames, one per cycle, come first).
+const RECOVERY_SYNC0_LEAD_NS: u64 = 20_000_000;
+/// What a reply may take past the cycle's frames' way back before it counts as lost (the
+/// host's receive path beyond its modelled latency), ns.
+const REPLY_MARGIN_NS: u64 = 100_000;
+
+/// FRMW frames of static drift compensation a recovery sends after a reset slave's offset.
+const RECOVERY_STATIC_DRIFT_FRAMES: u32 = 15_000;
+
+/// How the bring-up waits and retries on a segment with faults: 5 ms, ten times.
+pub const FAULTY_PROCEDURE: ecsync_master::driver::ProcedureConfig =
+    ecsync_master::driver::ProcedureConfig {
+        reply_timeout_ns: 5_000_000,
+        retries: 10,
+    };

@@ -1,0 +1,641 @@
+//! What a run measures each cycle, one observer per concern: the faults and the way back to
+//! lock ([`FaultWatch`]), the segment's ground truth (the reference's grid, every slave's
+//! margin before its SYNC0: [`GroundTruth`]), the samples file ([`SampleSink`]), and the
+//! statistics and series they feed ([`Observers`], the session's observer that runs them in
+//! order).
+
+use super::*;
+use crate::session::CycleObserver;
+use ecsync_master::cyclic::{CycleRecord, Health};
+use ecsync_master::driver::CyclicDriver;
+
+/// `--samples`: one CSV row per recorded cycle.
+pub(super) struct SampleSink {
+    path: String,
+    out: std::io::BufWriter<std::fs::File>,
+    line: String,
+    failed: Option<String>,
+}
+
+impl SampleSink {
+    /// The file at `path` with its header: one margin column per DC slave, the controller's
+    /// columns if the method has a log.
+    pub(super) fn create(
+        path: &Path,
+        dc_slaves: &[usize],
+        controller: bool,
+    ) -> Result<Self, RunError> {
+        let p = path.display().to_string();
+        let file = std::fs::File::create(path).map_err(|err| RunError::Samples {
+            path: p.clone(),
+            err,
+        })?;
+        let mut line = String::from(
+            "cycle,lost,true_phase_ns,m_rs_ns,rs_is_ns,slave_spread_ns,worst_margin_ns,worst_slave,late",
+        );
+        for x in dc_slaves {
+            let _ = write!(line, ",margin_{x}_ns");
+        }
+        if controller {
+            line.push_str(",set_value_ns,ctl_error_ns,ctl_filtered_error_ns,ctl_adjustment_ns,ctl_drift_ppm,ctl_valid,ctl_in_sync");
+        }
+        let mut sink = SampleSink {
+            path: p,
+            out: std::io::BufWriter::with_capacity(1 << 16, file),
+            line,
+            failed: None,
+        };
+        sink.write_line();
+        Ok(sink)
+    }
+
+    fn write_line(&mut self) {
+        if self.failed.is_some() {
+            return;
+        }
+        self.line.push('\n');
+        if let Err(e) = self.out.write_all(self.line.as_bytes()) {
+            self.failed = Some(format!("{}: {e}", self.path));
+        }
+        self.line.clear();
+    }
+
+    /// A recorded cycle whose frame did not come back.
+    fn lost(&mut self, k: u64) {
+        let _ = write!(self.line, "{k},1");
+        self.write_line();
+    }
+
+    /// A recorded cycle without a grid to judge it by: the master's own figures only.
+    fn without_grid(&mut self, k: u64, rec: &CycleRecord) {
+        let _ = write!(self.line, "{k},0,,");
+        if let Some(m) = rec.m_rs_ns {
+            let _ = write!(self.line, "{m}");
+        }
+        self.line.push(',');
+        if let Some(v) = rec.rs_is_ns {
+            let _ = write!(self.line, "{v}");
+        }
+        self.write_line();
+    }
+
+    /// A recorded cycle judged against the ground truth; `margins` per DC slave.
+    fn judged(&mut self, k: u64, rec: &CycleRecord, t: &CycleTruth, margins: &[f64]) {
+        let l = &mut self.line;
+        let _ = write!(l, "{k},0,{:.3},", t.phase);
+        if let Some(m) = rec.m_rs_ns {
+            let _ = write!(l, "{m}");
+        }
+        l.push(',');
+        if let Some(v) = rec.rs_is_ns {
+            let _ = write!(l, "{v}");
+        }
+        l.push(',');
+        if let Some(v) = t.spread {
+            let _ = write!(l, "{v:.3}");
+        }
+        if t.worst_margin.is_finite() {
+            let _ = write!(
+                l,
+                ",{:.3},{},{}",
+                t.worst_margin,
+                t.worst_slave,
+                u8::from(t.late())
+            );
+        } else {
+            l.push_str(",,,0");
+        }
+        for m in margins {
+            l.push(',');
+            if m.is_finite() {
+                let _ = write!(l, "{m:.3}");
+            }
+        }
+        if let Some(c) = rec.log {
+            let _ = write!(
+                l,
+                ",{},{},{:.3},{},{:.6},{},{}",
+                c.set_value_ns,
+                c.error_ns,
+                c.filtered_error_ns,
+                c.adjustment_ns,
+                c.drift_ppm,
+                u8::from(c.valid),
+                u8::from(c.in_sync)
+            );
+        }
+        self.write_line();
+    }
+
+    /// Flushed: what went wrong writing it, if anything did.
+    pub(super) fn finish(mut self) -> Option<String> {
+        if self.failed.is_none()
+            && let Err(e) = self.out.flush()
+        {
+            self.failed = Some(format!("{}: {e}", self.path));
+        }
+        self.failed
+    }
+}
+
+/// The faults of a run as the cycles meet them: a window of cycles around each, the cycles
+/// it held, lost or skipped, and what the re-lock is judged from at the end.
+#[derive(Default)]
+pub(super) struct FaultWatch {
+    truth: FaultsTruth,
+    /// Per fault over: its kind and real time (the re-lock is timed from there).
+    relock: Vec<Relock>,
+    /// Per cycle of the cyclic phase, what its re-lock is judged from.
+    lock_samples: Vec<LockSample>,
+    /// Fault events already looked at.
+    events_seen: usize,
+}
+
+impl FaultWatch {
+    /// One cycle of the cyclic phase (warm-up included: faults count from its start).
+    fn observe(&mut self, tr: &SimTransport, rep: &CycleReport, expected_wkc: u16, pdi_len: u32) {
+        let rec = &rep.record;
+        let ft = &mut self.truth;
+        let sent_ps = tr.last_exchange().sent_ps;
+        if let Some(p) = tr.faults() {
+            // The way back is timed from the moment a fault is over: the end of one with a
+            // window (the slave on again, the cable in), the start of one without (a step, a
+            // stall, loss to the end of the run).
+            for e in &p.events()[self.events_seen..] {
+                let f = &p.schedule().faults[e.fault];
+                if e.edge == Edge::Start {
+                    ft.windows.push(FaultWindow {
+                        fault: e.fault,
+                        kind: e.kind,
+                        start_ps: e.t_ps,
+                        until_ps: e.t_ps
+                            + f.for_ns.unwrap_or(0).min(10_000_000_000) * 1000
+                            + WINDOW_AFTER_PS,
+                        points: Vec::new(),
+                    });
+                }
+                let windowed = f.for_ns.is_some()
+                    && !matches!(
+                        f.kind,
+                        FaultKind::HostStall { .. } | FaultKind::ClockStep { .. }
+                    );
+                if (e.edge == Edge::End) == windowed {
+                    self.relock.push(Relock {
+                        kind: e.kind,
+                        start_ps: e.t_ps,
+                    });
+                }
+            }
+            self.events_seen = p.events().len();
+        }
+        for w in ft.windows.iter_mut().filter(|w| sent_ps < w.until_ps) {
+            let v = match (rec.receive_ns, rec.rs_is_ns) {
+                (Some(_), Some(v)) => v as f32,
+                _ => f32::NAN,
+            };
+            let t = (sent_ps.saturating_sub(w.start_ps)) as f64 / 1e9;
+            w.points.push((t as f32, v, rec.reference_held));
+        }
+        ft.skipped_cycles += rep.skipped_before;
+        ft.held_cycles += u64::from(rec.reference_held);
+        // Running: came back, the reference's time believed (a reset slave's register reads
+        // small before anyone writes it a time), every slave's process data there. Whether it
+        // is locked is judged at the end, against the bands the method holds outside the
+        // faults.
+        let running = match (rec.receive_ns, rec.rs_is_ns) {
+            (Some(_), Some(v)) => {
+                ft.max_rs_is_ns = ft.max_rs_is_ns.max(v);
+                let wkc_ok = pdi_len == 0 || rec.lrw_wkc == Some(expected_wkc);
+                !rec.reference_held && wkc_ok
+            }
+            (Some(_), None) => false,
+            (None, _) => {
+                ft.lost_cycles += 1;
+                false
+            }
+        };
+        self.lock_samples.push(LockSample {
+            sent_ps,
+            rs_is_ns: match (rec.receive_ns, rec.rs_is_ns) {
+                (Some(_), Some(v)) => v as f32,
+                (Some(_), None) => f32::INFINITY,
+                (None, _) => f32::NAN,
+            },
+            m_rs_ns: rec.m_rs_ns.map_or(f32::NAN, |m| m as f32),
+            running,
+        });
+    }
+
+    /// A recorded cycle whose frame came after some drive's SYNC0.
+    fn late_frame(&mut self, tr: &SimTransport) {
+        let sent_ps = tr.last_exchange().sent_ps;
+        let ft = &mut self.truth;
+        ft.late_in_windows += u64::from(
+            ft.windows
+                .iter()
+                .any(|w| sent_ps >= w.start_ps && sent_ps < w.until_ps),
+        );
+    }
+
+    /// What the faults did, the master saw and the re-lock took, with the player's log, the
+    /// driver's counters and recoveries and the engine's health; times after the cyclic
+    /// phase's start `t0` (master time, ns).
+    pub(super) fn finish(
+        self,
+        tr: &SimTransport,
+        driver: &CyclicDriver,
+        health: &Health,
+        t0: u64,
+    ) -> FaultsTruth {
+        let mut ft = self.truth;
+        if let Some(p) = tr.faults() {
+            ft.events = p.events().to_vec();
+            ft.counts = p.counts();
+        }
+        let d = driver.stats();
+        ft.master_clock_steps = health.master_clock_steps;
+        ft.last_master_step_ns = health.last_master_step_ns;
+        ft.late_replies = d.late;
+        ft.duplicate_replies = d.duplicates;
+        ft.judge_relock(&self.lock_samples, &self.relock);
+        let ms = |t: u64| t.saturating_sub(t0) as f64 / 1e6;
+        ft.recoveries = driver
+            .recoveries()
+            .iter()
+            .map(|e| RecoveryOut {
+                start_ms: ms(e.started_ns),
+                end_ms: e.ended_ns.map(ms),
+                slaves: e.slaves_brought_back(),
+                error: e.error(),
+                appeared: e.appeared(),
+                left_op: e.left_op(),
+            })
+            .collect();
+        ft
+    }
+}
+
+/// One recorded cycle against the segment's truth.
+pub(super) struct CycleTruth {
+    /// The reference's system time at the frame's arrival after its grid point, ns.
+    phase: f64,
+    /// The largest difference of a slave's system time from the reference's (every 8th
+    /// cycle), ns.
+    spread: Option<f64>,
+    /// The smallest margin of the frame's outputs before a slave's SYNC0 (infinite: no slave
+    /// judged), ns, and that slave's position.
+    worst_margin: f64,
+    worst_slave: u16,
+}
+
+impl CycleTruth {
+    /// Some slave's outputs came after its SYNC0.
+    fn late(&self) -> bool {
+        self.worst_margin < 0.0
+    }
+}
+
+/// The segment's ground truth of a run: the reference's grid and each DC slave's deadline.
+pub(super) struct GroundTruth {
+    reference: usize,
+    /// Slaves with a DC unit (SYNC0), by position.
+    pub(super) dc_slaves: Vec<usize>,
+    /// Per DC slave: the frame of a cycle that carries its outputs, and that frame's wire time.
+    out_frames: Vec<(usize, u64)>,
+    period_ns: u64,
+    shift_ns: f64,
+    target_ns: i64,
+    /// Find the grid point anew each cycle (with faults: a method that lost the reference for
+    /// a while may come back a few periods off its count).
+    regrid: bool,
+    /// The grid point of the first recorded frame, and that frame's recorded cycle.
+    grid0: Option<(u64, i64)>,
+    /// This cycle's margin per DC slave (NaN: none), for the samples.
+    pub(super) margins: Vec<f64>,
+    /// The init frames' drift: the reference's time against the master's clock.
+    pub(super) init_fit: LineFit,
+    pub(super) init_frames: u64,
+}
+
+/// How [`GroundTruth`] is set up.
+pub(super) struct GridSpec {
+    pub(super) reference: usize,
+    pub(super) dc_slaves: Vec<usize>,
+    pub(super) out_frames: Vec<(usize, u64)>,
+    pub(super) period_ns: u64,
+    pub(super) shift_ns: f64,
+    pub(super) target_ns: i64,
+    pub(super) regrid: bool,
+    pub(super) init_frames: u64,
+}
+
+impl GroundTruth {
+    pub(super) fn new(g: GridSpec) -> Self {
+        let n_dc = g.dc_slaves.len();
+        GroundTruth {
+            reference: g.reference,
+            dc_slaves: g.dc_slaves,
+            out_frames: g.out_frames,
+            period_ns: g.period_ns,
+            shift_ns: g.shift_ns,
+            target_ns: g.target_ns,
+            regrid: g.regrid,
+            grid0: None,
+            margins: Vec::with_capacity(n_dc),
+            init_fit: LineFit::default(),
+            init_frames: g.init_frames,
+        }
+    }
+
+    /// A warm-up cycle: while the method averages its init frames, how the reference's
+    /// system time runs against the master's clock, read at the frame's arrival (the clocks'
+    /// truth, free of the host's jitter).
+    fn warmup(&mut self, tr: &mut SimTransport, i: u64) {
+        if i >= self.init_frames {
+            return;
+        }
+        let reference = self.reference;
+        let at = tr.frame_trace(0).pu_ps(reference).and_then(|pu| {
+            let dc = tr.segment().esc(reference).dc()?;
+            Some((pu, dc.system_time_split(pu)))
+        });
+        if let Some((pu, r)) = at {
+            let m = tr.master_clock_mut().master_ns(pu);
+            self.init_fit
+                .add(i as f64, (r.0.wrapping_sub(m) as i64) as f64 + r.1);
+        }
+    }
+
+    /// Recorded cycle `k` against the segment: the reference's phase, the slaves' spread,
+    /// each DC slave's margin (into `per_slave`; kept in `margins` if `keep`). `None`: no grid
+    /// to judge it by (the reference reset, its SYNC0 not running again yet).
+    fn judge(
+        &mut self,
+        tr: &SimTransport,
+        k: u64,
+        per_slave: &mut [SlaveTruth],
+        keep: bool,
+    ) -> Option<CycleTruth> {
+        let (reference, period, shift, target) = (
+            self.reference,
+            self.period_ns,
+            self.shift_ns,
+            self.target_ns,
+        );
+        let p = period as f64;
+        let seg = tr.segment();
+        let sys = |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
+        // Ground truth from the segment: the cycle's first frame at the reference. A slave
+        // without SYNC0 running (power-cycled, not configured again yet) has no grid and no
+        // deadline: it is not counted until it has.
+        let runs_sync0 = |x: usize| seg.esc(x).dc().is_some_and(|d| d.sync0().is_some());
+        let trace = tr.frame_trace(0);
+        let r = trace
+            .pu_ps(reference)
+            .filter(|_| runs_sync0(reference))
+            .and_then(|t| sys(reference, t))?;
+        // The grid point this frame aims at: the one nearest the target at the first
+        // recorded frame, one per cycle from there. With faults, the one nearest the target
+        // now: a method that lost the reference for a while (a power cycle) may come back a
+        // few periods off its count, and SYNC0 fires every period.
+        let (g0, k0) = *self.grid0.get_or_insert_with(|| {
+            let g = ((r.0 as f64 + r.1 - target as f64) / p).round() as u64;
+            (g, k as i64)
+        });
+        let grid = if self.regrid {
+            ((r.0 as f64 + r.1 - target as f64) / p).round() as u64 * period
+        } else {
+            (g0 + (k as i64 - k0) as u64) * period
+        };
+        let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
+        // The slaves' differences move slowly (the loops act once per cycle): every 8th
+        // cycle is sampled.
+        let mut spread = None;
+        if k.is_multiple_of(8) {
+            let mut worst = 0.0f64;
+            for &x in self.dc_slaves.iter() {
+                if x == reference || !runs_sync0(x) {
+                    continue;
+                }
+                if let Some(v) = sys(x, trace.pu_ps(reference).unwrap_or(0)) {
+                    let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
+                    worst = worst.max(d.abs());
+                }
+            }
+            spread = Some(worst);
+        }
+        // The frame has passed a slave when its last bit has: its outputs take effect after
+        // the FCS check, and SYNC0 needs them by then.
+        let mut worst_margin = f64::INFINITY;
+        let mut worst_slave = 0u16;
+        self.margins.clear();
+        for ((st, &x), &(k, out_wire_ps)) in per_slave
+            .iter_mut()
+            .zip(self.dc_slaves.iter())
+            .zip(self.out_frames.iter())
+        {
+            let pu = if !runs_sync0(x) {
+                None
+            } else if k == 0 {
+                trace.pu_ps(x)
+            } else {
+                tr.frame_trace(k).pu_ps(x)
+            };
+            let Some(e) = pu.and_then(|pu| sys(x, pu + out_wire_ps)) else {
+                if keep {
+                    self.margins.push(f64::NAN);
+                }
+                continue;
+            };
+            let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
+            let margin = shift - end_after_grid;
+            // The pulses at m x period + shift up to the outputs: those between two frames'
+            // outputs but the first found none new.
+            let pulses = |t: u64| {
+                let s = shift as u64;
+                if t < s { 0 } else { (t - s) / period + 1 }
+            };
+            if let Some(prev) = st.last_outputs_ns.replace(e.0) {
+                st.sync0_missed += pulses(e.0).saturating_sub(pulses(prev)).saturating_sub(1);
+            }
+            let esc = seg.esc(x);
+            if esc.runs_on_sync0() {
+                let now = esc.sm_events_missed();
+                let start = *st.drive_count_at_start.get_or_insert(now);
+                st.drive_sm_events_missed = Some(now.saturating_sub(start));
+            }
+            if keep {
+                self.margins.push(margin);
+            }
+            st.margin.add(margin);
+            if margin < 0.0 {
+                st.late_frames += 1;
+            }
+            if end_after_grid > st.latest_end_ns {
+                st.latest_end_ns = end_after_grid;
+            }
+            if margin < worst_margin {
+                worst_margin = margin;
+                worst_slave = st.position;
+            }
+        }
+        Some(CycleTruth {
+            phase,
+            spread,
+            worst_margin,
+            worst_slave,
+        })
+    }
+}
+
+/// The run's observers in the order each cycle meets them, and the statistics and series
+/// they feed (the session's [`CycleObserver`]).
+pub(super) struct Observers {
+    pub(super) res: RunResult,
+    /// M-rS, rS-IS and the true phase, per block of recorded cycles.
+    pub(super) series: [Bands; 3],
+    pub(super) truth: GroundTruth,
+    pub(super) faults: Option<FaultWatch>,
+    pub(super) samples: Option<SampleSink>,
+    was_in_sync: bool,
+    warmup: u64,
+    total: u64,
+    expected_wkc: u16,
+    pdi_len: u32,
+    /// The cycle's frames back to back on the wire, ps.
+    cycle_wire_ps: u64,
+}
+
+impl Observers {
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn new(
+        res: RunResult,
+        cycles: u64,
+        truth: GroundTruth,
+        faults: bool,
+        warmup: u64,
+        expected_wkc: u16,
+        pdi_len: u32,
+        cycle_wire_ps: u64,
+    ) -> Self {
+        Observers {
+            res,
+            series: [Bands::new(cycles), Bands::new(cycles), Bands::new(cycles)],
+            truth,
+            faults: faults.then(FaultWatch::default),
+            samples: None,
+            was_in_sync: false,
+            warmup,
+            total: warmup + cycles,
+            expected_wkc,
+            pdi_len,
+            cycle_wire_ps,
+        }
+    }
+
+    /// The controller's log of a recorded cycle (DCM): in sync, losses, what it learnt.
+    fn controller(&mut self, rec: &CycleRecord) {
+        if let (Some(c), Some(t)) = (rec.log, self.res.controller.as_mut()) {
+            if c.in_sync {
+                t.in_sync_cycles += 1;
+            } else if self.was_in_sync {
+                t.sync_losses += 1;
+            }
+            if !c.valid && rec.receive_ns.is_some() {
+                t.invalid_errors += 1;
+            }
+            t.in_sync_at_end = c.in_sync;
+            t.drift_ppm_at_end = c.drift_ppm;
+            self.was_in_sync = c.in_sync;
+        }
+    }
+
+    /// A recorded cycle: the master's figures, then the ground truth's.
+    fn recorded(&mut self, tr: &SimTransport, rec: &CycleRecord, k: u64) {
+        let res = &mut self.res;
+        res.cycles_done = k + 1;
+        self.controller(rec);
+        let res = &mut self.res;
+        if rec.receive_ns.is_none() {
+            res.lost_frames += 1;
+            if let Some(sk) = self.samples.as_mut() {
+                sk.lost(k);
+            }
+            return;
+        }
+        if rec.lrw_wkc != Some(self.expected_wkc) && self.pdi_len > 0 {
+            res.bad_wkc += 1;
+        }
+        if let Some(m) = rec.m_rs_ns {
+            res.m_rs.add(m as f64);
+            self.series[0].add(k, m as f64);
+        }
+        if let Some(v) = rec.rs_is_ns {
+            res.rs_is.add(f64::from(v));
+            self.series[1].add(k, f64::from(v));
+        }
+        let keep = self.samples.is_some();
+        let Some(t) = self.truth.judge(tr, k, &mut res.per_slave, keep) else {
+            if let Some(sk) = self.samples.as_mut() {
+                sk.without_grid(k, rec);
+            }
+            return;
+        };
+        let target = self.truth.target_ns;
+        res.phase.add(t.phase);
+        res.phase_error.add(t.phase - target as f64);
+        self.series[2].add(k, t.phase);
+        if let Some(worst) = t.spread {
+            res.slave_diff.add(worst);
+        }
+        if t.late()
+            && let Some(f) = self.faults.as_mut()
+        {
+            f.late_frame(tr);
+        }
+        if t.worst_margin.is_finite() {
+            res.margin.add(t.worst_margin);
+            if t.late() {
+                res.late_frames += 1;
+            }
+            res.latest_end_ns = res.latest_end_ns.max(self.truth.shift_ns - t.worst_margin);
+        }
+        if let Some(sk) = self.samples.as_mut() {
+            sk.judged(k, rec, &t, &self.truth.margins);
+        }
+    }
+}
+
+impl CycleObserver<SimTransport> for Observers {
+    fn on_cycle(&mut self, tr: &mut SimTransport, rep: &CycleReport) {
+        let rec = &rep.record;
+        let i = rec.cycle;
+        if i >= self.total {
+            return;
+        }
+        if let Some(f) = self.faults.as_mut() {
+            // Faults are judged over the whole cyclic phase (their times count from its
+            // start): DC held, and how soon it came back after each fault.
+            f.observe(tr, rep, self.expected_wkc, self.pdi_len);
+        }
+        if let (Some(c), Some(t)) = (rec.log, self.res.controller.as_mut())
+            && c.in_sync
+            && t.first_in_sync_cycle.is_none()
+        {
+            t.first_in_sync_cycle = Some(i);
+        }
+        if i < self.warmup {
+            self.truth.warmup(tr, i);
+            return;
+        }
+        // From the wire to the reply, late replies included (a reply that came after its
+        // deadline still says how long the frame needs).
+        if let Some(back) = tr.last_exchange().received_ps {
+            let sent = tr.real_ps_at(rep.stamp_ns);
+            let rt = back.saturating_sub(sent) as f64 / 1000.0;
+            self.res.max_round_trip_ns = self.res.max_round_trip_ns.max(rt);
+        }
+        self.res.frame_wire_ns = self.cycle_wire_ps as f64 / 1000.0;
+        self.recorded(tr, rec, i - self.warmup);
+    }
+}
