@@ -23,12 +23,12 @@ pub mod report;
 pub mod scenario;
 
 use crate::run::{Envelope, Series};
+use crate::session::{Aim, CycleObserver, Session, SessionConfig, SessionError};
 use crate::stats::{Stats, Summary};
 use ecsync_dc::BusShift;
 use ecsync_master::bringup::{BringupConfig, EsiTiming, Network, Stage, bringup};
-use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{
-    CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, run_procedure,
+    CycleReport, CyclicLimits, ExchangeStats, ProcedureConfig, run_procedure,
 };
 use ecsync_master::{Engine, MasterError};
 use ecsync_sim::frame_wire_time_ps;
@@ -172,6 +172,148 @@ pub struct TsnOptions {
     pub faults: Option<ecsync_sim::fault::FaultSchedule>,
 }
 
+/// What a variant's cycles measure against the ground truth: the letter's figures, the
+/// master against the reference, the slaves' spread, the last slave's SYNC0 margin, the hold
+/// at the gate and the gPTP offset (the session's observer).
+struct VariantTruth {
+    warmup: u64,
+    reference: usize,
+    last: usize,
+    /// The cyclic frame's lead before its grid point, ns, and its length, bytes.
+    lead_ns: u64,
+    frame_len: usize,
+    period_ns: u64,
+    shift_ns: u64,
+    m_rs: Stats,
+    rs_is: Stats,
+    mref: Stats,
+    spread: Stats,
+    margin: Stats,
+    wait: Stats,
+    gptp_off: Stats,
+    /// Master minus reference, slave spread, gPTP offset, gate hold.
+    series: [Series; 4],
+    late: u64,
+    overruns: u64,
+    lost: u64,
+}
+
+impl VariantTruth {
+    fn new(s: &TsnScenario, reference: usize, last: usize, lead_ns: u64, frame_len: usize) -> Self {
+        let cap = (s.cycles / crate::run::SERIES_BLOCK + 2) as usize;
+        VariantTruth {
+            warmup: s.warmup_cycles,
+            reference,
+            last,
+            lead_ns,
+            frame_len,
+            period_ns: u64::from(s.cycle_ns),
+            shift_ns: u64::from(s.sync0_shift_ns),
+            m_rs: Stats::new(),
+            rs_is: Stats::new(),
+            mref: Stats::new(),
+            spread: Stats::new(),
+            margin: Stats::new(),
+            wait: Stats::new(),
+            gptp_off: Stats::new(),
+            series: [
+                Series::new(cap),
+                Series::new(cap),
+                Series::new(cap),
+                Series::new(cap),
+            ],
+            late: 0,
+            overruns: 0,
+            lost: 0,
+        }
+    }
+}
+
+impl CycleObserver<TsnNetwork<'_>> for VariantTruth {
+    fn on_cycle(&mut self, net: &mut TsnNetwork<'_>, rep: &CycleReport) {
+        let rec = &rep.record;
+        self.overruns += rep.skipped_before;
+        let i = rec.cycle;
+        if i < self.warmup {
+            return;
+        }
+        let k = i - self.warmup;
+        if rec.receive_ns.is_none() {
+            self.lost += 1;
+            return;
+        }
+        let (reference, last, period) = (self.reference, self.last, self.period_ns);
+        let launch = net.last_launch_ns();
+        let wait_fwd_ps = net.last_wait_fwd_ps();
+        if wait_fwd_ps > 0 {
+            self.wait.add(wait_fwd_ps as f64 / 1000.0);
+        }
+        self.series[3].add(k, wait_fwd_ps as f64 / 1000.0);
+        if let Some(m) = rec.m_rs_ns {
+            self.m_rs.add(m as f64);
+        }
+        if let Some(v) = rec.rs_is_ns {
+            self.rs_is.add(f64::from(v));
+        }
+        // Ground truth at the frame's pass at the reference.
+        let trace = net.segment().trace();
+        let (Some(pu_ref), Some(pu_last)) = (trace.pu_ps(reference), trace.pu_ps(last)) else {
+            return;
+        };
+        let seg = net.segment();
+        let sys = |x: usize, t: u64| seg.esc(x).dc().map(|d| d.system_time_split(t));
+        let Some(r) = sys(reference, pu_ref) else {
+            return;
+        };
+        let (pw, pf) = net.phc_exact_at(pu_ref);
+        let d = (pw.wrapping_sub(r.0) as i64) as f64 + (pf - r.1);
+        self.mref.add(d);
+        self.series[0].add(k, d);
+        let seg = net.segment();
+        let sys = |x: usize, t: u64| seg.esc(x).dc().map(|d| d.system_time_split(t));
+        let (mut lo, mut hi) = (0.0f64, 0.0f64);
+        for x in 0..seg.len() {
+            if let Some(v) = sys(x, pu_ref) {
+                let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
+                lo = lo.min(d);
+                hi = hi.max(d);
+            }
+        }
+        self.spread.add(hi - lo);
+        self.series[1].add(k, hi - lo);
+        // SYNC0: the first grid point at or after the frame's aim (launch + lead), plus the
+        // shift, on the last slave's clock.
+        let aim = launch + self.lead_ns;
+        let grid = aim - aim % period;
+        let end_ps = pu_last + frame_wire_time_ps(self.frame_len);
+        if let Some(e) = sys(last, end_ps) {
+            let after = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
+            let mg = self.shift_ns as f64 - after;
+            self.margin.add(mg);
+            if mg < 0.0 {
+                self.late += 1;
+            }
+        }
+        if net.runs_gptp() {
+            let b = net.bridge_ns_at(pu_ref);
+            let off = (pw.wrapping_sub(b) as i64) as f64 + pf;
+            self.gptp_off.add(off);
+            self.series[2].add(k, off);
+        }
+    }
+}
+
+/// Why `variant`'s session could not start.
+fn session_error(variant: Variant) -> impl Fn(SessionError) -> TsnError {
+    move |e| match e {
+        SessionError::Frame(w) => TsnError::Frame(w),
+        SessionError::NoReference => TsnError::Bringup {
+            variant: variant.name(),
+            cause: MasterError::Config(e.to_string()),
+        },
+    }
+}
+
 /// Runs one variant of the scenario.
 pub fn run_variant(
     s: &TsnScenario,
@@ -266,20 +408,13 @@ pub fn run_variant(
     }
 
     // The cyclic phase: bus shift with the master's time at the reference.
-    let cyc_cfg = CyclicConfig {
-        period_ns: s.cycle_ns,
-        reference_station: net_info.slaves[reference].station,
-        pdi_len: net_info.pdi_len,
+    let cfg = SessionConfig {
+        cycle_ns: s.cycle_ns,
         measure_init_frames: 1,
-        reference_offset_ns: net_info.slaves[reference].offset.unwrap_or(0),
-        lrw: net_info.lrw.clone(),
+        recovery: None,
     };
-    let probe = CyclicEngine::new(BusShift { write_offset_ns: 0 }, cyc_cfg.clone(), 0)
-        .map_err(TsnError::Frame)?;
-    let cyc_len = {
-        let mut p = probe;
-        p.frame_to_send(0).len()
-    };
+    let cyc_len = Session::first_frame_len(&net_info, BusShift { write_offset_ns: 0 }, s.cycle_ns)
+        .map_err(session_error(variant))?;
     // One store-and-forward hop: the cyclic frame's first bit reaches the slaves later than a
     // latch frame's by the difference of their wire times.
     let sf_extra_ns = if variant.has_bridge() {
@@ -298,110 +433,28 @@ pub fn run_variant(
         0
     };
     let first = (now / period + 3) * period + base + open - lead;
-    let mut eng =
-        CyclicEngine::new(BusShift { write_offset_ns }, cyc_cfg, first).map_err(TsnError::Frame)?;
-
-    let mut m_rs = Stats::new();
-    let mut rs_is = Stats::new();
-    let mut mref = Stats::new();
-    let mut spread = Stats::new();
-    let mut margin = Stats::new();
-    let mut wait = Stats::new();
-    let mut gptp_off = Stats::new();
-    let cap = (s.cycles / crate::run::SERIES_BLOCK + 2) as usize;
-    let mut series = [
-        Series::new(cap),
-        Series::new(cap),
-        Series::new(cap),
-        Series::new(cap),
-    ];
-    let (mut late, mut overruns, mut lost) = (0u64, 0u64, 0u64);
-    let shift = u64::from(s.sync0_shift_ns);
-    let last = net.segment().len() - 1;
     let total = s.warmup_cycles + s.cycles;
+    // One frame per cycle; a reply may take up to a cycle (held at the gates).
+    let mut session = Session::new(
+        &net_info,
+        BusShift { write_offset_ns },
+        Aim::At(first),
+        cfg,
+        |_| CyclicLimits {
+            max_cycles: Some(total),
+            lost_in_a_row: u64::MAX,
+            reply_timeout_ns: period,
+            ..CyclicLimits::default()
+        },
+    )
+    .map_err(session_error(variant))?;
     net.capture_until(if pcap.is_some() {
         net.now_ps() + opts.pcap_cycles * period * 1000
     } else {
         0
     });
-    // One frame per cycle; a reply may take up to a cycle (held at the gates).
-    let mut driver = CyclicDriver::new(CyclicLimits {
-        max_cycles: Some(total),
-        lost_in_a_row: u64::MAX,
-        reply_timeout_ns: period,
-        ..CyclicLimits::default()
-    });
-    let observe = |net: &mut TsnNetwork<'_>, rep: &CycleReport| {
-        let rec = &rep.record;
-        overruns += rep.skipped_before;
-        let i = rec.cycle;
-        if i < s.warmup_cycles {
-            return;
-        }
-        let k = i - s.warmup_cycles;
-        if rec.receive_ns.is_none() {
-            lost += 1;
-            return;
-        }
-        let launch = net.last_launch_ns();
-        let wait_fwd_ps = net.last_wait_fwd_ps();
-        if wait_fwd_ps > 0 {
-            wait.add(wait_fwd_ps as f64 / 1000.0);
-        }
-        series[3].add(k, wait_fwd_ps as f64 / 1000.0);
-        if let Some(m) = rec.m_rs_ns {
-            m_rs.add(m as f64);
-        }
-        if let Some(v) = rec.rs_is_ns {
-            rs_is.add(f64::from(v));
-        }
-        // Ground truth at the frame's pass at the reference.
-        let trace = net.segment().trace();
-        let (Some(pu_ref), Some(pu_last)) = (trace.pu_ps(reference), trace.pu_ps(last)) else {
-            return;
-        };
-        let seg = net.segment();
-        let sys = |x: usize, t: u64| seg.esc(x).dc().map(|d| d.system_time_split(t));
-        let Some(r) = sys(reference, pu_ref) else {
-            return;
-        };
-        let (pw, pf) = net.phc_exact_at(pu_ref);
-        let d = (pw.wrapping_sub(r.0) as i64) as f64 + (pf - r.1);
-        mref.add(d);
-        series[0].add(k, d);
-        let seg = net.segment();
-        let sys = |x: usize, t: u64| seg.esc(x).dc().map(|d| d.system_time_split(t));
-        let (mut lo, mut hi) = (0.0f64, 0.0f64);
-        for x in 0..seg.len() {
-            if let Some(v) = sys(x, pu_ref) {
-                let d = (v.0.wrapping_sub(r.0) as i64) as f64 + (v.1 - r.1);
-                lo = lo.min(d);
-                hi = hi.max(d);
-            }
-        }
-        spread.add(hi - lo);
-        series[1].add(k, hi - lo);
-        // SYNC0: the first grid point at or after the frame's aim (launch + lead), plus the
-        // shift, on the last slave's clock.
-        let aim = launch + lead;
-        let grid = aim - aim % period;
-        let end_ps = pu_last + frame_wire_time_ps(cyc_len);
-        if let Some(e) = sys(last, end_ps) {
-            let after = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
-            let mg = shift as f64 - after;
-            margin.add(mg);
-            if mg < 0.0 {
-                late += 1;
-            }
-        }
-        if net.runs_gptp() {
-            let b = net.bridge_ns_at(pu_ref);
-            let off = (pw.wrapping_sub(b) as i64) as f64 + pf;
-            gptp_off.add(off);
-            series[2].add(k, off);
-        }
-    };
-    match driver.run(&mut net, &mut eng, u64::MAX, None, observe) {
+    let mut obs = VariantTruth::new(s, reference, net.segment().len() - 1, lead, cyc_len);
+    match session.run(&mut net, u64::MAX, None, &mut obs) {
         Ok(_) => {}
         Err(never) => match never {},
     }
@@ -412,6 +465,20 @@ pub fn run_variant(
         })?;
     }
     let cross_traffic_frames = net.cross_traffic_frames();
+    let VariantTruth {
+        m_rs,
+        rs_is,
+        mref,
+        spread,
+        margin,
+        wait,
+        gptp_off,
+        series,
+        late,
+        overruns,
+        lost,
+        ..
+    } = obs;
     let gptp = net.gptp_figures().map(|g| GptpOut {
         offset: gptp_off.summary(),
         measured_link_delay_ns: g.measured_link_delay_ns.unwrap_or(f64::NAN),
