@@ -4,25 +4,22 @@
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MasterSync as _;
-use ecsync_dc::fit::LineFit;
 use ecsync_dc::method::{Method, MethodContext, MethodKind, MethodParams, ParamError};
 use ecsync_lab::output::write_atomic;
-use ecsync_lab::stats::{Stats, Summary};
+use ecsync_lab::realnet::summary::{BringupOut, CSV_HEADER, RATE_FIT_MIN_CYCLES, RunOut};
+use ecsync_lab::realnet::{self, CyclicOptions, RunHead};
 use ecsync_master::bringup::{DcCapability, Stage};
-use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
-use ecsync_master::driver::{
-    CycleReport, CyclicDriver, CyclicLimits, ExchangeStats, ProcedureConfig, Stopped, run_procedure,
-};
-use ecsync_master::transport::{SendMode, Transport as _};
+use ecsync_master::driver::{ExchangeStats, ProcedureConfig, Stopped, run_procedure};
+use ecsync_master::transport::SendMode;
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
-use ecsync_net::rt::{self, RtReport};
-use ecsync_net::sys::{PacketSocket, TimestampSupport};
+use ecsync_net::rt;
+use ecsync_net::sys::PacketSocket;
 use ecsync_net::tx_stamp::{TxStampMode, TxStampSource};
 use ecsync_net::{NetError, RealLink, SendControl};
 use ecsync_sim::Segment;
 use ecsync_sim::config::{ConfigSource, Problem};
 use ecsync_sim::pcap::PcapCapture;
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -311,249 +308,6 @@ pub struct RunArgs {
     sync_error_limit: Option<u16>,
 }
 
-#[derive(Debug, Serialize)]
-struct SlaveOut {
-    position: u16,
-    station: u16,
-    name: String,
-    vendor_id: u32,
-    product_code: u32,
-    serial: u32,
-    dc: DcCapability,
-    delay_ns: Option<f64>,
-    offset: Option<u64>,
-}
-
-#[derive(Debug, Serialize)]
-struct BringupOut {
-    reference: u16,
-    slaves: Vec<SlaveOut>,
-    converged: bool,
-    time_to_lock_ms: Option<f64>,
-    max_abs_092c_after_lock_ns: u32,
-    /// 0x092C was read by one broadcast (a network whose reads per slave would not fit the
-    /// cycle): the figure above is the OR of every slave's magnitude, a bound.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
-    max_abs_092c_by_broadcast: bool,
-    frmw_frames: u64,
-    pdi_bytes: u32,
-    expected_lrw_wkc: u16,
-    sync0_start_ns: Option<u64>,
-    wall_s: f64,
-}
-
-/// One recovery in `run`'s summary.
-#[derive(Debug, Serialize)]
-struct RecoveryRow {
-    start_s: f64,
-    end_s: Option<f64>,
-    slaves: Vec<u16>,
-    error: Option<String>,
-    /// Slaves that answered beyond the network as brought up (hot-connected): not taken in.
-    appeared: u16,
-    /// Slaves found out of OP with their configuration kept, and why (their AL status).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    left_op: Vec<String>,
-}
-
-/// A drive the recoveries found out of OP with its configuration kept, and why.
-#[derive(Debug, Serialize)]
-struct LeftOpRow {
-    /// Network position, 1 = next to the master.
-    slave: u16,
-    /// The state it was in.
-    state: String,
-    /// Its AL status code (0x001A: a sync error past --sync-error-limit), 0 without an
-    /// error indication.
-    al_status_code: u16,
-    /// What the code means.
-    reason: String,
-    /// When the recovery that found it started, and when it had it back in OP, s after the
-    /// cyclic phase's start.
-    found_s: f64,
-    back_in_op_s: Option<f64>,
-}
-
-/// Wake-up latency figures, µs.
-#[derive(Debug, Serialize)]
-struct LatencyOut {
-    n: u64,
-    mean_us: f64,
-    p50_us: f64,
-    p99_us: f64,
-    p999_us: f64,
-    max_us: f64,
-}
-
-#[derive(Debug, Serialize)]
-struct SyncCounterRow {
-    /// Network position, 1 = next to the master.
-    position: u16,
-    /// 0x1C32:0B as last read.
-    sm_events_missed: u16,
-    /// When it was read, s after the cyclic phase's start.
-    read_s: f64,
-    /// 0x1C32:0B as first read (its count since OP, the hand-over from the bring-up
-    /// included), and when.
-    first_sm_events_missed: u16,
-    first_read_s: f64,
-    /// Counted between the two reads: the cyclic phase's own.
-    missed_between_reads: u16,
-}
-
-#[derive(Debug, Serialize)]
-struct RunOut {
-    iface: String,
-    method: String,
-    cycle_ns: u32,
-    sync0_shift_ns: u32,
-    stopped: String,
-    cycles: u64,
-    /// Cycles skipped because the task woke after their slots had passed (host stalls).
-    skipped_cycles: u64,
-    duration_s: f64,
-    lost_frames: u64,
-    /// Replies that came after their cycle's deadline (the next cycle's slot), discarded: each
-    /// is also a lost frame (on a host without PREEMPT_RT the process, not the network, is
-    /// usually what was late).
-    late_replies: u64,
-    /// Second copies of replies (a second responder on the wire), discarded.
-    duplicate_replies: u64,
-    bad_wkc: u64,
-    /// Frames sent, replies matched, lost, stale (replies to nothing pending), truncated; the
-    /// bring-up's and the cyclic phase's.
-    link: ExchangeStats,
-    timestamps: TimestampSupport,
-    rt: RtReport,
-    bringup: BringupOut,
-    /// The letter's M-rS error, ns (φ for master shift, t_ra - t_ms for bus shift).
-    m_rs: Summary,
-    /// The letter's rS-IS error (|0x092C| by BRD), ns.
-    rs_is: Summary,
-    /// Wake-up latency of the cycle task.
-    wake_latency: LatencyOut,
-    /// How the task reached its send instants, and what it cost.
-    send: SendOut,
-    /// From the send timestamp to the kernel's transmit timestamp (the NIC path's j_c), ns.
-    tx_path: Summary,
-    /// Where the master-shift method's send time t_ms came from (`--tx-stamp`).
-    t_ms: TmsOut,
-    /// From the send timestamp to the reply, ns.
-    round_trip: Summary,
-    /// A controller's state at the end (DCM): in sync, the drift it learnt, its error.
-    controller: Option<ControllerOut>,
-    /// Cycles whose reference time the engine did not believe (gone, or jumped): the method
-    /// held over, the FRMW went out as an FPRD.
-    reference_held_cycles: u64,
-    /// The recoveries of slaves that lost their configuration (power-cycled): start and end,
-    /// s after the cyclic phase's start, slaves brought back (positions, 1 = next to the
-    /// master) or why it failed (tried again 50 ms later).
-    recoveries: Vec<RecoveryRow>,
-    /// The drives that left OP on their own (an AL error: a sync error past the configured
-    /// limit, a process data watchdog), as the recoveries found them; absent when none did.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    left_op: Vec<LeftOpRow>,
-    /// Each drive's SM-event-missed counter (0x1C32:0B) as last read over CoE in the cyclic
-    /// phase (once a second): SYNC0 cycles the drive ran without new outputs, by its own
-    /// count since it went to OP.
-    sm_events_missed: Vec<SyncCounterRow>,
-    /// Sends and receives the interface refused: it was down, or its send queue stayed full.
-    link_down_errors: u64,
-    /// Steps of the host's clock the engine saw (the reference ran on while the master's time
-    /// jumped: an NTP step, a `date -s`).
-    master_clock_steps: u32,
-    csv: Option<String>,
-}
-
-/// The last cycle's controller log.
-#[derive(Debug, Serialize)]
-struct ControllerOut {
-    in_sync: bool,
-    drift_ppm: f64,
-    filtered_error_ns: f64,
-    adjustment_ns: i64,
-}
-
-/// Cycles of the run a twin's reference crystal is fitted over at least (10 s at 1 ms).
-const RATE_FIT_MIN_CYCLES: u64 = 10_000;
-
-/// The reference's time against the master's send stamps, fitted as the samples come (the one
-/// least-squares line, [`LineFit`]), x and y taken from their first sample so that the fit
-/// works on offsets, not on nanosecond timestamps since the epoch.
-#[derive(Debug, Default)]
-struct RateFit {
-    first: Option<(u64, u64)>,
-    fit: LineFit,
-}
-
-impl RateFit {
-    fn add(&mut self, x: u64, y: u64) {
-        let (x0, y0) = *self.first.get_or_insert((x, y));
-        self.fit.add(
-            x.wrapping_sub(x0) as i64 as f64,
-            y.wrapping_sub(y0) as i64 as f64,
-        );
-    }
-
-    /// Samples fitted.
-    fn len(&self) -> u64 {
-        self.fit.len()
-    }
-
-    /// (slope - 1) in ppm.
-    fn ppm(&self) -> Option<f64> {
-        self.fit.slope().map(|b| (b - 1.0) * 1e6)
-    }
-}
-
-/// `--tx-stamp` and what it did.
-#[derive(Debug, Serialize)]
-struct TmsOut {
-    /// The mode asked for.
-    mode: String,
-    /// What t_ms was: the send timestamp, the kernel's software stamp or the NIC's.
-    source: TxStampSource,
-    /// Why auto fell back (no hardware stamps: what the NIC lacks; a bus-shift method).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    note: Option<String>,
-    /// Cycles whose t_ms was the transmit stamp.
-    cycles_from_tx_stamp: u64,
-    /// Answered cycles whose stamp had not come: they kept the send timestamp.
-    cycles_without_tx_stamp: u64,
-}
-
-/// `--send` and what it did.
-#[derive(Debug, Serialize)]
-struct SendOut {
-    mode: SendMode,
-    spin_margin_us: Option<u32>,
-    /// Spinning in odd cycles only (`--spin-alternate`).
-    alternate: bool,
-    /// From the cycle's scheduled start to its send timestamp (wake-up latency, the wait and
-    /// the frame's assembly), in cycles that slept to the instant.
-    wake_to_send_plain: Option<LatencyOut>,
-    /// The same in cycles that spun.
-    wake_to_send_spin: Option<LatencyOut>,
-    /// p99 of the spinning cycles over p99 of the sleeping ones (`--spin-alternate`).
-    spin_over_plain_p99: Option<f64>,
-    /// CPU time spent busy-waiting, % of the cyclic phase's time.
-    spin_cpu_pct: f64,
-    /// CPU time per spinning cycle, us.
-    spin_us_per_cycle: f64,
-}
-
-fn latency(s: &Stats) -> LatencyOut {
-    let m = s.summary();
-    LatencyOut {
-        n: m.n,
-        mean_us: m.mean / 1e3,
-        p50_us: s.abs_quantile(0.5) / 1e3,
-        p99_us: m.p99_abs / 1e3,
-        p999_us: m.p999_abs / 1e3,
-        max_us: m.max_abs / 1e3,
-    }
-}
-
 /// What `ecsync run` reads of a scenario file: the methods' tables and where the frames aim.
 /// The file's other tables are the simulator's (its segment and host, its comparison's runs),
 /// which a real network does not use: they are allowed and not read, so `ecsync run --config`
@@ -705,34 +459,6 @@ fn tx_stamp_source(
     Ok((TxStampSource::KernelSoftware, note))
 }
 
-/// Writes `v` or nothing, then the separator (no allocation: this runs every cycle).
-fn field<T: std::fmt::Display>(w: &mut impl Write, v: Option<T>, sep: char) -> std::io::Result<()> {
-    if let Some(v) = v {
-        write!(w, "{v}")?;
-    }
-    write!(w, "{sep}")
-}
-
-fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
-    let r = &c.record;
-    write!(w, "{},{},{},", r.cycle, r.scheduled_ns, r.send_ns)?;
-    field(w, r.ref_time_ns, ',')?;
-    write!(w, "{},{},", r.output.error_ns, r.output.correction_ns)?;
-    field(w, r.rs_is_ns, ',')?;
-    field(w, r.lrw_wkc, ',')?;
-    write!(w, "{},", c.wake_latency_ns)?;
-    field(w, c.round_trip_ns, ',')?;
-    write!(w, "{},", u8::from(r.receive_ns.is_none()))?;
-    // The host's twin (`ecsync host fit` reads these as a trace): wake-up to the send
-    // timestamp, and the send timestamp to the transport's TX stamp.
-    write!(w, "{},", c.stamp_ns.saturating_sub(c.woke_ns))?;
-    field(w, c.tx_stamp_ns.map(|t| t as i64 - c.stamp_ns as i64), '\n')
-}
-
-/// The per-cycle CSV's columns; `exec_ns` and `tx_delay_ns` were appended after `lost` (a
-/// reader of the older file keeps its columns where they were).
-const CSV_HEADER: &str = "cycle,scheduled_ns,send_ns,ref_time_ns,error_ns,correction_ns,max_abs_092c_ns,lrw_wkc,wake_latency_ns,round_trip_ns,lost,exec_ns,tx_delay_ns";
-
 pub fn run(args: RunArgs) -> Result<ExitCode> {
     if !(1..=1_000_000).contains(&args.cycle_us) {
         bail!("--cycle-us must lie in 1 ..= 1000000");
@@ -760,7 +486,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let cycle_ns = args.cycle_us * 1000;
     let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
     let (method, target_phase_ns, sync_error_limit) = method_for(&args, cycle_ns)?;
-    let mut csv = match &args.csv {
+    let csv = match &args.csv {
         Some(p) => {
             let f = std::fs::File::create(p)
                 .with_context(|| format!("cannot create {}", p.display()))?;
@@ -846,33 +572,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         Err(NetError::Open(e)) => bail!("{e}"),
         Err(e) => bail!("bring-up on {}: {e}", args.iface),
     };
-    let bring = BringupOut {
-        reference: net.reference,
-        slaves: net
-            .slaves
-            .iter()
-            .map(|s| SlaveOut {
-                position: s.position,
-                station: s.station,
-                name: s.name.clone(),
-                vendor_id: s.vendor_id,
-                product_code: s.product_code,
-                serial: s.serial,
-                dc: s.dc,
-                delay_ns: s.delay_ns,
-                offset: s.offset,
-            })
-            .collect(),
-        converged: net.lock.converged,
-        time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
-        max_abs_092c_after_lock_ns: net.lock.max_abs_092c_after_lock_ns,
-        max_abs_092c_by_broadcast: net.lock.max_abs_092c_by_broadcast,
-        frmw_frames: net.lock.frmw_frames,
-        pdi_bytes: net.pdi_len,
-        expected_lrw_wkc: net.expected_lrw_wkc,
-        sync0_start_ns: net.sync0.map(|s| s.start_ns),
-        wall_s: t_up.elapsed().as_secs_f64(),
-    };
+    let bring = BringupOut::of(&net, t_up.elapsed().as_secs_f64());
     if let Some(path) = &args.save_network {
         let t = ecsync_sim::twin::twin_toml(
             &net,
@@ -905,71 +605,9 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     }
 
     // Cyclic phase.
-    let reference = usize::from(net.reference);
-    let ref_station = net
-        .slaves
-        .get(reference)
-        .map(|s| s.station)
-        .context("the bring-up found no reference clock")?;
-    let cyc_cfg = CyclicConfig {
-        period_ns: cycle_ns,
-        reference_station: ref_station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
-        reference_offset_ns: net.slaves[reference].offset.unwrap_or(0),
-        lrw: net.lrw.clone(),
-    };
-    // Aim at the reference's grid, at the target phase, where the bring-up's last reading
-    // put it against the master's clock.
-    let first = ecsync_master::cyclic::first_cycle_start_ns(
-        link.now_ns(),
-        net.reference_reading,
-        method.reference_write_kind(),
-        cycle_ns,
-        target_phase_ns,
-        0,
-    );
-    let mut eng = CyclicEngine::new(method, cyc_cfg, first)
-        .map_err(|e| anyhow::anyhow!("cyclic frame: {e}"))?;
-    let limits = CyclicLimits {
-        duration_ns: args.duration.map(|d| (d * 1e9) as u64),
-        max_cycles: None,
-        lost_in_a_row: args.give_up_after.unwrap_or(u64::MAX),
-        reply_timeout_ns: u64::from(args.timeout_us.max(1)) * 1000,
-        // The drives' own count of SYNC0 cycles without new outputs, once a second.
-        sync_counters_every_ns: Some(1_000_000_000),
-        t_ms_from_tx_stamp: t_ms_source != TxStampSource::SendTimestamp,
-    };
-    let mut driver = CyclicDriver::new(limits);
-    // Slaves that lose their configuration (power-cycled) are brought back while the cycle
-    // goes on.
-    driver.set_recovery(
-        net.clone(),
-        ecsync_master::recovery::RecoveryConfig {
-            cycle_ns,
-            sync0_shift_ns: shift_ns,
-            sync0_lead_ns: 20_000_000,
-            timeouts: ecsync_master::bringup::BringupTimeouts::default(),
-            static_drift_frames: 15_000,
-            sync_error_limit,
-        },
-    );
-    // Statistics without ranges: quantiles of bounded error however large a stall.
-    let mut m_rs = Stats::new();
-    let mut rs_is = Stats::new();
-    let mut wake = Stats::new();
-    let (mut w2s_plain, mut w2s_spin) = (Stats::new(), Stats::new());
-    // The reference's time against the master's send stamps, every cycle: under a master-shift
-    // method the reference runs free, so the slope over the run is its crystal against this
-    // host's clock (seconds of cycles: far better than the bring-up's 2 s of latches).
-    let mut ref_rate = RateFit::default();
-    let control = link.send_control();
-    let mut tx_path = Stats::new();
-    let mut rtt = Stats::new();
-    let (mut cycles, mut lost, mut bad_wkc, mut held) = (0u64, 0u64, 0u64, 0u64);
-    let mut skipped = 0u64;
-    let mut csv_err: Option<std::io::Error> = None;
-    let t_cyc = Instant::now();
+    if net.slaves.get(usize::from(net.reference)).is_none() {
+        bail!("the bring-up found no reference clock");
+    }
     if !json {
         eprintln!(
             "cyclic phase: {} with {} at {} us, SYNC0 shift {} us{}; Ctrl-C stops",
@@ -981,52 +619,25 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
                 .map_or(String::new(), |d| format!(", for {d} s"))
         );
     }
-    let stopped = driver.run(&mut link, &mut eng, u64::MAX, Some(&STOP), |_, c| {
-        cycles += 1;
-        skipped += c.skipped_before;
-        let r = &c.record;
-        wake.add(c.wake_latency_ns as f64);
-        if let (Some(t), Some(_), false) = (r.ref_time_ns, r.receive_ns, r.reference_held) {
-            ref_rate.add(r.send_ns, t);
-        }
-        let w2s = c.stamp_ns.wrapping_sub(r.scheduled_ns) as i64 as f64;
-        if c.skipped_before == 0 {
-            if control.spins(r.cycle) {
-                w2s_spin.add(w2s);
-            } else {
-                w2s_plain.add(w2s);
-            }
-        }
-        held += u64::from(r.reference_held);
-        if r.receive_ns.is_none() {
-            lost += 1;
-        } else {
-            if r.lrw_wkc != Some(net.expected_lrw_wkc) && net.pdi_len > 0 {
-                bad_wkc += 1;
-            }
-            if let Some(m) = r.m_rs_ns {
-                m_rs.add(m as f64);
-            }
-            if let Some(v) = r.rs_is_ns {
-                rs_is.add(f64::from(v));
-            }
-            if let Some(t) = c.round_trip_ns {
-                rtt.add(t as f64);
-            }
-            if let Some(tx) = c.tx_stamp_ns {
-                tx_path.add(tx.wrapping_sub(c.stamp_ns) as i64 as f64);
-            }
-        }
-        if let (Some(w), None) = (csv.as_mut(), csv_err.as_ref())
-            && let Err(e) = csv_row(w, c)
-        {
-            csv_err = Some(e);
-        }
-    });
-    let duration_s = t_cyc.elapsed().as_secs_f64();
+    let opts = CyclicOptions {
+        cycle_ns,
+        sync0_shift_ns: shift_ns,
+        target_phase_ns,
+        measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
+        duration_ns: args.duration.map(|d| (d * 1e9) as u64),
+        max_cycles: None,
+        lost_in_a_row: args.give_up_after.unwrap_or(u64::MAX),
+        reply_timeout_ns: u64::from(args.timeout_us.max(1)) * 1000,
+        t_ms_from_tx_stamp: t_ms_source != TxStampSource::SendTimestamp,
+        sync_error_limit,
+    };
+    let csv = csv.map(|w| Box::new(w) as Box<dyn Write>);
+    let mut phase = realnet::run_cyclic(&mut link, &net, method, &opts, csv, Some(&STOP))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    let ref_rate = &phase.cycles.ref_rate;
     if let Some(path) = &args.save_network
         && args.reference_ppm.is_none()
-        && eng.sync().is_master_shift()
+        && phase.session.engine().sync().is_master_shift()
         && ref_rate.len() >= RATE_FIT_MIN_CYCLES
         && let Some(ppm) = ref_rate.ppm()
     {
@@ -1041,137 +652,33 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
             path.display()
         );
     }
-    let controller = eng.sync().controller_log().map(|c| ControllerOut {
-        in_sync: c.in_sync,
-        drift_ppm: c.drift_ppm,
-        filtered_error_ns: c.filtered_error_ns,
-        adjustment_ns: c.adjustment_ns,
-    });
-    if let Some(mut w) = csv.take() {
-        w.flush().context("writing the CSV file")?;
-    }
-    if let Some(e) = csv_err {
-        return Err(e).context("writing the CSV file");
-    }
-    let (stopped_str, gone) = match &stopped {
-        Ok(Some(Stopped::Duration)) => ("duration".to_string(), None),
-        Ok(Some(Stopped::Cycles)) | Ok(None) => ("cycles".to_string(), None),
-        Ok(Some(Stopped::Interrupted)) => ("interrupted".to_string(), None),
+    phase.finish_csv().context("writing the CSV file")?;
+    let gone = match &phase.stopped {
         Ok(Some(Stopped::NetworkGone {
             last_good_cycle,
             lost_in_a_row,
-        })) => (
-            "network-gone".to_string(),
-            Some((*last_good_cycle, *lost_in_a_row)),
-        ),
-        Err(e) => (format!("error: {e}"), None),
+        })) => Some((*last_good_cycle, *lost_in_a_row)),
+        _ => None,
     };
-    let d = driver.stats();
-    exchanges.sent += d.sent;
-    exchanges.replies += d.replies;
-    exchanges.lost += d.lost;
-    exchanges.stale += d.stale;
-    exchanges.late += d.late;
-    exchanges.duplicates += d.duplicates;
-    exchanges.truncated += d.truncated;
-    let out = RunOut {
+    let spin = args.send == SendMode::Spin;
+    let head = RunHead {
         iface: args.iface.clone(),
         method: args.method.to_string(),
         cycle_ns,
         sync0_shift_ns: shift_ns,
-        stopped: stopped_str,
-        cycles,
-        skipped_cycles: skipped,
-        duration_s,
-        lost_frames: lost,
-        late_replies: d.late,
-        duplicate_replies: d.duplicates,
-        bad_wkc,
-        link: exchanges,
-        timestamps: link.timestamps(),
+        bringup_link: exchanges,
         rt,
         bringup: bring,
-        m_rs: m_rs.summary(),
-        rs_is: rs_is.summary(),
-        wake_latency: latency(&wake),
-        send: {
-            let spun = link.send_control();
-            let some = |s: &Stats| (s.summary().n > 0).then(|| latency(s));
-            let (p, sp) = (some(&w2s_plain), some(&w2s_spin));
-            SendOut {
-                mode: args.send,
-                spin_margin_us: spin.then_some(args.spin_margin_us),
-                alternate: control.alternate,
-                spin_over_plain_p99: match (&p, &sp) {
-                    (Some(p), Some(s)) if p.p99_us > 0.0 => Some(s.p99_us / p.p99_us),
-                    _ => None,
-                },
-                wake_to_send_plain: p,
-                wake_to_send_spin: sp,
-                spin_cpu_pct: 100.0 * spun.spun_ns as f64 / (duration_s * 1e9).max(1.0),
-                spin_us_per_cycle: spun.spun_ns as f64 / 1e3 / spun.spun_cycles.max(1) as f64,
-            }
-        },
-        tx_path: tx_path.summary(),
-        t_ms: TmsOut {
-            mode: args.tx_stamp.clone(),
-            source: t_ms_source,
-            note: t_ms_note,
-            cycles_from_tx_stamp: driver.t_ms_sources().0,
-            cycles_without_tx_stamp: driver.t_ms_sources().1,
-        },
-        round_trip: rtt.summary(),
-        controller,
-        reference_held_cycles: held,
-        recoveries: driver
-            .recoveries()
-            .iter()
-            .map(|e| RecoveryRow {
-                start_s: e.started_ns.saturating_sub(first) as f64 / 1e9,
-                end_s: e.ended_ns.map(|t| t.saturating_sub(first) as f64 / 1e9),
-                slaves: e.slaves_brought_back(),
-                error: e.error(),
-                appeared: e.appeared(),
-                left_op: e.left_op(),
-            })
-            .collect(),
-        left_op: driver
-            .recoveries()
-            .iter()
-            .flat_map(|e| {
-                let s_of = |t: u64| t.saturating_sub(first) as f64 / 1e9;
-                let found = s_of(e.started_ns);
-                let back = e.ended_ns.map(s_of);
-                let l = match &e.outcome {
-                    Some(Ok(r)) => r.left_op.clone(),
-                    _ => Vec::new(),
-                };
-                l.into_iter().map(move |l| LeftOpRow {
-                    slave: l.position + 1,
-                    state: l.state_name(),
-                    al_status_code: l.al_status_code(),
-                    reason: l.reason(),
-                    found_s: found,
-                    back_in_op_s: back,
-                })
-            })
-            .collect(),
-        sm_events_missed: driver
-            .sync_counters()
-            .iter()
-            .map(|(f, c)| SyncCounterRow {
-                position: c.position + 1,
-                sm_events_missed: c.sm_events_missed,
-                read_s: c.read_ns.saturating_sub(first) as f64 / 1e9,
-                first_sm_events_missed: f.sm_events_missed,
-                first_read_s: f.read_ns.saturating_sub(first) as f64 / 1e9,
-                missed_between_reads: c.sm_events_missed.wrapping_sub(f.sm_events_missed),
-            })
-            .collect(),
-        link_down_errors: link.link_down_errors(),
-        master_clock_steps: eng.health().master_clock_steps,
+        send: args.send,
+        spin_margin_us: spin.then_some(args.spin_margin_us),
+        tx_stamp_mode: args.tx_stamp.clone(),
+        t_ms_source,
+        t_ms_note,
         csv: args.csv.as_ref().map(|p| p.display().to_string()),
     };
+    let out = RunOut::new(head, &phase, &link);
+    let cycles = out.cycles;
+    let stopped = phase.stopped;
     let text = serde_json::to_string_pretty(&out)?;
     if let Some(p) = &args.summary {
         write_atomic(p, text.as_bytes())
@@ -1411,29 +918,5 @@ fn print_run(o: &RunOut) {
     }
     if let Some(p) = &o.csv {
         println!("per-cycle CSV: {p}");
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::RateFit;
-
-    #[test]
-    fn the_rate_fit_finds_a_crystal_under_jitter() {
-        // 12.4 ppm fast, nanosecond timestamps around 2^60, +-20 us of jitter on the send
-        // stamps: 20 000 cycles of 1 ms give the slope within 0.05 ppm.
-        let mut f = RateFit::default();
-        let mut state = 0x1234_5678_u64;
-        for k in 0..20_000u64 {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let jitter = (state >> 40) as i64 % 20_000;
-            let x = (1u64 << 60) + k * 1_000_000;
-            let y = (1u64 << 59) + ((k * 1_000_000) as f64 * (1.0 + 12.4e-6)) as u64;
-            f.add(x.wrapping_add_signed(jitter), y);
-        }
-        let ppm = f.ppm().unwrap();
-        assert!((ppm - 12.4).abs() < 0.05, "{ppm}");
     }
 }

@@ -31,6 +31,8 @@ mod html;
 pub mod letter;
 pub mod output;
 pub mod plots;
+#[cfg(target_os = "linux")]
+pub mod realnet;
 pub mod report;
 pub mod run;
 pub mod scenario;

@@ -1,0 +1,404 @@
+//! What `ecsync run` reports: the bring-up, the cyclic phase's figures, the link, the host's
+//! timing, the recoveries, in `summary.json` and the per-cycle CSV.
+
+use crate::stats::{Stats, Summary};
+use ecsync_dc::fit::LineFit;
+use ecsync_master::bringup::DcCapability;
+use ecsync_master::driver::{CycleReport, ExchangeStats};
+use ecsync_master::network::Network;
+use ecsync_master::transport::SendMode;
+use ecsync_net::rt::RtReport;
+use ecsync_net::sys::TimestampSupport;
+use ecsync_net::tx_stamp::TxStampSource;
+use serde::Serialize;
+use std::io::Write;
+
+/// One slave as the bring-up found it.
+#[derive(Debug, Serialize)]
+pub struct SlaveOut {
+    /// Network position, 0 = next to the master.
+    pub position: u16,
+    /// Configured station address.
+    pub station: u16,
+    /// Its name from the SII.
+    pub name: String,
+    /// Vendor ID (SII).
+    pub vendor_id: u32,
+    /// Product code (SII).
+    pub product_code: u32,
+    /// Serial number (SII).
+    pub serial: u32,
+    /// What its DC unit can do.
+    pub dc: DcCapability,
+    /// Its propagation delay from the reference, ns.
+    pub delay_ns: Option<f64>,
+    /// The system time offset written to it, ns.
+    pub offset: Option<u64>,
+}
+
+/// The bring-up in `run`'s summary.
+#[derive(Debug, Serialize)]
+pub struct BringupOut {
+    /// The reference clock's position.
+    pub reference: u16,
+    /// Every slave, in network order.
+    pub slaves: Vec<SlaveOut>,
+    /// Whether DC locked.
+    pub converged: bool,
+    /// From the static drift compensation's start to lock, ms.
+    pub time_to_lock_ms: Option<f64>,
+    /// The largest |0x092C| read after lock, ns.
+    pub max_abs_092c_after_lock_ns: u32,
+    /// 0x092C was read by one broadcast (a network whose reads per slave would not fit the
+    /// cycle): the figure above is the OR of every slave's magnitude, a bound.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub max_abs_092c_by_broadcast: bool,
+    /// FRMW frames of static drift compensation sent.
+    pub frmw_frames: u64,
+    /// Bytes of process data.
+    pub pdi_bytes: u32,
+    /// The LRW's expected working counter.
+    pub expected_lrw_wkc: u16,
+    /// SYNC0's first pulse, system time, ns.
+    pub sync0_start_ns: Option<u64>,
+    /// How long the bring-up took, s.
+    pub wall_s: f64,
+}
+
+impl BringupOut {
+    /// The bring-up of `net`, which took `wall_s`.
+    pub fn of(net: &Network, wall_s: f64) -> BringupOut {
+        BringupOut {
+            reference: net.reference,
+            slaves: net
+                .slaves
+                .iter()
+                .map(|s| SlaveOut {
+                    position: s.position,
+                    station: s.station,
+                    name: s.name.clone(),
+                    vendor_id: s.vendor_id,
+                    product_code: s.product_code,
+                    serial: s.serial,
+                    dc: s.dc,
+                    delay_ns: s.delay_ns,
+                    offset: s.offset,
+                })
+                .collect(),
+            converged: net.lock.converged,
+            time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
+            max_abs_092c_after_lock_ns: net.lock.max_abs_092c_after_lock_ns,
+            max_abs_092c_by_broadcast: net.lock.max_abs_092c_by_broadcast,
+            frmw_frames: net.lock.frmw_frames,
+            pdi_bytes: net.pdi_len,
+            expected_lrw_wkc: net.expected_lrw_wkc,
+            sync0_start_ns: net.sync0.map(|s| s.start_ns),
+            wall_s,
+        }
+    }
+}
+
+/// One recovery in `run`'s summary.
+#[derive(Debug, Serialize)]
+pub struct RecoveryRow {
+    /// Start, s after the cyclic phase's start.
+    pub start_s: f64,
+    /// End, s after the cyclic phase's start (`None`: still running).
+    pub end_s: Option<f64>,
+    /// Slaves brought back (network positions, 1 = next to the master).
+    pub slaves: Vec<u16>,
+    /// Why it failed (tried again 50 ms later).
+    pub error: Option<String>,
+    /// Slaves that answered beyond the network as brought up (hot-connected): not taken in.
+    pub appeared: u16,
+    /// Slaves found out of OP with their configuration kept, and why (their AL status).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub left_op: Vec<String>,
+}
+
+/// A drive the recoveries found out of OP with its configuration kept, and why.
+#[derive(Debug, Serialize)]
+pub struct LeftOpRow {
+    /// Network position, 1 = next to the master.
+    pub slave: u16,
+    /// The state it was in.
+    pub state: String,
+    /// Its AL status code (0x001A: a sync error past --sync-error-limit), 0 without an
+    /// error indication.
+    pub al_status_code: u16,
+    /// What the code means.
+    pub reason: String,
+    /// When the recovery that found it started, and when it had it back in OP, s after the
+    /// cyclic phase's start.
+    pub found_s: f64,
+    /// When the recovery had it back in OP, s after the cyclic phase's start.
+    pub back_in_op_s: Option<f64>,
+}
+
+/// Wake-up latency figures, µs.
+#[derive(Debug, Serialize)]
+pub struct LatencyOut {
+    /// Cycles.
+    pub n: u64,
+    /// Mean, us.
+    pub mean_us: f64,
+    /// Median, us.
+    pub p50_us: f64,
+    /// 99th percentile, us.
+    pub p99_us: f64,
+    /// 99.9th percentile, us.
+    pub p999_us: f64,
+    /// Largest, us.
+    pub max_us: f64,
+}
+
+/// A drive's SM-event-missed counter (0x1C32:0B) as the master read it over CoE.
+#[derive(Debug, Serialize)]
+pub struct SyncCounterRow {
+    /// Network position, 1 = next to the master.
+    pub position: u16,
+    /// 0x1C32:0B as last read.
+    pub sm_events_missed: u16,
+    /// When it was read, s after the cyclic phase's start.
+    pub read_s: f64,
+    /// 0x1C32:0B as first read (its count since OP, the hand-over from the bring-up
+    /// included), and when.
+    pub first_sm_events_missed: u16,
+    /// When it was first read, s after the cyclic phase's start.
+    pub first_read_s: f64,
+    /// Counted between the two reads: the cyclic phase's own.
+    pub missed_between_reads: u16,
+}
+
+/// `ecsync run`'s summary (`--summary`, `--json`).
+#[derive(Debug, Serialize)]
+pub struct RunOut {
+    /// The interface.
+    pub iface: String,
+    /// The synchronization method.
+    pub method: String,
+    /// Cycle time, ns.
+    pub cycle_ns: u32,
+    /// SYNC0 shift, ns.
+    pub sync0_shift_ns: u32,
+    /// Why the cyclic phase stopped: duration, cycles, interrupted, network-gone or an error.
+    pub stopped: String,
+    /// Cycles run.
+    pub cycles: u64,
+    /// Cycles skipped because the task woke after their slots had passed (host stalls).
+    pub skipped_cycles: u64,
+    /// The cyclic phase's wall-clock length, s.
+    pub duration_s: f64,
+    /// Cycles whose frame did not come back.
+    pub lost_frames: u64,
+    /// Replies that came after their cycle's deadline (the next cycle's slot), discarded: each
+    /// is also a lost frame (on a host without PREEMPT_RT the process, not the network, is
+    /// usually what was late).
+    pub late_replies: u64,
+    /// Second copies of replies (a second responder on the wire), discarded.
+    pub duplicate_replies: u64,
+    /// Answered cycles whose LRW working counter was not the expected one.
+    pub bad_wkc: u64,
+    /// Frames sent, replies matched, lost, stale (replies to nothing pending), truncated; the
+    /// bring-up's and the cyclic phase's.
+    pub link: ExchangeStats,
+    /// The kernel's timestamping on the interface.
+    pub timestamps: TimestampSupport,
+    /// The real-time setup (scheduling, CPU, memory lock).
+    pub rt: RtReport,
+    /// The bring-up.
+    pub bringup: BringupOut,
+    /// The letter's M-rS error, ns (φ for master shift, t_ra - t_ms for bus shift).
+    pub m_rs: Summary,
+    /// The letter's rS-IS error (|0x092C| by BRD), ns.
+    pub rs_is: Summary,
+    /// Wake-up latency of the cycle task.
+    pub wake_latency: LatencyOut,
+    /// How the task reached its send instants, and what it cost.
+    pub send: SendOut,
+    /// From the send timestamp to the kernel's transmit timestamp (the NIC path's j_c), ns.
+    pub tx_path: Summary,
+    /// Where the master-shift method's send time t_ms came from (`--tx-stamp`).
+    pub t_ms: TmsOut,
+    /// From the send timestamp to the reply, ns.
+    pub round_trip: Summary,
+    /// A controller's state at the end (DCM): in sync, the drift it learnt, its error.
+    pub controller: Option<ControllerOut>,
+    /// Cycles whose reference time the engine did not believe (gone, or jumped): the method
+    /// held over, the FRMW went out as an FPRD.
+    pub reference_held_cycles: u64,
+    /// The recoveries of slaves that lost their configuration (power-cycled): start and end,
+    /// s after the cyclic phase's start, slaves brought back (positions, 1 = next to the
+    /// master) or why it failed (tried again 50 ms later).
+    pub recoveries: Vec<RecoveryRow>,
+    /// The drives that left OP on their own (an AL error: a sync error past the configured
+    /// limit, a process data watchdog), as the recoveries found them; absent when none did.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub left_op: Vec<LeftOpRow>,
+    /// Each drive's SM-event-missed counter (0x1C32:0B) as last read over CoE in the cyclic
+    /// phase (once a second): SYNC0 cycles the drive ran without new outputs, by its own
+    /// count since it went to OP.
+    pub sm_events_missed: Vec<SyncCounterRow>,
+    /// Sends and receives the interface refused: it was down, or its send queue stayed full.
+    pub link_down_errors: u64,
+    /// Steps of the host's clock the engine saw (the reference ran on while the master's time
+    /// jumped: an NTP step, a `date -s`).
+    pub master_clock_steps: u32,
+    /// The per-cycle CSV's path.
+    pub csv: Option<String>,
+}
+
+/// The last cycle's controller log.
+#[derive(Debug, Serialize)]
+pub struct ControllerOut {
+    /// In sync at the end.
+    pub in_sync: bool,
+    /// The drift it learnt, ppm.
+    pub drift_ppm: f64,
+    /// Its filtered error, ns.
+    pub filtered_error_ns: f64,
+    /// Its last adjustment, ns.
+    pub adjustment_ns: i64,
+}
+
+/// Cycles of the run a twin's reference crystal is fitted over at least (10 s at 1 ms).
+pub const RATE_FIT_MIN_CYCLES: u64 = 10_000;
+
+/// The reference's time against the master's send stamps, fitted as the samples come (the one
+/// least-squares line, [`LineFit`]), x and y taken from their first sample so that the fit
+/// works on offsets, not on nanosecond timestamps since the epoch.
+#[derive(Debug, Default)]
+pub struct RateFit {
+    first: Option<(u64, u64)>,
+    fit: LineFit,
+}
+
+impl RateFit {
+    /// Adds one sample: the master's send stamp `x` and the reference's time `y`, ns.
+    pub fn add(&mut self, x: u64, y: u64) {
+        let (x0, y0) = *self.first.get_or_insert((x, y));
+        self.fit.add(
+            x.wrapping_sub(x0) as i64 as f64,
+            y.wrapping_sub(y0) as i64 as f64,
+        );
+    }
+
+    /// Samples fitted.
+    pub fn len(&self) -> u64 {
+        self.fit.len()
+    }
+
+    /// No sample yet.
+    pub fn is_empty(&self) -> bool {
+        self.fit.len() == 0
+    }
+
+    /// (slope - 1) in ppm.
+    pub fn ppm(&self) -> Option<f64> {
+        self.fit.slope().map(|b| (b - 1.0) * 1e6)
+    }
+}
+
+/// `--tx-stamp` and what it did.
+#[derive(Debug, Serialize)]
+pub struct TmsOut {
+    /// The mode asked for.
+    pub mode: String,
+    /// What t_ms was: the send timestamp, the kernel's software stamp or the NIC's.
+    pub source: TxStampSource,
+    /// Why auto fell back (no hardware stamps: what the NIC lacks; a bus-shift method).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+    /// Cycles whose t_ms was the transmit stamp.
+    pub cycles_from_tx_stamp: u64,
+    /// Answered cycles whose stamp had not come: they kept the send timestamp.
+    pub cycles_without_tx_stamp: u64,
+}
+
+/// `--send` and what it did.
+#[derive(Debug, Serialize)]
+pub struct SendOut {
+    /// The send mode (`--send`).
+    pub mode: SendMode,
+    /// How long before the instant the task stopped sleeping to spin, us.
+    pub spin_margin_us: Option<u32>,
+    /// Spinning in odd cycles only (`--spin-alternate`).
+    pub alternate: bool,
+    /// From the cycle's scheduled start to its send timestamp (wake-up latency, the wait and
+    /// the frame's assembly), in cycles that slept to the instant.
+    pub wake_to_send_plain: Option<LatencyOut>,
+    /// The same in cycles that spun.
+    pub wake_to_send_spin: Option<LatencyOut>,
+    /// p99 of the spinning cycles over p99 of the sleeping ones (`--spin-alternate`).
+    pub spin_over_plain_p99: Option<f64>,
+    /// CPU time spent busy-waiting, % of the cyclic phase's time.
+    pub spin_cpu_pct: f64,
+    /// CPU time per spinning cycle, us.
+    pub spin_us_per_cycle: f64,
+}
+
+/// Wake-up latency figures of `s` (ns) in us.
+pub fn latency(s: &Stats) -> LatencyOut {
+    let m = s.summary();
+    LatencyOut {
+        n: m.n,
+        mean_us: m.mean / 1e3,
+        p50_us: s.abs_quantile(0.5) / 1e3,
+        p99_us: m.p99_abs / 1e3,
+        p999_us: m.p999_abs / 1e3,
+        max_us: m.max_abs / 1e3,
+    }
+}
+
+/// Writes `v` or nothing, then the separator (no allocation: this runs every cycle).
+fn field<T: std::fmt::Display>(w: &mut impl Write, v: Option<T>, sep: char) -> std::io::Result<()> {
+    if let Some(v) = v {
+        write!(w, "{v}")?;
+    }
+    write!(w, "{sep}")
+}
+
+/// One cycle as a row of the per-cycle CSV ([`CSV_HEADER`]).
+pub fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
+    let r = &c.record;
+    write!(w, "{},{},{},", r.cycle, r.scheduled_ns, r.send_ns)?;
+    field(w, r.ref_time_ns, ',')?;
+    write!(w, "{},{},", r.output.error_ns, r.output.correction_ns)?;
+    field(w, r.rs_is_ns, ',')?;
+    field(w, r.lrw_wkc, ',')?;
+    write!(w, "{},", c.wake_latency_ns)?;
+    field(w, c.round_trip_ns, ',')?;
+    write!(w, "{},", u8::from(r.receive_ns.is_none()))?;
+    // The host's twin (`ecsync host fit` reads these as a trace): wake-up to the send
+    // timestamp, and the send timestamp to the transport's TX stamp.
+    write!(w, "{},", c.stamp_ns.saturating_sub(c.woke_ns))?;
+    field(w, c.tx_stamp_ns.map(|t| t as i64 - c.stamp_ns as i64), '\n')
+}
+
+/// The per-cycle CSV's columns; `exec_ns` and `tx_delay_ns` were appended after `lost` (a
+/// reader of the older file keeps its columns where they were).
+pub const CSV_HEADER: &str = "cycle,scheduled_ns,send_ns,ref_time_ns,error_ns,correction_ns,max_abs_092c_ns,lrw_wkc,wake_latency_ns,round_trip_ns,lost,exec_ns,tx_delay_ns";
+
+#[cfg(test)]
+mod tests {
+    use super::RateFit;
+
+    #[test]
+    fn the_rate_fit_finds_a_crystal_under_jitter() {
+        // 12.4 ppm fast, nanosecond timestamps around 2^60, +-20 us of jitter on the send
+        // stamps: 20 000 cycles of 1 ms give the slope within 0.05 ppm.
+        let mut f = RateFit::default();
+        let mut state = 0x1234_5678_u64;
+        for k in 0..20_000u64 {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let jitter = (state >> 40) as i64 % 20_000;
+            let x = (1u64 << 60) + k * 1_000_000;
+            let y = (1u64 << 59) + ((k * 1_000_000) as f64 * (1.0 + 12.4e-6)) as u64;
+            f.add(x.wrapping_add_signed(jitter), y);
+        }
+        let ppm = f.ppm().unwrap();
+        assert!((ppm - 12.4).abs() < 0.05, "{ppm}");
+    }
+}
