@@ -269,6 +269,12 @@ impl CyclicDriver {
     /// Runs up to `slice` more cycles, or until a limit, the stop flag or the network's loss:
     /// `Some(why)` when the phase ended, `None` when the slice was done. `on_cycle` sees every
     /// cycle with the transport (a simulator's observer reads its ground truth there).
+    ///
+    /// A cycle, step by step: [`Self::stop_reason`]; [`Self::wake`] at the cycle's slot (skipping
+    /// the slots that passed); [`Self::send_cyclic`]; [`Self::send_job_frame`] (a recovery's or
+    /// a counter read's frame); [`Self::collect_replies`] until the deadline;
+    /// [`Self::job_frame_lost`]; [`Self::complete`] hands the replies to the engine; the
+    /// observer; [`Self::recovery_burst`] in the rest of the cycle.
     pub fn run<S: MasterSync, Tr: Transport>(
         &mut self,
         tr: &mut Tr,
@@ -280,222 +286,24 @@ impl CyclicDriver {
         let period_ns = u64::from(eng.config().period_ns.max(1));
         let start = *self.start_ns.get_or_insert(eng.scheduled_start_ns());
         for _ in 0..slice {
-            if stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
-                return Ok(Some(Stopped::Interrupted));
+            if let Some(why) = self.stop_reason(eng, start, stop) {
+                return Ok(Some(why));
             }
-            if self.limits.max_cycles.is_some_and(|m| self.cycles >= m) {
-                return Ok(Some(Stopped::Cycles));
-            }
-            let scheduled = eng.scheduled_start_ns();
-            if self
-                .limits
-                .duration_ns
-                .is_some_and(|d| scheduled.wrapping_sub(start) >= d)
-            {
-                return Ok(Some(Stopped::Duration));
-            }
-            tr.start_cycle(eng.cycle());
-            tr.sleep_until(scheduled);
-            let woke = tr.now_ns();
-            // Woke a whole period late or more: those slots are gone.
-            let skipped = woke.saturating_sub(scheduled) / period_ns;
-            if skipped > 0 {
-                eng.skip_cycles(skipped);
-            }
+            let (scheduled, woke, skipped) = self.wake(tr, eng, period_ns);
             // The cycle's frames, back to back (one unless the process image needs more);
             // the first carries the reference's time and is the cycle's send timestamp.
             let n = eng.frame_count();
             let len = eng.frame_len();
-            let mut sent_ns = 0;
-            eng.set_recovery_running(
-                self.recovery
-                    .as_ref()
-                    .is_some_and(|r| r.running.is_some() && r.recovering),
-            );
-            for k in 0..n {
-                let len = eng.frame_len_of(k);
-                let at = tr.send_time_ns(len);
-                let s = tr.send_with(len, at, |buf| eng.write_frame(k, at, buf))?;
-                if k == 0 {
-                    sent_ns = s;
-                }
-                self.stats.sent += 1;
-            }
-            // The recovery's frame, if one runs (or starts now).
-            let mut recovery_pending = false;
-            if let Some(rs) = self.recovery.as_mut() {
-                let now = tr.now_ns();
-                if rs.running.is_none() && eng.health().needs_recovery && now >= rs.retry_at_ns {
-                    let (net, cfg) = (rs.net.clone(), rs.cfg);
-                    rs.running = Some(Engine::new(move |link| async move {
-                        JobResult::Recovery(recover(link, net, cfg).await)
-                    }));
-                    rs.recovering = true;
-                    rs.log.push(RecoveryEvent {
-                        started_ns: now,
-                        ended_ns: None,
-                        outcome: None,
-                    });
-                }
-                // A read of the drives' counters is not for a network that lost the last
-                // cycle's frames: one running is dropped (its frames would only queue up on a
-                // dead link) and starts again with the first cycle answered (not a period
-                // later: on a host whose stalls come in bursts a read each period could be
-                // dropped for seconds).
-                if !rs.recovering && rs.running.is_some() && self.lost_row > 0 {
-                    rs.drop_counter_read();
-                }
-                if let Some(every) = self.limits.sync_counters_every_ns
-                    && rs.running.is_none()
-                    && self.lost_row == 0
-                    && !eng.health().needs_recovery
-                    && !rs.sync_drives.is_empty()
-                {
-                    let due = *rs
-                        .next_sync_read_ns
-                        .get_or_insert(now.saturating_add(every));
-                    if rs.sync_next >= rs.sync_drives.len() && now >= due {
-                        // A round: every drive, one after the other.
-                        rs.next_sync_read_ns = Some(now.saturating_add(every));
-                        rs.sync_next = 0;
-                    }
-                    if let Some(&d) = rs.sync_drives.get(rs.sync_next) {
-                        rs.sync_reading = Some(rs.sync_next);
-                        rs.running = Some(Engine::new(move |link| read_sync_counter(link, d)));
-                        rs.recovering = false;
-                    }
-                }
-                if rs.out.is_none()
-                    && let Some(e) = rs.running.as_mut()
-                {
-                    match e.poll(now) {
-                        Action::Send(f) => rs.out = Some((f.to_vec(), 0, 0)),
-                        // Not asked for (`send_back_to_back`): never comes; told as not sent.
-                        Action::SendAll(f) => {
-                            let n = f.len();
-                            e.handle_replies(vec![Err(0); n]);
-                        }
-                        Action::WaitUntil(_) => {}
-                        Action::Done(r) => rs.finish(r, now, eng),
-                    }
-                }
-                if let Some((f, sent, tries)) = rs.out.as_mut() {
-                    let at = tr.send_time_ns(f.len());
-                    *sent = tr.send(f, at)?;
-                    *tries += 1;
-                    self.stats.sent += 1;
-                    recovery_pending = true;
-                }
-            }
-            if self.replies.len() < n {
-                self.replies.resize_with(n, || (vec![0u8; 2048], None));
-            }
-            self.answered_before.clear();
-            self.answered_before
-                .extend(self.replies.iter().map(|r| r.1.is_some()));
-            for r in self.replies.iter_mut() {
-                r.1 = None;
-            }
-            // A reply is awaited until the next cycle's slot at the latest: a lost frame costs
-            // its own cycle only, and a reply that comes later is discarded as late.
-            let next_slot = eng.scheduled_start_ns().saturating_add(period_ns);
-            let deadline = sent_ns
-                .saturating_add(self.limits.reply_timeout_ns)
-                .min(next_slot.max(sent_ns));
-            let mut pending = n;
-            let mut last: Option<Received> = None;
-            while pending > 0 || recovery_pending {
-                let Some(r) = tr.recv(&mut self.buf, deadline)? else {
-                    break;
-                };
-                if r.truncated {
-                    self.stats.truncated += 1;
-                    self.stats.stale += 1;
-                    continue;
-                }
-                let id = EcatFrame::new_checked(&self.buf[..r.len])
-                    .ok()
-                    .and_then(|f| f.first_datagram_id());
-                let tagged = id.and_then(|id| eng.match_tag(id));
-                let cyclic_now = matches!(tagged, Some((0, k)) if r.len >= eng.frame_len_of(k));
-                if recovery_pending
-                    && !cyclic_now
-                    && let Some(rs) = self.recovery.as_mut()
-                    && let Some((f, sent, _)) = &rs.out
-                    && answers(f, &self.buf[..r.len])
-                {
-                    if let Some(e) = rs.running.as_mut() {
-                        e.handle_reply(&self.buf[..r.len], *sent, r.received_ns);
-                    }
-                    rs.out = None;
-                    recovery_pending = false;
-                    self.stats.replies += 1;
-                    continue;
-                }
-                match tagged {
-                    Some((0, k)) if r.len >= eng.frame_len_of(k) => {
-                        if self.replies[k].1.is_some() {
-                            // The same frame answered twice: a second responder on the wire.
-                            self.stats.duplicates += 1;
-                            continue;
-                        }
-                        // The reply's bytes go to its slot without a copy.
-                        std::mem::swap(&mut self.buf, &mut self.replies[k].0);
-                        self.replies[k].1 = Some(r.len);
-                        self.stats.replies += 1;
-                        pending -= 1;
-                        last = Some(r);
-                    }
-                    // A second copy of the last cycle's reply, or the reply itself too late.
-                    Some((1, k)) if self.answered_before.get(k) == Some(&true) => {
-                        self.stats.duplicates += 1;
-                    }
-                    Some((ago, _)) if ago > 0 => self.stats.late += 1,
-                    _ => self.stats.stale += 1,
-                }
-            }
+            let sent_ns = self.send_cyclic(tr, eng)?;
+            let job_pending = self.send_job_frame(tr, eng)?;
+            let (pending, last, job_pending) =
+                self.collect_replies(tr, eng, n, sent_ns, period_ns, job_pending)?;
             self.stats.lost += pending as u64;
-            if recovery_pending
-                && let Some(rs) = self.recovery.as_mut()
-                && let Some((_, _, tries)) = rs.out
-            {
-                // Sent again next cycle, up to its tries; then the procedure hears of it.
-                self.stats.lost += 1;
-                if tries >= RECOVERY_FRAME_TRIES {
-                    rs.out = None;
-                    if let Some(e) = rs.running.as_mut() {
-                        e.handle_lost_after(tries);
-                    }
-                }
+            if job_pending {
+                self.job_frame_lost();
             }
-            let replies = &self.replies;
-            let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
-            let (record, tx_stamp_ns, round_trip_ns) = if pending == 0 {
-                let r = last.expect("every frame answered");
-                let t_ms = match (self.limits.t_ms_from_tx_stamp, r.tx_stamp_ns) {
-                    (false, _) => sent_ns,
-                    (true, Some(t)) => {
-                        self.t_ms_sources.0 += 1;
-                        t
-                    }
-                    (true, None) => {
-                        self.t_ms_sources.1 += 1;
-                        sent_ns
-                    }
-                };
-                let rec = eng.complete_by(views, t_ms, r.received_ns);
-                self.lost_row = 0;
-                self.last_good = Some(rec.cycle);
-                (
-                    rec,
-                    r.tx_stamp_ns,
-                    Some(r.received_ns.saturating_sub(sent_ns)),
-                )
-            } else {
-                self.lost_row += 1;
-                let now = tr.now_ns();
-                (eng.complete_by(views, sent_ns, now), None, None)
-            };
+            let (record, tx_stamp_ns, round_trip_ns) =
+                self.complete(tr, eng, pending, last, sent_ns);
             self.cycles += 1;
             on_cycle(
                 tr,
@@ -523,5 +331,293 @@ impl CyclicDriver {
             }
         }
         Ok(None)
+    }
+
+    /// Why the phase ends before the next cycle, if it does: the stop flag, the cycle count,
+    /// the duration from `start` (master time, ns).
+    fn stop_reason<S: MasterSync>(
+        &self,
+        eng: &CyclicEngine<S>,
+        start: u64,
+        stop: Option<&AtomicBool>,
+    ) -> Option<Stopped> {
+        if stop.is_some_and(|s| s.load(Ordering::Relaxed)) {
+            return Some(Stopped::Interrupted);
+        }
+        if self.limits.max_cycles.is_some_and(|m| self.cycles >= m) {
+            return Some(Stopped::Cycles);
+        }
+        let scheduled = eng.scheduled_start_ns();
+        self.limits
+            .duration_ns
+            .is_some_and(|d| scheduled.wrapping_sub(start) >= d)
+            .then_some(Stopped::Duration)
+    }
+
+    /// Sleeps to the cycle's slot: (scheduled, woke, slots skipped). A task that woke a whole
+    /// period late or more has lost those slots: the engine skips them.
+    fn wake<S: MasterSync, Tr: Transport>(
+        &mut self,
+        tr: &mut Tr,
+        eng: &mut CyclicEngine<S>,
+        period_ns: u64,
+    ) -> (u64, u64, u64) {
+        let scheduled = eng.scheduled_start_ns();
+        tr.start_cycle(eng.cycle());
+        tr.sleep_until(scheduled);
+        let woke = tr.now_ns();
+        let skipped = woke.saturating_sub(scheduled) / period_ns;
+        if skipped > 0 {
+            eng.skip_cycles(skipped);
+        }
+        (scheduled, woke, skipped)
+    }
+
+    /// Sends the cycle's frames back to back: the first one's send timestamp.
+    fn send_cyclic<S: MasterSync, Tr: Transport>(
+        &mut self,
+        tr: &mut Tr,
+        eng: &mut CyclicEngine<S>,
+    ) -> Result<u64, Tr::Error> {
+        let mut sent_ns = 0;
+        eng.set_recovery_running(
+            self.recovery
+                .as_ref()
+                .is_some_and(|r| r.running.is_some() && r.recovering),
+        );
+        for k in 0..eng.frame_count() {
+            let len = eng.frame_len_of(k);
+            let at = tr.send_time_ns(len);
+            let s = tr.send_with(len, at, |buf| eng.write_frame(k, at, buf))?;
+            if k == 0 {
+                sent_ns = s;
+            }
+            self.stats.sent += 1;
+        }
+        Ok(sent_ns)
+    }
+
+    /// The side job's frame after the cyclic ones: a recovery starts if the engine asks for
+    /// one, a read of the drives' counters if one is due; the running job's next frame (or
+    /// the one lost last cycle) goes out. Whether a frame went out.
+    fn send_job_frame<S: MasterSync, Tr: Transport>(
+        &mut self,
+        tr: &mut Tr,
+        eng: &mut CyclicEngine<S>,
+    ) -> Result<bool, Tr::Error> {
+        let lost_row = self.lost_row;
+        let every = self.limits.sync_counters_every_ns;
+        let Some(rs) = self.recovery.as_mut() else {
+            return Ok(false);
+        };
+        let now = tr.now_ns();
+        if rs.running.is_none() && eng.health().needs_recovery && now >= rs.retry_at_ns {
+            let (net, cfg) = (rs.net.clone(), rs.cfg);
+            rs.running = Some(Engine::new(move |link| async move {
+                JobResult::Recovery(recover(link, net, cfg).await)
+            }));
+            rs.recovering = true;
+            rs.log.push(RecoveryEvent {
+                started_ns: now,
+                ended_ns: None,
+                outcome: None,
+            });
+        }
+        // A read of the drives' counters is not for a network that lost the last cycle's
+        // frames: one running is dropped (its frames would only queue up on a dead link) and
+        // starts again with the first cycle answered (not a period later: on a host whose
+        // stalls come in bursts a read each period could be dropped for seconds).
+        if !rs.recovering && rs.running.is_some() && lost_row > 0 {
+            rs.drop_counter_read();
+        }
+        if let Some(every) = every
+            && rs.running.is_none()
+            && lost_row == 0
+            && !eng.health().needs_recovery
+            && !rs.sync_drives.is_empty()
+        {
+            let due = *rs
+                .next_sync_read_ns
+                .get_or_insert(now.saturating_add(every));
+            if rs.sync_next >= rs.sync_drives.len() && now >= due {
+                // A round: every drive, one after the other.
+                rs.next_sync_read_ns = Some(now.saturating_add(every));
+                rs.sync_next = 0;
+            }
+            if let Some(&d) = rs.sync_drives.get(rs.sync_next) {
+                rs.sync_reading = Some(rs.sync_next);
+                rs.running = Some(Engine::new(move |link| read_sync_counter(link, d)));
+                rs.recovering = false;
+            }
+        }
+        if rs.out.is_none()
+            && let Some(e) = rs.running.as_mut()
+        {
+            match e.poll(now) {
+                Action::Send(f) => rs.out = Some((f.to_vec(), 0, 0)),
+                // Not asked for (`send_back_to_back`): never comes; told as not sent.
+                Action::SendAll(f) => {
+                    let n = f.len();
+                    e.handle_replies(vec![Err(0); n]);
+                }
+                Action::WaitUntil(_) => {}
+                Action::Done(r) => rs.finish(r, now, eng),
+            }
+        }
+        if let Some((f, sent, tries)) = rs.out.as_mut() {
+            let at = tr.send_time_ns(f.len());
+            *sent = tr.send(f, at)?;
+            *tries += 1;
+            self.stats.sent += 1;
+            return Ok(true);
+        }
+        Ok(false)
+    }
+
+    /// Receives until every cyclic frame (and the job's frame, if `job_pending`) is answered
+    /// or the deadline passed: a reply is awaited until the next cycle's slot at the latest,
+    /// so a lost frame costs its own cycle only, and a reply that comes later is discarded
+    /// as late. (cyclic frames unanswered, the last reply, the job's frame still unanswered).
+    fn collect_replies<S: MasterSync, Tr: Transport>(
+        &mut self,
+        tr: &mut Tr,
+        eng: &mut CyclicEngine<S>,
+        n: usize,
+        sent_ns: u64,
+        period_ns: u64,
+        mut job_pending: bool,
+    ) -> Result<(usize, Option<Received>, bool), Tr::Error> {
+        if self.replies.len() < n {
+            self.replies.resize_with(n, || (vec![0u8; 2048], None));
+        }
+        self.answered_before.clear();
+        self.answered_before
+            .extend(self.replies.iter().map(|r| r.1.is_some()));
+        for r in self.replies.iter_mut() {
+            r.1 = None;
+        }
+        let next_slot = eng.scheduled_start_ns().saturating_add(period_ns);
+        let deadline = sent_ns
+            .saturating_add(self.limits.reply_timeout_ns)
+            .min(next_slot.max(sent_ns));
+        let mut pending = n;
+        let mut last: Option<Received> = None;
+        while pending > 0 || job_pending {
+            let Some(r) = tr.recv(&mut self.buf, deadline)? else {
+                break;
+            };
+            if r.truncated {
+                self.stats.truncated += 1;
+                self.stats.stale += 1;
+                continue;
+            }
+            let id = EcatFrame::new_checked(&self.buf[..r.len])
+                .ok()
+                .and_then(|f| f.first_datagram_id());
+            let tagged = id.and_then(|id| eng.match_tag(id));
+            let cyclic_now = matches!(tagged, Some((0, k)) if r.len >= eng.frame_len_of(k));
+            if job_pending && !cyclic_now && self.take_job_reply(&r) {
+                job_pending = false;
+                continue;
+            }
+            match tagged {
+                Some((0, k)) if r.len >= eng.frame_len_of(k) => {
+                    if self.replies[k].1.is_some() {
+                        // The same frame answered twice: a second responder on the wire.
+                        self.stats.duplicates += 1;
+                        continue;
+                    }
+                    // The reply's bytes go to its slot without a copy.
+                    std::mem::swap(&mut self.buf, &mut self.replies[k].0);
+                    self.replies[k].1 = Some(r.len);
+                    self.stats.replies += 1;
+                    pending -= 1;
+                    last = Some(r);
+                }
+                // A second copy of the last cycle's reply, or the reply itself too late.
+                Some((1, k)) if self.answered_before.get(k) == Some(&true) => {
+                    self.stats.duplicates += 1;
+                }
+                Some((ago, _)) if ago > 0 => self.stats.late += 1,
+                _ => self.stats.stale += 1,
+            }
+        }
+        Ok((pending, last, job_pending))
+    }
+
+    /// Whether the frame in the buffer (`r`) answers the side job's frame: then the job has
+    /// it.
+    fn take_job_reply(&mut self, r: &Received) -> bool {
+        let Some(rs) = self.recovery.as_mut() else {
+            return false;
+        };
+        let Some((f, sent, _)) = &rs.out else {
+            return false;
+        };
+        if !answers(f, &self.buf[..r.len]) {
+            return false;
+        }
+        if let Some(e) = rs.running.as_mut() {
+            e.handle_reply(&self.buf[..r.len], *sent, r.received_ns);
+        }
+        rs.out = None;
+        self.stats.replies += 1;
+        true
+    }
+
+    /// The side job's frame did not come back: sent again next cycle, up to its tries; then
+    /// the procedure hears of it.
+    fn job_frame_lost(&mut self) {
+        if let Some(rs) = self.recovery.as_mut()
+            && let Some((_, _, tries)) = rs.out
+        {
+            self.stats.lost += 1;
+            if tries >= RECOVERY_FRAME_TRIES {
+                rs.out = None;
+                if let Some(e) = rs.running.as_mut() {
+                    e.handle_lost_after(tries);
+                }
+            }
+        }
+    }
+
+    /// Hands the cycle's replies to the engine: the record, the transmit stamp and the round
+    /// trip (with `pending` frames unanswered: a lost cycle, timed now).
+    fn complete<S: MasterSync, Tr: Transport>(
+        &mut self,
+        tr: &mut Tr,
+        eng: &mut CyclicEngine<S>,
+        pending: usize,
+        last: Option<Received>,
+        sent_ns: u64,
+    ) -> (CycleRecord, Option<u64>, Option<u64>) {
+        let replies = &self.replies;
+        let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
+        if pending == 0 {
+            let r = last.expect("every frame answered");
+            let t_ms = match (self.limits.t_ms_from_tx_stamp, r.tx_stamp_ns) {
+                (false, _) => sent_ns,
+                (true, Some(t)) => {
+                    self.t_ms_sources.0 += 1;
+                    t
+                }
+                (true, None) => {
+                    self.t_ms_sources.1 += 1;
+                    sent_ns
+                }
+            };
+            let rec = eng.complete_by(views, t_ms, r.received_ns);
+            self.lost_row = 0;
+            self.last_good = Some(rec.cycle);
+            (
+                rec,
+                r.tx_stamp_ns,
+                Some(r.received_ns.saturating_sub(sent_ns)),
+            )
+        } else {
+            self.lost_row += 1;
+            let now = tr.now_ns();
+            (eng.complete_by(views, sent_ns, now), None, None)
+        }
     }
 }
