@@ -126,13 +126,37 @@ fn u64_of(b: &[u8]) -> u64 {
     u64::from_le_bytes(a)
 }
 
-/// Runs the recovery of `net` (see the module documentation).
+/// Runs the recovery of `net` (see the module documentation), step by step: how many slaves
+/// answer ([`count_appeared`]); who lost the configuration ([`find_reset`]) and who left OP
+/// with it kept ([`find_left_op`]); their station addresses ([`restore_addresses`]); DC on
+/// the segment's timeline ([`restore_dc`]); their states and process data
+/// ([`restore_states`]).
 pub async fn recover(
     link: Link,
     net: Network,
     cfg: RecoveryConfig,
 ) -> Result<Recovered, MasterError> {
-    // 0. How many slaves answer: more than brought up, and some appeared at the end.
+    let appeared = count_appeared(&link, &net).await?;
+    let reset = find_reset(&link, &net).await?;
+    let left_op = find_left_op(&link, &net, &reset).await?;
+    let mut out = Recovered {
+        reference: reset.contains(&net.reference),
+        positions: reset.clone(),
+        reference_offset: None,
+        appeared,
+        left_op: left_op.clone(),
+    };
+    if reset.is_empty() && left_op.is_empty() {
+        return Ok(out);
+    }
+    restore_addresses(&link, &net, &reset).await?;
+    out.reference_offset = restore_dc(&link, &net, &cfg, &reset).await?;
+    out.positions = restore_states(&link, &net, &cfg, &reset, &left_op).await?;
+    Ok(out)
+}
+
+/// Slaves that answer beyond the network as brought up (hot-connected at the end).
+async fn count_appeared(link: &Link, net: &Network) -> Result<u16, MasterError> {
     let (count, _) = link
         .pdus(
             &[Pdu::new(
@@ -143,8 +167,12 @@ pub async fn recover(
             "count slaves",
         )
         .await?;
-    let appeared = count[0].wkc.saturating_sub(net.slaves.len() as u16);
-    // 1. Who lost the configuration.
+    Ok(count[0].wkc.saturating_sub(net.slaves.len() as u16))
+}
+
+/// The slaves that lost their configuration: their station address is gone. An error if a
+/// slave does not answer at all (it is not back).
+async fn find_reset(link: &Link, net: &Network) -> Result<Vec<u16>, MasterError> {
     let reads: Vec<Pdu> = net
         .slaves
         .iter()
@@ -171,231 +199,292 @@ pub async fn recover(
             reset.push(s.position);
         }
     }
-    // A slave with its address but not in OP: a recovery that stopped half way (a lost frame)
-    // or a slave that left OP by itself: configured again as well.
+    Ok(reset)
+}
+
+/// The slaves with their address but not in OP: a recovery that stopped half way (a lost
+/// frame) or a slave that left OP by itself (configured again as well).
+async fn find_left_op(
+    link: &Link,
+    net: &Network,
+    reset: &[u16],
+) -> Result<Vec<LeftOp>, MasterError> {
     let kept: Vec<&SlaveInfo> = net
         .slaves
         .iter()
         .filter(|s| !reset.contains(&s.position))
         .collect();
     let mut left_op = Vec::new();
-    if !kept.is_empty() {
-        // AL status and, four bytes on, its code, in one read per slave.
-        let reads: Vec<Pdu> = kept
-            .iter()
-            .map(|s| {
-                Pdu::new(
-                    Command::Fprd,
-                    DatagramAddress::Configured {
-                        adp: s.station,
-                        ado: reg::AL_STATUS,
-                    },
-                    vec![0; ecsync_wire::al::AL_STATUS_BLOCK_LEN],
-                )
-            })
-            .collect();
-        let (r, _) = link.pdus(&reads, "read AL status").await?;
-        for (s, p) in kept.iter().zip(&r) {
-            let Ok(a) = ecsync_wire::AlStatus::new_checked(&p.data[..]) else {
-                continue;
-            };
-            if p.wkc == 1 && (a.state() != Ok(AlState::Op) || a.error()) {
-                left_op.push(LeftOp {
-                    position: s.position,
-                    state: a.state_raw(),
-                    error: a.error(),
-                    code: a.status_code().map_or(0, |c| c.code()),
-                });
-            }
+    if kept.is_empty() {
+        return Ok(left_op);
+    }
+    // AL status and, four bytes on, its code, in one read per slave.
+    let reads: Vec<Pdu> = kept
+        .iter()
+        .map(|s| {
+            Pdu::new(
+                Command::Fprd,
+                DatagramAddress::Configured {
+                    adp: s.station,
+                    ado: reg::AL_STATUS,
+                },
+                vec![0; ecsync_wire::al::AL_STATUS_BLOCK_LEN],
+            )
+        })
+        .collect();
+    let (r, _) = link.pdus(&reads, "read AL status").await?;
+    for (s, p) in kept.iter().zip(&r) {
+        let Ok(a) = ecsync_wire::AlStatus::new_checked(&p.data[..]) else {
+            continue;
+        };
+        if p.wkc == 1 && (a.state() != Ok(AlState::Op) || a.error()) {
+            left_op.push(LeftOp {
+                position: s.position,
+                state: a.state_raw(),
+                error: a.error(),
+                code: a.status_code().map_or(0, |c| c.code()),
+            });
         }
     }
-    let mut out = Recovered {
-        reference: reset.contains(&net.reference),
-        positions: reset.clone(),
-        reference_offset: None,
-        appeared,
-        left_op: left_op.clone(),
-    };
-    if reset.is_empty() && left_op.is_empty() {
-        return Ok(out);
-    }
-    let info = |pos: u16| -> &SlaveInfo { &net.slaves[usize::from(pos)] };
-    // 2. Station addresses.
-    for &pos in &reset {
+    Ok(left_op)
+}
+
+/// The slave at network position `pos`.
+fn info(net: &Network, pos: u16) -> &SlaveInfo {
+    &net.slaves[usize::from(pos)]
+}
+
+/// The reset slaves' station addresses, written again by position.
+async fn restore_addresses(link: &Link, net: &Network, reset: &[u16]) -> Result<(), MasterError> {
+    for &pos in reset {
         link.pdu_wkc(
             Command::Apwr,
             position_addr(pos, reg::STATION_ADDRESS),
-            info(pos).station.to_le_bytes().to_vec(),
+            info(net, pos).station.to_le_bytes().to_vec(),
             1,
             "station address",
         )
         .await?;
     }
-    // 3. DC: the timeline from a slave that kept it.
+    Ok(())
+}
+
+/// DC for the reset slaves with a system time: the timeline from a slave that kept it
+/// (offsets and delays), static drift compensation, SYNC0 on the segment's grid. The
+/// reference's new offset, if it was reset.
+async fn restore_dc(
+    link: &Link,
+    net: &Network,
+    cfg: &RecoveryConfig,
+    reset: &[u16],
+) -> Result<Option<u64>, MasterError> {
     let dc_reset: Vec<u16> = reset
         .iter()
         .copied()
-        .filter(|&p| info(p).dc == DcCapability::SystemTime)
+        .filter(|&p| info(net, p).dc == DcCapability::SystemTime)
         .collect();
-    if !dc_reset.is_empty() {
-        let keeper = std::iter::once(net.reference)
-            .chain(
-                net.slaves
-                    .iter()
-                    .filter(|s| s.dc == DcCapability::SystemTime)
-                    .map(|s| s.position),
-            )
-            .find(|p| !reset.contains(p));
-        let Some(keeper) = keeper else {
-            return Err(MasterError::Config(
-                "every slave with a system time was reset: the segment's time is gone (bring it up again)"
-                    .into(),
-            ));
-        };
-        let k = info(keeper);
-        link.bwr(reg::DC_RECEIVE_TIME_PORT0, &[0; 4], "latch receive times")
-            .await?;
-        let k_local = u64_of(
-            &link
-                .fprd(k.station, reg::DC_RECEIVE_TIME_PU, 8, "receive time")
-                .await?,
-        );
-        let k_offset = u64_of(
-            &link
-                .fprd(
-                    k.station,
-                    reg::DC_SYSTEM_TIME_OFFSET,
-                    8,
-                    "system time offset",
-                )
-                .await?,
-        );
-        let delay_of =
-            |s: &SlaveInfo| ecsync_dc::offset::round_ns(s.delay_ns.unwrap_or(0.0)).max(0);
-        // The reference's system time at the latch, as the keeper has it.
-        let ref_time = k_local
-            .wrapping_add(k_offset)
-            .wrapping_sub(delay_of(k) as u64);
-        for &pos in &dc_reset {
-            let s = info(pos);
-            let local = u64_of(
-                &link
-                    .fprd(s.station, reg::DC_RECEIVE_TIME_PU, 8, "receive time")
-                    .await?,
-            );
-            let delay = delay_of(s);
-            let offset = ecsync_dc::system_time_offset(ref_time, delay, local);
-            if pos == net.reference {
-                out.reference_offset = Some(offset);
-            }
-            link.fpwr(
-                s.station,
-                reg::DC_SYSTEM_TIME_DELAY,
-                &(delay as u32).to_le_bytes(),
-                "write delay",
-            )
-            .await?;
-            link.fpwr(
-                s.station,
+    if dc_reset.is_empty() {
+        return Ok(None);
+    }
+    let keeper = std::iter::once(net.reference)
+        .chain(
+            net.slaves
+                .iter()
+                .filter(|s| s.dc == DcCapability::SystemTime)
+                .map(|s| s.position),
+        )
+        .find(|p| !reset.contains(p));
+    let Some(keeper) = keeper else {
+        return Err(MasterError::Config(
+            "every slave with a system time was reset: the segment's time is gone (bring it up again)"
+                .into(),
+        ));
+    };
+    let k = info(net, keeper);
+    let reference_offset = write_offsets(link, net, k, &dc_reset).await?;
+    compensate_drift(link, net, cfg, &dc_reset).await?;
+    restart_sync0(link, net, k, cfg, &dc_reset).await?;
+    Ok(reference_offset)
+}
+
+/// Latches the receive times and writes each slave of `dc_reset` its delay and the offset
+/// that puts it on the reference's time as the keeper `k` has it; resets its loop filter.
+/// The reference's offset, if it is among them.
+async fn write_offsets(
+    link: &Link,
+    net: &Network,
+    k: &SlaveInfo,
+    dc_reset: &[u16],
+) -> Result<Option<u64>, MasterError> {
+    link.bwr(reg::DC_RECEIVE_TIME_PORT0, &[0; 4], "latch receive times")
+        .await?;
+    let k_local = u64_of(
+        &link
+            .fprd(k.station, reg::DC_RECEIVE_TIME_PU, 8, "receive time")
+            .await?,
+    );
+    let k_offset = u64_of(
+        &link
+            .fprd(
+                k.station,
                 reg::DC_SYSTEM_TIME_OFFSET,
-                &offset.to_le_bytes(),
-                "write offset",
+                8,
+                "system time offset",
             )
-            .await?;
-            link.fpwr(
-                s.station,
-                reg::DC_TIME_DIFF_FILTER_DEPTH,
-                &[0x00, 0x0c],
-                "filter depths",
-            )
-            .await?;
-            link.fpwr(
-                s.station,
-                reg::DC_SPEED_COUNTER_START,
-                &0x1000u16.to_le_bytes(),
-                "reset loop filter",
-            )
-            .await?;
-        }
-        // Static drift compensation: the reference's time to every slave after it, frame
-        // after frame (the driver sends them back to back in the rest of each cycle).
-        let reference = info(net.reference).station;
-        let frmw = Pdu::new(
-            Command::Frmw,
-            DatagramAddress::Configured {
-                adp: reference,
-                ado: reg::DC_SYSTEM_TIME,
-            },
-            vec![0; 8],
-        );
-        // Until the reset slaves' |0x092C| stays under 100 ns for three checks of 250 frames
-        // (a crystal near the reference's is there at once), at most `static_drift_frames`.
-        let mut good_checks = 0;
-        for n in 1..=cfg.static_drift_frames {
-            // A lost FRMW is one write fewer for the loop, not a failure of the recovery.
-            match link
-                .pdus(std::slice::from_ref(&frmw), "static drift compensation")
-                .await
-            {
-                Ok(_) | Err(MasterError::FrameLost { .. }) => {}
-                Err(e) => return Err(e),
-            }
-            if n % 250 != 0 {
-                continue;
-            }
-            let mut worst = 0u32;
-            for &pos in &dc_reset {
-                let v = link
-                    .fprd(
-                        info(pos).station,
-                        reg::DC_SYSTEM_TIME_DIFF,
-                        4,
-                        "read system time difference",
-                    )
-                    .await?;
-                let raw = u32::from_le_bytes([v[0], v[1], v[2], v[3]]);
-                worst = worst.max(ecsync_wire::dc_time::decode_time_difference(raw).unsigned_abs());
-            }
-            good_checks = if worst < LOCKED_NS {
-                good_checks + 1
-            } else {
-                0
-            };
-            if good_checks >= 3 {
-                break;
-            }
-        }
-        // SYNC0 on the segment's grid (the start time is a grid point plus the shift).
-        let now_sys = u64_of(
+            .await?,
+    );
+    let delay_of = |s: &SlaveInfo| ecsync_dc::offset::round_ns(s.delay_ns.unwrap_or(0.0)).max(0);
+    // The reference's system time at the latch, as the keeper has it.
+    let ref_time = k_local
+        .wrapping_add(k_offset)
+        .wrapping_sub(delay_of(k) as u64);
+    let mut reference_offset = None;
+    for &pos in dc_reset {
+        let s = info(net, pos);
+        let local = u64_of(
             &link
-                .fprd(k.station, reg::DC_SYSTEM_TIME, 8, "read system time")
+                .fprd(s.station, reg::DC_RECEIVE_TIME_PU, 8, "receive time")
                 .await?,
         );
-        let start = ecsync_dc::sync0_start_time(
-            now_sys,
-            cfg.sync0_lead_ns,
-            cfg.cycle_ns,
-            cfg.sync0_shift_ns,
-        );
-        for &pos in &dc_reset {
-            let st = info(pos).station;
-            link.fpwr(st, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
+        let delay = delay_of(s);
+        let offset = ecsync_dc::system_time_offset(ref_time, delay, local);
+        if pos == net.reference {
+            reference_offset = Some(offset);
+        }
+        link.fpwr(
+            s.station,
+            reg::DC_SYSTEM_TIME_DELAY,
+            &(delay as u32).to_le_bytes(),
+            "write delay",
+        )
+        .await?;
+        link.fpwr(
+            s.station,
+            reg::DC_SYSTEM_TIME_OFFSET,
+            &offset.to_le_bytes(),
+            "write offset",
+        )
+        .await?;
+        link.fpwr(
+            s.station,
+            reg::DC_TIME_DIFF_FILTER_DEPTH,
+            &[0x00, 0x0c],
+            "filter depths",
+        )
+        .await?;
+        link.fpwr(
+            s.station,
+            reg::DC_SPEED_COUNTER_START,
+            &0x1000u16.to_le_bytes(),
+            "reset loop filter",
+        )
+        .await?;
+    }
+    Ok(reference_offset)
+}
+
+/// Static drift compensation: the reference's time to every slave after it, frame after
+/// frame (the driver sends them back to back in the rest of each cycle), until the reset
+/// slaves' |0x092C| stays under 100 ns for three checks of 250 frames (a crystal near the
+/// reference's is there at once), at most `static_drift_frames`.
+async fn compensate_drift(
+    link: &Link,
+    net: &Network,
+    cfg: &RecoveryConfig,
+    dc_reset: &[u16],
+) -> Result<(), MasterError> {
+    let reference = info(net, net.reference).station;
+    let frmw = Pdu::new(
+        Command::Frmw,
+        DatagramAddress::Configured {
+            adp: reference,
+            ado: reg::DC_SYSTEM_TIME,
+        },
+        vec![0; 8],
+    );
+    let mut good_checks = 0;
+    for n in 1..=cfg.static_drift_frames {
+        // A lost FRMW is one write fewer for the loop, not a failure of the recovery.
+        match link
+            .pdus(std::slice::from_ref(&frmw), "static drift compensation")
+            .await
+        {
+            Ok(_) | Err(MasterError::FrameLost { .. }) => {}
+            Err(e) => return Err(e),
+        }
+        if n % 250 != 0 {
+            continue;
+        }
+        let mut worst = 0u32;
+        for &pos in dc_reset {
+            let v = link
+                .fprd(
+                    info(net, pos).station,
+                    reg::DC_SYSTEM_TIME_DIFF,
+                    4,
+                    "read system time difference",
+                )
                 .await?;
-            link.fpwr(
-                st,
-                reg::DC_SYNC0_CYCLE,
-                &cfg.cycle_ns.to_le_bytes(),
-                "SYNC0 cycle",
-            )
-            .await?;
-            link.fpwr(st, reg::DC_START_TIME, &start.to_le_bytes(), "SYNC0 start")
-                .await?;
-            link.fpwr(st, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
-                .await?;
+            let raw = u32::from_le_bytes([v[0], v[1], v[2], v[3]]);
+            worst = worst.max(ecsync_wire::dc_time::decode_time_difference(raw).unsigned_abs());
+        }
+        good_checks = if worst < LOCKED_NS {
+            good_checks + 1
+        } else {
+            0
+        };
+        if good_checks >= 3 {
+            break;
         }
     }
-    // 4. The states, the process data between PRE-OP and SAFE-OP; an error indication is
-    // acknowledged with the first request (an unacknowledged one refuses every request).
+    Ok(())
+}
+
+/// SYNC0 of the reset slaves on the segment's grid (the start time is a grid point plus the
+/// shift), read from the keeper `k`'s system time.
+async fn restart_sync0(
+    link: &Link,
+    net: &Network,
+    k: &SlaveInfo,
+    cfg: &RecoveryConfig,
+    dc_reset: &[u16],
+) -> Result<(), MasterError> {
+    let now_sys = u64_of(
+        &link
+            .fprd(k.station, reg::DC_SYSTEM_TIME, 8, "read system time")
+            .await?,
+    );
+    let start =
+        ecsync_dc::sync0_start_time(now_sys, cfg.sync0_lead_ns, cfg.cycle_ns, cfg.sync0_shift_ns);
+    for &pos in dc_reset {
+        let st = info(net, pos).station;
+        link.fpwr(st, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
+            .await?;
+        link.fpwr(
+            st,
+            reg::DC_SYNC0_CYCLE,
+            &cfg.cycle_ns.to_le_bytes(),
+            "SYNC0 cycle",
+        )
+        .await?;
+        link.fpwr(st, reg::DC_START_TIME, &start.to_le_bytes(), "SYNC0 start")
+            .await?;
+        link.fpwr(st, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
+            .await?;
+    }
+    Ok(())
+}
+
+/// The states of the reset slaves and of those that left OP, the process data between
+/// PRE-OP and SAFE-OP; an error indication is acknowledged with the first request (an
+/// unacknowledged one refuses every request). The positions configured, in order.
+async fn restore_states(
+    link: &Link,
+    net: &Network,
+    cfg: &RecoveryConfig,
+    reset: &[u16],
+    left_op: &[LeftOp],
+) -> Result<Vec<u16>, MasterError> {
     let mut states: Vec<u16> = reset
         .iter()
         .copied()
@@ -403,25 +492,24 @@ pub async fn recover(
         .collect();
     states.sort_unstable();
     // A reset slave with a mailbox needs its mailbox SyncManagers before PRE-OP.
-    let reset_slaves: Vec<SlaveInfo> = reset.iter().map(|&p| info(p).clone()).collect();
-    crate::bringup::configure_mailboxes(&link, &reset_slaves).await?;
+    let reset_slaves: Vec<SlaveInfo> = reset.iter().map(|&p| info(net, p).clone()).collect();
+    crate::bringup::configure_mailboxes(link, &reset_slaves).await?;
     for &pos in &states {
-        let s = info(pos);
+        let s = info(net, pos);
         let ack = AlControlRepr {
             state: AlState::PreOp,
             error_ack: true,
             id_request: false,
         };
-        crate::bringup::request_state_with(&link, s.station, ack, &cfg.timeouts).await?;
+        crate::bringup::request_state_with(link, s.station, ack, &cfg.timeouts).await?;
         if reset.contains(&pos) {
             // Its CoE parameters were reset with it.
-            crate::bringup::configure_sync_mode(&link, s, cfg.cycle_ns, cfg.sync_error_limit)
+            crate::bringup::configure_sync_mode(link, s, cfg.cycle_ns, cfg.sync_error_limit)
                 .await?;
         }
-        crate::bringup::configure_process_data(&link, std::slice::from_ref(s)).await?;
-        request_state(&link, s.station, AlState::SafeOp, &cfg.timeouts).await?;
-        request_state(&link, s.station, AlState::Op, &cfg.timeouts).await?;
+        crate::bringup::configure_process_data(link, std::slice::from_ref(s)).await?;
+        request_state(link, s.station, AlState::SafeOp, &cfg.timeouts).await?;
+        request_state(link, s.station, AlState::Op, &cfg.timeouts).await?;
     }
-    out.positions = states;
-    Ok(out)
+    Ok(states)
 }
