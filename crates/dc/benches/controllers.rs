@@ -19,11 +19,13 @@ fn bench_one<S: MasterSync>(c: &mut Criterion, mut s: S) {
             let input = CycleInput {
                 cycle: i,
                 period_ns: p as u32,
-                nominal_start_ns: t,
-                scheduled_start_ns: t,
-                send_ns: t + 20_000 + jitter,
-                receive_ns: t + 60_000 + jitter,
-                ref_time_ns: Some(t + 35_000 + jitter + (i % 7) * 10),
+                nominal_start: ecsync_dc::time::MasterInstant::from_ns(t),
+                scheduled_start: ecsync_dc::time::MasterInstant::from_ns(t),
+                send: ecsync_dc::time::MasterInstant::from_ns(t + 20_000 + jitter),
+                receive: ecsync_dc::time::MasterInstant::from_ns(t + 60_000 + jitter),
+                ref_time: Some(ecsync_dc::time::SystemTime::from_ns(
+                    t + 35_000 + jitter + (i % 7) * 10,
+                )),
             };
             black_box(s.update(black_box(&input)))
         })

@@ -246,12 +246,12 @@ impl MasterSync for Dcm {
             ..self.log
         };
         log.valid = false;
-        if let Some(t_ra) = input.ref_time_ns {
+        if let Some(t_ra) = input.ref_time_ns() {
             let mut e = grid_phase(t_ra, prm.target_phase_ns, input.period_ns);
             if prm.set_value_ref == SetValueRef::CycleStart {
                 // This cycle's send delay against its running mean (cumulative for the first
                 // 1024 cycles, then with weight 1/1024).
-                let s = diff_u64(input.send_ns, input.scheduled_start_ns) as f64;
+                let s = diff_u64(input.send.as_ns(), input.scheduled_start.as_ns()) as f64;
                 self.send_delay_n += 1;
                 let w = 1.0 / (self.send_delay_n.min(1024) as f64);
                 self.send_delay_mean += (s - self.send_delay_mean) * w;
@@ -309,7 +309,8 @@ impl MasterSync for Dcm {
         log.in_sync = self.in_sync;
         self.log = log;
         let next_nominal = input
-            .nominal_start_ns
+            .nominal_start
+            .as_ns()
             .wrapping_add(u64::from(input.period_ns));
         let corr = round_ns(self.adjustment);
         let next = match self.mode {
@@ -317,7 +318,7 @@ impl MasterSync for Dcm {
             DcmMode::BusShift => next_nominal,
         };
         CycleOutput {
-            next_start_ns: next,
+            next_start: crate::time::MasterInstant::from_ns(next),
             error_ns: log.error_ns,
             correction_ns: corr,
         }
@@ -353,13 +354,13 @@ mod tests {
             let o = c.update(&CycleInput {
                 cycle: i,
                 period_ns: P,
-                nominal_start_ns: nominal,
-                scheduled_start_ns: sched,
-                send_ns: send,
-                receive_ns: send + 50_000,
-                ref_time_ns: Some(t_ra),
+                nominal_start: crate::time::MasterInstant::from_ns(nominal),
+                scheduled_start: crate::time::MasterInstant::from_ns(sched),
+                send: crate::time::MasterInstant::from_ns(send),
+                receive: crate::time::MasterInstant::from_ns(send + 50_000),
+                ref_time: Some(crate::time::SystemTime::from_ns(t_ra)),
             });
-            sched = o.next_start_ns;
+            sched = o.next_start.as_ns();
             last = c.controller_log().unwrap();
         }
         assert!(last.error_ns.abs() <= 2, "{last:?}");
@@ -378,14 +379,14 @@ mod tests {
         let o = c.update(&CycleInput {
             cycle: 0,
             period_ns: P,
-            nominal_start_ns: 5 * p,
-            scheduled_start_ns: 5 * p,
-            send_ns: 5 * p + 20_000,
-            receive_ns: 5 * p + 70_000,
+            nominal_start: crate::time::MasterInstant::from_ns(5 * p),
+            scheduled_start: crate::time::MasterInstant::from_ns(5 * p),
+            send: crate::time::MasterInstant::from_ns(5 * p + 20_000),
+            receive: crate::time::MasterInstant::from_ns(5 * p + 70_000),
             // 10 us after the grid point.
-            ref_time_ns: Some(77 * p + 10_000),
+            ref_time: Some(crate::time::SystemTime::from_ns(77 * p + 10_000)),
         });
-        assert_eq!(o.next_start_ns, 6 * p);
+        assert_eq!(o.next_start.as_ns(), 6 * p);
         let log = c.controller_log().unwrap();
         assert_eq!(log.error_ns, 10_000);
         // First error: filter starts there; rate = kp 10000 + ki 10000.
@@ -409,11 +410,11 @@ mod tests {
             let o = c.update(&CycleInput {
                 cycle: i as u64,
                 period_ns: P,
-                nominal_start_ns: sched,
-                scheduled_start_ns: sched,
-                send_ns: send,
-                receive_ns: send + 50_000,
-                ref_time_ns: Some(send + 5_000),
+                nominal_start: crate::time::MasterInstant::from_ns(sched),
+                scheduled_start: crate::time::MasterInstant::from_ns(sched),
+                send: crate::time::MasterInstant::from_ns(send),
+                receive: crate::time::MasterInstant::from_ns(send + 50_000),
+                ref_time: Some(crate::time::SystemTime::from_ns(send + 5_000)),
             });
             let _ = o;
             errs[i] = c.controller_log().unwrap().error_ns;
@@ -445,11 +446,11 @@ mod tests {
             c.update(&CycleInput {
                 cycle: i,
                 period_ns: P,
-                nominal_start_ns: i * p,
-                scheduled_start_ns: i * p,
-                send_ns: i * p + 20_000,
-                receive_ns: i * p + 70_000,
-                ref_time_ns: Some(1000 * p + i * p + off),
+                nominal_start: crate::time::MasterInstant::from_ns(i * p),
+                scheduled_start: crate::time::MasterInstant::from_ns(i * p),
+                send: crate::time::MasterInstant::from_ns(i * p + 20_000),
+                receive: crate::time::MasterInstant::from_ns(i * p + 70_000),
+                ref_time: Some(crate::time::SystemTime::from_ns(1000 * p + i * p + off)),
             });
             let log = c.controller_log().unwrap();
             if i < 9 {
@@ -484,11 +485,13 @@ mod tests {
             c.update(&CycleInput {
                 cycle: i,
                 period_ns: P,
-                nominal_start_ns: i * p,
-                scheduled_start_ns: i * p,
-                send_ns: i * p + 20_000 + late,
-                receive_ns: i * p + 70_000,
-                ref_time_ns: Some(1000 * p + i * p + 100 + late),
+                nominal_start: crate::time::MasterInstant::from_ns(i * p),
+                scheduled_start: crate::time::MasterInstant::from_ns(i * p),
+                send: crate::time::MasterInstant::from_ns(i * p + 20_000 + late),
+                receive: crate::time::MasterInstant::from_ns(i * p + 70_000),
+                ref_time: Some(crate::time::SystemTime::from_ns(
+                    1000 * p + i * p + 100 + late,
+                )),
             });
             let log = c.controller_log().unwrap();
             if i == 25 {

@@ -11,6 +11,7 @@
 //!
 //! ```
 //! use ecsync_dc::sync::CycleInput;
+//! use ecsync_dc::time::{MasterInstant, SystemTime};
 //! use ecsync_dc::{MasterSync, MethodContext, MethodKind, MethodParams};
 //!
 //! // `snap`, what ethercrab ships, at a 1 ms cycle aiming at the grid point itself.
@@ -24,14 +25,14 @@
 //! let out = method.update(&CycleInput {
 //!     cycle: 0,
 //!     period_ns: 1_000_000,
-//!     nominal_start_ns: 10_000_000,
-//!     scheduled_start_ns: 10_000_000,
-//!     send_ns: 10_000_000,
-//!     receive_ns: 10_020_000,
-//!     ref_time_ns: Some(5_000_300_000),
+//!     nominal_start: MasterInstant::from_ns(10_000_000),
+//!     scheduled_start: MasterInstant::from_ns(10_000_000),
+//!     send: MasterInstant::from_ns(10_000_000),
+//!     receive: MasterInstant::from_ns(10_020_000),
+//!     ref_time: Some(SystemTime::from_ns(5_000_300_000)),
 //! });
 //! assert_eq!(out.error_ns, 300_000);
-//! assert_eq!(out.next_start_ns, 10_700_000);
+//! assert_eq!(out.next_start.as_ns(), 10_700_000);
 //! ```
 #![no_std]
 #![forbid(unsafe_code)]
@@ -47,6 +48,7 @@ pub mod method;
 pub mod offset;
 pub mod registry;
 pub mod sync;
+pub mod time;
 pub mod topology;
 
 pub use dcm::{Dcm, DcmMode, DcmParams, SetValueRef};

@@ -35,6 +35,7 @@
 use crate::fit::LineFit;
 use crate::offset::round_ns;
 use crate::registry::MethodKind;
+use crate::time::{MasterInstant, SystemTime};
 use ecsync_wire::dc_time::{diff_u64, extend_u32};
 
 /// What the master saw in the cycle that just completed.
@@ -44,24 +45,31 @@ pub struct CycleInput {
     pub cycle: u64,
     /// SYNC0 period `P`, ns.
     pub period_ns: u32,
-    /// `t_mt^1 + i P`: the cycle's place on the nominal grid, master time, ns.
-    pub nominal_start_ns: u64,
-    /// `t_mt^i`: when the cycle was scheduled to start, master time, ns.
-    pub scheduled_start_ns: u64,
-    /// `t_ms^i`: the timestamp right before the frame was sent, master time, ns.
-    pub send_ns: u64,
-    /// When the reply arrived, master time, ns.
-    pub receive_ns: u64,
+    /// `t_mt^1 + i P`: the cycle's place on the nominal grid.
+    pub nominal_start: MasterInstant,
+    /// `t_mt^i`: when the cycle was scheduled to start.
+    pub scheduled_start: MasterInstant,
+    /// `t_ms^i`: the timestamp right before the frame was sent.
+    pub send: MasterInstant,
+    /// When the reply arrived.
+    pub receive: MasterInstant,
     /// `t_ra^i`: the reference clock's system time read by the FRMW in the frame, 64-bit; `None`
     /// if the frame was lost or the reference did not answer.
-    pub ref_time_ns: Option<u64>,
+    pub ref_time: Option<SystemTime>,
+}
+
+impl CycleInput {
+    /// `t_ra^i` in ns (the methods' arithmetic is on integers).
+    pub fn ref_time_ns(&self) -> Option<u64> {
+        self.ref_time.map(SystemTime::as_ns)
+    }
 }
 
 /// What a method decides after a cycle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct CycleOutput {
-    /// `t_mt^{i+1}`: when the next cycle should start, master time, ns.
-    pub next_start_ns: u64,
+    /// `t_mt^{i+1}`: when the next cycle should start.
+    pub next_start: MasterInstant,
     /// The error the method acted on this cycle, ns (0 while initialising).
     pub error_ns: i64,
     /// The method's accumulated correction, ns: δ̂ for master shift; for bus shift the last
@@ -155,7 +163,8 @@ pub fn extend_reference_time(estimate_ns: u64, low32: u32) -> u64 {
 /// The nominal start of the next cycle: `t_mt^1 + (i + 1) P`.
 fn next_nominal(input: &CycleInput) -> u64 {
     input
-        .nominal_start_ns
+        .nominal_start
+        .as_ns()
         .wrapping_add(u64::from(input.period_ns))
 }
 
@@ -302,14 +311,14 @@ impl MasterSync for MedianSync {
 
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
         let mut error = 0;
-        if let Some(t_ra) = input.ref_time_ns {
+        if let Some(t_ra) = input.ref_time_ns() {
             if input.cycle < self.init_frames {
                 // Eq. 5-7: h_mr = AVG(t_ms - t_ra).
-                self.h.add(diff_u64(input.send_ns, t_ra));
+                self.h.add(diff_u64(input.send.as_ns(), t_ra));
                 self.h_mr = self.h.mean();
             } else {
                 // Eq. 10: φ = t_ra + h_mr - (t_ms + δ̂).
-                let phi = diff_u64(t_ra, input.send_ns) as f64 + self.h_mr - self.delta_hat;
+                let phi = diff_u64(t_ra, input.send.as_ns()) as f64 + self.h_mr - self.delta_hat;
                 let phi = round_ns(phi);
                 // Eq. 12-13.
                 let med = self.median.push(phi);
@@ -320,7 +329,9 @@ impl MasterSync for MedianSync {
         // Eq. 14.
         let corr = round_ns(self.delta_hat);
         CycleOutput {
-            next_start_ns: next_nominal(input).wrapping_sub(corr as u64),
+            next_start: crate::time::MasterInstant::from_ns(
+                next_nominal(input).wrapping_sub(corr as u64),
+            ),
             error_ns: error,
             correction_ns: corr,
         }
@@ -453,15 +464,15 @@ impl MasterSync for MedianFit {
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
         let mut error = 0;
         if input.cycle < self.init_frames {
-            if let Some(t_ra) = input.ref_time_ns {
+            if let Some(t_ra) = input.ref_time_ns() {
                 let x = input.cycle as f64;
-                let y = diff_u64(input.send_ns, t_ra) as f64;
+                let y = diff_u64(input.send.as_ns(), t_ra) as f64;
                 self.fit_y.add(x, y);
                 // The phase, continued from the first one through what moved it: the send's
                 // delay from its cycle's start (the host's jitter, a stall of milliseconds
                 // included, which wrapping at ±P/2 would fold back) and y. The schedule runs on
                 // the nominal grid during init, so nothing else moves it.
-                let s = diff_u64(input.send_ns, input.scheduled_start_ns) as f64;
+                let s = diff_u64(input.send.as_ns(), input.scheduled_start.as_ns()) as f64;
                 let (p0, s0, y0) = *self.first.get_or_insert((
                     grid_phase(t_ra, self.target_phase_ns, input.period_ns) as f64,
                     s,
@@ -475,8 +486,8 @@ impl MasterSync for MedianFit {
             }
             // The drift is fed forward every cycle, a lost frame's included.
             self.delta_hat += self.drift_per_cycle;
-            if let Some(t_ra) = input.ref_time_ns {
-                let phi = diff_u64(t_ra, input.send_ns) as f64 + self.h_mr - self.delta_hat;
+            if let Some(t_ra) = input.ref_time_ns() {
+                let phi = diff_u64(t_ra, input.send.as_ns()) as f64 + self.h_mr - self.delta_hat;
                 let phi = round_ns(phi);
                 let med = self.median.push(phi);
                 self.delta_hat += self.gain * med as f64;
@@ -485,7 +496,9 @@ impl MasterSync for MedianFit {
         }
         let corr = round_ns(self.delta_hat);
         CycleOutput {
-            next_start_ns: next_nominal(input).wrapping_sub(corr as u64),
+            next_start: crate::time::MasterInstant::from_ns(
+                next_nominal(input).wrapping_sub(corr as u64),
+            ),
             error_ns: error,
             correction_ns: corr,
         }
@@ -540,15 +553,15 @@ impl MasterSync for PiM2s {
 
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
         let mut error = 0;
-        if let Some(t_ra) = input.ref_time_ns {
+        if let Some(t_ra) = input.ref_time_ns() {
             if input.cycle < self.init_frames {
-                self.h.add(diff_u64(input.scheduled_start_ns, t_ra));
+                self.h.add(diff_u64(input.scheduled_start.as_ns(), t_ra));
                 self.h_mt = self.h.mean();
             } else {
                 // e = t_ra + h - (t_mt + δ̂) = t_ra + h - nominal: the scheduling jitter and the
                 // execution time between t_mt and the send are in it.
-                let e =
-                    diff_u64(t_ra, input.scheduled_start_ns) as f64 + self.h_mt - self.delta_hat;
+                let e = diff_u64(t_ra, input.scheduled_start.as_ns()) as f64 + self.h_mt
+                    - self.delta_hat;
                 self.integral += e;
                 self.delta_hat += self.kp * e + self.ki * self.integral;
                 error = round_ns(e);
@@ -556,7 +569,9 @@ impl MasterSync for PiM2s {
         }
         let corr = round_ns(self.delta_hat);
         CycleOutput {
-            next_start_ns: next_nominal(input).wrapping_sub(corr as u64),
+            next_start: crate::time::MasterInstant::from_ns(
+                next_nominal(input).wrapping_sub(corr as u64),
+            ),
             error_ns: error,
             correction_ns: corr,
         }
@@ -588,10 +603,10 @@ impl MasterSync for BusShift {
 
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
         CycleOutput {
-            next_start_ns: next_nominal(input),
+            next_start: crate::time::MasterInstant::from_ns(next_nominal(input)),
             error_ns: input
-                .ref_time_ns
-                .map_or(0, |t_ra| diff_u64(t_ra, input.send_ns)),
+                .ref_time_ns()
+                .map_or(0, |t_ra| diff_u64(t_ra, input.send.as_ns())),
             correction_ns: self.write_offset_ns,
         }
     }
@@ -614,26 +629,26 @@ impl MasterSync for Snap {
 
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
         let p = u64::from(input.period_ns.max(1));
-        match input.ref_time_ns {
+        match input.ref_time_ns() {
             Some(t_ra) => {
                 let phase = t_ra % p;
                 let wait = p - phase + u64::from(self.shift_ns);
-                let next = input.send_ns.wrapping_add(wait);
+                let next = input.send.as_ns().wrapping_add(wait);
                 let wrapped = if phase > p / 2 {
                     phase as i64 - p as i64
                 } else {
                     phase as i64
                 };
                 CycleOutput {
-                    next_start_ns: next,
+                    next_start: crate::time::MasterInstant::from_ns(next),
                     error_ns: wrapped,
                     correction_ns: diff_u64(next_nominal(input), next),
                 }
             }
             None => CycleOutput {
-                next_start_ns: input.send_ns.wrapping_add(p),
+                next_start: crate::time::MasterInstant::from_ns(input.send.as_ns().wrapping_add(p)),
                 error_ns: 0,
-                correction_ns: diff_u64(next_nominal(input), input.send_ns.wrapping_add(p)),
+                correction_ns: diff_u64(next_nominal(input), input.send.as_ns().wrapping_add(p)),
             },
         }
     }
@@ -683,7 +698,7 @@ impl MasterSync for SoemPi {
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
         let p = i64::from(input.period_ns.max(1));
         let mut delta = 0;
-        if let Some(t_ra) = input.ref_time_ns {
+        if let Some(t_ra) = input.ref_time_ns() {
             delta = (t_ra as i64).wrapping_sub(self.offset_ns).rem_euclid(p);
             if delta > p / 2 {
                 delta -= p;
@@ -697,11 +712,12 @@ impl MasterSync for SoemPi {
         }
         let toff = -(delta / self.p_divisor.max(1)) - (self.integral / self.i_divisor.max(1));
         let next = input
-            .scheduled_start_ns
+            .scheduled_start
+            .as_ns()
             .wrapping_add(p as u64)
             .wrapping_add(toff as u64);
         CycleOutput {
-            next_start_ns: next,
+            next_start: crate::time::MasterInstant::from_ns(next),
             error_ns: delta,
             correction_ns: diff_u64(next_nominal(input), next),
         }
@@ -718,11 +734,11 @@ mod tests {
         CycleInput {
             cycle: i,
             period_ns: P,
-            nominal_start_ns: 1_000_000_000 + i * u64::from(P),
-            scheduled_start_ns: sched,
-            send_ns: send,
-            receive_ns: send + 50_000,
-            ref_time_ns: t_ra,
+            nominal_start: crate::time::MasterInstant::from_ns(1_000_000_000 + i * u64::from(P)),
+            scheduled_start: crate::time::MasterInstant::from_ns(sched),
+            send: crate::time::MasterInstant::from_ns(send),
+            receive: crate::time::MasterInstant::from_ns(send + 50_000),
+            ref_time: t_ra.map(crate::time::SystemTime::from_ns),
         }
     }
 
@@ -765,7 +781,7 @@ mod tests {
             let t = base + i * u64::from(P);
             let o = m.update(&input(i, t, t + 20_000, Some(t + 21_000)));
             assert_eq!(
-                o.next_start_ns,
+                o.next_start.as_ns(),
                 t + u64::from(P),
                 "no correction while initialising"
             );
@@ -776,7 +792,7 @@ mod tests {
         let o = m.update(&input(2, t, t + 20_000, Some(t + 21_040)));
         assert_eq!(o.error_ns, 40);
         assert_eq!(o.correction_ns, 20);
-        assert_eq!(o.next_start_ns, t + u64::from(P) - 20);
+        assert_eq!(o.next_start.as_ns(), t + u64::from(P) - 20);
         // Cycle 3 (sent 20 ns early per eq. 14): the reference reads 21_060 after the nominal
         // start: φ = t_ra + h - (t_ms + δ̂) = (21_060 - 19_980) - 1000 - 20 = 60;
         // median [40, 60] = 40; δ̂ = 40.
@@ -834,13 +850,13 @@ mod tests {
                 let o = m.update(&CycleInput {
                     cycle: i,
                     period_ns: P,
-                    nominal_start_ns: base + i * p,
-                    scheduled_start_ns: sched,
-                    send_ns: send,
-                    receive_ns: send + 50_000,
-                    ref_time_ns: Some(t_ra),
+                    nominal_start: crate::time::MasterInstant::from_ns(base + i * p),
+                    scheduled_start: crate::time::MasterInstant::from_ns(sched),
+                    send: crate::time::MasterInstant::from_ns(send),
+                    receive: crate::time::MasterInstant::from_ns(send + 50_000),
+                    ref_time: Some(crate::time::SystemTime::from_ns(t_ra)),
                 });
-                sched = o.next_start_ns;
+                sched = o.next_start.as_ns();
             }
             last_phase
         }
@@ -896,7 +912,7 @@ mod tests {
         assert!(!b.is_master_shift());
         let mut b = b;
         let o = b.update(&input(3, 7, 8, Some(10)));
-        assert_eq!(o.next_start_ns, 1_000_000_000 + 4 * u64::from(P));
+        assert_eq!(o.next_start.as_ns(), 1_000_000_000 + 4 * u64::from(P));
         assert_eq!(o.error_ns, 2);
     }
 
@@ -906,14 +922,17 @@ mod tests {
         // Reference at 123_456 into its cycle; sent at master 9_900_000 (the reply at
         // 10_000_000 does not matter): wait P - 123_456 from the send.
         let mut i = input(0, 0, 9_900_000, Some(77 * u64::from(P) + 123_456));
-        i.receive_ns = 10_000_000;
+        i.receive = crate::time::MasterInstant::from_ns(10_000_000);
         let o = s.update(&i);
-        assert_eq!(o.next_start_ns, 9_900_000 + 1_000_000 - 123_456);
+        assert_eq!(o.next_start.as_ns(), 9_900_000 + 1_000_000 - 123_456);
         assert_eq!(o.error_ns, 123_456);
         // With ethercrab's sync0_shift the wait grows by the shift.
         let mut s = Snap { shift_ns: 250_000 };
         let o = s.update(&i);
-        assert_eq!(o.next_start_ns, 9_900_000 + 1_000_000 - 123_456 + 250_000);
+        assert_eq!(
+            o.next_start.as_ns(),
+            9_900_000 + 1_000_000 - 123_456 + 250_000
+        );
     }
 
     #[test]
@@ -923,7 +942,7 @@ mod tests {
         let mut s = SoemPi::new(50_000);
         let o = s.update(&input(0, 1_000, 2_000, Some(9 * u64::from(P) + 50_250)));
         assert_eq!(o.error_ns, 250);
-        assert_eq!(o.next_start_ns, 1_000 + u64::from(P) - 2);
+        assert_eq!(o.next_start.as_ns(), 1_000 + u64::from(P) - 2);
         // delta -30 (wrapped: 999_970 > P/2): integral back to 0; toff = -(-30/100) - 0 = 0.
         let o = s.update(&input(
             1,
@@ -932,12 +951,12 @@ mod tests {
             Some(9 * u64::from(P) + 50_000 - 30),
         ));
         assert_eq!(o.error_ns, -30);
-        assert_eq!(o.next_start_ns, 1_000 + u64::from(P));
+        assert_eq!(o.next_start.as_ns(), 1_000 + u64::from(P));
         // Twenty positive deltas: the sign integral reaches 20 and adds -1.
         for k in 0..20 {
             s.update(&input(2 + k, 0, 0, Some(50_010)));
         }
         let o = s.update(&input(30, 0, 0, Some(50_010)));
-        assert_eq!(o.next_start_ns, u64::from(P) - 1);
+        assert_eq!(o.next_start.as_ns(), u64::from(P) - 1);
     }
 }

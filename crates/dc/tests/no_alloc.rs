@@ -40,14 +40,14 @@ fn run<S: MasterSync>(mut s: S) -> u64 {
         let input = CycleInput {
             cycle: i,
             period_ns: 1_000_000,
-            nominal_start_ns: t,
-            scheduled_start_ns: t,
-            send_ns: t + 20_000 + (i * 7919) % 3_000,
-            receive_ns: t + 60_000,
-            ref_time_ns: if i % 1000 == 999 {
+            nominal_start: ecsync_dc::time::MasterInstant::from_ns(t),
+            scheduled_start: ecsync_dc::time::MasterInstant::from_ns(t),
+            send: ecsync_dc::time::MasterInstant::from_ns(t + 20_000 + (i * 7919) % 3_000),
+            receive: ecsync_dc::time::MasterInstant::from_ns(t + 60_000),
+            ref_time: if i % 1000 == 999 {
                 None
             } else {
-                Some(t + 35_000 + i % 13)
+                Some(ecsync_dc::time::SystemTime::from_ns(t + 35_000 + i % 13))
             },
         };
         std::hint::black_box(s.update(&input));

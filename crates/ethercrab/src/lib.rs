@@ -74,6 +74,7 @@
 #![warn(missing_docs)]
 
 pub use ecsync_dc::sync::{CycleInput, CycleOutput, MasterSync};
+use ecsync_dc::time::{MasterInstant, SystemTime};
 pub use ecsync_dc::{MedianSync, PiM2s, Snap, SoemPi};
 use ethercrab::subdevice_group::CycleInfo;
 use std::time::{Duration, Instant};
@@ -148,17 +149,18 @@ impl<S: MasterSync> DcLoop<S> {
         let input = CycleInput {
             cycle: self.cycle,
             period_ns: self.period_ns,
-            nominal_start_ns: first
-                .wrapping_add(self.cycle.wrapping_mul(u64::from(self.period_ns))),
-            scheduled_start_ns: self.scheduled_ns,
-            send_ns,
-            receive_ns,
-            ref_time_ns: Some(info.dc_system_time),
+            nominal_start: MasterInstant::from_ns(
+                first.wrapping_add(self.cycle.wrapping_mul(u64::from(self.period_ns))),
+            ),
+            scheduled_start: MasterInstant::from_ns(self.scheduled_ns),
+            send: MasterInstant::from_ns(send_ns),
+            receive: MasterInstant::from_ns(receive_ns),
+            ref_time: Some(SystemTime::from_ns(info.dc_system_time)),
         };
         self.last = self.sync.update(&input);
         self.cycle += 1;
         // A method may ask for a start already past (after an overrun): start at once.
-        self.scheduled_ns = self.last.next_start_ns;
+        self.scheduled_ns = self.last.next_start.as_ns();
         self.epoch + Duration::from_nanos(self.scheduled_ns)
     }
 

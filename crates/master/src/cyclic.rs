@@ -15,6 +15,7 @@ use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
 };
+use ecsync_dc::time::{MasterInstant, SystemTime};
 use ecsync_wire::dc_time::diff_u64;
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, WireError};
@@ -681,11 +682,14 @@ impl<S: MasterSync> CyclicEngine<S> {
         let input = CycleInput {
             cycle: self.cycle,
             period_ns: self.cfg.period_ns,
-            nominal_start_ns: nominal,
-            scheduled_start_ns: corrected(self.scheduled_ns, planned_correction),
-            send_ns,
-            receive_ns,
-            ref_time_ns: rec.ref_time_ns,
+            nominal_start: MasterInstant::from_ns(nominal),
+            scheduled_start: MasterInstant::from_ns(corrected(
+                self.scheduled_ns,
+                planned_correction,
+            )),
+            send: MasterInstant::from_ns(send_ns),
+            receive: MasterInstant::from_ns(receive_ns),
+            ref_time: rec.ref_time_ns.map(SystemTime::from_ns),
         };
         rec.output = self.sync.update(&input);
         rec.log = self.sync.controller_log();
@@ -717,7 +721,11 @@ impl<S: MasterSync> CyclicEngine<S> {
                 rec.m_rs_ns = Some(diff_u64(t_ra, send_ns));
             }
         }
-        self.scheduled_ns = rec.output.next_start_ns.wrapping_add(correction as u64);
+        self.scheduled_ns = rec
+            .output
+            .next_start
+            .as_ns()
+            .wrapping_add(correction as u64);
         self.cycle += 1;
         rec
     }

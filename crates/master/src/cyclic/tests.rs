@@ -63,9 +63,9 @@ impl MasterSync for DropsACycle {
     }
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
         let p = u64::from(input.period_ns);
-        let next = input.nominal_start_ns + p + if input.cycle >= 2 { p } else { 0 };
+        let next = input.nominal_start.as_ns() + p + if input.cycle >= 2 { p } else { 0 };
         CycleOutput {
-            next_start_ns: next,
+            next_start: ecsync_dc::time::MasterInstant::from_ns(next),
             ..CycleOutput::default()
         }
     }
