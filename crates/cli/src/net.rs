@@ -5,6 +5,7 @@ use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MasterSync as _;
 use ecsync_dc::method::{Method, MethodContext, MethodKind, MethodParams, ParamError};
+use ecsync_dc::time::MasterDuration;
 use ecsync_lab::output::write_atomic;
 use ecsync_lab::realnet::summary::{BringupOut, CSV_HEADER, RATE_FIT_MIN_CYCLES, RunOut};
 use ecsync_lab::realnet::{self, CyclicOptions, RunHead};
@@ -624,10 +625,12 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         sync0_shift_ns: shift_ns,
         target_phase_ns,
         measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
-        duration_ns: args.duration.map(|d| (d * 1e9) as u64),
+        duration: args
+            .duration
+            .map(|d| MasterDuration::from_ns((d * 1e9) as u64)),
         max_cycles: None,
         lost_in_a_row: args.give_up_after.unwrap_or(u64::MAX),
-        reply_timeout_ns: u64::from(args.timeout_us.max(1)) * 1000,
+        reply_timeout: MasterDuration::from_us(u64::from(args.timeout_us.max(1))),
         t_ms_from_tx_stamp: t_ms_source != TxStampSource::SendTimestamp,
         sync_error_limit,
     };

@@ -1572,9 +1572,13 @@ mod host_stall {
                 reference_offset_ns: 0,
                 lrw: net.lrw.clone(),
             };
-            let first = (link.now_ns() / period + 2) * period;
+            let first = (link.now().as_ns() / period + 2) * period;
             let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
-            let mut tr = HostStall::new(link, 5, period * 5 / 2);
+            let mut tr = HostStall::new(
+                link,
+                5,
+                ecsync_dc::time::MasterDuration::from_ns(period * 5 / 2),
+            );
             let mut driver = CyclicDriver::new(CyclicLimits {
                 max_cycles: Some(12),
                 ..CyclicLimits::default()

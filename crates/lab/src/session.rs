@@ -9,6 +9,7 @@
 //! driver's) alone.
 
 use ecsync_dc::sync::MasterSync;
+use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine, first_cycle_start_ns};
 use ecsync_master::driver::{CycleReport, CyclicDriver, CyclicLimits, Stopped};
 use ecsync_master::network::Network;
@@ -38,15 +39,15 @@ pub enum Aim {
     /// mean time from the cycle's start to the frame's arrival at the reference that the
     /// master knows of its own host.
     ReferenceGrid {
-        /// The master's clock now, ns.
-        now_ns: u64,
+        /// The master's clock now.
+        now: MasterInstant,
         /// Where in the cycle the frames aim, ns after the grid point.
         target_phase_ns: i64,
-        /// Sent this much early, ns.
-        lead_ns: u64,
+        /// Sent this much early.
+        lead: MasterDuration,
     },
-    /// At this master time, ns (a caller that knows better: a time-aware bridge's window).
-    At(u64),
+    /// At this instant (a caller that knows better: a time-aware bridge's window).
+    At(MasterInstant),
 }
 
 /// What a session needs besides the network and the method.
@@ -115,18 +116,18 @@ impl<S: MasterSync> Session<S> {
         let cyc = cyclic_config(net, cfg.cycle_ns, cfg.measure_init_frames)?;
         let first_ns = match aim {
             Aim::ReferenceGrid {
-                now_ns,
+                now,
                 target_phase_ns,
-                lead_ns,
+                lead,
             } => first_cycle_start_ns(
-                now_ns,
+                now.as_ns(),
                 net.reference_reading,
                 method.reference_write_kind(),
                 cfg.cycle_ns,
                 target_phase_ns,
-                lead_ns,
+                lead.as_ns(),
             ),
-            Aim::At(t) => t,
+            Aim::At(t) => t.as_ns(),
         };
         let engine = CyclicEngine::new(method, cyc, first_ns).map_err(SessionError::Frame)?;
         let mut driver = CyclicDriver::new(limits(&engine));
@@ -177,8 +178,8 @@ impl<S: MasterSync> Session<S> {
         &mut self.driver
     }
 
-    /// The first cycle's scheduled start, master time, ns.
-    pub fn first_ns(&self) -> u64 {
-        self.first_ns
+    /// The first cycle's scheduled start.
+    pub fn first(&self) -> MasterInstant {
+        MasterInstant::from_ns(self.first_ns)
     }
 }

@@ -7,6 +7,7 @@
 #![cfg(target_os = "linux")]
 
 use ecsync_dc::MethodKind;
+use ecsync_dc::time::MasterDuration;
 use ecsync_lab::realnet::summary::{BringupOut, RunOut};
 use ecsync_lab::realnet::{CyclicOptions, RunHead, run_cyclic};
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, Stopped, run_procedure};
@@ -118,10 +119,10 @@ fn session_over_veth() -> Result<Outcome, String> {
             sync0_shift_ns: SHIFT_NS,
             target_phase_ns: 0,
             measure_init_frames: INIT_FRAMES,
-            duration_ns: None,
+            duration: None,
             max_cycles: Some(CYCLES),
             lost_in_a_row: 1_000,
-            reply_timeout_ns: 900_000,
+            reply_timeout: MasterDuration::from_us(900),
             t_ms_from_tx_stamp: false,
             sync_error_limit: None,
         };

@@ -127,10 +127,10 @@ fn u64_of(b: &[u8]) -> u64 {
 }
 
 /// Runs the recovery of `net` (see the module documentation), step by step: how many slaves
-/// answer ([`count_appeared`]); who lost the configuration ([`find_reset`]) and who left OP
-/// with it kept ([`find_left_op`]); their station addresses ([`restore_addresses`]); DC on
-/// the segment's timeline ([`restore_dc`]); their states and process data
-/// ([`restore_states`]).
+/// answer (`count_appeared`); who lost the configuration (`find_reset`) and who left OP
+/// with it kept (`find_left_op`); their station addresses (`restore_addresses`); DC on
+/// the segment's timeline (`restore_dc`); their states and process data
+/// (`restore_states`).
 pub async fn recover(
     link: Link,
     net: Network,

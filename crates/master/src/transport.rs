@@ -5,61 +5,76 @@
 //! ([`crate::driver`]) run the engine over any of them, so the real path differs from the
 //! simulator only here.
 
+use ecsync_dc::time::{MasterDuration, MasterInstant};
+
 /// A frame that arrived.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Received {
     /// Bytes written into the caller's buffer.
     pub len: usize,
-    /// Master time the frame arrived (a receive timestamp where the transport has one), ns.
-    pub received_ns: u64,
+    /// When the frame arrived (a receive timestamp where the transport has one).
+    pub received: MasterInstant,
     /// The transmit timestamp of the last frame sent, where the transport has one (a kernel or
-    /// NIC stamp, master time), ns.
-    pub tx_stamp_ns: Option<u64>,
-    /// Whether `received_ns` is a receive timestamp of the kernel or NIC (else the time the
+    /// NIC stamp).
+    pub tx_stamp: Option<MasterInstant>,
+    /// Whether `received` is a receive timestamp of the kernel or NIC (else the time the
     /// transport saw the frame).
     pub stamped: bool,
     /// The frame did not fit the buffer (only the first `len` bytes are there).
     pub truncated: bool,
 }
 
-/// A network and the host's clock, as the master engine sees them.
+impl Received {
+    /// When the frame arrived, master time, ns.
+    pub fn received_ns(&self) -> u64 {
+        self.received.as_ns()
+    }
+
+    /// The transmit timestamp, master time, ns.
+    pub fn tx_stamp_ns(&self) -> Option<u64> {
+        self.tx_stamp.map(MasterInstant::as_ns)
+    }
+}
+
+/// A network and the host's clock, as the master engine sees them. Every instant is the
+/// master's clock's ([`MasterInstant`]).
 pub trait Transport {
     /// What can go wrong (the simulator's transports cannot fail).
     type Error: std::error::Error + 'static;
 
-    /// Master time now, ns.
-    fn now_ns(&mut self) -> u64;
+    /// The master's clock now.
+    fn now(&mut self) -> MasterInstant;
 
-    /// Waits until master time `t_ns` (at once if it has passed). A host wakes late by its
-    /// scheduling latency: read [`Transport::now_ns`] after it.
-    fn sleep_until(&mut self, t_ns: u64);
+    /// Waits until `t` (at once if it has passed). A host wakes late by its scheduling
+    /// latency: read [`Transport::now`] after it.
+    fn sleep_until(&mut self, t: MasterInstant);
 
-    /// The master time at which a frame of `len` bytes handed over now leaves: now, for a host
-    /// that sends at once; a later launch time for a NIC that schedules its frames (TSN).
-    fn send_time_ns(&mut self, len: usize) -> u64 {
+    /// When a frame of `len` bytes handed over now leaves: now, for a host that sends at
+    /// once; a later launch time for a NIC that schedules its frames (TSN).
+    fn send_time(&mut self, len: usize) -> MasterInstant {
         let _ = len;
-        self.now_ns()
+        self.now()
     }
 
-    /// Sends a frame of `len` bytes, to leave at `at_ns` (from [`Transport::send_time_ns`]);
-    /// returns its send timestamp, master time, ns (`at_ns` itself, or the NIC's stamp of the
-    /// launch). `fill` writes the whole frame into the transport's own buffer (`len` bytes of
-    /// unspecified content), so that a frame is built where it leaves from, without a copy
-    /// (smoltcp's transmit token works the same way).
+    /// Sends a frame of `len` bytes, to leave at `at` (from [`Transport::send_time`]);
+    /// returns its send timestamp (`at` itself, or the NIC's stamp of the launch). `fill`
+    /// writes the whole frame into the transport's own buffer (`len` bytes of unspecified
+    /// content), so that a frame is built where it leaves from, without a copy (smoltcp's
+    /// transmit token works the same way).
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         len: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, Self::Error>;
+    ) -> Result<MasterInstant, Self::Error>;
 
-    /// Sends `frame`, to leave at `at_ns`: [`Transport::send_with`] with a copy.
-    fn send(&mut self, frame: &[u8], at_ns: u64) -> Result<u64, Self::Error> {
-        self.send_with(frame.len(), at_ns, |buf| buf.copy_from_slice(frame))
+    /// Sends `frame`, to leave at `at`: [`Transport::send_with`] with a copy.
+    fn send(&mut self, frame: &[u8], at: MasterInstant) -> Result<MasterInstant, Self::Error> {
+        self.send_with(frame.len(), at, |buf| buf.copy_from_slice(frame))
     }
 
-    /// The next frame that arrives before master time `deadline_ns`, as `buf[..len]`; `None`
-    /// once the deadline has passed (the transport's time is then at the deadline or later).
+    /// The next frame that arrives before `deadline`, as `buf[..len]`; `None` once the
+    /// deadline has passed (the transport's time is then at the deadline or later).
     ///
     /// A transport that already holds the frame in a buffer of its own (the simulated segment)
     /// swaps that buffer in instead of copying; one that reads from a device grows `buf` to the
@@ -67,7 +82,7 @@ pub trait Transport {
     fn recv(
         &mut self,
         buf: &mut Vec<u8>,
-        deadline_ns: u64,
+        deadline: MasterInstant,
     ) -> Result<Option<Received>, Self::Error>;
 
     /// The cyclic driver is about to run cycle `cycle` (a simulated host draws that cycle's
@@ -82,7 +97,7 @@ pub trait Transport {
 #[error("infallible")]
 pub enum Never {}
 
-/// A host stall: the transport `inner`, whose cyclic task wakes `stall_ns` late in cycle
+/// A host stall: the transport `inner`, whose cyclic task wakes `stall` late in cycle
 /// `at_cycle` (a page fault, an interrupt storm, a VM's neighbour). The cyclic driver's overrun
 /// policy meets it the same way over any transport.
 #[derive(Debug)]
@@ -91,18 +106,18 @@ pub struct HostStall<T> {
     pub inner: T,
     /// The cycle whose wake-up stalls.
     pub at_cycle: u64,
-    /// How long, ns.
-    pub stall_ns: u64,
+    /// How long.
+    pub stall: MasterDuration,
     armed: bool,
 }
 
 impl<T> HostStall<T> {
-    /// `inner` with a stall of `stall_ns` in cycle `at_cycle`.
-    pub fn new(inner: T, at_cycle: u64, stall_ns: u64) -> Self {
+    /// `inner` with a stall of `stall` in cycle `at_cycle`.
+    pub fn new(inner: T, at_cycle: u64, stall: MasterDuration) -> Self {
         HostStall {
             inner,
             at_cycle,
-            stall_ns,
+            stall,
             armed: false,
         }
     }
@@ -111,34 +126,38 @@ impl<T> HostStall<T> {
 impl<T: Transport> Transport for HostStall<T> {
     type Error = T::Error;
 
-    fn now_ns(&mut self) -> u64 {
-        self.inner.now_ns()
+    fn now(&mut self) -> MasterInstant {
+        self.inner.now()
     }
 
-    fn sleep_until(&mut self, t_ns: u64) {
+    fn sleep_until(&mut self, t: MasterInstant) {
         let extra = if std::mem::take(&mut self.armed) {
-            self.stall_ns
+            self.stall
         } else {
-            0
+            MasterDuration::ZERO
         };
-        self.inner.sleep_until(t_ns.saturating_add(extra));
+        self.inner.sleep_until(t.saturating_add(extra));
     }
 
-    fn send_time_ns(&mut self, len: usize) -> u64 {
-        self.inner.send_time_ns(len)
+    fn send_time(&mut self, len: usize) -> MasterInstant {
+        self.inner.send_time(len)
     }
 
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         len: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, T::Error> {
-        self.inner.send_with(len, at_ns, fill)
+    ) -> Result<MasterInstant, T::Error> {
+        self.inner.send_with(len, at, fill)
     }
 
-    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, T::Error> {
-        self.inner.recv(buf, deadline_ns)
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline: MasterInstant,
+    ) -> Result<Option<Received>, T::Error> {
+        self.inner.recv(buf, deadline)
     }
 
     fn start_cycle(&mut self, cycle: u64) {

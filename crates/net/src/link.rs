@@ -3,6 +3,7 @@
 use crate::sys::{self, OpenError, PacketSocket, Phc, Ready, TimestampSupport};
 use crate::tx_stamp::{PHC_READINGS, PHC_REFRESH_NS, PhcMap, TxStampSource, phc_offset_ns};
 use crate::wall_clock::RealtimeMap;
+use ecsync_dc::time::MasterInstant;
 use ecsync_master::transport::{Received, Transport};
 use std::io;
 
@@ -176,7 +177,7 @@ impl RealLink {
     }
 
     /// Switches `iface`'s NIC to hardware transmit timestamps and takes them as the frames'
-    /// transmit stamps from now on ([`Received::tx_stamp_ns`]), mapped from its PTP hardware
+    /// transmit stamps from now on ([`Received::tx_stamp`]), mapped from its PTP hardware
     /// clock to the host's; the NIC's setting is put back when the link is dropped. Refused,
     /// naming what is missing, where the NIC has none; nothing is changed then (the PHC is
     /// opened and read before the NIC and the socket are switched).
@@ -263,11 +264,12 @@ fn io_err(what: &'static str) -> impl Fn(io::Error) -> NetError {
 impl Transport for RealLink {
     type Error = NetError;
 
-    fn now_ns(&mut self) -> u64 {
-        self.clock.now_ns()
+    fn now(&mut self) -> MasterInstant {
+        MasterInstant::from_ns(self.clock.now_ns())
     }
 
-    fn sleep_until(&mut self, t_ns: u64) {
+    fn sleep_until(&mut self, t: MasterInstant) {
+        let t_ns = t.as_ns();
         // The PHC's mapping measured again when due, in the time the task would sleep anyway
         // (never between a cycle's wake-up and its frames).
         if let Some((phc, map, next)) = &mut self.phc
@@ -311,9 +313,9 @@ impl Transport for RealLink {
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         len: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, NetError> {
+    ) -> Result<MasterInstant, NetError> {
         self.tx_buf.resize(len, 0);
         fill(&mut self.tx_buf);
         // The transmit timestamps of earlier frames must not be taken for this one's (in the
@@ -333,11 +335,15 @@ impl Transport for RealLink {
             Err(e) if sys::link_is_down(&e) => self.link_down += 1,
             Err(e) => return Err(io_err("send")(e)),
         }
-        Ok(at_ns)
+        Ok(at)
     }
 
-    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, NetError> {
-        let deadline = self.clock.to_monotonic_ns(deadline_ns);
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline: MasterInstant,
+    ) -> Result<Option<Received>, NetError> {
+        let deadline = self.clock.to_monotonic_ns(deadline.as_ns());
         // Room for the longest Ethernet frame (and a VLAN tag): a longer one is reported
         // truncated.
         if buf.len() < RECV_BUF_LEN {
@@ -381,8 +387,9 @@ impl Transport for RealLink {
                     .and_then(|(t, e)| self.rt_map.to_monotonic_ns(t, e));
                 return Ok(Some(Received {
                     len: r.len.min(buf.len()),
-                    received_ns,
-                    tx_stamp_ns: tx_mono.map(|m| self.clock.from_monotonic_ns(m)),
+                    received: MasterInstant::from_ns(received_ns),
+                    tx_stamp: tx_mono
+                        .map(|m| MasterInstant::from_ns(self.clock.from_monotonic_ns(m))),
                     stamped,
                     truncated: r.truncated,
                 }));

@@ -4,6 +4,7 @@ use crate::clock::{CrystalParams, LocalClock};
 use crate::fault::{FaultPlayer, FrameFate};
 use crate::pcap::PcapCapture;
 use crate::{FrameTrace, Segment, frame_wire_time_ps};
+use ecsync_dc::time::MasterInstant;
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, ProcedureExchange};
 use ecsync_master::io::{Engine, Event};
 use ecsync_master::transport::{Never, Received, Transport};
@@ -440,11 +441,12 @@ impl SimTransport {
 impl Transport for SimTransport {
     type Error = Never;
 
-    fn now_ns(&mut self) -> u64 {
-        self.master_now_ns()
+    fn now(&mut self) -> MasterInstant {
+        MasterInstant::from_ns(self.master_now_ns())
     }
 
-    fn sleep_until(&mut self, t_ns: u64) {
+    fn sleep_until(&mut self, t: MasterInstant) {
+        let t_ns = t.as_ns();
         // The host's faults due now: a stall delays this wake-up, a step moves the clock.
         let stall_ns = match &mut self.faults {
             Some(f) => {
@@ -478,9 +480,10 @@ impl Transport for SimTransport {
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         n: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, Never> {
+    ) -> Result<MasterInstant, Never> {
+        let at_ns = at.as_ns();
         let delays = self.delays.take();
         let tx_ps = match delays {
             Some(d) => self.real_ps_at(at_ns) + (d.tx_ns * 1000.0) as u64,
@@ -522,7 +525,7 @@ impl Transport for SimTransport {
             if self.cycle_mode {
                 self.frame_in_cycle += 1;
             }
-            return Ok(at_ns);
+            return Ok(at);
         }
         if let Some(c) = &mut self.capture {
             let _ = c.record(tx_ps, &buf);
@@ -560,10 +563,15 @@ impl Transport for SimTransport {
         if self.cycle_mode {
             self.frame_in_cycle += 1;
         }
-        Ok(at_ns)
+        Ok(at)
     }
 
-    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Never> {
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline: MasterInstant,
+    ) -> Result<Option<Received>, Never> {
+        let deadline_ns = deadline.as_ns();
         if let Some(&(t_rx, _)) = self.inflight.front() {
             let rx_ns = self.master_clock.master_ns(t_rx);
             if rx_ns <= deadline_ns {
@@ -575,8 +583,8 @@ impl Transport for SimTransport {
                 self.spare.push(reply);
                 return Ok(Some(Received {
                     len: buf.len(),
-                    received_ns: rx_ns,
-                    tx_stamp_ns: self.cycle_tx_stamp_ns,
+                    received: MasterInstant::from_ns(rx_ns),
+                    tx_stamp: self.cycle_tx_stamp_ns.map(MasterInstant::from_ns),
                     stamped: true,
                     truncated: false,
                 }));

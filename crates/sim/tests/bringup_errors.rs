@@ -14,6 +14,7 @@
 //!   0x0810-0x087F) to `blank_sync_managers_of` reach it as zeros, so it refuses SAFE-OP; those
 //!   of every SyncManager (the mailbox's too) to `blank_mailbox_of`, so it refuses PRE-OP.
 
+use ecsync_dc::time::MasterInstant;
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, run_procedure};
 use ecsync_master::transport::{Never, Received, Transport};
 use ecsync_master::{
@@ -122,20 +123,20 @@ fn zero_data(frame: &mut [u8], offsets: &[usize], command: Command) {
 impl Transport for Faults {
     type Error = Never;
 
-    fn now_ns(&mut self) -> u64 {
-        self.inner.now_ns()
+    fn now(&mut self) -> MasterInstant {
+        self.inner.now()
     }
 
-    fn sleep_until(&mut self, t_ns: u64) {
-        self.inner.sleep_until(t_ns);
+    fn sleep_until(&mut self, t: MasterInstant) {
+        self.inner.sleep_until(t);
     }
 
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         len: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, Never> {
+    ) -> Result<MasterInstant, Never> {
         let lost_next = self.lose_next > 0;
         self.lose_next = self.lose_next.saturating_sub(1);
         let mut sent = Sent {
@@ -147,7 +148,7 @@ impl Transport for Faults {
             self.blank_sync_managers_of,
             self.blank_mailbox_of,
         );
-        let r = self.inner.send_with(len, at_ns, |buf| {
+        let r = self.inner.send_with(len, at, |buf| {
             fill(buf);
             if let Some(station) = dead {
                 sent.readdressed = datagrams_to(buf, station, 0..=u16::MAX);
@@ -166,9 +167,13 @@ impl Transport for Faults {
         r
     }
 
-    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Never> {
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline: MasterInstant,
+    ) -> Result<Option<Received>, Never> {
         loop {
-            let Some(r) = self.inner.recv(buf, deadline_ns)? else {
+            let Some(r) = self.inner.recv(buf, deadline)? else {
                 return Ok(None);
             };
             // The segment answers in the order frames were sent.

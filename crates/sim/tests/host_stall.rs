@@ -31,9 +31,13 @@ fn a_stall_of_two_and_a_half_periods_skips_two_cycles_and_sends_no_burst() {
         reference_offset_ns: 0,
         lrw: net.lrw.clone(),
     };
-    let first = (sim.now_ns() / period + 2) * period;
+    let first = (sim.now().as_ns() / period + 2) * period;
     let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
-    let mut tr = HostStall::new(sim, 5, period * 5 / 2);
+    let mut tr = HostStall::new(
+        sim,
+        5,
+        ecsync_dc::time::MasterDuration::from_ns(period * 5 / 2),
+    );
     let mut driver = CyclicDriver::new(CyclicLimits {
         max_cycles: Some(12),
         ..CyclicLimits::default()

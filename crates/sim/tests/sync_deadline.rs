@@ -6,6 +6,7 @@
 //! master reports it and brings them back.
 
 use ecsync_dc::MedianSync;
+use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_master::bringup::BringupTimeouts;
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{CyclicDriver, CyclicLimits};
@@ -28,30 +29,31 @@ struct LateHost {
 impl Transport for LateHost {
     type Error = <SimTransport as Transport>::Error;
 
-    fn now_ns(&mut self) -> u64 {
-        self.inner.now_ns()
+    fn now(&mut self) -> MasterInstant {
+        self.inner.now()
     }
 
-    fn sleep_until(&mut self, t_ns: u64) {
+    fn sleep_until(&mut self, t: MasterInstant) {
         let extra = std::mem::take(&mut self.armed_ns);
-        self.inner.sleep_until(t_ns + extra);
+        self.inner
+            .sleep_until(t.saturating_add(MasterDuration::from_ns(extra)));
     }
 
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         len: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, Self::Error> {
-        self.inner.send_with(len, at_ns, fill)
+    ) -> Result<MasterInstant, Self::Error> {
+        self.inner.send_with(len, at, fill)
     }
 
     fn recv(
         &mut self,
         buf: &mut Vec<u8>,
-        deadline_ns: u64,
+        deadline: MasterInstant,
     ) -> Result<Option<Received>, Self::Error> {
-        self.inner.recv(buf, deadline_ns)
+        self.inner.recv(buf, deadline)
     }
 
     fn start_cycle(&mut self, cycle: u64) {
@@ -91,7 +93,7 @@ fn paper_2024_in_op_with(
     };
     // Sent at the grid point: the frames pass the drives a few us after it, ~295 us before
     // SYNC0.
-    let first = (sim.now_ns() / PERIOD_NS + 2) * PERIOD_NS;
+    let first = (sim.now().as_ns() / PERIOD_NS + 2) * PERIOD_NS;
     let eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
     (sim, net, eng)
 }
@@ -140,7 +142,7 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
     };
     let mut driver = CyclicDriver::new(CyclicLimits {
         max_cycles: Some(1_400),
-        sync_counters_every_ns: Some(100_000_000),
+        sync_counters_every: Some(MasterDuration::from_ms(100)),
         ..CyclicLimits::default()
     });
     driver.set_recovery(net.clone(), recovery());
@@ -209,34 +211,34 @@ struct LossyHost {
 impl Transport for LossyHost {
     type Error = <SimTransport as Transport>::Error;
 
-    fn now_ns(&mut self) -> u64 {
-        self.inner.now_ns()
+    fn now(&mut self) -> MasterInstant {
+        self.inner.now()
     }
 
-    fn sleep_until(&mut self, t_ns: u64) {
-        self.inner.sleep_until(t_ns);
+    fn sleep_until(&mut self, t: MasterInstant) {
+        self.inner.sleep_until(t);
     }
 
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         len: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, Self::Error> {
-        self.inner.send_with(len, at_ns, fill)
+    ) -> Result<MasterInstant, Self::Error> {
+        self.inner.send_with(len, at, fill)
     }
 
     fn recv(
         &mut self,
         buf: &mut Vec<u8>,
-        deadline_ns: u64,
+        deadline: MasterInstant,
     ) -> Result<Option<Received>, Self::Error> {
         if self.cycle % self.every == self.every / 2 {
             // Everything this cycle would have read is gone.
-            while self.inner.recv(buf, deadline_ns)?.is_some() {}
+            while self.inner.recv(buf, deadline)?.is_some() {}
             return Ok(None);
         }
-        self.inner.recv(buf, deadline_ns)
+        self.inner.recv(buf, deadline)
     }
 
     fn start_cycle(&mut self, cycle: u64) {
@@ -259,13 +261,15 @@ fn a_counter_read_cut_by_a_lost_cycle_starts_again_at_once() {
     let every_ns = 50_000_000;
     let mut driver = CyclicDriver::new(CyclicLimits {
         max_cycles: Some(1_000),
-        sync_counters_every_ns: Some(every_ns),
+        sync_counters_every: Some(MasterDuration::from_ns(every_ns)),
         ..CyclicLimits::default()
     });
     driver.set_recovery(net.clone(), recovery());
     let mut end_ns = 0;
     driver
-        .run(&mut tr, &mut eng, 1_000, None, |t, _| end_ns = t.now_ns())
+        .run(&mut tr, &mut eng, 1_000, None, |t, _| {
+            end_ns = t.now().as_ns()
+        })
         .unwrap();
     let stats = driver.stats();
     assert!(stats.lost >= 1_000 / 7, "the host lost cycles: {stats:?}");

@@ -9,6 +9,7 @@ use crate::session::{Aim, CycleObserver, Session, SessionConfig, SessionError};
 use crate::stats::Stats;
 use ecsync_dc::Method;
 use ecsync_dc::sync::MasterSync as _;
+use ecsync_dc::time::MasterDuration;
 use ecsync_master::bringup::BringupTimeouts;
 use ecsync_master::driver::{CycleReport, CyclicLimits, ExchangeStats, Stopped};
 use ecsync_master::network::Network;
@@ -37,13 +38,13 @@ pub struct CyclicOptions {
     /// Cycles the engine measures the reference's drift over first.
     pub measure_init_frames: u64,
     /// Stop after this long (`None`: at the stop flag or the network's loss).
-    pub duration_ns: Option<u64>,
+    pub duration: Option<MasterDuration>,
     /// Stop after this many cycles.
     pub max_cycles: Option<u64>,
     /// Give up after this many frames lost in a row.
     pub lost_in_a_row: u64,
-    /// How long a reply is waited for, ns.
-    pub reply_timeout_ns: u64,
+    /// How long a reply is waited for.
+    pub reply_timeout: MasterDuration,
     /// The method's t_ms is the transmit stamp ([`CyclicLimits::t_ms_from_tx_stamp`]).
     pub t_ms_from_tx_stamp: bool,
     /// The sync error counter limit a recovered drive gets again.
@@ -122,7 +123,7 @@ impl CycleObserver<RealLink> for RealCycles {
         if let (Some(t), Some(_), false) = (r.ref_time_ns, r.receive_ns, r.reference_held) {
             self.ref_rate.add(r.send_ns, t);
         }
-        let w2s = c.stamp_ns.wrapping_sub(r.scheduled_ns) as i64 as f64;
+        let w2s = c.stamp.as_ns().wrapping_sub(r.scheduled_ns) as i64 as f64;
         if c.skipped_before == 0 {
             if self.control.spins(r.cycle) {
                 self.wake_to_send_spin.add(w2s);
@@ -143,11 +144,11 @@ impl CycleObserver<RealLink> for RealCycles {
             if let Some(v) = r.rs_is_ns {
                 self.rs_is.add(f64::from(v));
             }
-            if let Some(t) = c.round_trip_ns {
-                self.round_trip.add(t as f64);
+            if let Some(t) = c.round_trip {
+                self.round_trip.add(t.as_ns() as f64);
             }
-            if let Some(tx) = c.tx_stamp_ns {
-                self.tx_path.add(tx.wrapping_sub(c.stamp_ns) as i64 as f64);
+            if let Some(tx) = c.tx_stamp {
+                self.tx_path.add(tx.signed_since(c.stamp) as f64);
             }
         }
         if let (Some(w), None) = (self.csv.as_mut(), self.csv_err.as_ref())
@@ -211,17 +212,17 @@ pub fn run_cyclic(
     // Aim at the reference's grid, at the target phase, where the bring-up's last reading
     // put it against the master's clock.
     let aim = Aim::ReferenceGrid {
-        now_ns: link.now_ns(),
+        now: link.now(),
         target_phase_ns: o.target_phase_ns,
-        lead_ns: 0,
+        lead: MasterDuration::ZERO,
     };
     let limits = CyclicLimits {
-        duration_ns: o.duration_ns,
+        duration: o.duration,
         max_cycles: o.max_cycles,
         lost_in_a_row: o.lost_in_a_row,
-        reply_timeout_ns: o.reply_timeout_ns,
+        reply_timeout: o.reply_timeout,
         // The drives' own count of SYNC0 cycles without new outputs, once a second.
-        sync_counters_every_ns: Some(1_000_000_000),
+        sync_counters_every: Some(MasterDuration::from_ms(1_000)),
         t_ms_from_tx_stamp: o.t_ms_from_tx_stamp,
     };
     let mut session = Session::new(net, method, aim, cfg, |_| limits)?;
@@ -282,7 +283,7 @@ impl RunOut {
     pub fn new(h: RunHead, c: &CyclicPhase, link: &RealLink) -> RunOut {
         let driver = c.session.driver();
         let eng = c.session.engine();
-        let first = c.session.first_ns();
+        let first = c.session.first().as_ns();
         let f = &c.cycles;
         let d = driver.stats();
         let mut exchanges = h.bringup_link;

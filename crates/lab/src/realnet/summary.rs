@@ -3,6 +3,7 @@
 
 use crate::stats::{Stats, Summary};
 use ecsync_dc::fit::LineFit;
+use ecsync_dc::time::MasterDuration;
 use ecsync_master::bringup::DcCapability;
 use ecsync_master::driver::{CycleReport, ExchangeStats};
 use ecsync_master::network::Network;
@@ -367,12 +368,17 @@ pub fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
     field(w, r.rs_is_ns, ',')?;
     field(w, r.lrw_wkc, ',')?;
     write!(w, "{},", c.wake_latency_ns)?;
-    field(w, c.round_trip_ns, ',')?;
+    field(w, c.round_trip.map(MasterDuration::as_ns), ',')?;
     write!(w, "{},", u8::from(r.receive_ns.is_none()))?;
     // The host's twin (`ecsync host fit` reads these as a trace): wake-up to the send
     // timestamp, and the send timestamp to the transport's TX stamp.
-    write!(w, "{},", c.stamp_ns.saturating_sub(c.woke_ns))?;
-    field(w, c.tx_stamp_ns.map(|t| t as i64 - c.stamp_ns as i64), '\n')
+    write!(w, "{},", c.stamp.saturating_since(c.woke).as_ns())?;
+    field(
+        w,
+        c.tx_stamp
+            .map(|t| t.as_ns() as i64 - c.stamp.as_ns() as i64),
+        '\n',
+    )
 }
 
 /// The per-cycle CSV's columns; `exec_ns` and `tx_delay_ns` were appended after `lost` (a

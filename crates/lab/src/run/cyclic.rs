@@ -159,16 +159,18 @@ impl Run {
         // ideal host's few microseconds instead of the host model's, so the reading holds those
         // and the difference is taken off here.
         let aim = Aim::ReferenceGrid {
-            now_ns: sim.master_now_ns(),
+            now: MasterInstant::from_ns(sim.master_now_ns()),
             target_phase_ns: s.target_phase_ns,
-            lead_ns: ((s.host.em_ns + s.host.tx_latency_ns) as u64)
-                .saturating_sub(sim.tx_latency_ps() / 1000),
+            lead: MasterDuration::from_ns(
+                ((s.host.em_ns + s.host.tx_latency_ns) as u64)
+                    .saturating_sub(sim.tx_latency_ps() / 1000),
+            ),
         };
         let session = Session::new(net, method, aim, cfg, |eng| {
             let comes_back_ns =
                 (cycle_wire_ps(eng) + way_round_ps + rx_latency_ps) / 1000 + REPLY_MARGIN_NS;
             CyclicLimits {
-                reply_timeout_ns: (period / 2).max(comes_back_ns),
+                reply_timeout: MasterDuration::from_ns((period / 2).max(comes_back_ns)),
                 lost_in_a_row: u64::MAX,
                 // (`hwstamp` runs only master-shift methods: see `SendMode::applies_to`.)
                 t_ms_from_tx_stamp: entry.send == SendMode::Hwstamp,
@@ -264,7 +266,7 @@ impl Run {
     pub fn read_drive_counters_every(&mut self, every_ns: u64) {
         self.session
             .driver_mut()
-            .set_sync_counters_every_ns(Some(every_ns));
+            .set_sync_counters_every(Some(MasterDuration::from_ns(every_ns)));
     }
 
     /// The master's first and last read of each drive's 0x1C32:0B over CoE so far
@@ -351,7 +353,7 @@ impl Run {
             ..
         } = self.obs;
         let driver = self.session.driver();
-        let t0 = self.session.first_ns();
+        let t0 = self.session.first().as_ns();
         let ms = |t: u64| t.saturating_sub(t0) as f64 / 1e6;
         for e in driver.recoveries() {
             let Some(Ok(r)) = &e.outcome else { continue };

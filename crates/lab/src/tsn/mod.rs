@@ -26,6 +26,7 @@ use crate::run::{Envelope, Series};
 use crate::session::{Aim, CycleObserver, Session, SessionConfig, SessionError};
 use crate::stats::{Stats, Summary};
 use ecsync_dc::BusShift;
+use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_master::bringup::{BringupConfig, EsiTiming, Network, Stage, bringup};
 use ecsync_master::driver::{
     CycleReport, CyclicLimits, ExchangeStats, ProcedureConfig, run_procedure,
@@ -438,12 +439,12 @@ pub fn run_variant(
     let mut session = Session::new(
         &net_info,
         BusShift { write_offset_ns },
-        Aim::At(first),
+        Aim::At(MasterInstant::from_ns(first)),
         cfg,
         |_| CyclicLimits {
             max_cycles: Some(total),
             lost_in_a_row: u64::MAX,
-            reply_timeout_ns: period,
+            reply_timeout: MasterDuration::from_ns(period),
             ..CyclicLimits::default()
         },
     )

@@ -9,27 +9,28 @@ use crate::network::Network;
 use crate::recovery::{RecoveryConfig, recover};
 use crate::transport::{Received, Transport};
 use ecsync_dc::MasterSync;
+use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_wire::EcatFrame;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// When the cyclic driver stops by itself, and how long it waits for a reply.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CyclicLimits {
-    /// Stop after this much master time from the first scheduled start, ns.
-    pub duration_ns: Option<u64>,
+    /// Stop after this much master time from the first scheduled start.
+    pub duration: Option<MasterDuration>,
     /// Stop after this many cycles.
     pub max_cycles: Option<u64>,
     /// Give up when this many frames in a row were lost: the network is gone.
     pub lost_in_a_row: u64,
-    /// How long to wait for a cycle's reply after its send, ns.
-    pub reply_timeout_ns: u64,
-    /// Read every drive's SM-event-missed counter (0x1C32:0B) over CoE this often, ns, in
+    /// How long to wait for a cycle's reply after its send.
+    pub reply_timeout: MasterDuration,
+    /// Read every drive's SM-event-missed counter (0x1C32:0B) over CoE this often, in
     /// the cycles' spare time (`None`: never). Drives with CoE and a system time only, as
     /// the bring-up set them to DC mode.
-    pub sync_counters_every_ns: Option<u64>,
+    pub sync_counters_every: Option<MasterDuration>,
     /// Hand the method the transport's transmit timestamp of the cycle's first frame as its
     /// send time t_ms (the NIC's or the kernel's, taken after the scheduling and the stack's
-    /// latency, see [`Received::tx_stamp_ns`]) instead of the timestamp taken before the send;
+    /// latency, see [`Received::tx_stamp`]) instead of the timestamp taken before the send;
     /// a cycle whose stamp did not come keeps the latter and is counted
     /// ([`CyclicDriver::t_ms_sources`]). For master-shift methods only: a bus-shift method
     /// writes its send time into the frame before it leaves.
@@ -39,11 +40,11 @@ pub struct CyclicLimits {
 impl Default for CyclicLimits {
     fn default() -> Self {
         CyclicLimits {
-            duration_ns: None,
+            duration: None,
             max_cycles: None,
             lost_in_a_row: 100,
-            reply_timeout_ns: 10_000_000,
-            sync_counters_every_ns: None,
+            reply_timeout: MasterDuration::from_ms(10),
+            sync_counters_every: None,
             t_ms_from_tx_stamp: false,
         }
     }
@@ -54,20 +55,20 @@ impl Default for CyclicLimits {
 pub struct CycleReport {
     /// What the engine and the method made of it.
     pub record: CycleRecord,
-    /// When the task woke, master time, ns.
-    pub woke_ns: u64,
+    /// When the task woke.
+    pub woke: MasterInstant,
     /// Wake-up latency: woke minus scheduled, ns. When the task woke a whole period or more
     /// late, from the slot it missed first.
     pub wake_latency_ns: i64,
     /// Cycles skipped right before this one because the task woke after their slots had passed.
     pub skipped_before: u64,
-    /// The transmit timestamp of the transport (kernel or NIC), master time, ns.
-    pub tx_stamp_ns: Option<u64>,
-    /// The send timestamp taken before the cycle's first frame went to the transport, master
-    /// time, ns (the record's `send_ns` unless t_ms came from the transmit timestamp).
-    pub stamp_ns: u64,
-    /// Send timestamp to reply, ns.
-    pub round_trip_ns: Option<u64>,
+    /// The transmit timestamp of the transport (kernel or NIC).
+    pub tx_stamp: Option<MasterInstant>,
+    /// The send timestamp taken before the cycle's first frame went to the transport (the
+    /// record's `send_ns` unless t_ms came from the transmit timestamp).
+    pub stamp: MasterInstant,
+    /// Send timestamp to reply.
+    pub round_trip: Option<MasterDuration>,
     /// Length of the cyclic frame, bytes.
     pub frame_len: usize,
 }
@@ -134,9 +135,9 @@ impl CyclicDriver {
     }
 
     /// Reads the drives' SM-event-missed counters over CoE this often from now on
-    /// ([`CyclicLimits::sync_counters_every_ns`]; `None`: no more reads).
-    pub fn set_sync_counters_every_ns(&mut self, every_ns: Option<u64>) {
-        self.limits.sync_counters_every_ns = every_ns;
+    /// ([`CyclicLimits::sync_counters_every`]; `None`: no more reads).
+    pub fn set_sync_counters_every(&mut self, every: Option<MasterDuration>) {
+        self.limits.sync_counters_every = every;
     }
 
     /// Lets the driver bring slaves of `net` back when the engine sees them lose their
@@ -180,8 +181,9 @@ impl CyclicDriver {
         &mut self,
         tr: &mut Tr,
         eng: &mut CyclicEngine<S>,
-        until_ns: u64,
+        until: MasterInstant,
     ) -> Result<(), Tr::Error> {
+        let until_ns = until.as_ns();
         let lost_row = self.lost_row;
         let Some(rs) = self.recovery.as_mut() else {
             return Ok(());
@@ -191,11 +193,11 @@ impl CyclicDriver {
             rs.drop_counter_read();
             return Ok(());
         }
-        while rs.out.is_none() && tr.now_ns() < until_ns {
+        while rs.out.is_none() && tr.now() < until {
             let Some(e) = rs.running.as_mut() else {
                 break;
             };
-            let now = tr.now_ns();
+            let now = tr.now().as_ns();
             let frame = match e.poll(now) {
                 Action::Send(f) => f.to_vec(),
                 // Not asked for (`send_back_to_back`): never comes; told as not sent.
@@ -205,7 +207,7 @@ impl CyclicDriver {
                     continue;
                 }
                 Action::WaitUntil(t) if t < until_ns => {
-                    tr.sleep_until(t);
+                    tr.sleep_until(MasterInstant::from_ns(t));
                     continue;
                 }
                 Action::WaitUntil(_) => break,
@@ -214,13 +216,13 @@ impl CyclicDriver {
                     break;
                 }
             };
-            let at = tr.send_time_ns(frame.len());
+            let at = tr.send_time(frame.len());
             let sent = tr.send(&frame, at)?;
             self.stats.sent += 1;
             let mut answered = false;
-            while let Some(r) = tr.recv(&mut self.buf, until_ns.max(sent))? {
+            while let Some(r) = tr.recv(&mut self.buf, until.max(sent))? {
                 if !r.truncated && answers(&frame, &self.buf[..r.len]) {
-                    e.handle_reply(&self.buf[..r.len], sent, r.received_ns);
+                    e.handle_reply(&self.buf[..r.len], sent.as_ns(), r.received_ns());
                     self.stats.replies += 1;
                     answered = true;
                     break;
@@ -231,7 +233,7 @@ impl CyclicDriver {
             if !answered {
                 // Lost (or not back before the cycle's end): sent again with the next cycle.
                 self.stats.lost += 1;
-                rs.out = Some((frame, sent, 1));
+                rs.out = Some((frame, sent.as_ns(), 1));
                 break;
             }
         }
@@ -239,7 +241,7 @@ impl CyclicDriver {
     }
 
     /// The drives' SM-event-missed counters as first and as last read (see
-    /// [`CyclicLimits::sync_counters_every_ns`]), in network order. The first read holds what
+    /// [`CyclicLimits::sync_counters_every`]), in network order. The first read holds what
     /// the drive counted since OP, the hand-over from the bring-up to the cyclic phase
     /// included; the difference is the cyclic phase's own.
     pub fn sync_counters(&self) -> Vec<(SyncCounter, SyncCounter)> {
@@ -270,11 +272,11 @@ impl CyclicDriver {
     /// `Some(why)` when the phase ended, `None` when the slice was done. `on_cycle` sees every
     /// cycle with the transport (a simulator's observer reads its ground truth there).
     ///
-    /// A cycle, step by step: [`Self::stop_reason`]; [`Self::wake`] at the cycle's slot (skipping
-    /// the slots that passed); [`Self::send_cyclic`]; [`Self::send_job_frame`] (a recovery's or
-    /// a counter read's frame); [`Self::collect_replies`] until the deadline;
-    /// [`Self::job_frame_lost`]; [`Self::complete`] hands the replies to the engine; the
-    /// observer; [`Self::recovery_burst`] in the rest of the cycle.
+    /// A cycle, step by step: `stop_reason`; `wake` at the cycle's slot (skipping
+    /// the slots that passed); `send_cyclic`; `send_job_frame` (a recovery's or
+    /// a counter read's frame); `collect_replies` until the deadline;
+    /// `job_frame_lost`; `complete` hands the replies to the engine; the
+    /// observer; `recovery_burst` in the rest of the cycle.
     pub fn run<S: MasterSync, Tr: Transport>(
         &mut self,
         tr: &mut Tr,
@@ -294,27 +296,26 @@ impl CyclicDriver {
             // the first carries the reference's time and is the cycle's send timestamp.
             let n = eng.frame_count();
             let len = eng.frame_len();
-            let sent_ns = self.send_cyclic(tr, eng)?;
+            let sent = self.send_cyclic(tr, eng)?;
             let job_pending = self.send_job_frame(tr, eng)?;
             let (pending, last, job_pending) =
-                self.collect_replies(tr, eng, n, sent_ns, period_ns, job_pending)?;
+                self.collect_replies(tr, eng, n, sent, period_ns, job_pending)?;
             self.stats.lost += pending as u64;
             if job_pending {
                 self.job_frame_lost();
             }
-            let (record, tx_stamp_ns, round_trip_ns) =
-                self.complete(tr, eng, pending, last, sent_ns);
+            let (record, tx_stamp, round_trip) = self.complete(tr, eng, pending, last, sent);
             self.cycles += 1;
             on_cycle(
                 tr,
                 &CycleReport {
                     record,
-                    woke_ns: woke,
-                    wake_latency_ns: woke.wrapping_sub(scheduled) as i64,
+                    woke,
+                    wake_latency_ns: woke.signed_since(scheduled),
                     skipped_before: skipped,
-                    tx_stamp_ns,
-                    stamp_ns: sent_ns,
-                    round_trip_ns,
+                    tx_stamp,
+                    stamp: sent,
+                    round_trip,
                     frame_len: len,
                 },
             );
@@ -322,7 +323,7 @@ impl CyclicDriver {
             // slot: its frames one after the other (a static drift compensation of a reset
             // slave is thousands of them).
             let until = eng.scheduled_start_ns().saturating_sub(period_ns / 4);
-            self.recovery_burst(tr, eng, until)?;
+            self.recovery_burst(tr, eng, MasterInstant::from_ns(until))?;
             if self.lost_row >= self.limits.lost_in_a_row.max(1) {
                 return Ok(Some(Stopped::NetworkGone {
                     last_good_cycle: self.last_good,
@@ -349,8 +350,8 @@ impl CyclicDriver {
         }
         let scheduled = eng.scheduled_start_ns();
         self.limits
-            .duration_ns
-            .is_some_and(|d| scheduled.wrapping_sub(start) >= d)
+            .duration
+            .is_some_and(|d| scheduled.wrapping_sub(start) >= d.as_ns())
             .then_some(Stopped::Duration)
     }
 
@@ -361,12 +362,12 @@ impl CyclicDriver {
         tr: &mut Tr,
         eng: &mut CyclicEngine<S>,
         period_ns: u64,
-    ) -> (u64, u64, u64) {
-        let scheduled = eng.scheduled_start_ns();
+    ) -> (MasterInstant, MasterInstant, u64) {
+        let scheduled = MasterInstant::from_ns(eng.scheduled_start_ns());
         tr.start_cycle(eng.cycle());
         tr.sleep_until(scheduled);
-        let woke = tr.now_ns();
-        let skipped = woke.saturating_sub(scheduled) / period_ns;
+        let woke = tr.now();
+        let skipped = woke.saturating_since(scheduled).as_ns() / period_ns;
         if skipped > 0 {
             eng.skip_cycles(skipped);
         }
@@ -378,8 +379,8 @@ impl CyclicDriver {
         &mut self,
         tr: &mut Tr,
         eng: &mut CyclicEngine<S>,
-    ) -> Result<u64, Tr::Error> {
-        let mut sent_ns = 0;
+    ) -> Result<MasterInstant, Tr::Error> {
+        let mut sent = MasterInstant::default();
         eng.set_recovery_running(
             self.recovery
                 .as_ref()
@@ -387,14 +388,14 @@ impl CyclicDriver {
         );
         for k in 0..eng.frame_count() {
             let len = eng.frame_len_of(k);
-            let at = tr.send_time_ns(len);
-            let s = tr.send_with(len, at, |buf| eng.write_frame(k, at, buf))?;
+            let at = tr.send_time(len);
+            let s = tr.send_with(len, at, |buf| eng.write_frame(k, at.as_ns(), buf))?;
             if k == 0 {
-                sent_ns = s;
+                sent = s;
             }
             self.stats.sent += 1;
         }
-        Ok(sent_ns)
+        Ok(sent)
     }
 
     /// The side job's frame after the cyclic ones: a recovery starts if the engine asks for
@@ -406,11 +407,11 @@ impl CyclicDriver {
         eng: &mut CyclicEngine<S>,
     ) -> Result<bool, Tr::Error> {
         let lost_row = self.lost_row;
-        let every = self.limits.sync_counters_every_ns;
+        let every = self.limits.sync_counters_every.map(MasterDuration::as_ns);
         let Some(rs) = self.recovery.as_mut() else {
             return Ok(false);
         };
-        let now = tr.now_ns();
+        let now = tr.now().as_ns();
         if rs.running.is_none() && eng.health().needs_recovery && now >= rs.retry_at_ns {
             let (net, cfg) = (rs.net.clone(), rs.cfg);
             rs.running = Some(Engine::new(move |link| async move {
@@ -465,8 +466,8 @@ impl CyclicDriver {
             }
         }
         if let Some((f, sent, tries)) = rs.out.as_mut() {
-            let at = tr.send_time_ns(f.len());
-            *sent = tr.send(f, at)?;
+            let at = tr.send_time(f.len());
+            *sent = tr.send(f, at)?.as_ns();
             *tries += 1;
             self.stats.sent += 1;
             return Ok(true);
@@ -483,7 +484,7 @@ impl CyclicDriver {
         tr: &mut Tr,
         eng: &mut CyclicEngine<S>,
         n: usize,
-        sent_ns: u64,
+        sent: MasterInstant,
         period_ns: u64,
         mut job_pending: bool,
     ) -> Result<(usize, Option<Received>, bool), Tr::Error> {
@@ -496,10 +497,10 @@ impl CyclicDriver {
         for r in self.replies.iter_mut() {
             r.1 = None;
         }
-        let next_slot = eng.scheduled_start_ns().saturating_add(period_ns);
-        let deadline = sent_ns
-            .saturating_add(self.limits.reply_timeout_ns)
-            .min(next_slot.max(sent_ns));
+        let next_slot = MasterInstant::from_ns(eng.scheduled_start_ns().saturating_add(period_ns));
+        let deadline = sent
+            .saturating_add(self.limits.reply_timeout)
+            .min(next_slot.max(sent));
         let mut pending = n;
         let mut last: Option<Received> = None;
         while pending > 0 || job_pending {
@@ -558,7 +559,7 @@ impl CyclicDriver {
             return false;
         }
         if let Some(e) = rs.running.as_mut() {
-            e.handle_reply(&self.buf[..r.len], *sent, r.received_ns);
+            e.handle_reply(&self.buf[..r.len], *sent, r.received_ns());
         }
         rs.out = None;
         self.stats.replies += 1;
@@ -589,13 +590,14 @@ impl CyclicDriver {
         eng: &mut CyclicEngine<S>,
         pending: usize,
         last: Option<Received>,
-        sent_ns: u64,
-    ) -> (CycleRecord, Option<u64>, Option<u64>) {
+        sent: MasterInstant,
+    ) -> (CycleRecord, Option<MasterInstant>, Option<MasterDuration>) {
+        let sent_ns = sent.as_ns();
         let replies = &self.replies;
         let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
         if pending == 0 {
             let r = last.expect("every frame answered");
-            let t_ms = match (self.limits.t_ms_from_tx_stamp, r.tx_stamp_ns) {
+            let t_ms = match (self.limits.t_ms_from_tx_stamp, r.tx_stamp_ns()) {
                 (false, _) => sent_ns,
                 (true, Some(t)) => {
                     self.t_ms_sources.0 += 1;
@@ -606,17 +608,13 @@ impl CyclicDriver {
                     sent_ns
                 }
             };
-            let rec = eng.complete_by(views, t_ms, r.received_ns);
+            let rec = eng.complete_by(views, t_ms, r.received_ns());
             self.lost_row = 0;
             self.last_good = Some(rec.cycle);
-            (
-                rec,
-                r.tx_stamp_ns,
-                Some(r.received_ns.saturating_sub(sent_ns)),
-            )
+            (rec, r.tx_stamp, Some(r.received.saturating_since(sent)))
         } else {
             self.lost_row += 1;
-            let now = tr.now_ns();
+            let now = tr.now().as_ns();
             (eng.complete_by(views, sent_ns, now), None, None)
         }
     }

@@ -18,6 +18,7 @@
 //!   PLC task skips an overrun), rather than sending the missed frames back to back.
 
 use crate::transport::{Received, Transport};
+use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_wire::EcatFrame;
 
 mod cycle;
@@ -69,32 +70,29 @@ pub struct ExchangeStats {
 /// A matched reply.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Reply {
-    /// The send timestamp, master time, ns.
-    pub sent_ns: u64,
-    /// When it came back, master time, ns.
+    /// The send timestamp.
+    pub sent: MasterInstant,
+    /// When it came back.
     pub received: Received,
 }
 
-/// Sends `frame` and waits for its reply until `timeout_ns` after the send, into `buf`.
+/// Sends `frame` and waits for its reply until `timeout` after the send, into `buf`.
 /// `None`: lost.
 pub fn exchange<Tr: Transport>(
     tr: &mut Tr,
     frame: &[u8],
     buf: &mut Vec<u8>,
-    timeout_ns: u64,
+    timeout: MasterDuration,
     stats: &mut ExchangeStats,
 ) -> Result<Option<Reply>, Tr::Error> {
-    let at = tr.send_time_ns(frame.len());
-    let sent_ns = tr.send(frame, at)?;
+    let at = tr.send_time(frame.len());
+    let sent = tr.send(frame, at)?;
     stats.sent += 1;
-    let deadline = sent_ns.saturating_add(timeout_ns);
+    let deadline = sent.saturating_add(timeout);
     while let Some(r) = tr.recv(buf, deadline)? {
         if !r.truncated && answers(frame, &buf[..r.len]) {
             stats.replies += 1;
-            return Ok(Some(Reply {
-                sent_ns,
-                received: r,
-            }));
+            return Ok(Some(Reply { sent, received: r }));
         }
         stats.stale += 1;
         stats.truncated += u64::from(r.truncated);

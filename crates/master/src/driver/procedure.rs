@@ -15,6 +15,13 @@ pub struct ProcedureConfig {
     pub retries: u32,
 }
 
+impl ProcedureConfig {
+    /// How long to wait for a reply.
+    pub fn reply_timeout(&self) -> MasterDuration {
+        MasterDuration::from_ns(self.reply_timeout_ns)
+    }
+}
+
 impl Default for ProcedureConfig {
     fn default() -> Self {
         ProcedureConfig {
@@ -27,10 +34,10 @@ impl Default for ProcedureConfig {
 /// One exchange of a procedure, for observers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ProcedureExchange {
-    /// Send timestamp of the last attempt, master time, ns.
-    pub sent_ns: u64,
-    /// When its reply came, master time, ns (`None`: lost every time).
-    pub received_ns: Option<u64>,
+    /// Send timestamp of the last attempt.
+    pub sent: MasterInstant,
+    /// When its reply came (`None`: lost every time).
+    pub received: Option<MasterInstant>,
     /// Sends, the first included.
     pub attempts: u32,
 }
@@ -47,11 +54,11 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
     let mut buf = vec![0u8; 2048];
     engine.send_back_to_back();
     loop {
-        let now = tr.now_ns();
-        let frame = match engine.poll(now) {
+        let now = tr.now();
+        let frame = match engine.poll(now.as_ns()) {
             Action::Done(v) => return Ok(v),
             Action::WaitUntil(t) => {
-                tr.sleep_until(t);
+                tr.sleep_until(MasterInstant::from_ns(t));
                 continue;
             }
             Action::Send(f) => f.to_vec(),
@@ -60,9 +67,12 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
                 let done = exchange_all(tr, &frames, &mut buf, cfg, stats)?;
                 let exchanges: Vec<ProcedureExchange> = done
                     .iter()
-                    .map(|(sent_ns, r, attempts)| ProcedureExchange {
-                        sent_ns: *sent_ns,
-                        received_ns: r.as_ref().ok().map(|r| r.received_ns),
+                    .map(|(sent, r, attempts)| ProcedureExchange {
+                        sent: *sent,
+                        received: r
+                            .as_ref()
+                            .ok()
+                            .map(|r| MasterInstant::from_ns(r.received_ns)),
                         attempts: *attempts,
                     })
                     .collect();
@@ -74,20 +84,22 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
                 continue;
             }
         };
-        let (got, attempts, sent_ns) =
+        let (got, attempts, sent) =
             exchange_tries(tr, &frame, &mut buf, cfg, stats, cfg.retries + 1)?;
         match got {
-            Some(r) => {
-                engine.handle_reply(&buf[..r.received.len], r.sent_ns, r.received.received_ns)
-            }
+            Some(r) => engine.handle_reply(
+                &buf[..r.received.len],
+                r.sent.as_ns(),
+                r.received.received_ns(),
+            ),
             None => engine.handle_lost_after(attempts),
         }
         let events = engine.take_events();
         observe(
             tr,
             &ProcedureExchange {
-                sent_ns,
-                received_ns: got.map(|r| r.received.received_ns),
+                sent,
+                received: got.map(|r| r.received.received),
                 attempts,
             },
             &events,
@@ -105,16 +117,16 @@ pub(super) fn exchange_tries<Tr: Transport>(
     cfg: ProcedureConfig,
     stats: &mut ExchangeStats,
     tries: u32,
-) -> Result<(Option<Reply>, u32, u64), Tr::Error> {
-    let (mut sends, mut sent_ns) = (0, 0);
+) -> Result<(Option<Reply>, u32, MasterInstant), Tr::Error> {
+    let (mut sends, mut sent) = (0, MasterInstant::default());
     for _ in 0..tries {
         sends += 1;
-        match exchange(tr, frame, buf, cfg.reply_timeout_ns, stats)? {
-            Some(r) => return Ok((Some(r), sends, r.sent_ns)),
-            None => sent_ns = tr.now_ns(),
+        match exchange(tr, frame, buf, cfg.reply_timeout(), stats)? {
+            Some(r) => return Ok((Some(r), sends, r.sent)),
+            None => sent = tr.now(),
         }
     }
-    Ok((None, sends, sent_ns))
+    Ok((None, sends, sent))
 }
 
 /// Sends `frames` back to back and waits for their replies until `cfg.reply_timeout_ns` after
@@ -129,10 +141,10 @@ pub(super) fn exchange_all<Tr: Transport>(
     buf: &mut Vec<u8>,
     cfg: ProcedureConfig,
     stats: &mut ExchangeStats,
-) -> Result<Vec<(u64, Result<crate::io::Reply, u32>, u32)>, Tr::Error> {
+) -> Result<Vec<(MasterInstant, Result<crate::io::Reply, u32>, u32)>, Tr::Error> {
     let mut sent = Vec::with_capacity(frames.len());
     for f in frames {
-        let at = tr.send_time_ns(f.len());
+        let at = tr.send_time(f.len());
         sent.push(tr.send(f, at)?);
         stats.sent += 1;
     }
@@ -141,8 +153,8 @@ pub(super) fn exchange_all<Tr: Transport>(
     let deadline = sent
         .last()
         .copied()
-        .unwrap_or(0)
-        .saturating_add(cfg.reply_timeout_ns);
+        .unwrap_or_default()
+        .saturating_add(cfg.reply_timeout());
     while pending > 0 {
         let Some(r) = tr.recv(buf, deadline)? else {
             break;
@@ -156,8 +168,8 @@ pub(super) fn exchange_all<Tr: Transport>(
             Some(k) => {
                 got[k] = Some(crate::io::Reply {
                     frame: buf[..r.len].to_vec(),
-                    sent_ns: sent[k],
-                    received_ns: r.received_ns,
+                    sent_ns: sent[k].as_ns(),
+                    received_ns: r.received_ns(),
                 });
                 stats.replies += 1;
                 pending -= 1;
@@ -175,14 +187,14 @@ pub(super) fn exchange_all<Tr: Transport>(
             continue;
         }
         stats.lost += 1;
-        let (again, tries, last_ns) = exchange_tries(tr, &frames[k], buf, cfg, stats, cfg.retries)?;
+        let (again, tries, last) = exchange_tries(tr, &frames[k], buf, cfg, stats, cfg.retries)?;
         let reply = again.map(|r| crate::io::Reply {
             frame: buf[..r.received.len].to_vec(),
-            sent_ns: r.sent_ns,
-            received_ns: r.received.received_ns,
+            sent_ns: r.sent.as_ns(),
+            received_ns: r.received.received_ns(),
         });
-        let sent_ns = if tries == 0 { sent[k] } else { last_ns };
-        out.push((sent_ns, reply.ok_or(1 + tries), 1 + tries));
+        let sent_at = if tries == 0 { sent[k] } else { last };
+        out.push((sent_at, reply.ok_or(1 + tries), 1 + tries));
     }
     Ok(out)
 }

@@ -44,6 +44,7 @@ use crate::gptp::{Config as GptpConfig, SystemIdentity, TimeAwareSystem};
 use crate::gptp_net::{ExchangeCounts, GptpNetwork};
 use crate::qbv::{PortSchedule, Window};
 use bridge::{BRIDGE, Bridge, CrossTraffic, GptpWire, MASTER};
+use ecsync_dc::time::MasterInstant;
 use ecsync_master::transport::{Never, Received, Transport};
 use ecsync_sim::clock::{CrystalParams, DEFAULT_WANDER_STEP_PS};
 use ecsync_sim::pcap::PcapCapture;
@@ -617,12 +618,13 @@ fn is_latch_frame(frame: &[u8]) -> bool {
 impl Transport for TsnNetwork<'_> {
     type Error = Never;
 
-    fn now_ns(&mut self) -> u64 {
+    fn now(&mut self) -> MasterInstant {
         let now = self.phc.ns_at(self.now_ps);
-        self.wake_ns.map_or(now, |w| w.max(now))
+        MasterInstant::from_ns(self.wake_ns.map_or(now, |w| w.max(now)))
     }
 
-    fn sleep_until(&mut self, t_ns: u64) {
+    fn sleep_until(&mut self, t: MasterInstant) {
+        let t_ns = t.as_ns();
         if self.in_bringup {
             // A procedure's wait: time moves (gPTP runs) to `t_ns`, by a nanosecond at least.
             let t_ps = self.phc.real_ps_at(t_ns).max(self.now_ps + 1000);
@@ -634,17 +636,18 @@ impl Transport for TsnNetwork<'_> {
         }
     }
 
-    fn send_time_ns(&mut self, len: usize) -> u64 {
-        let now = self.now_ns();
-        self.launch_at(now, len)
+    fn send_time(&mut self, len: usize) -> MasterInstant {
+        let now = self.now().as_ns();
+        MasterInstant::from_ns(self.launch_at(now, len))
     }
 
     fn send_with<F: FnOnce(&mut [u8])>(
         &mut self,
         len: usize,
-        at_ns: u64,
+        at: MasterInstant,
         fill: F,
-    ) -> Result<u64, Never> {
+    ) -> Result<MasterInstant, Never> {
+        let at_ns = at.as_ns();
         let mut work = vec![0u8; len];
         fill(&mut work);
         let is_latch = is_latch_frame(&work);
@@ -656,10 +659,15 @@ impl Transport for TsnNetwork<'_> {
             self.last_wait_fwd_ps = trip.wait_fwd_ps;
         }
         self.trips.push_back((trip, work));
-        Ok(trip.t1_ns)
+        Ok(MasterInstant::from_ns(trip.t1_ns))
     }
 
-    fn recv(&mut self, buf: &mut Vec<u8>, deadline_ns: u64) -> Result<Option<Received>, Never> {
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline: MasterInstant,
+    ) -> Result<Option<Received>, Never> {
+        let deadline_ns = deadline.as_ns();
         let Some((trip, work)) = self.trips.pop_front() else {
             return Ok(None);
         };
@@ -670,8 +678,8 @@ impl Transport for TsnNetwork<'_> {
                 *buf = work;
                 Ok(Some(Received {
                     len: n,
-                    received_ns: t4,
-                    tx_stamp_ns: Some(trip.t1_ns),
+                    received: MasterInstant::from_ns(t4),
+                    tx_stamp: Some(MasterInstant::from_ns(trip.t1_ns)),
                     stamped: true,
                     truncated: false,
                 }))
