@@ -1573,7 +1573,12 @@ mod host_stall {
                 lrw: net.lrw.clone(),
             };
             let first = (link.now().as_ns() / period + 2) * period;
-            let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+            let mut eng = CyclicEngine::new(
+                MedianSync::new(11, 0.01, 2),
+                cyc,
+                ecsync_dc::time::MasterInstant::from_ns(first),
+            )
+            .unwrap();
             let mut tr = HostStall::new(
                 link,
                 5,
@@ -1586,7 +1591,7 @@ mod host_stall {
             let mut seen = Vec::new();
             driver
                 .run(&mut tr, &mut eng, u64::MAX, None, |_, c| {
-                    seen.push((c.record.cycle, c.skipped_before, c.record.send_ns));
+                    seen.push((c.record.cycle, c.skipped_before, c.record.send.as_ns()));
                 })
                 .expect("the cyclic phase");
             seen

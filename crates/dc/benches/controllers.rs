@@ -3,6 +3,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use ecsync_dc::sync::{CycleInput, MasterSync};
+use ecsync_dc::time::{MasterInstant, SystemTime};
 use ecsync_dc::{BusShift, MedianSync, PiM2s, Snap, SoemPi};
 use std::hint::black_box;
 
@@ -19,13 +20,11 @@ fn bench_one<S: MasterSync>(c: &mut Criterion, mut s: S) {
             let input = CycleInput {
                 cycle: i,
                 period_ns: p as u32,
-                nominal_start: ecsync_dc::time::MasterInstant::from_ns(t),
-                scheduled_start: ecsync_dc::time::MasterInstant::from_ns(t),
-                send: ecsync_dc::time::MasterInstant::from_ns(t + 20_000 + jitter),
-                receive: ecsync_dc::time::MasterInstant::from_ns(t + 60_000 + jitter),
-                ref_time: Some(ecsync_dc::time::SystemTime::from_ns(
-                    t + 35_000 + jitter + (i % 7) * 10,
-                )),
+                nominal_start: MasterInstant::from_ns(t),
+                scheduled_start: MasterInstant::from_ns(t),
+                send: MasterInstant::from_ns(t + 20_000 + jitter),
+                receive: MasterInstant::from_ns(t + 60_000 + jitter),
+                ref_time: Some(SystemTime::from_ns(t + 35_000 + jitter + (i % 7) * 10)),
             };
             black_box(s.update(black_box(&input)))
         })

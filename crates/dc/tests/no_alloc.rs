@@ -2,6 +2,7 @@
 //! through the registry's [`Method`] (the per-cycle path of the lab and the real master).
 
 use ecsync_dc::sync::{CycleInput, MasterSync};
+use ecsync_dc::time::{MasterInstant, SystemTime};
 use ecsync_dc::{
     BusShift, Dcm, DcmMode, DcmParams, MedianFit, MedianSync, Method, MethodContext, MethodKind,
     MethodParams, PiM2s, SetValueRef, Snap, SoemPi,
@@ -40,14 +41,14 @@ fn run<S: MasterSync>(mut s: S) -> u64 {
         let input = CycleInput {
             cycle: i,
             period_ns: 1_000_000,
-            nominal_start: ecsync_dc::time::MasterInstant::from_ns(t),
-            scheduled_start: ecsync_dc::time::MasterInstant::from_ns(t),
-            send: ecsync_dc::time::MasterInstant::from_ns(t + 20_000 + (i * 7919) % 3_000),
-            receive: ecsync_dc::time::MasterInstant::from_ns(t + 60_000),
+            nominal_start: MasterInstant::from_ns(t),
+            scheduled_start: MasterInstant::from_ns(t),
+            send: MasterInstant::from_ns(t + 20_000 + (i * 7919) % 3_000),
+            receive: MasterInstant::from_ns(t + 60_000),
             ref_time: if i % 1000 == 999 {
                 None
             } else {
-                Some(ecsync_dc::time::SystemTime::from_ns(t + 35_000 + i % 13))
+                Some(SystemTime::from_ns(t + 35_000 + i % 13))
             },
         };
         std::hint::black_box(s.update(&input));

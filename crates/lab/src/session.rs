@@ -10,7 +10,7 @@
 
 use ecsync_dc::sync::MasterSync;
 use ecsync_dc::time::{MasterDuration, MasterInstant};
-use ecsync_master::cyclic::{CyclicConfig, CyclicEngine, first_cycle_start_ns};
+use ecsync_master::cyclic::{CyclicConfig, CyclicEngine, first_cycle_start};
 use ecsync_master::driver::{CycleReport, CyclicDriver, CyclicLimits, Stopped};
 use ecsync_master::network::Network;
 use ecsync_master::recovery::RecoveryConfig;
@@ -35,7 +35,7 @@ impl<Tr, F: FnMut(&mut Tr, &CycleReport)> CycleObserver<Tr> for F {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Aim {
     /// At the target phase of the reference's SYNC0 grid, where the bring-up's last reading
-    /// put it against the master's clock (see [`first_cycle_start_ns`]), `lead_ns` early: the
+    /// put it against the master's clock (see [`first_cycle_start`]), `lead` early: the
     /// mean time from the cycle's start to the frame's arrival at the reference that the
     /// master knows of its own host.
     ReferenceGrid {
@@ -79,7 +79,7 @@ pub enum SessionError {
 pub struct Session<S: MasterSync> {
     engine: CyclicEngine<S>,
     driver: CyclicDriver,
-    first_ns: u64,
+    first: MasterInstant,
 }
 
 /// The cyclic frames' layout for `net` (the reference's station and offset, the process
@@ -114,22 +114,22 @@ impl<S: MasterSync> Session<S> {
         limits: impl FnOnce(&CyclicEngine<S>) -> CyclicLimits,
     ) -> Result<Self, SessionError> {
         let cyc = cyclic_config(net, cfg.cycle_ns, cfg.measure_init_frames)?;
-        let first_ns = match aim {
+        let first = match aim {
             Aim::ReferenceGrid {
                 now,
                 target_phase_ns,
                 lead,
-            } => first_cycle_start_ns(
-                now.as_ns(),
+            } => first_cycle_start(
+                now,
                 net.reference_reading,
                 method.reference_write_kind(),
                 cfg.cycle_ns,
                 target_phase_ns,
-                lead.as_ns(),
+                lead,
             ),
-            Aim::At(t) => t.as_ns(),
+            Aim::At(t) => t,
         };
-        let engine = CyclicEngine::new(method, cyc, first_ns).map_err(SessionError::Frame)?;
+        let engine = CyclicEngine::new(method, cyc, first).map_err(SessionError::Frame)?;
         let mut driver = CyclicDriver::new(limits(&engine));
         if let Some(r) = cfg.recovery {
             driver.set_recovery(net.clone(), r);
@@ -137,7 +137,7 @@ impl<S: MasterSync> Session<S> {
         Ok(Session {
             engine,
             driver,
-            first_ns,
+            first,
         })
     }
 
@@ -145,8 +145,9 @@ impl<S: MasterSync> Session<S> {
     /// (before a session starts: where its first cycle is aimed may depend on it).
     pub fn first_frame_len(net: &Network, method: S, cycle_ns: u32) -> Result<usize, SessionError> {
         let cyc = cyclic_config(net, cycle_ns, 1)?;
-        let mut probe = CyclicEngine::new(method, cyc, 0).map_err(SessionError::Frame)?;
-        Ok(probe.frame_to_send(0).len())
+        let mut probe = CyclicEngine::new(method, cyc, MasterInstant::default())
+            .map_err(SessionError::Frame)?;
+        Ok(probe.frame_to_send(MasterInstant::default()).len())
     }
 
     /// Runs up to `slice` more cycles, or until a limit, the stop flag or the network's loss
@@ -180,6 +181,6 @@ impl<S: MasterSync> Session<S> {
 
     /// The first cycle's scheduled start.
     pub fn first(&self) -> MasterInstant {
-        MasterInstant::from_ns(self.first_ns)
+        self.first
     }
 }

@@ -3,7 +3,7 @@
 //! (LRW) and the system time difference of the slaves (BRD of 0x092C, as the letter reads it),
 //! and a [`MasterSync`] method deciding when the next cycle starts.
 //!
-//! Sans-IO and allocation-free per cycle: the driver asks [`CyclicEngine::scheduled_start_ns`]
+//! Sans-IO and allocation-free per cycle: the driver asks [`CyclicEngine::scheduled_start`]
 //! when to wake, timestamps right before sending, takes the frame from
 //! [`CyclicEngine::frame_to_send`], and hands the reply (or its loss) to
 //! [`CyclicEngine::complete`]. The same engine runs against the virtual segment and on a raw
@@ -15,15 +15,15 @@ use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
 };
-use ecsync_dc::time::{MasterInstant, SystemTime};
+use ecsync_dc::time::{MasterDuration, MasterInstant, SystemTime};
 use ecsync_wire::dc_time::diff_u64;
 use ecsync_wire::register as reg;
 use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, WireError};
 
-/// The master time at which the cyclic phase's first cycle starts: its frame, sent `lead_ns`
+/// The master time at which the cyclic phase's first cycle starts: its frame, sent `lead`
 /// after the cycle's start (the host's execution time, as far as the master knows it), passes
 /// the reference at a point of the reference's grid (the multiples of the period in its system
-/// time, on which SYNC0 fires) plus `target_phase_ns`: the second grid point after `now_ns`
+/// time, on which SYNC0 fires) plus `target_phase_ns`: the second grid point after `now`
 /// (more than one period and at most two after it, before the target and the lead).
 ///
 /// `reading` is where the bring-up last read the reference's time
@@ -32,14 +32,15 @@ use ecsync_wire::{Command, DATAGRAM_HEADER_LEN, DatagramAddress, FrameBuilder, W
 /// the master's time into the reference (`write` is [`ReferenceWrite::SystemTime`], the
 /// letter's bus shift) brings the reference's time back to the master's, so its frames aim at
 /// the master's grid; every other method aims at the reference's grid where it stands.
-pub fn first_cycle_start_ns(
-    now_ns: u64,
+pub fn first_cycle_start(
+    now: MasterInstant,
     reading: Option<ReferenceReading>,
     write: ReferenceWrite,
     period_ns: u32,
     target_phase_ns: i64,
-    lead_ns: u64,
-) -> u64 {
+    lead: MasterDuration,
+) -> MasterInstant {
+    let (now_ns, lead_ns) = (now.as_ns(), lead.as_ns());
     let p = u64::from(period_ns.max(1));
     let d = match (reading, write) {
         (Some(r), ReferenceWrite::None | ReferenceWrite::OffsetAdjust) => {
@@ -48,11 +49,13 @@ pub fn first_cycle_start_ns(
         (None, _) | (_, ReferenceWrite::SystemTime) => 0,
     };
     let reference_now = now_ns.wrapping_add(d);
-    (reference_now / p + 2)
-        .wrapping_mul(p)
-        .wrapping_add(target_phase_ns as u64)
-        .wrapping_sub(d)
-        .wrapping_sub(lead_ns)
+    MasterInstant::from_ns(
+        (reference_now / p + 2)
+            .wrapping_mul(p)
+            .wrapping_add(target_phase_ns as u64)
+            .wrapping_sub(d)
+            .wrapping_sub(lead_ns),
+    )
 }
 
 /// How the cyclic frame is laid out.
@@ -80,14 +83,14 @@ pub struct CyclicConfig {
 pub struct CycleRecord {
     /// Cycle index.
     pub cycle: u64,
-    /// `t_mt`: scheduled start, master time, ns.
-    pub scheduled_ns: u64,
-    /// `t_ms`: send timestamp, master time, ns.
-    pub send_ns: u64,
-    /// Reply arrival, master time, ns (`None`: lost).
-    pub receive_ns: Option<u64>,
+    /// `t_mt`: scheduled start.
+    pub scheduled: MasterInstant,
+    /// `t_ms`: send timestamp.
+    pub send: MasterInstant,
+    /// Reply arrival (`None`: lost).
+    pub receive: Option<MasterInstant>,
     /// `t_ra`: the reference's system time from the FRMW, 64-bit.
-    pub ref_time_ns: Option<u64>,
+    pub ref_time: Option<SystemTime>,
     /// The BRD of 0x092C as returned (the OR of every slave's register).
     pub brd_092c_raw: Option<u32>,
     /// Its magnitude (bits 30:0), ns: the letter's rS-IS error.
@@ -301,8 +304,9 @@ fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<Fram
 }
 
 impl<S: MasterSync> CyclicEngine<S> {
-    /// An engine whose first cycle starts at master time `first_start_ns`.
-    pub fn new(sync: S, cfg: CyclicConfig, first_start_ns: u64) -> Result<Self, WireError> {
+    /// An engine whose first cycle starts at `first_start`.
+    pub fn new(sync: S, cfg: CyclicConfig, first_start: MasterInstant) -> Result<Self, WireError> {
+        let first_start_ns = first_start.as_ns();
         let bus_register = match sync.reference_write_kind() {
             ReferenceWrite::None => None,
             ReferenceWrite::SystemTime => Some(reg::DC_SYSTEM_TIME),
@@ -393,9 +397,9 @@ impl<S: MasterSync> CyclicEngine<S> {
         &self.cfg
     }
 
-    /// When the current cycle is scheduled to start (wake the task then), master time, ns.
-    pub fn scheduled_start_ns(&self) -> u64 {
-        self.scheduled_ns
+    /// When the current cycle is scheduled to start (wake the task then).
+    pub fn scheduled_start(&self) -> MasterInstant {
+        MasterInstant::from_ns(self.scheduled_ns)
     }
 
     /// The cycle about to run.
@@ -499,23 +503,23 @@ impl<S: MasterSync> CyclicEngine<S> {
         }
     }
 
-    /// The (first) frame to send now; `send_ns` is the timestamp taken right before sending
+    /// The (first) frame to send now; `send` is the timestamp taken right before sending
     /// (bus shift writes it to the reference).
-    pub fn frame_to_send(&mut self, send_ns: u64) -> &mut [u8] {
-        self.frame_to_send_of(0, send_ns)
+    pub fn frame_to_send(&mut self, send: MasterInstant) -> &mut [u8] {
+        self.frame_to_send_of(0, send)
     }
 
     /// Frame `k` to send now (the bus-shift write is in the first).
-    pub fn frame_to_send_of(&mut self, k: usize, send_ns: u64) -> &mut [u8] {
+    pub fn frame_to_send_of(&mut self, k: usize, send: MasterInstant) -> &mut [u8] {
         let mut frame = std::mem::take(&mut self.frames[k]);
-        self.write_frame(k, send_ns, &mut frame);
+        self.write_frame(k, send, &mut frame);
         self.frames[k] = frame;
         &mut self.frames[k]
     }
 
-    /// Writes frame `k`, sent at `send_ns`, into `out` ([`CyclicEngine::frame_len_of`] bytes):
+    /// Writes frame `k`, sent at `send`, into `out` ([`CyclicEngine::frame_len_of`] bytes):
     /// the cyclic driver builds it in the transport's buffer.
-    pub fn write_frame(&mut self, k: usize, send_ns: u64, out: &mut [u8]) {
+    pub fn write_frame(&mut self, k: usize, send: MasterInstant, out: &mut [u8]) {
         let tag = self.tag_of(self.cycle, k);
         let plan = &self.plans[k];
         out.copy_from_slice(&plan.template);
@@ -530,7 +534,9 @@ impl<S: MasterSync> CyclicEngine<S> {
                 .set_command(Command::Fprd);
         }
         // (A step of the master's clock is taken out: the reference keeps the timeline.)
-        let send_ns = send_ns.wrapping_sub(self.health.master_clock_correction_ns as u64);
+        let send_ns = send
+            .as_ns()
+            .wrapping_sub(self.health.master_clock_correction_ns as u64);
         let kind = self.sync.reference_write_kind();
         let hold_write = match kind {
             ReferenceWrite::OffsetAdjust => {
@@ -559,20 +565,25 @@ impl<S: MasterSync> CyclicEngine<S> {
     }
 
     /// Completes a cycle of one frame with its reply (`None` if the frame was lost).
-    pub fn complete(&mut self, reply: Option<&[u8]>, send_ns: u64, receive_ns: u64) -> CycleRecord {
-        self.complete_frames(&[reply], send_ns, receive_ns)
+    pub fn complete(
+        &mut self,
+        reply: Option<&[u8]>,
+        send: MasterInstant,
+        receive: MasterInstant,
+    ) -> CycleRecord {
+        self.complete_frames(&[reply], send, receive)
     }
 
     /// Completes the cycle with the replies of its frames in order (`None` for a lost one):
     /// reads the reference time, the system time difference and the working counters, runs the
-    /// method and schedules the next cycle. `send_ns` is the first frame's send timestamp.
+    /// method and schedules the next cycle. `send` is the first frame's send timestamp.
     pub fn complete_frames(
         &mut self,
         replies: &[Option<&[u8]>],
-        send_ns: u64,
-        receive_ns: u64,
+        send: MasterInstant,
+        receive: MasterInstant,
     ) -> CycleRecord {
-        self.complete_by(|k| replies.get(k).copied().flatten(), send_ns, receive_ns)
+        self.complete_by(|k| replies.get(k).copied().flatten(), send, receive)
     }
 
     /// [`CyclicEngine::complete_frames`] with frame `k`'s reply from `reply(k)` (no list to
@@ -580,13 +591,14 @@ impl<S: MasterSync> CyclicEngine<S> {
     pub fn complete_by<'r>(
         &mut self,
         reply: impl Fn(usize) -> Option<&'r [u8]>,
-        send_ns: u64,
-        receive_ns: u64,
+        send: MasterInstant,
+        receive: MasterInstant,
     ) -> CycleRecord {
+        let (send_ns, receive_ns) = (send.as_ns(), receive.as_ns());
         let mut rec = CycleRecord {
             cycle: self.cycle,
-            scheduled_ns: self.scheduled_ns,
-            send_ns,
+            scheduled: MasterInstant::from_ns(self.scheduled_ns),
+            send: MasterInstant::from_ns(send_ns),
             ..CycleRecord::default()
         };
         // The engine runs on the master's clock with its steps taken out (the correction as
@@ -637,7 +649,7 @@ impl<S: MasterSync> CyclicEngine<S> {
                     let round_trip_ns = raw_receive_ns.wrapping_sub(raw_send_ns);
                     let belief = self.believe_reference(t, send_ns, round_trip_ns, outage);
                     if belief != Belief::Rejected {
-                        rec.ref_time_ns = Some(t);
+                        rec.ref_time = Some(SystemTime::from_ns(t));
                     }
                     if belief == Belief::Anchor {
                         self.last_ref_ns = Some(t);
@@ -667,7 +679,7 @@ impl<S: MasterSync> CyclicEngine<S> {
         }
         rec.reference_held = self.health.reference_held;
         // Received when every frame came back (a cycle with a lost frame is a lost cycle).
-        rec.receive_ns = all.then_some(receive_ns);
+        rec.receive = all.then_some(MasterInstant::from_ns(receive_ns));
         self.plans = plans;
         if self.plans.iter().all(|p| p.lrw_wkc_at.is_empty()) {
             lrw_wkc = None;
@@ -689,13 +701,17 @@ impl<S: MasterSync> CyclicEngine<S> {
             )),
             send: MasterInstant::from_ns(send_ns),
             receive: MasterInstant::from_ns(receive_ns),
-            ref_time: rec.ref_time_ns.map(SystemTime::from_ns),
+            ref_time: rec.ref_time,
         };
         rec.output = self.sync.update(&input);
         rec.log = self.sync.controller_log();
         // The letter's M-rS error (not in a cycle whose send the master's clock may have
         // stepped under: its time is not known until the next cycle says).
-        if let Some(t_ra) = rec.ref_time_ns.filter(|_| self.pending_step_ns.is_none()) {
+        if let Some(t_ra) = rec
+            .ref_time
+            .map(SystemTime::as_ns)
+            .filter(|_| self.pending_step_ns.is_none())
+        {
             if self.sync.is_master_shift() {
                 if self.cycle < self.cfg.measure_init_frames {
                     self.h_sum += i128::from(diff_u64(send_ns, t_ra));

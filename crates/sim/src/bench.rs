@@ -8,6 +8,7 @@
 use crate::frame_wire_time_ps;
 use crate::transport::SimTransport;
 use crate::{Segment, SlaveSpec, preset};
+use ecsync_dc::time::MasterInstant;
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::io::{Engine, MASTER_MAC};
@@ -87,10 +88,14 @@ impl CycleBench {
             reference_offset_ns: 0,
             lrw: net.lrw.clone(),
         };
-        let mut eng = CyclicEngine::new(ecsync_dc::MedianSync::default(), cfg, 0)
-            .expect("the engine plans the frames");
+        let mut eng = CyclicEngine::new(
+            ecsync_dc::MedianSync::default(),
+            cfg,
+            MasterInstant::from_ns(0),
+        )
+        .expect("the engine plans the frames");
         let frames: Vec<Vec<u8>> = (0..eng.frame_count())
-            .map(|k| eng.frame_to_send_of(k, 0).to_vec())
+            .map(|k| eng.frame_to_send_of(k, MasterInstant::from_ns(0)).to_vec())
             .collect();
         let lrw_wkc_at = (0..frames.len())
             .flat_map(|k| eng.lrw_wkc_offsets(k).iter().map(move |&at| (k, at)))

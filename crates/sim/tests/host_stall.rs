@@ -32,7 +32,12 @@ fn a_stall_of_two_and_a_half_periods_skips_two_cycles_and_sends_no_burst() {
         lrw: net.lrw.clone(),
     };
     let first = (sim.now().as_ns() / period + 2) * period;
-    let mut eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+    let mut eng = CyclicEngine::new(
+        MedianSync::new(11, 0.01, 2),
+        cyc,
+        ecsync_dc::time::MasterInstant::from_ns(first),
+    )
+    .unwrap();
     let mut tr = HostStall::new(
         sim,
         5,
@@ -45,7 +50,7 @@ fn a_stall_of_two_and_a_half_periods_skips_two_cycles_and_sends_no_burst() {
     let mut seen = Vec::new();
     driver
         .run(&mut tr, &mut eng, u64::MAX, None, |_, c| {
-            seen.push((c.record.cycle, c.skipped_before, c.record.send_ns));
+            seen.push((c.record.cycle, c.skipped_before, c.record.send.as_ns()));
         })
         .unwrap();
     let cycles: Vec<u64> = seen.iter().map(|s| s.0).collect();

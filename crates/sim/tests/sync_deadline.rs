@@ -94,7 +94,12 @@ fn paper_2024_in_op_with(
     // Sent at the grid point: the frames pass the drives a few us after it, ~295 us before
     // SYNC0.
     let first = (sim.now().as_ns() / PERIOD_NS + 2) * PERIOD_NS;
-    let eng = CyclicEngine::new(MedianSync::new(11, 0.01, 2), cyc, first).unwrap();
+    let eng = CyclicEngine::new(
+        MedianSync::new(11, 0.01, 2),
+        cyc,
+        MasterInstant::from_ns(first),
+    )
+    .unwrap();
     (sim, net, eng)
 }
 

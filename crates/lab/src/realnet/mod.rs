@@ -120,10 +120,10 @@ impl CycleObserver<RealLink> for RealCycles {
         self.skipped += c.skipped_before;
         let r = &c.record;
         self.wake.add(c.wake_latency_ns as f64);
-        if let (Some(t), Some(_), false) = (r.ref_time_ns, r.receive_ns, r.reference_held) {
-            self.ref_rate.add(r.send_ns, t);
+        if let (Some(t), Some(_), false) = (r.ref_time, r.receive, r.reference_held) {
+            self.ref_rate.add(r.send.as_ns(), t.as_ns());
         }
-        let w2s = c.stamp.as_ns().wrapping_sub(r.scheduled_ns) as i64 as f64;
+        let w2s = c.stamp.signed_since(r.scheduled) as f64;
         if c.skipped_before == 0 {
             if self.control.spins(r.cycle) {
                 self.wake_to_send_spin.add(w2s);
@@ -132,7 +132,7 @@ impl CycleObserver<RealLink> for RealCycles {
             }
         }
         self.held += u64::from(r.reference_held);
-        if r.receive_ns.is_none() {
+        if r.receive.is_none() {
             self.lost += 1;
         } else {
             if r.lrw_wkc != Some(self.expected_wkc) && self.pdi_len > 0 {

@@ -3,7 +3,7 @@
 
 use crate::stats::{Stats, Summary};
 use ecsync_dc::fit::LineFit;
-use ecsync_dc::time::MasterDuration;
+use ecsync_dc::time::{MasterDuration, SystemTime};
 use ecsync_master::bringup::DcCapability;
 use ecsync_master::driver::{CycleReport, ExchangeStats};
 use ecsync_master::network::Network;
@@ -362,14 +362,14 @@ fn field<T: std::fmt::Display>(w: &mut impl Write, v: Option<T>, sep: char) -> s
 /// One cycle as a row of the per-cycle CSV ([`CSV_HEADER`]).
 pub fn csv_row(w: &mut impl Write, c: &CycleReport) -> std::io::Result<()> {
     let r = &c.record;
-    write!(w, "{},{},{},", r.cycle, r.scheduled_ns, r.send_ns)?;
-    field(w, r.ref_time_ns, ',')?;
+    write!(w, "{},{},{},", r.cycle, r.scheduled.as_ns(), r.send.as_ns())?;
+    field(w, r.ref_time.map(SystemTime::as_ns), ',')?;
     write!(w, "{},{},", r.output.error_ns, r.output.correction_ns)?;
     field(w, r.rs_is_ns, ',')?;
     field(w, r.lrw_wkc, ',')?;
     write!(w, "{},", c.wake_latency_ns)?;
     field(w, c.round_trip.map(MasterDuration::as_ns), ',')?;
-    write!(w, "{},", u8::from(r.receive_ns.is_none()))?;
+    write!(w, "{},", u8::from(r.receive.is_none()))?;
     // The host's twin (`ecsync host fit` reads these as a trace): wake-up to the send
     // timestamp, and the send timestamp to the transport's TX stamp.
     write!(w, "{},", c.stamp.saturating_since(c.woke).as_ns())?;

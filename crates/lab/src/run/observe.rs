@@ -189,7 +189,7 @@ impl FaultWatch {
             self.events_seen = p.events().len();
         }
         for w in ft.windows.iter_mut().filter(|w| sent_ps < w.until_ps) {
-            let v = match (rec.receive_ns, rec.rs_is_ns) {
+            let v = match (rec.receive, rec.rs_is_ns) {
                 (Some(_), Some(v)) => v as f32,
                 _ => f32::NAN,
             };
@@ -202,7 +202,7 @@ impl FaultWatch {
         // small before anyone writes it a time), every slave's process data there. Whether it
         // is locked is judged at the end, against the bands the method holds outside the
         // faults.
-        let running = match (rec.receive_ns, rec.rs_is_ns) {
+        let running = match (rec.receive, rec.rs_is_ns) {
             (Some(_), Some(v)) => {
                 ft.max_rs_is_ns = ft.max_rs_is_ns.max(v);
                 let wkc_ok = pdi_len == 0 || rec.lrw_wkc == Some(expected_wkc);
@@ -216,7 +216,7 @@ impl FaultWatch {
         };
         self.lock_samples.push(LockSample {
             sent_ps,
-            rs_is_ns: match (rec.receive_ns, rec.rs_is_ns) {
+            rs_is_ns: match (rec.receive, rec.rs_is_ns) {
                 (Some(_), Some(v)) => v as f32,
                 (Some(_), None) => f32::INFINITY,
                 (None, _) => f32::NAN,
@@ -541,7 +541,7 @@ impl Observers {
             } else if self.was_in_sync {
                 t.sync_losses += 1;
             }
-            if !c.valid && rec.receive_ns.is_some() {
+            if !c.valid && rec.receive.is_some() {
                 t.invalid_errors += 1;
             }
             t.in_sync_at_end = c.in_sync;
@@ -556,7 +556,7 @@ impl Observers {
         res.cycles_done = k + 1;
         self.controller(rec);
         let res = &mut self.res;
-        if rec.receive_ns.is_none() {
+        if rec.receive.is_none() {
             res.lost_frames += 1;
             if let Some(sk) = self.samples.as_mut() {
                 sk.lost(k);

@@ -239,7 +239,7 @@ impl CycleObserver<TsnNetwork<'_>> for VariantTruth {
             return;
         }
         let k = i - self.warmup;
-        if rec.receive_ns.is_none() {
+        if rec.receive.is_none() {
             self.lost += 1;
             return;
         }

@@ -1,4 +1,5 @@
 use super::*;
+use ecsync_dc::time::{MasterInstant, SystemTime};
 use ecsync_dc::{BusShift, MedianSync};
 
 #[test]
@@ -11,8 +12,11 @@ fn frame_layout_and_bus_shift_write() {
         reference_offset_ns: 0,
         lrw: Vec::new(),
     };
-    let mut e = CyclicEngine::new(BusShift::default(), cfg.clone(), 0).unwrap();
-    let f = e.frame_to_send(0x1122_3344_5566_7788).to_vec();
+    let mut e =
+        CyclicEngine::new(BusShift::default(), cfg.clone(), MasterInstant::from_ns(0)).unwrap();
+    let f = e
+        .frame_to_send(MasterInstant::from_ns(0x1122_3344_5566_7788))
+        .to_vec();
     let fr = ecsync_wire::EcatFrame::new_checked(&f[..]).unwrap();
     let cmds: Vec<_> = fr
         .datagrams()
@@ -24,7 +28,7 @@ fn frame_layout_and_bus_shift_write() {
     );
     let d0 = fr.datagrams().next().unwrap().unwrap();
     assert_eq!(d0.data(), &0x1122_3344_5566_7788u64.to_le_bytes());
-    let m = CyclicEngine::new(MedianSync::default(), cfg, 0).unwrap();
+    let m = CyclicEngine::new(MedianSync::default(), cfg, MasterInstant::from_ns(0)).unwrap();
     assert_eq!(m.frame_len(), f.len() - 20, "no FPWR for master shift");
 }
 
@@ -46,7 +50,7 @@ fn reply_with_reference_time<S: MasterSync>(
     send: u64,
     raw: u64,
 ) -> Vec<u8> {
-    let mut f = e.frame_to_send(send).to_vec();
+    let mut f = e.frame_to_send(MasterInstant::from_ns(send)).to_vec();
     let at = e.plans[0].frmw_data_at.unwrap();
     f[at..at + 8].copy_from_slice(&raw.to_le_bytes());
     f[at + 8..at + 10].copy_from_slice(&1u16.to_le_bytes());
@@ -65,7 +69,7 @@ impl MasterSync for DropsACycle {
         let p = u64::from(input.period_ns);
         let next = input.nominal_start.as_ns() + p + if input.cycle >= 2 { p } else { 0 };
         CycleOutput {
-            next_start: ecsync_dc::time::MasterInstant::from_ns(next),
+            next_start: MasterInstant::from_ns(next),
             ..CycleOutput::default()
         }
     }
@@ -75,14 +79,21 @@ impl MasterSync for DropsACycle {
 fn a_dropped_cycle_is_no_phase_error() {
     let p = 1_000_000u64;
     let cfg = no_image_config(p);
-    let mut e = CyclicEngine::new(DropsACycle, cfg, 10 * p).unwrap();
+    let mut e = CyclicEngine::new(DropsACycle, cfg, MasterInstant::from_ns(10 * p)).unwrap();
     let mut m_rs = Vec::new();
     for _ in 0..6 {
         // The frame leaves 20 us after the scheduled start and reaches the reference 7 us
         // later on its grid (reference time = master time + 3 ns).
-        let send = e.scheduled_start_ns() + 20_000;
+        let send = e.scheduled_start().as_ns() + 20_000;
         let f = reply_with_reference_time(&mut e, send, send + 7_003);
-        m_rs.push(e.complete(Some(&f), send, send + 50_000).m_rs_ns);
+        m_rs.push(
+            e.complete(
+                Some(&f),
+                MasterInstant::from_ns(send),
+                MasterInstant::from_ns(send + 50_000),
+            )
+            .m_rs_ns,
+        );
     }
     // Cycles 0-1 average h_mr; from cycle 3 on every start is a period later than the
     // nominal grid: still the same phase of the reference's grid, so φ stays 0.
@@ -97,7 +108,8 @@ fn a_dropped_cycle_is_no_phase_error() {
 fn a_bus_shift_write_that_left_late_is_no_master_clock_step() {
     let p = 1_000_000u64;
     let cfg = no_image_config(p);
-    let mut e = CyclicEngine::new(BusShift::default(), cfg, 10 * p).unwrap();
+    let mut e =
+        CyclicEngine::new(BusShift::default(), cfg, MasterInstant::from_ns(10 * p)).unwrap();
     // (wake-up after the schedule, reference time - send, round trip), us; from the run.
     let late = [(163, 113, 191), (74, 1, 205)];
     for i in 0..40 {
@@ -105,15 +117,19 @@ fn a_bus_shift_write_that_left_late_is_no_master_clock_step() {
             20 | 21 => late[i - 20],
             _ => (60, 1, 70),
         };
-        let send = e.scheduled_start_ns() + wake * 1000;
+        let send = e.scheduled_start().as_ns() + wake * 1000;
         let f = reply_with_reference_time(&mut e, send, send + ahead * 1000);
-        let r = e.complete(Some(&f), send, send + trip * 1000);
-        assert!(r.ref_time_ns.is_some(), "cycle {i}: the time is used");
+        let r = e.complete(
+            Some(&f),
+            MasterInstant::from_ns(send),
+            MasterInstant::from_ns(send + trip * 1000),
+        );
+        assert!(r.ref_time.is_some(), "cycle {i}: the time is used");
     }
     assert_eq!(e.health().master_clock_steps, 0, "{:?}", e.health());
     assert_eq!(e.health().master_clock_correction_ns, 0);
     // Every start on the nominal grid: the schedule was not moved.
-    assert_eq!(e.scheduled_start_ns(), 50 * p);
+    assert_eq!(e.scheduled_start().as_ns(), 50 * p);
 }
 
 /// A host stall of 3 s: the engine skips the 3000 slots, the median method keeps its phase
@@ -126,21 +142,29 @@ fn skipped_cycles_keep_the_phase_and_the_reference_time() {
     let median = MedianSync::new(11, 0.01, 2);
     // The reference's 32-bit time wraps during the stall.
     let first = (1u64 << 32) * 7 - 6 * p;
-    let mut e = CyclicEngine::new(median, cfg, first).unwrap();
+    let mut e = CyclicEngine::new(median, cfg, MasterInstant::from_ns(first)).unwrap();
     let mut seen = Vec::new();
     for i in 0..8 {
         if i == 5 {
             e.skip_cycles(3000);
             assert_eq!(e.cycle(), 3005);
-            assert_eq!(e.scheduled_start_ns(), first + 3005 * p);
+            assert_eq!(e.scheduled_start().as_ns(), first + 3005 * p);
         }
-        let send = e.scheduled_start_ns() + 20_000;
+        let send = e.scheduled_start().as_ns() + 20_000;
         let t_ra = send + 7_003;
         // The first reply has the full time; a 32-bit reference's later ones only the low half.
         let raw = if i == 0 { t_ra } else { u64::from(t_ra as u32) };
         let f = reply_with_reference_time(&mut e, send, raw);
-        let r = e.complete(Some(&f), send, send + 50_000);
-        seen.push((r.cycle, r.ref_time_ns == Some(t_ra), r.m_rs_ns));
+        let r = e.complete(
+            Some(&f),
+            MasterInstant::from_ns(send),
+            MasterInstant::from_ns(send + 50_000),
+        );
+        seen.push((
+            r.cycle,
+            r.ref_time.map(SystemTime::as_ns) == Some(t_ra),
+            r.m_rs_ns,
+        ));
     }
     let cycles: Vec<u64> = seen.iter().map(|s| s.0).collect();
     assert_eq!(cycles, [0, 1, 2, 3, 4, 3005, 3006, 3007]);
@@ -168,11 +192,11 @@ fn a_large_image_takes_several_frames() {
         reference_offset_ns: 0,
         lrw: lrw.clone(),
     };
-    let mut e = CyclicEngine::new(MedianSync::default(), cfg, 0).unwrap();
+    let mut e = CyclicEngine::new(MedianSync::default(), cfg, MasterInstant::from_ns(0)).unwrap();
     let n = e.frame_count();
     assert!(n >= 5, "{n}");
     let cmds = |k: usize, e: &mut CyclicEngine<MedianSync>| -> Vec<Command> {
-        let f = e.frame_to_send_of(k, 0).to_vec();
+        let f = e.frame_to_send_of(k, MasterInstant::from_ns(0)).to_vec();
         ecsync_wire::EcatFrame::new_checked(&f[..])
             .unwrap()
             .datagrams()
@@ -198,7 +222,9 @@ fn a_large_image_takes_several_frames() {
     assert!(e.frame_of_logical(6799).is_some());
     assert_eq!(e.frame_of_logical(6800), None);
     // Replies carry each chunk's expected working counter: the record sums them.
-    let mut replies: Vec<Vec<u8>> = (0..n).map(|k| e.frame_to_send_of(k, 0).to_vec()).collect();
+    let mut replies: Vec<Vec<u8>> = (0..n)
+        .map(|k| e.frame_to_send_of(k, MasterInstant::from_ns(0)).to_vec())
+        .collect();
     let mut k_chunk = 0;
     for (k, r) in replies.iter_mut().enumerate() {
         for &w in &e.plans[k].lrw_wkc_at {
@@ -208,13 +234,21 @@ fn a_large_image_takes_several_frames() {
     }
     assert_eq!(k_chunk, lrw.len());
     let views: Vec<Option<&[u8]>> = replies.iter().map(|r| Some(&r[..])).collect();
-    let rec = e.complete_frames(&views, 10, 20);
+    let rec = e.complete_frames(
+        &views,
+        MasterInstant::from_ns(10),
+        MasterInstant::from_ns(20),
+    );
     assert_eq!(rec.lrw_wkc, Some(600));
-    assert_eq!(rec.receive_ns, Some(20));
+    assert_eq!(rec.receive.map(MasterInstant::as_ns), Some(20));
     // One frame lost: the cycle is lost.
     let mut views = views;
     views[1] = None;
-    let rec = e.complete_frames(&views, 10, 20);
-    assert_eq!(rec.receive_ns, None);
+    let rec = e.complete_frames(
+        &views,
+        MasterInstant::from_ns(10),
+        MasterInstant::from_ns(20),
+    );
+    assert_eq!(rec.receive, None);
     assert_eq!(rec.lrw_wkc, None);
 }

@@ -286,7 +286,7 @@ impl CyclicDriver {
         mut on_cycle: impl FnMut(&mut Tr, &CycleReport),
     ) -> Result<Option<Stopped>, Tr::Error> {
         let period_ns = u64::from(eng.config().period_ns.max(1));
-        let start = *self.start_ns.get_or_insert(eng.scheduled_start_ns());
+        let start = *self.start_ns.get_or_insert(eng.scheduled_start().as_ns());
         for _ in 0..slice {
             if let Some(why) = self.stop_reason(eng, start, stop) {
                 return Ok(Some(why));
@@ -322,8 +322,10 @@ impl CyclicDriver {
             // The rest of the cycle is the recovery's, up to a quarter cycle before the next
             // slot: its frames one after the other (a static drift compensation of a reset
             // slave is thousands of them).
-            let until = eng.scheduled_start_ns().saturating_sub(period_ns / 4);
-            self.recovery_burst(tr, eng, MasterInstant::from_ns(until))?;
+            let until = eng
+                .scheduled_start()
+                .saturating_sub(MasterDuration::from_ns(period_ns / 4));
+            self.recovery_burst(tr, eng, until)?;
             if self.lost_row >= self.limits.lost_in_a_row.max(1) {
                 return Ok(Some(Stopped::NetworkGone {
                     last_good_cycle: self.last_good,
@@ -348,7 +350,7 @@ impl CyclicDriver {
         if self.limits.max_cycles.is_some_and(|m| self.cycles >= m) {
             return Some(Stopped::Cycles);
         }
-        let scheduled = eng.scheduled_start_ns();
+        let scheduled = eng.scheduled_start().as_ns();
         self.limits
             .duration
             .is_some_and(|d| scheduled.wrapping_sub(start) >= d.as_ns())
@@ -363,7 +365,7 @@ impl CyclicDriver {
         eng: &mut CyclicEngine<S>,
         period_ns: u64,
     ) -> (MasterInstant, MasterInstant, u64) {
-        let scheduled = MasterInstant::from_ns(eng.scheduled_start_ns());
+        let scheduled = eng.scheduled_start();
         tr.start_cycle(eng.cycle());
         tr.sleep_until(scheduled);
         let woke = tr.now();
@@ -389,7 +391,7 @@ impl CyclicDriver {
         for k in 0..eng.frame_count() {
             let len = eng.frame_len_of(k);
             let at = tr.send_time(len);
-            let s = tr.send_with(len, at, |buf| eng.write_frame(k, at.as_ns(), buf))?;
+            let s = tr.send_with(len, at, |buf| eng.write_frame(k, at, buf))?;
             if k == 0 {
                 sent = s;
             }
@@ -497,7 +499,9 @@ impl CyclicDriver {
         for r in self.replies.iter_mut() {
             r.1 = None;
         }
-        let next_slot = MasterInstant::from_ns(eng.scheduled_start_ns().saturating_add(period_ns));
+        let next_slot = eng
+            .scheduled_start()
+            .saturating_add(MasterDuration::from_ns(period_ns));
         let deadline = sent
             .saturating_add(self.limits.reply_timeout)
             .min(next_slot.max(sent));
@@ -592,30 +596,29 @@ impl CyclicDriver {
         last: Option<Received>,
         sent: MasterInstant,
     ) -> (CycleRecord, Option<MasterInstant>, Option<MasterDuration>) {
-        let sent_ns = sent.as_ns();
         let replies = &self.replies;
         let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
         if pending == 0 {
             let r = last.expect("every frame answered");
-            let t_ms = match (self.limits.t_ms_from_tx_stamp, r.tx_stamp_ns()) {
-                (false, _) => sent_ns,
+            let t_ms = match (self.limits.t_ms_from_tx_stamp, r.tx_stamp) {
+                (false, _) => sent,
                 (true, Some(t)) => {
                     self.t_ms_sources.0 += 1;
                     t
                 }
                 (true, None) => {
                     self.t_ms_sources.1 += 1;
-                    sent_ns
+                    sent
                 }
             };
-            let rec = eng.complete_by(views, t_ms, r.received_ns());
+            let rec = eng.complete_by(views, t_ms, r.received);
             self.lost_row = 0;
             self.last_good = Some(rec.cycle);
             (rec, r.tx_stamp, Some(r.received.saturating_since(sent)))
         } else {
             self.lost_row += 1;
-            let now = tr.now().as_ns();
-            (eng.complete_by(views, sent_ns, now), None, None)
+            let now = tr.now();
+            (eng.complete_by(views, sent, now), None, None)
         }
     }
 }
