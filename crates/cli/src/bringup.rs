@@ -2,6 +2,7 @@
 
 use crate::source::SourceArgs;
 use anyhow::{Context, Result};
+use ecsync_dc::time::MasterInstant;
 use ecsync_master::bringup::{DcCapability, Stage};
 use ecsync_master::{BringupConfig, Engine, Event, bringup};
 use ecsync_sim::Segment;
@@ -183,8 +184,11 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let lock_start_ps = net
         .lock
         .time_to_lock_ns
-        .map(|t| sim.real_ps_at(net.lock.drift_start_ns + t));
-    let declared_ps = net.lock.declared_ns.map(|t| sim.real_ps_at(t));
+        .map(|t| sim.real_ps_at(MasterInstant::from_ns(net.lock.drift_start_ns + t)));
+    let declared_ps = net
+        .lock
+        .declared_ns
+        .map(|t| sim.real_ps_at(MasterInstant::from_ns(t)));
     let max_abs_diff_ns = max_after(declared_ps);
     let max_abs_diff_from_lock_start_ns = max_after(lock_start_ps);
     let out = Out {

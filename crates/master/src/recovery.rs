@@ -23,6 +23,7 @@ use crate::bringup::{BringupTimeouts, request_state};
 use crate::error::MasterError;
 use crate::io::{Link, Pdu};
 use crate::network::{DcCapability, Network, SlaveInfo};
+use ecsync_dc::time::SystemTime;
 use ecsync_wire::register as reg;
 use ecsync_wire::{AlControlRepr, AlState, Command, DatagramAddress};
 
@@ -347,7 +348,7 @@ async fn write_offsets(
                 .await?,
         );
         let delay = delay_of(s);
-        let offset = ecsync_dc::system_time_offset(ref_time, delay, local);
+        let offset = ecsync_dc::system_time_offset(SystemTime::from_ns(ref_time), delay, local);
         if pos == net.reference {
             reference_offset = Some(offset);
         }
@@ -454,8 +455,13 @@ async fn restart_sync0(
             .fprd(k.station, reg::DC_SYSTEM_TIME, 8, "read system time")
             .await?,
     );
-    let start =
-        ecsync_dc::sync0_start_time(now_sys, cfg.sync0_lead_ns, cfg.cycle_ns, cfg.sync0_shift_ns);
+    let start = ecsync_dc::sync0_start_time(
+        SystemTime::from_ns(now_sys),
+        cfg.sync0_lead_ns,
+        cfg.cycle_ns,
+        cfg.sync0_shift_ns,
+    )
+    .as_ns();
     for &pos in dc_reset {
         let st = info(net, pos).station;
         link.fpwr(st, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")

@@ -368,8 +368,13 @@ impl SimTransport {
         }
     }
 
-    /// Master clock now, ns.
-    pub fn master_now_ns(&mut self) -> u64 {
+    /// The master's clock now.
+    pub fn master_now(&mut self) -> MasterInstant {
+        MasterInstant::from_ns(self.master_now_ns())
+    }
+
+    /// The master's clock now, ns (the transport's own arithmetic).
+    fn master_now_ns(&mut self) -> u64 {
         match self.now_master_ns {
             Some(t) => t,
             None => {
@@ -379,9 +384,9 @@ impl SimTransport {
         }
     }
 
-    /// Real time (ps) at master time `t_ns`.
-    pub fn real_ps_at(&mut self, t_ns: u64) -> u64 {
-        self.master_clock.real_ps_at(t_ns)
+    /// Real time (ps) at which the master's clock reads `t`.
+    pub fn real_ps_at(&mut self, t: MasterInstant) -> u64 {
+        self.master_clock.real_ps_at(t.as_ns())
     }
 
     /// The segment, the transport consumed.
@@ -470,7 +475,7 @@ impl Transport for SimTransport {
             // The ideal master: its clock reaches `t_ns` (time always moves on, by a
             // nanosecond at least, so a procedure that waits on the present cannot stall it).
             None => {
-                let t_ps = self.real_ps_at(t_ns).max(self.now_ps + 1000);
+                let t_ps = self.master_clock.real_ps_at(t_ns).max(self.now_ps + 1000);
                 self.now_ps = t_ps;
                 self.now_master_ns = None;
             }
@@ -486,7 +491,7 @@ impl Transport for SimTransport {
         let at_ns = at.as_ns();
         let delays = self.delays.take();
         let tx_ps = match delays {
-            Some(d) => self.real_ps_at(at_ns) + (d.tx_ns * 1000.0) as u64,
+            Some(d) => self.master_clock.real_ps_at(at_ns) + (d.tx_ns * 1000.0) as u64,
             None => self.now_ps + self.tx_latency_ps,
         };
         // Frames leave one after the other.

@@ -270,7 +270,9 @@ fn a_large_lines_clocks_stay_together_through_the_configuration() {
         })
         .expect("bring-up");
     assert_eq!(net.reference, 0);
-    let declared_ps = sim.real_ps_at(net.lock.declared_ns.expect("DC declared in sync"));
+    let declared_ps = sim.real_ps_at(ecsync_dc::time::MasterInstant::from_ns(
+        net.lock.declared_ns.expect("DC declared in sync"),
+    ));
     let after: Vec<f64> = samples
         .iter()
         .filter(|(t, _)| *t >= declared_ps)

@@ -335,7 +335,9 @@ fn clocks_stay_together_from_the_lock_to_op() {
             })
             .expect("bring-up to OP");
         let reference = usize::from(net.reference);
-        let declared_ps = sim.real_ps_at(net.lock.declared_ns.expect("declared in sync"));
+        let declared_ps = sim.real_ps_at(ecsync_dc::time::MasterInstant::from_ns(
+            net.lock.declared_ns.expect("declared in sync"),
+        ));
         for (t_ps, times) in seen.iter().filter(|(t, _)| *t >= declared_ps) {
             let Some((r, rf, r_wide)) = times[reference] else {
                 continue;

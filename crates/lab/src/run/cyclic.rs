@@ -159,7 +159,7 @@ impl Run {
         // ideal host's few microseconds instead of the host model's, so the reading holds those
         // and the difference is taken off here.
         let aim = Aim::ReferenceGrid {
-            now: MasterInstant::from_ns(sim.master_now_ns()),
+            now: sim.master_now(),
             target_phase_ns: s.target_phase_ns,
             lead: MasterDuration::from_ns(
                 ((s.host.em_ns + s.host.tx_latency_ns) as u64)

@@ -631,7 +631,7 @@ impl CycleObserver<SimTransport> for Observers {
         // From the wire to the reply, late replies included (a reply that came after its
         // deadline still says how long the frame needs).
         if let Some(back) = tr.last_exchange().received_ps {
-            let sent = tr.real_ps_at(rep.stamp.as_ns());
+            let sent = tr.real_ps_at(rep.stamp);
             let rt = back.saturating_sub(sent) as f64 / 1000.0;
             self.res.max_round_trip_ns = self.res.max_round_trip_ns.max(rt);
         }

@@ -6,6 +6,7 @@ use crate::MasterError;
 use crate::io::{Event, Link, Pdu, PduReply};
 use crate::network::{DcCapability, LockReport, Phase, SlaveId, SlaveInfo};
 use ecsync_dc::LockDetector;
+use ecsync_dc::time::SystemTime;
 use ecsync_wire::register::{self as reg};
 use ecsync_wire::{Command, DatagramAddress, dc_time};
 
@@ -32,7 +33,11 @@ pub(super) async fn write_offsets(
             continue;
         }
         let delay = ecsync_dc::offset::round_ns(s.delay_ns.unwrap_or(0.0)).max(0);
-        let offset = ecsync_dc::system_time_offset(ref_time, delay, latch.pu_stamps_ns[i]);
+        let offset = ecsync_dc::system_time_offset(
+            SystemTime::from_ns(ref_time),
+            delay,
+            latch.pu_stamps_ns[i],
+        );
         s.offset = Some(offset);
         writes.push(Pdu::new(
             Command::Fpwr,

@@ -5,6 +5,7 @@ use super::config::{BringupConfig, BringupTimeouts};
 use crate::MasterError;
 use crate::io::{Link, Pdu, PduReply};
 use crate::network::{DcCapability, Phase, ReferenceReading, SlaveInfo, Sync0Config};
+use ecsync_dc::time::SystemTime;
 use ecsync_wire::register::{self as reg};
 use ecsync_wire::{
     AlControlRepr, AlState, AlStatus, AlStatusCode, Command, DatagramAddress, dc_time,
@@ -30,8 +31,13 @@ pub(super) async fn start_sync0(
         .map_err(|e| e.at(Phase::Sync0, dc.reference))?;
     let read_at_ns = link.now_ns();
     let now_sys = u64::from_le_bytes(now_sys[..8].try_into().unwrap_or([0; 8]));
-    let first_start =
-        ecsync_dc::sync0_start_time(now_sys, cfg.sync0_lead_ns, cfg.cycle_ns, cfg.sync0_shift_ns);
+    let first_start = ecsync_dc::sync0_start_time(
+        SystemTime::from_ns(now_sys),
+        cfg.sync0_lead_ns,
+        cfg.cycle_ns,
+        cfg.sync0_shift_ns,
+    )
+    .as_ns();
     let mut start = first_start;
     let mut sync0 = None;
     for s in slaves.iter().filter(|s| s.dc == DcCapability::SystemTime) {
@@ -45,11 +51,12 @@ pub(super) async fn start_sync0(
         let sys_now_ns = now_sys.wrapping_add(link.now_ns().saturating_sub(read_at_ns));
         if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > start {
             start = ecsync_dc::sync0_start_time(
-                sys_now_ns,
+                SystemTime::from_ns(sys_now_ns),
                 cfg.sync0_lead_ns,
                 cfg.cycle_ns,
                 cfg.sync0_shift_ns,
-            );
+            )
+            .as_ns();
         }
         link.fpwr(s.station, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
             .await
