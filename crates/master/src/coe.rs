@@ -198,7 +198,7 @@ impl<'a> SdoClient<'a> {
     /// Polls SM1's status until the answer is there.
     async fn wait_for_answer(&mut self) -> Result<(), MasterError> {
         let sm1_status = reg::sync_manager_address(1) + 5;
-        let start = self.link.now_ns();
+        let start = self.link.now().as_ns();
         loop {
             let st = self
                 .link
@@ -207,13 +207,13 @@ impl<'a> SdoClient<'a> {
             if st[0] & 0x08 != 0 {
                 return Ok(());
             }
-            if self.link.now_ns().saturating_sub(start) > MAILBOX_TIMEOUT_NS {
+            if self.link.now().as_ns().saturating_sub(start) > MAILBOX_TIMEOUT_NS {
                 return Err(MasterError::Mailbox {
                     slave: self.station,
                     what: "no answer in its mailbox within 100 ms",
                 });
             }
-            let t = self.link.now_ns() + POLL_NS;
+            let t = self.link.now().as_ns() + POLL_NS;
             self.link.sleep_until(t).await;
         }
     }
@@ -229,7 +229,7 @@ impl<'a> SdoClient<'a> {
         self.link
             .fpwr(self.station, activate, &[toggled], "mailbox repeat request")
             .await?;
-        let start = self.link.now_ns();
+        let start = self.link.now().as_ns();
         loop {
             let v = self
                 .link
@@ -238,13 +238,13 @@ impl<'a> SdoClient<'a> {
             if v[0] & 0x02 == toggled & 0x02 {
                 return Ok(());
             }
-            if self.link.now_ns().saturating_sub(start) > MAILBOX_TIMEOUT_NS {
+            if self.link.now().as_ns().saturating_sub(start) > MAILBOX_TIMEOUT_NS {
                 return Err(MasterError::Mailbox {
                     slave: self.station,
                     what: "no acknowledge of the repeat request within 100 ms",
                 });
             }
-            let t = self.link.now_ns() + POLL_NS;
+            let t = self.link.now().as_ns() + POLL_NS;
             self.link.sleep_until(t).await;
         }
     }

@@ -6,6 +6,7 @@
 //! real time on a network interface.
 
 use crate::MasterError;
+use ecsync_dc::time::MasterInstant;
 use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
 use std::future::Future;
 use std::pin::Pin;
@@ -21,10 +22,10 @@ pub const MASTER_MAC: [u8; 6] = [0x00, 0x1b, 0x21, 0xec, 0x00, 0x01];
 pub struct Reply {
     /// The frame as it came back.
     pub frame: Vec<u8>,
-    /// Master time (ns) right before the frame was handed to the network (t_ms).
-    pub sent_ns: u64,
-    /// Master time (ns) when the reply was received.
-    pub received_ns: u64,
+    /// Right before the frame was handed to the network (t_ms).
+    pub sent: MasterInstant,
+    /// When the reply was received.
+    pub received: MasterInstant,
 }
 
 /// Something the procedure reports to the driver along the way.
@@ -240,19 +241,19 @@ impl Link {
         self.shared.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// Master time now, ns.
-    pub fn now_ns(&self) -> u64 {
-        self.lock().now_ns
+    /// The master's clock now.
+    pub fn now(&self) -> MasterInstant {
+        MasterInstant::from_ns(self.lock().now_ns)
     }
 
-    /// Master time right before the last frame that came back was sent (its send timestamp).
-    pub fn last_sent_ns(&self) -> u64 {
-        self.lock().last_sent_ns
+    /// Right before the last frame that came back was sent (its send timestamp).
+    pub fn last_sent(&self) -> MasterInstant {
+        MasterInstant::from_ns(self.lock().last_sent_ns)
     }
 
-    /// Master time when the last frame that came back was received (its receive timestamp).
-    pub fn last_received_ns(&self) -> u64 {
-        self.lock().last_received_ns
+    /// When the last frame that came back was received (its receive timestamp).
+    pub fn last_received(&self) -> MasterInstant {
+        MasterInstant::from_ns(self.lock().last_received_ns)
     }
 
     /// Reports an event to the driver.
@@ -269,7 +270,7 @@ impl Link {
     /// small: a 256-drive line's configuration, seconds of frames without an FRMW, let drives
     /// drift 2.8 us from the reference. `None` stops it.
     pub fn keep_time(&self, keep: Option<(Pdu, u64)>) {
-        let now_ns = self.now_ns();
+        let now_ns = self.now().as_ns();
         self.lock().keep_time = keep.map(|(frmw, interval_ns)| KeepTime {
             frmw,
             interval_ns,
@@ -535,7 +536,7 @@ pub enum Action<'a, T> {
     /// ([`Engine::send_back_to_back`]).
     SendAll(&'a [Vec<u8>]),
     /// Nothing to do before master time `t_ns`; poll again then.
-    WaitUntil(u64),
+    WaitUntil(MasterInstant),
     /// The procedure finished.
     Done(T),
 }
@@ -585,8 +586,8 @@ impl<T: 'static> Engine<T> {
     }
 
     /// Advances the procedure at master time `now_ns`.
-    pub fn poll(&mut self, now_ns: u64) -> Action<'_, T> {
-        self.link.lock().now_ns = now_ns;
+    pub fn poll(&mut self, now: MasterInstant) -> Action<'_, T> {
+        self.link.lock().now_ns = now.as_ns();
         if self.pending.is_some() {
             // A frame is out; the driver must answer it first.
             return Action::Send(self.pending.as_deref().unwrap_or(&[]));
@@ -616,24 +617,24 @@ impl<T: 'static> Engine<T> {
             return Action::SendAll(self.pending_all.as_deref().unwrap_or(&[]));
         }
         match s.sleep_until {
-            Some(t) => Action::WaitUntil(t),
+            Some(t) => Action::WaitUntil(MasterInstant::from_ns(t)),
             // A procedure that waits on nothing would never finish; treat as a busy poll.
-            None => Action::WaitUntil(now_ns),
+            None => Action::WaitUntil(now),
         }
     }
 
     /// The frame sent last came back: `sent_ns` is the master time right before sending,
     /// `received_ns` the time the reply arrived.
-    pub fn handle_reply(&mut self, frame: &[u8], sent_ns: u64, received_ns: u64) {
+    pub fn handle_reply(&mut self, frame: &[u8], sent: MasterInstant, received: MasterInstant) {
         self.pending = None;
         let mut s = self.link.lock();
-        s.now_ns = s.now_ns.max(received_ns);
-        s.last_sent_ns = sent_ns;
-        s.last_received_ns = received_ns;
+        s.now_ns = s.now_ns.max(received.as_ns());
+        s.last_sent_ns = sent.as_ns();
+        s.last_received_ns = received.as_ns();
         s.reply = Some(Ok(Reply {
             frame: frame.to_vec(),
-            sent_ns,
-            received_ns,
+            sent,
+            received,
         }));
     }
 
@@ -644,9 +645,9 @@ impl<T: 'static> Engine<T> {
         self.pending_all = None;
         let mut s = self.link.lock();
         for r in replies.iter().flatten() {
-            s.now_ns = s.now_ns.max(r.received_ns);
-            s.last_sent_ns = r.sent_ns;
-            s.last_received_ns = r.received_ns;
+            s.now_ns = s.now_ns.max(r.received.as_ns());
+            s.last_sent_ns = r.sent.as_ns();
+            s.last_received_ns = r.received.as_ns();
         }
         s.replies = Some(replies);
     }
@@ -727,17 +728,21 @@ mod tests {
         });
         let (mut now_ns, mut sent) = (0u64, Vec::new());
         let wkcs = loop {
-            match engine.poll(now_ns) {
+            match engine.poll(MasterInstant::from_ns(now_ns)) {
                 Action::Send(f) => {
                     let f = f.to_vec();
                     sent.push(commands(&f));
                     // Every datagram answered by one slave.
                     let reply = answered(&f);
-                    engine.handle_reply(&reply, now_ns, now_ns + 10_000);
+                    engine.handle_reply(
+                        &reply,
+                        MasterInstant::from_ns(now_ns),
+                        MasterInstant::from_ns(now_ns + 10_000),
+                    );
                     now_ns += 10_000;
                 }
                 Action::SendAll(_) => panic!("frames at once, not asked for"),
-                Action::WaitUntil(t) => now_ns = now_ns.max(t),
+                Action::WaitUntil(t) => now_ns = now_ns.max(t.as_ns()),
                 Action::Done(v) => break v,
             }
         };
@@ -779,8 +784,8 @@ mod tests {
     fn answered_ok(frame: &[u8]) -> Result<Reply, u32> {
         Ok(Reply {
             frame: answered(frame),
-            sent_ns: 0,
-            received_ns: 1_000,
+            sent: MasterInstant::from_ns(0),
+            received: MasterInstant::from_ns(1_000),
         })
     }
 
@@ -822,7 +827,7 @@ mod tests {
         let mut batches = Vec::new();
         let mut lost_first = None;
         let out = loop {
-            match engine.poll(0) {
+            match engine.poll(MasterInstant::from_ns(0)) {
                 Action::SendAll(frames) => {
                     let frames = frames.to_vec();
                     let indices: Vec<Vec<u8>> = frames
@@ -877,11 +882,15 @@ mod tests {
         let mut engine = Engine::new(make(reads));
         let mut frames = 0;
         let out = loop {
-            match engine.poll(0) {
+            match engine.poll(MasterInstant::from_ns(0)) {
                 Action::Send(f) => {
                     let reply = answered(f);
                     frames += 1;
-                    engine.handle_reply(&reply, 0, 1_000);
+                    engine.handle_reply(
+                        &reply,
+                        MasterInstant::from_ns(0),
+                        MasterInstant::from_ns(1_000),
+                    );
                 }
                 Action::SendAll(_) => panic!("frames at once, not asked for"),
                 Action::WaitUntil(_) => panic!("a wait"),
@@ -903,7 +912,7 @@ mod tests {
         engine.send_back_to_back();
         let mut firsts = Vec::new();
         let out = loop {
-            match engine.poll(0) {
+            match engine.poll(MasterInstant::from_ns(0)) {
                 Action::SendAll(frames) => {
                     let frames = frames.to_vec();
                     firsts = frames

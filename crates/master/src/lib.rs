@@ -13,22 +13,23 @@
 //! at the scan and says which exchange went unanswered:
 //!
 //! ```
+//! use ecsync_dc::time::{MasterDuration, MasterInstant};
 //! use ecsync_master::{Action, BringupConfig, Engine, MasterError, Phase, bringup};
 //!
 //! let mut engine = Engine::new(|link| bringup(link, BringupConfig::default()));
-//! let mut now_ns = 0;
+//! let mut now = MasterInstant::from_ns(0);
 //! let mut frames = 0;
 //! let result = loop {
-//!     match engine.poll(now_ns) {
+//!     match engine.poll(now) {
 //!         Action::Send(frame) => {
 //!             // An EtherCAT frame (EtherType 0x88A4) that nobody answers.
 //!             assert_eq!(frame[12..14], [0x88, 0xa4]);
 //!             frames += 1;
-//!             now_ns += 1_000_000;
+//!             now = now.saturating_add(MasterDuration::from_ms(1));
 //!             engine.handle_lost();
 //!         }
 //!         Action::SendAll(_) => engine.handle_lost(),
-//!         Action::WaitUntil(t_ns) => now_ns = t_ns,
+//!         Action::WaitUntil(t) => now = t,
 //!         Action::Done(result) => break result,
 //!     }
 //! };

@@ -39,7 +39,7 @@ impl<'a> SiiReader<'a> {
     }
 
     async fn wait_idle(&self) -> Result<u16, MasterError> {
-        let start = self.link.now_ns();
+        let start = self.link.now().as_ns();
         loop {
             let v = self
                 .link
@@ -49,7 +49,7 @@ impl<'a> SiiReader<'a> {
             if c & sii_control::BUSY == 0 {
                 return Ok(c);
             }
-            if self.link.now_ns().saturating_sub(start) > self.busy_timeout_ns {
+            if self.link.now().as_ns().saturating_sub(start) > self.busy_timeout_ns {
                 return Err(MasterError::Sii {
                     slave: self.station,
                     what: "stayed busy",

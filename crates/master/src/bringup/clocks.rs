@@ -168,7 +168,7 @@ pub(super) async fn static_drift(
     cfg: &BringupConfig,
     dc: &DcGroup,
 ) -> Result<Drift, MasterError> {
-    let start_ns = link.now_ns();
+    let start_ns = link.now().as_ns();
     let mut detector = LockDetector::new(cfg.lock_threshold_ns, cfg.lock_hold_checks.max(1));
     let mut frmw_frames = 0u64;
     for i in 0..cfg.static_drift_frames {
@@ -198,7 +198,7 @@ pub(super) async fn static_drift(
             let (r, _) = link
                 .pdus(&dc.check_pdus(false), "read system time difference")
                 .await?;
-            detector.update(dc.worst_of(&r, Phase::StaticDrift)?, link.now_ns());
+            detector.update(dc.worst_of(&r, Phase::StaticDrift)?, link.now().as_ns());
         }
     }
     Ok(Drift {
@@ -224,7 +224,7 @@ impl CycleGrid {
         let cycle_ns = u64::from(cycle_ns);
         CycleGrid {
             cycle_ns,
-            next_ns: (link.now_ns() / cycle_ns + 1) * cycle_ns,
+            next_ns: (link.now().as_ns() / cycle_ns + 1) * cycle_ns,
         }
     }
 
@@ -257,16 +257,16 @@ pub(super) async fn wait_for_lock(
     } = drift;
     let synced = &dc.synced;
     let mut grid = CycleGrid::after_now(link, cfg.cycle_ns);
-    let lock_start = link.now_ns();
+    let lock_start = link.now().as_ns();
     let timeout_ns = cfg.timeouts.lock_timeout_ns;
     while !synced.is_empty() && !lock.is_locked() {
-        if link.now_ns().saturating_sub(lock_start) > timeout_ns {
+        if link.now().as_ns().saturating_sub(lock_start) > timeout_ns {
             return Err(MasterError::NoLock(timeout_ns / 1_000_000));
         }
         grid.tick(link).await;
         let (r, _) = link.pdus(&dc.check_pdus(true), "cyclic DC").await?;
         frmw_frames += 1;
-        lock.update(dc.worst_of(&r[1..], Phase::Lock)?, link.now_ns());
+        lock.update(dc.worst_of(&r[1..], Phase::Lock)?, link.now().as_ns());
     }
     let report = LockReport {
         converged: synced.is_empty() || lock.is_locked(),
@@ -276,7 +276,7 @@ pub(super) async fn wait_for_lock(
             lock.locked_at_ns().map(|t| t.saturating_sub(drift_start))
         },
         drift_start_ns: drift_start,
-        declared_ns: (synced.is_empty() || lock.is_locked()).then(|| link.now_ns()),
+        declared_ns: (synced.is_empty() || lock.is_locked()).then(|| link.now().as_ns()),
         max_abs_092c_after_lock_ns: 0,
         max_abs_092c_by_broadcast: false,
         frmw_frames,

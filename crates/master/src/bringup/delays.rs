@@ -51,7 +51,7 @@ pub(super) async fn measure_delays(
     let mut round_trips: Vec<f64> = Vec::with_capacity(rounds as usize);
     for round in 0..rounds {
         let dither = u64::from(round) * LATCH_DITHER_NS / u64::from(rounds);
-        let t = link.now_ns() + gap_ns + dither;
+        let t = link.now().as_ns() + gap_ns + dither;
         link.sleep_until(t).await;
         let r = link
             .pdu(
@@ -61,8 +61,8 @@ pub(super) async fn measure_delays(
                 "latch receive times",
             )
             .await?;
-        let latch_sent = link.last_sent_ns();
-        round_trips.push(link.last_received_ns().wrapping_sub(latch_sent) as i64 as f64);
+        let latch_sent = link.last_sent().as_ns();
+        round_trips.push(link.last_received().as_ns().wrapping_sub(latch_sent) as i64 as f64);
         let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
         if r.wkc != expected {
             return Err(MasterError::WorkingCounter {
@@ -269,7 +269,7 @@ pub async fn measure_clock_rates(
     let mut local: Vec<Vec<f64>> = vec![Vec::with_capacity(latches as usize); n];
     let mut last: Vec<Option<u32>> = vec![None; n];
     let mut master: Vec<f64> = Vec::with_capacity(latches as usize);
-    let start = link.now_ns();
+    let start = link.now().as_ns();
     for k in 0..latches {
         link.sleep_until(start + k * step_ns).await;
         let r = link
@@ -280,7 +280,7 @@ pub async fn measure_clock_rates(
                 "latch receive times",
             )
             .await?;
-        let sent = link.last_sent_ns();
+        let sent = link.last_sent().as_ns();
         if r.wkc != expected {
             return Err(MasterError::WorkingCounter {
                 command: Command::Bwr,

@@ -184,7 +184,7 @@ async fn configure_and_start(
         None => match link.pdus(&[dc.frmw()], "read the reference's time").await {
             Ok((r, reply)) => r
                 .first()
-                .and_then(|p| ReferenceReading::of(p, reply.sent_ns)),
+                .and_then(|p| ReferenceReading::of(p, reply.sent.as_ns())),
             Err(_) => None,
         },
     };
@@ -194,7 +194,7 @@ async fn configure_and_start(
 impl Network {
     /// The network as it stands when the bring-up returns.
     fn done_at(mut self, link: &Link) -> Network {
-        self.done_ns = link.now_ns();
+        self.done_ns = link.now().as_ns();
         self
     }
 }

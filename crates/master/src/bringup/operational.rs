@@ -29,7 +29,7 @@ pub(super) async fn start_sync0(
         )
         .await
         .map_err(|e| e.at(Phase::Sync0, dc.reference))?;
-    let read_at_ns = link.now_ns();
+    let read_at_ns = link.now().as_ns();
     let now_sys = u64::from_le_bytes(now_sys[..8].try_into().unwrap_or([0; 8]));
     let first_start = ecsync_dc::sync0_start_time(
         SystemTime::from_ns(now_sys),
@@ -48,7 +48,7 @@ pub(super) async fn start_sync0(
         // slave's start moves on by whole cycles, on the same grid, once less than half the
         // lead is left (the system time estimated by the master's clock since the read: their
         // rates differ by parts per million).
-        let sys_now_ns = now_sys.wrapping_add(link.now_ns().saturating_sub(read_at_ns));
+        let sys_now_ns = now_sys.wrapping_add(link.now().as_ns().saturating_sub(read_at_ns));
         if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > start {
             start = ecsync_dc::sync0_start_time(
                 SystemTime::from_ns(sys_now_ns),
@@ -227,16 +227,16 @@ pub(super) async fn enter_op(
     // The process data keeps coming while the requests go out one by one (a large network's
     // take longer than a cycle): a slave in OP without outputs for its watchdog time (100 ms)
     // would fall back to SAFE-OP.
-    let mut last_cyclic = link.now_ns();
+    let mut last_cyclic = link.now().as_ns();
     for (n, s) in slaves.iter().enumerate() {
-        let sent = link.now_ns();
+        let sent = link.now().as_ns();
         link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
             .await
             .map_err(|e| e.at(Phase::Op, s.id()))?;
-        let round_trip_ns = link.now_ns().saturating_sub(sent);
-        if link.now_ns().saturating_sub(last_cyclic) >= grid.cycle_ns {
+        let round_trip_ns = link.now().as_ns().saturating_sub(sent);
+        if link.now().as_ns().saturating_sub(last_cyclic) >= grid.cycle_ns {
             link.pdus(&cyclic.pdus, "cyclic").await?;
-            last_cyclic = link.now_ns();
+            last_cyclic = link.now().as_ns();
         }
         // Requests that one by one would take longer than a cycle (a large network's: a round
         // trip each, ~1 s for a 1 000-drive line) leave the first drives in OP with their
@@ -250,7 +250,7 @@ pub(super) async fn enter_op(
     }
     let count = slaves.len() as u16;
     // Cycle until every slave reports OP.
-    let deadline = link.now_ns() + timeouts.op_timeout_ns;
+    let deadline = link.now().as_ns() + timeouts.op_timeout_ns;
     loop {
         grid.tick(link).await;
         let (cycle, _) = link.pdus(&cyclic.pdus, "cyclic").await?;
@@ -269,7 +269,7 @@ pub(super) async fn enter_op(
         if al.wkc == count && status.state() == Ok(AlState::Op) && !status.error() {
             return Ok(());
         }
-        if status.error() || link.now_ns() > deadline {
+        if status.error() || link.now().as_ns() > deadline {
             // Who refused, and why: each slave's AL status and code (a drive's 0x002D, 0x0036,
             // ... is the message the user needs, not the OR of the states).
             for s in slaves {
@@ -287,7 +287,7 @@ pub(super) async fn enter_op(
                 }
             }
         }
-        if link.now_ns() > deadline {
+        if link.now().as_ns() > deadline {
             return Err(MasterError::NetworkStateTimeout {
                 state: AlState::Op,
                 answered: al.wkc,
@@ -356,7 +356,7 @@ pub(super) async fn monitor(
         let (r, first) = link.pdus(&cyclic.pdus, "cyclic").await?;
         let worst = cyclic.worst_of(dc, &r, Phase::Monitor)?;
         max_abs = max_abs.max(worst);
-        reading = ReferenceReading::of(&r[0], first.sent_ns).or(reading);
+        reading = ReferenceReading::of(&r[0], first.sent.as_ns()).or(reading);
         let got: u16 = r[1..k].iter().map(|p| p.wkc).sum();
         if pdi_len > 0 && got != expected_lrw_wkc {
             return Err(MasterError::WorkingCounter {
@@ -393,7 +393,7 @@ pub async fn request_state_with(
     let request = control.to_bytes();
     link.fpwr(station, reg::AL_CONTROL, &request, "AL control")
         .await?;
-    let start = link.now_ns();
+    let start = link.now().as_ns();
     loop {
         // AL status and, four bytes on, the AL status code, in one read.
         let v = link
@@ -417,13 +417,13 @@ pub async fn request_state_with(
         if status.state_raw() == state.code() {
             return Ok(());
         }
-        if link.now_ns().saturating_sub(start) > timeouts.state_timeout_ns {
+        if link.now().as_ns().saturating_sub(start) > timeouts.state_timeout_ns {
             return Err(MasterError::StateTimeout {
                 slave: station,
                 state,
             });
         }
-        let t = link.now_ns() + timeouts.state_poll_interval_ns;
+        let t = link.now().as_ns() + timeouts.state_poll_interval_ns;
         link.sleep_until(t).await;
     }
 }

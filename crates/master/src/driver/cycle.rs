@@ -183,7 +183,6 @@ impl CyclicDriver {
         eng: &mut CyclicEngine<S>,
         until: MasterInstant,
     ) -> Result<(), Tr::Error> {
-        let until_ns = until.as_ns();
         let lost_row = self.lost_row;
         let Some(rs) = self.recovery.as_mut() else {
             return Ok(());
@@ -197,7 +196,7 @@ impl CyclicDriver {
             let Some(e) = rs.running.as_mut() else {
                 break;
             };
-            let now = tr.now().as_ns();
+            let now = tr.now();
             let frame = match e.poll(now) {
                 Action::Send(f) => f.to_vec(),
                 // Not asked for (`send_back_to_back`): never comes; told as not sent.
@@ -206,13 +205,13 @@ impl CyclicDriver {
                     e.handle_replies(vec![Err(0); n]);
                     continue;
                 }
-                Action::WaitUntil(t) if t < until_ns => {
-                    tr.sleep_until(MasterInstant::from_ns(t));
+                Action::WaitUntil(t) if t < until => {
+                    tr.sleep_until(t);
                     continue;
                 }
                 Action::WaitUntil(_) => break,
                 Action::Done(r) => {
-                    rs.finish(r, now, eng);
+                    rs.finish(r, now.as_ns(), eng);
                     break;
                 }
             };
@@ -222,7 +221,7 @@ impl CyclicDriver {
             let mut answered = false;
             while let Some(r) = tr.recv(&mut self.buf, until.max(sent))? {
                 if !r.truncated && answers(&frame, &self.buf[..r.len]) {
-                    e.handle_reply(&self.buf[..r.len], sent.as_ns(), r.received_ns());
+                    e.handle_reply(&self.buf[..r.len], sent, r.received);
                     self.stats.replies += 1;
                     answered = true;
                     break;
@@ -233,7 +232,7 @@ impl CyclicDriver {
             if !answered {
                 // Lost (or not back before the cycle's end): sent again with the next cycle.
                 self.stats.lost += 1;
-                rs.out = Some((frame, sent.as_ns(), 1));
+                rs.out = Some((frame, sent, 1));
                 break;
             }
         }
@@ -413,7 +412,8 @@ impl CyclicDriver {
         let Some(rs) = self.recovery.as_mut() else {
             return Ok(false);
         };
-        let now = tr.now().as_ns();
+        let now_at = tr.now();
+        let now = now_at.as_ns();
         if rs.running.is_none() && eng.health().needs_recovery && now >= rs.retry_at_ns {
             let (net, cfg) = (rs.net.clone(), rs.cfg);
             rs.running = Some(Engine::new(move |link| async move {
@@ -456,8 +456,8 @@ impl CyclicDriver {
         if rs.out.is_none()
             && let Some(e) = rs.running.as_mut()
         {
-            match e.poll(now) {
-                Action::Send(f) => rs.out = Some((f.to_vec(), 0, 0)),
+            match e.poll(now_at) {
+                Action::Send(f) => rs.out = Some((f.to_vec(), MasterInstant::default(), 0)),
                 // Not asked for (`send_back_to_back`): never comes; told as not sent.
                 Action::SendAll(f) => {
                     let n = f.len();
@@ -469,7 +469,7 @@ impl CyclicDriver {
         }
         if let Some((f, sent, tries)) = rs.out.as_mut() {
             let at = tr.send_time(f.len());
-            *sent = tr.send(f, at)?.as_ns();
+            *sent = tr.send(f, at)?;
             *tries += 1;
             self.stats.sent += 1;
             return Ok(true);
@@ -563,7 +563,7 @@ impl CyclicDriver {
             return false;
         }
         if let Some(e) = rs.running.as_mut() {
-            e.handle_reply(&self.buf[..r.len], *sent, r.received_ns());
+            e.handle_reply(&self.buf[..r.len], *sent, r.received);
         }
         rs.out = None;
         self.stats.replies += 1;

@@ -7,6 +7,7 @@ use crate::io::Engine;
 use crate::network::Network;
 use crate::recovery::{Recovered, RecoveryConfig};
 use ecsync_dc::MasterSync;
+use ecsync_dc::time::MasterInstant;
 
 /// One recovery, for the report.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -53,7 +54,7 @@ pub(super) async fn read_sync_counter(link: crate::io::Link, d: SyncDrive) -> Jo
         Ok(v) if v.len() >= 2 => Ok(Some(SyncCounter {
             position: d.position,
             sm_events_missed: u16::from_le_bytes([v[0], v[1]]),
-            read_ns: link.now_ns(),
+            read_ns: link.now().as_ns(),
         })),
         Ok(_) | Err(MasterError::SdoAbort { .. }) => Ok(None),
         Err(e) => Err(e),
@@ -95,7 +96,7 @@ pub(super) struct RecoverySlot {
     /// Each drive's first and last read.
     pub(super) sync_counters: Vec<(SyncCounter, SyncCounter)>,
     /// The frame out, its send timestamp and its sends so far.
-    pub(super) out: Option<(Vec<u8>, u64, u32)>,
+    pub(super) out: Option<(Vec<u8>, MasterInstant, u32)>,
     pub(super) retry_at_ns: u64,
     pub(super) log: Vec<RecoveryEvent>,
 }

@@ -55,10 +55,10 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
     engine.send_back_to_back();
     loop {
         let now = tr.now();
-        let frame = match engine.poll(now.as_ns()) {
+        let frame = match engine.poll(now) {
             Action::Done(v) => return Ok(v),
             Action::WaitUntil(t) => {
-                tr.sleep_until(MasterInstant::from_ns(t));
+                tr.sleep_until(t);
                 continue;
             }
             Action::Send(f) => f.to_vec(),
@@ -69,10 +69,7 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
                     .iter()
                     .map(|(sent, r, attempts)| ProcedureExchange {
                         sent: *sent,
-                        received: r
-                            .as_ref()
-                            .ok()
-                            .map(|r| MasterInstant::from_ns(r.received_ns)),
+                        received: r.as_ref().ok().map(|r| r.received),
                         attempts: *attempts,
                     })
                     .collect();
@@ -87,11 +84,7 @@ pub fn run_procedure<T: 'static, Tr: Transport>(
         let (got, attempts, sent) =
             exchange_tries(tr, &frame, &mut buf, cfg, stats, cfg.retries + 1)?;
         match got {
-            Some(r) => engine.handle_reply(
-                &buf[..r.received.len],
-                r.sent.as_ns(),
-                r.received.received_ns(),
-            ),
+            Some(r) => engine.handle_reply(&buf[..r.received.len], r.sent, r.received.received),
             None => engine.handle_lost_after(attempts),
         }
         let events = engine.take_events();
@@ -168,8 +161,8 @@ pub(super) fn exchange_all<Tr: Transport>(
             Some(k) => {
                 got[k] = Some(crate::io::Reply {
                     frame: buf[..r.len].to_vec(),
-                    sent_ns: sent[k].as_ns(),
-                    received_ns: r.received_ns(),
+                    sent: sent[k],
+                    received: r.received,
                 });
                 stats.replies += 1;
                 pending -= 1;
@@ -190,8 +183,8 @@ pub(super) fn exchange_all<Tr: Transport>(
         let (again, tries, last) = exchange_tries(tr, &frames[k], buf, cfg, stats, cfg.retries)?;
         let reply = again.map(|r| crate::io::Reply {
             frame: buf[..r.received.len].to_vec(),
-            sent_ns: r.sent.as_ns(),
-            received_ns: r.received.received_ns(),
+            sent: r.sent,
+            received: r.received.received,
         });
         let sent_at = if tries == 0 { sent[k] } else { last };
         out.push((sent_at, reply.ok_or(1 + tries), 1 + tries));
