@@ -27,6 +27,10 @@ pub(super) struct Latch {
 /// [`Phase::Delays`]: propagation delays, averaged over latch rounds with the send instant
 /// dithered across the receive stamps' 40 ns resolution. Records each slave's parent, entry
 /// port and delay; returns the last latch for the offsets.
+///
+/// Step by step: the latch rounds (`latch_round`), spread over the latch window so that each
+/// slave's clock rate against the master can be measured from its first and last port 0
+/// stamps (`correct_clock_rates`); each round's tree and delays, averaged (`average_delays`).
 pub(super) async fn measure_delays(
     link: &Link,
     cfg: &BringupConfig,
@@ -35,172 +39,235 @@ pub(super) async fn measure_delays(
 ) -> Result<Latch, MasterError> {
     let n = slaves.len();
     let rounds = cfg.latch_rounds.max(1);
-    let mut sums = vec![0.0f64; n];
-    let mut mins = vec![f64::INFINITY; n];
-    let mut maxs = vec![f64::NEG_INFINITY; n];
-    let mut last_pu = vec![0u64; n];
-    let mut latch_sent_ns = 0;
-    let mut tree = vec![TreeNode::default(); n];
-    let mut delays = vec![None; n];
-    // The rounds are spread over the latch window so that each slave's clock rate relative to
-    // the master can be measured from its first and last port 0 stamps and the spans corrected
-    // for it.
     let gap_ns = (cfg.latch_window_ns / u64::from(rounds)).max(cfg.latch_min_gap_ns);
     let mut all_ports: Vec<Vec<SlavePorts>> = Vec::with_capacity(rounds as usize);
     let mut sent_at: Vec<u64> = Vec::with_capacity(rounds as usize);
     let mut round_trips: Vec<f64> = Vec::with_capacity(rounds as usize);
+    let mut last_pu = vec![0u64; n];
     for round in 0..rounds {
         let dither = u64::from(round) * LATCH_DITHER_NS / u64::from(rounds);
         let t = link.now().as_ns() + gap_ns + dither;
         link.sleep_until(t).await;
-        let r = link
-            .pdu(
-                Command::Bwr,
-                DatagramAddress::position(0, reg::DC_RECEIVE_TIME_PORT0),
-                vec![0; 4],
-                "latch receive times",
-            )
-            .await?;
-        let latch_sent = link.last_sent().as_ns();
-        round_trips.push(link.last_received().as_ns().wrapping_sub(latch_sent) as i64 as f64);
-        let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
-        if r.wkc != expected {
-            return Err(MasterError::WorkingCounter {
-                command: Command::Bwr,
-                what: "latch receive times",
-                expected,
-                got: r.wkc,
-            });
-        }
-        let mut ports = vec![SlavePorts::default(); n];
-        // One FPRD of the four receive times per slave that has them, batched into as few
-        // frames as fit; the processing unit's 64-bit stamp only in the last round (offsets).
         let last = round + 1 == rounds;
-        let mut reads = Vec::new();
-        let mut owners = Vec::new();
-        for (i, s) in slaves.iter().enumerate() {
-            ports[i].open = s.open_ports;
-            if let Some(e) = cfg
-                .esi
-                .iter()
-                .find(|e| e.vendor_id == s.vendor_id && e.product_code == s.product_code)
-            {
-                ports[i].forwarding_ns = e.forwarding_ns;
-                ports[i].processing_ns = e.processing_ns;
-            }
-            if s.dc == DcCapability::None {
-                continue;
-            }
+        let r = latch_round(link, cfg, slaves, last.then_some(&mut last_pu)).await?;
+        all_ports.push(r.ports);
+        sent_at.push(r.sent_ns);
+        round_trips.push(r.round_trip_ns);
+    }
+    correct_clock_rates(&mut all_ports, &sent_at);
+    let d = average_delays(cfg, &all_ports, &round_trips, reference)?;
+    let (master_delay_ns, master_delay_spread_ns) =
+        if cfg.master_is_reference && d.md_min.is_finite() {
+            (
+                Some(d.md_sum / f64::from(rounds)),
+                Some(d.md_max - d.md_min),
+            )
+        } else {
+            (None, None)
+        };
+    for (i, s) in slaves.iter_mut().enumerate() {
+        s.parent = d.tree[i].parent;
+        s.entry_port = d.tree[i].entry_port;
+        if s.dc == DcCapability::SystemTime && d.delays[i].is_some() {
+            s.delay_ns = Some(d.sums[i] / f64::from(rounds));
+            s.delay_spread_ns = Some(d.maxs[i] - d.mins[i]);
+        }
+    }
+    Ok(Latch {
+        sent_ns: sent_at.last().copied().unwrap_or(0),
+        pu_stamps_ns: last_pu,
+        master_delay_ns,
+        master_delay_spread_ns,
+    })
+}
+
+/// One latch round as read back.
+struct LatchRound {
+    /// Every slave's ports and receive times.
+    ports: Vec<SlavePorts>,
+    /// The latch frame's send timestamp, master time, ns.
+    sent_ns: u64,
+    /// Its round trip, ns.
+    round_trip_ns: f64,
+}
+
+/// Latches every port's receive time by a BWR of 0x0900 and reads them back (one FPRD of the
+/// four receive times per slave that has them, batched into as few frames as fit); with
+/// `pu_stamps`, also each system-time slave's processing unit stamp (0x0918) into it (the last
+/// round: for the offsets).
+async fn latch_round(
+    link: &Link,
+    cfg: &BringupConfig,
+    slaves: &[SlaveInfo],
+    mut pu_stamps: Option<&mut Vec<u64>>,
+) -> Result<LatchRound, MasterError> {
+    let n = slaves.len();
+    let r = link
+        .pdu(
+            Command::Bwr,
+            DatagramAddress::position(0, reg::DC_RECEIVE_TIME_PORT0),
+            vec![0; 4],
+            "latch receive times",
+        )
+        .await?;
+    let latch_sent = link.last_sent().as_ns();
+    let round_trip_ns = link.last_received().as_ns().wrapping_sub(latch_sent) as i64 as f64;
+    let expected = slaves.iter().filter(|s| s.dc != DcCapability::None).count() as u16;
+    if r.wkc != expected {
+        return Err(MasterError::WorkingCounter {
+            command: Command::Bwr,
+            what: "latch receive times",
+            expected,
+            got: r.wkc,
+        });
+    }
+    let mut ports = vec![SlavePorts::default(); n];
+    let mut reads = Vec::new();
+    let mut owners = Vec::new();
+    for (i, s) in slaves.iter().enumerate() {
+        ports[i].open = s.open_ports;
+        if let Some(e) = cfg
+            .esi
+            .iter()
+            .find(|e| e.vendor_id == s.vendor_id && e.product_code == s.product_code)
+        {
+            ports[i].forwarding_ns = e.forwarding_ns;
+            ports[i].processing_ns = e.processing_ns;
+        }
+        if s.dc == DcCapability::None {
+            continue;
+        }
+        reads.push(Pdu::new(
+            Command::Fprd,
+            DatagramAddress::configured(s.station, reg::DC_RECEIVE_TIME_PORT0),
+            vec![0; 16],
+        ));
+        owners.push((i, false));
+        if pu_stamps.is_some() && s.dc == DcCapability::SystemTime {
             reads.push(Pdu::new(
                 Command::Fprd,
-                DatagramAddress::configured(s.station, reg::DC_RECEIVE_TIME_PORT0),
-                vec![0; 16],
+                DatagramAddress::configured(s.station, reg::DC_RECEIVE_TIME_PU),
+                vec![0; 8],
             ));
-            owners.push((i, false));
-            if last && s.dc == DcCapability::SystemTime {
-                reads.push(Pdu::new(
-                    Command::Fprd,
-                    DatagramAddress::configured(s.station, reg::DC_RECEIVE_TIME_PU),
-                    vec![0; 8],
-                ));
-                owners.push((i, true));
-            }
+            owners.push((i, true));
         }
-        let (replies, _) = link.pdus(&reads, "read receive times").await?;
-        for (r, &(i, is_pu)) in replies.iter().zip(&owners) {
-            if r.wkc != 1 {
-                return Err(MasterError::WorkingCounter {
-                    command: Command::Fprd,
-                    what: "read receive times",
-                    expected: 1,
-                    got: r.wkc,
-                }
-                .at(Phase::Delays, slaves[i].id()));
-            }
-            let t = &r.data;
-            if is_pu {
-                last_pu[i] = u64::from_le_bytes(t[..8].try_into().unwrap_or([0; 8]));
-            } else {
-                ports[i].times = Some(core::array::from_fn(|p| {
-                    u32::from_le_bytes([t[4 * p], t[4 * p + 1], t[4 * p + 2], t[4 * p + 3]])
-                }));
-            }
-        }
-        all_ports.push(ports);
-        sent_at.push(latch_sent);
-        latch_sent_ns = latch_sent;
     }
-    // Clock rates from the first and last latch: local time elapsed at the entry port over
-    // master time elapsed.
+    let (replies, _) = link.pdus(&reads, "read receive times").await?;
+    for (r, &(i, is_pu)) in replies.iter().zip(&owners) {
+        if r.wkc != 1 {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Fprd,
+                what: "read receive times",
+                expected: 1,
+                got: r.wkc,
+            }
+            .at(Phase::Delays, slaves[i].id()));
+        }
+        let t = &r.data;
+        if is_pu {
+            if let Some(pu) = pu_stamps.as_deref_mut() {
+                pu[i] = u64::from_le_bytes(t[..8].try_into().unwrap_or([0; 8]));
+            }
+        } else {
+            ports[i].times = Some(core::array::from_fn(|p| {
+                u32::from_le_bytes([t[4 * p], t[4 * p + 1], t[4 * p + 2], t[4 * p + 3]])
+            }));
+        }
+    }
+    Ok(LatchRound {
+        ports,
+        sent_ns: latch_sent,
+        round_trip_ns,
+    })
+}
+
+/// Each slave's clock rate from the first and last latch (local time elapsed at its entry
+/// port over master time elapsed, `sent_at`), set on every round's ports where plausible
+/// (anything else is a misread).
+fn correct_clock_rates(all_ports: &mut [Vec<SlavePorts>], sent_at: &[u64]) {
     let master_span = sent_at
         .last()
         .copied()
         .unwrap_or(0)
         .saturating_sub(sent_at[0]) as f64;
-    if rounds > 1 && master_span > 0.0 {
-        for i in 0..n {
-            let (Some(a), Some(b)) = (
-                all_ports[0][i].times,
-                all_ports[all_ports.len() - 1][i].times,
-            ) else {
-                continue;
-            };
-            let e = ecsync_dc::topology::entry_port(&all_ports[0][i]).unwrap_or(0);
-            let local = f64::from(dc_time::diff_u32(b[usize::from(e)], a[usize::from(e)]));
-            let rate = local / master_span;
-            // Only plausible rates are used; anything else is a misread.
-            if (rate - 1.0).abs() < PLAUSIBLE_RATE_ERROR {
-                for round in all_ports.iter_mut() {
-                    round[i].clock_rate = rate;
-                }
+    if all_ports.len() <= 1 || master_span <= 0.0 {
+        return;
+    }
+    for i in 0..all_ports[0].len() {
+        let (Some(a), Some(b)) = (
+            all_ports[0][i].times,
+            all_ports[all_ports.len() - 1][i].times,
+        ) else {
+            continue;
+        };
+        let e = ecsync_dc::topology::entry_port(&all_ports[0][i]).unwrap_or(0);
+        let local = f64::from(dc_time::diff_u32(b[usize::from(e)], a[usize::from(e)]));
+        let rate = local / master_span;
+        if (rate - 1.0).abs() < PLAUSIBLE_RATE_ERROR {
+            for round in all_ports.iter_mut() {
+                round[i].clock_rate = rate;
             }
         }
     }
-    let (mut md_sum, mut md_min, mut md_max) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
+}
+
+/// The rounds' delays summed, with their extremes, and the master's delay to the reference
+/// (with [`BringupConfig::master_is_reference`]).
+struct DelaySums {
+    /// The last round's tree and delays (every round finds the same tree).
+    tree: Vec<TreeNode>,
+    delays: Vec<Option<f64>>,
+    sums: Vec<f64>,
+    mins: Vec<f64>,
+    maxs: Vec<f64>,
+    md_sum: f64,
+    md_min: f64,
+    md_max: f64,
+}
+
+/// Each round's tree and propagation delays from `reference`, summed over the rounds.
+fn average_delays(
+    cfg: &BringupConfig,
+    all_ports: &[Vec<SlavePorts>],
+    round_trips: &[f64],
+    reference: usize,
+) -> Result<DelaySums, MasterError> {
+    let n = all_ports.first().map_or(0, Vec::len);
+    let mut d = DelaySums {
+        tree: vec![TreeNode::default(); n],
+        delays: vec![None; n],
+        sums: vec![0.0f64; n],
+        mins: vec![f64::INFINITY; n],
+        maxs: vec![f64::NEG_INFINITY; n],
+        md_sum: 0.0,
+        md_min: f64::INFINITY,
+        md_max: f64::NEG_INFINITY,
+    };
     for (round, ports) in all_ports.iter().enumerate() {
-        build_tree(ports, &mut tree)?;
-        propagation_delays(ports, &tree, reference, &mut delays)?;
+        build_tree(ports, &mut d.tree)?;
+        propagation_delays(ports, &d.tree, reference, &mut d.delays)?;
         if cfg.master_is_reference {
             // Master -> first slave, then on to the reference (its delay relative to the
             // first slave is minus the first slave's delay relative to it).
             if let (Some(d0), Some(first)) = (
-                ecsync_dc::master_delay_ns(round_trips[round], &ports[0], tree[0].entry_port),
-                delays[0],
+                ecsync_dc::master_delay_ns(round_trips[round], &ports[0], d.tree[0].entry_port),
+                d.delays[0],
             ) {
-                let d = d0 - first;
-                md_sum += d;
-                md_min = md_min.min(d);
-                md_max = md_max.max(d);
+                let m = d0 - first;
+                d.md_sum += m;
+                d.md_min = d.md_min.min(m);
+                d.md_max = d.md_max.max(m);
             }
         }
-        for (i, d) in delays.iter().enumerate() {
-            if let Some(d) = d {
-                sums[i] += d;
-                mins[i] = mins[i].min(*d);
-                maxs[i] = maxs[i].max(*d);
+        for (i, v) in d.delays.iter().enumerate() {
+            if let Some(v) = v {
+                d.sums[i] += v;
+                d.mins[i] = d.mins[i].min(*v);
+                d.maxs[i] = d.maxs[i].max(*v);
             }
         }
     }
-    let (master_delay_ns, master_delay_spread_ns) = if cfg.master_is_reference && md_min.is_finite()
-    {
-        (Some(md_sum / f64::from(rounds)), Some(md_max - md_min))
-    } else {
-        (None, None)
-    };
-    for (i, s) in slaves.iter_mut().enumerate() {
-        s.parent = tree[i].parent;
-        s.entry_port = tree[i].entry_port;
-        if s.dc == DcCapability::SystemTime && delays[i].is_some() {
-            s.delay_ns = Some(sums[i] / f64::from(rounds));
-            s.delay_spread_ns = Some(maxs[i] - mins[i]);
-        }
-    }
-    Ok(Latch {
-        sent_ns: latch_sent_ns,
-        pu_stamps_ns: last_pu,
-        master_delay_ns,
-        master_delay_spread_ns,
-    })
+    Ok(d)
 }
 
 /// Latches of [`measure_clock_rates`]: one every this long, ns (at most; fewer over a short
