@@ -712,30 +712,7 @@ impl<S: MasterSync> CyclicEngine<S> {
             .map(SystemTime::as_ns)
             .filter(|_| self.pending_step_ns.is_none())
         {
-            if self.sync.is_master_shift() {
-                if self.cycle < self.cfg.measure_init_frames {
-                    self.h_sum += i128::from(diff_u64(send_ns, t_ra));
-                    self.h_n += 1;
-                    self.h_mr = self.h_sum as f64 / self.h_n as f64;
-                } else {
-                    // φ = t_ra + h_mr - (t_ms + δ̂), δ̂ = nominal - scheduled: the correction
-                    // applied to this cycle. A phase error is one modulo P: a method that
-                    // drops or doubles a cycle (ethercrab's snap when a frame reaches the
-                    // reference just before its grid point) moves δ̂ by whole periods, which
-                    // are not an error of the phase, so φ is wrapped into [-P/2, P/2).
-                    let delta_hat = diff_u64(nominal, self.scheduled_ns) as f64;
-                    let phi = diff_u64(t_ra, send_ns) as f64 + self.h_mr - delta_hat;
-                    let p = f64::from(self.cfg.period_ns.max(1));
-                    let wrapped = if phi.abs() < p / 2.0 {
-                        phi
-                    } else {
-                        phi - p * ((phi + p / 2.0) / p).floor()
-                    };
-                    rec.m_rs_ns = Some(ecsync_dc::offset::round_ns(wrapped));
-                }
-            } else {
-                rec.m_rs_ns = Some(diff_u64(t_ra, send_ns));
-            }
+            rec.m_rs_ns = self.m_rs_ns(t_ra, send_ns, nominal);
         }
         self.scheduled_ns = rec
             .output
@@ -744,6 +721,36 @@ impl<S: MasterSync> CyclicEngine<S> {
             .wrapping_add(correction as u64);
         self.cycle += 1;
         rec
+    }
+
+    /// The letter's M-rS error of this cycle, ns, from the reference's time `t_ra` and the
+    /// send timestamp (step-corrected): for master shift φ once `h_mr` is known (during the
+    /// init frames `h_mr` is averaged and there is none), `t_ra - t_ms` for bus shift.
+    #[inline]
+    fn m_rs_ns(&mut self, t_ra: u64, send_ns: u64, nominal: u64) -> Option<i64> {
+        if !self.sync.is_master_shift() {
+            return Some(diff_u64(t_ra, send_ns));
+        }
+        if self.cycle < self.cfg.measure_init_frames {
+            self.h_sum += i128::from(diff_u64(send_ns, t_ra));
+            self.h_n += 1;
+            self.h_mr = self.h_sum as f64 / self.h_n as f64;
+            return None;
+        }
+        // φ = t_ra + h_mr - (t_ms + δ̂), δ̂ = nominal - scheduled: the correction applied to
+        // this cycle. A phase error is one modulo P: a method that drops or doubles a cycle
+        // (ethercrab's snap when a frame reaches the reference just before its grid point)
+        // moves δ̂ by whole periods, which are not an error of the phase, so φ is wrapped into
+        // [-P/2, P/2).
+        let delta_hat = diff_u64(nominal, self.scheduled_ns) as f64;
+        let phi = diff_u64(t_ra, send_ns) as f64 + self.h_mr - delta_hat;
+        let p = f64::from(self.cfg.period_ns.max(1));
+        let wrapped = if phi.abs() < p / 2.0 {
+            phi
+        } else {
+            phi - p * ((phi + p / 2.0) / p).floor()
+        };
+        Some(ecsync_dc::offset::round_ns(wrapped))
     }
 
     /// Whether the reference's time `t` continues its timeline: within [`REFERENCE_JUMP_NS`]
