@@ -165,9 +165,9 @@ fn reads_against_truth(
             .drive_counter_reads()
             .into_iter()
             .find(|(_, c)| c.position == 5)
-            && last_read_ns != Some(last.read_ns)
+            && last_read_ns != Some(last.read.as_ns())
         {
-            last_read_ns = Some(last.read_ns);
+            last_read_ns = Some(last.read.as_ns());
             reads.push((r.cycles_run() - 1, last.sm_events_missed));
         }
     }

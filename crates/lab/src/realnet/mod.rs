@@ -9,7 +9,7 @@ use crate::session::{Aim, CycleObserver, Session, SessionConfig, SessionError};
 use crate::stats::Stats;
 use ecsync_dc::Method;
 use ecsync_dc::sync::MasterSync as _;
-use ecsync_dc::time::MasterDuration;
+use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_master::bringup::BringupTimeouts;
 use ecsync_master::driver::{CycleReport, CyclicLimits, ExchangeStats, Stopped};
 use ecsync_master::network::Network;
@@ -336,8 +336,8 @@ impl RunOut {
                 .recoveries()
                 .iter()
                 .map(|e| RecoveryRow {
-                    start_s: s_of(e.started_ns),
-                    end_s: e.ended_ns.map(s_of),
+                    start_s: s_of(e.started.as_ns()),
+                    end_s: e.ended.map(MasterInstant::as_ns).map(s_of),
                     slaves: e.slaves_brought_back(),
                     error: e.error(),
                     appeared: e.appeared(),
@@ -348,8 +348,8 @@ impl RunOut {
                 .recoveries()
                 .iter()
                 .flat_map(|e| {
-                    let found = s_of(e.started_ns);
-                    let back = e.ended_ns.map(s_of);
+                    let found = s_of(e.started.as_ns());
+                    let back = e.ended.map(MasterInstant::as_ns).map(s_of);
                     let l = match &e.outcome {
                         Some(Ok(r)) => r.left_op.clone(),
                         _ => Vec::new(),
@@ -370,9 +370,9 @@ impl RunOut {
                 .map(|(f, c)| SyncCounterRow {
                     position: c.position + 1,
                     sm_events_missed: c.sm_events_missed,
-                    read_s: s_of(c.read_ns),
+                    read_s: s_of(c.read.as_ns()),
                     first_sm_events_missed: f.sm_events_missed,
-                    first_read_s: s_of(f.read_ns),
+                    first_read_s: s_of(f.read.as_ns()),
                     missed_between_reads: c.sm_events_missed.wrapping_sub(f.sm_events_missed),
                 })
                 .collect(),

@@ -364,9 +364,9 @@ impl Run {
                     state: l.state_name(),
                     al_status_code: l.al_status_code(),
                     reason: l.reason(),
-                    found_ms: ms(e.started_ns),
+                    found_ms: ms(e.started.as_ns()),
                     // The recovery ends once every slave it took on is in OP again.
-                    back_in_op_ms: e.ended_ns.map(ms),
+                    back_in_op_ms: e.ended.map(MasterInstant::as_ns).map(ms),
                 });
             }
         }

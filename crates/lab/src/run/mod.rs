@@ -7,7 +7,7 @@ use crate::stats::{Stats, Summary};
 use ecsync_dc::Method;
 use ecsync_dc::fit::LineFit;
 use ecsync_dc::sync::MasterSync;
-use ecsync_dc::time::MasterDuration;
+use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
 use ecsync_master::cyclic::CyclicEngine;
 use ecsync_master::driver::{CycleReport, CyclicLimits};

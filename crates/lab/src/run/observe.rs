@@ -263,8 +263,8 @@ impl FaultWatch {
             .recoveries()
             .iter()
             .map(|e| RecoveryOut {
-                start_ms: ms(e.started_ns),
-                end_ms: e.ended_ns.map(ms),
+                start_ms: ms(e.started.as_ns()),
+                end_ms: e.ended.map(MasterInstant::as_ns).map(ms),
                 slaves: e.slaves_brought_back(),
                 error: e.error(),
                 appeared: e.appeared(),

@@ -421,8 +421,8 @@ impl CyclicDriver {
             }));
             rs.recovering = true;
             rs.log.push(RecoveryEvent {
-                started_ns: now,
-                ended_ns: None,
+                started: now_at,
+                ended: None,
                 outcome: None,
             });
         }

@@ -12,10 +12,10 @@ use ecsync_dc::time::MasterInstant;
 /// One recovery, for the report.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RecoveryEvent {
-    /// When it started, master time, ns.
-    pub started_ns: u64,
-    /// When it ended, master time, ns (`None`: still running).
-    pub ended_ns: Option<u64>,
+    /// When it started.
+    pub started: MasterInstant,
+    /// When it ended (`None`: still running).
+    pub ended: Option<MasterInstant>,
     /// What it did, or why it failed (it is tried again [`RECOVERY_RETRY_NS`] later).
     pub outcome: Option<Result<Recovered, String>>,
 }
@@ -33,8 +33,8 @@ pub struct SyncCounter {
     pub position: u16,
     /// 0x1C32:0B: SYNC0 cycles in OP without new outputs, as the drive counted them.
     pub sm_events_missed: u16,
-    /// When the answer came, master time, ns.
-    pub read_ns: u64,
+    /// When the answer came.
+    pub read: MasterInstant,
 }
 
 /// What the acyclic slot's procedure gives.
@@ -54,7 +54,7 @@ pub(super) async fn read_sync_counter(link: crate::io::Link, d: SyncDrive) -> Jo
         Ok(v) if v.len() >= 2 => Ok(Some(SyncCounter {
             position: d.position,
             sm_events_missed: u16::from_le_bytes([v[0], v[1]]),
-            read_ns: link.now().as_ns(),
+            read: link.now(),
         })),
         Ok(_) | Err(MasterError::SdoAbort { .. }) => Ok(None),
         Err(e) => Err(e),
@@ -153,7 +153,7 @@ impl RecoverySlot {
             }
         };
         if let Some(ev) = self.log.last_mut() {
-            ev.ended_ns = Some(now);
+            ev.ended = Some(MasterInstant::from_ns(now));
             ev.outcome = Some(r.clone().map_err(|e| e.to_string()));
         }
         match r {
