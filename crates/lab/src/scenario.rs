@@ -502,7 +502,7 @@ impl HostFile {
                 "host",
                 "preset",
                 format!("unknown host preset \"{preset}\""),
-                &format!("use one of: {}", HostParams::PRESETS.join(", ")),
+                format!("use one of: {}", HostParams::PRESETS.join(", ")),
             )
         })?;
         let h = self;
