@@ -4,21 +4,24 @@
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MethodKind;
-use ecsync_lab::compare::Options;
+use ecsync_lab::Scenario;
+use ecsync_lab::compare::{Comparison, Options};
 use ecsync_lab::output::write_atomic;
-use ecsync_lab::report::{csv, per_slave_text, summarize, table1_text, truth_text, verdict_text};
+use ecsync_lab::report::{
+    SummaryOut, csv, per_slave_text, summarize, table1_text, truth_text, verdict_text,
+};
 use ecsync_lab::scenario::plural;
 use ecsync_sim::config::{ConfigSource, Problem};
 use ecsync_sim::send::SendMode;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 /// Every fault's start and end and every recovery, per method and run, as CSV (times in s
 /// after the start of the cyclic phase).
-fn faults_csv(out: &ecsync_lab::report::SummaryOut, order: &[String]) -> String {
+fn faults_csv(out: &SummaryOut, order: &[String]) -> String {
     use std::fmt::Write as _;
     let mut t = String::from("method,run,what,edge,at_s,detail\n");
     let q = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
@@ -67,7 +70,7 @@ fn faults_csv(out: &ecsync_lab::report::SummaryOut, order: &[String]) -> String 
 
 /// The faults' table: per method, what the schedule did, what the master saw, DC's worst
 /// |0x092C| and the re-lock time after each fault (worst run).
-fn faults_text(out: &ecsync_lab::report::SummaryOut, order: &[String]) -> String {
+fn faults_text(out: &SummaryOut, order: &[String]) -> String {
     use std::fmt::Write as _;
     let mut t = String::from(
         "Faults (all runs): frames the schedule dropped, cycles lost, late and duplicate replies, skipped cycles, DC's largest |0x092C| of a cycle that came back, re-lock after each fault (100 cycles with |0x092C| in the method's lock band, 100 ns or what it holds without faults if more, and M-rS in its error band; worst run):\n",
@@ -263,7 +266,42 @@ fn problem(p: Problem, given: &[&str], file: &str, text: &str) -> anyhow::Error 
 
 static STOP: AtomicBool = AtomicBool::new(false);
 
+/// Runs the comparison the arguments describe, writes its outputs and prints its tables (or
+/// summary.json); exit code 130 when Ctrl-C stopped it.
 pub fn run(args: Args) -> Result<ExitCode> {
+    let s = scenario(&args)?;
+    if let Some(t) = args.threads
+        && t == 0
+    {
+        bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
+    }
+    if let Some(dir) = &args.samples {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--samples: cannot create {}", dir.display()))?;
+    }
+    let cmp = compare(&args, &s)?;
+    let out = summarize(&cmp);
+    let order: Vec<String> = s.entries().iter().map(|e| e.name()).collect();
+    let written = write_outputs(&args, &cmp, &out, &order)?;
+    if args.json {
+        println!("{}", written.json);
+    } else {
+        print_tables(&args, &out, &order, &written.table1);
+    }
+    if out.interrupted {
+        eprintln!(
+            "ecsync: interrupted; wrote the statistics of the {} recorded cycles done to {}",
+            out.cycles_done,
+            args.out.display()
+        );
+        return Ok(ExitCode::from(130));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The scenario: the file or preset, the fault schedule, and the flags over them, checked as
+/// the file is (naming the flag where one set the value).
+fn scenario(args: &Args) -> Result<Scenario> {
     let (name, text) = args.source.load()?;
     let mut s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
     if let Some(p) = &args.faults {
@@ -320,19 +358,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         s.host_name = h.clone();
     }
     if let Some(path) = &args.host_trace {
-        use ecsync_sim::host_fit::fit;
-        use ecsync_sim::host_trace::{HostTrace, Replay};
-        let file = path.display().to_string();
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("--host-trace: cannot read {file}"))?;
-        let trace = HostTrace::parse(&file, &text).map_err(anyhow::Error::msg)?;
-        // The model fitted to the trace stands for it where the simulator needs a mean (the
-        // master's known lead), the trace gives every cycle's values.
-        s.host = fit(&trace.rows, s.host).params;
-        let replay = Replay::new(trace, args.host_block_cycles)
-            .map_err(|e| anyhow::anyhow!("--host-block-cycles: {e}"))?;
-        s.host_name = format!("trace {file} (blocks of {} cycles)", replay.block_cycles());
-        s.host_trace = Some(std::sync::Arc::new(replay));
+        replay_host_trace(&mut s, path, args.host_block_cycles)?;
     }
     if let Some(p) = args.shift_pct {
         given.push("--shift-pct");
@@ -350,52 +376,69 @@ pub fn run(args: Args) -> Result<ExitCode> {
     }
     // The same checks as for the file, naming the flag where one set the value.
     s.check().map_err(|p| problem(p, &given, &name, &text))?;
-    if let Some(t) = args.threads
-        && t == 0
-    {
-        bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
-    }
-    if let Some(dir) = &args.samples {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("--samples: cannot create {}", dir.display()))?;
-    }
+    Ok(s)
+}
 
+/// `--host-trace`: the host's noise replayed from the trace at `path` in blocks of
+/// `block_cycles`, with the model fitted to it where the simulator needs a mean.
+fn replay_host_trace(s: &mut Scenario, path: &Path, block_cycles: u64) -> Result<()> {
+    use ecsync_sim::host_fit::fit;
+    use ecsync_sim::host_trace::{HostTrace, Replay};
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("--host-trace: cannot read {file}"))?;
+    let trace = HostTrace::parse(&file, &text).map_err(anyhow::Error::msg)?;
+    // The model fitted to the trace stands for it where the simulator needs a mean (the
+    // master's known lead), the trace gives every cycle's values.
+    s.host = fit(&trace.rows, s.host).params;
+    let replay = Replay::new(trace, block_cycles)
+        .map_err(|e| anyhow::anyhow!("--host-block-cycles: {e}"))?;
+    s.host_name = format!("trace {file} (blocks of {} cycles)", replay.block_cycles());
+    s.host_trace = Some(std::sync::Arc::new(replay));
+    Ok(())
+}
+
+/// The progress bar of the comparison's `total_cycles` (hidden with --quiet or --json).
+fn progress_bar(args: &Args, s: &Scenario, total_cycles: u64) -> ProgressBar {
+    if args.quiet || args.json {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(total_cycles);
+    b.set_style(
+        ProgressStyle::with_template(
+            "{spinner} {msg} [{bar:40}] {percent:>3}% {human_pos}/{human_len} cycles, {per_sec}, eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    b.set_message(format!(
+        "{} x {}",
+        s.entries()
+            .iter()
+            .map(|e| e.name())
+            .collect::<Vec<_>>()
+            .join(", "),
+        plural(u64::from(s.runs), "run", "runs")
+    ));
+    b
+}
+
+/// Runs the comparison on `--threads` (default: all cores) with a progress bar; Ctrl-C (and
+/// SIGTERM) stop the runs after their current slice, and what they measured is kept.
+fn compare(args: &Args, s: &Scenario) -> Result<Comparison> {
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let total = (s.warmup_cycles + s.cycles) * u64::from(s.runs) * s.entries().len() as u64;
     let progress = AtomicU64::new(0);
-    let bar = if args.quiet || args.json {
-        ProgressBar::hidden()
-    } else {
-        let b = ProgressBar::new(total);
-        b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} {msg} [{bar:40}] {percent:>3}% {human_pos}/{human_len} cycles, {per_sec}, eta {eta}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-        );
-        b.set_message(format!(
-            "{} x {}",
-            s.entries()
-                .iter()
-                .map(|e| e.name())
-                .collect::<Vec<_>>()
-                .join(", "),
-            plural(u64::from(s.runs), "run", "runs")
-        ));
-        b
-    };
-    // Ctrl-C (and SIGTERM) stop the runs after their current slice; what they measured is
-    // written.
+    let bar = progress_bar(args, s, total);
     let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
     let opts = Options {
         stop: Some(&STOP),
         samples_dir: args.samples.clone(),
     };
     let result = std::thread::scope(|sc| {
-        let handle = sc.spawn(|| ecsync_lab::compare::compare_with(&s, threads, &progress, &opts));
+        let handle = sc.spawn(|| ecsync_lab::compare::compare_with(s, threads, &progress, &opts));
         let mut said = false;
         while !handle.is_finished() {
             bar.set_position(progress.load(Ordering::Relaxed));
@@ -410,83 +453,92 @@ pub fn run(args: Args) -> Result<ExitCode> {
         handle.join()
     });
     bar.finish_and_clear();
-    let cmp = result
+    result
         .map_err(|_| anyhow::anyhow!("a simulation thread panicked"))?
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let out = summarize(&cmp);
-    let order: Vec<String> = s.entries().iter().map(|e| e.name()).collect();
+        .map_err(|e| anyhow::anyhow!("{e}"))
+}
+
+/// What [`write_outputs`] wrote that the terminal shows.
+struct Written {
+    /// summary.json.
+    json: String,
+    /// table1.txt.
+    table1: String,
+}
+
+/// Writes summary.json, timing.json, summary.csv, faults.csv (with --faults), table1.txt, the
+/// plots and report.html into --out.
+fn write_outputs(
+    args: &Args,
+    cmp: &Comparison,
+    out: &SummaryOut,
+    order: &[String],
+) -> Result<Written> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let json = serde_json::to_string_pretty(&out)?;
+    let json = serde_json::to_string_pretty(out)?;
     write_atomic(&args.out.join("summary.json"), json.as_bytes())?;
     write_atomic(
         &args.out.join("timing.json"),
         serde_json::to_string_pretty(&out.timing())?.as_bytes(),
     )?;
-    write_atomic(&args.out.join("summary.csv"), csv(&out, &order).as_bytes())?;
+    write_atomic(&args.out.join("summary.csv"), csv(out, order).as_bytes())?;
     if args.faults.is_some() {
         write_atomic(
             &args.out.join("faults.csv"),
-            faults_csv(&out, &order).as_bytes(),
+            faults_csv(out, order).as_bytes(),
         )?;
     }
-    let table = table1_text(&out, &order);
-    write_atomic(&args.out.join("table1.txt"), table.as_bytes())?;
-    ecsync_lab::plots::write_all(&cmp, &out, &order, &args.out)
+    let table1 = table1_text(out, order);
+    write_atomic(&args.out.join("table1.txt"), table1.as_bytes())?;
+    ecsync_lab::plots::write_all(cmp, out, order, &args.out)
         .context("writing plots and report.html")?;
+    Ok(Written { json, table1 })
+}
+
+/// The terminal's report: the scenario in a line, the verdict, the ground truth, the faults
+/// (with --faults), per slave, Table 1 (`table1`), and what was written where.
+fn print_tables(args: &Args, out: &SummaryOut, order: &[String], table1: &str) {
     let s_has_faults = args.faults.is_some();
-    if args.json {
-        println!("{json}");
-    } else {
-        if out.interrupted {
-            println!(
-                "Interrupted: the statistics below are of the {} recorded cycles done.\n",
-                out.cycles_done
-            );
-        }
-        println!(
-            "{}: {} slaves, host {}, {} x {} cycles after {} warm-up cycles, cycle {} us, SYNC0 shift {} %, target phase {:.1} us",
-            out.scenario,
-            out.slaves,
-            out.host,
-            plural(u64::from(out.runs), "run", "runs"),
-            out.cycles,
-            out.warmup_cycles,
-            f64::from(out.cycle_ns) / 1000.0,
-            out.sync0_shift_pct,
-            out.target_phase_ns as f64 / 1000.0
-        );
-        println!();
-        print!("{}", verdict_text(&out));
-        println!();
-        print!("{}", truth_text(&out, &order));
-        println!();
-        if s_has_faults {
-            print!("{}", faults_text(&out, &order));
-            println!();
-        }
-        print!("{}", per_slave_text(&out));
-        println!();
-        print!("{table}");
-        println!();
-        println!(
-            "Wrote {}/{{summary.json, timing.json, summary.csv, {}table1.txt, report.html, *.svg, *.png}} in {:.1} s on {}.",
-            args.out.display(),
-            if s_has_faults { "faults.csv, " } else { "" },
-            out.wall_s,
-            plural(out.threads as u64, "thread", "threads")
-        );
-        if let Some(d) = &args.samples {
-            println!("Per-cycle samples in {}.", d.display());
-        }
-    }
     if out.interrupted {
-        eprintln!(
-            "ecsync: interrupted; wrote the statistics of the {} recorded cycles done to {}",
-            out.cycles_done,
-            args.out.display()
+        println!(
+            "Interrupted: the statistics below are of the {} recorded cycles done.\n",
+            out.cycles_done
         );
-        return Ok(ExitCode::from(130));
     }
-    Ok(ExitCode::SUCCESS)
+    println!(
+        "{}: {} slaves, host {}, {} x {} cycles after {} warm-up cycles, cycle {} us, SYNC0 shift {} %, target phase {:.1} us",
+        out.scenario,
+        out.slaves,
+        out.host,
+        plural(u64::from(out.runs), "run", "runs"),
+        out.cycles,
+        out.warmup_cycles,
+        f64::from(out.cycle_ns) / 1000.0,
+        out.sync0_shift_pct,
+        out.target_phase_ns as f64 / 1000.0
+    );
+    println!();
+    print!("{}", verdict_text(out));
+    println!();
+    print!("{}", truth_text(out, order));
+    println!();
+    if s_has_faults {
+        print!("{}", faults_text(out, order));
+        println!();
+    }
+    print!("{}", per_slave_text(out));
+    println!();
+    print!("{table1}");
+    println!();
+    println!(
+        "Wrote {}/{{summary.json, timing.json, summary.csv, {}table1.txt, report.html, *.svg, *.png}} in {:.1} s on {}.",
+        args.out.display(),
+        if s_has_faults { "faults.csv, " } else { "" },
+        out.wall_s,
+        plural(out.threads as u64, "thread", "threads")
+    );
+    if let Some(d) = &args.samples {
+        println!("Per-cycle samples in {}.", d.display());
+    }
 }

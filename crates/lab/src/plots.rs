@@ -584,45 +584,115 @@ macro_rules! plot {
     };
 }
 
-/// Writes every plot and report.html into `dir`.
+/// Writes every plot and report.html into `dir`: the faults (with a schedule), the
+/// histograms, run 0's series and Fig. 4's layout, each as SVG and PNG.
 pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path) -> io::Result<()> {
     fonts();
-    let n = order.len().max(1) as u32;
-    let s = &c.scenario;
-    let shift = f64::from(s.sync0_shift_ns());
-    let target = s.target_phase_ns as f64;
-    let deadline = out.margin_budget_ns + target;
-    let red = RGBColor(0xc0, 0x00, 0x00);
-    let grey = RGBColor(0x55, 0x55, 0x55);
-    let phase_marks = || {
+    let lines = PhaseLines::of(c, out);
+    let mut plots: Vec<Plot<'_>> = faults_plot(c, order).into_iter().collect();
+    plots.extend(histograms(c, order, lines));
+    plots.extend(series(c, order, lines));
+    for pl in &plots {
+        for (ext, svg) in [("svg", true), ("png", false)] {
+            let fin = dir.join(format!("{}.{ext}", pl.name));
+            let tmp = dir.join(format!("{}.tmp-ecsync.{ext}", pl.name));
+            (pl.draw)(&tmp, svg)?;
+            std::fs::rename(&tmp, &fin)?;
+        }
+    }
+    let html = report_html(
+        out,
+        order,
+        &plots
+            .iter()
+            .map(|p| (p.name, p.caption.as_str()))
+            .collect::<Vec<_>>(),
+    );
+    write_atomic(&dir.join("report.html"), html.as_bytes())
+}
+
+/// Where the phase plots draw their lines, ns after the DC grid point.
+#[derive(Debug, Clone, Copy)]
+struct PhaseLines {
+    /// The target every method aims at.
+    target_ns: f64,
+    /// A frame after this was late: SYNC0 minus the frame's transit to the worst slave.
+    deadline_ns: f64,
+    /// SYNC0.
+    shift_ns: f64,
+}
+
+impl PhaseLines {
+    /// The comparison's lines: its target, its SYNC0 and the margin the summary found.
+    fn of(c: &Comparison, out: &SummaryOut) -> Self {
+        let s = &c.scenario;
+        let target_ns = s.target_phase_ns as f64;
+        PhaseLines {
+            target_ns,
+            deadline_ns: out.margin_budget_ns + target_ns,
+            shift_ns: f64::from(s.sync0_shift_ns()),
+        }
+    }
+
+    /// The target (grey) and the late line (red).
+    fn marks(self) -> Vec<Mark> {
         vec![
             Mark {
-                at_ns: target,
+                at_ns: self.target_ns,
                 label: "target".into(),
-                color: grey,
+                color: GREY,
             },
             Mark {
-                at_ns: deadline,
+                at_ns: self.deadline_ns,
                 label: "late beyond (SYNC0 minus the frame's transit)".into(),
-                color: red,
+                color: RED,
             },
         ]
-    };
-    let margin_marks = || {
-        vec![Mark {
-            at_ns: 0.0,
-            label: "SYNC0 (late below 0)".into(),
-            color: red,
-        }]
-    };
-    let runs = crate::scenario::plural(u64::from(s.runs), "run", "runs");
-    let block = c
+    }
+}
+
+/// The late line's red.
+const RED: RGBColor = RGBColor(0xc0, 0x00, 0x00);
+/// The target's grey.
+const GREY: RGBColor = RGBColor(0x55, 0x55, 0x55);
+
+/// SYNC0 (red) on the margin's axis.
+fn margin_marks() -> Vec<Mark> {
+    vec![Mark {
+        at_ns: 0.0,
+        label: "SYNC0 (late below 0)".into(),
+        color: RED,
+    }]
+}
+
+/// Each fault window of run 0, when the comparison played a schedule.
+fn faults_plot<'a>(c: &'a Comparison, order: &'a [String]) -> Option<Plot<'a>> {
+    let windows = c
         .results
         .iter()
         .flatten()
-        .next()
-        .map_or(1, |r| r.series_block);
-    let plots: Vec<Plot<'_>> = vec![
+        .filter_map(|r| r.faults.as_ref())
+        .map(|f| f.windows.len())
+        .max()
+        .unwrap_or(0);
+    (windows > 0).then(|| {
+        Plot {
+            name: "faults",
+            caption: "Each fault of the schedule in run 0: |0x092C| (the BRD's OR over every drive) from the fault's start to a second after its end, per method; a gap is a lost cycle; the red line is 100 ns, the lock band of every method that does not write the master's time into the reference. A master that brings a reset slave back shows the gap, the far values of the reset slave, and the way back under the line.".into(),
+            draw: Box::new(move |p, svg| {
+                plot!(p, svg, (1100, 200 * windows as u32 + 40), |r| fault_windows(r, c, order))
+            }),
+        }
+    })
+}
+
+/// Every method's distribution of each metric on shared axes: the true phase, the SYNC0
+/// margin, the slave spread, M-rS and rS-IS.
+fn histograms<'a>(c: &'a Comparison, order: &'a [String], lines: PhaseLines) -> Vec<Plot<'a>> {
+    let s = &c.scenario;
+    let runs = crate::scenario::plural(u64::from(s.runs), "run", "runs");
+    let (target, deadline, shift) = (lines.target_ns, lines.deadline_ns, lines.shift_ns);
+    vec![
         Plot {
             name: "hist_phase",
             caption: format!(
@@ -640,7 +710,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
                     "true phase: the frame's arrival at the reference after the DC grid point",
                     1000.0,
                     "us",
-                    &phase_marks(),
+                    &lines.marks(),
                 ))
             }),
         },
@@ -711,6 +781,20 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
                 ))
             }),
         },
+    ]
+}
+
+/// Run 0 over time, a panel per method (the true phase, M-rS, rS-IS), and the letter's Fig. 4
+/// layout.
+fn series<'a>(c: &'a Comparison, order: &'a [String], lines: PhaseLines) -> Vec<Plot<'a>> {
+    let n = order.len().max(1) as u32;
+    let block = c
+        .results
+        .iter()
+        .flatten()
+        .next()
+        .map_or(1, |r| r.series_block);
+    vec![
         Plot {
             name: "series_true_phase",
             caption: format!(
@@ -725,7 +809,7 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
                     "true phase over time (run 0; s since recording started)",
                     1000.0,
                     "us",
-                    &phase_marks(),
+                    &lines.marks(),
                 ))
             }),
         },
@@ -768,43 +852,5 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
                 plot!(p, svg, (1100, 220 * n), |r| fig4(r, c, order))
             }),
         },
-    ];
-    let mut plots = plots;
-    let windows = c
-        .results
-        .iter()
-        .flatten()
-        .filter_map(|r| r.faults.as_ref())
-        .map(|f| f.windows.len())
-        .max()
-        .unwrap_or(0);
-    if windows > 0 {
-        plots.insert(
-            0,
-            Plot {
-                name: "faults",
-                caption: "Each fault of the schedule in run 0: |0x092C| (the BRD's OR over every drive) from the fault's start to a second after its end, per method; a gap is a lost cycle; the red line is 100 ns, the lock band of every method that does not write the master's time into the reference. A master that brings a reset slave back shows the gap, the far values of the reset slave, and the way back under the line.".into(),
-                draw: Box::new(move |p, svg| {
-                    plot!(p, svg, (1100, 200 * windows as u32 + 40), |r| fault_windows(r, c, order))
-                }),
-            },
-        );
-    }
-    for pl in &plots {
-        for (ext, svg) in [("svg", true), ("png", false)] {
-            let fin = dir.join(format!("{}.{ext}", pl.name));
-            let tmp = dir.join(format!("{}.tmp-ecsync.{ext}", pl.name));
-            (pl.draw)(&tmp, svg)?;
-            std::fs::rename(&tmp, &fin)?;
-        }
-    }
-    let html = report_html(
-        out,
-        order,
-        &plots
-            .iter()
-            .map(|p| (p.name, p.caption.as_str()))
-            .collect::<Vec<_>>(),
-    );
-    write_atomic(&dir.join("report.html"), html.as_bytes())
+    ]
 }

@@ -455,184 +455,221 @@ fn check_host(host: &HostParams, cycle_ns: u32) -> Result<(), Problem> {
     Ok(())
 }
 
-/// Parses and checks a scenario.
+/// Parses and checks a scenario: the segment, then the host, the run and the send tables in
+/// that order (the first bad field is the one reported), then the whole.
 pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
     let src = ConfigSource::new(file, text);
     let f: File = src.deserialize()?;
-    let err =
-        |table: &str, key: &str, message: String, fix: &str| src.error(table, key, message, fix);
     let slaves = f.segment.to_specs(file, text, "segment")?;
-
-    // Host: a preset, then overrides.
-    let preset = f
-        .host
-        .preset
-        .clone()
-        .unwrap_or_else(|| "preempt-rt-stress".to_string());
-    let mut host = HostParams::preset(&preset).ok_or_else(|| {
-        err(
-            "host",
-            "preset",
-            format!("unknown host preset \"{preset}\""),
-            &format!("use one of: {}", HostParams::PRESETS.join(", ")),
-        )
-    })?;
-    let h = &f.host;
-    let custom = h.master_ppm.is_some()
-        || h.js.is_some()
-        || h.jc.is_some()
-        || h.em_ns.is_some()
-        || h.em_jitter.is_some()
-        || h.tx_latency_ns.is_some()
-        || h.rx_latency_ns.is_some()
-        || h.master_wander_ppm_per_sqrt_s.is_some()
-        || h.bursts.is_some();
-    if let Some(v) = h.master_ppm {
-        host.master_ppm = v;
-    }
-    if let Some(v) = h.master_wander_ppm_per_sqrt_s {
-        host.master_wander_ppm_per_sqrt_s = v;
-    }
-    if let Some(v) = h.js {
-        host.js = v;
-    }
-    if let Some(v) = h.em_ns {
-        host.em_ns = v;
-    }
-    if let Some(v) = h.em_jitter {
-        host.em_jitter = v;
-    }
-    if let Some(v) = h.jc {
-        host.jc = v;
-    }
-    if let Some(v) = h.tx_latency_ns {
-        host.tx_latency_ns = v;
-    }
-    if let Some(v) = h.rx_latency_ns {
-        host.rx_latency_ns = v;
-    }
-    if let Some(v) = h.bursts {
-        host.bursts = v;
-    }
-
-    // Run.
+    let (host_name, host) = f.host.params(&src)?;
+    let run = f.run.check(&src)?;
+    let (send_modes, send) = f.send.params(&src)?;
     let r = &f.run;
-    let (lo, hi) = CYCLE_US_RANGE;
-    if !(r.cycle_us.is_finite() && (lo..=hi).contains(&r.cycle_us)) {
-        return Err(src.locate(cycle_problem(r.cycle_us)));
-    }
-    let cycle_ns = (r.cycle_us * 1000.0).round() as u32;
-    let target_phase_ns = MethodContext::target_phase_from_us(r.target_phase_us)
-        .map_err(|e| src.locate(param_problem(e)))?;
-    for (key, v, lo, hi) in [
-        ("runs", r.runs, 1, 1000),
-        ("cycles", r.cycles, 1, 1_000_000_000),
-        ("static_drift_frames", r.static_drift_frames, 0, 10_000_000),
-    ] {
-        if v < lo || v > hi {
-            return Err(err(
-                "run",
-                key,
-                format!("{v}"),
-                &format!("give between {lo} and {hi}"),
-            ));
-        }
-    }
-    if !(r.warmup_s.is_finite() && r.warmup_s >= 0.0 && r.warmup_s <= 86_400.0) {
-        return Err(err(
-            "run",
-            "warmup_s",
-            format!("{} s of warm-up", r.warmup_s),
-            "give between 0 and 86400 s",
-        ));
-    }
-    let mut methods = Vec::new();
-    for m in &r.methods {
-        match m.parse::<MethodKind>() {
-            Ok(k) => methods.push(k),
-            Err(_) => {
-                return Err(err(
-                    "run",
-                    "methods",
-                    format!("unknown method \"{m}\""),
-                    &format!("use: {}", MethodKind::list()),
-                ));
-            }
-        }
-    }
-    // SSC keeps 0x10F1:02 as an UNSIGNED16 (TOBJ10F1.u16SyncErrorCounterLimit).
-    let sync_error_limit = match r.sync_error_limit {
-        None => None,
-        Some(v) => Some(u16::try_from(v).map_err(|_| {
-            err(
-                "run",
-                "sync_error_limit",
-                format!("{v} is not a sync error counter limit (0x10F1:02 is an UNSIGNED16)"),
-                "give 0 to 65535: each missed SYNC0 adds 3 to the drive's counter and each good cycle takes 1 away, past the limit the drive leaves OP with 0x001A (ETG's slave stack code: 4 by default; 0 switches the reaction off); or leave it out to keep the drives' own",
-            )
-        })?),
-    };
-    let sf = &f.send;
-    let mut send_modes = Vec::new();
-    for m in sf.modes.clone().unwrap_or_else(|| vec!["plain".into()]) {
-        match m.parse::<SendMode>() {
-            Ok(k) => send_modes.push(k),
-            Err(e) => {
-                return Err(err(
-                    "send",
-                    "modes",
-                    e,
-                    "use plain, spin, txtime and/or hwstamp",
-                ));
-            }
-        }
-    }
-    let d = SendParams::default();
-    let us = |v: Option<f64>, dflt: f64| v.map_or(dflt, |x| x * 1000.0);
-    let send = SendParams {
-        spin_margin_ns: us(sf.spin_margin_us, d.spin_margin_ns),
-        spin_residual_ns: sf.spin_residual_ns.unwrap_or(d.spin_residual_ns),
-        txtime_lead_ns: us(sf.txtime_lead_us, d.txtime_lead_ns),
-        txtime_delta_ns: us(sf.txtime_delta_us, d.txtime_delta_ns),
-        launch_jitter_ns: sf.launch_jitter_ns.unwrap_or(d.launch_jitter_ns),
-        launch_to_wire_ns: sf.launch_to_wire_ns.unwrap_or(d.launch_to_wire_ns),
-        hw_stamp_error_ns: sf.hw_stamp_error_ns.unwrap_or(d.hw_stamp_error_ns),
-    };
     let s = Scenario {
         name: file.to_string(),
         slaves,
-        host_name: if custom {
-            format!("{preset} (modified)")
-        } else {
-            preset
-        },
+        host_name,
         host,
         host_trace: None,
-        cycle_ns,
+        cycle_ns: run.cycle_ns,
         sync0_shift_pct: r.sync0_shift_pct,
-        target_phase_ns,
+        target_phase_ns: run.target_phase_ns,
         runs: r.runs as u32,
         cycles: r.cycles as u64,
-        warmup_cycles: (r.warmup_s * 1e9 / f64::from(cycle_ns)).round() as u64,
+        warmup_cycles: (r.warmup_s * 1e9 / f64::from(run.cycle_ns)).round() as u64,
         seed: r.seed,
-        // Report order, each once, whatever the file's order.
-        methods: MethodKind::ALL
-            .into_iter()
-            .filter(|m| methods.contains(m))
-            .collect(),
+        methods: run.methods,
         static_drift_frames: r.static_drift_frames as u32,
-        sync_error_limit,
+        sync_error_limit: run.sync_error_limit,
         params: f.methods,
         faults: None,
-        // Report order, each once.
-        send_modes: SendMode::ALL
-            .into_iter()
-            .filter(|m| send_modes.contains(m))
-            .collect(),
+        send_modes,
         send,
     };
     s.check().map_err(|p| src.locate(p))?;
     Ok(s)
+}
+
+impl HostFile {
+    /// The host: its preset with the file's overrides; its name says "(modified)" if any.
+    fn params(&self, src: &ConfigSource<'_>) -> Result<(String, HostParams), ConfigError> {
+        let preset = self
+            .preset
+            .clone()
+            .unwrap_or_else(|| "preempt-rt-stress".to_string());
+        let mut host = HostParams::preset(&preset).ok_or_else(|| {
+            src.error(
+                "host",
+                "preset",
+                format!("unknown host preset \"{preset}\""),
+                format!("use one of: {}", HostParams::PRESETS.join(", ")),
+            )
+        })?;
+        let h = self;
+        let custom = h.master_ppm.is_some()
+            || h.js.is_some()
+            || h.jc.is_some()
+            || h.em_ns.is_some()
+            || h.em_jitter.is_some()
+            || h.tx_latency_ns.is_some()
+            || h.rx_latency_ns.is_some()
+            || h.master_wander_ppm_per_sqrt_s.is_some()
+            || h.bursts.is_some();
+        if let Some(v) = h.master_ppm {
+            host.master_ppm = v;
+        }
+        if let Some(v) = h.master_wander_ppm_per_sqrt_s {
+            host.master_wander_ppm_per_sqrt_s = v;
+        }
+        if let Some(v) = h.js {
+            host.js = v;
+        }
+        if let Some(v) = h.em_ns {
+            host.em_ns = v;
+        }
+        if let Some(v) = h.em_jitter {
+            host.em_jitter = v;
+        }
+        if let Some(v) = h.jc {
+            host.jc = v;
+        }
+        if let Some(v) = h.tx_latency_ns {
+            host.tx_latency_ns = v;
+        }
+        if let Some(v) = h.rx_latency_ns {
+            host.rx_latency_ns = v;
+        }
+        if let Some(v) = h.bursts {
+            host.bursts = v;
+        }
+        let name = if custom {
+            format!("{preset} (modified)")
+        } else {
+            preset
+        };
+        Ok((name, host))
+    }
+}
+
+/// What `[run]` gives that needs more than a copy, checked.
+struct RunChecked {
+    /// The cycle, ns.
+    cycle_ns: u32,
+    /// Where every master-shift method aims, ns after the DC grid point.
+    target_phase_ns: i64,
+    /// The methods in the report's order, each once, whatever the file's order.
+    methods: Vec<MethodKind>,
+    /// 0x10F1:02 for the drives, if the file sets it.
+    sync_error_limit: Option<u16>,
+}
+
+impl RunFile {
+    /// Checks the cycle, the target, the counts, the warm-up, the methods and the sync error
+    /// counter limit.
+    fn check(&self, src: &ConfigSource<'_>) -> Result<RunChecked, ConfigError> {
+        let err = |key: &str, message: String, fix: &str| src.error("run", key, message, fix);
+        let r = self;
+        let (lo, hi) = CYCLE_US_RANGE;
+        if !(r.cycle_us.is_finite() && (lo..=hi).contains(&r.cycle_us)) {
+            return Err(src.locate(cycle_problem(r.cycle_us)));
+        }
+        let cycle_ns = (r.cycle_us * 1000.0).round() as u32;
+        let target_phase_ns = MethodContext::target_phase_from_us(r.target_phase_us)
+            .map_err(|e| src.locate(param_problem(e)))?;
+        for (key, v, lo, hi) in [
+            ("runs", r.runs, 1, 1000),
+            ("cycles", r.cycles, 1, 1_000_000_000),
+            ("static_drift_frames", r.static_drift_frames, 0, 10_000_000),
+        ] {
+            if v < lo || v > hi {
+                return Err(err(
+                    key,
+                    format!("{v}"),
+                    &format!("give between {lo} and {hi}"),
+                ));
+            }
+        }
+        if !(r.warmup_s.is_finite() && r.warmup_s >= 0.0 && r.warmup_s <= 86_400.0) {
+            return Err(err(
+                "warmup_s",
+                format!("{} s of warm-up", r.warmup_s),
+                "give between 0 and 86400 s",
+            ));
+        }
+        let mut methods = Vec::new();
+        for m in &r.methods {
+            match m.parse::<MethodKind>() {
+                Ok(k) => methods.push(k),
+                Err(_) => {
+                    return Err(err(
+                        "methods",
+                        format!("unknown method \"{m}\""),
+                        &format!("use: {}", MethodKind::list()),
+                    ));
+                }
+            }
+        }
+        // SSC keeps 0x10F1:02 as an UNSIGNED16 (TOBJ10F1.u16SyncErrorCounterLimit).
+        let sync_error_limit = match r.sync_error_limit {
+            None => None,
+            Some(v) => Some(u16::try_from(v).map_err(|_| {
+                err(
+                    "sync_error_limit",
+                    format!("{v} is not a sync error counter limit (0x10F1:02 is an UNSIGNED16)"),
+                    "give 0 to 65535: each missed SYNC0 adds 3 to the drive's counter and each good cycle takes 1 away, past the limit the drive leaves OP with 0x001A (ETG's slave stack code: 4 by default; 0 switches the reaction off); or leave it out to keep the drives' own",
+                )
+            })?),
+        };
+        Ok(RunChecked {
+            cycle_ns,
+            target_phase_ns,
+            // Report order, each once, whatever the file's order.
+            methods: MethodKind::ALL
+                .into_iter()
+                .filter(|m| methods.contains(m))
+                .collect(),
+            sync_error_limit,
+        })
+    }
+}
+
+impl SendFile {
+    /// The send modes (report order, each once; `plain` alone if the file names none) and
+    /// their parameters, the defaults where the file says nothing.
+    fn params(&self, src: &ConfigSource<'_>) -> Result<(Vec<SendMode>, SendParams), ConfigError> {
+        let sf = self;
+        let mut send_modes = Vec::new();
+        for m in sf.modes.clone().unwrap_or_else(|| vec!["plain".into()]) {
+            match m.parse::<SendMode>() {
+                Ok(k) => send_modes.push(k),
+                Err(e) => {
+                    return Err(src.error(
+                        "send",
+                        "modes",
+                        e,
+                        "use plain, spin, txtime and/or hwstamp",
+                    ));
+                }
+            }
+        }
+        let d = SendParams::default();
+        let us = |v: Option<f64>, dflt: f64| v.map_or(dflt, |x| x * 1000.0);
+        let send = SendParams {
+            spin_margin_ns: us(sf.spin_margin_us, d.spin_margin_ns),
+            spin_residual_ns: sf.spin_residual_ns.unwrap_or(d.spin_residual_ns),
+            txtime_lead_ns: us(sf.txtime_lead_us, d.txtime_lead_ns),
+            txtime_delta_ns: us(sf.txtime_delta_us, d.txtime_delta_ns),
+            launch_jitter_ns: sf.launch_jitter_ns.unwrap_or(d.launch_jitter_ns),
+            launch_to_wire_ns: sf.launch_to_wire_ns.unwrap_or(d.launch_to_wire_ns),
+            hw_stamp_error_ns: sf.hw_stamp_error_ns.unwrap_or(d.hw_stamp_error_ns),
+        };
+        // Report order, each once.
+        let send_modes = SendMode::ALL
+            .into_iter()
+            .filter(|m| send_modes.contains(m))
+            .collect();
+        Ok((send_modes, send))
+    }
 }
 
 /// Parses `table` (a `[host]` table, [`ecsync_sim::host_fit::HostFit::to_toml`]) in the place of the letter's

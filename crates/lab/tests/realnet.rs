@@ -6,6 +6,9 @@
 //! cables' and ports' true ones, and its summary's counts are the cycles it ran.
 #![cfg(target_os = "linux")]
 
+#[path = "common/ip.rs"]
+mod ip;
+
 use ecsync_dc::MethodKind;
 use ecsync_dc::time::MasterDuration;
 use ecsync_lab::realnet::summary::{BringupOut, RunOut};
@@ -19,7 +22,7 @@ use ecsync_net::tx_stamp::TxStampSource;
 use ecsync_net::{RealLink, rt};
 use ecsync_sim::Segment;
 use ecsync_sim::preset::PAPER_2024_TOML;
-use std::process::Command;
+use ip::ip;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -27,22 +30,6 @@ const CYCLE_NS: u32 = 1_000_000;
 const SHIFT_NS: u32 = 300_000;
 const CYCLES: u64 = 2_000;
 const INIT_FRAMES: u64 = 100;
-
-fn ip(args: &[&str]) -> Result<(), String> {
-    let o = Command::new("ip")
-        .args(args)
-        .output()
-        .map_err(|e| format!("ip: {e}"))?;
-    if o.status.success() {
-        Ok(())
-    } else {
-        Err(format!(
-            "ip {}: {}",
-            args.join(" "),
-            String::from_utf8_lossy(&o.stderr).trim()
-        ))
-    }
-}
 
 /// This thread in a network namespace of its own with the veth pair `va`-`vb`, both up.
 fn own_namespace_with_veth() -> Result<(), String> {

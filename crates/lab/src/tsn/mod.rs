@@ -304,6 +304,75 @@ impl CycleObserver<TsnNetwork<'_>> for VariantTruth {
     }
 }
 
+impl VariantTruth {
+    /// The variant's result: what the bring-up found, the measured `delays` (the largest
+    /// |error| `max_err`, ns), this cyclic phase's figures, and what the network counted
+    /// (cross traffic, gPTP, frames held at a gate); timed from `t0`.
+    fn into_result(
+        self,
+        net: &mut TsnNetwork<'_>,
+        net_info: &Network,
+        variant: Variant,
+        delays: Vec<SlaveDelay>,
+        max_err: f64,
+        t0: std::time::Instant,
+    ) -> VariantResult {
+        let cross_traffic_frames = net.cross_traffic_frames();
+        let VariantTruth {
+            m_rs,
+            rs_is,
+            mref,
+            spread,
+            margin,
+            wait,
+            gptp_off,
+            series,
+            late,
+            overruns,
+            lost,
+            ..
+        } = self;
+        let gptp = net.gptp_figures().map(|g| GptpOut {
+            offset: gptp_off.summary(),
+            measured_link_delay_ns: g.measured_link_delay_ns.unwrap_or(f64::NAN),
+            true_link_delay_ns: g.true_link_delay_ns,
+            bridge_is_grandmaster: g.bridge_is_grandmaster,
+            messages: g.counts.sent,
+            held_by_cross_traffic: g.held_by_cross_traffic,
+        });
+        let [a, b, c, d] = series;
+        VariantResult {
+            variant,
+            title: variant.title(),
+            converged: net_info.lock.converged,
+            time_to_lock_ms: net_info.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
+            master_delay_ns: net_info.master_delay_ns,
+            master_delay_spread_ns: net_info.master_delay_spread_ns,
+            delays,
+            max_abs_delay_error_ns: max_err,
+            blocked: net.blocked(),
+            m_rs: m_rs.summary(),
+            rs_is: rs_is.summary(),
+            master_minus_reference: mref.summary(),
+            slave_spread: spread.summary(),
+            sync0_margin: margin.summary(),
+            late_frames: late,
+            overrun_cycles: overruns,
+            lost_frames: lost,
+            cross_traffic_frames,
+            gptp,
+            wall_s: t0.elapsed().as_secs_f64(),
+            plots: VariantPlots {
+                master_minus_reference: mref,
+                slave_spread: spread,
+                wait,
+                gptp_offset: gptp_off,
+                series: [a.finish(), b.finish(), c.finish(), d.finish()],
+            },
+        }
+    }
+}
+
 /// Why `variant`'s session could not start.
 fn session_error(variant: Variant) -> impl Fn(SessionError) -> TsnError {
     move |e| match e {
@@ -315,25 +384,70 @@ fn session_error(variant: Variant) -> impl Fn(SessionError) -> TsnError {
     }
 }
 
-/// Runs one variant of the scenario.
+/// Runs one variant of the scenario: its network, the bring-up with the master as the DC
+/// reference, the delays it measured against the truth, then the cyclic phase against the
+/// ground truth.
 pub fn run_variant(
     s: &TsnScenario,
     variant: Variant,
     opts: &TsnOptions,
 ) -> Result<VariantResult, TsnError> {
     let t0 = std::time::Instant::now();
+    let pcap = opts.pcap_dir.as_ref().map(|dir| pcap_path(dir, variant));
+    let mut net = open_network(s, variant, opts, pcap.as_deref())?;
+    let net_info = bring_up(&mut net, s, variant, opts)?;
+    // The truth for a latch frame (60 bytes on the wire) with no hold.
+    let latch_path_ps = net.path_ps(60);
+    let (delays, max_err) = measured_delays(&net, &net_info, latch_path_ps);
+    let obs = run_cyclic(
+        &mut net,
+        &net_info,
+        s,
+        variant,
+        latch_path_ps,
+        pcap.is_some().then_some(opts.pcap_cycles),
+    )?;
+    if let Some(path) = &pcap {
+        net.finish_capture().map_err(pcap_error(path))?;
+    }
+    Ok(obs.into_result(&mut net, &net_info, variant, delays, max_err, t0))
+}
+
+/// The variant's network with the fault schedule on its segment, capturing into `pcap` if
+/// one is given.
+fn open_network<'a>(
+    s: &'a TsnScenario,
+    variant: Variant,
+    opts: &TsnOptions,
+    pcap: Option<&Path>,
+) -> Result<TsnNetwork<'a>, TsnError> {
     let mut net = TsnNetwork::new(s.network_params(), variant)?;
     if let Some(f) = &opts.faults {
         net.set_faults(ecsync_sim::fault::FaultPlayer::new(f.clone(), s.seed));
     }
-    let pcap = opts.pcap_dir.as_ref().map(|dir| pcap_path(dir, variant));
-    if let Some(path) = &pcap {
-        let c = PcapCapture::create(path).map_err(|e| TsnError::Pcap {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })?;
+    if let Some(path) = pcap {
+        let c = PcapCapture::create(path).map_err(pcap_error(path))?;
         net.capture_to(c);
     }
+    Ok(net)
+}
+
+/// Why the capture at `path` cannot be written.
+fn pcap_error<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> TsnError + '_ {
+    move |e| TsnError::Pcap {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    }
+}
+
+/// gPTP's settling (M3) and the bring-up to OP with the master as the DC reference; what the
+/// bring-up found of the network.
+fn bring_up(
+    net: &mut TsnNetwork<'_>,
+    s: &TsnScenario,
+    variant: Variant,
+    opts: &TsnOptions,
+) -> Result<Network, TsnError> {
     // M3: gPTP first (the paper: the master is synchronized to the TSN network before the DC
     // delay measurement).
     if variant == Variant::M3 {
@@ -368,7 +482,7 @@ pub fn run_variant(
         retries: if opts.faults.is_some() { 10 } else { 0 },
     };
     let bring = run_procedure(
-        &mut net,
+        net,
         &mut engine,
         procedure,
         &mut ExchangeStats::default(),
@@ -383,12 +497,18 @@ pub fn run_variant(
         cause,
     })?;
     net.end_bringup();
+    Ok(net_info)
+}
 
-    // Delays: measured (master delay + delay from the reference) against the truth for a
-    // latch frame (60 bytes on the wire) with no hold.
-    let reference = usize::from(net_info.reference);
+/// Each slave's delay as the bring-up measured it (master delay + delay from the reference)
+/// against the truth for a latch frame whose path to the first slave takes `latch_path_ps`,
+/// and the largest |error|, ns.
+fn measured_delays(
+    net: &TsnNetwork<'_>,
+    net_info: &Network,
+    latch_path_ps: u64,
+) -> (Vec<SlaveDelay>, f64) {
     let pu = net.segment().pu_offsets_ps();
-    let latch_path = net.path_ps(60);
     let mut delays = Vec::new();
     let mut max_err = 0.0f64;
     if let Some(md) = net_info.master_delay_ns {
@@ -397,7 +517,7 @@ pub fn run_variant(
                 continue;
             };
             let measured = md + d;
-            let truth = (latch_path + p) as f64 / 1000.0;
+            let truth = (latch_path_ps + p) as f64 / 1000.0;
             max_err = max_err.max((measured - truth).abs());
             delays.push(SlaveDelay {
                 position: sl.position,
@@ -407,37 +527,42 @@ pub fn run_variant(
             });
         }
     }
+    (delays, max_err)
+}
 
-    // The cyclic phase: bus shift with the master's time at the reference.
+/// The cyclic phase: bus shift with the master's time at the reference, one frame a cycle
+/// from the bridge's window on, its cycles measured by a [`VariantTruth`]; the capture goes on
+/// for `capture_cycles` of it.
+fn run_cyclic(
+    net: &mut TsnNetwork<'_>,
+    net_info: &Network,
+    s: &TsnScenario,
+    variant: Variant,
+    latch_path_ps: u64,
+    capture_cycles: Option<u64>,
+) -> Result<VariantTruth, TsnError> {
     let cfg = SessionConfig {
         cycle_ns: s.cycle_ns,
         measure_init_frames: 1,
         recovery: None,
     };
-    let cyc_len = Session::first_frame_len(&net_info, BusShift { write_offset_ns: 0 }, s.cycle_ns)
+    let cyc_len = Session::first_frame_len(net_info, BusShift { write_offset_ns: 0 }, s.cycle_ns)
         .map_err(session_error(variant))?;
     // One store-and-forward hop: the cyclic frame's first bit reaches the slaves later than a
     // latch frame's by the difference of their wire times.
     let sf_extra_ns = if variant.has_bridge() {
-        (net.path_ps(cyc_len) as i64 - latch_path as i64) / 1000
+        (net.path_ps(cyc_len) as i64 - latch_path_ps as i64) / 1000
     } else {
         0
     };
     let write_offset_ns = net_info.master_delay_ns.map_or(0, |d| d.round() as i64) + sf_extra_ns;
     let period = u64::from(s.cycle_ns);
     let lead = net.lead_ns(cyc_len);
-    let open = s.bridge.ethercat_port.windows()[0].open_ns + s.master.launch_margin_ns;
-    let now = net.phc_ns_at(net.now_ps());
-    let base = if variant.has_bridge() {
-        s.bridge.base_ns % period
-    } else {
-        0
-    };
-    let first = (now / period + 3) * period + base + open - lead;
+    let first = first_send_ns(net, s, variant, lead);
     let total = s.warmup_cycles + s.cycles;
     // One frame per cycle; a reply may take up to a cycle (held at the gates).
     let mut session = Session::new(
-        &net_info,
+        net_info,
         BusShift { write_offset_ns },
         Aim::At(MasterInstant::from_ns(first)),
         cfg,
@@ -449,75 +574,31 @@ pub fn run_variant(
         },
     )
     .map_err(session_error(variant))?;
-    net.capture_until(if pcap.is_some() {
-        net.now_ps() + opts.pcap_cycles * period * 1000
-    } else {
-        0
+    net.capture_until(match capture_cycles {
+        Some(n) => net.now_ps() + n * period * 1000,
+        None => 0,
     });
+    let reference = usize::from(net_info.reference);
     let mut obs = VariantTruth::new(s, reference, net.segment().len() - 1, lead, cyc_len);
-    match session.run(&mut net, u64::MAX, None, &mut obs) {
+    match session.run(net, u64::MAX, None, &mut obs) {
         Ok(_) => {}
         Err(never) => match never {},
     }
-    if let Some(path) = &pcap {
-        net.finish_capture().map_err(|e| TsnError::Pcap {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })?;
-    }
-    let cross_traffic_frames = net.cross_traffic_frames();
-    let VariantTruth {
-        m_rs,
-        rs_is,
-        mref,
-        spread,
-        margin,
-        wait,
-        gptp_off,
-        series,
-        late,
-        overruns,
-        lost,
-        ..
-    } = obs;
-    let gptp = net.gptp_figures().map(|g| GptpOut {
-        offset: gptp_off.summary(),
-        measured_link_delay_ns: g.measured_link_delay_ns.unwrap_or(f64::NAN),
-        true_link_delay_ns: g.true_link_delay_ns,
-        bridge_is_grandmaster: g.bridge_is_grandmaster,
-        messages: g.counts.sent,
-        held_by_cross_traffic: g.held_by_cross_traffic,
-    });
-    let [a, b, c, d] = series;
-    Ok(VariantResult {
-        variant,
-        title: variant.title(),
-        converged: net_info.lock.converged,
-        time_to_lock_ms: net_info.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
-        master_delay_ns: net_info.master_delay_ns,
-        master_delay_spread_ns: net_info.master_delay_spread_ns,
-        delays,
-        max_abs_delay_error_ns: max_err,
-        blocked: net.blocked(),
-        m_rs: m_rs.summary(),
-        rs_is: rs_is.summary(),
-        master_minus_reference: mref.summary(),
-        slave_spread: spread.summary(),
-        sync0_margin: margin.summary(),
-        late_frames: late,
-        overrun_cycles: overruns,
-        lost_frames: lost,
-        cross_traffic_frames,
-        gptp,
-        wall_s: t0.elapsed().as_secs_f64(),
-        plots: VariantPlots {
-            master_minus_reference: mref,
-            slave_spread: spread,
-            wait,
-            gptp_offset: gptp_off,
-            series: [a.finish(), b.finish(), c.finish(), d.finish()],
-        },
-    })
+    Ok(obs)
+}
+
+/// The master's first cyclic send, on its clock, ns: three cycles on, at the bridge's window
+/// (its base and opening, plus the master's launch margin) less the frame's `lead_ns`.
+fn first_send_ns(net: &mut TsnNetwork<'_>, s: &TsnScenario, variant: Variant, lead_ns: u64) -> u64 {
+    let period = u64::from(s.cycle_ns);
+    let open = s.bridge.ethercat_port.windows()[0].open_ns + s.master.launch_margin_ns;
+    let now = net.phc_ns_at(net.now_ps());
+    let base = if variant.has_bridge() {
+        s.bridge.base_ns % period
+    } else {
+        0
+    };
+    (now / period + 3) * period + base + open - lead_ns
 }
 
 /// Runs every variant of the scenario (in parallel on the available cores).

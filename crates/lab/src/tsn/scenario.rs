@@ -141,169 +141,242 @@ fn max_frame_ns() -> u64 {
     ecsync_sim::frame_wire_time_ps(1514) / 1000
 }
 
-/// Parses and checks a TSN scenario.
+/// Parses and checks a TSN scenario: the segment, then each table in the file's order (the
+/// first bad field is the one reported).
 pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
     let src = ConfigSource::new(file, text);
     let f: File = src.deserialize()?;
-    let err =
-        |table: &str, key: &str, message: String, fix: &str| src.error(table, key, message, fix);
     let slaves = match &f.segment {
         Some(s) => s.to_specs(file, text, "segment")?,
         None => ecsync_sim::preset::paper_2024(),
     };
     let t = &f.tsn;
-    if t.cycle_ns <= 0 || t.cycle_ns > i64::from(u32::MAX) {
-        return Err(err(
-            "tsn",
-            "cycle_ns",
-            format!("{} is not a cycle time", t.cycle_ns),
-            "give the EtherCAT cycle in ns, e.g. 1000000",
-        ));
-    }
-    if t.sync0_shift_ns < 0 || t.sync0_shift_ns >= t.cycle_ns {
-        return Err(err(
-            "tsn",
-            "sync0_shift_ns",
-            format!("{} ns is not within the cycle", t.sync0_shift_ns),
-            "give a shift between 0 and the cycle",
-        ));
-    }
-    let cycle = t.cycle_ns as f64;
-    let secs = |v: f64, key: &str| -> Result<u64, ConfigError> {
-        if !(v.is_finite() && (0.0..=86_400.0).contains(&v)) {
+    let recording = t.recording(&src)?;
+    let master = f.master.params(&src)?;
+    let bridge = f.bridge.params(&src, t.cycle_ns)?;
+    let gptp = f.gptp.params(&src)?;
+    Ok(TsnScenario {
+        name: file.to_string(),
+        slaves,
+        seed: t.seed,
+        cycle_ns: t.cycle_ns as u32,
+        sync0_shift_ns: t.sync0_shift_ns as u32,
+        warmup_cycles: recording.warmup_cycles,
+        cycles: recording.cycles,
+        static_drift_frames: t.static_drift_frames,
+        variants: recording.variants,
+        master,
+        bridge,
+        gptp,
+    })
+}
+
+/// What `[tsn]` says to record, checked.
+struct Recording {
+    /// Cycles before recording.
+    warmup_cycles: u64,
+    /// Recorded cycles (at least one).
+    cycles: u64,
+    /// The variants, each once, in the file's order.
+    variants: Vec<Variant>,
+}
+
+impl TsnTable {
+    /// Checks the cycle and the SYNC0 shift within it, turns the warm-up and the duration into
+    /// cycles, and reads the variants.
+    fn recording(&self, src: &ConfigSource<'_>) -> Result<Recording, ConfigError> {
+        let err = |key: &str, message: String, fix: &str| src.error("tsn", key, message, fix);
+        if self.cycle_ns <= 0 || self.cycle_ns > i64::from(u32::MAX) {
             return Err(err(
-                "tsn",
-                key,
-                format!("{v} is not a duration"),
-                "give seconds between 0 and 86400",
+                "cycle_ns",
+                format!("{} is not a cycle time", self.cycle_ns),
+                "give the EtherCAT cycle in ns, e.g. 1000000",
             ));
         }
-        Ok((v * 1e9 / cycle).round() as u64)
-    };
-    let warmup_cycles = secs(t.warmup_s, "warmup_s")?;
-    let cycles = secs(t.duration_s, "duration_s")?;
-    if cycles == 0 {
-        return Err(err(
-            "tsn",
-            "duration_s",
-            "records no cycle".into(),
-            "give at least one cycle's worth of seconds",
-        ));
-    }
-    let mut variants = Vec::new();
-    for v in &t.variants {
-        let Some(x) = Variant::from_name(v) else {
+        if self.sync0_shift_ns < 0 || self.sync0_shift_ns >= self.cycle_ns {
             return Err(err(
-                "tsn",
-                "variants",
-                format!("unknown variant \"{v}\""),
-                "use M1, M2 and M3",
+                "sync0_shift_ns",
+                format!("{} ns is not within the cycle", self.sync0_shift_ns),
+                "give a shift between 0 and the cycle",
             ));
+        }
+        let cycle = self.cycle_ns as f64;
+        let secs = |v: f64, key: &str| -> Result<u64, ConfigError> {
+            if !(v.is_finite() && (0.0..=86_400.0).contains(&v)) {
+                return Err(err(
+                    key,
+                    format!("{v} is not a duration"),
+                    "give seconds between 0 and 86400",
+                ));
+            }
+            Ok((v * 1e9 / cycle).round() as u64)
         };
-        if !variants.contains(&x) {
-            variants.push(x);
+        let warmup_cycles = secs(self.warmup_s, "warmup_s")?;
+        let cycles = secs(self.duration_s, "duration_s")?;
+        if cycles == 0 {
+            return Err(err(
+                "duration_s",
+                "records no cycle".into(),
+                "give at least one cycle's worth of seconds",
+            ));
         }
+        let mut variants = Vec::new();
+        for v in &self.variants {
+            let Some(x) = Variant::from_name(v) else {
+                return Err(err(
+                    "variants",
+                    format!("unknown variant \"{v}\""),
+                    "use M1, M2 and M3",
+                ));
+            };
+            if !variants.contains(&x) {
+                variants.push(x);
+            }
+        }
+        if variants.is_empty() {
+            return Err(err(
+                "variants",
+                "no variant".into(),
+                "list at least one of M1, M2, M3",
+            ));
+        }
+        Ok(Recording {
+            warmup_cycles,
+            cycles,
+            variants,
+        })
     }
-    if variants.is_empty() {
-        return Err(err(
-            "tsn",
-            "variants",
-            "no variant".into(),
-            "list at least one of M1, M2, M3",
-        ));
+}
+
+impl MasterTable {
+    /// Checks the master's crystal, timestamp granularity, launch jitter, cable and launch
+    /// margin.
+    fn params(&self, src: &ConfigSource<'_>) -> Result<MasterParams, ConfigError> {
+        let err = |key: &str, message: String, fix: &str| src.error("master", key, message, fix);
+        if !(self.ppm.is_finite() && self.ppm.abs() <= 500.0) {
+            return Err(err(
+                "ppm",
+                format!("{} ppm is not a crystal error", self.ppm),
+                "give a value within +-500",
+            ));
+        }
+        if self.timestamp_ns <= 0 || self.timestamp_ns > 1_000 {
+            return Err(err(
+                "timestamp_ns",
+                format!("{} ns is not a timestamp granularity", self.timestamp_ns),
+                "give 1..1000 (8 for a 125 MHz hardware timestamper)",
+            ));
+        }
+        if !(self.launch_jitter_ns.is_finite() && self.launch_jitter_ns >= 0.0) {
+            return Err(err(
+                "launch_jitter_ns",
+                "must be a non-negative standard deviation".into(),
+                "give 0 or more",
+            ));
+        }
+        if !(self.cable_m.is_finite() && self.cable_m >= 0.0 && self.cable_m <= 100.0) {
+            return Err(err(
+                "cable_m",
+                format!("{} m is not a 100BASE-TX cable", self.cable_m),
+                "give 0..100 m",
+            ));
+        }
+        if self.launch_margin_ns < 0 {
+            return Err(err(
+                "launch_margin_ns",
+                "is negative".into(),
+                "give 0 or more ns",
+            ));
+        }
+        Ok(MasterParams {
+            ppm: self.ppm,
+            wander_ppm_per_sqrt_s: self.wander_ppm_per_sqrt_s,
+            clock_offset_ns: self.clock_offset_ns,
+            timestamp_ns: self.timestamp_ns as u64,
+            launch_jitter_ns: self.launch_jitter_ns,
+            cable_m: self.cable_m,
+            launch_margin_ns: self.launch_margin_ns as u64,
+            priority1: self.priority1,
+        })
     }
-    let m = &f.master;
-    if !(m.ppm.is_finite() && m.ppm.abs() <= 500.0) {
-        return Err(err(
-            "master",
-            "ppm",
-            format!("{} ppm is not a crystal error", m.ppm),
-            "give a value within +-500",
-        ));
+}
+
+impl BridgeTable {
+    /// Checks the bridge's crystal, residence time, gate cycle (a divisor of the EtherCAT
+    /// cycle `cycle_ns`) and cross traffic, then both ports' gate schedules.
+    fn params(&self, src: &ConfigSource<'_>, cycle_ns: i64) -> Result<BridgeParams, ConfigError> {
+        let err = |key: &str, message: String, fix: &str| src.error("bridge", key, message, fix);
+        if !(self.ppm.is_finite() && self.ppm.abs() <= 500.0) {
+            return Err(err(
+                "ppm",
+                format!("{} ppm is not a crystal error", self.ppm),
+                "give a value within +-500",
+            ));
+        }
+        if self.residence_ns < 0 {
+            return Err(err(
+                "residence_ns",
+                "is negative".into(),
+                "give 0 or more ns",
+            ));
+        }
+        if self.cycle_ns <= 0 || cycle_ns % self.cycle_ns != 0 {
+            return Err(err(
+                "cycle_ns",
+                format!(
+                    "the gate cycle of {} ns does not divide the EtherCAT cycle of {} ns",
+                    self.cycle_ns, cycle_ns
+                ),
+                "make the gate cycle the EtherCAT cycle (or a divisor of it)",
+            ));
+        }
+        if !(self.cross_traffic_load.is_finite() && (0.0..1.0).contains(&self.cross_traffic_load)) {
+            return Err(err(
+                "cross_traffic_load",
+                format!("{} is not a load", self.cross_traffic_load),
+                "give a share of the best-effort time, 0 <= load < 1",
+            ));
+        }
+        if !(64..=1522).contains(&self.cross_traffic_frame_bytes) {
+            return Err(err(
+                "cross_traffic_frame_bytes",
+                format!(
+                    "{} is not an Ethernet frame size",
+                    self.cross_traffic_frame_bytes
+                ),
+                "give 64..1522",
+            ));
+        }
+        let ethercat_port = self.schedule(src, "ethercat_port", &self.ethercat_port)?;
+        let master_port = self.schedule(src, "master_port", &self.master_port)?;
+        Ok(BridgeParams {
+            ppm: self.ppm,
+            wander_ppm_per_sqrt_s: self.wander_ppm_per_sqrt_s,
+            initial_ns: self.initial_ns,
+            residence_ns: self.residence_ns as u64,
+            cycle_ns: self.cycle_ns as u64,
+            base_ns: self.base_ns,
+            ethercat_port,
+            master_port,
+            cross_traffic_load: self.cross_traffic_load,
+            cross_traffic_frame_bytes: self.cross_traffic_frame_bytes,
+            priority1: self.priority1,
+        })
     }
-    if m.timestamp_ns <= 0 || m.timestamp_ns > 1_000 {
-        return Err(err(
-            "master",
-            "timestamp_ns",
-            format!("{} ns is not a timestamp granularity", m.timestamp_ns),
-            "give 1..1000 (8 for a 125 MHz hardware timestamper)",
-        ));
-    }
-    if !(m.launch_jitter_ns.is_finite() && m.launch_jitter_ns >= 0.0) {
-        return Err(err(
-            "master",
-            "launch_jitter_ns",
-            "must be a non-negative standard deviation".into(),
-            "give 0 or more",
-        ));
-    }
-    if !(m.cable_m.is_finite() && m.cable_m >= 0.0 && m.cable_m <= 100.0) {
-        return Err(err(
-            "master",
-            "cable_m",
-            format!("{} m is not a 100BASE-TX cable", m.cable_m),
-            "give 0..100 m",
-        ));
-    }
-    if m.launch_margin_ns < 0 {
-        return Err(err(
-            "master",
-            "launch_margin_ns",
-            "is negative".into(),
-            "give 0 or more ns",
-        ));
-    }
-    let b = &f.bridge;
-    if !(b.ppm.is_finite() && b.ppm.abs() <= 500.0) {
-        return Err(err(
-            "bridge",
-            "ppm",
-            format!("{} ppm is not a crystal error", b.ppm),
-            "give a value within +-500",
-        ));
-    }
-    if b.residence_ns < 0 {
-        return Err(err(
-            "bridge",
-            "residence_ns",
-            "is negative".into(),
-            "give 0 or more ns",
-        ));
-    }
-    if b.cycle_ns <= 0 || t.cycle_ns % b.cycle_ns != 0 {
-        return Err(err(
-            "bridge",
-            "cycle_ns",
-            format!(
-                "the gate cycle of {} ns does not divide the EtherCAT cycle of {} ns",
-                b.cycle_ns, t.cycle_ns
-            ),
-            "make the gate cycle the EtherCAT cycle (or a divisor of it)",
-        ));
-    }
-    if !(b.cross_traffic_load.is_finite() && (0.0..1.0).contains(&b.cross_traffic_load)) {
-        return Err(err(
-            "bridge",
-            "cross_traffic_load",
-            format!("{} is not a load", b.cross_traffic_load),
-            "give a share of the best-effort time, 0 <= load < 1",
-        ));
-    }
-    if !(64..=1522).contains(&b.cross_traffic_frame_bytes) {
-        return Err(err(
-            "bridge",
-            "cross_traffic_frame_bytes",
-            format!(
-                "{} is not an Ethernet frame size",
-                b.cross_traffic_frame_bytes
-            ),
-            "give 64..1522",
-        ));
-    }
-    let guard_ns = (8 + b.cross_traffic_frame_bytes + 12) * 80;
-    let schedule = |port: &str, p: &PortTable| -> Result<PortSchedule, ConfigError> {
+
+    /// Port `port`'s gate control list as a schedule on the gate cycle, checked: windows within
+    /// the cycle, not overlapping, one at least long enough for the largest EtherCAT frame. Its
+    /// best-effort guard band is a cross-traffic frame's time on the wire (preamble, frame and
+    /// gap at 80 ns a byte).
+    fn schedule(
+        &self,
+        src: &ConfigSource<'_>,
+        port: &str,
+        p: &PortTable,
+    ) -> Result<PortSchedule, ConfigError> {
+        let guard_ns = (8 + self.cross_traffic_frame_bytes + 12) * 80;
         let table = format!("bridge.{port}");
-        let s = PortSchedule::new(b.cycle_ns as u64, b.base_ns, &p.window, guard_ns)
+        let s = PortSchedule::new(self.cycle_ns as u64, self.base_ns, &p.window, guard_ns)
             .and_then(|s| s.check_fits(max_frame_ns()).map(|()| s))
             .map_err(|e: ScheduleError| {
                 src.error(
@@ -314,86 +387,56 @@ pub fn parse(file: &str, text: &str) -> Result<TsnScenario, ConfigError> {
                 )
             })?;
         Ok(s)
-    };
-    let ethercat_port = schedule("ethercat_port", &b.ethercat_port)?;
-    let master_port = schedule("master_port", &b.master_port)?;
-    let g = &f.gptp;
-    let pos = |v: i64, key: &str| -> Result<u64, ConfigError> {
-        if v <= 0 || v > 60_000_000_000 {
+    }
+}
+
+impl GptpTable {
+    /// Checks gPTP's Sync and Pdelay intervals, its settling time and its servo's gains.
+    fn params(&self, src: &ConfigSource<'_>) -> Result<GptpParams, ConfigError> {
+        let err = |key: &str, message: String, fix: &str| src.error("gptp", key, message, fix);
+        let pos = |v: i64, key: &str| -> Result<u64, ConfigError> {
+            if v <= 0 || v > 60_000_000_000 {
+                return Err(err(
+                    key,
+                    format!("{v} ns is not an interval"),
+                    "give 1 ns .. 60 s (802.1AS: 125000000 for Sync, 1000000000 for Pdelay)",
+                ));
+            }
+            Ok(v as u64)
+        };
+        let sync_interval_ns = pos(self.sync_interval_ns, "sync_interval_ns")?;
+        let pdelay_interval_ns = pos(self.pdelay_interval_ns, "pdelay_interval_ns")?;
+        if !(self.settle_s.is_finite() && (0.0..=3600.0).contains(&self.settle_s)) {
             return Err(err(
-                "gptp",
-                key,
-                format!("{v} ns is not an interval"),
-                "give 1 ns .. 60 s (802.1AS: 125000000 for Sync, 1000000000 for Pdelay)",
+                "settle_s",
+                format!("{} is not a duration", self.settle_s),
+                "give 0..3600 s",
             ));
         }
-        Ok(v as u64)
-    };
-    let sync_interval_ns = pos(g.sync_interval_ns, "sync_interval_ns")?;
-    let pdelay_interval_ns = pos(g.pdelay_interval_ns, "pdelay_interval_ns")?;
-    if !(g.settle_s.is_finite() && (0.0..=3600.0).contains(&g.settle_s)) {
-        return Err(err(
-            "gptp",
-            "settle_s",
-            format!("{} is not a duration", g.settle_s),
-            "give 0..3600 s",
-        ));
-    }
-    if !(g.kp.is_finite()
-        && g.kp > 0.0
-        && g.kp < 2.0
-        && g.ki.is_finite()
-        && g.ki >= 0.0
-        && g.ki < 1.0)
-    {
-        return Err(err(
-            "gptp",
-            "kp",
-            format!("kp {} and ki {} do not make a stable servo", g.kp, g.ki),
-            "give 0 < kp < 2 and 0 <= ki < 1 (defaults 0.7 and 0.3)",
-        ));
-    }
-    Ok(TsnScenario {
-        name: file.to_string(),
-        slaves,
-        seed: t.seed,
-        cycle_ns: t.cycle_ns as u32,
-        sync0_shift_ns: t.sync0_shift_ns as u32,
-        warmup_cycles,
-        cycles,
-        static_drift_frames: t.static_drift_frames,
-        variants,
-        master: MasterParams {
-            ppm: m.ppm,
-            wander_ppm_per_sqrt_s: m.wander_ppm_per_sqrt_s,
-            clock_offset_ns: m.clock_offset_ns,
-            timestamp_ns: m.timestamp_ns as u64,
-            launch_jitter_ns: m.launch_jitter_ns,
-            cable_m: m.cable_m,
-            launch_margin_ns: m.launch_margin_ns as u64,
-            priority1: m.priority1,
-        },
-        bridge: BridgeParams {
-            ppm: b.ppm,
-            wander_ppm_per_sqrt_s: b.wander_ppm_per_sqrt_s,
-            initial_ns: b.initial_ns,
-            residence_ns: b.residence_ns as u64,
-            cycle_ns: b.cycle_ns as u64,
-            base_ns: b.base_ns,
-            ethercat_port,
-            master_port,
-            cross_traffic_load: b.cross_traffic_load,
-            cross_traffic_frame_bytes: b.cross_traffic_frame_bytes,
-            priority1: b.priority1,
-        },
-        gptp: GptpParams {
+        if !(self.kp.is_finite()
+            && self.kp > 0.0
+            && self.kp < 2.0
+            && self.ki.is_finite()
+            && self.ki >= 0.0
+            && self.ki < 1.0)
+        {
+            return Err(err(
+                "kp",
+                format!(
+                    "kp {} and ki {} do not make a stable servo",
+                    self.kp, self.ki
+                ),
+                "give 0 < kp < 2 and 0 <= ki < 1 (defaults 0.7 and 0.3)",
+            ));
+        }
+        Ok(GptpParams {
             sync_interval_ns,
             pdelay_interval_ns,
-            settle_ns: (g.settle_s * 1e9) as u64,
-            kp: g.kp,
-            ki: g.ki,
-        },
-    })
+            settle_ns: (self.settle_s * 1e9) as u64,
+            kp: self.kp,
+            ki: self.ki,
+        })
+    }
 }
 
 /// The built-in preset.

@@ -1,6 +1,8 @@
 //! `ecsync serve` (the virtual segment on a network interface) and `ecsync run` (the master, its
 //! DC bring-up and a synchronization method on a network interface).
 
+mod text;
+
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MasterSync as _;
@@ -8,8 +10,8 @@ use ecsync_dc::method::{Method, MethodContext, MethodKind, MethodParams, ParamEr
 use ecsync_dc::time::MasterDuration;
 use ecsync_lab::output::write_atomic;
 use ecsync_lab::realnet::summary::{BringupOut, CSV_HEADER, RATE_FIT_MIN_CYCLES, RunOut};
-use ecsync_lab::realnet::{self, CyclicOptions, RunHead};
-use ecsync_master::bringup::{DcCapability, Stage};
+use ecsync_lab::realnet::{self, CyclicOptions, CyclicPhase, RunHead};
+use ecsync_master::bringup::Stage;
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, Stopped, run_procedure};
 use ecsync_master::transport::SendMode;
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
@@ -22,10 +24,11 @@ use ecsync_sim::config::{ConfigSource, Problem};
 use ecsync_sim::pcap::PcapCapture;
 use serde::Deserialize;
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
+use text::{print_bringup, print_run};
 
 /// Raised by Ctrl-C (SIGINT) and SIGTERM.
 static STOP: AtomicBool = AtomicBool::new(false);
@@ -185,7 +188,6 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// What `ecsync run --help` says after the options: the methods, from the registry.
 /// `run --send`: the modes a real send has (a hardware transmit stamp is `--tx-stamp`), as
 /// [`SendMode`]s.
 fn real_send_mode() -> impl clap::builder::TypedValueParser<Value = SendMode> {
@@ -194,6 +196,7 @@ fn real_send_mode() -> impl clap::builder::TypedValueParser<Value = SendMode> {
         .try_map(|s| s.parse::<SendMode>())
 }
 
+/// What `ecsync run --help` says after the options: the methods, from the registry.
 fn run_after_help() -> String {
     let mut t = String::from("Methods (--method):\n");
     for m in MethodKind::ALL {
@@ -460,7 +463,103 @@ fn tx_stamp_source(
     Ok((TxStampSource::KernelSoftware, note))
 }
 
+/// `ecsync run`: the master on `--iface`, its DC bring-up, then the method's cyclic phase
+/// until `--duration` or Ctrl-C; exit code 3 when the network stopped answering.
 pub fn run(args: RunArgs) -> Result<ExitCode> {
+    check_run_args(&args)?;
+    let cycle_ns = args.cycle_us * 1000;
+    let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
+    let (method, target_phase_ns, sync_error_limit) = method_for(&args, cycle_ns)?;
+    let csv = create_csv(&args)?;
+    let (mut link, t_ms_source, t_ms_note) = open_link(&args, method.is_master_shift())?;
+    let mut exchanges = ExchangeStats::default();
+    install_stop_handler();
+    let rt = rt::setup(args.priority, args.cpu.map_or(rt::Pin::Last, rt::Pin::Cpu));
+    for w in &rt.warnings {
+        eprintln!("ecsync run: warning: {w}");
+    }
+
+    // Bring-up.
+    let t_up = Instant::now();
+    let net = bring_up(
+        &args,
+        &mut link,
+        &mut exchanges,
+        cycle_ns,
+        shift_ns,
+        sync_error_limit,
+    )?;
+    let bring = BringupOut::of(&net, t_up.elapsed().as_secs_f64());
+    if let Some(path) = &args.save_network {
+        save_twin(&args, path, &net)?;
+        if args.scan_only {
+            if args.json {
+                println!("{}", serde_json::to_string_pretty(&net)?);
+            }
+            return Ok(ExitCode::SUCCESS);
+        }
+    }
+    if !args.json {
+        print_bringup(&bring);
+    }
+
+    // Cyclic phase.
+    if net.slaves.get(usize::from(net.reference)).is_none() {
+        bail!("the bring-up found no reference clock");
+    }
+    if !args.json {
+        eprintln!(
+            "cyclic phase: {} with {} at {} us, SYNC0 shift {} us{}; Ctrl-C stops",
+            args.iface,
+            args.method,
+            args.cycle_us,
+            shift_ns / 1000,
+            args.duration
+                .map_or(String::new(), |d| format!(", for {d} s"))
+        );
+    }
+    let opts = CyclicOptions {
+        cycle_ns,
+        sync0_shift_ns: shift_ns,
+        target_phase_ns,
+        measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
+        duration: args
+            .duration
+            .map(|d| MasterDuration::from_ns((d * 1e9) as u64)),
+        max_cycles: None,
+        lost_in_a_row: args.give_up_after.unwrap_or(u64::MAX),
+        reply_timeout: MasterDuration::from_us(u64::from(args.timeout_us.max(1))),
+        t_ms_from_tx_stamp: t_ms_source != TxStampSource::SendTimestamp,
+        sync_error_limit,
+    };
+    let csv = csv.map(|w| Box::new(w) as Box<dyn Write>);
+    let mut phase = realnet::run_cyclic(&mut link, &net, method, &opts, csv, Some(&STOP))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    if let Some(path) = &args.save_network {
+        save_twin_with_rate(&args, path, &net, &phase)?;
+    }
+    phase.finish_csv().context("writing the CSV file")?;
+    let spin = args.send == SendMode::Spin;
+    let head = RunHead {
+        iface: args.iface.clone(),
+        method: args.method.to_string(),
+        cycle_ns,
+        sync0_shift_ns: shift_ns,
+        bringup_link: exchanges,
+        rt,
+        bringup: bring,
+        send: args.send,
+        spin_margin_us: spin.then_some(args.spin_margin_us),
+        tx_stamp_mode: args.tx_stamp.clone(),
+        t_ms_source,
+        t_ms_note,
+        csv: args.csv.as_ref().map(|p| p.display().to_string()),
+    };
+    report_run(&args, head, phase, &link)
+}
+
+/// Refuses the flags `run` cannot use before anything is opened.
+fn check_run_args(args: &RunArgs) -> Result<()> {
     if !(1..=1_000_000).contains(&args.cycle_us) {
         bail!("--cycle-us must lie in 1 ..= 1000000");
     }
@@ -484,41 +583,52 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     {
         bail!("--rate-window-s must lie in 0.05 ..= 2 s");
     }
-    let cycle_ns = args.cycle_us * 1000;
-    let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
-    let (method, target_phase_ns, sync_error_limit) = method_for(&args, cycle_ns)?;
-    let csv = match &args.csv {
-        Some(p) => {
-            let f = std::fs::File::create(p)
-                .with_context(|| format!("cannot create {}", p.display()))?;
-            let mut w = std::io::BufWriter::new(f);
-            writeln!(w, "{CSV_HEADER}")?;
-            Some(w)
-        }
-        None => None,
+    Ok(())
+}
+
+/// `--csv`: the file created, its header written.
+fn create_csv(args: &RunArgs) -> Result<Option<std::io::BufWriter<std::fs::File>>> {
+    let Some(p) = &args.csv else {
+        return Ok(None);
     };
+    let f = std::fs::File::create(p).with_context(|| format!("cannot create {}", p.display()))?;
+    let mut w = std::io::BufWriter::new(f);
+    writeln!(w, "{CSV_HEADER}")?;
+    Ok(Some(w))
+}
+
+/// The link on `--iface`, set up to send as `--send` asks, with where t_ms comes from (and why
+/// auto settled for less): what the interface cannot give is refused before anything goes out.
+fn open_link(
+    args: &RunArgs,
+    master_shift: bool,
+) -> Result<(RealLink, TxStampSource, Option<String>)> {
     if args.send == SendMode::Txtime {
         // Before anything goes out: a launch time the kernel ignores would be a lie.
         ecsync_net::txtime::txtime_support(&args.iface).map_err(anyhow::Error::msg)?;
     }
     let mut link = RealLink::open(&args.iface).map_err(|e| anyhow::anyhow!("{e}"))?;
     // Before anything goes out: a t_ms source the interface cannot give is refused.
-    let (t_ms_source, t_ms_note) = tx_stamp_source(&args, method.is_master_shift(), &mut link)?;
+    let (t_ms_source, t_ms_note) = tx_stamp_source(args, master_shift, &mut link)?;
     let spin = args.send == SendMode::Spin;
     link.set_send_control(SendControl {
         spin_margin_ns: spin.then_some(u64::from(args.spin_margin_us) * 1000),
         alternate: spin && args.spin_alternate,
         ..SendControl::default()
     });
-    let mut exchanges = ExchangeStats::default();
-    install_stop_handler();
-    let rt = rt::setup(args.priority, args.cpu.map_or(rt::Pin::Last, rt::Pin::Cpu));
-    for w in &rt.warnings {
-        eprintln!("ecsync run: warning: {w}");
-    }
+    Ok((link, t_ms_source, t_ms_note))
+}
 
-    // Bring-up.
-    let t_up = Instant::now();
+/// The DC bring-up on the link, to OP (to the delays with `--scan-only`), its phases on the
+/// terminal; a network that does not answer is named as such.
+fn bring_up(
+    args: &RunArgs,
+    link: &mut RealLink,
+    exchanges: &mut ExchangeStats,
+    cycle_ns: u32,
+    shift_ns: u32,
+    sync_error_limit: Option<u16>,
+) -> Result<Network> {
     let twin = args.save_network.is_some();
     let cfg = BringupConfig {
         until: if args.scan_only {
@@ -550,10 +660,10 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         retries: args.retries,
     };
     let net: Network = match run_procedure(
-        &mut link,
+        link,
         &mut engine,
         procedure,
-        &mut exchanges,
+        exchanges,
         |_, _, events| {
             for e in events {
                 if let (Event::Phase(p), false) = (e, json) {
@@ -573,89 +683,75 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         Err(NetError::Open(e)) => bail!("{e}"),
         Err(e) => bail!("bring-up on {}: {e}", args.iface),
     };
-    let bring = BringupOut::of(&net, t_up.elapsed().as_secs_f64());
-    if let Some(path) = &args.save_network {
-        let t = ecsync_sim::twin::twin_toml(
-            &net,
-            &format!("interface {}", args.iface),
-            args.reference_ppm,
-        )
-        .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
-        write_atomic(path, t.toml.as_bytes())
-            .with_context(|| format!("cannot write {}", path.display()))?;
-        eprintln!(
-            "network twin: {} slaves written to {} (reference {}; its crystal {} against this host's clock)",
-            net.slaves.len(),
-            path.display(),
-            net.reference,
-            net.reference_ppm_vs_master
-                .map_or("not measured".to_string(), |p| format!("{p:+.2} ppm")),
-        );
-        for n in &t.notes {
-            eprintln!("  note: {n}");
-        }
-        if args.scan_only {
-            if json {
-                println!("{}", serde_json::to_string_pretty(&net)?);
-            }
-            return Ok(ExitCode::SUCCESS);
-        }
-    }
-    if !json {
-        print_bringup(&bring);
-    }
+    Ok(net)
+}
 
-    // Cyclic phase.
-    if net.slaves.get(usize::from(net.reference)).is_none() {
-        bail!("the bring-up found no reference clock");
+/// Writes the network's twin to `path` with the reference's crystal `reference_ppm` (`None`:
+/// as the bring-up measured it); the notes the twin has on what it could not tell.
+fn write_twin(
+    args: &RunArgs,
+    path: &Path,
+    net: &Network,
+    reference_ppm: Option<f64>,
+) -> Result<Vec<String>> {
+    let t = ecsync_sim::twin::twin_toml(net, &format!("interface {}", args.iface), reference_ppm)
+        .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
+    write_atomic(path, t.toml.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(t.notes)
+}
+
+/// `--save-network` after the bring-up: the twin with `--reference-ppm`, or the reference's
+/// crystal as the bring-up measured it.
+fn save_twin(args: &RunArgs, path: &Path, net: &Network) -> Result<()> {
+    let notes = write_twin(args, path, net, args.reference_ppm)?;
+    eprintln!(
+        "network twin: {} slaves written to {} (reference {}; its crystal {} against this host's clock)",
+        net.slaves.len(),
+        path.display(),
+        net.reference,
+        net.reference_ppm_vs_master
+            .map_or("not measured".to_string(), |p| format!("{p:+.2} ppm")),
+    );
+    for n in &notes {
+        eprintln!("  note: {n}");
     }
-    if !json {
-        eprintln!(
-            "cyclic phase: {} with {} at {} us, SYNC0 shift {} us{}; Ctrl-C stops",
-            args.iface,
-            args.method,
-            args.cycle_us,
-            shift_ns / 1000,
-            args.duration
-                .map_or(String::new(), |d| format!(", for {d} s"))
-        );
-    }
-    let opts = CyclicOptions {
-        cycle_ns,
-        sync0_shift_ns: shift_ns,
-        target_phase_ns,
-        measure_init_frames: ((args.init_s * 1e9 / f64::from(cycle_ns)).round() as u64).max(1),
-        duration: args
-            .duration
-            .map(|d| MasterDuration::from_ns((d * 1e9) as u64)),
-        max_cycles: None,
-        lost_in_a_row: args.give_up_after.unwrap_or(u64::MAX),
-        reply_timeout: MasterDuration::from_us(u64::from(args.timeout_us.max(1))),
-        t_ms_from_tx_stamp: t_ms_source != TxStampSource::SendTimestamp,
-        sync_error_limit,
-    };
-    let csv = csv.map(|w| Box::new(w) as Box<dyn Write>);
-    let mut phase = realnet::run_cyclic(&mut link, &net, method, &opts, csv, Some(&STOP))
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// `--save-network` after the cyclic phase: the twin again, with the reference's crystal
+/// fitted on every cycle's reference time, where a master-shift method ran long enough and
+/// `--reference-ppm` did not set it.
+fn save_twin_with_rate(
+    args: &RunArgs,
+    path: &Path,
+    net: &Network,
+    phase: &CyclicPhase,
+) -> Result<()> {
     let ref_rate = &phase.cycles.ref_rate;
-    if let Some(path) = &args.save_network
-        && args.reference_ppm.is_none()
+    if args.reference_ppm.is_none()
         && phase.session.engine().sync().is_master_shift()
         && ref_rate.len() >= RATE_FIT_MIN_CYCLES
         && let Some(ppm) = ref_rate.ppm()
     {
-        // The twin again, with the reference's crystal from the cyclic phase.
-        let t = ecsync_sim::twin::twin_toml(&net, &format!("interface {}", args.iface), Some(ppm))
-            .map_err(|e| anyhow::anyhow!("cannot write a twin of the network: {e}"))?;
-        write_atomic(path, t.toml.as_bytes())
-            .with_context(|| format!("cannot write {}", path.display()))?;
+        write_twin(args, path, net, Some(ppm))?;
         eprintln!(
             "network twin: the reference's crystal {ppm:+.2} ppm against this host's clock over {} cycles of the run, written to {}",
             ref_rate.len(),
             path.display()
         );
     }
-    phase.finish_csv().context("writing the CSV file")?;
+    Ok(())
+}
+
+/// The run's summary: written to `--summary`, printed (as JSON with `--json`); the link's
+/// error fails the command, a network that stopped answering gives exit code 3.
+fn report_run(
+    args: &RunArgs,
+    head: RunHead,
+    phase: CyclicPhase,
+    link: &RealLink,
+) -> Result<ExitCode> {
     let gone = match &phase.stopped {
         Ok(Some(Stopped::NetworkGone {
             last_good_cycle,
@@ -663,23 +759,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         })) => Some((*last_good_cycle, *lost_in_a_row)),
         _ => None,
     };
-    let spin = args.send == SendMode::Spin;
-    let head = RunHead {
-        iface: args.iface.clone(),
-        method: args.method.to_string(),
-        cycle_ns,
-        sync0_shift_ns: shift_ns,
-        bringup_link: exchanges,
-        rt,
-        bringup: bring,
-        send: args.send,
-        spin_margin_us: spin.then_some(args.spin_margin_us),
-        tx_stamp_mode: args.tx_stamp.clone(),
-        t_ms_source,
-        t_ms_note,
-        csv: args.csv.as_ref().map(|p| p.display().to_string()),
-    };
-    let out = RunOut::new(head, &phase, &link);
+    let out = RunOut::new(head, &phase, link);
     let cycles = out.cycles;
     let stopped = phase.stopped;
     let text = serde_json::to_string_pretty(&out)?;
@@ -687,7 +767,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         write_atomic(p, text.as_bytes())
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
-    if json {
+    if args.json {
         println!("{text}");
     } else {
         print_run(&out);
@@ -705,221 +785,4 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         return Ok(ExitCode::from(3));
     }
     Ok(ExitCode::SUCCESS)
-}
-
-fn print_bringup(b: &BringupOut) {
-    println!(
-        "bring-up: {} slaves, reference at position {}, {:.2} s",
-        b.slaves.len(),
-        b.reference,
-        b.wall_s
-    );
-    println!(
-        "{:>3}  {:>7}  {:<28} {:>12}  {:>10}",
-        "pos", "station", "name", "delay ns", "DC"
-    );
-    for s in &b.slaves {
-        let mut name = s.name.clone();
-        name.truncate(28);
-        let dc = match s.dc {
-            DcCapability::SystemTime if s.position == b.reference => "reference",
-            DcCapability::SystemTime => "system time",
-            DcCapability::ReceiveTimes => "rx times",
-            DcCapability::None => "none",
-        };
-        println!(
-            "{:>3}  {:#07x}  {:<28} {:>12}  {:>10}",
-            s.position,
-            s.station,
-            name,
-            s.delay_ns.map_or("-".to_string(), |d| format!("{d:.1}")),
-            dc
-        );
-    }
-    match (b.converged, b.time_to_lock_ms) {
-        (true, Some(t)) => println!(
-            "DC locked {t:.1} ms after drift compensation began; {} after lock {} ns.",
-            if b.max_abs_092c_by_broadcast {
-                "|0x092C| by one broadcast (the OR of every slave's: a bound on the largest)"
-            } else {
-                "largest |0x092C|"
-            },
-            b.max_abs_092c_after_lock_ns
-        ),
-        _ => println!("DC did NOT lock."),
-    }
-}
-
-fn print_run(o: &RunOut) {
-    let us = |x: f64| x / 1e3;
-    println!();
-    println!(
-        "{} cycles of {} at {} us on {} in {:.1} s ({}); {} skipped by host stalls, {} frames lost, {} replies after their cycle's deadline, {} duplicate replies, {} bad working counters.",
-        o.cycles,
-        o.method,
-        o.cycle_ns / 1000,
-        o.iface,
-        o.duration_s,
-        o.stopped,
-        o.skipped_cycles,
-        o.lost_frames,
-        o.late_replies,
-        o.duplicate_replies,
-        o.bad_wkc
-    );
-    for r in o.recoveries.iter().filter(|r| !r.slaves.is_empty()) {
-        let why = if r.left_op.is_empty() {
-            String::new()
-        } else {
-            format!(" ({})", r.left_op.join("; "))
-        };
-        println!(
-            "Recovered slave(s) {:?} (reset or out of OP: configured again) at {:.3} s, in {:.0} ms{why}.",
-            r.slaves,
-            r.start_s,
-            r.end_s.map_or(f64::NAN, |e| (e - r.start_s) * 1e3)
-        );
-    }
-    for l in &o.left_op {
-        println!(
-            "Drive {} left OP for {} with AL status code {} at {:.3} s{}.",
-            l.slave,
-            l.state,
-            l.reason,
-            l.found_s,
-            match l.back_in_op_s {
-                Some(t) => format!(", back in OP at {t:.3} s"),
-                None => ", not back in OP by the end".to_string(),
-            }
-        );
-    }
-    if let Some(r) = o.recoveries.iter().find(|r| r.appeared > 0) {
-        println!(
-            "{} slave(s) appeared at the end of the network at {:.3} s (hot connect): counted, not taken in (bring the network up again to use them).",
-            r.appeared, r.start_s
-        );
-    }
-    if !o.sm_events_missed.is_empty() {
-        let missed: Vec<String> = o
-            .sm_events_missed
-            .iter()
-            .map(|c| format!("{}: {}", c.position, c.missed_between_reads))
-            .collect();
-        let total: u64 = o
-            .sm_events_missed
-            .iter()
-            .map(|c| u64::from(c.missed_between_reads))
-            .sum();
-        println!(
-            "SM events missed (0x1C32:0B, the drives' own count of SYNC0 cycles without new outputs, between its reads {:.1} s and {:.1} s in){}: {}",
-            o.sm_events_missed
-                .iter()
-                .map(|c| c.first_read_s)
-                .fold(f64::INFINITY, f64::min),
-            o.sm_events_missed
-                .iter()
-                .map(|c| c.read_s)
-                .fold(0.0, f64::max),
-            if total > 0 {
-                " -- SYNC0 came before the outputs: a SYNC0 shift too small for this host's jitter, or frames lost"
-            } else {
-                ""
-            },
-            missed.join(", ")
-        );
-    }
-    if o.reference_held_cycles > 0 {
-        println!(
-            "The reference's time was gone or not believed in {} cycles: the method held over meanwhile.",
-            o.reference_held_cycles
-        );
-    }
-    if o.link_down_errors > 0 {
-        println!(
-            "The interface was down or refused frames {} times (frames lost meanwhile; the run went on).",
-            o.link_down_errors
-        );
-    }
-    if o.duplicate_replies * 2 > o.cycles {
-        println!(
-            "A second responder: {} of {} cycles' frames were answered twice (two segments on the wire, or a loop).",
-            o.duplicate_replies, o.cycles
-        );
-    }
-    println!(
-        "{:<22} {:>10} {:>10} {:>10} {:>10}",
-        "us", "mean", "std", "max", "min"
-    );
-    for (name, s) in [("M-rS", &o.m_rs), ("rS-IS |0x092C|", &o.rs_is)] {
-        println!(
-            "{:<22} {:>10.3} {:>10.3} {:>10.3} {:>10.3}",
-            name,
-            us(s.mean),
-            us(s.std),
-            us(s.max),
-            us(s.min)
-        );
-    }
-    let w = &o.wake_latency;
-    println!(
-        "wake-up latency, us:   p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}",
-        w.p50_us, w.p99_us, w.p999_us, w.max_us
-    );
-    for (name, l) in [
-        ("sleeping", &o.send.wake_to_send_plain),
-        ("spinning", &o.send.wake_to_send_spin),
-    ] {
-        if let Some(l) = l {
-            println!(
-                "wake to send ({name}), us: p50 {:.1}  p99 {:.1}  p99.9 {:.1}  max {:.1}",
-                l.p50_us, l.p99_us, l.p999_us, l.max_us
-            );
-        }
-    }
-    if let Some(m) = o.send.spin_margin_us {
-        println!(
-            "spin: {m} us margin, {:.1} % of a core ({:.1} us per spinning cycle){}",
-            o.send.spin_cpu_pct,
-            o.send.spin_us_per_cycle,
-            o.send
-                .spin_over_plain_p99
-                .map_or(String::new(), |r| format!(
-                    ", p99 spinning / sleeping {r:.3}"
-                ))
-        );
-    }
-    println!(
-        "round trip, us:        mean {:.1}  p99 {:.1}  max {:.1}",
-        us(o.round_trip.mean),
-        us(o.round_trip.p99_abs),
-        us(o.round_trip.max_abs)
-    );
-    if o.tx_path.n > 0 {
-        println!(
-            "send to kernel TX timestamp, us: mean {:.1}  std {:.1}  max {:.1}",
-            us(o.tx_path.mean),
-            us(o.tx_path.std),
-            us(o.tx_path.max)
-        );
-    }
-    let t = &o.t_ms;
-    let source = match t.source {
-        TxStampSource::SendTimestamp => "the send timestamp (before the send)",
-        TxStampSource::KernelSoftware => "the kernel's software transmit stamp",
-        TxStampSource::NicHardware => "the NIC's hardware transmit stamp",
-    };
-    print!("t_ms (--tx-stamp {}): {source}", t.mode);
-    if t.source != TxStampSource::SendTimestamp {
-        print!(
-            ", {} cycles ({} without a stamp kept the send timestamp)",
-            t.cycles_from_tx_stamp, t.cycles_without_tx_stamp
-        );
-    }
-    println!();
-    if let Some(n) = &t.note {
-        println!("  ({n})");
-    }
-    if let Some(p) = &o.csv {
-        println!("per-cycle CSV: {p}");
-    }
 }

@@ -1,0 +1,283 @@
+//! The verdict: which methods are ranked, the ranking by its keys, and why, in words.
+
+use super::{MethodOut, NotRanked, us};
+use ecsync_sim::send::SendMode;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+/// A method that lost more than this share of its frames with no fault scheduled is not
+/// ranked: its figures are those of the few frames that came back, and whatever made it
+/// lose them (a cycle too short for the network, a reply timeout) is the finding.
+pub const UNRANKED_LOST_SHARE: f64 = 0.1;
+
+/// For the pick's method, each send mode's figures against `plain`'s (`None` with one mode).
+pub(super) fn send_note(
+    methods: &BTreeMap<String, MethodOut>,
+    order: &[String],
+    pick: Option<&String>,
+) -> Option<String> {
+    let pick = methods.get(pick?)?.entry.kind;
+    let same: Vec<&String> = order
+        .iter()
+        .filter(|m| methods.get(*m).is_some_and(|mo| mo.entry.kind == pick))
+        .collect();
+    if same.len() < 2 {
+        return None;
+    }
+    let base = pick.name();
+    let mut t = format!("Send modes with {base}: ");
+    let parts: Vec<String> = same
+        .iter()
+        .map(|m| {
+            let mo = &methods[*m];
+            let g = &mo.ground_truth;
+            let mode = mo.send.as_ref().map_or("plain".to_string(), |s| s.mode.to_string());
+            let cost = match &mo.send {
+                Some(s) if s.mode == SendMode::Spin => {
+                    format!(", {:.1} % of a core spun", s.spin_cpu_pct)
+                }
+                Some(s) if s.mode == SendMode::Txtime => {
+                    format!(", {} launch times missed (frames dropped)", s.launch_misses)
+                }
+                Some(s) if s.mode == SendMode::Hwstamp => {
+                    format!(
+                        ", the method's M-rS std {:.3} us (t_ms from the NIC's stamp)",
+                        mo.m_rs_pooled.std / 1e3
+                    )
+                }
+                _ => String::new(),
+            };
+            format!(
+                "{mode}: true phase RMS {} about the target, p99.9 {}, smallest safe shift {:.1} %, {} late frames{cost}",
+                us(g.phase_error.rms),
+                us(g.phase_error.p999_abs),
+                g.smallest_safe_shift_pct,
+                g.late_frames
+            )
+        })
+        .collect();
+    t.push_str(&parts.join("; "));
+    t.push_str(". What a mode buys is the send jitter after the method's decision (j_s, and j_c with txtime), which no method can filter: the phase spread and the shift it needs shrink by it.");
+    if same
+        .iter()
+        .any(|m| methods[*m].entry.send == SendMode::Hwstamp)
+    {
+        t.push_str(" A hardware transmit stamp buys a truer measurement, not a truer send: j_c leaves the method's t_ms, j_s still moves the frame.");
+    }
+    Some(t)
+}
+
+/// The methods the verdict cannot judge (see [`UNRANKED_LOST_SHARE`]).
+pub(super) fn not_ranked(
+    methods: &BTreeMap<String, MethodOut>,
+    order: &[String],
+) -> Vec<NotRanked> {
+    order
+        .iter()
+        .filter_map(|m| {
+            let mo = methods.get(m)?;
+            let lost = mo.ground_truth.lost_frames;
+            let share = lost as f64 / mo.cycles_done.max(1) as f64;
+            (mo.faults.is_empty() && lost > 0 && share > UNRANKED_LOST_SHARE).then(|| NotRanked {
+                method: m.clone(),
+                why: format!(
+                    "{m} lost {lost} of {} frames ({:.0} %) with no fault scheduled: the figures of the frames that came back do not describe it",
+                    mo.cycles_done,
+                    share * 100.0
+                ),
+            })
+        })
+        .collect()
+}
+
+/// The ranking rule, in words.
+pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|";
+
+/// The ranking keys of a method (smaller is better), NaN last.
+fn keys(m: &MethodOut) -> [f64; 5] {
+    let g = &m.ground_truth;
+    let nan_last = |x: f64| if x.is_nan() { f64::INFINITY } else { x };
+    [
+        g.late_frames as f64,
+        if g.holds_target { 0.0 } else { 1.0 },
+        nan_last(g.smallest_safe_shift_pct),
+        nan_last(g.slave_ref_diff.p999_abs),
+        nan_last(g.phase_error.p999_abs),
+    ]
+}
+
+/// Differences of the smallest safe shift below this many % of the cycle are noise: the
+/// shift comes from the latest frame of millions, which moves by microseconds between seeds.
+pub const SHIFT_TIE_PCT: f64 = 0.5;
+/// Differences of the slave spread's p99.9 below this share of the best (and 2 ns) are noise.
+pub const SPREAD_TIE: f64 = 0.1;
+
+/// The keys as compared: the shift and the spread in steps of their noise above the best
+/// method's (a strict comparison of maxima over millions of cycles would rank noise).
+fn ranked_keys(methods: &BTreeMap<String, MethodOut>, names: &[&String]) -> Vec<[f64; 5]> {
+    let raw: Vec<[f64; 5]> = names.iter().map(|m| keys(&methods[*m])).collect();
+    let best = |i: usize| raw.iter().map(|k| k[i]).fold(f64::INFINITY, f64::min);
+    let (b2, b3) = (best(2), best(3));
+    let spread_step = (SPREAD_TIE * b3).max(2.0);
+    raw.iter()
+        .map(|k| {
+            let mut k = *k;
+            if k[2].is_finite() && b2.is_finite() {
+                k[2] = ((k[2] - b2) / SHIFT_TIE_PCT).floor();
+            }
+            if k[3].is_finite() && b3.is_finite() {
+                k[3] = ((k[3] - b3) / spread_step).floor();
+            }
+            k
+        })
+        .collect()
+}
+
+/// The methods of `order` that ran, best first by their compared keys.
+pub(super) fn rank(methods: &BTreeMap<String, MethodOut>, order: &[String]) -> Vec<String> {
+    let names: Vec<&String> = order.iter().filter(|m| methods.contains_key(*m)).collect();
+    let keys = ranked_keys(methods, &names);
+    let mut idx: Vec<usize> = (0..names.len()).collect();
+    // A stable sort keeps the report order among exact ties.
+    idx.sort_by(|&a, &b| {
+        keys[a]
+            .iter()
+            .zip(keys[b].iter())
+            .map(|(x, y)| x.total_cmp(y))
+            .find(|o| o.is_ne())
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    idx.into_iter().map(|i| names[i].clone()).collect()
+}
+
+/// Why the pick, in words: its figures at the `s_pct` % shift, whether it holds its target,
+/// the key it beats the next one on, the methods off their target, its rS-IS spread.
+pub(super) fn reason(
+    methods: &BTreeMap<String, MethodOut>,
+    ranking: &[String],
+    s_pct: f64,
+) -> String {
+    let Some(pick) = ranking.first() else {
+        return "no method ran".into();
+    };
+    let p = &methods[pick];
+    let g = &p.ground_truth;
+    let mut r = String::new();
+    let late = if g.late_frames == 0 {
+        format!("no frame reached a drive after its SYNC0 at the {s_pct} % shift")
+    } else {
+        format!(
+            "it had the fewest late frames at the {s_pct} % shift ({}; every method had some: raise the shift)",
+            g.late_frames
+        )
+    };
+    let _ = write!(
+        r,
+        "{pick}: {late}; it needs a SYNC0 shift of {:.1} % at least, its frames reach the reference {} from the target on average and within {} of it in 99.9 % of cycles, and the drives stay within {:.0} ns of the reference (p99.9).",
+        g.smallest_safe_shift_pct,
+        us(g.offset_from_target_ns),
+        us(g.phase_error.p999_abs),
+        g.slave_ref_diff.p999_abs
+    );
+    if !g.holds_target && g.phase.n > 0 {
+        let _ = write!(
+            r,
+            " It does not hold its target: its frames sit {} {} it, which is what {} here; on a network whose crystals drift the other way they would sit as far on the other side.",
+            us(g.offset_from_target_ns.abs()),
+            if g.offset_from_target_ns < 0.0 {
+                "before"
+            } else {
+                "after"
+            },
+            if g.offset_from_target_ns < 0.0 {
+                "keeps them clear of SYNC0"
+            } else {
+                "the shift has to make up for"
+            }
+        );
+    }
+    if let Some(second) = ranking.get(1) {
+        let q = &methods[second];
+        let names: Vec<&String> = ranking.iter().collect();
+        let compared = ranked_keys(methods, &names);
+        let (ka, kb) = (keys(p), keys(q));
+        let decided = (0..5).find(|&i| compared[0][i] != compared[1][i]);
+        let what = [
+            "late frames",
+            "holding its target",
+            "the smallest safe SYNC0 shift",
+            "the slave spread",
+            "the true phase's deviation from the target",
+        ];
+        let tied: Vec<&str> = (0..decided.unwrap_or(5))
+            .filter(|&i| i >= 2 && ka[i] != kb[i])
+            .map(|i| what[i])
+            .collect();
+        if !tied.is_empty() {
+            let _ = write!(
+                r,
+                " It and {second} are within noise of each other on {}.",
+                tied.join(" and ")
+            );
+        }
+        if let Some(i) = decided {
+            let fmt = |i: usize, v: f64, m: &MethodOut| match i {
+                0 => format!("{v:.0}"),
+                1 => format!(
+                    "it sits {} from the target",
+                    us(m.ground_truth.offset_from_target_ns)
+                ),
+                2 => format!("{v:.1} %"),
+                3 => format!("{v:.0} ns"),
+                _ => us(v),
+            };
+            if i == 1 {
+                let _ = write!(
+                    r,
+                    " Next is {second}, which does not hold its target: {}.",
+                    fmt(i, kb[i], q)
+                );
+            } else {
+                let _ = write!(
+                    r,
+                    " Next is {second}, which loses on {}: {} against {}.",
+                    what[i],
+                    fmt(i, kb[i], q),
+                    fmt(i, ka[i], p)
+                );
+            }
+        } else {
+            let _ = write!(r, " {second} ties with it on every key.");
+        }
+    }
+    let off: Vec<&str> = ranking
+        .iter()
+        .filter(|m| *m != pick)
+        .filter(|m| !methods[*m].ground_truth.holds_target && methods[*m].ground_truth.phase.n > 0)
+        .map(|m| m.as_str())
+        .collect();
+    if !off.is_empty() {
+        let _ = write!(
+            r,
+            " {} {} not hold {} target on this network (see the warnings) and {} ranked after the methods that do, late frames permitting.",
+            off.join(", "),
+            if off.len() == 1 { "does" } else { "do" },
+            if off.len() == 1 { "its" } else { "their" },
+            if off.len() == 1 { "is" } else { "are" }
+        );
+    }
+    if p.rs_is.std > 0.0 {
+        let best_rs = ranking
+            .iter()
+            .map(|m| methods[m].rs_is.std)
+            .fold(f64::INFINITY, f64::min);
+        if p.rs_is.std > 5.0 * best_rs {
+            let _ = write!(
+                r,
+                " Its rS-IS spread (the drives' own 0x092C, {:.0} ns) is more than five times the best one's ({:.0} ns).",
+                p.rs_is.std, best_rs
+            );
+        }
+    }
+    r
+}
