@@ -3,6 +3,7 @@
 use crate::source::SourceArgs;
 use anyhow::{Context, Result};
 use ecsync_dc::time::MasterInstant;
+use ecsync_lab::realnet::summary::SlaveIdentity;
 use ecsync_master::bringup::{DcCapability, Stage};
 use ecsync_master::{BringupConfig, Engine, Event, bringup};
 use ecsync_sim::Segment;
@@ -44,13 +45,8 @@ pub struct Args {
 
 #[derive(Debug, Serialize)]
 struct SlaveOut {
-    position: u16,
-    station: u16,
-    name: String,
-    vendor_id: u32,
-    product_code: u32,
-    serial: u32,
-    dc: DcCapability,
+    #[serde(flatten)]
+    identity: SlaveIdentity,
     parent: Option<(u16, u8)>,
     delay_ns: Option<f64>,
     true_delay_ns: Option<f64>,
@@ -198,13 +194,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
             .slaves
             .iter()
             .map(|s| SlaveOut {
-                position: s.position,
-                station: s.station,
-                name: s.name.clone(),
-                vendor_id: s.vendor_id,
-                product_code: s.product_code,
-                serial: s.serial,
-                dc: s.dc,
+                identity: SlaveIdentity::of(s),
                 parent: s.parent,
                 delay_ns: s.delay_ns,
                 true_delay_ns: truth[usize::from(s.position)]
@@ -278,18 +268,18 @@ fn print_human(o: &Out) {
             (Some(d), Some(t)) => format!("{:+.1}", d - t),
             _ => "-".to_string(),
         };
-        let dc = match s.dc {
-            DcCapability::SystemTime if s.position == o.reference => "reference",
+        let dc = match s.identity.dc {
+            DcCapability::SystemTime if s.identity.position == o.reference => "reference",
             DcCapability::SystemTime => "system time",
             DcCapability::ReceiveTimes => "rx times",
             DcCapability::None => "none",
         };
-        let mut name = s.name.clone();
+        let mut name = s.identity.name.clone();
         name.truncate(28);
         println!(
             "{:>3}  {:#07x}  {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
-            s.position,
-            s.station,
+            s.identity.position,
+            s.identity.station,
             name,
             parent,
             dc,

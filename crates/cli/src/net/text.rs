@@ -18,18 +18,18 @@ pub(super) fn print_bringup(b: &BringupOut) {
         "pos", "station", "name", "delay ns", "DC"
     );
     for s in &b.slaves {
-        let mut name = s.name.clone();
+        let mut name = s.identity.name.clone();
         name.truncate(28);
-        let dc = match s.dc {
-            DcCapability::SystemTime if s.position == b.reference => "reference",
+        let dc = match s.identity.dc {
+            DcCapability::SystemTime if s.identity.position == b.reference => "reference",
             DcCapability::SystemTime => "system time",
             DcCapability::ReceiveTimes => "rx times",
             DcCapability::None => "none",
         };
         println!(
             "{:>3}  {:#07x}  {:<28} {:>12}  {:>10}",
-            s.position,
-            s.station,
+            s.identity.position,
+            s.identity.station,
             name,
             s.delay_ns.map_or("-".to_string(), |d| format!("{d:.1}")),
             dc

@@ -6,7 +6,7 @@ use ecsync_dc::fit::LineFit;
 use ecsync_dc::time::{MasterDuration, SystemTime};
 use ecsync_master::bringup::DcCapability;
 use ecsync_master::driver::{CycleReport, ExchangeStats};
-use ecsync_master::network::Network;
+use ecsync_master::network::{Network, SlaveInfo};
 use ecsync_master::transport::SendMode;
 use ecsync_net::rt::RtReport;
 use ecsync_net::sys::TimestampSupport;
@@ -14,9 +14,9 @@ use ecsync_net::tx_stamp::TxStampSource;
 use serde::Serialize;
 use std::io::Write;
 
-/// One slave as the bring-up found it.
+/// Who a slave is, as every summary of a bring-up says it first (`run`'s, `bringup --json`).
 #[derive(Debug, Serialize)]
-pub struct SlaveOut {
+pub struct SlaveIdentity {
     /// Network position, 0 = next to the master.
     pub position: u16,
     /// Configured station address.
@@ -31,6 +31,29 @@ pub struct SlaveOut {
     pub serial: u32,
     /// What its DC unit can do.
     pub dc: DcCapability,
+}
+
+impl SlaveIdentity {
+    /// Slave `s` as the bring-up found it.
+    pub fn of(s: &SlaveInfo) -> SlaveIdentity {
+        SlaveIdentity {
+            position: s.position,
+            station: s.station,
+            name: s.name.clone(),
+            vendor_id: s.vendor_id,
+            product_code: s.product_code,
+            serial: s.serial,
+            dc: s.dc,
+        }
+    }
+}
+
+/// One slave as the bring-up found it.
+#[derive(Debug, Serialize)]
+pub struct SlaveOut {
+    /// Who it is.
+    #[serde(flatten)]
+    pub identity: SlaveIdentity,
     /// Its propagation delay from the reference, ns.
     pub delay_ns: Option<f64>,
     /// The system time offset written to it, ns.
@@ -75,13 +98,7 @@ impl BringupOut {
                 .slaves
                 .iter()
                 .map(|s| SlaveOut {
-                    position: s.position,
-                    station: s.station,
-                    name: s.name.clone(),
-                    vendor_id: s.vendor_id,
-                    product_code: s.product_code,
-                    serial: s.serial,
-                    dc: s.dc,
+                    identity: SlaveIdentity::of(s),
                     delay_ns: s.delay_ns,
                     offset: s.offset,
                 })
