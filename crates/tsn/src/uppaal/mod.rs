@@ -204,44 +204,9 @@ fn build_m1() -> (Network, Probes) {
     let om0 = oscillator(&mut b, "OM0", g.tic[0], g.t[0], false);
     let cm0 = clock("CM0", g.tic[0], g.lt[0], g.num_period, false);
     let m0 = master(&mut b, "M0", g.master_binding(0, None));
-    let o0 = oscillator(&mut b, "O0", g.tic[1], g.t[1], false);
-    let c0 = clock("C0", g.tic[1], g.lt[1], g.num_period, false);
-    let s0 = slave(
-        &mut b,
-        "S0",
-        SlaveChans {
-            sm_in: g.sm[0],
-            sm_out: g.sm[1],
-            dmt_in: g.dmt[0],
-            dmr_in: g.dmr[1],
-            dmc_in: g.dmc[0],
-            dmt_out: g.dmt[1],
-            dmr_out: g.dmr[0],
-            dmc_out: g.dmc[1],
-        },
-        g.lt[1],
-        g.t2[0],
-        g.t3[0],
-        g.delay[0],
-        g.mref,
-    );
-    let o1 = oscillator(&mut b, "O1", g.tic[2], g.t[2], false);
-    let c1 = clock("C1", g.tic[2], g.lt[2], g.num_period, false);
-    let s1 = last_slave(
-        &mut b,
-        "S1",
-        g.sm[1],
-        g.lt[2],
-        g.dmt[1],
-        g.dmr[1],
-        g.dmc[1],
-        g.t2[1],
-        g.t3[1],
-        g.delay[1],
-        g.mref,
-        g.num_period,
-    );
-    let net = b.finish(vec![om0, cm0, m0, o0, c0, s0, o1, c1, s1]);
+    let mut procs = vec![om0, cm0, m0];
+    procs.extend(slaves(&mut b, &g, 1, 0, false, false));
+    let net = b.finish(procs);
     let probes = Probes {
         master: g.lt[0],
         s1: g.lt[1],
@@ -310,7 +275,7 @@ fn build_bridged(model: Model) -> (Network, Probes) {
             },
         ));
     }
-    procs.extend(bridged_slaves(&mut b, &g, exact));
+    procs.extend(slaves(&mut b, &g, 2, 1, exact, true));
     let net = b.finish(procs);
     let blocked = ["SM_bloqued", "DM_T_bloqued", "DM_C_bloqued"]
         .map(|l| net.location(n0, l).expect("bridge location"));
@@ -326,40 +291,48 @@ fn build_bridged(model: Model) -> (Network, Probes) {
     (net, probes)
 }
 
-/// M2's and M3's slaves behind the bridge (nodes 2 and 3), each with its oscillator and
-/// clock.
-fn bridged_slaves(b: &mut Builder, g: &Globals<4, 3>, exact: bool) -> [Process; 6] {
-    let o0 = oscillator(b, "O0", g.tic[2], g.t[2], exact);
-    let c0 = clock("C0", g.tic[2], g.lt[2], g.num_period, true);
+/// The slaves S0 and S1, nodes `n` and `n + 1` behind hop `h` (their SM and DM_T/DM_C
+/// channels are the hop's and the next), each with its oscillator and clock; `exact` and
+/// `stop_eq` are the model's guards of the oscillators' ticks and the clocks' stop.
+fn slaves<const N: usize, const H: usize>(
+    b: &mut Builder,
+    g: &Globals<N, H>,
+    n: usize,
+    h: usize,
+    exact: bool,
+    stop_eq: bool,
+) -> [Process; 6] {
+    let o0 = oscillator(b, "O0", g.tic[n], g.t[n], exact);
+    let c0 = clock("C0", g.tic[n], g.lt[n], g.num_period, stop_eq);
     let s0 = slave(
         b,
         "S0",
         SlaveChans {
-            sm_in: g.sm[1],
-            sm_out: g.sm[2],
-            dmt_in: g.dmt[1],
+            sm_in: g.sm[h],
+            sm_out: g.sm[h + 1],
+            dmt_in: g.dmt[h],
             dmr_in: g.dmr[1],
-            dmc_in: g.dmc[1],
-            dmt_out: g.dmt[2],
+            dmc_in: g.dmc[h],
+            dmt_out: g.dmt[h + 1],
             dmr_out: g.dmr[0],
-            dmc_out: g.dmc[2],
+            dmc_out: g.dmc[h + 1],
         },
-        g.lt[2],
+        g.lt[n],
         g.t2[0],
         g.t3[0],
         g.delay[0],
         g.mref,
     );
-    let o1 = oscillator(b, "O1", g.tic[3], g.t[3], exact);
-    let c1 = clock("C1", g.tic[3], g.lt[3], g.num_period, true);
+    let o1 = oscillator(b, "O1", g.tic[n + 1], g.t[n + 1], exact);
+    let c1 = clock("C1", g.tic[n + 1], g.lt[n + 1], g.num_period, stop_eq);
     let s1 = last_slave(
         b,
         "S1",
-        g.sm[2],
-        g.lt[3],
-        g.dmt[2],
+        g.sm[h + 1],
+        g.lt[n + 1],
+        g.dmt[h + 1],
         g.dmr[1],
-        g.dmc[2],
+        g.dmc[h + 1],
         g.t2[1],
         g.t3[1],
         g.delay[1],
