@@ -438,19 +438,45 @@ impl SegmentConfig {
         path: &str,
     ) -> Result<Vec<SlaveSpec>, ConfigError> {
         let src = ConfigSource::new(file, text);
-        let err = |line: Option<usize>, field: String, message: String, fix: &str| {
-            src.at(line, field, message, fix)
-        };
-        if self.slave.is_empty() {
-            return Err(err(
+        self.check_slave_count(&src, path)?;
+        let mut names: Vec<&str> = Vec::with_capacity(self.slave.len());
+        let mut esi_files = EsiFiles::default();
+        let mut specs = Vec::with_capacity(self.slave.len());
+        for (i, sp) in self.slave.iter().enumerate() {
+            let at = SlaveAt {
+                src: &src,
+                path,
+                i,
+                span: sp.span(),
+                line: Some(line_of(text, sp.span().start)),
+            };
+            let spec = self.slave_spec(sp.get_ref(), &at, &names, &specs, &mut esi_files)?;
+            specs.push(spec);
+            names.push(&sp.get_ref().name);
+        }
+        if let Err(e) = crate::Segment::new(&specs) {
+            return Err(src.at(
                 None,
                 format!("{path}.slave"),
-                "the segment has no slaves".into(),
+                e.to_string(),
+                "connect every slave once, one of them to the master",
+            ));
+        }
+        Ok(specs)
+    }
+
+    /// The segment has at least one slave, and no more than the auto-increment addresses.
+    fn check_slave_count(&self, src: &ConfigSource<'_>, path: &str) -> Result<(), ConfigError> {
+        if self.slave.is_empty() {
+            return Err(src.at(
+                None,
+                format!("{path}.slave"),
+                "the segment has no slaves",
                 "add at least one [[segment.slave]] table",
             ));
         }
         if self.slave.len() > MAX_SLAVES {
-            return Err(err(
+            return Err(src.at(
                 None,
                 format!("{path}.slave"),
                 format!(
@@ -460,195 +486,270 @@ impl SegmentConfig {
                 "split the network into segments of at most 65535 slaves",
             ));
         }
-        let mut names: Vec<&str> = Vec::with_capacity(self.slave.len());
-        let mut esi_files = EsiFiles::default();
-        let mut specs = Vec::with_capacity(self.slave.len());
-        for (i, sp) in self.slave.iter().enumerate() {
-            let s = sp.get_ref();
-            let line = Some(line_of(text, sp.span().start));
-            let f = |name: &str| format!("{path}.slave[{i}].{name}");
-            if names.contains(&s.name.as_str()) {
-                return Err(err(
-                    line,
-                    f("name"),
-                    format!("\"{}\" is used twice", s.name),
-                    "give every slave its own name",
-                ));
-            }
-            let Some(mut model) = model_named(&s.model) else {
-                return Err(err(
-                    line,
-                    f("model"),
-                    format!("unknown ESC model \"{}\"", s.model),
-                    "use servo-mii, servo-mii-dc32, ebus-terminal, ebus-terminal-no-dc or junction-mii",
-                ));
-            };
-            let serial = s.serial.unwrap_or(i as u32 + 1);
-            let mut device = match &s.esi {
-                Some(esi) => esi_files.device(
-                    &src,
-                    esi,
-                    s.device.as_deref(),
-                    serial,
-                    (f("esi"), key_line_in(text, sp.span(), "esi").or(line)),
-                    (f("device"), key_line_in(text, sp.span(), "device").or(line)),
-                )?,
-                None => match s.device.as_deref().unwrap_or("servo-drive") {
-                    "servo-drive" => DeviceInfo::servo_drive(serial),
-                    "coupler" => DeviceInfo::coupler(&s.name, serial),
-                    other => {
-                        return Err(err(
-                            line,
-                            f("device"),
-                            format!("unknown device \"{other}\""),
-                            "use servo-drive or coupler, or describe the device with esi = \"file.xml\"",
-                        ));
-                    }
-                },
-            };
-            if let Some(v) = s.vendor_id {
-                device.vendor_id = v;
-            }
-            if let Some(v) = s.product_code {
-                device.product_code = v;
-            }
-            if let Some(v) = s.revision {
-                device.revision = v;
-            }
-            if let Some(n) = &s.device_name {
-                // ethercrab refuses longer strings; the SII's string length is one byte.
-                if n.len() > 64 {
-                    return Err(err(
-                        key_line_in(text, sp.span(), "device_name").or(line),
-                        f("device_name"),
-                        format!("{} bytes, more than an SII name may have", n.len()),
-                        "give a name of at most 64 bytes",
-                    ));
-                }
-                device.name = n.clone();
-            }
-            for (name, v, target) in [
-                (
-                    "forwarding_delay_ns",
-                    s.forwarding_delay_ns,
-                    &mut model.forwarding_delay_ns,
-                ),
-                (
-                    "processing_delay_ns",
-                    s.processing_delay_ns,
-                    &mut model.processing_delay_ns,
-                ),
-                (
-                    "link_phy_delay_ns",
-                    s.link_phy_delay_ns,
-                    &mut model.link_phy_delay_ns,
-                ),
-            ] {
-                if let Some(v) = v {
-                    if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
-                        return Err(err(
-                            line,
-                            f(name),
-                            format!("{v} is not a delay"),
-                            "give a delay between 0 and 1000000 ns",
-                        ));
-                    }
-                    *target = v;
-                }
-            }
-            if !(s.cable_m.is_finite() && (0.0..=100_000.0).contains(&s.cable_m)) {
-                return Err(err(
-                    line,
-                    f("cable_m"),
-                    format!("{} m is not a cable length", s.cable_m),
-                    "give a length between 0 and 100000 m",
-                ));
-            }
-            if !(s.ppm.is_finite() && s.ppm.abs() <= 1000.0) {
-                return Err(err(
-                    line,
-                    f("ppm"),
-                    format!("{} ppm is not a crystal error", s.ppm),
-                    "give a value between -1000 and 1000",
-                ));
-            }
-            if !(s.wander_ppm_per_sqrt_s.is_finite()
-                && (0.0..=10.0).contains(&s.wander_ppm_per_sqrt_s))
-            {
-                return Err(err(
-                    line,
-                    f("wander_ppm_per_sqrt_s"),
-                    format!("{} is not a wander", s.wander_ppm_per_sqrt_s),
-                    "give a value between 0 and 10",
-                ));
-            }
-            let port_ok = |m: &EscModel, p: u8| p < 4 && m.ports[usize::from(p)] != PortKind::None;
-            if !port_ok(&model, s.entry_port) {
-                return Err(err(
-                    line,
-                    f("entry_port"),
-                    format!("port {} does not exist on {}", s.entry_port, s.model),
-                    "use a port the model has (servo-mii: 0, 1)",
-                ));
-            }
-            let upstream = if s.upstream == "master" {
-                Upstream::Master
-            } else {
-                let Some(k) = names.iter().position(|n| *n == s.upstream) else {
-                    return Err(err(
-                        line,
-                        f("upstream"),
-                        format!(
-                            "no slave named \"{}\" is listed before this one",
-                            s.upstream
-                        ),
-                        "name a slave listed earlier, or \"master\"",
-                    ));
-                };
-                let up: &SlaveSpec = &specs[k];
-                if !port_ok(&up.model, s.upstream_port) {
-                    return Err(err(
-                        line,
-                        f("upstream_port"),
-                        format!(
-                            "port {} does not exist on \"{}\"",
-                            s.upstream_port, s.upstream
-                        ),
-                        "use a port of the upstream slave's model",
-                    ));
-                }
-                Upstream::Slave {
-                    index: k,
-                    port: s.upstream_port,
-                }
-            };
-            specs.push(SlaveSpec {
-                model,
-                device,
-                crystal: CrystalParams {
-                    ppm: s.ppm,
-                    wander_ppm_per_sqrt_s: s.wander_ppm_per_sqrt_s,
-                    wander_step_ps: crate::clock::DEFAULT_WANDER_STEP_PS,
-                    initial_local_ns: s
-                        .power_up_ns
-                        .unwrap_or(1_000_000_000 + 123_456_789 * i as u64),
-                    seed: self.seed.wrapping_add(i as u64),
-                },
-                upstream,
-                entry_port: s.entry_port,
-                cable_m: s.cable_m,
-            });
-            names.push(&s.name);
-        }
-        if let Err(e) = crate::Segment::new(&specs) {
-            return Err(err(
-                None,
-                format!("{path}.slave"),
-                e.to_string(),
-                "connect every slave once, one of them to the master",
+        Ok(())
+    }
+
+    /// Slave `s` (at `at`) as a spec, its fields checked in the order a file's reader meets
+    /// them: its name against the `names` of the slaves before it (`specs`), its model, its
+    /// device and identity, the model's delays, cable and crystal, its ports and upstream.
+    fn slave_spec(
+        &self,
+        s: &SlaveConfig,
+        at: &SlaveAt<'_>,
+        names: &[&str],
+        specs: &[SlaveSpec],
+        esi_files: &mut EsiFiles,
+    ) -> Result<SlaveSpec, ConfigError> {
+        if names.contains(&s.name.as_str()) {
+            return Err(at.error(
+                at.line,
+                "name",
+                format!("\"{}\" is used twice", s.name),
+                "give every slave its own name",
             ));
         }
-        Ok(specs)
+        let Some(mut model) = model_named(&s.model) else {
+            return Err(at.error(
+                at.line,
+                "model",
+                format!("unknown ESC model \"{}\"", s.model),
+                "use servo-mii, servo-mii-dc32, ebus-terminal, ebus-terminal-no-dc or junction-mii",
+            ));
+        };
+        let serial = s.serial.unwrap_or(at.i as u32 + 1);
+        let mut device = s.device(serial, at, esi_files)?;
+        s.override_identity(&mut device, at)?;
+        s.override_delays(&mut model, at)?;
+        s.check_cable_and_crystal(at)?;
+        let upstream = s.upstream(&model, names, specs, at)?;
+        Ok(SlaveSpec {
+            model,
+            device,
+            crystal: CrystalParams {
+                ppm: s.ppm,
+                wander_ppm_per_sqrt_s: s.wander_ppm_per_sqrt_s,
+                wander_step_ps: crate::clock::DEFAULT_WANDER_STEP_PS,
+                initial_local_ns: s
+                    .power_up_ns
+                    .unwrap_or(1_000_000_000 + 123_456_789 * at.i as u64),
+                seed: self.seed.wrapping_add(at.i as u64),
+            },
+            upstream,
+            entry_port: s.entry_port,
+            cable_m: s.cable_m,
+        })
+    }
+}
+
+/// Where slave `i`'s table stands in its file, for the errors of its fields.
+struct SlaveAt<'a> {
+    src: &'a ConfigSource<'a>,
+    /// The segment table's path (`segment`).
+    path: &'a str,
+    i: usize,
+    /// The table's span (its header: see [`key_line_in`]).
+    span: std::ops::Range<usize>,
+    /// The table header's line.
+    line: Option<usize>,
+}
+
+impl SlaveAt<'_> {
+    /// The full name of the slave's field `name`.
+    fn field(&self, name: &str) -> String {
+        format!("{}.slave[{}].{name}", self.path, self.i)
+    }
+
+    /// The line of the slave's `key = ...`, else its table header's.
+    fn key_line(&self, key: &str) -> Option<usize> {
+        key_line_in(self.src.text, self.span.clone(), key).or(self.line)
+    }
+
+    /// An error in the slave's field `name`, at `line`.
+    fn error(&self, line: Option<usize>, name: &str, message: String, fix: &str) -> ConfigError {
+        self.src.at(line, self.field(name), message, fix)
+    }
+}
+
+/// A port that exists on model `m`.
+fn port_ok(m: &EscModel, p: u8) -> bool {
+    p < 4 && m.ports[usize::from(p)] != PortKind::None
+}
+
+impl SlaveConfig {
+    /// The device the slave is, with serial number `serial`: from its ESI file (each file
+    /// parsed once, in `esi_files`), else a built-in one.
+    fn device(
+        &self,
+        serial: u32,
+        at: &SlaveAt<'_>,
+        esi_files: &mut EsiFiles,
+    ) -> Result<DeviceInfo, ConfigError> {
+        Ok(match &self.esi {
+            Some(esi) => esi_files.device(
+                at.src,
+                esi,
+                self.device.as_deref(),
+                serial,
+                (at.field("esi"), at.key_line("esi")),
+                (at.field("device"), at.key_line("device")),
+            )?,
+            None => match self.device.as_deref().unwrap_or("servo-drive") {
+                "servo-drive" => DeviceInfo::servo_drive(serial),
+                "coupler" => DeviceInfo::coupler(&self.name, serial),
+                other => {
+                    return Err(at.error(
+                        at.line,
+                        "device",
+                        format!("unknown device \"{other}\""),
+                        "use servo-drive or coupler, or describe the device with esi = \"file.xml\"",
+                    ));
+                }
+            },
+        })
+    }
+
+    /// The identity the file gives (vendor, product, revision, SII name) over the device's.
+    fn override_identity(
+        &self,
+        device: &mut DeviceInfo,
+        at: &SlaveAt<'_>,
+    ) -> Result<(), ConfigError> {
+        if let Some(v) = self.vendor_id {
+            device.vendor_id = v;
+        }
+        if let Some(v) = self.product_code {
+            device.product_code = v;
+        }
+        if let Some(v) = self.revision {
+            device.revision = v;
+        }
+        if let Some(n) = &self.device_name {
+            // ethercrab refuses longer strings; the SII's string length is one byte.
+            if n.len() > 64 {
+                return Err(at.error(
+                    at.key_line("device_name"),
+                    "device_name",
+                    format!("{} bytes, more than an SII name may have", n.len()),
+                    "give a name of at most 64 bytes",
+                ));
+            }
+            device.name = n.clone();
+        }
+        Ok(())
+    }
+
+    /// The delays the file gives over the model's, each checked.
+    fn override_delays(&self, model: &mut EscModel, at: &SlaveAt<'_>) -> Result<(), ConfigError> {
+        for (name, v, target) in [
+            (
+                "forwarding_delay_ns",
+                self.forwarding_delay_ns,
+                &mut model.forwarding_delay_ns,
+            ),
+            (
+                "processing_delay_ns",
+                self.processing_delay_ns,
+                &mut model.processing_delay_ns,
+            ),
+            (
+                "link_phy_delay_ns",
+                self.link_phy_delay_ns,
+                &mut model.link_phy_delay_ns,
+            ),
+        ] {
+            if let Some(v) = v {
+                if !(v.is_finite() && (0.0..=1e6).contains(&v)) {
+                    return Err(at.error(
+                        at.line,
+                        name,
+                        format!("{v} is not a delay"),
+                        "give a delay between 0 and 1000000 ns",
+                    ));
+                }
+                *target = v;
+            }
+        }
+        Ok(())
+    }
+
+    /// The cable length, the crystal's error and its wander are in range.
+    fn check_cable_and_crystal(&self, at: &SlaveAt<'_>) -> Result<(), ConfigError> {
+        if !(self.cable_m.is_finite() && (0.0..=100_000.0).contains(&self.cable_m)) {
+            return Err(at.error(
+                at.line,
+                "cable_m",
+                format!("{} m is not a cable length", self.cable_m),
+                "give a length between 0 and 100000 m",
+            ));
+        }
+        if !(self.ppm.is_finite() && self.ppm.abs() <= 1000.0) {
+            return Err(at.error(
+                at.line,
+                "ppm",
+                format!("{} ppm is not a crystal error", self.ppm),
+                "give a value between -1000 and 1000",
+            ));
+        }
+        if !(self.wander_ppm_per_sqrt_s.is_finite()
+            && (0.0..=10.0).contains(&self.wander_ppm_per_sqrt_s))
+        {
+            return Err(at.error(
+                at.line,
+                "wander_ppm_per_sqrt_s",
+                format!("{} is not a wander", self.wander_ppm_per_sqrt_s),
+                "give a value between 0 and 10",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Where the slave connects, its own entry port checked on `model`: the master, or a port
+    /// of a slave listed before it (`names`, `specs`).
+    fn upstream(
+        &self,
+        model: &EscModel,
+        names: &[&str],
+        specs: &[SlaveSpec],
+        at: &SlaveAt<'_>,
+    ) -> Result<Upstream, ConfigError> {
+        if !port_ok(model, self.entry_port) {
+            return Err(at.error(
+                at.line,
+                "entry_port",
+                format!("port {} does not exist on {}", self.entry_port, self.model),
+                "use a port the model has (servo-mii: 0, 1)",
+            ));
+        }
+        if self.upstream == "master" {
+            return Ok(Upstream::Master);
+        }
+        let Some(k) = names.iter().position(|n| *n == self.upstream) else {
+            return Err(at.error(
+                at.line,
+                "upstream",
+                format!(
+                    "no slave named \"{}\" is listed before this one",
+                    self.upstream
+                ),
+                "name a slave listed earlier, or \"master\"",
+            ));
+        };
+        let up: &SlaveSpec = &specs[k];
+        if !port_ok(&up.model, self.upstream_port) {
+            return Err(at.error(
+                at.line,
+                "upstream_port",
+                format!(
+                    "port {} does not exist on \"{}\"",
+                    self.upstream_port, self.upstream
+                ),
+                "use a port of the upstream slave's model",
+            ));
+        }
+        Ok(Upstream::Slave {
+            index: k,
+            port: self.upstream_port,
+        })
     }
 }
 

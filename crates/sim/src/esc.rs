@@ -17,19 +17,24 @@
 //! - [`sii`]: the SII EEPROM interface and its busy time;
 //! - [`mailbox`]: the mailbox SyncManagers and the CoE server behind them;
 //! - [`process_data`]: FMMUs, SyncManagers, logical addressing and the loopback application;
-//! - [`datagram`]: datagram processing (address modes, working counters) and the recording of
-//!   a frame's effects for the replay;
-//! - [`replay`]: the replay fast path, which repeats what a frame of the same shape did;
+//! - [`datagram`]: datagram processing (address modes, working counters), one datagram at a
+//!   time, every datagram decoded: the plain path;
 //! - [`watchdog`]: the process data watchdog and its expiry;
 //! - [`sync`]: the drive's application in time (the SYNC0 deadline, SM events missed).
+//!
+//! Apart from the ESC, the speed: [`fast`], the fast path, repeats what a frame of the same
+//! shape did instead of decoding it again, with the same bytes and times as the plain path
+//! (its contract: the equivalence tests, `tests/replay_equivalence.rs`). The ESC holds its
+//! program slots and notes, in [`recorder`], what the plain path did for it to record.
 
 mod al;
 mod cia402;
 mod datagram;
+mod fast;
 mod mailbox;
 mod process_data;
+mod recorder;
 mod registers;
-mod replay;
 mod sii;
 mod sync;
 mod watchdog;
@@ -37,18 +42,16 @@ mod watchdog;
 use crate::dc_unit::{DC_BLOCK_LEN, DcParams, DcUnit};
 use crate::model::{DcSupport, DeviceInfo, EscModel};
 use crate::{clock::CrystalParams, sii_image};
-use datagram::Recorder;
 use ecsync_wire::register::{self as reg, MAX_FMMUS, MAX_SYNC_MANAGERS};
 use ecsync_wire::{AlState, AlStatusCode};
 use process_data::{AppLayout, FmmuMapping, SmBuffer};
+use recorder::Recorder;
 use registers::REG_SPACE;
-use replay::{PROGRAM_SLOTS, Program};
 use sii::SiiState;
 
 pub use datagram::DatagramEffects;
+pub(crate) use fast::{Deferred, MAX_PROGRAM_DATAGRAMS, PlannedSteps};
 pub use registers::LoopMode;
-pub(crate) use replay::Deferred;
-pub(crate) use replay::PlannedSteps;
 
 /// FMMUs and SyncManagers an ESC has at most (the register map's room).
 const FMMUS: usize = MAX_FMMUS as usize;
@@ -73,10 +76,11 @@ struct CacheLine;
 /// A virtual ESC.
 ///
 /// Laid out by hand (`repr(C)`), by cache line: what a replayed cyclic frame reads and
-/// updates first (the generation, the watchdog's check, the replay counters and flags on line
-/// 0; the process RAM and the application on lines 1-2; the SYNC0 check on line 3; the DC
-/// unit's three hot lines on 5-7), then the program look-up and the straight-through steps
-/// (a large network's visit plans copy them once), then the cold parts. In a network of
+/// updates first (the generation, the watchdog's check, the fast path's slot keys and replay
+/// counters and the flags on line 0; the process RAM and the application on lines 1-2; the
+/// SYNC0 check on line 3; the DC unit's three hot lines on 5-7), then the fast path's program
+/// look-up and straight-through steps (a large network's visit plans copy them once), then
+/// the cold parts. In a network of
 /// hundreds of drives every ESC's state has left the cache by its next frame, and the cost of
 /// a visit is the lines it touches.
 ///
@@ -84,7 +88,7 @@ struct CacheLine;
 /// the clock's random generator) are boxed: an ESC is 1.3 KiB instead of 4.3, so that a large
 /// network's ESCs, visited in order, lie close together (at 1 000 drives a slave-cycle costs
 /// about 13 % less, measured side by side; the README's "Speed"). Each program's op count
-/// and counted datagrams stay here, with the hot fields (`slot_ops`, `slot_counted`).
+/// and counted datagrams stay with the look-up (`fast::Slots`).
 #[derive(Debug, Clone)]
 #[repr(C)]
 pub struct Esc {
@@ -98,23 +102,15 @@ pub struct Esc {
     wd_period_ps: u64,
     /// The last write of the outputs, ps.
     wd_last_write_ps: u64,
-    /// Frames each slot's program replayed straight through and not yet in the ESC's
-    /// counters (one increment per frame instead of three; see [`Esc::stats`]; folded into
-    /// them before it wraps).
-    replays: [u32; PROGRAM_SLOTS],
-    /// Each slot's shape.
-    key_shapes: [u32; PROGRAM_SLOTS],
-    /// Each slot's program writes process RAM (the outputs): a replay restarts the process
-    /// data watchdog.
-    writes_ram: [bool; PROGRAM_SLOTS],
+    /// The fast path's part of line 0: each program slot's shape, replays not yet counted and
+    /// whether it writes the outputs.
+    slot_keys: fast::SlotKeys,
     al_state: AlState,
     /// The frame being processed wrote the outputs (the SYNC0 deadline is checked at its
     /// end).
     sync_pending: bool,
     /// The outputs were written by the datagram being processed.
     pd_written: bool,
-    /// The slot the next recording replaces when none is free.
-    next_slot: u8,
     // Lines 1-2: the process RAM and the application.
     ram: Box<[u8]>,
     app: Option<AppLayout>,
@@ -126,24 +122,12 @@ pub struct Esc {
     // clock's hot part), its cold part after.
     _align_dc: [CacheLine; 0],
     dc: Option<DcUnit>,
-    // The program look-up and the straight-through steps, which a large network's visit
-    // plans read once, when they are made (a small network's frames read them every time,
-    // from the L1 cache).
+    // The fast path's program look-up and straight-through steps, which a large network's
+    // visit plans read once, when they are made (a small network's frames read them every
+    // time, from the L1 cache).
     _align_slots: [CacheLine; 0],
-    /// Each slot's generation (empty slots carry u64::MAX, which no ESC reaches).
-    key_generations: [u64; PROGRAM_SLOTS],
-    /// Each slot's program: its op count and the datagrams whose working counter it counts
-    /// (the program's `n` and `counted`, kept here with the hot fields: a replay op by op of
-    /// an empty program, most ESCs' part of a large network's bring-up frames, then reads
-    /// nothing of the boxed programs).
-    slot_ops: [u8; PROGRAM_SLOTS],
-    slot_counted: [u8; PROGRAM_SLOTS],
-    /// Each slot's straight-through steps, a line each.
-    fast: [replay::FastSlot; PROGRAM_SLOTS],
+    slots: fast::Slots,
     // Cold: what the full path and the bring-up use.
-    /// Programs recorded for the last few frame shapes: a cycle of several frames (the
-    /// first with the DC datagrams, the others with process data) keeps each one's.
-    programs: Box<[Program; PROGRAM_SLOTS]>,
     model: EscModel,
     regs: Box<[u8; REG_SPACE]>,
     attr: Box<[u8; REG_SPACE]>,
@@ -162,6 +146,7 @@ pub struct Esc {
     input_sm: Option<usize>,
     stats: EscStats,
     device: Box<DeviceInfo>,
+    /// What the plain path noted of the datagram being processed, for the fast path.
     rec: Recorder,
     /// The mailbox and its CoE server (a device with a mailbox); boxed, it is rarely used.
     mbx: Option<Box<mailbox::MailboxState>>,
@@ -228,22 +213,13 @@ impl Esc {
             input_sm: None,
             app: None,
             app_mem: process_data::AppMemory::default(),
-            slot_ops: [0; PROGRAM_SLOTS],
-            slot_counted: [0; PROGRAM_SLOTS],
             stats: EscStats::default(),
             model,
             device: Box::new(device),
             generation: 0,
-            programs: Box::new([Program::default(); PROGRAM_SLOTS]),
-            // No generation is u64::MAX: an empty slot matches no frame, shape 0 (never
-            // recorded) included.
-            key_shapes: [0; PROGRAM_SLOTS],
-            key_generations: [u64::MAX; PROGRAM_SLOTS],
-            replays: [0; PROGRAM_SLOTS],
-            writes_ram: [false; PROGRAM_SLOTS],
-            fast: [replay::FastSlot::default(); PROGRAM_SLOTS],
+            slot_keys: fast::SlotKeys::new(),
+            slots: fast::Slots::new(),
             _align: [],
-            next_slot: 0,
             rec: Recorder::default(),
             mbx,
             wd_period_ps: 0,
@@ -322,12 +298,7 @@ impl Esc {
     /// Counters.
     pub fn stats(&self) -> EscStats {
         let mut s = self.stats;
-        for (&counted, &replays) in self.slot_counted.iter().zip(&self.replays) {
-            let replays = u64::from(replays);
-            s.frames += replays;
-            s.replayed_frames += replays;
-            s.datagrams_counted += replays * u64::from(counted);
-        }
+        self.count_pending_replays(&mut s);
         s
     }
 

@@ -1,7 +1,7 @@
 //! EtherCAT on the wire: frame and datagram views and builders, the fifteen command codes,
 //! working-counter rules, register addresses, typed views of the ESC's structured registers
-//! (FMMU and SyncManager entries, AL control and status with the AL status code, DL status) and
-//! wrap-safe Distributed Clocks time arithmetic.
+//! (FMMU and SyncManager entries, AL control and status with the AL status code, DL status),
+//! wrap-safe Distributed Clocks time arithmetic and the CiA data type codes.
 //!
 //! The style follows smoltcp's `wire` module: a packet is a typed view over a byte buffer
 //! (`new_checked` validates, accessors read and write fields in place) and a builder emits
@@ -31,6 +31,7 @@ extern crate std;
 pub mod al;
 mod builder;
 mod command;
+pub mod data_type;
 mod datagram;
 pub mod dc_time;
 pub mod dl;

@@ -30,6 +30,27 @@ enum Transfer {
     },
 }
 
+/// An SDO abort: the index and subindex it names, and its code.
+type SdoAbort = (u16, u8, SdoAbortCode);
+
+/// An SDO response: command `cmd`, the object's `index` and `sub`, the four data bytes
+/// `data4`, then `rest`.
+fn sdo_response(cmd: u8, index: u16, sub: u8, data4: [u8; 4], rest: &[u8]) -> Vec<u8> {
+    let mut out = vec![0u8; COE_HEADER_LEN + SDO_LEN];
+    coe::emit_coe_header(&mut out, CoeService::SdoResponse, 0);
+    out[2] = cmd;
+    out[3..5].copy_from_slice(&index.to_le_bytes());
+    out[5] = sub;
+    out[6..10].copy_from_slice(&data4);
+    out.extend_from_slice(rest);
+    out
+}
+
+/// A download's initiate response (expedited or normal).
+fn download_response(index: u16, subindex: u8) -> Vec<u8> {
+    sdo_response(coe::SDO_DOWNLOAD_RESPONSE, index, subindex, [0; 4], &[])
+}
+
 /// The SDO server of one drive: its dictionary and the transfer in progress.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SdoServer {
@@ -154,88 +175,21 @@ impl SdoServer {
         })
     }
 
+    /// One SDO request answered: the response, or the abort (its index, subindex and code).
     fn sdo_request<T: AsRef<[u8]>>(
         &mut self,
         req: SdoRequest,
         s: &Sdo<T>,
         state: AlState,
         room: usize,
-    ) -> Result<Vec<u8>, (u16, u8, SdoAbortCode)> {
-        let response = |cmd: u8, index: u16, sub: u8, data4: [u8; 4], rest: &[u8]| {
-            let mut out = vec![0u8; COE_HEADER_LEN + SDO_LEN];
-            coe::emit_coe_header(&mut out, CoeService::SdoResponse, 0);
-            out[2] = cmd;
-            out[3..5].copy_from_slice(&index.to_le_bytes());
-            out[5] = sub;
-            out[6..10].copy_from_slice(&data4);
-            out.extend_from_slice(rest);
-            out
-        };
+    ) -> Result<Vec<u8>, SdoAbort> {
         match req {
             SdoRequest::InitiateUpload {
                 index,
                 subindex,
                 complete_access,
-            } => {
-                self.transfer = None;
-                let data = if complete_access {
-                    self.od.read_complete(index, subindex)
-                } else {
-                    self.od.read(index, subindex)
-                }
-                .map_err(|c| (index, subindex, c))?;
-                if data.len() <= 4 && !complete_access {
-                    let mut d = [0u8; 4];
-                    d[..data.len()].copy_from_slice(&data);
-                    let cmd = coe::upload_expedited_command(data.len().max(1), false);
-                    return Ok(response(cmd, index, subindex, d, &[]));
-                }
-                let size = (data.len() as u32).to_le_bytes();
-                let fits = room.saturating_sub(COE_HEADER_LEN + SDO_LEN);
-                let cmd = coe::upload_normal_command(complete_access);
-                if data.len() <= fits {
-                    return Ok(response(cmd, index, subindex, size, &data));
-                }
-                // Segmented: the first part in the initiate response, the rest in segments.
-                let first = data[..fits].to_vec();
-                self.transfer = Some(Transfer::Upload {
-                    data,
-                    at: fits,
-                    toggle: false,
-                });
-                Ok(response(cmd, index, subindex, size, &first))
-            }
-            SdoRequest::UploadSegment { toggle } => {
-                let Some(Transfer::Upload {
-                    data,
-                    at,
-                    toggle: expected,
-                }) = self.transfer.as_mut()
-                else {
-                    return Err((0, 0, SdoAbortCode::UnknownCommand));
-                };
-                if toggle != *expected {
-                    return Err((0, 0, SdoAbortCode::ToggleBit));
-                }
-                let fits = room
-                    .saturating_sub(COE_HEADER_LEN + 1)
-                    .max(SDO_SEGMENT_MIN_DATA);
-                let n = (data.len() - *at).min(fits);
-                let last = *at + n >= data.len();
-                let mut out = vec![0u8; COE_HEADER_LEN + 1];
-                coe::emit_coe_header(&mut out, CoeService::SdoResponse, 0);
-                out[2] = coe::upload_segment_command(toggle, last, n);
-                out.extend_from_slice(&data[*at..*at + n]);
-                if n < SDO_SEGMENT_MIN_DATA {
-                    out.resize(COE_HEADER_LEN + 1 + SDO_SEGMENT_MIN_DATA, 0);
-                }
-                *at += n;
-                *expected = !toggle;
-                if last {
-                    self.transfer = None;
-                }
-                Ok(out)
-            }
+            } => self.initiate_upload(index, subindex, complete_access, room),
+            SdoRequest::UploadSegment { toggle } => self.upload_segment(toggle, room),
             SdoRequest::InitiateDownload {
                 index,
                 subindex,
@@ -244,108 +198,206 @@ impl SdoServer {
                 size,
             } => {
                 self.transfer = None;
-                let d4 = s.data4().unwrap_or([0; 4]);
                 if expedited {
-                    let n = size.unwrap_or(4) as usize;
-                    let v = &d4[..n.min(4)];
-                    let r = if complete_access {
-                        self.od.write_complete(index, subindex, v, state)
-                    } else {
-                        // An unsized expedited write takes the entry's own length.
-                        let want = self
-                            .od
-                            .read(index, subindex)
-                            .map_err(|c| (index, subindex, c))?
-                            .len();
-                        let v = if size.is_none() {
-                            &d4[..want.min(4)]
-                        } else {
-                            v
-                        };
-                        self.od.write(index, subindex, v, state)
-                    };
-                    r.map_err(|c| (index, subindex, c))?;
-                    return Ok(response(
-                        coe::SDO_DOWNLOAD_RESPONSE,
-                        index,
-                        subindex,
-                        [0; 4],
-                        &[],
-                    ));
-                }
-                let total = size.unwrap_or(0) as usize;
-                let got = s.rest();
-                if got.len() >= total {
-                    self.od
-                        .write_access(index, subindex, complete_access, &got[..total], state)
-                        .map_err(|c| (index, subindex, c))?;
+                    let d4 = s.data4().unwrap_or([0; 4]);
+                    self.expedited_download(index, subindex, complete_access, size, d4, state)
                 } else {
-                    self.transfer = Some(Transfer::Download {
-                        index,
-                        subindex,
-                        complete_access,
-                        size: total,
-                        data: got.to_vec(),
-                        toggle: false,
-                    });
+                    let total = size.unwrap_or(0) as usize;
+                    self.initiate_download(index, subindex, complete_access, total, s.rest(), state)
                 }
-                Ok(response(
-                    coe::SDO_DOWNLOAD_RESPONSE,
-                    index,
-                    subindex,
-                    [0; 4],
-                    &[],
-                ))
             }
             SdoRequest::DownloadSegment {
                 toggle,
                 last,
                 short_size,
-            } => {
-                let Some(Transfer::Download {
-                    index,
-                    subindex,
-                    complete_access,
-                    size,
-                    data,
-                    toggle: expected,
-                }) = self.transfer.as_mut()
-                else {
-                    return Err((0, 0, SdoAbortCode::UnknownCommand));
-                };
-                let (index, subindex) = (*index, *subindex);
-                if toggle != *expected {
-                    return Err((index, subindex, SdoAbortCode::ToggleBit));
-                }
-                let seg = s.segment_data();
-                let n = match short_size {
-                    Some(n) => usize::from(n).min(seg.len()),
-                    None => seg.len(),
-                };
-                data.extend_from_slice(&seg[..n]);
-                *expected = !toggle;
-                let mut out = vec![0u8; COE_HEADER_LEN + 1];
-                coe::emit_coe_header(&mut out, CoeService::SdoResponse, 0);
-                out[2] = coe::download_segment_response(toggle);
-                out.resize(COE_HEADER_LEN + SDO_LEN, 0);
-                if last {
-                    let (ca, size) = (*complete_access, *size);
-                    let v = std::mem::take(data);
-                    self.transfer = None;
-                    if v.len() < size {
-                        return Err((index, subindex, SdoAbortCode::LengthTooLow));
-                    }
-                    self.od
-                        .write_access(index, subindex, ca, &v[..size], state)
-                        .map_err(|c| (index, subindex, c))?;
-                }
-                Ok(out)
-            }
+            } => self.download_segment(toggle, last, short_size, s.segment_data(), state),
             SdoRequest::Abort { .. } => {
                 self.transfer = None;
                 Err((0, 0, SdoAbortCode::General))
             }
         }
+    }
+
+    /// An upload's initiate: the value in the response (expedited up to 4 bytes, else normal),
+    /// or as much of it as `room` takes and a segmented transfer for the rest.
+    fn initiate_upload(
+        &mut self,
+        index: u16,
+        subindex: u8,
+        complete_access: bool,
+        room: usize,
+    ) -> Result<Vec<u8>, SdoAbort> {
+        self.transfer = None;
+        let data = if complete_access {
+            self.od.read_complete(index, subindex)
+        } else {
+            self.od.read(index, subindex)
+        }
+        .map_err(|c| (index, subindex, c))?;
+        if data.len() <= 4 && !complete_access {
+            let mut d = [0u8; 4];
+            d[..data.len()].copy_from_slice(&data);
+            let cmd = coe::upload_expedited_command(data.len().max(1), false);
+            return Ok(sdo_response(cmd, index, subindex, d, &[]));
+        }
+        let size = (data.len() as u32).to_le_bytes();
+        let fits = room.saturating_sub(COE_HEADER_LEN + SDO_LEN);
+        let cmd = coe::upload_normal_command(complete_access);
+        if data.len() <= fits {
+            return Ok(sdo_response(cmd, index, subindex, size, &data));
+        }
+        // Segmented: the first part in the initiate response, the rest in segments.
+        let first = data[..fits].to_vec();
+        self.transfer = Some(Transfer::Upload {
+            data,
+            at: fits,
+            toggle: false,
+        });
+        Ok(sdo_response(cmd, index, subindex, size, &first))
+    }
+
+    /// The next segment of the upload in progress, as much as `room` takes (padded to the
+    /// segment's minimum).
+    fn upload_segment(&mut self, toggle: bool, room: usize) -> Result<Vec<u8>, SdoAbort> {
+        let Some(Transfer::Upload {
+            data,
+            at,
+            toggle: expected,
+        }) = self.transfer.as_mut()
+        else {
+            return Err((0, 0, SdoAbortCode::UnknownCommand));
+        };
+        if toggle != *expected {
+            return Err((0, 0, SdoAbortCode::ToggleBit));
+        }
+        let fits = room
+            .saturating_sub(COE_HEADER_LEN + 1)
+            .max(SDO_SEGMENT_MIN_DATA);
+        let n = (data.len() - *at).min(fits);
+        let last = *at + n >= data.len();
+        let mut out = vec![0u8; COE_HEADER_LEN + 1];
+        coe::emit_coe_header(&mut out, CoeService::SdoResponse, 0);
+        out[2] = coe::upload_segment_command(toggle, last, n);
+        out.extend_from_slice(&data[*at..*at + n]);
+        if n < SDO_SEGMENT_MIN_DATA {
+            out.resize(COE_HEADER_LEN + 1 + SDO_SEGMENT_MIN_DATA, 0);
+        }
+        *at += n;
+        *expected = !toggle;
+        if last {
+            self.transfer = None;
+        }
+        Ok(out)
+    }
+
+    /// An expedited download: `size` bytes of the request's four (`d4`) written; unsized, as
+    /// many as the entry has.
+    fn expedited_download(
+        &mut self,
+        index: u16,
+        subindex: u8,
+        complete_access: bool,
+        size: Option<u32>,
+        d4: [u8; 4],
+        state: AlState,
+    ) -> Result<Vec<u8>, SdoAbort> {
+        let n = size.unwrap_or(4) as usize;
+        let v = &d4[..n.min(4)];
+        let r = if complete_access {
+            self.od.write_complete(index, subindex, v, state)
+        } else {
+            // An unsized expedited write takes the entry's own length.
+            let want = self
+                .od
+                .read(index, subindex)
+                .map_err(|c| (index, subindex, c))?
+                .len();
+            let v = if size.is_none() {
+                &d4[..want.min(4)]
+            } else {
+                v
+            };
+            self.od.write(index, subindex, v, state)
+        };
+        r.map_err(|c| (index, subindex, c))?;
+        Ok(download_response(index, subindex))
+    }
+
+    /// A normal download's initiate: `total` bytes written if the request carries them all
+    /// (`got`), else the start of a segmented transfer.
+    fn initiate_download(
+        &mut self,
+        index: u16,
+        subindex: u8,
+        complete_access: bool,
+        total: usize,
+        got: &[u8],
+        state: AlState,
+    ) -> Result<Vec<u8>, SdoAbort> {
+        if got.len() >= total {
+            self.od
+                .write_access(index, subindex, complete_access, &got[..total], state)
+                .map_err(|c| (index, subindex, c))?;
+        } else {
+            self.transfer = Some(Transfer::Download {
+                index,
+                subindex,
+                complete_access,
+                size: total,
+                data: got.to_vec(),
+                toggle: false,
+            });
+        }
+        Ok(download_response(index, subindex))
+    }
+
+    /// A segment of the download in progress (`seg`, of which `short_size` bytes count if
+    /// given); the last one writes the whole value.
+    fn download_segment(
+        &mut self,
+        toggle: bool,
+        last: bool,
+        short_size: Option<u8>,
+        seg: &[u8],
+        state: AlState,
+    ) -> Result<Vec<u8>, SdoAbort> {
+        let Some(Transfer::Download {
+            index,
+            subindex,
+            complete_access,
+            size,
+            data,
+            toggle: expected,
+        }) = self.transfer.as_mut()
+        else {
+            return Err((0, 0, SdoAbortCode::UnknownCommand));
+        };
+        let (index, subindex) = (*index, *subindex);
+        if toggle != *expected {
+            return Err((index, subindex, SdoAbortCode::ToggleBit));
+        }
+        let n = match short_size {
+            Some(n) => usize::from(n).min(seg.len()),
+            None => seg.len(),
+        };
+        data.extend_from_slice(&seg[..n]);
+        *expected = !toggle;
+        let mut out = vec![0u8; COE_HEADER_LEN + 1];
+        coe::emit_coe_header(&mut out, CoeService::SdoResponse, 0);
+        out[2] = coe::download_segment_response(toggle);
+        out.resize(COE_HEADER_LEN + SDO_LEN, 0);
+        if last {
+            let (ca, size) = (*complete_access, *size);
+            let v = std::mem::take(data);
+            self.transfer = None;
+            if v.len() < size {
+                return Err((index, subindex, SdoAbortCode::LengthTooLow));
+            }
+            self.od
+                .write_access(index, subindex, ca, &v[..size], state)
+                .map_err(|c| (index, subindex, c))?;
+        }
+        Ok(out)
     }
 
     /// An SDO Information request's answer (an SDO Info error for what it cannot answer), or

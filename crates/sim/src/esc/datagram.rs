@@ -1,12 +1,11 @@
 //! Datagram processing (ESC datasheet section I, "EtherCAT datagram" and "Working counter"):
-//! the address modes, the commands' read and write halves, the working counter rules, and the
-//! recording of what a frame did so that the next frame of the same shape can replay it
-//! ([`super::replay`]).
+//! the address modes, the commands' read and write halves and the working counter rules, one
+//! datagram at a time. This is the plain path: every datagram decoded in full. The fast path
+//! ([`super::fast`]) runs frames through it and records what it did.
 //!
 //! Headers are read through the wire crate's [`Datagram`] and [`EcatFrame`] views.
 
 use super::Esc;
-use super::replay::{MAX_PROGRAM_DATAGRAMS, Op, Program};
 use ecsync_wire::register::{self as reg, features};
 use ecsync_wire::{AddressMode, Command, Datagram, EcatFrame};
 
@@ -20,100 +19,11 @@ pub struct DatagramEffects {
 }
 
 impl DatagramEffects {
-    fn merge(&mut self, other: DatagramEffects) {
+    /// Both effects: what a frame's datagrams ask of the segment together.
+    pub(super) fn merge(&mut self, other: DatagramEffects) {
         self.latch_receive_times |= other.latch_receive_times;
         self.loops_changed |= other.loops_changed;
     }
-}
-
-/// What one datagram did at this ESC, recorded so that the same frame shape can replay it while
-/// the ESC's configuration is unchanged (the cyclic frame is the same every cycle).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub(super) enum Act {
-    /// Nothing beyond the address and working counter updates.
-    #[default]
-    None,
-    /// System time read (0x0910) into the data, ORed for broadcast reads.
-    SysTimeRead { or: bool },
-    /// System time write (0x0910): the time control loop compares.
-    SysTimeWrite,
-    /// System time difference read (0x092C).
-    DiffRead { or: bool },
-    /// Logical access: the recorder's logical ops.
-    Logical,
-}
-
-/// One step of a logical access.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub(super) enum LogicalOp {
-    /// Datagram data -> process RAM.
-    #[default]
-    Refresh,
-    Write {
-        data_off: u16,
-        ram_off: u16,
-        len: u16,
-    },
-    Read {
-        data_off: u16,
-        ram_off: u16,
-        len: u16,
-    },
-}
-
-/// Logical ops one datagram may record.
-const MAX_LOGICAL_OPS: usize = 8;
-
-/// The recorder for the datagram being processed.
-#[derive(Debug, Clone, Copy, Default)]
-pub(super) struct Recorder {
-    active: bool,
-    pub(super) cacheable: bool,
-    pub(super) act: Act,
-    ops: [LogicalOp; MAX_LOGICAL_OPS],
-    nops: u8,
-}
-
-impl Recorder {
-    /// A recorder for one datagram; `active` when its ops are wanted.
-    fn start(active: bool) -> Self {
-        Recorder {
-            active,
-            cacheable: true,
-            ..Recorder::default()
-        }
-    }
-
-    /// The access cannot be replayed (it depends on or changes more than the recorded ops).
-    pub(super) fn uncacheable(&mut self) {
-        self.cacheable = false;
-    }
-
-    /// Records a step of a logical access.
-    pub(super) fn op(&mut self, op: LogicalOp) {
-        if !self.active {
-            return;
-        }
-        if usize::from(self.nops) < MAX_LOGICAL_OPS {
-            self.ops[usize::from(self.nops)] = op;
-            self.nops += 1;
-        } else {
-            self.cacheable = false;
-        }
-    }
-
-    fn logical_ops(&self) -> &[LogicalOp] {
-        &self.ops[..usize::from(self.nops)]
-    }
-}
-
-/// Adds to the 16-bit counter at `frame[at..at + 2]` (a working counter or an ADP whose place
-/// was recorded from the datagram's header).
-#[inline]
-pub(super) fn add_u16_at(frame: &mut [u8], at: u16, inc: u16) {
-    let at = usize::from(at);
-    let w = u16::from_le_bytes([frame[at], frame[at + 1]]).wrapping_add(inc);
-    frame[at..at + 2].copy_from_slice(&w.to_le_bytes());
 }
 
 impl Esc {
@@ -128,7 +38,7 @@ impl Esc {
 
     /// One datagram of a frame: what the frame's end does (the outputs taken, the SYNC0
     /// deadline) is left to [`Esc::end_of_frame`].
-    fn datagram_in_frame(&mut self, dg: &mut [u8], t_ps: u64) -> DatagramEffects {
+    pub(super) fn datagram_in_frame(&mut self, dg: &mut [u8], t_ps: u64) -> DatagramEffects {
         self.watchdog_check(t_ps);
         let fx = self.process_datagram_at(dg, t_ps);
         if std::mem::take(&mut self.pd_written) {
@@ -246,104 +156,6 @@ impl Esc {
             }
             (false, false) => 0,
         }
-    }
-
-    /// Processes the datagrams of a frame (at `offsets`, already validated) as it passes the
-    /// processing unit. Frames of the same `shape` (same datagram headers, as the segment
-    /// tells; 0 = do not cache) replay what the last one did while nothing in the ESC changed,
-    /// instead of decoding every access again: the cyclic frame costs a fraction. The replay is
-    /// exact: it was recorded from the full path, and any register write, state change or
-    /// uncacheable access invalidates it.
-    pub fn process_frame(
-        &mut self,
-        frame: &mut [u8],
-        offsets: &[u16],
-        shape: u32,
-        t_ps: u64,
-    ) -> DatagramEffects {
-        self.stats.frames += 1;
-        // (An expiry changes the generation: no recorded program holds after it.)
-        self.watchdog_check(t_ps);
-        if let Some(k) = self.program_slot(shape) {
-            self.replay(k, frame, t_ps);
-            self.end_of_frame(t_ps + crate::phy::frame_wire_time_ps(frame.len()));
-            return DatagramEffects::default();
-        }
-        let fx = self.process_frame_full(frame, offsets, shape, t_ps);
-        self.end_of_frame(t_ps + crate::phy::frame_wire_time_ps(frame.len()));
-        fx
-    }
-
-    /// Every datagram decoded in full, recording a program for the next frame of this shape.
-    /// Out of line: the replay above is the hot path and stays small.
-    #[inline(never)]
-    fn process_frame_full(
-        &mut self,
-        frame: &mut [u8],
-        offsets: &[u16],
-        shape: u32,
-        t_ps: u64,
-    ) -> DatagramEffects {
-        let generation = self.generation;
-        let mut prog = Program::new(shape, generation);
-        let mut recording = shape != 0 && offsets.len() <= MAX_PROGRAM_DATAGRAMS;
-        let mut out = DatagramEffects::default();
-        for &at in offsets {
-            let at = usize::from(at);
-            let (total, wkc_at) = {
-                let d = Datagram::new_unchecked(&frame[at..]);
-                (d.total_len(), at + d.wkc_offset())
-            };
-            self.rec = Recorder::start(recording);
-            let wkc_before = u16::from_le_bytes([frame[wkc_at], frame[wkc_at + 1]]);
-            out.merge(self.datagram_in_frame(&mut frame[at..at + total], t_ps));
-            recording = recording
-                && self.rec.cacheable
-                && self.record(&mut prog, &frame[at..at + total], at, wkc_before);
-        }
-        self.rec = Recorder::default();
-        if recording && self.generation == generation {
-            self.install(&prog);
-        }
-        out
-    }
-
-    /// Appends to `prog` what the datagram at frame offset `at` (`dg`, as processed) did, as
-    /// the recorder saw it; false if the program is full.
-    fn record(&self, prog: &mut Program, dg: &[u8], at: usize, wkc_before: u16) -> bool {
-        let d = Datagram::new_unchecked(dg);
-        let data = (at + Datagram::<&[u8]>::data_offset()) as u16;
-        let mut pushed = true;
-        if matches!(
-            d.command().map(|c| c.address_mode()),
-            Ok(AddressMode::Position | AddressMode::Broadcast)
-        ) {
-            pushed &= prog.push(Op::AdpInc {
-                at: (at + Datagram::<&[u8]>::adp_offset()) as u16,
-            });
-        }
-        // The DC registers read and written fast are 8 bytes at most.
-        let len = d.data_len().min(8) as u8;
-        match self.rec.act {
-            Act::None => {}
-            Act::SysTimeRead { or } => pushed &= prog.push(Op::SysRead { at: data, len, or }),
-            Act::SysTimeWrite => pushed &= prog.push(Op::SysWrite { at: data, len }),
-            Act::DiffRead { or } => pushed &= prog.push(Op::DiffRead { at: data, len, or }),
-            Act::Logical => {
-                for op in self.rec.logical_ops() {
-                    pushed &= prog.push(Op::from_logical(*op, data));
-                }
-            }
-        }
-        let inc = d.wkc().wrapping_sub(wkc_before);
-        if inc != 0 {
-            pushed &= prog.push(Op::Wkc {
-                at: (at + d.wkc_offset()) as u16,
-                inc,
-            });
-            prog.counted += 1;
-        }
-        pushed
     }
 
     /// Processes the datagram chain of a frame already validated, at a frame offset list too

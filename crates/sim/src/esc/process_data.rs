@@ -6,7 +6,7 @@
 //! written; the datagram path then works on the decoded copies below.
 
 use super::cia402::{self, DriveMemory, DrivePlan};
-use super::datagram::{Act, LogicalOp};
+use super::recorder::{Act, LogicalOp};
 use super::registers::REG_SPACE;
 use super::{Esc, FMMUS, SMS};
 use ecsync_wire::register as reg;

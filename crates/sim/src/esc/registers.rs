@@ -315,9 +315,9 @@ impl Esc {
             return false;
         }
         self.rec.act = if ado == reg::DC_SYSTEM_TIME {
-            super::datagram::Act::SysTimeRead { or }
+            super::recorder::Act::SysTimeRead { or }
         } else {
-            super::datagram::Act::DiffRead { or }
+            super::recorder::Act::DiffRead { or }
         };
         true
     }
@@ -372,7 +372,7 @@ impl Esc {
         {
             // (The register shadow of 0x0910 is refreshed from the clock on every read.)
             dc.write_system_time(data, t_ps);
-            self.rec.act = super::datagram::Act::SysTimeWrite;
+            self.rec.act = super::recorder::Act::SysTimeWrite;
             return true;
         }
         self.rec.uncacheable();

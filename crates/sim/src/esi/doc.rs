@@ -433,6 +433,9 @@ impl<'a> Doc<'a> {
         out
     }
 
+    /// The `<Device>` element `d` of a file of vendor `vendor_id`, its group named from
+    /// `groups`: each part read in document order (the first error found is the first in the
+    /// file).
     pub(super) fn device(
         &self,
         d: usize,
@@ -456,7 +459,45 @@ impl<'a> Doc<'a> {
         }
         let group_type = self.child_text(d, "GroupType").unwrap_or("").to_string();
         let group = groups.get(&group_type).cloned().unwrap_or(group_type);
+        let sync_managers = self.sync_managers(d)?;
+        let fmmus = self.fmmus(d);
+        let (mailbox_protocols, coe) = self.mailbox(d)?;
+        let rx_pdos = self
+            .children(d, "RxPdo")
+            .map(|p| self.pdo(p))
+            .collect::<Result<Vec<_>, _>>()?;
+        let tx_pdos = self
+            .children(d, "TxPdo")
+            .map(|p| self.pdo(p))
+            .collect::<Result<Vec<_>, _>>()?;
+        let dc_opmodes = self.dc_opmodes(d)?;
+        let (eeprom_bytes, config_words) = self.eeprom(d)?;
+        let (profile_no, objects) = self.profile(d)?;
+        Ok(EsiDevice {
+            vendor_id,
+            type_name,
+            name,
+            product_code,
+            revision,
+            group,
+            profile_no,
+            sync_managers,
+            fmmus,
+            mailbox_protocols,
+            coe,
+            rx_pdos,
+            tx_pdos,
+            dc_opmodes,
+            eeprom_bytes,
+            config_words,
+            objects,
+            line: self.line(self.nodes[d].offset),
+        })
+    }
 
+    /// The device's `<Sm>` elements: each SyncManager's kind, start, size, control byte and
+    /// whether it is enabled.
+    fn sync_managers(&self, d: usize) -> Result<Vec<EsiSm>, EsiError> {
         let mut sync_managers = Vec::new();
         for sm in self.children(d, "Sm") {
             let kind = match self.text(sm) {
@@ -481,16 +522,25 @@ impl<'a> Doc<'a> {
                 },
             });
         }
-        let fmmus = self
-            .children(d, "Fmmu")
+        Ok(sync_managers)
+    }
+
+    /// The device's `<Fmmu>` elements as the SII's FMMU category codes them (1 outputs, 2
+    /// inputs, 3 mailbox state, 0 unused).
+    fn fmmus(&self, d: usize) -> Vec<u8> {
+        self.children(d, "Fmmu")
             .map(|f| match self.text(f) {
                 "Outputs" => 1,
                 "Inputs" => 2,
                 "MBoxState" => 3,
                 _ => 0,
             })
-            .collect();
+            .collect()
+    }
 
+    /// The device's `<Mailbox>`: the protocols it names (SII word 0x1C bits) and its CoE
+    /// details, if any.
+    fn mailbox(&self, d: usize) -> Result<(u16, Option<CoeDetails>), EsiError> {
         let mut mailbox_protocols = 0;
         let mut coe = None;
         if let Some(m) = self.child(d, "Mailbox") {
@@ -509,23 +559,23 @@ impl<'a> Doc<'a> {
                 });
             }
         }
+        Ok((mailbox_protocols, coe))
+    }
 
-        let rx_pdos = self
-            .children(d, "RxPdo")
-            .map(|p| self.pdo(p))
-            .collect::<Result<Vec<_>, _>>()?;
-        let tx_pdos = self
-            .children(d, "TxPdo")
-            .map(|p| self.pdo(p))
-            .collect::<Result<Vec<_>, _>>()?;
-
+    /// The DC operation modes under the device's `<Dc>`.
+    fn dc_opmodes(&self, d: usize) -> Result<Vec<DcOpMode>, EsiError> {
         let mut dc_opmodes = Vec::new();
         if let Some(dc) = self.child(d, "Dc") {
             for m in self.children(dc, "OpMode") {
                 dc_opmodes.push(self.opmode(m)?);
             }
         }
+        Ok(dc_opmodes)
+    }
 
+    /// The device's `<Eeprom>`: its size in bytes and the SII words 0-6 its `ConfigData`
+    /// gives, each checked.
+    fn eeprom(&self, d: usize) -> Result<(Option<usize>, Option<[u16; 7]>), EsiError> {
         let mut eeprom_bytes = None;
         let mut config_words = None;
         if let Some(e) = self.child(d, "Eeprom") {
@@ -562,7 +612,11 @@ impl<'a> Doc<'a> {
                 config_words = Some(words);
             }
         }
+        Ok((eeprom_bytes, config_words))
+    }
 
+    /// The device's `<Profile>`s: the first profile number given, and the first dictionary.
+    fn profile(&self, d: usize) -> Result<(Option<u32>, Vec<Object>), EsiError> {
         let mut profile_no = None;
         let mut objects = Vec::new();
         for p in self.children(d, "Profile") {
@@ -575,27 +629,7 @@ impl<'a> Doc<'a> {
                 objects = self.dictionary(dict)?;
             }
         }
-
-        Ok(EsiDevice {
-            vendor_id,
-            type_name,
-            name,
-            product_code,
-            revision,
-            group,
-            profile_no,
-            sync_managers,
-            fmmus,
-            mailbox_protocols,
-            coe,
-            rx_pdos,
-            tx_pdos,
-            dc_opmodes,
-            eeprom_bytes,
-            config_words,
-            objects,
-            line: self.line(self.nodes[d].offset),
-        })
+        Ok((profile_no, objects))
     }
 
     pub(super) fn pdo(&self, p: usize) -> Result<PdoDescription, EsiError> {

@@ -24,7 +24,9 @@ mod process;
 mod topology;
 use plans::{SHAPE_SLOTS, ShapeCache, VisitPlan};
 use process::LongIndex;
-use topology::{Link, Node, Peer, RING, Timing, build_plan, ps, ring_pos};
+use topology::{
+    Node, Peer, Timing, build_nodes, build_plan, check_one_master, link_slaves, network_order,
+};
 
 // A shape is compared byte for byte (never decoded): the Ethernet type and EtherCAT header as
 // one word, then each datagram header.
@@ -189,137 +191,10 @@ impl Segment {
     /// Builds a segment. Slaves are renumbered in network order: the order in which a frame
     /// passes their processing units, which is their auto-increment position.
     pub fn new(spec: &[SlaveSpec]) -> Result<Self, TopologyError> {
-        if spec.is_empty() {
-            return Err(TopologyError::Empty);
-        }
-        let masters = spec
-            .iter()
-            .filter(|s| s.upstream == Upstream::Master)
-            .count();
-        if masters != 1 {
-            return Err(TopologyError::MasterLinks(masters));
-        }
-        let mut links: Vec<[Option<Link>; 4]> = vec![[None; 4]; spec.len()];
-        for (i, s) in spec.iter().enumerate() {
-            if !(s.cable_m.is_finite() && s.cable_m >= 0.0) {
-                return Err(TopologyError::BadNumber {
-                    slave: i,
-                    what: "cable_m",
-                });
-            }
-            for (what, v) in [
-                ("forwarding_delay_ns", s.model.forwarding_delay_ns),
-                ("processing_delay_ns", s.model.processing_delay_ns),
-                ("link_phy_delay_ns", s.model.link_phy_delay_ns),
-            ] {
-                if !(v.is_finite() && v >= 0.0) {
-                    return Err(TopologyError::BadNumber { slave: i, what });
-                }
-            }
-            let ep = s.entry_port;
-            if ep > 3 || s.model.ports[usize::from(ep)] == PortKind::None {
-                return Err(TopologyError::NoSuchPort { slave: i, port: ep });
-            }
-            if links[i][usize::from(ep)].is_some() {
-                return Err(TopologyError::PortInUse { slave: i, port: ep });
-            }
-            let cable = s.cable_m * CABLE_PS_PER_M;
-            match s.upstream {
-                Upstream::Master => {
-                    let delay = ps(s.model.link_phy_delay_ns) + cable.round() as u64;
-                    links[i][usize::from(ep)] = Some(Link {
-                        peer: Peer::Master,
-                        peer_port: 0,
-                        delay_ps: delay,
-                    });
-                }
-                Upstream::Slave { index, port } => {
-                    if index >= i {
-                        return Err(TopologyError::BadUpstream {
-                            slave: i,
-                            upstream: index,
-                        });
-                    }
-                    let up = &spec[index];
-                    if port > 3 || up.model.ports[usize::from(port)] == PortKind::None {
-                        return Err(TopologyError::NoSuchPort { slave: index, port });
-                    }
-                    if links[index][usize::from(port)].is_some() {
-                        return Err(TopologyError::PortInUse { slave: index, port });
-                    }
-                    let phy = (s.model.link_phy_delay_ns + up.model.link_phy_delay_ns) / 2.0;
-                    let delay = ps(phy) + cable.round() as u64;
-                    links[i][usize::from(ep)] = Some(Link {
-                        peer: Peer::Slave(index as u16),
-                        peer_port: port,
-                        delay_ps: delay,
-                    });
-                    links[index][usize::from(port)] = Some(Link {
-                        peer: Peer::Slave(i as u16),
-                        peer_port: ep,
-                        delay_ps: delay,
-                    });
-                }
-            }
-        }
-        // Network order: depth-first in processing order from the master's slave.
-        let first = spec
-            .iter()
-            .position(|s| s.upstream == Upstream::Master)
-            .unwrap_or(0);
-        let mut order = Vec::with_capacity(spec.len());
-        let mut stack = vec![(first, usize::from(spec[first].entry_port))];
-        while let Some((i, entry)) = stack.pop() {
-            order.push(i);
-            // Children in processing order after the entry port, pushed in reverse so the first
-            // is visited first.
-            let start = ring_pos(entry);
-            let mut children = Vec::new();
-            for k in 1..5 {
-                if let Some(p) = RING[(start + k) % 5]
-                    && let Some(l) = links[i][p]
-                    && let Peer::Slave(c) = l.peer
-                {
-                    children.push((usize::from(c), usize::from(l.peer_port)));
-                }
-            }
-            for c in children.into_iter().rev() {
-                stack.push(c);
-            }
-        }
-        let mut new_index = vec![0u16; spec.len()];
-        for (pos, &i) in order.iter().enumerate() {
-            new_index[i] = pos as u16;
-        }
-        let nodes: Vec<Node> = order
-            .iter()
-            .map(|&i| {
-                let s = &spec[i];
-                let mut l = links[i];
-                for link in l.iter_mut().flatten() {
-                    if let Peer::Slave(p) = link.peer {
-                        link.peer = Peer::Slave(new_index[usize::from(p)]);
-                    }
-                }
-                let mut esc = Esc::new(s.model.clone(), s.device.clone(), s.crystal);
-                esc.set_links([
-                    l[0].is_some(),
-                    l[1].is_some(),
-                    l[2].is_some(),
-                    l[3].is_some(),
-                ]);
-                let plan = build_plan(&esc, &l, usize::from(s.entry_port));
-                Node {
-                    esc,
-                    links: l,
-                    entry_port: s.entry_port,
-                    forwarding_ps: ps(s.model.forwarding_delay_ns),
-                    processing_ps: ps(s.model.processing_delay_ns),
-                    plan,
-                    off: false,
-                }
-            })
-            .collect();
+        check_one_master(spec)?;
+        let links = link_slaves(spec)?;
+        let order = network_order(spec, &links);
+        let nodes = build_nodes(spec, &links, &order);
         let n = nodes.len();
         let unreached = Arc::new(Timing::unreached(n));
         Ok(Segment {

@@ -218,8 +218,9 @@ impl Shape {
     }
 }
 
-/// Frames with more datagrams than this are never replayed (see `Esc::process_frame`).
-pub(super) const MAX_SHAPE_DATAGRAMS: usize = 8;
+/// Frames with more datagrams than this are never replayed (the ESCs record no program for
+/// them: see `Esc::process_frame`).
+pub(super) const MAX_SHAPE_DATAGRAMS: usize = crate::esc::MAX_PROGRAM_DATAGRAMS;
 
 impl Segment {
     /// Ends the plan of shape slot `k`: the frames it passed by its idle ESCs go into their

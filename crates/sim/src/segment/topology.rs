@@ -113,6 +113,181 @@ pub(super) fn ring_pos(port: usize) -> usize {
     RING.iter().position(|x| *x == Some(port)).unwrap_or(0)
 }
 
+/// A segment's slaves (at least one), exactly one of them connected to the master.
+pub(super) fn check_one_master(spec: &[SlaveSpec]) -> Result<(), TopologyError> {
+    if spec.is_empty() {
+        return Err(TopologyError::Empty);
+    }
+    let masters = spec
+        .iter()
+        .filter(|s| s.upstream == Upstream::Master)
+        .count();
+    if masters != 1 {
+        return Err(TopologyError::MasterLinks(masters));
+    }
+    Ok(())
+}
+
+/// Every slave's links by port, in the spec's order: each slave's numbers checked, then its
+/// cable up connected at both ends.
+pub(super) fn link_slaves(spec: &[SlaveSpec]) -> Result<Vec<[Option<Link>; 4]>, TopologyError> {
+    let mut links: Vec<[Option<Link>; 4]> = vec![[None; 4]; spec.len()];
+    for (i, s) in spec.iter().enumerate() {
+        check_numbers(i, s)?;
+        link_upstream(spec, i, &mut links)?;
+    }
+    Ok(links)
+}
+
+/// Slave `i`'s cable length and delays are finite and not negative.
+fn check_numbers(i: usize, s: &SlaveSpec) -> Result<(), TopologyError> {
+    if !(s.cable_m.is_finite() && s.cable_m >= 0.0) {
+        return Err(TopologyError::BadNumber {
+            slave: i,
+            what: "cable_m",
+        });
+    }
+    for (what, v) in [
+        ("forwarding_delay_ns", s.model.forwarding_delay_ns),
+        ("processing_delay_ns", s.model.processing_delay_ns),
+        ("link_phy_delay_ns", s.model.link_phy_delay_ns),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(TopologyError::BadNumber { slave: i, what });
+        }
+    }
+    Ok(())
+}
+
+/// Slave `i`'s cable from its entry port to its upstream (the master, or a port of a slave
+/// before it), in `links` at both ends: the ports exist and are free. Its delay is the PHYs'
+/// (their mean between two slaves) and the cable's.
+fn link_upstream(
+    spec: &[SlaveSpec],
+    i: usize,
+    links: &mut [[Option<Link>; 4]],
+) -> Result<(), TopologyError> {
+    let s = &spec[i];
+    let ep = s.entry_port;
+    if ep > 3 || s.model.ports[usize::from(ep)] == PortKind::None {
+        return Err(TopologyError::NoSuchPort { slave: i, port: ep });
+    }
+    if links[i][usize::from(ep)].is_some() {
+        return Err(TopologyError::PortInUse { slave: i, port: ep });
+    }
+    let cable = s.cable_m * CABLE_PS_PER_M;
+    match s.upstream {
+        Upstream::Master => {
+            let delay = ps(s.model.link_phy_delay_ns) + cable.round() as u64;
+            links[i][usize::from(ep)] = Some(Link {
+                peer: Peer::Master,
+                peer_port: 0,
+                delay_ps: delay,
+            });
+        }
+        Upstream::Slave { index, port } => {
+            if index >= i {
+                return Err(TopologyError::BadUpstream {
+                    slave: i,
+                    upstream: index,
+                });
+            }
+            let up = &spec[index];
+            if port > 3 || up.model.ports[usize::from(port)] == PortKind::None {
+                return Err(TopologyError::NoSuchPort { slave: index, port });
+            }
+            if links[index][usize::from(port)].is_some() {
+                return Err(TopologyError::PortInUse { slave: index, port });
+            }
+            let phy = (s.model.link_phy_delay_ns + up.model.link_phy_delay_ns) / 2.0;
+            let delay = ps(phy) + cable.round() as u64;
+            links[i][usize::from(ep)] = Some(Link {
+                peer: Peer::Slave(index as u16),
+                peer_port: port,
+                delay_ps: delay,
+            });
+            links[index][usize::from(port)] = Some(Link {
+                peer: Peer::Slave(i as u16),
+                peer_port: ep,
+                delay_ps: delay,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The slaves' spec indices in network order: depth-first in processing order from the
+/// master's slave.
+pub(super) fn network_order(spec: &[SlaveSpec], links: &[[Option<Link>; 4]]) -> Vec<usize> {
+    let first = spec
+        .iter()
+        .position(|s| s.upstream == Upstream::Master)
+        .unwrap_or(0);
+    let mut order = Vec::with_capacity(spec.len());
+    let mut stack = vec![(first, usize::from(spec[first].entry_port))];
+    while let Some((i, entry)) = stack.pop() {
+        order.push(i);
+        // Children in processing order after the entry port, pushed in reverse so the first
+        // is visited first.
+        let start = ring_pos(entry);
+        let mut children = Vec::new();
+        for k in 1..5 {
+            if let Some(p) = RING[(start + k) % 5]
+                && let Some(l) = links[i][p]
+                && let Peer::Slave(c) = l.peer
+            {
+                children.push((usize::from(c), usize::from(l.peer_port)));
+            }
+        }
+        for c in children.into_iter().rev() {
+            stack.push(c);
+        }
+    }
+    order
+}
+
+/// The slaves as nodes in network `order`: each ESC powered up with its links (their peers
+/// renumbered to network positions) and its way through the ports planned.
+pub(super) fn build_nodes(
+    spec: &[SlaveSpec],
+    links: &[[Option<Link>; 4]],
+    order: &[usize],
+) -> Vec<Node> {
+    let mut new_index = vec![0u16; spec.len()];
+    for (pos, &i) in order.iter().enumerate() {
+        new_index[i] = pos as u16;
+    }
+    order
+        .iter()
+        .map(|&i| {
+            let s = &spec[i];
+            let mut l = links[i];
+            for link in l.iter_mut().flatten() {
+                if let Peer::Slave(p) = link.peer {
+                    link.peer = Peer::Slave(new_index[usize::from(p)]);
+                }
+            }
+            let mut esc = Esc::new(s.model.clone(), s.device.clone(), s.crystal);
+            esc.set_links([
+                l[0].is_some(),
+                l[1].is_some(),
+                l[2].is_some(),
+                l[3].is_some(),
+            ]);
+            let plan = build_plan(&esc, &l, usize::from(s.entry_port));
+            Node {
+                esc,
+                links: l,
+                entry_port: s.entry_port,
+                forwarding_ps: ps(s.model.forwarding_delay_ns),
+                processing_ps: ps(s.model.processing_delay_ns),
+                plan,
+                off: false,
+            }
+        })
+        .collect()
+}
+
 impl Segment {
     /// The frame's way through the segment, by walking the ports in processing order from the
     /// master's slave: the one walk every frame's timing and the ground truth come from.

@@ -15,7 +15,7 @@
 //! the XML's (`docs/design/tsn-uppaal-notes.md` transcribes them); location names in capitals
 //! are ours where the XML has none.
 
-use crate::ta::Network;
+use crate::ta::{Network, Process};
 
 mod builder;
 mod gptp;
@@ -71,219 +71,273 @@ pub struct Probes {
 
 /// The model as a network, with the indices its queries read.
 pub fn build(model: Model) -> (Network, Probes) {
-    let mut b = Builder::new();
     match model {
-        Model::M1 => {
-            let t: [usize; 3] = std::array::from_fn(|i| b.clock(&format!("t[{i}]"), None));
-            let tic: [usize; 3] = b.chans("TIC");
-            let lt: [usize; 3] = b.ints("Local_time");
-            let sm: [usize; 3] = b.chans("SM");
-            let [mref] = b.ints::<1>("Master_ref_time");
-            let num_period = b.int("Num_period");
-            let dmt: [usize; 2] = b.chans("DM_T");
-            let dmr: [usize; 2] = b.chans("DM_R");
-            let dmc: [usize; 2] = b.chans("DM_C");
-            let [t1] = b.ints::<1>("T1");
-            let t2: [usize; 2] = b.ints("T2");
-            let t3: [usize; 2] = b.ints("T3");
-            let [t4] = b.ints::<1>("T4");
-            let delay: [usize; 2] = b.ints("Delay");
-            let om0 = oscillator(&mut b, "OM0", tic[0], t[0], false);
-            let cm0 = clock("CM0", tic[0], lt[0], num_period, false);
-            let m0 = master(
-                &mut b,
-                "M0",
-                MasterBinding {
-                    sm_out: sm[0],
-                    lt: lt[0],
-                    dmt_out: dmt[0],
-                    dmr_in: dmr[0],
-                    dmc_out: dmc[0],
-                    t1,
-                    t4,
-                    mref,
-                    gt: t[0],
-                    t2,
-                    t3,
-                    delay,
-                    gptp_sm_in: None,
-                },
-            );
-            let o0 = oscillator(&mut b, "O0", tic[1], t[1], false);
-            let c0 = clock("C0", tic[1], lt[1], num_period, false);
-            let s0 = slave(
-                &mut b,
-                "S0",
-                SlaveChans {
-                    sm_in: sm[0],
-                    sm_out: sm[1],
-                    dmt_in: dmt[0],
-                    dmr_in: dmr[1],
-                    dmc_in: dmc[0],
-                    dmt_out: dmt[1],
-                    dmr_out: dmr[0],
-                    dmc_out: dmc[1],
-                },
-                lt[1],
-                t2[0],
-                t3[0],
-                delay[0],
-                mref,
-            );
-            let o1 = oscillator(&mut b, "O1", tic[2], t[2], false);
-            let c1 = clock("C1", tic[2], lt[2], num_period, false);
-            let s1 = last_slave(
-                &mut b, "S1", sm[1], lt[2], dmt[1], dmr[1], dmc[1], t2[1], t3[1], delay[1], mref,
-                num_period,
-            );
-            let net = b.finish(vec![om0, cm0, m0, o0, c0, s0, o1, c1, s1]);
-            let probes = Probes {
-                master: lt[0],
-                s1: lt[1],
-                s2: lt[2],
-                bridge: None,
-                delay,
-                num_period,
-                gate: None,
-            };
-            (net, probes)
-        }
-        Model::M2 | Model::M3 => {
-            let m3 = model == Model::M3;
-            let t: [usize; 4] = std::array::from_fn(|i| b.clock(&format!("t[{i}]"), None));
-            let tic: [usize; 4] = b.chans("TIC");
-            let lt: [usize; 4] = b.ints("Local_time");
-            let sm: [usize; 3] = b.chans("SM");
-            let [mref] = b.ints::<1>("Master_ref_time");
-            let num_period = b.int("Num_period");
-            let dmt: [usize; 3] = b.chans("DM_T");
-            let dmr: [usize; 2] = b.chans("DM_R");
-            let dmc: [usize; 3] = b.chans("DM_C");
-            let [t1] = b.ints::<1>("T1");
-            let t2: [usize; 2] = b.ints("T2");
-            let t3: [usize; 2] = b.ints("T3");
-            let [t4] = b.ints::<1>("T4");
-            let delay: [usize; 2] = b.ints("Delay");
-            let exact = model == Model::M2;
-            let mut procs = Vec::new();
-            procs.push(oscillator(&mut b, "OM0", tic[1], t[1], exact));
-            procs.push(clock("CM0", tic[1], lt[1], num_period, true));
-            let gptp = if m3 {
-                let sm_g = b.chan("SM_gPTP[0]", true);
-                let network_ref_time = b.int("Network_ref_time");
-                let dmt_g = b.chan("DM_T_gPTP[0]", false);
-                let dmr_g = b.chan("DM_R_gPTP[0]", false);
-                let dmc_g = b.chan("DM_C_gPTP[0]", false);
-                let [t1g] = b.ints::<1>("T1_gPTP");
-                let [t2g] = b.ints::<1>("T2_gPTP");
-                let [t3g] = b.ints::<1>("T3_gPTP");
-                let [t4g] = b.ints::<1>("T4_gPTP");
-                let [delay_g] = b.ints::<1>("Delay_gPTP");
-                Some((
-                    sm_g,
-                    network_ref_time,
-                    dmt_g,
-                    dmr_g,
-                    dmc_g,
-                    t1g,
-                    t2g,
-                    t3g,
-                    t4g,
-                    delay_g,
-                ))
-            } else {
-                None
-            };
-            procs.push(master(
-                &mut b,
-                "M0",
-                MasterBinding {
-                    sm_out: sm[0],
-                    lt: lt[1],
-                    dmt_out: dmt[0],
-                    dmr_in: dmr[0],
-                    dmc_out: dmc[0],
-                    t1,
-                    t4,
-                    mref,
-                    gt: t[1],
-                    t2,
-                    t3,
-                    delay,
-                    gptp_sm_in: gptp.map(|g| g.0),
-                },
-            ));
-            if let Some((sm_g, nref, dmt_g, dmr_g, dmc_g, _, t2g, t3g, _, delay_g)) = gptp {
-                procs.push(master_gptp(
-                    &mut b, "Mg0", sm_g, lt[1], dmt_g, dmr_g, dmc_g, t2g, t3g, delay_g, nref,
-                ));
-            }
-            procs.push(oscillator(&mut b, "ON0", tic[0], t[0], exact));
-            procs.push(clock("CN0", tic[0], lt[0], num_period, true));
-            let n0 = procs.len();
-            procs.push(bridge(
-                "N0", sm[0], sm[1], lt[0], dmt[0], dmc[0], dmt[1], dmc[1],
-            ));
-            if let Some((sm_g, nref, dmt_g, dmr_g, dmc_g, t1g, t2g, t3g, t4g, delay_g)) = gptp {
-                procs.push(network_gptp(
-                    &mut b,
-                    "Ng00",
-                    GptpBridgeBinding {
-                        sm_out: sm_g,
-                        lt: lt[0],
-                        dmt_out: dmt_g,
-                        dmr_in: dmr_g,
-                        dmc_out: dmc_g,
-                        t1: t1g,
-                        t4: t4g,
-                        gt: t[0],
-                        t2: t2g,
-                        t3: t3g,
-                        delay: delay_g,
-                        network_ref_time: nref,
-                    },
-                ));
-            }
-            procs.push(oscillator(&mut b, "O0", tic[2], t[2], exact));
-            procs.push(clock("C0", tic[2], lt[2], num_period, true));
-            procs.push(slave(
-                &mut b,
-                "S0",
-                SlaveChans {
-                    sm_in: sm[1],
-                    sm_out: sm[2],
-                    dmt_in: dmt[1],
-                    dmr_in: dmr[1],
-                    dmc_in: dmc[1],
-                    dmt_out: dmt[2],
-                    dmr_out: dmr[0],
-                    dmc_out: dmc[2],
-                },
-                lt[2],
-                t2[0],
-                t3[0],
-                delay[0],
-                mref,
-            ));
-            procs.push(oscillator(&mut b, "O1", tic[3], t[3], exact));
-            procs.push(clock("C1", tic[3], lt[3], num_period, true));
-            procs.push(last_slave(
-                &mut b, "S1", sm[2], lt[3], dmt[2], dmr[1], dmc[2], t2[1], t3[1], delay[1], mref,
-                num_period,
-            ));
-            let net = b.finish(procs);
-            let blocked = ["SM_bloqued", "DM_T_bloqued", "DM_C_bloqued"]
-                .map(|l| net.location(n0, l).expect("bridge location"));
-            let probes = Probes {
-                master: lt[1],
-                s1: lt[2],
-                s2: lt[3],
-                bridge: Some(lt[0]),
-                delay,
-                num_period,
-                gate: Some((n0, blocked)),
-            };
-            (net, probes)
+        Model::M1 => build_m1(),
+        Model::M2 | Model::M3 => build_bridged(model),
+    }
+}
+
+/// The variables and channels every model declares first, in the XML's order: per node (`N`:
+/// the master, a bridge if any, the two slaves) a clock `t`, a tick channel and a local time;
+/// the SM channels; the master's reference time and the period count; the delay measurement's
+/// channels (DM_T and DM_C per hop, `H`), timestamps and delays.
+struct Globals<const N: usize, const H: usize> {
+    t: [usize; N],
+    tic: [usize; N],
+    lt: [usize; N],
+    sm: [usize; 3],
+    mref: usize,
+    num_period: usize,
+    dmt: [usize; H],
+    dmr: [usize; 2],
+    dmc: [usize; H],
+    t1: usize,
+    t2: [usize; 2],
+    t3: [usize; 2],
+    t4: usize,
+    delay: [usize; 2],
+}
+
+impl<const N: usize, const H: usize> Globals<N, H> {
+    /// Declares them in `b`.
+    fn declare(b: &mut Builder) -> Self {
+        let t: [usize; N] = std::array::from_fn(|i| b.clock(&format!("t[{i}]"), None));
+        let tic = b.chans("TIC");
+        let lt = b.ints("Local_time");
+        let sm = b.chans("SM");
+        let [mref] = b.ints::<1>("Master_ref_time");
+        let num_period = b.int("Num_period");
+        let dmt = b.chans("DM_T");
+        let dmr = b.chans("DM_R");
+        let dmc = b.chans("DM_C");
+        let [t1] = b.ints::<1>("T1");
+        let t2 = b.ints("T2");
+        let t3 = b.ints("T3");
+        let [t4] = b.ints::<1>("T4");
+        let delay = b.ints("Delay");
+        Globals {
+            t,
+            tic,
+            lt,
+            sm,
+            mref,
+            num_period,
+            dmt,
+            dmr,
+            dmc,
+            t1,
+            t2,
+            t3,
+            t4,
+            delay,
         }
     }
+
+    /// The master's binding to them, as node `m` (its local time and clock); `gptp_sm_in`:
+    /// M3's gPTP SM channel.
+    fn master_binding(&self, m: usize, gptp_sm_in: Option<usize>) -> MasterBinding {
+        MasterBinding {
+            sm_out: self.sm[0],
+            lt: self.lt[m],
+            dmt_out: self.dmt[0],
+            dmr_in: self.dmr[0],
+            dmc_out: self.dmc[0],
+            t1: self.t1,
+            t4: self.t4,
+            mref: self.mref,
+            gt: self.t[m],
+            t2: self.t2,
+            t3: self.t3,
+            delay: self.delay,
+            gptp_sm_in,
+        }
+    }
+}
+
+/// M3's gPTP variables and channels, between the bridge (grandmaster) and the master.
+#[derive(Clone, Copy)]
+struct GptpVars {
+    sm: usize,
+    network_ref_time: usize,
+    dmt: usize,
+    dmr: usize,
+    dmc: usize,
+    t1: usize,
+    t2: usize,
+    t3: usize,
+    t4: usize,
+    delay: usize,
+}
+
+impl GptpVars {
+    /// Declares them in `b`.
+    fn declare(b: &mut Builder) -> Self {
+        let sm = b.chan("SM_gPTP[0]", true);
+        let network_ref_time = b.int("Network_ref_time");
+        let dmt = b.chan("DM_T_gPTP[0]", false);
+        let dmr = b.chan("DM_R_gPTP[0]", false);
+        let dmc = b.chan("DM_C_gPTP[0]", false);
+        let [t1] = b.ints::<1>("T1_gPTP");
+        let [t2] = b.ints::<1>("T2_gPTP");
+        let [t3] = b.ints::<1>("T3_gPTP");
+        let [t4] = b.ints::<1>("T4_gPTP");
+        let [delay] = b.ints::<1>("Delay_gPTP");
+        GptpVars {
+            sm,
+            network_ref_time,
+            dmt,
+            dmr,
+            dmc,
+            t1,
+            t2,
+            t3,
+            t4,
+            delay,
+        }
+    }
+}
+
+/// M1: the master and the two slaves, each with its oscillator and clock, on one line.
+fn build_m1() -> (Network, Probes) {
+    let mut b = Builder::new();
+    let g: Globals<3, 2> = Globals::declare(&mut b);
+    let om0 = oscillator(&mut b, "OM0", g.tic[0], g.t[0], false);
+    let cm0 = clock("CM0", g.tic[0], g.lt[0], g.num_period, false);
+    let m0 = master(&mut b, "M0", g.master_binding(0, None));
+    let mut procs = vec![om0, cm0, m0];
+    procs.extend(slaves(&mut b, &g, 1, 0, false, false));
+    let net = b.finish(procs);
+    let probes = Probes {
+        master: g.lt[0],
+        s1: g.lt[1],
+        s2: g.lt[2],
+        bridge: None,
+        delay: g.delay,
+        num_period: g.num_period,
+        gate: None,
+    };
+    (net, probes)
+}
+
+/// M2 and M3: the bridge (node 0) between the master (node 1) and the two slaves, and in M3
+/// the gPTP processes of master and bridge; M2's oscillators tick exactly.
+fn build_bridged(model: Model) -> (Network, Probes) {
+    let mut b = Builder::new();
+    let g: Globals<4, 3> = Globals::declare(&mut b);
+    let exact = model == Model::M2;
+    let mut procs = Vec::new();
+    procs.push(oscillator(&mut b, "OM0", g.tic[1], g.t[1], exact));
+    procs.push(clock("CM0", g.tic[1], g.lt[1], g.num_period, true));
+    let gptp = (model == Model::M3).then(|| GptpVars::declare(&mut b));
+    procs.push(master(
+        &mut b,
+        "M0",
+        g.master_binding(1, gptp.map(|v| v.sm)),
+    ));
+    if let Some(v) = gptp {
+        procs.push(master_gptp(
+            &mut b,
+            "Mg0",
+            v.sm,
+            g.lt[1],
+            v.dmt,
+            v.dmr,
+            v.dmc,
+            v.t2,
+            v.t3,
+            v.delay,
+            v.network_ref_time,
+        ));
+    }
+    procs.push(oscillator(&mut b, "ON0", g.tic[0], g.t[0], exact));
+    procs.push(clock("CN0", g.tic[0], g.lt[0], g.num_period, true));
+    let n0 = procs.len();
+    procs.push(bridge(
+        "N0", g.sm[0], g.sm[1], g.lt[0], g.dmt[0], g.dmc[0], g.dmt[1], g.dmc[1],
+    ));
+    if let Some(v) = gptp {
+        procs.push(network_gptp(
+            &mut b,
+            "Ng00",
+            GptpBridgeBinding {
+                sm_out: v.sm,
+                lt: g.lt[0],
+                dmt_out: v.dmt,
+                dmr_in: v.dmr,
+                dmc_out: v.dmc,
+                t1: v.t1,
+                t4: v.t4,
+                gt: g.t[0],
+                t2: v.t2,
+                t3: v.t3,
+                delay: v.delay,
+                network_ref_time: v.network_ref_time,
+            },
+        ));
+    }
+    procs.extend(slaves(&mut b, &g, 2, 1, exact, true));
+    let net = b.finish(procs);
+    let blocked = ["SM_bloqued", "DM_T_bloqued", "DM_C_bloqued"]
+        .map(|l| net.location(n0, l).expect("bridge location"));
+    let probes = Probes {
+        master: g.lt[1],
+        s1: g.lt[2],
+        s2: g.lt[3],
+        bridge: Some(g.lt[0]),
+        delay: g.delay,
+        num_period: g.num_period,
+        gate: Some((n0, blocked)),
+    };
+    (net, probes)
+}
+
+/// The slaves S0 and S1, nodes `n` and `n + 1` behind hop `h` (their SM and DM_T/DM_C
+/// channels are the hop's and the next), each with its oscillator and clock; `exact` and
+/// `stop_eq` are the model's guards of the oscillators' ticks and the clocks' stop.
+fn slaves<const N: usize, const H: usize>(
+    b: &mut Builder,
+    g: &Globals<N, H>,
+    n: usize,
+    h: usize,
+    exact: bool,
+    stop_eq: bool,
+) -> [Process; 6] {
+    let o0 = oscillator(b, "O0", g.tic[n], g.t[n], exact);
+    let c0 = clock("C0", g.tic[n], g.lt[n], g.num_period, stop_eq);
+    let s0 = slave(
+        b,
+        "S0",
+        SlaveChans {
+            sm_in: g.sm[h],
+            sm_out: g.sm[h + 1],
+            dmt_in: g.dmt[h],
+            dmr_in: g.dmr[1],
+            dmc_in: g.dmc[h],
+            dmt_out: g.dmt[h + 1],
+            dmr_out: g.dmr[0],
+            dmc_out: g.dmc[h + 1],
+        },
+        g.lt[n],
+        g.t2[0],
+        g.t3[0],
+        g.delay[0],
+        g.mref,
+    );
+    let o1 = oscillator(b, "O1", g.tic[n + 1], g.t[n + 1], exact);
+    let c1 = clock("C1", g.tic[n + 1], g.lt[n + 1], g.num_period, stop_eq);
+    let s1 = last_slave(
+        b,
+        "S1",
+        g.sm[h + 1],
+        g.lt[n + 1],
+        g.dmt[h + 1],
+        g.dmr[1],
+        g.dmc[h + 1],
+        g.t2[1],
+        g.t3[1],
+        g.delay[1],
+        g.mref,
+        g.num_period,
+    );
+    [o0, c0, s0, o1, c1, s1]
 }
