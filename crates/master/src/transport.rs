@@ -97,28 +97,32 @@ pub trait Transport {
 #[error("infallible")]
 pub enum Never {}
 
-/// A host stall: the transport `inner`, whose cyclic task wakes `stall` late in cycle
-/// `at_cycle` (a page fault, an interrupt storm, a VM's neighbour). The cyclic driver's overrun
-/// policy meets it the same way over any transport.
+/// Host stalls: the transport `inner`, whose cyclic task wakes late in chosen cycles (a page
+/// fault, an interrupt storm, a VM's neighbour) and on time in the others. The cyclic driver's
+/// overrun policy meets them the same way over any transport.
 #[derive(Debug)]
 pub struct HostStall<T> {
     /// The transport.
     pub inner: T,
-    /// The cycle whose wake-up stalls.
-    pub at_cycle: u64,
-    /// How long.
-    pub stall: MasterDuration,
-    armed: bool,
+    /// The cycles whose wake-up stalls, and by how much.
+    stalls: Vec<(u64, MasterDuration)>,
+    /// The stall of the cycle about to run (taken by its first wait).
+    armed: MasterDuration,
 }
 
 impl<T> HostStall<T> {
     /// `inner` with a stall of `stall` in cycle `at_cycle`.
     pub fn new(inner: T, at_cycle: u64, stall: MasterDuration) -> Self {
+        Self::at_cycles(inner, vec![(at_cycle, stall)])
+    }
+
+    /// `inner` with a stall in each of `stalls`' cycles (cycle, how long; the first entry of
+    /// a cycle counts).
+    pub fn at_cycles(inner: T, stalls: Vec<(u64, MasterDuration)>) -> Self {
         HostStall {
             inner,
-            at_cycle,
-            stall,
-            armed: false,
+            stalls,
+            armed: MasterDuration::ZERO,
         }
     }
 }
@@ -131,11 +135,7 @@ impl<T: Transport> Transport for HostStall<T> {
     }
 
     fn sleep_until(&mut self, t: MasterInstant) {
-        let extra = if std::mem::take(&mut self.armed) {
-            self.stall
-        } else {
-            MasterDuration::ZERO
-        };
+        let extra = std::mem::take(&mut self.armed);
         self.inner.sleep_until(t.saturating_add(extra));
     }
 
@@ -161,7 +161,11 @@ impl<T: Transport> Transport for HostStall<T> {
     }
 
     fn start_cycle(&mut self, cycle: u64) {
-        self.armed = cycle == self.at_cycle;
+        self.armed = self
+            .stalls
+            .iter()
+            .find(|s| s.0 == cycle)
+            .map_or(MasterDuration::ZERO, |s| s.1);
         self.inner.start_cycle(cycle);
     }
 }

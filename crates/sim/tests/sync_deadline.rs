@@ -11,56 +11,13 @@ use ecsync_master::bringup::BringupTimeouts;
 use ecsync_master::cyclic::{CyclicConfig, CyclicEngine};
 use ecsync_master::driver::{CyclicDriver, CyclicLimits};
 use ecsync_master::recovery::RecoveryConfig;
-use ecsync_master::transport::{Received, Transport};
+use ecsync_master::transport::{HostStall, Received, Transport};
 use ecsync_master::{BringupConfig, Engine, Network, Stage, bringup};
 use ecsync_sim::transport::SimTransport;
 use ecsync_sim::{Segment, preset};
 
 const PERIOD_NS: u64 = 1_000_000;
 const SHIFT_NS: u32 = 300_000;
-
-/// A host that wakes `extra_ns` late in chosen cycles (and on time otherwise).
-struct LateHost {
-    inner: SimTransport,
-    late: Vec<(u64, u64)>,
-    armed_ns: u64,
-}
-
-impl Transport for LateHost {
-    type Error = <SimTransport as Transport>::Error;
-
-    fn now(&mut self) -> MasterInstant {
-        self.inner.now()
-    }
-
-    fn sleep_until(&mut self, t: MasterInstant) {
-        let extra = std::mem::take(&mut self.armed_ns);
-        self.inner
-            .sleep_until(t.saturating_add(MasterDuration::from_ns(extra)));
-    }
-
-    fn send_with<F: FnOnce(&mut [u8])>(
-        &mut self,
-        len: usize,
-        at: MasterInstant,
-        fill: F,
-    ) -> Result<MasterInstant, Self::Error> {
-        self.inner.send_with(len, at, fill)
-    }
-
-    fn recv(
-        &mut self,
-        buf: &mut Vec<u8>,
-        deadline: MasterInstant,
-    ) -> Result<Option<Received>, Self::Error> {
-        self.inner.recv(buf, deadline)
-    }
-
-    fn start_cycle(&mut self, cycle: u64) {
-        self.armed_ns = self.late.iter().find(|l| l.0 == cycle).map_or(0, |l| l.1);
-        self.inner.start_cycle(cycle);
-    }
-}
 
 /// paper-2024 brought up to OP with SYNC0 at `SHIFT_NS` (the drives set to DC SYNC0 over
 /// CoE), and the cyclic engine whose first cycle starts two periods on.
@@ -133,18 +90,17 @@ fn drives_count_sync0_pulses_without_outputs_and_the_master_reads_them() {
     // - cycle 300: the host 2.1 periods late: slots 300 and 301 skipped, cycle 302's frame
     //   100 us after its grid point, before its SYNC0: pulses 300 and 301 found nothing: 2.
     let expected_new = 1 + 1 + 2;
-    let mut tr = LateHost {
-        inner: sim,
-        late: vec![
-            (100, 500_000),
-            (200, 500_000),
-            (201, 500_000),
-            (300, 2 * PERIOD_NS + PERIOD_NS / 10),
+    let mut tr = HostStall::at_cycles(
+        sim,
+        vec![
+            (100, MasterDuration::from_ns(500_000)),
+            (200, MasterDuration::from_ns(500_000)),
+            (201, MasterDuration::from_ns(500_000)),
+            (300, MasterDuration::from_ns(2 * PERIOD_NS + PERIOD_NS / 10)),
             // The second part: with the limit set, a host 2.1 periods late.
-            (800, 2 * PERIOD_NS + PERIOD_NS / 10),
+            (800, MasterDuration::from_ns(2 * PERIOD_NS + PERIOD_NS / 10)),
         ],
-        armed_ns: 0,
-    };
+    );
     let mut driver = CyclicDriver::new(CyclicLimits {
         max_cycles: Some(1_400),
         sync_counters_every: Some(MasterDuration::from_ms(100)),
@@ -216,23 +172,7 @@ struct LossyHost {
 impl Transport for LossyHost {
     type Error = <SimTransport as Transport>::Error;
 
-    fn now(&mut self) -> MasterInstant {
-        self.inner.now()
-    }
-
-    fn sleep_until(&mut self, t: MasterInstant) {
-        self.inner.sleep_until(t);
-    }
-
-    fn send_with<F: FnOnce(&mut [u8])>(
-        &mut self,
-        len: usize,
-        at: MasterInstant,
-        fill: F,
-    ) -> Result<MasterInstant, Self::Error> {
-        self.inner.send_with(len, at, fill)
-    }
-
+    // What it changes first: the replies of one cycle in `every`, and which cycle runs.
     fn recv(
         &mut self,
         buf: &mut Vec<u8>,
@@ -249,6 +189,24 @@ impl Transport for LossyHost {
     fn start_cycle(&mut self, cycle: u64) {
         self.cycle = cycle;
         self.inner.start_cycle(cycle);
+    }
+
+    // The rest is the segment's.
+    fn now(&mut self) -> MasterInstant {
+        self.inner.now()
+    }
+
+    fn sleep_until(&mut self, t: MasterInstant) {
+        self.inner.sleep_until(t);
+    }
+
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at: MasterInstant,
+        fill: F,
+    ) -> Result<MasterInstant, Self::Error> {
+        self.inner.send_with(len, at, fill)
     }
 }
 
@@ -310,11 +268,10 @@ fn a_sync_error_limit_the_bring_up_writes_takes_the_drives_out_of_op() {
                 "drive at {x}"
             );
         }
-        let mut tr = LateHost {
-            inner: sim,
-            late: vec![(300, 2 * PERIOD_NS + PERIOD_NS / 10)],
-            armed_ns: 0,
-        };
+        let mut tr = HostStall::at_cycles(
+            sim,
+            vec![(300, MasterDuration::from_ns(2 * PERIOD_NS + PERIOD_NS / 10))],
+        );
         let mut driver = CyclicDriver::new(CyclicLimits {
             max_cycles: Some(700),
             ..CyclicLimits::default()
