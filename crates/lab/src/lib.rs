@@ -1,8 +1,11 @@
-//! The lab: scenarios (network + host + run), runs of every master synchronization method on
+//! The lab: scenarios (network + host + run); the one session loop ([`session`]) that every
+//! cyclic phase runs on, with typed observers; runs of every master synchronization method on
 //! the virtual segment with common random numbers (the host's noise drawn once per run),
 //! statistics against the letter's Table 1 and against ground truth, the verdict, the report and
-//! its plots, output files written atomically; the TSN study. The top of the library stack: it
-//! depends on the simulator and the engine, and nothing but the binary depends on it.
+//! its plots, output files written atomically; `ecsync run`'s session on a real network as a
+//! library function (`realnet`, Linux); the TSN study. The top of the library stack: it depends
+//! on the simulator, the engine and (on Linux) the real network, and nothing but the binary
+//! depends on it.
 //!
 //! The built-in scenario (the letter's testbed, `paper-2024`) parsed and checked, and a value it
 //! cannot run with refused with the field and the fix:
