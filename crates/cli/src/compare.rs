@@ -275,9 +275,20 @@ pub fn run(args: Args) -> Result<ExitCode> {
     {
         bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
     }
+    // Before any work: a path that cannot take the results fails now, not after the runs.
+    ecsync_lab::output::ensure_writable_dir(&args.out).map_err(|e| {
+        anyhow::anyhow!(
+            "--out: cannot write into {}: {e}; fix: give a folder you can write to",
+            args.out.display()
+        )
+    })?;
     if let Some(dir) = &args.samples {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("--samples: cannot create {}", dir.display()))?;
+        ecsync_lab::output::ensure_writable_dir(dir).map_err(|e| {
+            anyhow::anyhow!(
+                "--samples: cannot write into {}: {e}; fix: give a folder you can write to",
+                dir.display()
+            )
+        })?;
     }
     let cmp = compare(&args, &s)?;
     let out = summarize(&cmp);

@@ -219,6 +219,13 @@ fn tsn_run(args: RunArgs) -> Result<ExitCode> {
         }
         None => None,
     };
+    // Before any work: a report folder that cannot be written fails now, not after the runs.
+    ecsync_lab::output::ensure_writable_dir(&args.out).map_err(|e| {
+        anyhow::anyhow!(
+            "--out: cannot write into {}: {e}; fix: give a folder you can write to",
+            args.out.display()
+        )
+    })?;
     let opts = TsnOptions {
         faults,
         pcap_dir: args.pcap.clone(),

@@ -288,3 +288,22 @@ fn bad_gate_schedules_are_refused_with_a_clear_message() {
         assert!(!dir.join("out").join("summary.json").exists());
     }
 }
+
+/// A report folder that cannot be written (a file in its place) fails before the variants run,
+/// naming `--out` and the fix.
+#[test]
+fn an_unwritable_out_fails_before_the_runs() {
+    let dir = tmp("unwritable");
+    let file = dir.join("a-file");
+    std::fs::write(&file, b"not a folder").unwrap();
+    let o = ecsync()
+        .args(["tsn", "run", "--json", "--out"])
+        .arg(file.join("out"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--out: cannot write into"), "{err}");
+    assert!(!err.contains("running "), "no variant started: {err}");
+    assert!(o.stdout.is_empty());
+}

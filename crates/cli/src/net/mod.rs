@@ -470,7 +470,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     let cycle_ns = args.cycle_us * 1000;
     let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
     let (method, target_phase_ns, sync_error_limit) = method_for(&args, cycle_ns)?;
-    let csv = create_csv(&args)?;
+    let csv = create_outputs(&args)?;
     let (mut link, t_ms_source, t_ms_note) = open_link(&args, method.is_master_shift())?;
     let mut exchanges = ExchangeStats::default();
     install_stop_handler();
@@ -586,8 +586,24 @@ fn check_run_args(args: &RunArgs) -> Result<()> {
     Ok(())
 }
 
-/// `--csv`: the file created, its header written.
-fn create_csv(args: &RunArgs) -> Result<Option<std::io::BufWriter<std::fs::File>>> {
+/// The output files: `--summary` and `--save-network` checked writable, `--csv` created with
+/// its header.
+fn create_outputs(args: &RunArgs) -> Result<Option<std::io::BufWriter<std::fs::File>>> {
+    // The files written after the run are checked before it: a path that cannot take them
+    // fails now, not after the bring-up and the cyclic phase.
+    for (flag, path) in [
+        ("--summary", &args.summary),
+        ("--save-network", &args.save_network),
+    ] {
+        if let Some(p) = path {
+            ecsync_lab::output::ensure_writable_file(p).map_err(|e| {
+                anyhow::anyhow!(
+                    "{flag}: cannot write {}: {e}; fix: give a file in a folder you can write to",
+                    p.display()
+                )
+            })?;
+        }
+    }
     let Some(p) = &args.csv else {
         return Ok(None);
     };
