@@ -20,7 +20,10 @@ fn an_unwritable_summary_or_twin_fails_before_the_link() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(1), "{err}");
         assert!(err.contains(&format!("{flag}: cannot write")), "{err}");
-        assert!(!err.contains("ecsync-no-such-if0"), "the link was not opened: {err}");
+        assert!(
+            !err.contains("ecsync-no-such-if0"),
+            "the link was not opened: {err}"
+        );
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
