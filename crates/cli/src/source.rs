@@ -7,7 +7,7 @@ use std::path::PathBuf;
 /// `--preset NAME` or `--config FILE`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SourceArgs {
-    /// Built-in preset (paper-2024).
+    /// Built-in network: paper-2024 or twelve-drives (the networks in the repository's presets/).
     #[arg(long, conflicts_with = "config")]
     pub preset: Option<String>,
     /// A TOML file describing the network (see presets/paper-2024.toml).
@@ -26,7 +26,10 @@ impl SourceArgs {
             }
             (Some(name), None) => match ecsync_sim::preset::named(name) {
                 Some(t) => Ok((format!("preset {name}"), t.to_string())),
-                None => bail!("unknown preset \"{name}\"; the built-in presets are: paper-2024"),
+                None => bail!(
+                    "unknown preset \"{name}\"; the built-in presets are: {}",
+                    ecsync_sim::preset::names()
+                ),
             },
             (None, None) => Ok((
                 "preset paper-2024".to_string(),

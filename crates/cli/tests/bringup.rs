@@ -214,3 +214,25 @@ fn bad_config_names_file_line_field_and_fix() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("paper-2024"));
 }
+
+/// Every network in `presets/` is usable by name: `--preset twelve-drives` brings up its
+/// twelve drives (the file's own count), and an unknown name lists the ones there are.
+#[test]
+fn every_preset_network_is_usable_by_name() {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../presets/twelve-drives.toml"
+    ))
+    .unwrap();
+    let declared = text.matches("[[segment.slave]]").count();
+    let o = bringup_ok(&["--preset", "twelve-drives", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["slaves"].as_array().unwrap().len(), declared);
+    let o = ecsync()
+        .args(["bringup", "--preset", "no-such-net"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(err.contains("paper-2024, twelve-drives"), "{err}");
+}

@@ -19,12 +19,24 @@ pub fn paper_2024() -> Vec<SlaveSpec> {
         .expect("the built-in preset is valid")
 }
 
-/// Looks up a built-in preset by name: its TOML text.
+/// The `twelve-drives` preset file (the repository's `presets/twelve-drives.toml`).
+pub const TWELVE_DRIVES_TOML: &str = include_str!("../../../presets/twelve-drives.toml");
+
+/// Every built-in network (a scenario with a `[segment]`), by the name of its file in
+/// `presets/`.
+pub const NETWORKS: [(&str, &str); 2] = [
+    ("paper-2024", PAPER_2024_TOML),
+    ("twelve-drives", TWELVE_DRIVES_TOML),
+];
+
+/// Looks up a built-in network by name: its TOML text.
 pub fn named(name: &str) -> Option<&'static str> {
-    match name {
-        "paper-2024" => Some(PAPER_2024_TOML),
-        _ => None,
-    }
+    NETWORKS.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
+}
+
+/// The built-in networks' names, for messages.
+pub fn names() -> String {
+    NETWORKS.map(|(n, _)| n).join(", ")
 }
 
 /// A line of `n` servo drives with crystals from a seeded spread of +-50 ppm.
