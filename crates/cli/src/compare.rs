@@ -1,6 +1,7 @@
 //! `ecsync compare`: every master synchronization method on the same network, host and noise,
 //! and which to choose.
 
+use crate::progress::Progress;
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use ecsync_dc::MethodKind;
@@ -10,10 +11,10 @@ use ecsync_lab::output::write_atomic;
 use ecsync_lab::report::{
     SummaryOut, csv, per_slave_text, summarize, table1_text, truth_text, verdict_text,
 };
+use ecsync_lab::run::{BringupProgress, RunError};
 use ecsync_lab::scenario::plural;
 use ecsync_sim::config::{ConfigSource, Problem};
 use ecsync_sim::send::SendMode;
-use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -290,7 +291,12 @@ pub fn run(args: Args) -> Result<ExitCode> {
             )
         })?;
     }
-    let cmp = compare(&args, &s)?;
+    let Some(cmp) = compare(&args, &s)? else {
+        eprintln!(
+            "ecsync: stopped during the bring-up, before any cycle was measured; nothing written"
+        );
+        return Ok(ExitCode::from(130));
+    };
     let out = summarize(&cmp);
     let order: Vec<String> = s.entries().iter().map(|e| e.name()).collect();
     let written = write_outputs(&args, &cmp, &out, &order)?;
@@ -409,20 +415,9 @@ fn replay_host_trace(s: &mut Scenario, path: &Path, block_cycles: u64) -> Result
     Ok(())
 }
 
-/// The progress bar of the comparison's `total_cycles` (hidden with --quiet or --json).
-fn progress_bar(args: &Args, s: &Scenario, total_cycles: u64) -> ProgressBar {
-    if args.quiet || args.json {
-        return ProgressBar::hidden();
-    }
-    let b = ProgressBar::new(total_cycles);
-    b.set_style(
-        ProgressStyle::with_template(
-            "{spinner} {msg} [{bar:40}] {percent:>3}% {human_pos}/{human_len} cycles, {per_sec}, eta {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    b.set_message(format!(
+/// The progress of the comparison's `total_cycles` (nothing with --quiet or --json).
+fn progress(args: &Args, s: &Scenario, total_cycles: u64) -> Progress {
+    let what = format!(
         "{} x {}",
         s.entries()
             .iter()
@@ -430,43 +425,46 @@ fn progress_bar(args: &Args, s: &Scenario, total_cycles: u64) -> ProgressBar {
             .collect::<Vec<_>>()
             .join(", "),
         plural(u64::from(s.runs), "run", "runs")
-    ));
-    b
+    );
+    Progress::new(args.quiet || args.json, what, total_cycles, s.runs)
 }
 
 /// Runs the comparison on `--threads` (default: all cores) with a progress bar; Ctrl-C (and
-/// SIGTERM) stop the runs after their current slice, and what they measured is kept.
-fn compare(args: &Args, s: &Scenario) -> Result<Comparison> {
+/// SIGTERM) stop the runs after their current slice, and what they measured is kept. `None`:
+/// stopped during the bring-up, before any cycle was measured.
+fn compare(args: &Args, s: &Scenario) -> Result<Option<Comparison>> {
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let total = (s.warmup_cycles + s.cycles) * u64::from(s.runs) * s.entries().len() as u64;
-    let progress = AtomicU64::new(0);
-    let bar = progress_bar(args, s, total);
+    let done = AtomicU64::new(0);
+    let up = BringupProgress::default();
+    let mut bar = progress(args, s, total);
     let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
     let opts = Options {
         stop: Some(&STOP),
         samples_dir: args.samples.clone(),
+        bringup: Some(&up),
     };
     let result = std::thread::scope(|sc| {
-        let handle = sc.spawn(|| ecsync_lab::compare::compare_with(s, threads, &progress, &opts));
+        let handle = sc.spawn(|| ecsync_lab::compare::compare_with(s, threads, &done, &opts));
         let mut said = false;
         while !handle.is_finished() {
-            bar.set_position(progress.load(Ordering::Relaxed));
+            bar.update(done.load(Ordering::Relaxed), &up);
             if !said && STOP.load(Ordering::Relaxed) {
                 said = true;
-                bar.suspend(|| {
-                    eprintln!("ecsync: stopping; writing what the runs measured so far");
-                });
+                bar.say("ecsync: stopping; writing what the runs measured so far");
             }
             std::thread::sleep(Duration::from_millis(50));
         }
         handle.join()
     });
-    bar.finish_and_clear();
-    result
-        .map_err(|_| anyhow::anyhow!("a simulation thread panicked"))?
-        .map_err(|e| anyhow::anyhow!("{e}"))
+    bar.finish();
+    match result.map_err(|_| anyhow::anyhow!("a simulation thread panicked"))? {
+        Ok(c) => Ok(Some(c)),
+        Err(RunError::Interrupted) => Ok(None),
+        Err(e) => Err(anyhow::anyhow!("{e}")),
+    }
 }
 
 /// What [`write_outputs`] wrote that the terminal shows.

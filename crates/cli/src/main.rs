@@ -10,6 +10,7 @@ mod heap;
 mod host;
 #[cfg(target_os = "linux")]
 mod net;
+mod progress;
 mod source;
 mod tsn;
 

@@ -1,7 +1,9 @@
 //! A comparison: every method in every run, in parallel across cores, collected in a fixed
 //! order so that the result does not depend on scheduling.
 
-use crate::run::{BroughtUp, Run, RunError, RunResult, bring_up};
+use crate::run::{
+    BringupProgress, BringupWatch, BroughtUp, Run, RunError, RunResult, bring_up_watched,
+};
 use crate::scenario::Scenario;
 use ecsync_sim::host::{HostNoise, SharedNoise};
 use std::collections::VecDeque;
@@ -34,6 +36,8 @@ pub struct Options<'a> {
     pub stop: Option<&'a AtomicBool>,
     /// Write each run's per-cycle samples there (`<method>-run<r>.csv`).
     pub samples_dir: Option<PathBuf>,
+    /// Where the runs' bring-ups say how far they got.
+    pub bringup: Option<&'a BringupProgress>,
 }
 
 /// Cycles a worker runs of one run before it takes the next from the queue: long enough that
@@ -98,7 +102,18 @@ pub fn compare_with(
     let methods = scenario.entries();
     let runs = scenario.runs as usize;
     let threads = threads.max(1);
-    let ups = parallel_map(runs, threads, |r| bring_up(scenario, r as u32));
+    let watch = BringupWatch {
+        stop: opts.stop,
+        progress: opts.bringup,
+    };
+    let ups = parallel_map(runs, threads, |r| {
+        bring_up_watched(scenario, r as u32, &watch)
+    });
+    // Stopped while bringing up: nothing was measured, so nothing is reported (a run that
+    // failed on its own says why instead).
+    if stopped() && ups.iter().any(|u| matches!(u, Err(RunError::Interrupted))) {
+        return Err(RunError::Interrupted);
+    }
     let ups: Vec<BroughtUp> = ups.into_iter().collect::<Result<_, _>>()?;
     // Every method of a run meets the same noise: drawn once per run.
     let noises: Vec<Arc<SharedNoise>> = ups

@@ -225,13 +225,14 @@ fn per_slave_table(h: &mut String, out: &SummaryOut) {
     let Some(mo) = out.methods.get(m) else { return };
     let _ = write!(
         h,
-        "<h3>Per drive, with {}</h3><p>SYNC0 minus the instant the frame's last bit passed the drive, and the smallest SYNC0 shift each drive needs. Late frames: frames after the drive's SYNC0. SYNC0 missed: pulses with no new outputs since the one before (the ground truth of what a drive counts: a late frame right after a late one is not one more, its outputs are the next pulse's as far as the drive can tell). Drive's count: its SM-event-missed counter 0x1C32:0B over the same cycles (- for a drive without CoE DC mode).</p><table><tr><th>position</th><th>margin min (us)</th><th>margin p0.1 (us)</th><th>margin mean (us)</th><th>late frames</th><th>SYNC0 missed</th><th>drive's count</th><th>smallest safe shift (%)</th></tr>",
+        "<h3>Per drive, with {}</h3><p>SYNC0 minus the instant the frame's last bit passed the drive, and the smallest SYNC0 shift each drive needs. Late frames: frames after the drive's SYNC0. SYNC0 missed: pulses with no new outputs since the one before (the ground truth of what a drive counts: a late frame right after a late one is not one more, its outputs are the next pulse's as far as the drive can tell). Drive's count: its SM-event-missed counter 0x1C32:0B over the same cycles (- for a drive without CoE DC mode).</p><table><tr><th>slave</th><th>position</th><th>margin min (us)</th><th>margin p0.1 (us)</th><th>margin mean (us)</th><th>late frames</th><th>SYNC0 missed</th><th>drive's count</th><th>smallest safe shift (%)</th></tr>",
         esc(m)
     );
     for s in &mo.ground_truth.per_slave {
         let _ = write!(
             h,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
+            "<tr><td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
+            esc(&s.name),
             s.position,
             us3(s.margin_min_ns),
             us3(s.margin_p001_ns),

@@ -138,6 +138,9 @@ pub struct Scenario {
     pub name: String,
     /// The segment.
     pub slaves: Vec<SlaveSpec>,
+    /// The slaves' names as the file gives them, in the order of `slaves` (the tables and
+    /// plots name slaves by these, not by position alone).
+    pub slave_names: Vec<String>,
     /// Host preset name (or "`<preset> (modified)`").
     pub host_name: String,
     /// The host.
@@ -465,9 +468,16 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
     let run = f.run.check(&src)?;
     let (send_modes, send) = f.send.params(&src)?;
     let r = &f.run;
+    let slave_names = f
+        .segment
+        .slave
+        .iter()
+        .map(|sp| sp.get_ref().name.clone())
+        .collect();
     let s = Scenario {
         name: file.to_string(),
         slaves,
+        slave_names,
         host_name,
         host,
         host_trace: None,

@@ -97,6 +97,86 @@ pub trait Transport {
 #[error("infallible")]
 pub enum Never {}
 
+/// A transport that gives up when asked: every send, wait and receive first looks at `stop`,
+/// and once it is set fails with [`Interrupted::Stopped`]. A procedure (a bring-up of thousands
+/// of slaves runs for minutes of CPU time) driven over it ends within one exchange of Ctrl-C.
+#[derive(Debug)]
+pub struct Interruptible<'a, T> {
+    /// The transport.
+    pub inner: &'a mut T,
+    stop: &'a core::sync::atomic::AtomicBool,
+}
+
+impl<'a, T: Transport> Interruptible<'a, T> {
+    /// `inner`, stopped by setting `stop`.
+    pub fn new(inner: &'a mut T, stop: &'a core::sync::atomic::AtomicBool) -> Self {
+        Interruptible { inner, stop }
+    }
+
+    fn check(&self) -> Result<(), Interrupted<T::Error>> {
+        if self.stop.load(core::sync::atomic::Ordering::Relaxed) {
+            Err(Interrupted::Stopped)
+        } else {
+            Ok(())
+        }
+    }
+}
+
+/// Why an [`Interruptible`] transport failed.
+#[derive(Debug, thiserror::Error)]
+pub enum Interrupted<E: std::error::Error + 'static> {
+    /// Its stop flag was set.
+    #[error("stopped")]
+    Stopped,
+    /// The transport itself failed.
+    #[error(transparent)]
+    Transport(E),
+}
+
+impl<T: Transport> Transport for Interruptible<'_, T> {
+    type Error = Interrupted<T::Error>;
+
+    fn now(&mut self) -> MasterInstant {
+        self.inner.now()
+    }
+
+    fn sleep_until(&mut self, t: MasterInstant) {
+        // A wait cannot fail: a stop during it is seen by the send or receive that follows.
+        self.inner.sleep_until(t);
+    }
+
+    fn send_time(&mut self, len: usize) -> MasterInstant {
+        self.inner.send_time(len)
+    }
+
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at: MasterInstant,
+        fill: F,
+    ) -> Result<MasterInstant, Self::Error> {
+        self.check()?;
+        self.inner
+            .send_with(len, at, fill)
+            .map_err(Interrupted::Transport)
+    }
+
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        deadline: MasterInstant,
+    ) -> Result<Option<Received>, Self::Error> {
+        self.check()?;
+        self.inner
+            .recv(buf, deadline)
+            .map_err(Interrupted::Transport)
+    }
+
+    fn start_cycle(&mut self, cycle: u64) {
+        self.inner.start_cycle(cycle);
+    }
+}
+
 /// Host stalls: the transport `inner`, whose cyclic task wakes late in chosen cycles (a page
 /// fault, an interrupt storm, a VM's neighbour) and on time in the others. The cyclic driver's
 /// overrun policy meets them the same way over any transport.

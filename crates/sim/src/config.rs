@@ -6,7 +6,8 @@
 //! name = "drive-1"
 //! model = "servo-mii"        # servo-mii | servo-mii-dc32 | ebus-terminal | ebus-terminal-no-dc
 //!                            # | junction-mii
-//! device = "servo-drive"     # servo-drive | coupler; with `esi`: the ESI device's type name
+//! device = "servo-drive"     # servo-drive (default) | coupler (default of junction-mii);
+//!                            # with `esi`: the ESI device's type name
 //! # esi = "drives.xml"       # an ESI file (ETG.2000) describing the device, relative to this
 //!                            # file's folder; `device` selects one of its devices by its
 //!                            # <Type> text and may be left out when the file has one
@@ -292,8 +293,8 @@ pub struct SlaveConfig {
     /// ESC model.
     #[serde(default = "default_model")]
     pub model: String,
-    /// Device: a built-in one (`servo-drive`, the default, or `coupler`), or with `esi` the
-    /// type name of one of the file's devices.
+    /// Device: a built-in one (`servo-drive`, the default, or `coupler`, the default of a
+    /// `junction-mii`), or with `esi` the type name of one of the file's devices.
     #[serde(default)]
     pub device: Option<String>,
     /// An ESI file describing the device, relative to the configuration file's folder.
@@ -593,7 +594,16 @@ impl SlaveConfig {
                 (at.field("esi"), at.key_line("esi")),
                 (at.field("device"), at.key_line("device")),
             )?,
-            None => match self.device.as_deref().unwrap_or("servo-drive") {
+            // A junction is a coupler unless the file says otherwise: an ET1100 with four MII
+            // ports branches the line, it drives no motor.
+            None => match self
+                .device
+                .as_deref()
+                .unwrap_or(if self.model == "junction-mii" {
+                    "coupler"
+                } else {
+                    "servo-drive"
+                }) {
                 "servo-drive" => DeviceInfo::servo_drive(serial),
                 "coupler" => DeviceInfo::coupler(&self.name, serial),
                 other => {

@@ -436,6 +436,29 @@ impl SimTransport {
         }
     }
 
+    /// [`SimTransport::run_procedure_with`] that gives up once `stop` is set (Ctrl-C during
+    /// the bring-up of a large segment): `None` then, with the segment wherever the procedure
+    /// left it.
+    pub fn run_procedure_until<T: 'static>(
+        &mut self,
+        engine: &mut Engine<T>,
+        cfg: ProcedureConfig,
+        stop: &std::sync::atomic::AtomicBool,
+        mut observe: impl FnMut(&mut SimTransport, &ProcedureExchange, &[Event]),
+    ) -> Option<T> {
+        let mut stats = ExchangeStats::default();
+        let mut tr = ecsync_master::transport::Interruptible::new(self, stop);
+        let r =
+            ecsync_master::driver::run_procedure(&mut tr, engine, cfg, &mut stats, |t, x, e| {
+                observe(t.inner, x, e)
+            });
+        match r {
+            Ok(v) => Some(v),
+            Err(ecsync_master::transport::Interrupted::Stopped) => None,
+            Err(ecsync_master::transport::Interrupted::Transport(never)) => match never {},
+        }
+    }
+
     /// Moves to master time `t_ns` exactly (a host's wake-up or a deadline).
     fn set_master_now(&mut self, t_ns: u64) {
         self.now_ps = self.master_clock.real_ps_at(t_ns);

@@ -73,6 +73,7 @@ pub(super) fn method_out(
                     let sm = st.summary();
                     SlaveOut {
                         position: r0.per_slave[i].position,
+                        name: r0.per_slave[i].name.clone(),
                         margin_min_ns: sm.min,
                         margin_p001_ns: sm.p001,
                         margin_mean_ns: sm.mean,

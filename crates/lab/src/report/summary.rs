@@ -35,6 +35,8 @@ impl From<Summary> for Indicators {
 pub struct SlaveOut {
     /// Auto-increment position.
     pub position: u16,
+    /// The name the scenario gives the slave.
+    pub name: String,
     /// The smallest margin, ns.
     pub margin_min_ns: f64,
     /// The 0.1th percentile of the margin, ns.

@@ -187,9 +187,17 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
         t,
         "Per slave with {m}: SYNC0 margin (SYNC0 minus the frame's last bit at the slave) and the shift each needs:"
     );
+    let all = &mo.ground_truth.per_slave;
+    let name_w = all
+        .iter()
+        .map(|s| s.name.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(5);
     let _ = writeln!(
         t,
-        "{:>9}{:>16}{:>16}{:>16}{:>8}{:>10}{:>10}{:>14}",
+        "{:<name_w$}{:>9}{:>16}{:>16}{:>16}{:>8}{:>10}{:>10}{:>14}",
+        "slave",
         "position",
         "margin min us",
         "margin p0.1 us",
@@ -201,7 +209,6 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
     );
     // A large network lists the slaves that need the largest shift (in position order), the
     // others are in summary.json.
-    let all = &mo.ground_truth.per_slave;
     let mut shown: Vec<usize> = (0..all.len()).collect();
     if all.len() > PER_SLAVE_ROWS {
         shown.sort_by(|&a, &b| {
@@ -216,7 +223,8 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
     for s in shown.iter().map(|&k| &all[k]) {
         let _ = writeln!(
             t,
-            "{:>9}{:>16.1}{:>16.1}{:>16.1}{:>8}{:>10}{:>10}{:>14.1}",
+            "{:<name_w$}{:>9}{:>16.1}{:>16.1}{:>16.1}{:>8}{:>10}{:>10}{:>14.1}",
+            s.name,
             s.position,
             s.margin_min_ns / 1000.0,
             s.margin_p001_ns / 1000.0,
@@ -244,6 +252,15 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
         );
     }
     t
+}
+
+/// `x` as one CSV field: quoted when it holds a comma, a quote or a line break (RFC 4180).
+fn csv_field(x: &str) -> std::borrow::Cow<'_, str> {
+    if x.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", x.replace('"', "\"\"")).into()
+    } else {
+        x.into()
+    }
 }
 
 /// Rows of the per-slave table a terminal gets at most.
@@ -302,13 +319,14 @@ pub fn csv(out: &SummaryOut, order: &[String]) -> String {
     }
     let _ = writeln!(
         t,
-        "\nmethod,position,margin_min_ns,margin_p0.1_ns,margin_mean_ns,late_frames,sync0_missed,drive_sm_events_missed,smallest_safe_shift_pct"
+        "\nmethod,slave,position,margin_min_ns,margin_p0.1_ns,margin_mean_ns,late_frames,sync0_missed,drive_sm_events_missed,smallest_safe_shift_pct"
     );
     for m in order {
         for s in &out.methods[m].ground_truth.per_slave {
             let _ = writeln!(
                 t,
-                "{m},{},{},{},{},{},{},{},{}",
+                "{m},{},{},{},{},{},{},{},{},{}",
+                csv_field(&s.name),
                 s.position,
                 s.margin_min_ns,
                 s.margin_p001_ns,

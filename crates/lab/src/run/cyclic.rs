@@ -60,14 +60,15 @@ fn empty_result(
     s: &Scenario,
     entry: Entry,
     run: u32,
-    dc_slaves: &[usize],
+    dc_slaves: &[(usize, usize)],
     lock_ms: Option<f64>,
     controller: bool,
 ) -> RunResult {
     let per_slave = dc_slaves
         .iter()
-        .map(|&x| SlaveTruth {
+        .map(|&(x, spec)| SlaveTruth {
             position: x as u16,
+            name: s.slave_names.get(spec).cloned().unwrap_or_default(),
             margin: Stats::new(),
             latest_end_ns: f64::NEG_INFINITY,
             late_frames: 0,
@@ -183,8 +184,19 @@ impl Run {
         })?;
         sim.set_rx_latency_ps(rx_latency_ps);
         let eng = session.engine();
+        // The slaves whose SYNC0 the ground truth judges: those with a DC unit and process
+        // data. A coupler (no process data) takes no outputs at SYNC0, so it has no deadline.
         let dc_slaves: Vec<usize> = (0..sim.segment().len())
             .filter(|&x| sim.segment().esc(x).dc().is_some())
+            .filter(|&x| {
+                net.slaves
+                    .get(x)
+                    .is_none_or(|n| n.outputs.1 > 0 || n.inputs.1 > 0)
+            })
+            .collect();
+        let named: Vec<(usize, usize)> = dc_slaves
+            .iter()
+            .map(|&x| (x, sim.segment().spec_index(x)))
             .collect();
         // Which frame of a cycle carries each DC slave's outputs (its SYNC0 needs that one),
         // and how long that frame is on the wire.
@@ -200,7 +212,7 @@ impl Run {
                 (k, frame_wire_time_ps(eng.frame_len_of(k)))
             })
             .collect();
-        let res = empty_result(s, entry, up.run, &dc_slaves, lock_ms, has_log);
+        let res = empty_result(s, entry, up.run, &named, lock_ms, has_log);
         let truth = GroundTruth::new(GridSpec {
             reference,
             dc_slaves,

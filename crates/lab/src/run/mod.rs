@@ -11,7 +11,8 @@ use ecsync_dc::time::{MasterDuration, MasterInstant};
 use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
 use ecsync_master::cyclic::CyclicEngine;
 use ecsync_master::driver::{CycleReport, CyclicLimits};
-use ecsync_master::{Engine, MasterError};
+use ecsync_master::network::Phase;
+use ecsync_master::{Engine, Event, MasterError};
 use ecsync_sim::clock::CrystalParams;
 use ecsync_sim::fault::{Edge, Epoch, FaultCounts, FaultEvent, FaultKind, FaultPlayer, KindName};
 use ecsync_sim::host::{CycleNoise, HostNoise, SharedNoise};
@@ -24,7 +25,8 @@ use serde::Serialize;
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 mod cyclic;
 mod observe;
@@ -42,6 +44,9 @@ pub enum RunError {
     /// The cyclic frame does not fit.
     #[error("cyclic frame: {0}")]
     Frame(ecsync_wire::WireError),
+    /// Stopped (Ctrl-C) before the bring-up was done: nothing was measured.
+    #[error("stopped during the bring-up, before any cycle was measured")]
+    Interrupted,
     /// The per-cycle samples could not be written.
     #[error("writing the samples to {path}: {err}")]
     Samples {
@@ -96,6 +101,54 @@ pub fn run_specs(s: &Scenario, run: u32) -> Vec<ecsync_sim::SlaveSpec> {
 
 /// Brings up the network of run `run` of the scenario.
 pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
+    bring_up_watched(s, run, &BringupWatch::default())
+}
+
+/// What a bring-up reports while it goes, and the flag that stops it: a large segment's
+/// bring-up runs for minutes, and Ctrl-C must end it within a second.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct BringupWatch<'a> {
+    /// Set to stop: the bring-up ends after the exchange in flight ([`RunError::Interrupted`]).
+    pub stop: Option<&'a AtomicBool>,
+    /// Where the bring-up says how far it got.
+    pub progress: Option<&'a BringupProgress>,
+}
+
+/// How far the bring-ups of a comparison got: frames exchanged, the latest phase begun, runs
+/// done. Shared by the runs' threads; read by a progress line.
+#[derive(Debug, Default)]
+pub struct BringupProgress {
+    /// Frames exchanged by every bring-up so far.
+    pub frames: AtomicU64,
+    /// Bring-ups done.
+    pub runs_up: AtomicU32,
+    phase: Mutex<Option<Phase>>,
+}
+
+impl BringupProgress {
+    /// The latest phase a bring-up began, if any.
+    pub fn phase(&self) -> Option<Phase> {
+        self.phase.lock().ok().and_then(|p| *p)
+    }
+
+    fn saw(&self, events: &[Event]) {
+        self.frames.fetch_add(1, Ordering::Relaxed);
+        for e in events {
+            if let Event::Phase(p) = e
+                && let Ok(mut cur) = self.phase.lock()
+            {
+                *cur = Some(*p);
+            }
+        }
+    }
+}
+
+/// [`bring_up`], reporting to and stopped by `watch`.
+pub fn bring_up_watched(
+    s: &Scenario,
+    run: u32,
+    watch: &BringupWatch<'_>,
+) -> Result<BroughtUp, RunError> {
     let seed = run_seed(s.seed, run);
     let specs = run_specs(s, run);
     let segment = Segment::new(&specs).map_err(|e| MasterError::Config(e.to_string()))?;
@@ -124,13 +177,26 @@ pub fn bring_up(s: &Scenario, run: u32) -> Result<BroughtUp, RunError> {
     if let Some(f) = &s.faults {
         FaultPlayer::new(f.clone(), seed).prepare(sim.segment_mut());
     }
-    let net = match &s.faults {
+    let procedure = match &s.faults {
         Some(f) if f.epoch == Epoch::Start => {
             sim.set_faults(FaultPlayer::new(f.clone(), seed));
-            sim.run_procedure_with(&mut engine, FAULTY_PROCEDURE, |_, _, _| {})?
+            FAULTY_PROCEDURE
         }
-        _ => sim.run_procedure(&mut engine, |_, _, _| {})?,
+        _ => ecsync_sim::transport::SIM_PROCEDURE,
     };
+    let never = AtomicBool::new(false);
+    let stop = watch.stop.unwrap_or(&never);
+    let observe = |_: &mut SimTransport, _: &_, events: &[Event]| {
+        if let Some(p) = watch.progress {
+            p.saw(events);
+        }
+    };
+    let net = sim
+        .run_procedure_until(&mut engine, procedure, stop, observe)
+        .ok_or(RunError::Interrupted)??;
+    if let Some(p) = watch.progress {
+        p.runs_up.fetch_add(1, Ordering::Relaxed);
+    }
     Ok(BroughtUp {
         sim,
         net,

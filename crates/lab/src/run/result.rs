@@ -171,6 +171,8 @@ impl Bands {
 pub struct SlaveTruth {
     /// Auto-increment position.
     pub position: u16,
+    /// The name the scenario gives the slave.
+    pub name: String,
     /// SYNC0 minus the instant the frame's last bit (its outputs, checked by the FCS) passed
     /// the slave, ns.
     pub margin: Stats,
