@@ -734,15 +734,4 @@ mod tests {
             }
         }
     }
-
-    #[test]
-    #[ignore]
-    fn print_preset_run() {
-        let mut s = scenario::preset();
-        if let Ok(v) = std::env::var("TSN_SECS") {
-            s.cycles = v.parse::<u64>().unwrap() * 1000;
-        }
-        let r = run_all(&s, &TsnOptions::default()).unwrap();
-        println!("{}", serde_json::to_string_pretty(&r).unwrap());
-    }
 }

@@ -1,6 +1,7 @@
 //! Shared by the integration tests that read the real captures in `../shared/captures/`
 //! (Wireshark captures of real EtherCAT hardware recorded by the ethercrab project; see that
-//! folder's README.md) and by those that drive a segment frame by frame.
+//! folder's README.md) or the vendors' ESI files in `../shared/esi/`, and by those that drive
+//! a segment frame by frame.
 
 #![allow(dead_code)] // each test binary uses its own part
 
@@ -12,60 +13,41 @@ use pcap_file::pcapng::blocks::interface_description::InterfaceDescriptionOption
 use pcap_file::pcapng::{Block, PcapNgReader};
 use std::path::PathBuf;
 
-/// The folder of the real captures: `$ECSYNC_SHARED/captures` if set, else `shared/captures`
-/// beside the repository (as laid out for developers), else the workplace's
-/// `/work/shared/captures` (a clone elsewhere, as CI makes one). `None` outside CI when none
-/// is there; in CI their absence fails the test.
-pub fn captures_dir() -> Option<PathBuf> {
-    let mut tried = Vec::new();
-    let candidates = std::env::var_os("ECSYNC_SHARED")
-        .map(|d| PathBuf::from(d).join("captures"))
-        .into_iter()
-        .chain([
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/captures"),
-            PathBuf::from("/work/shared/captures"),
-        ]);
-    for dir in candidates {
-        if dir.join("replay-dc.pcapng").is_file() {
-            return Some(dir);
-        }
-        tried.push(dir.display().to_string());
-    }
+/// The folder of the shared data (`../shared/`: captures of real hardware, vendors' ESI
+/// files): `$ECSYNC_SHARED` if set (then only it: a wrong value fails rather than falling
+/// back), else `shared/` beside the repository. Its sub-folder `sub` holding `probe`, or a
+/// panic naming both places: the tests that call this are `#[ignore = "needs ../shared/..."]`,
+/// so they run only when asked for (`--ignored`), and then a missing folder is a failure.
+pub fn shared_dir(sub: &str, probe: &str) -> PathBuf {
+    let (dir, from) = match std::env::var_os("ECSYNC_SHARED") {
+        Some(d) => (PathBuf::from(d).join(sub), "$ECSYNC_SHARED"),
+        // CARGO_MANIFEST_DIR is crates/sim: the repository is two folders up.
+        None => (
+            PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("../../../shared")
+                .join(sub),
+            "the repository's ../shared",
+        ),
+    };
     assert!(
-        std::env::var_os("CI").is_none(),
-        "the real captures are missing in CI (tried {}): they are part of shared/",
-        tried.join(", ")
+        dir.join(probe).is_file(),
+        "this test needs ../shared/{sub} (no {probe} in {} from {from}): set ECSYNC_SHARED to \
+         the shared folder, or put it beside the repository",
+        dir.display()
     );
-    eprintln!("SKIPPED: the real captures are not at {}", tried.join(", "));
-    None
+    dir
 }
 
-/// The folder of the vendors' ESI files (`../shared/esi/`, see its README.md), found as
-/// [`captures_dir`] finds the captures: `$ECSYNC_SHARED/esi`, `shared/esi` beside the
-/// repository, `/work/shared/esi`. `None` outside CI when none is there; in CI their absence
-/// fails the test.
-pub fn esi_dir() -> Option<PathBuf> {
-    let mut tried = Vec::new();
-    let candidates = std::env::var_os("ECSYNC_SHARED")
-        .map(|d| PathBuf::from(d).join("esi"))
-        .into_iter()
-        .chain([
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/esi"),
-            PathBuf::from("/work/shared/esi"),
-        ]);
-    for dir in candidates {
-        if dir.join("ingenia-evs-net-01.xml").is_file() {
-            return Some(dir);
-        }
-        tried.push(dir.display().to_string());
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "the ESI files are missing in CI (tried {}): they are part of shared/",
-        tried.join(", ")
-    );
-    eprintln!("SKIPPED: the ESI files are not at {}", tried.join(", "));
-    None
+/// The folder of the real captures (`../shared/captures/`, see its README.md); a panic when
+/// it is missing (see [`shared_dir`]).
+pub fn captures_dir() -> PathBuf {
+    shared_dir("captures", "replay-dc.pcapng")
+}
+
+/// The folder of the vendors' ESI files (`../shared/esi/`, see its README.md); a panic when
+/// it is missing (see [`shared_dir`]).
+pub fn esi_dir() -> PathBuf {
+    shared_dir("esi", "ingenia-evs-net-01.xml")
 }
 
 /// The ESI the project ships for its own virtual drive (`esi/` at the repository's root).
