@@ -78,7 +78,7 @@ fn same_scenario_and_seed_give_byte_identical_summaries() {
     // The verdict comes before the tables, the tables before the plots.
     let verdict = html.find("Recommendation:").expect("a verdict");
     let truth = html.find("Ground truth").expect("the ground truth");
-    let img = html.find("<img").expect("plots");
+    let img = html.find("<svg").expect("plots (inline SVG)");
     assert!(verdict < truth && truth < img, "{verdict} {truth} {img}");
 }
 

@@ -1,4 +1,6 @@
-//! report.html: the verdict and the tables first, then the plots with their captions.
+//! report.html: the verdict and the tables first, then the plots with their captions. The
+//! plots are inline SVG: the file alone shows them (sent by mail, attached to a ticket, opened
+//! away from its folder); the SVG and PNG files beside it are for other uses.
 
 use crate::report::{SummaryOut, verdict_text};
 use std::fmt::Write as _;
@@ -9,7 +11,21 @@ pub(crate) fn esc(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
-pub(crate) fn report_html(out: &SummaryOut, order: &[String], plots: &[(&str, &str)]) -> String {
+/// A plot as report.html holds it: its file stem, its caption, the SVG document.
+pub(crate) struct Figure<'a> {
+    pub name: &'a str,
+    pub caption: &'a str,
+    pub svg: String,
+}
+
+/// `svg` as an element of an HTML body: plotters' SVG is one `<svg>` element with a viewBox
+/// and no ids (nothing to clash between figures); anything before the element (an XML
+/// declaration) has no place inside HTML and is dropped.
+fn inline_svg(svg: &str) -> &str {
+    svg.find("<svg").map_or("", |k| svg[k..].trim_end())
+}
+
+pub(crate) fn report_html(out: &SummaryOut, order: &[String], plots: &[Figure<'_>]) -> String {
     let mut h = String::new();
     let _ = write!(
         h,
@@ -20,7 +36,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}td.l{{white-space
 .warn{{border-left:4px solid #c77700;background:#fff8ec;padding:0.4em 0.8em;margin:0.4em 0}}\
 .interrupted{{border:2px solid #c00;background:#fff0f0;padding:0.5em 1em}}tr.letter td{{color:#888}}\
 pre{{background:#f7f7f7;padding:0.6em;overflow-x:auto;font-size:12px}}\
-figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:100%;border:1px solid #ddd}}</style></head><body>",
+figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}figure svg{{display:block;max-width:100%;height:auto;border:1px solid #ddd}}</style></head><body>",
         esc(&out.scenario)
     );
     let _ = write!(
@@ -70,11 +86,13 @@ figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}img{{max-width:
     per_slave_table(&mut h, out);
     letter_table(&mut h, out, order);
     let _ = write!(h, "<h2>Plots</h2>");
-    for (name, caption) in plots {
+    for f in plots {
         let _ = write!(
             h,
-            "<figure><img src=\"{name}.svg\" alt=\"{name}\"><figcaption>{}</figcaption></figure>",
-            esc(caption)
+            "<figure id=\"{name}\">{}<figcaption>{} <small>(also <a href=\"{name}.svg\">{name}.svg</a>, <a href=\"{name}.png\">{name}.png</a>)</small></figcaption></figure>",
+            inline_svg(&f.svg),
+            esc(f.caption),
+            name = f.name
         );
     }
     let _ = write!(
