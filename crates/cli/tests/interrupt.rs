@@ -149,8 +149,20 @@ fn ctrl_c_stops_and_keeps_what_was_measured() {
         .unwrap();
     let rx = stderr_lines(&mut child);
     let mut seen = Vec::new();
-    // A progress line that counts cycles: every bring-up is done, the runs are measuring.
-    wait_for(&rx, &mut seen, |l| l.contains(" cycles)"));
+    // A progress line whose count of cycles ("(done of total cycles)", the warm-up included)
+    // is past every run's warm-up: the runs have recorded cycles. (A line that merely counts
+    // can come during the warm-up on a loaded machine, and a warm-up interrupted records
+    // nothing: `cycles_done` 0.)
+    let asked = 8 * 2 * 50_000_000u64;
+    wait_for(&rx, &mut seen, |l| {
+        let count = l
+            .rsplit_once('(')
+            .and_then(|(_, c)| c.split_once(" cycles)"));
+        count
+            .and_then(|(c, _)| c.split_once(" of "))
+            .and_then(|(d, t)| Some((d.parse::<u64>().ok()?, t.parse::<u64>().ok()?)))
+            .is_some_and(|(done, total)| done > total.saturating_sub(asked))
+    });
     let t0 = Instant::now();
     signal(&child, libc::SIGINT);
     let status = child.wait().unwrap();
