@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 mod bench;
 mod bringup;
+mod cli_docs;
 mod compare;
 mod heap;
 mod host;
@@ -46,6 +47,9 @@ enum Command {
     /// TSN between master and slaves: the paper's UPPAAL models explored (`tsn models`) and
     /// its three networks built from real parts and measured (`tsn run`).
     Tsn(tsn::Args),
+    /// Prints this command reference as Markdown, for the book (`scripts/regen-docs.py`).
+    #[command(hide = true)]
+    HelpMarkdown,
 }
 
 fn main() -> ExitCode {
@@ -68,6 +72,7 @@ fn main() -> ExitCode {
         Command::Run(a) => net::run(a),
         Command::Host(a) => host::run(a),
         Command::Tsn(a) => tsn::run(a),
+        Command::HelpMarkdown => return cli_docs::print::<Cli>(),
     };
     match r {
         Ok(code) => code,
