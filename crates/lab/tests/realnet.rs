@@ -153,22 +153,20 @@ fn session_over_veth() -> Result<Outcome, String> {
     })
 }
 
+/// Needs root: `unshare(CLONE_NEWNET)` takes CAP_SYS_ADMIN, and the test harness's threads
+/// rule out a user namespace of its own (unshare(CLONE_NEWUSER) refuses a multithreaded
+/// process). Asked for where the machine refuses, it fails naming why.
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn the_real_network_session_runs_in_process_against_the_served_segment() {
     let run = std::thread::spawn(session_over_veth)
         .join()
         .expect("no panic");
     let o = match run {
         Ok(o) => o,
-        Err(e) if e.starts_with("unshare") || e.starts_with("ip ") => {
-            // CI runs as root on a machine that has them: there a refusal is a failure.
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "CI must be able to make a network namespace and a veth pair: {e}"
-            );
-            println!("SKIPPED: this machine refuses network namespaces or veth pairs ({e})");
-            return;
-        }
+        Err(e) if e.starts_with("unshare") || e.starts_with("ip ") => panic!(
+            "this test needs a network namespace and a veth pair (root and iproute2), and this machine refused: {e}"
+        ),
         Err(e) => panic!("{e}"),
     };
     let out = &o.out;

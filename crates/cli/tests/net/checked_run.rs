@@ -53,27 +53,21 @@ fn run_method_once(pair: &NetPair, method: &str) {
     let csv = dir.join("cycles.csv");
     let t0 = Instant::now();
     let o = pair
-        .command(
-            &pair.ns_b,
-            &[
-                "run",
-                "--iface",
-                &pair.if_b,
-                "--method",
-                method,
-                "--cycle-us",
-                "1000",
-                "--duration",
-                "10",
-                // A reply held up by a stall of this shared host is late, not lost: the test
-                // asks whether the path loses frames, and counts the late ones apart.
-                "--timeout-us",
-                "100000",
-                "--csv",
-                csv.to_str().unwrap(),
-                "--json",
-            ],
-        )
+        .run(&[
+            "--method",
+            method,
+            "--cycle-us",
+            "1000",
+            "--duration",
+            "10",
+            // A reply held up by a stall of this shared host is late, not lost: the test
+            // asks whether the path loses frames, and counts the late ones apart.
+            "--timeout-us",
+            "100000",
+            "--csv",
+            csv.to_str().unwrap(),
+            "--json",
+        ])
         .output()
         .expect("run ecsync run");
     let stderr = String::from_utf8_lossy(&o.stderr);

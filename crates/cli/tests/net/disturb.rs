@@ -12,23 +12,17 @@ pub(crate) fn run_through_faults(pair: &NetPair, method: &str, faults: &Path) {
     let dir = tmp(&format!("faults-{method}"));
     let csv = dir.join("cycles.csv");
     let o = pair
-        .command(
-            &pair.ns_b,
-            &[
-                "run",
-                "--iface",
-                &pair.if_b,
-                "--method",
-                method,
-                "--duration",
-                "8",
-                "--static-drift",
-                "3000",
-                "--csv",
-                csv.to_str().unwrap(),
-                "--json",
-            ],
-        )
+        .run(&[
+            "--method",
+            method,
+            "--duration",
+            "8",
+            "--static-drift",
+            "3000",
+            "--csv",
+            csv.to_str().unwrap(),
+            "--json",
+        ])
         .output()
         .expect("run ecsync run");
     let stderr = String::from_utf8_lossy(&o.stderr);
@@ -115,33 +109,10 @@ pub(crate) fn run_through_a_disturbance(
     let dir = tmp(name);
     let csv = dir.join("cycles.csv");
     let summary = dir.join("summary.json");
-    let run = pair
-        .command(
-            &pair.ns_b,
-            &[
-                "run",
-                "--iface",
-                &pair.if_b,
-                "--duration",
-                "6",
-                "--csv",
-                csv.to_str().unwrap(),
-                "--summary",
-                summary.to_str().unwrap(),
-            ],
-        )
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = Instant::now();
-    while lines(&csv) < 1_000 {
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "the cyclic phase did not start"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let run = pair.spawn_run_until_a_second_of_cycles(
+        &csv,
+        &["--duration", "6", "--summary", summary.to_str().unwrap()],
+    );
     disturb();
     let o = run.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);

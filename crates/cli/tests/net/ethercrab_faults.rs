@@ -13,11 +13,10 @@ static STORAGE: Storage = PduStorage::new();
 const CYCLE: Duration = Duration::from_millis(1);
 
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn ethercrab_meets_a_reference_power_cycle_and_does_not_bring_it_back() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("x") else {
-        return;
-    };
+    let pair = NetPair::new("x");
     let dir = tmp("ethercrab-faults");
     let faults = dir.join("faults.toml");
     // From ethercrab's first frame with process data (its PRE-OP system time sync): the

@@ -16,14 +16,17 @@ use ecsync_master::{BringupConfig, Engine, Stage, bringup};
 use ecsync_net::RealLink;
 
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn a_stall_of_two_and_a_half_periods_skips_two_cycles_over_the_veth_pair() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("s") else {
-        return;
-    };
+    let pair = NetPair::new("hs");
     let _served = pair.serve(&[]);
     let (ns, iface) = (pair.ns_b.clone(), pair.if_b.clone());
-    let period = 1_000_000u64;
+    // A period of 20 ms, not the usual 1 ms: the test asks what the driver does with a stall
+    // of two and a half periods, and this loaded two-core host's own wake-up delay after the
+    // stall (4.7 ms seen once, against the half period 1 ms left) must not add a third. Half
+    // of 20 ms is room for it; the slaves' SYNC0 (1 ms) does not enter what is checked.
+    let period = 20_000_000u64;
     let seen = std::thread::spawn(move || {
         ecsync_net::sys::enter_netns(&ns).expect("enter namespace B");
         let mut link = RealLink::open(&iface).expect("raw socket");

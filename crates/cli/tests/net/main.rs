@@ -4,8 +4,11 @@
 //! controller in its loop. The truth the masters are checked against is the preset's: the
 //! propagation delays the virtual segment has by construction.
 //!
-//! The tests make their namespaces themselves and skip, saying why, only where the machine
-//! refuses to (no root, no `ip`). They run one at a time: each master pins a SCHED_FIFO task.
+//! The tests make their namespaces themselves with `ip netns`, which needs root (it mounts
+//! the namespaces under /run/netns; an unprivileged user namespace cannot): each is
+//! `#[ignore = "needs network namespaces (root)"]` (plus what else it needs), and asked for
+//! (`cargo test -- --ignored`) on a machine that refuses, it fails naming why, never passes.
+//! They run one at a time: each master pins a SCHED_FIFO task.
 //!
 //! Here: the namespaces and `ecsync serve`, and the tests of `ecsync run` itself (each method,
 //! through faults and disturbances, the network twin), with their helpers in `checked_run`,
@@ -59,8 +62,9 @@ struct NetPair {
 }
 
 impl NetPair {
-    /// The pair, or `None` (after printing why) where the machine refuses.
-    fn new(tag: &str) -> Option<NetPair> {
+    /// The pair, or a panic naming what the machine refused: the tests that make one are
+    /// ignored unless asked for, and asked for they must not pass without it.
+    fn new(tag: &str) -> NetPair {
         let id = std::process::id() % 100_000;
         let p = NetPair {
             ns_a: format!("ecs-{id}-{tag}-a"),
@@ -80,18 +84,12 @@ impl NetPair {
             ip(&["-n", &p.ns_b, "link", "set", &p.if_b, "up"])?;
             Ok(())
         };
-        match setup() {
-            Ok(()) => Some(p),
-            Err(e) => {
-                // CI runs as root on a machine that has them: there a refusal is a failure.
-                assert!(
-                    std::env::var_os("CI").is_none(),
-                    "CI must be able to make network namespaces and veth pairs: {e}"
-                );
-                println!("SKIPPED: this machine refuses network namespaces and veth pairs ({e})");
-                None
-            }
+        if let Err(e) = setup() {
+            panic!(
+                "this test needs network namespaces and a veth pair (root and iproute2), and this machine refused: {e}"
+            );
         }
+        p
     }
 
     /// `ecsync args...` inside namespace `ns`.
@@ -99,6 +97,43 @@ impl NetPair {
         let mut c = Command::new("ip");
         c.args(["netns", "exec", ns, ecsync()]).args(args);
         c
+    }
+
+    /// `ecsync run --iface <B's end> args...` in namespace B.
+    fn run(&self, args: &[&str]) -> Command {
+        let mut c = self.command(&self.ns_b, &["run", "--iface", &self.if_b]);
+        c.args(args);
+        c
+    }
+
+    /// `ecsync run --iface <B's end> --csv csv args...` spawned (its output piped) and
+    /// returned once the CSV holds 1 000 lines: the cyclic phase has run a second. A run that
+    /// ends before is a failure showing what it said.
+    fn spawn_run_until_a_second_of_cycles(&self, csv: &Path, args: &[&str]) -> Child {
+        let mut run = self
+            .run(&["--csv", csv.to_str().unwrap()])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("spawn ecsync run");
+        let t0 = Instant::now();
+        while lines(csv) < 1_000 {
+            if run.try_wait().expect("the run's status").is_some() {
+                let o = run.wait_with_output().expect("the run's output");
+                panic!(
+                    "ecsync run ended ({}) before a second of cycles: {}",
+                    o.status,
+                    String::from_utf8_lossy(&o.stderr)
+                );
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "the cyclic phase did not start"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        run
     }
 
     /// `ecsync serve` on side A, once it is listening.
@@ -177,21 +212,19 @@ fn lines(p: &Path) -> usize {
 }
 
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn serve_and_run_with_the_median_method() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("m") else {
-        return;
-    };
+    let pair = NetPair::new("m");
     let _served = pair.serve(&[]);
     run_method(&pair, "median");
 }
 
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn serve_and_run_with_every_other_method() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("o") else {
-        return;
-    };
+    let pair = NetPair::new("o");
     let _served = pair.serve(&[]);
     for m in [
         "median-fit",
@@ -206,11 +239,10 @@ fn serve_and_run_with_every_other_method() {
 }
 
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn every_method_runs_through_loss_a_reference_power_cycle_and_a_cable_pull_over_veth() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("f") else {
-        return;
-    };
+    let pair = NetPair::new("f");
     let dir = tmp("faults");
     let faults = dir.join("faults.toml");
     std::fs::write(
@@ -235,11 +267,10 @@ fn every_method_runs_through_loss_a_reference_power_cycle_and_a_cable_pull_over_
 }
 
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn serve_and_run_survive_their_interfaces_going_down_for_50_ms() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("d") else {
-        return;
-    };
+    let pair = NetPair::new("d");
     let j = run_through_a_disturbance(&pair, "down", || {
         // The segment's interface down for 50 ms, then the master's.
         for (ns, ifc) in [(&pair.ns_a, &pair.if_a), (&pair.ns_b, &pair.if_b)] {
@@ -264,11 +295,10 @@ fn serve_and_run_survive_their_interfaces_going_down_for_50_ms() {
 /// serving (the fresh-clone CI once saw a run stop with "the socket's send queue stayed full"
 /// when an interface came back up).
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn run_survives_a_send_queue_that_stays_full() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("q") else {
-        return;
-    };
+    let pair = NetPair::new("q");
     let tc = |ns: &str, args: &[&str]| {
         let o = Command::new("tc")
             .args(["-n", ns, "qdisc"])
@@ -309,46 +339,28 @@ fn run_survives_a_send_queue_that_stays_full() {
 }
 
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn a_segment_that_dies_mid_run_is_reported_and_what_was_measured_is_kept() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("k") else {
-        return;
-    };
+    let pair = NetPair::new("k");
     let mut served = pair.serve(&[]);
     let dir = tmp("kill");
     let csv = dir.join("cycles.csv");
     let summary = dir.join("summary.json");
-    let run = pair
-        .command(
-            &pair.ns_b,
-            &[
-                "run",
-                "--iface",
-                &pair.if_b,
-                "--duration",
-                "30",
-                // Without it the run keeps trying (and recovers a segment that comes back).
-                "--give-up-after",
-                "100",
-                "--csv",
-                csv.to_str().unwrap(),
-                "--summary",
-                summary.to_str().unwrap(),
-            ],
-        )
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Kill the segment once the cyclic phase has run a second.
     let t0 = Instant::now();
-    while lines(&csv) < 1_000 {
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "the cyclic phase did not start"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    // Kill the segment once the cyclic phase has run a second.
+    let run = pair.spawn_run_until_a_second_of_cycles(
+        &csv,
+        &[
+            "--duration",
+            "30",
+            // Without it the run keeps trying (and recovers a segment that comes back).
+            "--give-up-after",
+            "100",
+            "--summary",
+            summary.to_str().unwrap(),
+        ],
+    );
     served.kill();
     let o = run.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
@@ -373,8 +385,7 @@ fn a_segment_that_dies_mid_run_is_reported_and_what_was_measured_is_kept() {
 }
 
 #[test]
-fn a_missing_interface_or_no_raw_socket_permission_is_one_clear_line() {
-    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+fn a_missing_interface_is_one_clear_line() {
     for sub in [
         &["run", "--iface", "ecsnosuch0", "--duration", "1"][..],
         &["serve", "--iface", "ecsnosuch0"][..],
@@ -392,15 +403,19 @@ fn a_missing_interface_or_no_raw_socket_permission_is_one_clear_line() {
             "{e}"
         );
     }
-    let Some(pair) = NetPair::new("p") else {
-        return;
-    };
-    // Root without CAP_NET_RAW (dropped from the bounding set).
+}
+
+/// Root without CAP_NET_RAW (dropped from the bounding set by setpriv, util-linux).
+#[test]
+#[ignore = "needs network namespaces (root), setpriv"]
+fn no_raw_socket_permission_is_one_clear_line() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("p");
     let probe = Command::new("setpriv").arg("--version").output();
-    if probe.is_err() {
-        println!("SKIPPED the capability half: setpriv is not installed");
-        return;
-    }
+    assert!(
+        probe.is_ok_and(|o| o.status.success()),
+        "this test needs setpriv (util-linux)"
+    );
     for sub in [
         &["run", "--iface", pair.if_b.as_str(), "--duration", "1"][..],
         &["serve", "--iface", pair.if_b.as_str()][..],
@@ -436,33 +451,26 @@ fn a_missing_interface_or_no_raw_socket_permission_is_one_clear_line() {
 /// against the reference within 0.1 ppm of the preset's truth, and `compare` ranks the methods
 /// as on the preset (same host, seed, run and method tables).
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn a_twin_saved_over_veth_has_the_preset_s_delays_crystals_and_ranking() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("tw") else {
-        return;
-    };
+    let pair = NetPair::new("tw");
     let dir = tmp("twin");
     let twin = dir.join("twin.toml");
     {
         let _served = pair.serve(&[]);
         let o = pair
-            .command(
-                &pair.ns_b,
-                &[
-                    "run",
-                    "--iface",
-                    &pair.if_b,
-                    "--scan-only",
-                    "--save-network",
-                    twin.to_str().unwrap(),
-                    // The reference's crystal against true time cannot be measured here (the
-                    // segment's true time is this host's clock, the master's own, and the
-                    // figure measured against it is ~10 ppm off, see the report); the preset's
-                    // is given, the others are the twin's measurement against it.
-                    "--reference-ppm",
-                    "12.4",
-                ],
-            )
+            .run(&[
+                "--scan-only",
+                "--save-network",
+                twin.to_str().unwrap(),
+                // The reference's crystal against true time cannot be measured here (the
+                // segment's true time is this host's clock, the master's own, and the
+                // figure measured against it is ~10 ppm off, see the report); the preset's
+                // is given, the others are the twin's measurement against it.
+                "--reference-ppm",
+                "12.4",
+            ])
             .output()
             .expect("run ecsync run --scan-only");
         let stderr = String::from_utf8_lossy(&o.stderr);
@@ -534,32 +542,25 @@ fn a_twin_saved_over_veth_has_the_preset_s_delays_crystals_and_ranking() {
 /// not from the bring-up's 2 s of latches, and lands near the preset's 12.4 ppm without
 /// `--reference-ppm`; every other crystal still within 0.1 ppm of the preset's against it.
 #[test]
+#[ignore = "needs network namespaces (root)"]
 fn a_twin_saved_after_a_run_has_the_reference_crystal_from_the_cyclic_phase() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let Some(pair) = NetPair::new("tr") else {
-        return;
-    };
+    let pair = NetPair::new("tr");
     let dir = tmp("twin-run");
     let twin = dir.join("twin.toml");
     let _served = pair.serve(&[]);
     let o = pair
-        .command(
-            &pair.ns_b,
-            &[
-                "run",
-                "--iface",
-                &pair.if_b,
-                "--method",
-                "median-fit",
-                "--duration",
-                "12",
-                "--timeout-us",
-                "100000",
-                "--save-network",
-                twin.to_str().unwrap(),
-                "--json",
-            ],
-        )
+        .run(&[
+            "--method",
+            "median-fit",
+            "--duration",
+            "12",
+            "--timeout-us",
+            "100000",
+            "--save-network",
+            twin.to_str().unwrap(),
+            "--json",
+        ])
         .output()
         .expect("run ecsync run");
     let err = String::from_utf8_lossy(&o.stderr);
