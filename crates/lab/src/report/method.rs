@@ -2,7 +2,8 @@
 //! slave, the init drift, the controller's own report, the send mode.
 
 use super::{
-    ControllerOut, GroundTruth, InitDriftOut, LetterOut, MethodOut, RunOut, SendOut, SlaveOut,
+    ControllerOut, GroundTruth, InitDriftOut, LetterOut, MethodOut, RunKeys, RunOut, SendOut,
+    SlaveOut,
 };
 use crate::compare::Comparison;
 use crate::letter;
@@ -145,9 +146,16 @@ pub(super) fn method_out(
         controller,
         runs: sums
             .iter()
-            .map(|x| RunOut {
+            .zip(rs)
+            .map(|(x, r)| RunOut {
                 m_rs: x[0].into(),
                 rs_is: x[1].into(),
+                keys: RunKeys {
+                    late_frames: r.late_frames,
+                    smallest_safe_shift_pct: shift_pct(r.latest_end_ns, period),
+                    slave_spread_p999_ns: r.slave_diff.summary().p999_abs,
+                    phase_error_p999_ns: r.phase_error.summary().p999_abs,
+                },
             })
             .collect(),
         cycles_done: rs.iter().map(|r| r.cycles_done).sum(),

@@ -28,6 +28,7 @@
 //! to its end at the worst slave: what is left between a frame on target and SYNC0.
 
 mod method;
+mod noise;
 mod summary;
 mod text;
 mod verdict;
@@ -35,7 +36,8 @@ mod warnings;
 
 pub use summary::{
     ControllerOut, GroundTruth, Indicators, InitDriftOut, LetterOut, MethodOut, NotRanked,
-    QuantileNote, Recommendation, RunOut, SendOut, SlaveOut, SummaryOut, TimingOut, Warning,
+    QuantileNote, Recommendation, RunKeys, RunOut, SendOut, SlaveOut, SummaryOut, TimingOut,
+    Warning,
 };
 pub use text::{csv, per_slave_text, table1_text, truth_text, verdict_text};
 pub use verdict::{RANKING_RULE, SHIFT_TIE_PCT, SPREAD_TIE, UNRANKED_LOST_SHARE};
@@ -45,7 +47,7 @@ use crate::stats::{QUANTILE_REL_ERROR, RESOLUTION_NS};
 use ecsync_sim::send::Entry;
 use method::method_out;
 use std::collections::BTreeMap;
-use verdict::{not_ranked, rank, reason, send_note};
+use verdict::{not_ranked, rank, reason, send_note, within_noise};
 use warnings::warnings;
 
 /// Nanoseconds as microseconds with one decimal, for the messages.
@@ -92,27 +94,7 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
         let g = &mut m.ground_truth;
         g.holds_target = g.phase.n > 0 && g.offset_from_target_ns.abs() <= 0.1 * budget;
     }
-    let left_out = not_ranked(&methods, &order);
-    let rankable: Vec<String> = order
-        .iter()
-        .filter(|m| !left_out.iter().any(|n| &n.method == *m))
-        .cloned()
-        .collect();
-    let ranking = rank(&methods, &rankable);
-    let reason = if ranking.is_empty() && !left_out.is_empty() {
-        "none: every method lost most of its frames, so no figure here describes a method. Read the warnings: the cycle is likely too short for the network's frames (make it longer, or the reply timeout later).".to_string()
-    } else {
-        reason(&methods, &ranking, s.sync0_shift_pct)
-    };
-    let send_note = send_note(&methods, &order, ranking.first());
-    let recommendation = Recommendation {
-        method: ranking.first().cloned().unwrap_or_default(),
-        send_modes: send_note,
-        reason,
-        ranking: ranking.clone(),
-        rule: RANKING_RULE,
-        not_ranked: left_out,
-    };
+    let recommendation = recommend(&methods, &order, s.sync0_shift_pct, s.runs);
     let warnings = warnings(c, &methods, &order, budget);
     SummaryOut {
         recommendation,
@@ -139,5 +121,63 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
         methods,
         wall_s: c.wall_s,
         threads: c.threads,
+    }
+}
+
+/// The verdict on `methods` (in report `order`; `holds_target` set), a SYNC0 shift of
+/// `shift_pct` % and `runs` runs each: the ranking, the pick and why, the methods within
+/// run-to-run noise of it, those not ranked. A function of the figures alone, so that it can
+/// be checked on figures made by hand.
+pub fn recommend(
+    methods: &BTreeMap<String, MethodOut>,
+    order: &[String],
+    shift_pct: f64,
+    runs: u32,
+) -> Recommendation {
+    let left_out = not_ranked(methods, order);
+    let rankable: Vec<String> = order
+        .iter()
+        .filter(|m| !left_out.iter().any(|n| &n.method == *m))
+        .cloned()
+        .collect();
+    // Too few cycles for the p99.9 figures the ranking rests on: no ranking at all (a
+    // maximum of a few frames would decide it).
+    let fewest = rankable
+        .iter()
+        .filter_map(|m| methods.get(m))
+        .map(|m| m.cycles_done)
+        .min();
+    let too_few = fewest.filter(|&n| n < noise::MIN_RANKED_CYCLES);
+    let ranking = if too_few.is_some() {
+        Vec::new()
+    } else {
+        rank(methods, &rankable)
+    };
+    let reason = if let Some(n) = too_few {
+        format!(
+            "none: {n} measured {} per method (at the fewest) {} too few for the p99.9 figures the ranking rests on (at least {}; {} put ten samples beyond a p99.9). Run --cycles {} or more.",
+            if n == 1 { "cycle" } else { "cycles" },
+            if n == 1 { "is" } else { "are" },
+            noise::MIN_RANKED_CYCLES,
+            noise::FEW_CYCLES,
+            noise::FEW_CYCLES.div_ceil(u64::from(runs.max(1)))
+        )
+    } else if ranking.is_empty() && !left_out.is_empty() {
+        "none: every method lost most of its frames, so no figure here describes a method. Read the warnings: the cycle is likely too short for the network's frames (make it longer, or the reply timeout later).".to_string()
+    } else {
+        reason(methods, &ranking, shift_pct)
+    };
+    let tied: Vec<String> = within_noise(methods, &ranking)
+        .into_iter()
+        .cloned()
+        .collect();
+    Recommendation {
+        method: ranking.first().cloned().unwrap_or_default(),
+        send_modes: send_note(methods, order, ranking.first()),
+        reason,
+        ranking,
+        within_noise: tied,
+        rule: RANKING_RULE,
+        not_ranked: left_out,
     }
 }

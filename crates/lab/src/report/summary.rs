@@ -184,6 +184,22 @@ pub struct RunOut {
     pub m_rs: Indicators,
     /// rS-IS, ns.
     pub rs_is: Indicators,
+    /// The ranking's keys in this run alone: their spread over the runs is the noise the
+    /// verdict weighs differences against.
+    pub keys: RunKeys,
+}
+
+/// The ranking's keys of one run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RunKeys {
+    /// Frames after a drive's SYNC0.
+    pub late_frames: u64,
+    /// The smallest SYNC0 shift without a late frame, % of the cycle.
+    pub smallest_safe_shift_pct: f64,
+    /// p99.9 of |slave - reference|, ns.
+    pub slave_spread_p999_ns: f64,
+    /// p99.9 of |true phase - target|, ns.
+    pub phase_error_p999_ns: f64,
 }
 
 /// The verdict.
@@ -195,6 +211,10 @@ pub struct Recommendation {
     pub reason: String,
     /// Every method, best first.
     pub ranking: Vec<String>,
+    /// The methods after the pick that are within run-to-run noise of it on every key the
+    /// ranking separates them on: as good a choice, as far as the runs can tell.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub within_noise: Vec<String>,
     /// The rule.
     pub rule: &'static str,
     /// What each send mode buys the pick's method, when the comparison ran more than one.

@@ -16,7 +16,11 @@ pub fn verdict_text(out: &SummaryOut) -> String {
     };
     let _ = writeln!(t, "Recommendation: {pick}");
     let _ = writeln!(t, "  {}", r.reason);
-    let _ = writeln!(t, "  Ranking: {}", r.ranking.join(" > "));
+    if r.ranking.is_empty() {
+        let _ = writeln!(t, "  Ranking: none");
+    } else {
+        let _ = writeln!(t, "  Ranking: {}", r.ranking.join(" > "));
+    }
     if let Some(s) = &r.send_modes {
         let _ = writeln!(t, "  {s}");
     }
@@ -95,7 +99,39 @@ pub fn table1_text(out: &SummaryOut, order: &[String]) -> String {
         }
         let _ = writeln!(t);
     }
+    if let Some(note) = m_rs_aim_note(out, order) {
+        let _ = writeln!(t, "{note}");
+    }
     t
+}
+
+/// Why an M-rS mean far from zero is no error: M-rS counts from h_mr (the init frames' mean
+/// phase, the letter's eq. 10) or from the send stamp (bus shift), and a method that aims at
+/// another point (the target phase on the DC grid) sits a constant distance from it. `None`
+/// when every method's M-rS mean is within its spread of zero.
+pub fn m_rs_aim_note(out: &SummaryOut, order: &[String]) -> Option<String> {
+    let far: Vec<String> = order
+        .iter()
+        .filter_map(|m| Some((m, out.methods.get(m)?)))
+        .filter(|(_, mo)| {
+            let (mean, std) = (mo.m_rs.mean, mo.m_rs.std);
+            mean.abs() > 1000.0_f64.max(2.0 * std)
+        })
+        .map(|(m, mo)| {
+            format!(
+                "{m} {:.1} us (its true phase: {:+.1} us from the target)",
+                mo.m_rs.mean / 1000.0,
+                mo.ground_truth.offset_from_target_ns / 1000.0
+            )
+        })
+        .collect();
+    if far.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "M-rS counts from h_mr, the mean phase of the init frames (the letter's eq. 10; for bus shift from the send stamp): a method that aims elsewhere (at the target phase on the DC grid) has an M-rS mean that is the distance of its aim from h_mr, not an error. Means far from 0 here: {}. Its error is the ground truth's mean-target.",
+        far.join(", ")
+    ))
 }
 
 /// The ground truth table as text, us unless named.

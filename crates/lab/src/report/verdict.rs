@@ -1,5 +1,6 @@
 //! The verdict: which methods are ranked, the ranking by its keys, and why, in words.
 
+use super::noise::{Difference, paired};
 use super::{MethodOut, NotRanked, us};
 use ecsync_sim::send::SendMode;
 use std::collections::BTreeMap;
@@ -91,7 +92,7 @@ pub(super) fn not_ranked(
 }
 
 /// The ranking rule, in words.
-pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|";
+pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|; a difference the runs do not confirm (each run's difference between the two methods, which meet the same noise, against its 95 % interval) is reported as within run-to-run noise";
 
 /// The ranking keys of a method (smaller is better), NaN last.
 fn keys(m: &MethodOut) -> [f64; 5] {
@@ -197,58 +198,7 @@ pub(super) fn reason(
         );
     }
     if let Some(second) = ranking.get(1) {
-        let q = &methods[second];
-        let names: Vec<&String> = ranking.iter().collect();
-        let compared = ranked_keys(methods, &names);
-        let (ka, kb) = (keys(p), keys(q));
-        let decided = (0..5).find(|&i| compared[0][i] != compared[1][i]);
-        let what = [
-            "late frames",
-            "holding its target",
-            "the smallest safe SYNC0 shift",
-            "the slave spread",
-            "the true phase's deviation from the target",
-        ];
-        let tied: Vec<&str> = (0..decided.unwrap_or(5))
-            .filter(|&i| i >= 2 && ka[i] != kb[i])
-            .map(|i| what[i])
-            .collect();
-        if !tied.is_empty() {
-            let _ = write!(
-                r,
-                " It and {second} are within noise of each other on {}.",
-                tied.join(" and ")
-            );
-        }
-        if let Some(i) = decided {
-            let fmt = |i: usize, v: f64, m: &MethodOut| match i {
-                0 => format!("{v:.0}"),
-                1 => format!(
-                    "it sits {} from the target",
-                    us(m.ground_truth.offset_from_target_ns)
-                ),
-                2 => format!("{v:.1} %"),
-                3 => format!("{v:.0} ns"),
-                _ => us(v),
-            };
-            if i == 1 {
-                let _ = write!(
-                    r,
-                    " Next is {second}, which does not hold its target: {}.",
-                    fmt(i, kb[i], q)
-                );
-            } else {
-                let _ = write!(
-                    r,
-                    " Next is {second}, which loses on {}: {} against {}.",
-                    what[i],
-                    fmt(i, kb[i], q),
-                    fmt(i, ka[i], p)
-                );
-            }
-        } else {
-            let _ = write!(r, " {second} ties with it on every key.");
-        }
+        second_note(&mut r, methods, ranking, pick, second);
     }
     let off: Vec<&str> = ranking
         .iter()
@@ -280,4 +230,178 @@ pub(super) fn reason(
         }
     }
     r
+}
+
+/// What the ranking's keys say of `b` against `a`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum Versus {
+    /// Key `i` separates them beyond run-to-run noise (`None`: holding the target, a yes or
+    /// no).
+    Decided(usize, Option<Difference>),
+    /// Key `i` separates them, and with one run nobody can tell whether by more than noise.
+    Unmeasured(usize),
+    /// Every key the ranking separates them on is within run-to-run noise.
+    WithinNoise,
+    /// Equal on every key, to the ranking's steps.
+    Equal,
+}
+
+/// `b` against `a`: the first key, in the ranking's order, on which their compared values
+/// differ beyond run-to-run noise; keys whose difference the runs do not confirm are passed.
+/// Keys are compared as the ranking compares them, in steps above the best of `ranking`.
+pub(super) fn versus(
+    methods: &BTreeMap<String, MethodOut>,
+    ranking: &[String],
+    a: usize,
+    b: usize,
+) -> Versus {
+    let names: Vec<&String> = ranking.iter().collect();
+    let compared = ranked_keys(methods, &names);
+    let (ma, mb) = (&methods[names[a]], &methods[names[b]]);
+    let mut noise = false;
+    for i in 0..5 {
+        if compared[a][i] == compared[b][i] {
+            continue;
+        }
+        if i == 1 {
+            return Versus::Decided(1, None);
+        }
+        match paired(ma, mb, i) {
+            Some(d) if d.significant() => return Versus::Decided(i, Some(d)),
+            Some(_) => noise = true,
+            None => return Versus::Unmeasured(i),
+        }
+    }
+    if noise {
+        Versus::WithinNoise
+    } else {
+        Versus::Equal
+    }
+}
+
+/// The keys' names, in the ranking's order.
+const KEY_NAMES: [&str; 5] = [
+    "late frames",
+    "holding its target",
+    "the smallest safe SYNC0 shift",
+    "the slave spread",
+    "the true phase's deviation from the target",
+];
+
+/// Key `i`'s value `v` of method `m` in words, with `fine` digits where the coarse ones would
+/// print two different values alike.
+fn key_text(i: usize, v: f64, m: &MethodOut, fine: bool) -> String {
+    match (i, fine) {
+        (0, _) => format!("{v:.0}"),
+        (1, _) => format!(
+            "it sits {} from the target",
+            us(m.ground_truth.offset_from_target_ns)
+        ),
+        (2, false) => format!("{v:.1} %"),
+        (2, true) => format!("{v:.2} %"),
+        (3, false) => format!("{v:.0} ns"),
+        (3, true) => format!("{v:.1} ns"),
+        (_, false) => us(v),
+        (_, true) => format!("{v:.0} ns"),
+    }
+}
+
+/// The sentence on the runner-up `second` against the pick: the key that separates them and
+/// whether the runs confirm it, or that they are within run-to-run noise (and which other
+/// methods are too).
+fn second_note(
+    r: &mut String,
+    methods: &BTreeMap<String, MethodOut>,
+    ranking: &[String],
+    pick: &String,
+    second: &String,
+) {
+    let (p, q) = (&methods[pick], &methods[second]);
+    let (ka, kb) = (keys(p), keys(q));
+    let runs = p.runs.len().min(q.runs.len());
+    let vs = versus(methods, ranking, 0, 1);
+    let both = |i: usize| {
+        let coarse = (key_text(i, kb[i], q, false), key_text(i, ka[i], p, false));
+        if coarse.0 == coarse.1 {
+            (key_text(i, kb[i], q, true), key_text(i, ka[i], p, true))
+        } else {
+            coarse
+        }
+    };
+    match vs {
+        Versus::Decided(1, _) => {
+            let _ = write!(
+                r,
+                " Next is {second}, which does not hold its target: {}.",
+                key_text(1, kb[1], q, false)
+            );
+        }
+        Versus::Decided(i, d) => {
+            let (b, a) = both(i);
+            let _ = write!(
+                r,
+                " Next is {second}, which loses on {}: {b} against {a}",
+                KEY_NAMES[i]
+            );
+            if let Some(d) = d {
+                let _ = write!(
+                    r,
+                    ", more than run-to-run noise (the runs' differences {} +- {} at 95 %, {} runs)",
+                    key_text(i, d.mean.abs(), p, true),
+                    key_text(i, d.half_width, p, true),
+                    d.runs
+                );
+            }
+            r.push('.');
+        }
+        Versus::Unmeasured(i) => {
+            let (b, a) = both(i);
+            let _ = write!(
+                r,
+                " Next is {second}, which loses on {}: {b} against {a}; with {} nobody can tell whether that is more than run-to-run noise (run --runs 3 or more).",
+                KEY_NAMES[i],
+                crate::scenario::plural(runs as u64, "run", "runs")
+            );
+        }
+        Versus::WithinNoise => {
+            let _ = write!(
+                r,
+                " It and {second} are within run-to-run noise of each other on every key ({runs} runs): choose either; the order between them is that of figures the runs do not confirm."
+            );
+        }
+        Versus::Equal => {
+            let _ = write!(r, " {second} ties with it on every key.");
+        }
+    }
+    let also: Vec<&str> = within_noise(methods, ranking)
+        .into_iter()
+        .filter(|m| *m != second)
+        .map(String::as_str)
+        .collect();
+    if !also.is_empty() {
+        let _ = write!(
+            r,
+            " Within run-to-run noise of it as well: {}.",
+            also.join(", ")
+        );
+    }
+}
+
+/// The ranked methods after the pick that are within run-to-run noise of it (or equal).
+pub(super) fn within_noise<'a>(
+    methods: &BTreeMap<String, MethodOut>,
+    ranking: &'a [String],
+) -> Vec<&'a String> {
+    if ranking.is_empty() {
+        return Vec::new();
+    }
+    (1..ranking.len())
+        .filter(|&k| {
+            matches!(
+                versus(methods, ranking, 0, k),
+                Versus::WithinNoise | Versus::Equal
+            )
+        })
+        .map(|k| &ranking[k])
+        .collect()
 }

@@ -21,6 +21,7 @@ pub(super) fn warnings(
     let ran = || order.iter().filter_map(|m| Some((m, methods.get(m)?)));
     let mut w = Vec::new();
     w.extend(interrupted(c, methods));
+    w.extend(few_cycles(methods));
     w.extend(crystal_difference(s, methods, budget_ns));
     for (m, mo) in ran().filter(|(_, mo)| mo.ground_truth.phase.n > 0) {
         w.extend(off_target(m, mo, budget_ns));
@@ -51,6 +52,30 @@ fn interrupted(c: &Comparison, methods: &BTreeMap<String, MethodOut>) -> Option<
         message: format!(
             "interrupted: the figures are of the {done} recorded cycles done, not of the {} asked for",
             s.cycles * u64::from(s.runs) * methods.len() as u64
+        ),
+    })
+}
+
+/// Fewer measured cycles than put ten samples beyond a p99.9: the percentiles quoted are of
+/// the largest few samples (below [`super::noise::MIN_RANKED_CYCLES`] nothing is ranked).
+fn few_cycles(methods: &BTreeMap<String, MethodOut>) -> Option<Warning> {
+    let n = methods.values().map(|m| m.cycles_done).min()?;
+    if n >= super::noise::FEW_CYCLES {
+        return None;
+    }
+    let beyond = n as f64 * 0.001;
+    Some(Warning {
+        kind: "few_cycles",
+        method: None,
+        message: format!(
+            "too few cycles: {n} measured per method (the fewest) leave {beyond:.1} samples beyond each p99.9 (ten need {}), so the p99.9 figures and the smallest safe shifts are those of the largest few frames and {}; run --cycles {} or more per run",
+            super::noise::FEW_CYCLES,
+            if n < super::noise::MIN_RANKED_CYCLES {
+                "the verdict ranks nothing"
+            } else {
+                "the ranking's last keys are uncertain"
+            },
+            super::noise::FEW_CYCLES
         ),
     })
 }

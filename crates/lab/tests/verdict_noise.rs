@@ -1,0 +1,125 @@
+//! Issue 30, edge 4: the verdict weighs differences against run-to-run noise and refuses to
+//! rank on too few cycles. The statistics themselves are checked by hand in the report's
+//! `noise` module; here the whole comparison on the letter's testbed.
+
+use ecsync_lab::report::{recommend, summarize};
+use ecsync_lab::scenario::Scenario;
+use std::sync::atomic::AtomicU64;
+
+/// The letter's testbed with `methods`, `runs` x `cycles` after 12 s of warm-up.
+fn testbed(methods: &str, runs: u32, cycles: u64) -> Scenario {
+    let text = ecsync_sim::preset::named("paper-2024").expect("the preset");
+    let mut s = ecsync_lab::parse("paper-2024.toml", text).expect("the preset parses");
+    s.methods = methods
+        .split(',')
+        .map(|m| m.parse().expect("a method"))
+        .collect();
+    s.runs = runs;
+    s.cycles = cycles;
+    s.warmup_cycles = 12_000;
+    s
+}
+
+/// A twin of median-fit whose per-run p99.9 of |phase - target| differs from median-fit's by
+/// `deltas_ns` (run by run; every other figure the same), its pooled p99.9 by their mean.
+fn twin(out: &ecsync_lab::report::SummaryOut, deltas_ns: &[f64]) -> ecsync_lab::report::MethodOut {
+    let mut t = out.methods["median-fit"].clone();
+    for (run, d) in t.runs.iter_mut().zip(deltas_ns) {
+        run.keys.phase_error_p999_ns += d;
+    }
+    t.ground_truth.phase_error.p999_abs += deltas_ns.iter().sum::<f64>() / deltas_ns.len() as f64;
+    t
+}
+
+/// By hand: a twin that is 300 ns worse in one run, 250 ns better in the next and 100 ns worse
+/// in the third (mean +50 ns, s = 278 ns, 95 % half-width 4.303 x 278 / sqrt(3) = 690 ns) is
+/// within run-to-run noise of median-fit: the verdict names it as as good a choice and does
+/// not say it loses. A twin 235, 240 and 230 ns worse (s = 5 ns, half-width 12 ns) loses beyond
+/// noise, and the verdict gives the interval. pi-m2s (the letter's E-M2S, its phase spread
+/// four times median-fit's) is beaten beyond noise.
+#[test]
+fn ties_are_reported_as_ties_and_real_differences_with_their_interval() {
+    let s = testbed("median-fit,pi-m2s", 3, 20_000);
+    let mut out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    let r = &out.recommendation;
+    assert_eq!(r.ranking, ["median-fit", "pi-m2s"], "{}", r.reason);
+    assert!(r.within_noise.is_empty(), "{}", r.reason);
+    assert!(
+        r.reason.contains("more than run-to-run noise") && r.reason.contains("at 95 %, 3 runs"),
+        "{}",
+        r.reason
+    );
+    assert_eq!(out.methods["pi-m2s"].runs.len(), 3);
+
+    let order: Vec<String> = ["median-fit", "twin", "pi-m2s"].map(String::from).to_vec();
+    out.methods
+        .insert("twin".into(), twin(&out, &[300.0, -250.0, 100.0]));
+    let r = recommend(&out.methods, &order, 30.0, 3);
+    assert_eq!(r.ranking, ["median-fit", "twin", "pi-m2s"], "{}", r.reason);
+    assert_eq!(r.within_noise, ["twin"], "{}", r.reason);
+    assert!(
+        r.reason.contains(
+            "It and twin are within run-to-run noise of each other on every key (3 runs)"
+        ),
+        "{}",
+        r.reason
+    );
+    assert!(!r.reason.contains("which loses on"), "{}", r.reason);
+
+    out.methods
+        .insert("twin".into(), twin(&out, &[235.0, 240.0, 230.0]));
+    let r = recommend(&out.methods, &order, 30.0, 3);
+    assert_eq!(r.ranking, ["median-fit", "twin", "pi-m2s"], "{}", r.reason);
+    assert!(r.within_noise.is_empty(), "{}", r.reason);
+    assert!(
+        r.reason
+            .contains("Next is twin, which loses on the true phase's deviation from the target")
+            && r.reason.contains("235 ns +- 12 ns at 95 %, 3 runs"),
+        "{}",
+        r.reason
+    );
+}
+
+/// One run has no spread: the verdict ranks but says nobody can tell noise from difference.
+#[test]
+fn one_run_says_its_noise_is_not_measured() {
+    let s = testbed("median-fit,pi-m2s", 1, 20_000);
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    let r = &out.recommendation;
+    assert!(
+        r.reason
+            .contains("nobody can tell whether that is more than run-to-run noise"),
+        "{}",
+        r.reason
+    );
+}
+
+/// `--cycles 1`: no recommendation (a p99.9 of one frame is that frame), and a warning that
+/// says how many cycles would do; a few thousand: ranked, with the warning.
+#[test]
+fn too_few_cycles_are_refused_or_warned() {
+    let s = testbed("median-fit,pi-m2s", 1, 1);
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    let r = &out.recommendation;
+    assert!(r.method.is_empty() && r.ranking.is_empty(), "{r:?}");
+    assert!(
+        r.reason.starts_with("none: 1 measured cycle"),
+        "{}",
+        r.reason
+    );
+    assert!(out.warnings.iter().any(|w| w.kind == "few_cycles"));
+
+    let s = testbed("median-fit,pi-m2s", 1, 3_000);
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    assert_eq!(out.recommendation.method, "median-fit");
+    let w = out
+        .warnings
+        .iter()
+        .find(|w| w.kind == "few_cycles")
+        .expect("a few-cycles warning");
+    assert!(w.message.contains("3000 measured"), "{}", w.message);
+
+    let s = testbed("median-fit,pi-m2s", 1, 10_000);
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    assert!(!out.warnings.iter().any(|w| w.kind == "few_cycles"));
+}
