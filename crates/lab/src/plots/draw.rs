@@ -34,10 +34,16 @@ fn font(size: u32) -> TextStyle<'static> {
     TextStyle::from(("sans-serif", size).into_font())
 }
 
-/// A log axis's tick (a power of ten) as a plain number: 100, 1, 0.001.
+/// A log axis's tick (a power of ten) as a plain number from 0.001 to 1000 (100, 1, 0.001),
+/// beyond as a power (1e6): short enough for the label area.
 fn decade(v: &f64) -> String {
-    let places = (-v.log10().round()).max(0.0) as usize;
-    format!("{v:.places$}")
+    let exp = v.log10().round();
+    if exp.abs() > 3.0 {
+        format!("1e{exp:.0}")
+    } else {
+        let places = (-exp).max(0.0) as usize;
+        format!("{v:.places$}")
+    }
 }
 
 /// A dashed line through `pts` in data coordinates, or a plain one.
@@ -352,7 +358,8 @@ fn band_panel<DB: DrawingBackend>(
             s.iter()
                 .map(|b| (t(b) + dt / 2.0, y(b.p50)))
                 .collect::<Vec<_>>(),
-            col.stroke_width(1),
+            // The method's colour darkened, so the median shows on its own band.
+            RGBColor(col.0 / 2, col.1 / 2, col.2 / 2).stroke_width(2),
         )))
         .map_err(err)?;
     for mk in &m.marks {
@@ -615,6 +622,7 @@ pub(crate) fn draw_envelopes<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("s since the start of recording")
         .y_desc(unit)
+        .y_labels(5)
         .label_style(font(TICK))
         .axis_desc_style(font(TICK))
         .light_line_style(WHITE)

@@ -215,7 +215,7 @@ fn histograms<'a>(c: &'a Comparison, order: &'a [String], lines: PhaseLines) -> 
             order,
             "hist_phase",
             format!(
-                "When each frame reached the reference, after the DC grid point (the frames of all {runs} pooled; log scale of the share of cycles). The dashed black line is the target every method aims at ({:.1} us); a frame to the right of the dashed red line ({:.1} us: SYNC0 at {:.1} us minus the frame's transit to the worst slave) was late. The spread is the host's scheduling jitter, which no master-shift method can remove from the actual send. {HIST_NOTE}",
+                "When each frame reached the reference, after the DC grid point (the frames of {runs} pooled; log scale of the share of cycles). The dashed black line is the target every method aims at ({:.1} us); a frame to the right of the dashed red line ({:.1} us: SYNC0 at {:.1} us minus the frame's transit to the worst slave) was late. The spread is the host's scheduling jitter, which no master-shift method can remove from the actual send. {HIST_NOTE}",
                 target / 1000.0,
                 deadline / 1000.0,
                 shift / 1000.0
@@ -324,7 +324,7 @@ fn series<'a>(c: &'a Comparison, order: &'a [String], lines: PhaseLines) -> Vec<
             order,
             "series_true_phase",
             format!(
-                "Run 0's true phase over time, one panel per method in its colour: per block of {block} cycles the extremes (light), the 1st to 99th percentile (darker) and the median (line), with the target (dashed black) and the late line (dashed red). The panels share one y axis, which runs over every block's extremes. The first seconds show how a method pulls in after its warm-up."
+                "Run 0's true phase over time, one panel per method in its colour: per block of {block} cycles the extremes (light), the 1st to 99th percentile (darker) and the median (a dark line of the same hue), with the target (dashed black) and the late line (dashed red). The panels share one y axis, which runs over every block's extremes. The first seconds show how a method pulls in after its warm-up."
             ),
             2,
             Metric {
