@@ -200,6 +200,14 @@ pub struct Args {
     /// Recorded cycles per run.
     #[arg(long)]
     cycles: Option<u64>,
+    /// Cycle time, us (the file's `run.cycle_us`); the warm-up keeps its length in seconds.
+    #[arg(long, allow_negative_numbers = true)]
+    cycle_us: Option<f64>,
+    /// The master PC's crystal error against real time, ppm (the file's `host.master_ppm`,
+    /// else the host preset's): its difference to the reference drive's crystal is the drift
+    /// the methods compensate.
+    #[arg(long, allow_negative_numbers = true)]
+    master_ppm: Option<f64>,
     /// Warm-up per run, s (it must hold the methods' init frames: 10 s at 1 ms).
     #[arg(long, allow_negative_numbers = true)]
     warmup_s: Option<f64>,
@@ -250,6 +258,8 @@ fn flag_of(field: &str) -> Option<&'static str> {
         "run.target_phase_us" => "--target-phase-us",
         "run.runs" => "--runs",
         "run.cycles" => "--cycles",
+        "run.cycle_us" => "--cycle-us",
+        "host.master_ppm" => "--master-ppm",
         "run.methods" => "--methods",
         _ => return None,
     })
@@ -358,6 +368,18 @@ fn scenario(args: &Args) -> Result<Scenario> {
         given.push("--cycles");
         s.cycles = c;
     }
+    if let Some(us) = args.cycle_us {
+        given.push("--cycle-us");
+        if !(us.is_finite() && us > 0.0 && us * 1000.0 <= f64::from(u32::MAX)) {
+            bail!("--cycle-us: {us} us; fix: give the cycle time in us, e.g. 1000 for 1 ms");
+        }
+        let cycle_ns = (us * 1000.0).round() as u32;
+        // The warm-up keeps its length in time (its init frames are counted in frames, and a
+        // shorter cycle sends more of them in the same seconds).
+        s.warmup_cycles =
+            (s.warmup_cycles as f64 * f64::from(s.cycle_ns) / f64::from(cycle_ns)).round() as u64;
+        s.cycle_ns = cycle_ns;
+    }
     if let Some(w) = args.warmup_s {
         given.push("--warmup-s");
         if !(w.is_finite() && (0.0..=86_400.0).contains(&w)) {
@@ -373,6 +395,13 @@ fn scenario(args: &Args) -> Result<Scenario> {
             )
         })?;
         s.host_name = h.clone();
+    }
+    if let Some(ppm) = args.master_ppm {
+        given.push("--master-ppm");
+        s.host.master_ppm = ppm;
+        if !s.host_name.ends_with("(modified)") {
+            s.host_name = format!("{} (modified)", s.host_name);
+        }
     }
     if let Some(path) = &args.host_trace {
         replay_host_trace(&mut s, path, args.host_block_cycles)?;
@@ -516,10 +545,11 @@ fn print_tables(args: &Args, out: &SummaryOut, order: &[String], table1: &str) {
         );
     }
     println!(
-        "{}: {} slaves, host {}, {} x {} cycles after {} warm-up cycles, cycle {} us, SYNC0 shift {} %, target phase {:.1} us",
+        "{}: {} slaves, host {}, master crystal {:+.1} ppm, {} x {} cycles after {} warm-up cycles, cycle {} us, SYNC0 shift {} %, target phase {:.1} us",
         out.scenario,
         out.slaves,
         out.host,
+        out.master_ppm,
         plural(u64::from(out.runs), "run", "runs"),
         out.cycles,
         out.warmup_cycles,

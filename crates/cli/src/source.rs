@@ -1,6 +1,6 @@
 //! Where a network description comes from: a built-in preset or a file.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use ecsync_sim::SlaveSpec;
 use std::path::PathBuf;
 
@@ -20,8 +20,7 @@ impl SourceArgs {
     pub fn load(&self) -> Result<(String, String)> {
         match (&self.preset, &self.config) {
             (_, Some(path)) => {
-                let text = std::fs::read_to_string(path)
-                    .with_context(|| format!("cannot read {}", path.display()))?;
+                let text = ecsync_sim::config::read_text(path).map_err(anyhow::Error::msg)?;
                 Ok((path.display().to_string(), text))
             }
             (Some(name), None) => match ecsync_sim::preset::named(name) {

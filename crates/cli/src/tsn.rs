@@ -158,8 +158,7 @@ fn tsn_run(args: RunArgs) -> Result<ExitCode> {
     let (name, text) = match (&args.preset, &args.config) {
         (_, Some(path)) => (
             path.display().to_string(),
-            std::fs::read_to_string(path)
-                .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?,
+            ecsync_sim::config::read_text(path).map_err(anyhow::Error::msg)?,
         ),
         (Some(p), None) if p == "tsn-2020" => (
             "preset tsn-2020".to_string(),

@@ -22,6 +22,8 @@ pub const CYCLE_US_RANGE: (f64, f64) = (10.0, 100_000.0);
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct File {
+    /// Missing, it is an empty segment, refused as one (naming `[[segment.slave]]`).
+    #[serde(default)]
     segment: SegmentConfig,
     #[serde(default)]
     host: HostFile,
@@ -245,12 +247,13 @@ impl Scenario {
 
     /// Checks every value a run depends on; the first problem found.
     pub fn check(&self) -> Result<(), Problem> {
-        check_host(&self.host, self.cycle_ns)?;
+        // The cycle first: the host's jitter is judged against it.
         let (lo, hi) = CYCLE_US_RANGE;
         let cycle_us = f64::from(self.cycle_ns) / 1000.0;
         if !(lo..=hi).contains(&cycle_us) {
             return Err(cycle_problem(cycle_us));
         }
+        check_host(&self.host, self.cycle_ns)?;
         if !(self.sync0_shift_pct.is_finite() && (0.0..100.0).contains(&self.sync0_shift_pct)) {
             return Err(Problem::new(
                 "run",

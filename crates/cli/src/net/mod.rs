@@ -357,7 +357,7 @@ fn method_for(args: &RunArgs, cycle_ns: u32) -> Result<(Method, i64, Option<u16>
     let (name, text) = match &args.config {
         Some(p) => (
             p.display().to_string(),
-            std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?,
+            ecsync_sim::config::read_text(p).map_err(anyhow::Error::msg)?,
         ),
         None => (
             "preset paper-2024".to_string(),

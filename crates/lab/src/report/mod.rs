@@ -101,6 +101,7 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
         warnings,
         scenario: s.name.clone(),
         host: s.host_name.clone(),
+        master_ppm: s.host.master_ppm,
         seed: s.seed,
         runs: s.runs,
         cycles: s.cycles,

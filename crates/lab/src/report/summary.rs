@@ -268,6 +268,9 @@ pub struct SummaryOut {
     pub scenario: String,
     /// Host preset.
     pub host: String,
+    /// The master PC's crystal error against real time, ppm (`[host] master_ppm`, else the
+    /// host preset's).
+    pub master_ppm: f64,
     /// Base seed.
     pub seed: u64,
     /// Runs.

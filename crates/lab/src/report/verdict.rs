@@ -259,10 +259,13 @@ pub(super) fn versus(
     let compared = ranked_keys(methods, &names);
     let (ma, mb) = (&methods[names[a]], &methods[names[b]]);
     let mut noise = false;
-    for i in 0..5 {
-        if compared[a][i] == compared[b][i] {
-            continue;
-        }
+    let separating = compared[a]
+        .iter()
+        .zip(&compared[b])
+        .enumerate()
+        .filter(|(_, (x, y))| x != y)
+        .map(|(i, _)| i);
+    for i in separating {
         if i == 1 {
             return Versus::Decided(1, None);
         }

@@ -117,7 +117,7 @@ fn crystal_difference(
         kind: "crystal_difference",
         method: None,
         message: format!(
-            "the master's crystal and the reference's differ by {:.1} ppm: over {n} init frames the frames drift {}, and {} set their point where the frames were on average, about {} from where they were aimed ({:.0} % of the {} margin); median-fit fits the drift and holds its target",
+            "the master's crystal and the reference's differ by {:.1} ppm: over {n} init frames the frames drift {}, and {} set their point where the frames were on average, about {} from where they were aimed ({:.0} % of the {} margin); median-fit fits the drift and holds its target (the master's crystal is [host] master_ppm in the file, or --master-ppm)",
             d_ppm.abs(),
             us(d_ppm.abs() * 1e-6 * period * n as f64),
             init_methods

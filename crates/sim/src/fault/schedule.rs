@@ -75,6 +75,7 @@ impl FaultSchedule {
                 src: &src,
                 n,
                 header_line: line_of(text, e.span().start),
+                kind: None,
             };
             faults.push(at.fault(e.get_ref())?);
         }
@@ -94,15 +95,14 @@ impl FaultSchedule {
         {
             return Self::parse(n, text);
         }
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
-            file: name.clone(),
-            line: None,
-            field: "(file)".into(),
-            message: format!("cannot read it: {e}"),
-            fix: format!(
-                "give the path of a fault schedule (TOML with [[fault]] entries) or a built-in one: {}",
-                super::BUILT_IN.map(|b| b.0).join(", ")
-            ),
+        let text = crate::config::read_text(path).map_err(|mut e| {
+            if e.line.is_none() {
+                e.fix = format!(
+                    "give the path of a fault schedule (TOML with [[fault]] entries) or a built-in one: {}",
+                    super::BUILT_IN.map(|b| b.0).join(", ")
+                );
+            }
+            e
         })?;
         Self::parse(&name, &text)
     }
@@ -116,10 +116,13 @@ impl FaultSchedule {
 
 /// The `n`-th entry of a file, for its errors: `fault[n].key` at the key's line (the header's
 /// for a key the entry lacks).
+#[derive(Clone, Copy)]
 struct EntryAt<'a> {
     src: &'a ConfigSource<'a>,
     n: usize,
     header_line: usize,
+    /// The entry's kind, once known (for messages).
+    kind: Option<&'static str>,
 }
 
 impl EntryAt<'_> {
@@ -173,6 +176,11 @@ impl EntryAt<'_> {
                 &format!("use one of {}", KindName::list()),
             )
         })?;
+        let this = EntryAt {
+            kind: Some(kind_name.as_str()),
+            ..*self
+        };
+        let at = &this;
         // Parameters a kind does not take are refused: a typo would otherwise be silently
         // ignored.
         let allowed = kind_name.parameters();
@@ -188,7 +196,7 @@ impl EntryAt<'_> {
                 &format!("remove it; \"{kind_name}\" takes {}", allowed.join(", ")),
             ));
         }
-        let kind = self.kind(kind_name, e)?;
+        let kind = at.kind(kind_name, e)?;
         let for_ns = match kind {
             FaultKind::PowerCycle { .. } => Some(for_ns.unwrap_or(DEFAULT_OFF_NS)),
             _ => for_ns,
@@ -279,16 +287,25 @@ impl EntryAt<'_> {
     }
 
     /// A finite number of at most 1e12 in magnitude; `default` where the entry gives none
-    /// (without one, a missing value is NaN and refused as out of range).
+    /// (without one, a missing value is refused, naming the key the kind needs).
     fn finite(
         &self,
         key: &str,
         v: &Option<Spanned<f64>>,
         default: Option<f64>,
     ) -> Result<f64, ConfigError> {
-        let x = v
-            .as_ref()
-            .map_or(default.unwrap_or(f64::NAN), |v| *v.get_ref());
+        let x = match (v, default) {
+            (Some(v), _) => *v.get_ref(),
+            (None, Some(d)) => d,
+            (None, None) => {
+                let kind = self.kind.unwrap_or("this kind");
+                return Err(self.missing(
+                    key,
+                    format!("kind \"{kind}\" needs {key}"),
+                    &format!("add {key} = <number> to the entry"),
+                ));
+            }
+        };
         if !x.is_finite() || x.abs() > 1e12 {
             return Err(self.err(
                 key,

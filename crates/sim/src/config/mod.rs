@@ -37,250 +37,23 @@ use crate::model::{DcSupport, DeviceInfo, EscModel, PortKind};
 use crate::segment::{SlaveSpec, Upstream};
 use serde::Deserialize;
 use std::collections::HashMap;
-use std::fmt;
+
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-/// A configuration error located in its file: what every parser of a configuration or
-/// scenario file returns (this crate's segment, the lab's scenarios, the CLI's `run`).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ConfigError {
-    /// File name as given.
-    pub file: String,
-    /// 1-based line, if known.
-    pub line: Option<usize>,
-    /// Dotted path of the field.
-    pub field: String,
-    /// What is wrong.
-    pub message: String,
-    /// What to do.
-    pub fix: String,
-}
-
-impl fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.line {
-            Some(l) => write!(f, "{}:{}: ", self.file, l)?,
-            None => write!(f, "{}: ", self.file)?,
-        }
-        write!(f, "{}: {}", self.field, self.message)?;
-        if !self.fix.is_empty() {
-            write!(f, "; fix: {}", self.fix)?;
-        }
-        Ok(())
-    }
-}
-
-impl std::error::Error for ConfigError {}
-
-/// A value a file cannot be used with, before it is located: the field (its table, dotted as in
-/// the file, and its key), what is wrong and what to do. [`ConfigSource::locate`] finds its line.
-/// Checks that also run on values the command line changed return it, so a value is refused with
-/// the same words wherever it came from.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Problem {
-    /// The table, e.g. `run` or `methods.median`.
-    pub table: String,
-    /// The key in it.
-    pub key: String,
-    /// What is wrong.
-    pub message: String,
-    /// What to do.
-    pub fix: String,
-}
-
-impl Problem {
-    /// A problem with `key` in `table`.
-    pub fn new(
-        table: impl Into<String>,
-        key: impl Into<String>,
-        message: impl Into<String>,
-        fix: impl Into<String>,
-    ) -> Self {
-        Problem {
-            table: table.into(),
-            key: key.into(),
-            message: message.into(),
-            fix: fix.into(),
-        }
-    }
-
-    /// The dotted field.
-    pub fn field(&self) -> String {
-        format!("{}.{}", self.table, self.key)
-    }
-}
-
-impl fmt::Display for Problem {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}: {}; fix: {}", self.field(), self.message, self.fix)
-    }
-}
-
-/// A configuration file being parsed, its name and its text: the one place errors are located
-/// (the TOML parser's, and the checks' [`Problem`]s).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ConfigSource<'a> {
-    /// File name as the user gave it (or the preset's name).
-    pub file: &'a str,
-    /// Its text.
-    pub text: &'a str,
-}
-
-impl<'a> ConfigSource<'a> {
-    /// The file `file` with text `text`.
-    pub fn new(file: &'a str, text: &'a str) -> Self {
-        ConfigSource { file, text }
-    }
-
-    /// Deserializes the text; a TOML error comes back located ([`toml_error`]).
-    pub fn deserialize<T: serde::de::DeserializeOwned>(&self) -> Result<T, ConfigError> {
-        toml::from_str(self.text).map_err(|e| toml_error(self.file, self.text, &e))
-    }
-
-    /// An error at a known line (or none), for a field the caller names.
-    pub fn at(
-        &self,
-        line: Option<usize>,
-        field: impl Into<String>,
-        message: impl Into<String>,
-        fix: impl Into<String>,
-    ) -> ConfigError {
-        ConfigError {
-            file: self.file.to_string(),
-            line,
-            field: field.into(),
-            message: message.into(),
-            fix: fix.into(),
-        }
-    }
-
-    /// The problem located in the file: the line of its `key = ...`; else the header of the
-    /// table the key names (`[[table.key]]`, an array of tables, or `[table.key]`); else, for a
-    /// nested table's key (`host.js.sigma_ns`, whose table may be written inline), the line of
-    /// the table's key in its parent; else the table's header; else no line.
-    pub fn locate(&self, p: Problem) -> ConfigError {
-        let text = self.text;
-        let header = |name: &str| text.find(&format!("[{name}]")).map(|at| line_of(text, at));
-        let line = key_line(text, &p.table, &p.key)
-            .or_else(|| {
-                let sub = format!("{}.{}", p.table, p.key);
-                text.find(&format!("[[{sub}]]"))
-                    .map(|at| line_of(text, at))
-                    .or_else(|| header(&sub))
-            })
-            .or_else(|| {
-                let (parent, last) = p.table.rsplit_once('.')?;
-                key_line(text, parent, last)
-            })
-            .or_else(|| header(&p.table));
-        ConfigError {
-            file: self.file.to_string(),
-            line,
-            field: p.field(),
-            message: p.message,
-            fix: p.fix,
-        }
-    }
-
-    /// Shorthand: [`ConfigSource::locate`] of a new [`Problem`].
-    pub fn error(
-        &self,
-        table: &str,
-        key: &str,
-        message: impl Into<String>,
-        fix: impl Into<String>,
-    ) -> ConfigError {
-        self.locate(Problem::new(table, key, message, fix))
-    }
-}
-
-/// The line of `key = ...` inside table `table` (dotted, as in its header), if present.
-pub fn key_line(text: &str, table: &str, key: &str) -> Option<usize> {
-    let mut current = String::new();
-    for (i, line) in text.lines().enumerate() {
-        let l = line.trim();
-        if l.starts_with('[') {
-            current = l.trim_matches(['[', ']']).trim().to_string();
-            continue;
-        }
-        if current == table
-            && let Some((k, _)) = l.split_once('=')
-            && k.trim() == key
-        {
-            return Some(i + 1);
-        }
-    }
-    None
-}
-
-/// The line of `key = ...` in the table whose header starts at `span` (the span toml gives a
-/// table of an array of tables covers its header only): the lines up to the next header.
-fn key_line_in(text: &str, span: std::ops::Range<usize>, key: &str) -> Option<usize> {
-    let start = span.start.min(text.len());
-    let mut at = start;
-    for (k, l) in text.get(start..)?.split_inclusive('\n').enumerate() {
-        if k > 0 && l.trim_start().starts_with('[') {
-            break;
-        }
-        if k > 0
-            && l.split_once('=')
-                .is_some_and(|(name, _)| name.trim() == key)
-        {
-            return Some(line_of(text, at));
-        }
-        at += l.len();
-    }
-    None
-}
-
-/// 1-based line of a byte offset.
-pub fn line_of(text: &str, offset: usize) -> usize {
-    text[..offset.min(text.len())].matches('\n').count() + 1
-}
-
-/// Turns a TOML deserialisation error into a located one.
-pub fn toml_error(file: &str, text: &str, e: &toml::de::Error) -> ConfigError {
-    let msg = e.message().trim().to_string();
-    let line = e.span().map(|s| line_of(text, s.start));
-    // Name the field: the last "key" in the message, or the table header at that line.
-    let field = e
-        .span()
-        .and_then(|s| {
-            let start = text[..s.start.min(text.len())]
-                .rfind('\n')
-                .map_or(0, |i| i + 1);
-            let l = text[start..].lines().next()?;
-            let key = l.split('=').next()?.trim();
-            Some(key.trim_matches(['[', ']']).to_string())
-        })
-        .unwrap_or_default();
-    let fix = if msg.contains("unknown field") {
-        "remove the field or correct its spelling (the message lists the expected fields)"
-    } else if msg.contains("missing field") {
-        "add the field"
-    } else if msg.contains("invalid type") || msg.contains("invalid value") {
-        "give a value of the type the message names"
-    } else {
-        "correct the TOML syntax at that line"
-    };
-    ConfigError {
-        file: file.to_string(),
-        line,
-        field,
-        message: msg,
-        fix: fix.to_string(),
-    }
-}
+mod source;
+use source::key_line_in;
+pub use source::{ConfigError, ConfigSource, Problem, key_line, line_of, read_text, toml_error};
 
 /// The `[segment]` table.
-#[derive(Debug, Clone, Deserialize)]
+#[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SegmentConfig {
     /// Seed of the crystals' wander processes (each slave adds its index).
     #[serde(default)]
     pub seed: u64,
-    /// The slaves.
+    /// The slaves (none is an error [`SegmentConfig::to_specs`] names, with its fix).
+    #[serde(default)]
     pub slave: Vec<toml::Spanned<SlaveConfig>>,
 }
 
@@ -473,7 +246,7 @@ impl SegmentConfig {
                 None,
                 format!("{path}.slave"),
                 "the segment has no slaves",
-                "add at least one [[segment.slave]] table",
+                "add at least one [[segment.slave]] table (name, model, upstream; presets/paper-2024.toml describes six drives)",
             ));
         }
         if self.slave.len() > MAX_SLAVES {
