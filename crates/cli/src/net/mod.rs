@@ -14,6 +14,7 @@ use ecsync_lab::realnet::{self, CyclicOptions, CyclicPhase, RunHead};
 use ecsync_master::bringup::Stage;
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, Stopped, run_procedure};
 use ecsync_master::transport::SendMode;
+use ecsync_master::transport::{Interrupted, Interruptible};
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
 use ecsync_net::rt;
 use ecsync_net::sys::PacketSocket;
@@ -481,14 +482,18 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
 
     // Bring-up.
     let t_up = Instant::now();
-    let net = bring_up(
+    let Some(net) = bring_up(
         &args,
         &mut link,
         &mut exchanges,
         cycle_ns,
         shift_ns,
         sync_error_limit,
-    )?;
+    )?
+    else {
+        eprintln!("ecsync run: stopped during the bring-up; nothing measured");
+        return Ok(ExitCode::from(130));
+    };
     let bring = BringupOut::of(&net, t_up.elapsed().as_secs_f64());
     if let Some(path) = &args.save_network {
         save_twin(&args, path, &net)?;
@@ -636,7 +641,8 @@ fn open_link(
 }
 
 /// The DC bring-up on the link, to OP (to the delays with `--scan-only`), its phases on the
-/// terminal; a network that does not answer is named as such.
+/// terminal; a network that does not answer is named as such. `None`: Ctrl-C or SIGTERM
+/// stopped it (every exchange looks at the flag first).
 fn bring_up(
     args: &RunArgs,
     link: &mut RealLink,
@@ -644,7 +650,7 @@ fn bring_up(
     cycle_ns: u32,
     shift_ns: u32,
     sync_error_limit: Option<u16>,
-) -> Result<Network> {
+) -> Result<Option<Network>> {
     let twin = args.save_network.is_some();
     let cfg = BringupConfig {
         until: if args.scan_only {
@@ -675,8 +681,9 @@ fn bring_up(
         reply_timeout_ns: 20_000_000,
         retries: args.retries,
     };
+    let mut link = Interruptible::new(link, &STOP);
     let net: Network = match run_procedure(
-        link,
+        &mut link,
         &mut engine,
         procedure,
         exchanges,
@@ -696,10 +703,11 @@ fn bring_up(
             ),
             _ => bail!("bring-up on {} failed: {e}", args.iface),
         },
-        Err(NetError::Open(e)) => bail!("{e}"),
-        Err(e) => bail!("bring-up on {}: {e}", args.iface),
+        Err(Interrupted::Stopped) => return Ok(None),
+        Err(Interrupted::Transport(NetError::Open(e))) => bail!("{e}"),
+        Err(Interrupted::Transport(e)) => bail!("bring-up on {}: {e}", args.iface),
     };
-    Ok(net)
+    Ok(Some(net))
 }
 
 /// Writes the network's twin to `path` with the reference's crystal `reference_ppm` (`None`:
