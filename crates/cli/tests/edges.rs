@@ -207,3 +207,21 @@ fn progress_lines_when_stderr_is_a_pipe() {
     let (_, e) = text(&o);
     assert!(!e.contains("bring-up:"), "{e}");
 }
+
+/// `tsn run`'s report.html holds its plots as inline SVG, as compare's does: the file alone
+/// shows them.
+#[test]
+fn the_tsn_report_is_self_contained() {
+    let out = tmp("tsn");
+    let o = run(&["tsn", "run", "--out", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o).1);
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let figures = html.matches("<svg").count();
+    assert!(figures >= 3, "{figures} inline figures");
+    assert!(
+        !html.contains("<img") && !html.contains("src=\""),
+        "a linked plot"
+    );
+    // The SVG files are still written beside it.
+    assert!(out.join("tsn_histograms.svg").exists() && out.join("tsn_histograms.png").exists());
+}

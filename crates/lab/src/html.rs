@@ -21,7 +21,7 @@ pub(crate) struct Figure<'a> {
 /// `svg` as an element of an HTML body: plotters' SVG is one `<svg>` element with a viewBox
 /// and no ids (nothing to clash between figures); anything before the element (an XML
 /// declaration) has no place inside HTML and is dropped.
-fn inline_svg(svg: &str) -> &str {
+pub(crate) fn inline_svg(svg: &str) -> &str {
     svg.find("<svg").map_or("", |k| svg[k..].trim_end())
 }
 

@@ -516,28 +516,39 @@ pub fn write_all(sum: &TsnSummary, results: &[VariantResult], dir: &Path) -> io:
             std::fs::rename(&tmp, &fin)?;
         }
     }
-    let names: Vec<&str> = plots.iter().map(|p| p.0).collect();
+    // report.html holds the SVGs themselves: the file alone shows its plots.
+    let mut figures = Vec::with_capacity(plots.len());
+    for (name, _) in &plots {
+        figures.push((
+            *name,
+            std::fs::read_to_string(dir.join(format!("{name}.svg")))?,
+        ));
+    }
     write_atomic(
         &dir.join("report.html"),
-        html(sum, &table, &names).as_bytes(),
+        html(sum, &table, &figures).as_bytes(),
     )
 }
 
-fn html(sum: &TsnSummary, table: &str, plots: &[&str]) -> String {
+fn html(sum: &TsnSummary, table: &str, plots: &[(&str, String)]) -> String {
     let mut h = String::new();
     let _ = write!(
         h,
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>ecsync tsn run: {}</title>\
 <style>body{{font-family:sans-serif;margin:2em;max-width:1200px}}pre{{background:#f6f6f6;padding:1em}}\
-img{{max-width:100%;border:1px solid #ddd;margin:0.5em 0}}</style></head><body>\
+figure svg{{display:block;max-width:100%;height:auto;border:1px solid #ddd;margin:0.5em 0}}</style></head><body>\
 <h1>ecsync tsn run</h1><p>{}: the TSN paper's M1 (no TSN), M2 (bridge, no gPTP) and M3 (bridge, master synchronized by gPTP) on {} slaves, measured against the simulator's ground truth.</p>",
         esc(&sum.scenario),
         esc(&sum.scenario),
         sum.slaves
     );
     let _ = write!(h, "<h2>Plots</h2>");
-    for p in plots {
-        let _ = write!(h, "<h3>{p}</h3><img src=\"{p}.svg\" alt=\"{p}\">");
+    for (p, svg) in plots {
+        let _ = write!(
+            h,
+            "<h3>{p}</h3><figure>{}<figcaption><a href=\"{p}.svg\">{p}.svg</a>, <a href=\"{p}.png\">{p}.png</a></figcaption></figure>",
+            crate::html::inline_svg(svg)
+        );
     }
     let _ = write!(
         h,
