@@ -315,4 +315,7 @@ fn letter_table(h: &mut String, out: &SummaryOut, order: &[String]) {
         }
     }
     let _ = write!(h, "</table>");
+    if let Some(note) = crate::report::m_rs_aim_note(out, order) {
+        let _ = write!(h, "<p>{}</p>", esc(&note));
+    }
 }

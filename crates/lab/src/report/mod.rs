@@ -39,7 +39,7 @@ pub use summary::{
     QuantileNote, Recommendation, RunKeys, RunOut, SendOut, SlaveOut, SummaryOut, TimingOut,
     Warning,
 };
-pub use text::{csv, per_slave_text, table1_text, truth_text, verdict_text};
+pub use text::{csv, m_rs_aim_note, per_slave_text, table1_text, truth_text, verdict_text};
 pub use verdict::{RANKING_RULE, SHIFT_TIE_PCT, SPREAD_TIE, UNRANKED_LOST_SHARE};
 
 use crate::compare::Comparison;
