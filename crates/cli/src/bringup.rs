@@ -149,9 +149,19 @@ pub fn run(args: Args) -> Result<ExitCode> {
         }
         None => ecsync_sim::transport::SIM_PROCEDURE,
     };
+    // The phases as they begin, on stderr (a large segment's bring-up takes a minute).
+    let started = std::time::Instant::now();
     let result = sim.run_procedure_with(&mut engine, procedure, |tr, _, events| {
         let (seg, ex) = (tr.segment(), tr.last_exchange());
         frames += 1;
+        for e in events {
+            if let Event::Phase(p) = e {
+                eprintln!(
+                    "ecsync: {:.1} s, bring-up: {p} ({frames} frames)",
+                    started.elapsed().as_secs_f64()
+                );
+            }
+        }
         if events.contains(&Event::OffsetsWritten) {
             after_offsets = true;
             for (i, e) in offset_error.iter_mut().enumerate() {
