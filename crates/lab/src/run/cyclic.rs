@@ -185,13 +185,15 @@ impl Run {
         sim.set_rx_latency_ps(rx_latency_ps);
         let eng = session.engine();
         // The slaves whose SYNC0 the ground truth judges: those with a DC unit and process
-        // data. A coupler (no process data) takes no outputs at SYNC0, so it has no deadline.
+        // data that the bring-up took in. A coupler (no process data) takes no outputs at
+        // SYNC0, and a slave that was absent then (hot-connected later) has no SYNC0 running:
+        // neither has a deadline.
         let dc_slaves: Vec<usize> = (0..sim.segment().len())
             .filter(|&x| sim.segment().esc(x).dc().is_some())
             .filter(|&x| {
                 net.slaves
                     .get(x)
-                    .is_none_or(|n| n.outputs.1 > 0 || n.inputs.1 > 0)
+                    .is_some_and(|n| n.outputs.1 > 0 || n.inputs.1 > 0)
             })
             .collect();
         let named: Vec<(usize, usize)> = dc_slaves
