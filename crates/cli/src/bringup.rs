@@ -200,28 +200,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let out = Out {
         source: name,
         reference: net.reference,
-        slaves: net
-            .slaves
-            .iter()
-            .map(|s| SlaveOut {
-                identity: SlaveIdentity::of(s),
-                parent: s.parent,
-                delay_ns: s.delay_ns,
-                true_delay_ns: truth[usize::from(s.position)]
-                    .filter(|_| s.dc == DcCapability::SystemTime),
-                delay_spread_ns: s.delay_spread_ns,
-                offset: s.offset,
-                offset_error_ns: offset_error[usize::from(s.position)],
-                ppm_vs_reference: s.ppm_vs_reference,
-                true_ppm_vs_reference: match (
-                    crystal_ppm[usize::from(s.position)],
-                    crystal_ppm[usize::from(net.reference)],
-                ) {
-                    (Some(p), Some(r)) => Some(((1.0 + p * 1e-6) / (1.0 + r * 1e-6) - 1.0) * 1e6),
-                    _ => None,
-                },
-            })
-            .collect(),
+        slaves: slave_rows(&net, &truth, &offset_error, &crystal_ppm),
         lock: LockOut {
             converged: net.lock.converged,
             time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
@@ -254,6 +233,37 @@ pub fn run(args: Args) -> Result<ExitCode> {
     } else {
         ExitCode::from(2)
     })
+}
+
+/// The bring-up's slaves beside the segment's truth: true delays (`truth`, by position),
+/// offset errors after the offsets were written, crystals (`crystal_ppm`, by position).
+fn slave_rows(
+    net: &ecsync_master::bringup::Network,
+    truth: &[Option<f64>],
+    offset_error: &[Option<i64>],
+    crystal_ppm: &[Option<f64>],
+) -> Vec<SlaveOut> {
+    net.slaves
+        .iter()
+        .map(|s| SlaveOut {
+            identity: SlaveIdentity::of(s),
+            parent: s.parent,
+            delay_ns: s.delay_ns,
+            true_delay_ns: truth[usize::from(s.position)]
+                .filter(|_| s.dc == DcCapability::SystemTime),
+            delay_spread_ns: s.delay_spread_ns,
+            offset: s.offset,
+            offset_error_ns: offset_error[usize::from(s.position)],
+            ppm_vs_reference: s.ppm_vs_reference,
+            true_ppm_vs_reference: match (
+                crystal_ppm[usize::from(s.position)],
+                crystal_ppm[usize::from(net.reference)],
+            ) {
+                (Some(p), Some(r)) => Some(((1.0 + p * 1e-6) / (1.0 + r * 1e-6) - 1.0) * 1e6),
+                _ => None,
+            },
+        })
+        .collect()
 }
 
 fn print_human(o: &Out) {
