@@ -166,7 +166,7 @@ pub fn after_help() -> String {
         ));
     }
     t.push_str(
-        "Ctrl-C stops the runs within a second and writes the statistics of the cycles done (exit code 130).",
+        "Ctrl-C (or SIGTERM) stops the runs within a second and writes the statistics of the cycles done (exit code 130); during the bring-up it stops that, and nothing is written. Progress: a bar on a terminal, a line every 5 s otherwise (--quiet: none).",
     );
     t
 }

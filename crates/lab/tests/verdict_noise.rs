@@ -123,3 +123,29 @@ fn too_few_cycles_are_refused_or_warned() {
     let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
     assert!(!out.warnings.iter().any(|w| w.kind == "few_cycles"));
 }
+
+/// Issue 30, edge 5: Table 1 explains an M-rS mean that differs by aim, naming the methods whose
+/// mean is far from 0 with their true phase beside it. median aims at h_mr (its M-rS mean near
+/// 0) and is not named; median-fit aims at the DC grid's target and is, with a true phase
+/// within a microsecond or two of the target (the ground truth).
+#[test]
+fn an_m_rs_mean_that_differs_by_aim_is_explained() {
+    let s = testbed("median,median-fit", 2, 20_000);
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    let order: Vec<String> = ["median", "median-fit"].map(String::from).to_vec();
+    let fit = &out.methods["median-fit"];
+    // The premise, from the figures: median-fit's M-rS mean is microseconds off 0 while its
+    // true phase is on target; median's is near 0.
+    assert!(fit.m_rs.mean.abs() > 2_000.0, "{}", fit.m_rs.mean);
+    assert!(fit.ground_truth.offset_from_target_ns.abs() < 1_000.0);
+    assert!(out.methods["median"].m_rs.mean.abs() < 1_000.0);
+    let note = ecsync_lab::report::m_rs_aim_note(&out, &order).expect("a note");
+    assert!(note.contains("not an error"), "{note}");
+    assert!(
+        note.contains(&format!("median-fit {:.1} us", fit.m_rs.mean / 1000.0)),
+        "{note}"
+    );
+    assert!(!note.contains("median -"), "median is named: {note}");
+    let table = ecsync_lab::report::table1_text(&out, &order);
+    assert!(table.trim_end().ends_with(note.as_str()), "{table}");
+}
