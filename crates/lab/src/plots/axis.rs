@@ -251,4 +251,23 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn panels_get_their_own_axis_when_ranges_differ_tenfold() {
+        use crate::plots::draw::ranges_differ_tenfold;
+        // rS-IS on the letter's testbed: 0..40 ns (MII stamps) beside bus shift's 0..12 000.
+        assert!(ranges_differ_tenfold(&[
+            (0.0, 40.0),
+            (0.0, 12_000.0),
+            (0.0, 90.0)
+        ]));
+        // M-rS: spreads within a factor of four share one axis.
+        assert!(!ranges_differ_tenfold(&[
+            (-20.0, 10.0),
+            (-30.0, 40.0),
+            (-12.0, 3.0)
+        ]));
+        // A flat series (no span) is no reason to split.
+        assert!(!ranges_differ_tenfold(&[(5.0, 5.0), (0.0, 1000.0)]));
+    }
 }

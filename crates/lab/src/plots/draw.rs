@@ -242,7 +242,8 @@ fn bands_axis(
     cover(lo, hi, magnitude)
 }
 
-/// Run 0 of every method over time as percentile bands, one panel each, on a shared y axis.
+/// Run 0 of every method over time as percentile bands, one panel each, on a shared y axis
+/// (each its own when the methods' ranges differ more than tenfold).
 pub(crate) fn bands<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     c: &Comparison,
@@ -257,6 +258,17 @@ pub(crate) fn bands<DB: DrawingBackend>(
         .collect();
     let (lo, hi) = bands_axis(&series, which, m.magnitude);
     let (lo, hi) = with_marks(lo, hi, &m.marks);
+    // One axis for all panels, unless the methods' ranges differ more than tenfold: a shared
+    // axis would then draw every method but the widest as a flat line at its edge, so each
+    // panel gets its own (and says so in its title).
+    let own: Vec<(f64, f64)> = series
+        .iter()
+        .map(|s| {
+            let (a, z) = bands_axis(std::slice::from_ref(s), which, m.magnitude);
+            with_marks(a, z, &m.marks)
+        })
+        .collect();
+    let per_panel = ranges_differ_tenfold(&own);
     let cycle_s = f64::from(c.scenario.cycle_ns) * 1e-9;
     let (head, body) = root.split_vertically(40);
     head.titled(m.title, font(TITLE)).map_err(err)?;
@@ -276,18 +288,32 @@ pub(crate) fn bands<DB: DrawingBackend>(
     }
     let rows = panels.split_evenly((series.len().max(1), 1));
     for (k, (i, name, r)) in series.iter().enumerate() {
+        let (title, axis) = if per_panel {
+            (format!("{name} (its own y axis)"), own[k])
+        } else {
+            (name.to_string(), (lo, hi))
+        };
         band_panel(
             &rows[k],
-            name,
+            &title,
             &r.series[which],
             r.series_block,
             cycle_s,
             *i,
-            (lo, hi),
+            axis,
             m,
         )?;
     }
     root.present().map_err(err)
+}
+
+/// Whether the widest of the `ranges` spans more than ten times the narrowest (then panels on
+/// one axis would draw the narrow ones flat).
+pub(crate) fn ranges_differ_tenfold(ranges: &[(f64, f64)]) -> bool {
+    let spans = ranges.iter().map(|(a, z)| z - a);
+    let widest = spans.clone().fold(0.0, f64::max);
+    let narrowest = spans.fold(f64::INFINITY, f64::min);
+    narrowest > 0.0 && widest > 10.0 * narrowest
 }
 
 /// One method's panel of [`bands`].

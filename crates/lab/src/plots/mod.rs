@@ -324,7 +324,7 @@ fn series<'a>(c: &'a Comparison, order: &'a [String], lines: PhaseLines) -> Vec<
             order,
             "series_true_phase",
             format!(
-                "Run 0's true phase over time, one panel per method in its colour: per block of {block} cycles the extremes (light), the 1st to 99th percentile (darker) and the median (a dark line of the same hue), with the target (dashed black) and the late line (dashed red). The panels share one y axis, which runs over every block's extremes. The first seconds show how a method pulls in after its warm-up."
+                "Run 0's true phase over time, one panel per method in its colour: per block of {block} cycles the extremes (light), the 1st to 99th percentile (darker) and the median (a dark line of the same hue), with the target (dashed black) and the late line (dashed red). The panels share one y axis, which runs over every block's extremes (each panel its own when the methods' ranges differ more than tenfold, as its title says). The first seconds show how a method pulls in after its warm-up."
             ),
             2,
             Metric {
@@ -339,7 +339,7 @@ fn series<'a>(c: &'a Comparison, order: &'a [String], lines: PhaseLines) -> Vec<
             c,
             order,
             "series_m_rs",
-            format!("Run 0's M-rS error over time, bands as above (blocks of {block} cycles; one y axis over every block's extremes)."),
+            format!("Run 0's M-rS error over time, bands as above (blocks of {block} cycles; one y axis over every block's extremes, each panel its own when the ranges differ more than tenfold)."),
             0,
             Metric {
                 title: "M-rS error over time (run 0; s since recording started)",
@@ -353,7 +353,7 @@ fn series<'a>(c: &'a Comparison, order: &'a [String], lines: PhaseLines) -> Vec<
             c,
             order,
             "series_rs_is",
-            format!("Run 0's rS-IS error over time, bands as above (blocks of {block} cycles). A magnitude: the shared y axis runs from 0 to the largest value of any method, so a method far below the largest shows as a thin band at 0 (its distribution is in the rS-IS histogram, on a log scale)."),
+            format!("Run 0's rS-IS error over time, bands as above (blocks of {block} cycles). A magnitude: the y axis runs from 0 over every block's extremes, one axis for all panels unless the methods' ranges differ more than tenfold; then each panel has its own (its title says so) and the tick values tell the scale (the distributions side by side: the rS-IS histogram, on a log scale)."),
             1,
             Metric {
                 title: "rS-IS error |0x092C| over time (run 0; s since recording started)",
