@@ -386,7 +386,26 @@ fn slaves_appearing_at_the_end_are_counted_and_leave_the_others_locked() {
                 mo.ground_truth.slave_ref_diff.max
             );
         }
+        // No re-lock is timed for a connect the master does not take in, and the lock band
+        // is of the cycles before it (the new slaves' unsynchronized 0x092C, seconds, is
+        // not what the method holds).
+        assert!(!f.relock_kinds.contains(&KindName::HotConnect), "{m}");
+        if m != "bus-shift" {
+            assert!(
+                f.lock_band_092c_ns < 1_000.0,
+                "{m}: band {}",
+                f.lock_band_092c_ns
+            );
+        }
     }
+    // The report says why rS-IS and DC's |0x092C| read what they read from then on.
+    let w = out
+        .warnings
+        .iter()
+        .find(|w| w.kind == "hot_connect")
+        .expect("a hot_connect warning");
+    assert!(w.message.contains("not taken in"), "{}", w.message);
+    assert!(!out.warnings.iter().any(|w| w.kind == "no_relock"));
 }
 
 #[test]

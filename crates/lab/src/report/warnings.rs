@@ -4,6 +4,7 @@ use super::{MethodOut, Warning, us};
 use crate::compare::Comparison;
 use crate::scenario::Scenario;
 use ecsync_dc::MethodKind;
+use ecsync_sim::fault::KindName;
 use ecsync_sim::send::SendMode;
 use std::collections::BTreeMap;
 
@@ -35,6 +36,7 @@ pub(super) fn warnings(
         w.extend(ran().filter_map(|(m, mo)| left_op(m, mo)));
     }
     w.extend(ran().filter_map(|(m, mo)| no_relock(m, mo)));
+    w.extend(hot_connected(methods));
     w.extend(samples(c));
     w
 }
@@ -338,6 +340,32 @@ fn no_relock(m: &str, mo: &MethodOut) -> Option<Warning> {
         message: format!(
             "{m} did not come back to lock (|0x092C| under {band:.0} ns and M-rS within its band, the reference believed, every slave's process data, for 100 cycles) after: {}",
             never.join(", ")
+        ),
+    })
+}
+
+/// Slaves hot-connected during the runs: the master counts them but does not take them in,
+/// so their unsynchronized clocks are in every BRD of 0x092C from then on (the letter's rS-IS
+/// and DC's largest |0x092C|), while the slaves of the bring-up stay synchronized.
+fn hot_connected(methods: &BTreeMap<String, MethodOut>) -> Option<Warning> {
+    let hot = methods.values().any(|mo| {
+        mo.faults
+            .iter()
+            .any(|f| f.windows.iter().any(|w| w.kind == KindName::HotConnect))
+    });
+    if !hot {
+        return None;
+    }
+    let spread = methods
+        .values()
+        .map(|mo| mo.ground_truth.slave_ref_diff.max)
+        .filter(|x| x.is_finite())
+        .fold(0.0f64, f64::max);
+    Some(Warning {
+        kind: "hot_connect",
+        method: None,
+        message: format!(
+            "slaves hot-connected during the runs are counted but not taken in (a new bring-up would): their clocks are not synchronized, so from the connect on rS-IS and DC's largest |0x092C| (BRDs of 0x092C, the OR of every slave's) read them, not the method; the slaves of the bring-up stayed within {spread:.0} ns of the reference (ground truth, every method)"
         ),
     })
 }

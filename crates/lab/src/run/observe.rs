@@ -179,7 +179,10 @@ impl FaultWatch {
                         f.kind,
                         FaultKind::HostStall { .. } | FaultKind::ClockStep { .. }
                     );
-                if (e.edge == Edge::End) == windowed {
+                // A hot connect is not a disturbance the master comes back from: it counts
+                // the new slaves and leaves them out, so there is no re-lock to time.
+                let judged = !matches!(f.kind, FaultKind::HotConnect { .. });
+                if judged && (e.edge == Edge::End) == windowed {
                     self.relock.push(Relock {
                         kind: e.kind,
                         start_ps: e.t_ps,

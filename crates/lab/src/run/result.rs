@@ -431,10 +431,22 @@ const QUIET_CYCLES: usize = 1_000;
 impl FaultsTruth {
     /// The bands from the quiet cycles, then each fault's re-lock time.
     pub(super) fn judge_relock(&mut self, samples: &[LockSample], relock: &[Relock]) {
+        // A hot connect changes the segment for good (the master counts the new slaves but
+        // does not take them in: their clocks stay unsynchronized and the BRD of 0x092C reads
+        // them), so nothing after it is quiet.
+        let changed_from = self
+            .windows
+            .iter()
+            .filter(|w| w.kind == KindName::HotConnect)
+            .map(|w| w.start_ps)
+            .min()
+            .unwrap_or(u64::MAX);
         let in_window = |t: u64| {
-            self.windows
-                .iter()
-                .any(|w| t >= w.start_ps && t < w.until_ps)
+            t >= changed_from
+                || self
+                    .windows
+                    .iter()
+                    .any(|w| t >= w.start_ps && t < w.until_ps)
         };
         let running: Vec<&LockSample> = samples.iter().filter(|x| x.running).collect();
         let quiet: Vec<&LockSample> = running
