@@ -84,7 +84,7 @@ fn compare_reports_the_drives_that_left_op_on_a_configured_limit() {
         );
         assert!(
             stdout.contains("Warning: dcm-master-shift: drives left OP")
-                && stdout.contains("slave 6 with AL status code 0x001a"),
+                && stdout.contains("slave 6 (drive-6) with AL status code 0x001a"),
             "{stdout}"
         );
     }

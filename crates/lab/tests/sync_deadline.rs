@@ -105,7 +105,8 @@ fn a_configured_limit_takes_the_last_drive_out_of_op_and_compare_reports_it() {
             .find(|w| w.kind == "left_op" && w.method.as_deref() == Some(m))
             .unwrap_or_else(|| panic!("{m}: no warning: {:?}", with.warnings));
         assert!(
-            w.message.contains("slave 6 with AL status code 0x001a"),
+            w.message
+                .contains("slave 6 (drive-6) with AL status code 0x001a"),
             "{}",
             w.message
         );

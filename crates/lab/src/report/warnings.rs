@@ -288,8 +288,16 @@ fn left_op(m: &str, mo: &MethodOut) -> Option<Warning> {
     let list: Vec<String> = groups
         .iter()
         .map(|&(slave, _, reason, n, first_ms, run, back)| {
+            // The name the scenario gives the slave, where the ground truth has it (drives;
+            // its positions count from 0, these from 1 = next to the master).
+            let name = mo
+                .ground_truth
+                .per_slave
+                .iter()
+                .find(|s| s.position + 1 == slave)
+                .map_or(String::new(), |s| format!(" ({})", s.name));
             format!(
-                "slave {slave} with AL status code {reason} {}, first at {:.3} s (run {run}){}",
+                "slave {slave}{name} with AL status code {reason} {}, first at {:.3} s (run {run}){}",
                 if n == 1 {
                     "once".to_string()
                 } else {
