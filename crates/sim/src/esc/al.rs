@@ -113,6 +113,11 @@ impl Esc {
         } else {
             self.al_state = to;
         }
+        if self.al_state == Init
+            && let Some(m) = self.mbx.as_deref_mut()
+        {
+            m.stop();
+        }
         if !matches!(self.al_state, SafeOp | Op) {
             // Below SAFE-OP the application has no process data.
             self.output_sm = None;

@@ -88,6 +88,16 @@ impl MailboxState {
         }
     }
 
+    /// The mailbox stops (the slave goes to INIT): the counters start again, as ETG's slave
+    /// stack's `MBX_StopMailboxHandler` resets `u8MbxWriteCounter` and `u8MbxReadCounter`. A new
+    /// master session's first message may carry the counter the last session ended with; kept,
+    /// it would be dropped as a repeat and the master's first SDO would time out.
+    pub(super) fn stop(&mut self) {
+        self.last_counter = 0;
+        self.own_counter = 0;
+        self.pending = None;
+    }
+
     /// The CoE server (its dictionary).
     pub(super) fn server(&self) -> &SdoServer {
         &self.server

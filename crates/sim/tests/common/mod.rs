@@ -227,7 +227,7 @@ pub struct MbxDrive {
     /// The master's mailbox counter, 1 to 7 in turn.
     pub counter: u8,
     /// SM0's and SM1's start and length.
-    mbx: (u16, u16, u16, u16),
+    pub mbx: (u16, u16, u16, u16),
 }
 
 impl MbxDrive {
