@@ -16,17 +16,7 @@ const UPLOAD_VENDOR: [u8; 10] = [0x00, 0x20, 0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0]
 fn new_session(d: &mut Drive) {
     d.put(0x0120, &[0x01, 0x00]);
     assert_eq!(d.get(0x0130, 2).1, [0x01, 0x00], "INIT");
-    let (out_start, out_len, in_start, in_len) = d.mbx;
-    let sm = |start: u16, len: u16, control: u8| {
-        let mut v = start.to_le_bytes().to_vec();
-        v.extend_from_slice(&len.to_le_bytes());
-        v.extend_from_slice(&[control, 0x00, 0x01, 0x00]);
-        v
-    };
-    d.put(0x0800, &sm(out_start, out_len, 0x26));
-    d.put(0x0808, &sm(in_start, in_len, 0x22));
-    d.put(0x0120, &[0x02, 0x00]);
-    assert_eq!(d.get(0x0130, 2).1, [0x02, 0x00], "PRE-OP");
+    d.mailbox_to_preop();
     d.counter = 0;
 }
 

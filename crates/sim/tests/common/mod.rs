@@ -227,7 +227,7 @@ pub struct MbxDrive {
     /// The master's mailbox counter, 1 to 7 in turn.
     pub counter: u8,
     /// SM0's and SM1's start and length.
-    pub mbx: (u16, u16, u16, u16),
+    mbx: (u16, u16, u16, u16),
 }
 
 impl MbxDrive {
@@ -248,19 +248,25 @@ impl MbxDrive {
             counter: 0,
             mbx: (0, 0, 0, 0),
         };
-        // SM0 mailbox written by the master (control 0x26), SM1 read (0x22), enabled.
+        d.mbx = (l.out_start, l.out_len, l.in_start, l.in_len);
+        d.mailbox_to_preop();
+        d
+    }
+
+    /// The mailbox SyncManagers set up as the layout says (SM0 written by the master, control
+    /// 0x26; SM1 read, 0x22; both enabled), then PRE-OP requested and reached.
+    pub fn mailbox_to_preop(&mut self) {
+        let (out_start, out_len, in_start, in_len) = self.mbx;
         let sm = |start: u16, len: u16, control: u8| {
             let mut v = start.to_le_bytes().to_vec();
             v.extend_from_slice(&len.to_le_bytes());
             v.extend_from_slice(&[control, 0x00, 0x01, 0x00]);
             v
         };
-        d.put(0x0800, &sm(l.out_start, l.out_len, 0x26));
-        d.put(0x0808, &sm(l.in_start, l.in_len, 0x22));
-        d.mbx = (l.out_start, l.out_len, l.in_start, l.in_len);
-        d.put(0x0120, &[0x02, 0x00]);
-        assert_eq!(d.get(0x0130, 2).1, [0x02, 0x00], "PRE-OP");
-        d
+        self.put(0x0800, &sm(out_start, out_len, 0x26));
+        self.put(0x0808, &sm(in_start, in_len, 0x22));
+        self.put(0x0120, &[0x02, 0x00]);
+        assert_eq!(self.get(0x0130, 2).1, [0x02, 0x00], "PRE-OP");
     }
 
     pub fn put(&mut self, ado: u16, data: &[u8]) -> u16 {
