@@ -17,9 +17,10 @@ mod socket;
 
 pub use nic::{
     HwStampSetting, NicTimestamping, Phc, TimestampSupport, nic_timestamping, restore_hw_tx_stamps,
+    set_interface_up,
 };
 pub use process::{
-    enter_netns, lock_memory, monotonic_ns, pin_to_cpu, realtime_ns, set_fifo,
+    enter_netns, lock_memory, monotonic_ns, pin_to_cpu, realtime_ns, set_fifo, set_timer_slack_ns,
     sleep_until_monotonic,
 };
 pub use socket::{PacketSocket, Ready, Received, TxStamps, link_is_down};

@@ -170,3 +170,51 @@ impl Phc {
         (before, phc, realtime_ns())
     }
 }
+
+/// `struct ifreq` with `ifr_flags`.
+#[repr(C)]
+struct IfreqFlags {
+    name: [libc::c_char; libc::IFNAMSIZ],
+    flags: libc::c_short,
+    pad: [u8; 22],
+}
+
+/// Sets `iface` administratively up or down (SIOCSIFFLAGS, IFF_UP; needs CAP_NET_ADMIN in the
+/// interface's network namespace). On a veth pair the peer's carrier follows: this is how a
+/// served segment shows a master that watches carrier the cable at its first slave pulled.
+pub fn set_interface_up(iface: &str, up: bool) -> io::Result<()> {
+    if iface.len() >= libc::IFNAMSIZ || iface.as_bytes().contains(&0) {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "interface name",
+        ));
+    }
+    let mut ifr = IfreqFlags {
+        name: [0; libc::IFNAMSIZ],
+        flags: 0,
+        pad: [0; 22],
+    };
+    for (d, &b) in ifr.name.iter_mut().zip(iface.as_bytes()) {
+        *d = b as libc::c_char;
+    }
+    let sock = ioctl_socket()?;
+    // SAFETY: `ifr` is a live ifreq with a NUL-terminated name; SIOCGIFFLAGS writes only its
+    // flags field, SIOCSIFFLAGS reads it.
+    let r = unsafe { libc::ioctl(sock.as_raw_fd(), libc::SIOCGIFFLAGS as _, &mut ifr) };
+    if r < 0 {
+        return Err(io::Error::last_os_error());
+    }
+    let up_flag = libc::IFF_UP as libc::c_short;
+    ifr.flags = if up {
+        ifr.flags | up_flag
+    } else {
+        ifr.flags & !up_flag
+    };
+    // SAFETY: as above.
+    let r = unsafe { libc::ioctl(sock.as_raw_fd(), libc::SIOCSIFFLAGS as _, &mut ifr) };
+    if r < 0 {
+        Err(io::Error::last_os_error())
+    } else {
+        Ok(())
+    }
+}
