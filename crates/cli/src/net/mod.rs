@@ -1,6 +1,7 @@
 //! `ecsync serve` (the virtual segment on a network interface) and `ecsync run` (the master, its
 //! DC bring-up and a synchronization method on a network interface).
 
+mod sandbox;
 mod serve;
 mod text;
 

@@ -14,8 +14,8 @@ use std::time::Instant;
 /// Arguments of `ecsync serve`.
 #[derive(Debug, clap::Args)]
 pub struct ServeArgs {
-    /// Network interface to serve the segment on.
-    #[arg(long)]
+    /// Network interface to serve the segment on (with --sandbox: the name of the served end).
+    #[arg(long, required_unless_present = "sandbox", default_value = "")]
     iface: String,
     #[command(flatten)]
     source: SourceArgs,
@@ -34,6 +34,8 @@ pub struct ServeArgs {
     /// unless it says `epoch = "start"`.
     #[arg(long)]
     faults: Option<PathBuf>,
+    #[command(flatten)]
+    sandbox: super::sandbox::SandboxArgs,
 }
 
 /// Opens the segment's socket (EtherCAT frames, untagged or in a VLAN tag, which the answer
@@ -42,7 +44,11 @@ fn open_socket(iface: &str) -> Result<PacketSocket> {
     PacketSocket::open_vlan_aware(iface).map_err(|e| anyhow::anyhow!("{e}"))
 }
 
-pub fn serve(args: ServeArgs) -> Result<ExitCode> {
+pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
+    if let Some(command) = args.sandbox.take_command() {
+        let iface = std::mem::take(&mut args.iface);
+        return super::sandbox::run(command, &iface, |iface| serve(ServeArgs { iface, ..args }));
+    }
     let (name, specs) = args.source.segment()?;
     let mut seg = Segment::new(&specs).context("building the segment")?;
     let mut faults = match &args.faults {
@@ -104,6 +110,7 @@ pub fn serve(args: ServeArgs) -> Result<ExitCode> {
             list.join(", ")
         );
     }
+    super::sandbox::ready(&args.sandbox, &args.iface, seg.len(), &args.source)?;
     let t0 = Instant::now();
     let mut last_print = Instant::now();
     let quiet = args.quiet;

@@ -13,6 +13,7 @@ use std::io;
 
 mod nic;
 mod process;
+pub mod sandbox;
 mod socket;
 
 pub use nic::{

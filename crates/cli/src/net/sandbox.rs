@@ -1,0 +1,250 @@
+//! `ecsync serve --sandbox -- COMMAND`: the segment served in a private network (a network
+//! namespace, inside a user namespace of its own when the caller is not privileged: no root
+//! needed) on one end of a veth pair, COMMAND run on the other end with `ECSYNC_IFACE` naming
+//! it; serving stops when COMMAND exits, and serve exits with its code. And the readiness
+//! handshake of every `serve`: one JSON line on stdout once the segment is serving (and the
+//! same in `--ready-file`).
+
+use super::STOP;
+use crate::source::SourceArgs;
+use anyhow::{Context, Result, anyhow};
+use ecsync_net::sys::sandbox as sys;
+use std::io::Write;
+use std::os::unix::process::ExitStatusExt;
+use std::path::PathBuf;
+use std::process::{Child, Command, ExitCode, ExitStatus};
+use std::sync::Mutex;
+use std::sync::atomic::Ordering;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// The served end of the veth pair, unless `--iface` names it.
+const SERVED_IFACE: &str = "ecsync0";
+/// The end COMMAND gets (`ECSYNC_IFACE`).
+const MASTER_IFACE: &str = "master0";
+/// How long a COMMAND still running when serving stops has, after the signal, before SIGKILL.
+const KILL_AFTER: Duration = Duration::from_secs(10);
+/// After a terminal's Ctrl-C (which COMMAND received too), how long before it is sent SIGTERM.
+const GRACE_AFTER_CTRL_C: Duration = Duration::from_secs(2);
+
+/// The options of `serve` for the sandbox and the readiness handshake.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct SandboxArgs {
+    /// Serve in a private network of its own (a network namespace, in a user namespace when not
+    /// root: no privileges needed) on one end of a veth pair (--iface names it, default
+    /// ecsync0), run COMMAND (after `--`) on the other end (master0) with its name in
+    /// ECSYNC_IFACE, stop when COMMAND exits and exit with its code (128+N for signal N);
+    /// SIGINT/SIGTERM are forwarded to it.
+    #[arg(long, requires = "command")]
+    pub sandbox: bool,
+    /// Also write the ready line (the JSON object printed on stdout once the segment is
+    /// serving) to this file, atomically (a temporary file renamed).
+    #[arg(long, value_name = "PATH")]
+    pub ready_file: Option<PathBuf>,
+    /// With --sandbox: the master to run, and its arguments.
+    #[arg(last = true, requires = "sandbox", value_name = "COMMAND")]
+    pub command: Vec<String>,
+}
+
+impl SandboxArgs {
+    /// With --sandbox, COMMAND (and the option cleared: `serve` runs once inside).
+    pub fn take_command(&mut self) -> Option<Vec<String>> {
+        if !self.sandbox {
+            return None;
+        }
+        self.sandbox = false;
+        Some(std::mem::take(&mut self.command))
+    }
+}
+
+/// COMMAND waiting for the segment to serve, then running.
+enum State {
+    Off,
+    Pending {
+        command: Vec<String>,
+        master: String,
+    },
+    Running(JoinHandle<ExitStatus>),
+    SpawnFailed(u8),
+}
+
+static STATE: Mutex<State> = Mutex::new(State::Off);
+
+fn state() -> std::sync::MutexGuard<'static, State> {
+    STATE.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The ready line: what is served where, as one JSON object.
+pub fn ready_json(
+    iface: &str,
+    master_iface: Option<&str>,
+    slaves: usize,
+    source: &SourceArgs,
+) -> String {
+    let preset = match (&source.preset, &source.config) {
+        (Some(p), None) => Some(p.as_str()),
+        (None, None) => Some("paper-2024"),
+        _ => None,
+    };
+    // Written out so that the keys keep this order ("event" first), as a reader scanning
+    // stdout expects; every value goes through serde_json.
+    let j = |v: serde_json::Value| v.to_string();
+    format!(
+        "{{\"event\":\"ready\",\"iface\":{},\"master_iface\":{},\"slaves\":{slaves},\"pid\":{},\"preset\":{},\"config\":{}}}",
+        j(iface.into()),
+        j(master_iface.into()),
+        std::process::id(),
+        j(preset.into()),
+        j(source
+            .config
+            .as_ref()
+            .map(|p| p.display().to_string())
+            .into()),
+    )
+}
+
+/// Called by `serve` when the socket is open and the loop about to start: prints the ready
+/// line on stdout (and writes `--ready-file`), then, in the sandbox, starts COMMAND.
+pub fn ready(args: &SandboxArgs, iface: &str, slaves: usize, source: &SourceArgs) -> Result<()> {
+    let mut st = state();
+    let master = match &*st {
+        State::Pending { master, .. } => Some(master.clone()),
+        _ => None,
+    };
+    let line = ready_json(iface, master.as_deref(), slaves, source);
+    if let Some(p) = &args.ready_file {
+        ecsync_lab::output::write_atomic(p, format!("{line}\n").as_bytes())
+            .with_context(|| format!("writing the ready file {}", p.display()))?;
+    }
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{line}").and_then(|()| out.flush())?;
+    drop(out);
+    if let State::Pending { command, master } = std::mem::replace(&mut *st, State::Off) {
+        sys::catch_termination_signals(&STOP).context("catching SIGINT/SIGTERM")?;
+        let mut cmd = Command::new(&command[0]);
+        cmd.args(&command[1..]).env("ECSYNC_IFACE", &master);
+        sys::plain_child(&mut cmd);
+        match cmd.spawn() {
+            Ok(child) => *st = State::Running(std::thread::spawn(move || watch(child))),
+            Err(e) => {
+                let code = if e.kind() == std::io::ErrorKind::NotFound {
+                    127
+                } else {
+                    126
+                };
+                *st = State::SpawnFailed(code);
+                return Err(anyhow!("cannot run {}: {e}", command[0]));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Waits for COMMAND: raises the stop flag when it exits; forwards a stop to it (the signal
+/// serve was sent, or SIGTERM when serving ended otherwise), and kills it if it outlives
+/// that by [`KILL_AFTER`].
+fn watch(mut child: Child) -> ExitStatus {
+    let pid = child.id();
+    let mut stopping: Option<(Instant, bool)> = None;
+    loop {
+        match child.try_wait() {
+            Ok(Some(status)) => {
+                STOP.store(true, Ordering::Relaxed);
+                return status;
+            }
+            Ok(None) => {}
+            Err(e) => {
+                eprintln!("ecsync serve: waiting for COMMAND: {e}");
+                STOP.store(true, Ordering::Relaxed);
+                let _ = child.kill();
+                return child.wait().unwrap_or(ExitStatus::from_raw(1 << 8));
+            }
+        }
+        let now = Instant::now();
+        match stopping {
+            None if STOP.load(Ordering::Relaxed) => {
+                // A terminal's Ctrl-C reached COMMAND too (same foreground group): it gets
+                // time to end on it before SIGTERM. A signal from a process is passed on.
+                let sent = match sys::stop_signal() {
+                    Some((_, true)) => false,
+                    Some((sig, false)) => sys::send_signal(pid, sig).is_ok(),
+                    None => sys::send_signal(pid, libc::SIGTERM).is_ok(),
+                };
+                stopping = Some((now, sent));
+            }
+            Some((t, false)) if now - t >= GRACE_AFTER_CTRL_C => {
+                let _ = sys::send_signal(pid, libc::SIGTERM);
+                stopping = Some((now, true));
+            }
+            Some((t, true)) if now - t >= KILL_AFTER => {
+                eprintln!(
+                    "ecsync serve: COMMAND still runs {} s after it was told to stop: killed",
+                    KILL_AFTER.as_secs()
+                );
+                let _ = child.kill();
+                stopping = Some((now + Duration::from_secs(3600), true));
+            }
+            _ => {}
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// `serve --sandbox`: enters the private network, runs `serve` on its end (which starts
+/// COMMAND through [`ready`]), and returns COMMAND's exit code (or serve's when COMMAND
+/// succeeded and serve did not).
+pub fn run(
+    command: Vec<String>,
+    iface: &str,
+    serve: impl FnOnce(String) -> Result<ExitCode>,
+) -> Result<ExitCode> {
+    let served = if iface.is_empty() {
+        SERVED_IFACE
+    } else {
+        iface
+    };
+    if served == MASTER_IFACE {
+        anyhow::bail!("--iface {served}: that is the name of COMMAND's end; choose another");
+    }
+    let sb = sys::enter(served, MASTER_IFACE).map_err(|e| anyhow!("--sandbox: {e}"))?;
+    eprintln!(
+        "ecsync serve: sandbox: a private network namespace{}, {served} served, COMMAND on {MASTER_IFACE} (ECSYNC_IFACE)",
+        if sb.user_namespace {
+            " in a user namespace (unprivileged)"
+        } else {
+            ""
+        }
+    );
+    if let Some(w) = &sb.sysfs_warning {
+        eprintln!("ecsync serve: warning: {w}");
+    }
+    *state() = State::Pending {
+        command,
+        master: MASTER_IFACE.to_string(),
+    };
+    let served = serve(served.to_string());
+    STOP.store(true, Ordering::Relaxed);
+    let st = std::mem::replace(&mut *state(), State::Off);
+    let status = match st {
+        State::Running(h) => h
+            .join()
+            .map_err(|_| anyhow!("COMMAND's watcher panicked"))?,
+        State::SpawnFailed(code) => {
+            eprintln!("ecsync: error: {:#}", served.err().unwrap_or(anyhow!("?")));
+            return Ok(ExitCode::from(code));
+        }
+        State::Off | State::Pending { .. } => return served,
+    };
+    let code = match (status.code(), status.signal()) {
+        (Some(c), _) => c as u8,
+        (None, Some(s)) => (128 + s) as u8,
+        (None, None) => 1,
+    };
+    eprintln!("ecsync serve: COMMAND exited: {status}; exit code {code}");
+    let served = served?;
+    Ok(if code == 0 {
+        served
+    } else {
+        ExitCode::from(code)
+    })
+}
