@@ -1,12 +1,12 @@
 //! Faults: a schedule of what goes wrong on a segment and its master's host, in one TOML format
-//! (`[[fault]]` entries), and the player that makes it happen, frame by frame, in virtual time
-//! ([`FaultPlayer`] in the simulator's transport) and on a served interface (`ecsync serve
-//! --faults`), so that the same faults meet the simulator's master and any real one.
+//! (`[[fault]]` entries), and the player that makes it happen, in virtual time ([`FaultPlayer`]
+//! in the simulator's transport) and on a served interface (`ecsync serve --faults`), so that
+//! the same faults meet the simulator's master and any real one.
 //!
 //! ```toml
 //! seed = 7            # optional: the draws of random faults (else the run's seed)
-//! epoch = "cyclic"    # at_s counts from the first frame with process data (LRW); "start":
-//!                     # from the first frame of all (the bring-up)
+//! epoch = "cyclic"    # at_s counts from the first frame with process data (an LRW, LRD or
+//!                     # LWR datagram); "start": from the first frame of all (the bring-up)
 //!
 //! [[fault]]
 //! at_s = 0.0
@@ -36,14 +36,41 @@
 //! (every frame answered twice while it lasts, the copy `lag_us` later), `al_error` (`slave`,
 //! `code`, 0x001A by default: the slave's application raises an AL error and falls back from
 //! OP to SAFE-OP, as a drive does on a synchronization error). Random draws are a
-//! hash of the seed and the frame's number since the epoch: every method of a comparison loses
-//! the same frames.
+//! hash of the seed and the frame's number since the epoch (frames with process data, and the
+//! others since the last of them): every method of a comparison loses the same frames.
+//!
+//! # Time
+//!
+//! A fault's window starts and ends by the clock, whether or not a frame arrives:
+//! [`FaultPlayer::advance_to`] plays every edge due, each at its own time (the slave switched
+//! off, the cable pulled, the event logged at the edge's time), and
+//! [`FaultPlayer::next_due_ps`] says when the next one is due, for a caller that waits between
+//! frames (`serve`). [`FaultPlayer::before_frame`] plays the edges due before the frame at the
+//! frame's time: the simulator, whose only events are its frames (one a cycle), sees each edge
+//! at the first frame after it, as it always has (its outputs unchanged), and a window with no
+//! frame in it starts and ends at the frame after it rather than never.
+//!
+//! The epoch is the schedule's (`"cyclic"` or `"start"`), or an explicit one:
+//! [`FaultPlayer::set_epoch`] (a control command's "now"; it wins over the file's if it comes
+//! first, and moves the schedule if it comes later). The file has no third value: an explicit
+//! epoch is a moment of the run, which a control command names and a file cannot.
+//!
+//! # On demand
+//!
+//! [`FaultPlayer::inject`] adds a segment fault whose window starts at a real time (before the
+//! epoch too: its times are real time, not the schedule's); [`parse_fault_entry`] reads one
+//! entry as the file's `[[fault]]` entries are read (`at_s` may be absent); and
+//! [`FaultPlayer::clear`] ends active faults now. Host faults (`host_stall`, `clock_step`) are
+//! the simulator's master's ([`FaultKind::is_host_fault`]): callers that serve a segment refuse
+//! them.
 
 use serde::Deserialize;
 use std::fmt;
 
 mod player;
 mod schedule;
+
+pub use schedule::parse_fault_entry;
 
 pub use player::{Edge, FaultCounts, FaultEvent, FaultPlayer, FrameFate};
 
@@ -277,16 +304,6 @@ pub struct Fault {
     pub for_ns: Option<u64>,
     /// What.
     pub kind: FaultKind,
-}
-
-impl Fault {
-    /// Whether `t_ns` (after the epoch) is inside the fault's window.
-    fn covers(&self, t_ns: u64) -> bool {
-        t_ns >= self.at_ns
-            && self
-                .for_ns
-                .is_none_or(|d| t_ns < self.at_ns.saturating_add(d))
-    }
 }
 
 /// A parsed fault schedule.

@@ -1,6 +1,7 @@
-//! The player: the schedule made to happen, frame by frame, on a segment and its master's host.
+//! The player: the schedule made to happen on a segment and its master's host, by the clock
+//! and frame by frame.
 
-use super::{Epoch, FaultKind, FaultSchedule, KindName, SlaveRef};
+use super::{Epoch, Fault, FaultKind, FaultSchedule, KindName, SlaveRef};
 use crate::rng::{SplitMix64, unit_from_bits};
 use crate::segment::Segment;
 use ecsync_wire::{Command, EcatFrame};
@@ -13,6 +14,9 @@ pub struct FrameFate {
     pub lost_out: bool,
     /// Processed, then lost (or its FCS broken) on the way back: the master never gets it.
     pub lost_back: bool,
+    /// Of a frame lost on the way back, whether its FCS broke (a `corrupt` fault) rather than
+    /// the frame vanishing: the ESCs behind the break count it (see the module's doc).
+    pub corrupt: bool,
     /// Added to the reply's arrival, ps.
     pub extra_delay_ps: u64,
     /// A second copy of the reply arrives this much after the first, ps.
@@ -85,7 +89,12 @@ pub struct FaultCounts {
     pub duplicated: u64,
 }
 
-/// Plays a [`FaultSchedule`] on a segment, frame by frame.
+/// Frames before the epoch are numbered in a space of their own (only a fault injected at a real
+/// time can take them), so that the draws of the frames after it stay the schedule's.
+const PRE_EPOCH_FRAME: u64 = 1 << 63;
+
+/// Plays a [`FaultSchedule`] on a segment: by the clock ([`FaultPlayer::advance_to`]) and frame
+/// by frame ([`FaultPlayer::before_frame`]).
 #[derive(Debug, Clone)]
 pub struct FaultPlayer {
     schedule: FaultSchedule,
@@ -93,8 +102,14 @@ pub struct FaultPlayer {
     origin_ps: Option<u64>,
     /// The current frame's number for the draws (see [`FaultPlayer::before_frame`]).
     frame_no: u64,
-    lrw_frames: u64,
-    since_lrw: u64,
+    /// Frames with process data since the epoch, and other frames since the last of them.
+    pd_frames: u64,
+    since_pd: u64,
+    /// Frames before the epoch.
+    pre_epoch_frames: u64,
+    /// Per fault: the real time its window starts, ps, for a fault injected at a time (`None`:
+    /// the schedule's `at_s` after the epoch).
+    anchor_ps: Vec<Option<u64>>,
     /// Per fault: started, ended; a burst's frames left.
     started: Vec<bool>,
     ended: Vec<bool>,
@@ -111,6 +126,14 @@ fn hot_slaves(segment: &Segment, n: u16) -> std::ops::Range<usize> {
     len.saturating_sub(usize::from(n)).max(1).min(len)..len
 }
 
+/// The frames a fault of this kind takes in a row (0: not a burst).
+fn burst_of(kind: &FaultKind) -> u32 {
+    match *kind {
+        FaultKind::Loss { burst, .. } | FaultKind::Corrupt { burst, .. } => burst.unwrap_or(0),
+        _ => 0,
+    }
+}
+
 impl FaultPlayer {
     /// A player of `schedule` whose random draws come from `seed` unless the schedule names
     /// its own.
@@ -118,21 +141,14 @@ impl FaultPlayer {
         let n = schedule.faults.len();
         FaultPlayer {
             seed: schedule.seed.unwrap_or(seed),
-            burst_left: schedule
-                .faults
-                .iter()
-                .map(|f| match f.kind {
-                    FaultKind::Loss { burst, .. } | FaultKind::Corrupt { burst, .. } => {
-                        burst.unwrap_or(0)
-                    }
-                    _ => 0,
-                })
-                .collect(),
+            burst_left: schedule.faults.iter().map(|f| burst_of(&f.kind)).collect(),
             schedule,
             origin_ps: None,
             frame_no: 0,
-            lrw_frames: 0,
-            since_lrw: 0,
+            pd_frames: 0,
+            since_pd: 0,
+            pre_epoch_frames: 0,
+            anchor_ps: vec![None; n],
             started: vec![false; n],
             ended: vec![false; n],
             events: Vec::new(),
@@ -141,7 +157,8 @@ impl FaultPlayer {
         }
     }
 
-    /// The schedule.
+    /// The schedule, with the faults injected so far after the file's (their indices are those
+    /// [`FaultPlayer::inject`] returned).
     pub fn schedule(&self) -> &FaultSchedule {
         &self.schedule
     }
@@ -159,6 +176,93 @@ impl FaultPlayer {
     /// Real time of the epoch, ps, once it came.
     pub fn origin_ps(&self) -> Option<u64> {
         self.origin_ps
+    }
+
+    /// Sets the epoch to real time `t_ps` (a control command's "now"), whatever the schedule's
+    /// `epoch` says: the schedule's `at_s` count from it, and the draws' frame numbers start
+    /// again. Edges already played are not played again.
+    pub fn set_epoch(&mut self, t_ps: u64) {
+        self.origin_ps = Some(t_ps);
+        self.pd_frames = 0;
+        self.since_pd = 0;
+    }
+
+    /// Real time fault `f`'s window starts and ends, ps (`None`: no such fault, or a fault of
+    /// the schedule before the epoch is known; an end of `None`: it lasts to the end).
+    pub fn window_ps(&self, f: usize) -> Option<(u64, Option<u64>)> {
+        let fault = self.schedule.faults.get(f)?;
+        let start = match self.anchor_ps[f] {
+            Some(a) => a,
+            None => self
+                .origin_ps?
+                .saturating_add(fault.at_ns.saturating_mul(1000)),
+        };
+        let end = fault
+            .for_ns
+            .map(|d| start.saturating_add(d.saturating_mul(1000)));
+        Some((start, end))
+    }
+
+    /// Whether fault `f` has started and not ended (its window is open).
+    pub fn is_active(&self, f: usize) -> bool {
+        self.started.get(f).is_some_and(|&s| s) && !self.ended[f]
+    }
+
+    /// Real time of the next edge (start or end) of a segment fault not yet played, ps: when
+    /// a caller that waits between frames should call [`FaultPlayer::advance_to`]. `None`
+    /// before the epoch is known (unless a fault was injected at a time) or when nothing is
+    /// left.
+    pub fn next_due_ps(&self) -> Option<u64> {
+        (0..self.schedule.faults.len())
+            .filter(|&f| !self.ended[f] && !self.schedule.faults[f].kind.is_host_fault())
+            .filter_map(|f| {
+                let (start, end) = self.window_ps(f)?;
+                if self.started[f] { end } else { Some(start) }
+            })
+            .min()
+    }
+
+    /// Plays every edge of a segment fault due at or before real time `t_ps`, in time order,
+    /// each at its own time: the segment's action (a slave off, a cable pulled) and the logged
+    /// event are the edge's time, not `t_ps`. A window that lies between two frames happens.
+    pub fn advance_to(&mut self, segment: &mut Segment, t_ps: u64) {
+        self.play_due(segment, t_ps, false);
+    }
+
+    /// Adds segment fault `fault` whose window starts at real time `at_ps` (now or later; its
+    /// `at_ns` is ignored) and returns its index in [`FaultPlayer::schedule`]. The window is
+    /// anchored in real time, so it plays before the epoch too (its `at_ns` is set to its time
+    /// after the epoch when that is known, else 0). Host faults (`is_host_fault`) are not
+    /// played by a segment: callers refuse them.
+    pub fn inject(&mut self, fault: Fault, at_ps: u64) -> usize {
+        let f = self.schedule.faults.len();
+        let at_ns = self.origin_ps.map_or(0, |o| at_ps.saturating_sub(o) / 1000);
+        self.schedule.faults.push(Fault { at_ns, ..fault });
+        self.anchor_ps.push(Some(at_ps));
+        self.started.push(false);
+        self.ended.push(false);
+        self.burst_left.push(burst_of(&fault.kind));
+        f
+    }
+
+    /// Ends now, at real time `t_ps`, the active segment fault `which` (`None`: all of them):
+    /// its end edge is played and logged at `t_ps` (a slave on again, a cable plugged in).
+    /// Edges due by `t_ps` are played first. Faults not started yet still come at their time.
+    /// Returns how many were ended.
+    pub fn clear(&mut self, segment: &mut Segment, which: Option<usize>, t_ps: u64) -> usize {
+        self.advance_to(segment, t_ps);
+        let mut n = 0;
+        for f in 0..self.schedule.faults.len() {
+            let kind = self.schedule.faults[f].kind;
+            if which.is_some_and(|w| w != f) || !self.is_active(f) || kind.is_host_fault() {
+                continue;
+            }
+            self.ended[f] = true;
+            let detail = end_fault(segment, &kind, t_ps);
+            self.log(t_ps, f, Edge::End, detail);
+            n += 1;
+        }
+        n
     }
 
     fn since(&self, t_ps: u64) -> Option<u64> {
@@ -202,53 +306,92 @@ impl FaultPlayer {
         }
     }
 
-    /// Before `segment` takes a frame leaving at real time `t_ps`: starts and ends the
-    /// segment's faults that are due (power, links) and says what becomes of the frame.
-    pub fn before_frame(&mut self, segment: &mut Segment, frame: &[u8], t_ps: u64) -> FrameFate {
+    /// Plays the segment faults' edges due by `t_ps`, in time order; `at_frame`: each at `t_ps`
+    /// (a frame-driven caller's, see [`FaultPlayer::before_frame`]), else at its own time.
+    fn play_due(&mut self, segment: &mut Segment, t_ps: u64, at_frame: bool) {
         if !self.initialised {
             self.prepare(segment);
         }
-        if self.origin_ps.is_none() {
-            let at_epoch = match self.schedule.epoch {
-                Epoch::Start => true,
-                Epoch::Cyclic => carries_lrw(frame),
-            };
-            if !at_epoch {
-                return FrameFate::default();
+        let mut due: Vec<(u64, usize, Edge)> = Vec::new();
+        for f in 0..self.schedule.faults.len() {
+            if self.ended[f] || self.schedule.faults[f].kind.is_host_fault() {
+                continue;
             }
+            let Some((start, end)) = self.window_ps(f) else {
+                continue;
+            };
+            if start > t_ps {
+                continue;
+            }
+            if !self.started[f] {
+                due.push((start, f, Edge::Start));
+            }
+            if let Some(end) = end
+                && end <= t_ps
+            {
+                due.push((end, f, Edge::End));
+            }
+        }
+        if at_frame {
+            due.iter_mut().for_each(|d| d.0 = t_ps);
+        }
+        // Ties (a zero-length window, edges played at one frame) go by the schedule's order,
+        // a fault's start before its end.
+        due.sort_by_key(|&(t, f, edge)| (t, f, edge == Edge::End));
+        for (t, f, edge) in due {
+            let kind = self.schedule.faults[f].kind;
+            let detail = match edge {
+                Edge::Start => {
+                    self.started[f] = true;
+                    start_fault(segment, &kind, t)
+                }
+                Edge::End => {
+                    self.ended[f] = true;
+                    end_fault(segment, &kind, t)
+                }
+            };
+            self.log(t, f, edge, detail);
+        }
+    }
+
+    /// Numbers the current frame for the draws: the frames with process data since the epoch,
+    /// and the others since the last of them. A master's extra frames (a recovery's, a
+    /// diagnosis') then leave the cyclic frames' draws as they are: every method of a
+    /// comparison loses the same cycles.
+    fn number(&mut self, process_data: bool) {
+        if self.origin_ps.is_none() {
+            self.pre_epoch_frames += 1;
+            self.frame_no = PRE_EPOCH_FRAME | self.pre_epoch_frames;
+            return;
+        }
+        if process_data {
+            self.pd_frames += 1;
+            self.since_pd = 0;
+        } else {
+            self.since_pd += 1;
+        }
+        self.frame_no = self.pd_frames << 16 | self.since_pd.min(0xffff);
+    }
+
+    /// Before `segment` takes a frame leaving at real time `t_ps`: starts and ends the
+    /// segment's faults that are due (power, links) and says what becomes of the frame.
+    ///
+    /// The edges due are played at `t_ps`, the frame's time: a simulator whose only events are
+    /// its frames (one a cycle) sees each edge at the first frame after it, as it always has,
+    /// so its outputs stay what they were. A caller that waits between frames calls
+    /// [`FaultPlayer::advance_to`] (at [`FaultPlayer::next_due_ps`], and with the frame's time
+    /// before this) to have each edge at its own time.
+    pub fn before_frame(&mut self, segment: &mut Segment, frame: &[u8], t_ps: u64) -> FrameFate {
+        let pd = carries_process_data(frame);
+        if self.origin_ps.is_none() && (self.schedule.epoch == Epoch::Start || pd) {
             self.origin_ps = Some(t_ps);
         }
-        let now = self.since(t_ps).unwrap_or(0);
-        // A frame's number: the frames with process data since the epoch, and the others
-        // since the last of them. A master's extra frames (a recovery's, a diagnosis') then
-        // leave the cyclic frames' draws as they are: every method of a comparison loses the
-        // same cycles.
-        let lrw = carries_lrw(frame);
-        if lrw {
-            self.lrw_frames += 1;
-            self.since_lrw = 0;
-        } else {
-            self.since_lrw += 1;
-        }
-        self.frame_no = self.lrw_frames << 16 | self.since_lrw.min(0xffff);
+        self.play_due(segment, t_ps, true);
+        self.number(pd);
         let mut fate = FrameFate::default();
         for f in 0..self.schedule.faults.len() {
             let fault = self.schedule.faults[f];
-            if fault.kind.is_host_fault() {
-                continue;
-            }
-            let covers = fault.covers(now);
-            if covers && !self.started[f] {
-                self.started[f] = true;
-                let detail = start_fault(segment, &fault.kind, t_ps);
-                self.log(t_ps, f, Edge::Start, detail);
-            }
-            if self.started[f] && !covers && !self.ended[f] && now >= fault.at_ns {
-                self.ended[f] = true;
-                let detail = end_fault(segment, &fault.kind, t_ps);
-                self.log(t_ps, f, Edge::End, detail);
-            }
-            if !covers {
+            if fault.kind.is_host_fault() || !self.is_active(f) {
                 continue;
             }
             match fault.kind {
@@ -262,6 +405,7 @@ impl FaultPlayer {
                 }
                 FaultKind::Corrupt { probability, burst } if self.take(f, burst, probability) => {
                     fate.lost_back = true;
+                    fate.corrupt = true;
                     self.counts.corrupted += 1;
                 }
                 FaultKind::Delay { extra_ns } => {
@@ -274,10 +418,11 @@ impl FaultPlayer {
         if fate.lost_out {
             self.counts.lost_out += 1;
             fate.lost_back = false;
+            fate.corrupt = false;
         } else if fate.lost_back {
             self.counts.lost_back += 1;
         }
-        if lrw && (fate.lost_out || fate.lost_back) {
+        if pd && (fate.lost_out || fate.lost_back) {
             self.counts.lost_with_process_data += 1;
         }
         if !fate.lost_out && !fate.lost_back {
@@ -333,11 +478,13 @@ impl FaultPlayer {
     }
 }
 
-/// Whether a frame carries an LRW (the cyclic phase has begun).
-fn carries_lrw(frame: &[u8]) -> bool {
+/// Whether a frame carries process data: an LRW, LRD or LWR datagram (the cyclic phase has
+/// begun, whichever way the master exchanges its process data).
+fn carries_process_data(frame: &[u8]) -> bool {
     EcatFrame::new_checked(frame).is_ok_and(|f| {
-        f.datagrams()
-            .any(|d| d.is_ok_and(|d| d.command() == Ok(Command::Lrw)))
+        f.datagrams().any(|d| {
+            d.is_ok_and(|d| matches!(d.command(), Ok(Command::Lrw | Command::Lrd | Command::Lwr)))
+        })
     })
 }
 

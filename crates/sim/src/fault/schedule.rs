@@ -114,6 +114,32 @@ impl FaultSchedule {
     }
 }
 
+/// Parses one fault entry given on its own (a control command's), as a `[[fault]]` entry of a
+/// file is parsed: the same checks, the same words. `at_s` may be absent (the returned
+/// fault's `at_ns` is then 0; the caller, which can tell by the table, takes it as "now").
+/// An error reads `key: what is wrong; fix: what to do`.
+pub fn parse_fault_entry(table: &toml::Table) -> Result<Fault, String> {
+    let mut entry = table.clone();
+    entry.entry("at_s").or_insert(toml::Value::Float(0.0));
+    let mut file = toml::Table::new();
+    file.insert(
+        "fault".into(),
+        toml::Value::Array(vec![toml::Value::Table(entry)]),
+    );
+    let text = toml::to_string(&file).map_err(|e| format!("the entry cannot be read: {e}"))?;
+    match FaultSchedule::parse("fault", &text) {
+        Ok(s) => Ok(s.faults[0]),
+        Err(e) => {
+            let key = e.field.strip_prefix("fault[0].").unwrap_or(&e.field);
+            let mut m = format!("{key}: {}", e.message);
+            if !e.fix.is_empty() {
+                m += &format!("; fix: {}", e.fix);
+            }
+            Err(m)
+        }
+    }
+}
+
 /// The `n`-th entry of a file, for its errors: `fault[n].key` at the key's line (the header's
 /// for a key the entry lacks).
 #[derive(Clone, Copy)]

@@ -244,3 +244,303 @@ fn a_burst_takes_its_frames_in_a_row() {
         .collect();
     assert_eq!(lost, vec![11, 12, 13]);
 }
+
+const S: u64 = 1_000_000_000_000;
+const MS: u64 = 1_000_000_000;
+
+/// A frame of one datagram of each command given (4 bytes each), for the epoch and the draws.
+fn frame_of(commands: &[Command]) -> Vec<u8> {
+    let mut buf = vec![0u8; 128];
+    let mut b = ecsync_wire::FrameBuilder::new(&mut buf, [0xff; 6], [2, 0, 0, 0, 0, 1]).unwrap();
+    for (i, &c) in commands.iter().enumerate() {
+        let address = match c {
+            Command::Lrd | Command::Lwr | Command::Lrw => {
+                ecsync_wire::DatagramAddress::Logical(0x1_0000)
+            }
+            _ => ecsync_wire::DatagramAddress::position(0, 0x0130),
+        };
+        b.push_zeroed(c, i as u8, address, 4).unwrap();
+    }
+    let n = b.finish();
+    buf.truncate(n);
+    buf
+}
+
+#[test]
+fn a_power_cycle_between_two_frames_happens_at_its_time() {
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "epoch = \"start\"\n[[fault]]\nat_s = 3.0\nfor_s = 0.5\nkind = \"power_cycle\"\nslave = 2\n",
+    )
+    .unwrap();
+    let mut seg = Segment::new(&crate::preset::line(5, 1)).unwrap();
+    let mut p = FaultPlayer::new(s, 1);
+    assert_eq!(p.next_due_ps(), None, "no epoch yet");
+    assert_eq!(count(&mut seg, &mut p, 0), 5, "the epoch: the first frame");
+    assert_eq!(p.next_due_ps(), Some(3 * S));
+    assert_eq!(count(&mut seg, &mut p, 2_805 * MS), 5);
+    // No frame until 3.506 s: the clock plays the window.
+    p.advance_to(&mut seg, 3_200 * MS);
+    assert!(seg.is_powered_off(1));
+    assert_eq!(p.events().len(), 1);
+    let e = &p.events()[0];
+    assert_eq!(
+        (e.edge, e.t_ps, e.since_epoch_ns),
+        (Edge::Start, 3 * S, 3_000_000_000)
+    );
+    assert_eq!(e.detail, "slave 2 switched off");
+    assert_eq!(p.next_due_ps(), Some(3_500 * MS));
+    p.advance_to(&mut seg, 3_400 * MS);
+    assert!(seg.is_powered_off(1), "off for 0.5 s");
+    p.advance_to(&mut seg, 3_600 * MS);
+    assert!(!seg.is_powered_off(1));
+    let e = &p.events()[1];
+    assert_eq!(
+        (e.edge, e.t_ps, e.since_epoch_ns),
+        (Edge::End, 3_500 * MS, 3_500_000_000)
+    );
+    assert_eq!(p.next_due_ps(), None, "nothing left");
+    assert_eq!(count(&mut seg, &mut p, 3_700 * MS), 5);
+    assert_eq!(
+        seg.esc(1).al_state(),
+        ecsync_wire::AlState::Init,
+        "from reset"
+    );
+    assert_eq!(p.events().len(), 2, "each edge once");
+}
+
+#[test]
+fn frames_alone_still_play_a_window_between_them_at_the_next_frame() {
+    // A frame-driven caller (the simulator's transport) has its edges at the frame after them,
+    // as before; a window with no frame in it now happens there rather than never.
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "epoch = \"start\"\n[[fault]]\nat_s = 3.0\nfor_s = 0.5\nkind = \"power_cycle\"\nslave = 2\n",
+    )
+    .unwrap();
+    let mut seg = Segment::new(&crate::preset::line(5, 1)).unwrap();
+    let mut p = FaultPlayer::new(s, 1);
+    count(&mut seg, &mut p, 0);
+    count(&mut seg, &mut p, 2_805 * MS);
+    // The master gives slave 2 a station address (APWR 0x0010), which a reset clears.
+    let mut buf = [0u8; 60];
+    let mut b = ecsync_wire::FrameBuilder::new(&mut buf, [0xff; 6], [2, 0, 0, 0, 0, 1]).unwrap();
+    b.push(
+        Command::Apwr,
+        0,
+        ecsync_wire::DatagramAddress::position(1, 0x0010),
+        &0x1002u16.to_le_bytes(),
+    )
+    .unwrap();
+    let n = b.finish();
+    seg.process(&mut buf[..n], 2_806 * MS);
+    assert_eq!(seg.esc(1).station_address(), 0x1002);
+    assert_eq!(count(&mut seg, &mut p, 3_506 * MS), 5);
+    let at: Vec<(Edge, u64)> = p.events().iter().map(|e| (e.edge, e.t_ps)).collect();
+    assert_eq!(at, [(Edge::Start, 3_506 * MS), (Edge::End, 3_506 * MS)]);
+    assert_eq!(seg.esc(1).station_address(), 0, "it was reset");
+}
+
+#[test]
+fn a_master_exchanging_lrd_and_lwr_starts_the_default_epoch() {
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = 0.5\n",
+    )
+    .unwrap();
+    assert_eq!(s.epoch, Epoch::Cyclic);
+    let mut seg = Segment::new(&crate::preset::line(3, 1)).unwrap();
+    let mut p = FaultPlayer::new(s, 3);
+    let lost = |p: &mut FaultPlayer, seg: &mut Segment, f: &[u8], t: u64| {
+        let fate = p.before_frame(seg, f, t);
+        fate.lost_out || fate.lost_back
+    };
+    // The bring-up (no process data): no epoch, nothing lost.
+    let brd = frame_of(&[Command::Brd]);
+    assert!((0..1_000).all(|k| !lost(&mut p, &mut seg, &brd, k * MS)));
+    assert_eq!(p.origin_ps(), None);
+    // The cyclic frames: an LRD and an LWR in one frame.
+    let pd = frame_of(&[Command::Lrd, Command::Lwr]);
+    let n_lost = (0..2_000u64)
+        .filter(|k| lost(&mut p, &mut seg, &pd, (1_000 + k) * MS))
+        .count();
+    assert_eq!(p.origin_ps(), Some(1_000 * MS), "the first LRD+LWR frame");
+    assert!((900..1_100).contains(&n_lost), "{n_lost} of 2 000 at 50 %");
+    assert_eq!(
+        p.counts().lost_with_process_data,
+        n_lost as u64,
+        "LRD+LWR frames carry process data"
+    );
+    // A frame with an LRD alone, or an LWR alone, is the epoch too.
+    for c in [Command::Lrd, Command::Lwr] {
+        let mut q = FaultPlayer::new(FaultSchedule::default(), 1);
+        q.before_frame(&mut seg, &brd, 5);
+        assert_eq!(q.origin_ps(), None);
+        q.before_frame(&mut seg, &frame_of(&[Command::Brd, c]), 7);
+        assert_eq!(q.origin_ps(), Some(7), "{c:?}");
+    }
+}
+
+#[test]
+fn an_lrw_master_draws_as_an_lrd_lwr_master() {
+    // Frames are numbered by process-data frames, whatever their command: a master with LRW
+    // loses the same cycles as one with LRD+LWR (the LRW numbering is the one compare has
+    // always had).
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = 0.3\n",
+    )
+    .unwrap();
+    let seg = Segment::new(&crate::preset::line(3, 1)).unwrap();
+    let run = |frame: &[u8]| {
+        let mut p = FaultPlayer::new(s.clone(), 9);
+        let mut seg = seg.clone();
+        (0..3_000u64)
+            .map(|k| {
+                let f = if k % 10 == 5 {
+                    frame_of(&[Command::Fprd])
+                } else {
+                    frame.to_vec()
+                };
+                let fate = p.before_frame(&mut seg, &f, k * MS);
+                fate.lost_out || fate.lost_back
+            })
+            .collect::<Vec<bool>>()
+    };
+    assert_eq!(
+        run(&frame_of(&[Command::Lrw])),
+        run(&frame_of(&[Command::Lrd, Command::Lwr]))
+    );
+}
+
+#[test]
+fn injected_faults_play_at_their_real_time_even_before_the_epoch() {
+    let mut seg = Segment::new(&crate::preset::line(5, 1)).unwrap();
+    // A schedule that waits for process data, which never comes.
+    let mut p = FaultPlayer::new(FaultSchedule::default(), 1);
+    let brd = frame_of(&[Command::Brd]);
+    p.before_frame(&mut seg, &brd, 0);
+    let mut t = toml::Table::new();
+    t.insert("kind".into(), "link_down".into());
+    t.insert("slave".into(), 2.into());
+    t.insert("for_s".into(), 0.25.into());
+    let fault = parse_fault_entry(&t).unwrap();
+    let f = p.inject(fault, 1_000 * MS);
+    assert_eq!(f, 0);
+    assert_eq!(p.next_due_ps(), Some(1_000 * MS));
+    p.advance_to(&mut seg, 1_100 * MS);
+    assert_eq!(
+        count(&mut seg, &mut p, 1_100 * MS),
+        2,
+        "slaves 3-5 behind the cable"
+    );
+    assert_eq!(p.events()[0].t_ps, 1_000 * MS);
+    assert_eq!(p.next_due_ps(), Some(1_250 * MS));
+    p.advance_to(&mut seg, 1_300 * MS);
+    assert_eq!(count(&mut seg, &mut p, 1_300 * MS), 5);
+    assert_eq!(p.events()[1].t_ps, 1_250 * MS);
+
+    // A loss to the end, injected now, cleared a while later.
+    let mut t = toml::Table::new();
+    t.insert("kind".into(), "loss".into());
+    t.insert("probability".into(), 1.0.into());
+    let g = p.inject(parse_fault_entry(&t).unwrap(), 2_000 * MS);
+    assert_eq!(g, 1);
+    let fate = p.before_frame(&mut seg, &brd, 2_001 * MS);
+    assert!(fate.lost_out || fate.lost_back);
+    assert!(p.is_active(g));
+    assert_eq!(p.clear(&mut seg, Some(g), 2_500 * MS), 1);
+    assert!(!p.is_active(g));
+    let e = p.events().last().unwrap();
+    assert_eq!((e.fault, e.edge, e.t_ps), (g, Edge::End, 2_500 * MS));
+    let fate = p.before_frame(&mut seg, &brd, 2_501 * MS);
+    assert!(!fate.lost_out && !fate.lost_back, "cleared");
+    assert_eq!(p.clear(&mut seg, None, 2_600 * MS), 0, "nothing is active");
+    assert_eq!(p.next_due_ps(), None);
+}
+
+#[test]
+fn clear_ends_a_power_cycle_early() {
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "epoch = \"start\"\n[[fault]]\nat_s = 1\nfor_s = 10\nkind = \"power_cycle\"\nslave = 3\n",
+    )
+    .unwrap();
+    let mut seg = Segment::new(&crate::preset::line(5, 1)).unwrap();
+    let mut p = FaultPlayer::new(s, 1);
+    count(&mut seg, &mut p, 0);
+    p.advance_to(&mut seg, 2 * S);
+    assert_eq!(count(&mut seg, &mut p, 2 * S), 2);
+    assert_eq!(p.clear(&mut seg, None, 3 * S), 1);
+    assert_eq!(count(&mut seg, &mut p, 3 * S), 5);
+    assert_eq!(p.events()[1].t_ps, 3 * S);
+    p.advance_to(&mut seg, 20 * S);
+    assert_eq!(p.events().len(), 2, "its end is not played again at 11 s");
+}
+
+#[test]
+fn an_explicit_epoch_starts_the_schedule() {
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "[[fault]]\nat_s = 0.5\nfor_s = 0.1\nkind = \"power_cycle\"\nslave = 1\n",
+    )
+    .unwrap();
+    let mut seg = Segment::new(&crate::preset::line(2, 1)).unwrap();
+    let mut p = FaultPlayer::new(s, 1);
+    assert_eq!(p.next_due_ps(), None);
+    p.set_epoch(4 * S);
+    assert_eq!(p.next_due_ps(), Some(4_500 * MS));
+    // A process-data frame later does not move it.
+    p.before_frame(&mut seg, &frame_of(&[Command::Lrw]), 4_100 * MS);
+    assert_eq!(p.origin_ps(), Some(4 * S));
+    p.advance_to(&mut seg, 5 * S);
+    let at: Vec<(Edge, u64, u64)> = p
+        .events()
+        .iter()
+        .map(|e| (e.edge, e.t_ps, e.since_epoch_ns))
+        .collect();
+    assert_eq!(
+        at,
+        [
+            (Edge::Start, 4_500 * MS, 500_000_000),
+            (Edge::End, 4_600 * MS, 600_000_000)
+        ]
+    );
+}
+
+#[test]
+fn a_single_entry_parses_as_in_a_file() {
+    let t: toml::Table = toml::from_str("kind = \"delay\"\nextra_us = 5\nslave = 2\n").unwrap();
+    let e = parse_fault_entry(&t).unwrap_err();
+    let file = FaultSchedule::parse(
+        "f.toml",
+        "[[fault]]\nat_s = 1\nkind = \"delay\"\nextra_us = 5\nslave = 2\n",
+    )
+    .unwrap_err();
+    assert_eq!(e, format!("slave: {}; fix: {}", file.message, file.fix));
+    assert_eq!(
+        e,
+        "slave: kind \"delay\" takes no slave; fix: remove it; \"delay\" takes extra_us"
+    );
+    let t: toml::Table = toml::from_str("kind = \"loss\"\n").unwrap();
+    assert!(
+        parse_fault_entry(&t)
+            .unwrap_err()
+            .starts_with("probability: kind \"loss\" needs")
+    );
+    let t: toml::Table =
+        toml::from_str("kind = \"power_cycle\"\nslave = \"reference\"\nat_s = 2.5\n").unwrap();
+    assert_eq!(
+        parse_fault_entry(&t).unwrap(),
+        Fault {
+            at_ns: 2_500_000_000,
+            for_ns: Some(DEFAULT_OFF_NS),
+            kind: FaultKind::PowerCycle {
+                slave: SlaveRef::Reference
+            }
+        }
+    );
+    let t: toml::Table = toml::from_str("kind = \"loss\"\nfrmes = 3\n").unwrap();
+    let e = parse_fault_entry(&t).unwrap_err();
+    assert!(e.contains("frmes"), "{e}");
+}
