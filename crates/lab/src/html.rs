@@ -25,18 +25,21 @@ pub(crate) fn inline_svg(svg: &str) -> &str {
     svg.find("<svg").map_or("", |k| svg[k..].trim_end())
 }
 
+/// The style sheet of compare's report, shared by the judge's (`crate::judge`).
+pub(crate) const CSS: &str = "body{font-family:sans-serif;margin:2em;max-width:1200px;color:#222}table{border-collapse:collapse;margin:1em 0}\
+td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td.l{white-space:nowrap}th{background:#eee}td.l,th.l{text-align:left}\
+.verdict{border:2px solid #2c7a2c;background:#f3faf3;padding:0.8em 1.2em;margin:1em 0}.verdict h2{margin-top:0}\
+.warn{border-left:4px solid #c77700;background:#fff8ec;padding:0.4em 0.8em;margin:0.4em 0}\
+.interrupted{border:2px solid #c00;background:#fff0f0;padding:0.5em 1em}tr.letter td{color:#888}\
+pre{background:#f7f7f7;padding:0.6em;overflow-x:auto;font-size:12px}\
+figure{margin:1.5em 0}figcaption{color:#444;max-width:1100px}figure svg{display:block;max-width:100%;height:auto;border:1px solid #ddd}";
+
 pub(crate) fn report_html(out: &SummaryOut, order: &[String], plots: &[Figure<'_>]) -> String {
     let mut h = String::new();
     let _ = write!(
         h,
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>ecsync compare: {}</title>\
-<style>body{{font-family:sans-serif;margin:2em;max-width:1200px;color:#222}}table{{border-collapse:collapse;margin:1em 0}}\
-td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}td.l{{white-space:nowrap}}th{{background:#eee}}td.l,th.l{{text-align:left}}\
-.verdict{{border:2px solid #2c7a2c;background:#f3faf3;padding:0.8em 1.2em;margin:1em 0}}.verdict h2{{margin-top:0}}\
-.warn{{border-left:4px solid #c77700;background:#fff8ec;padding:0.4em 0.8em;margin:0.4em 0}}\
-.interrupted{{border:2px solid #c00;background:#fff0f0;padding:0.5em 1em}}tr.letter td{{color:#888}}\
-pre{{background:#f7f7f7;padding:0.6em;overflow-x:auto;font-size:12px}}\
-figure{{margin:1.5em 0}}figcaption{{color:#444;max-width:1100px}}figure svg{{display:block;max-width:100%;height:auto;border:1px solid #ddd}}</style></head><body>",
+<style>{CSS}</style></head><body>",
         esc(&out.scenario)
     );
     let _ = write!(

@@ -31,6 +31,7 @@
 
 pub mod compare;
 mod html;
+pub mod judge;
 pub mod letter;
 pub mod output;
 pub mod plots;

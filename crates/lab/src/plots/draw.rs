@@ -318,7 +318,7 @@ pub(crate) fn ranges_differ_tenfold(ranges: &[(f64, f64)]) -> bool {
 
 /// One method's panel of [`bands`].
 #[allow(clippy::too_many_arguments)]
-fn band_panel<DB: DrawingBackend>(
+pub(crate) fn band_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     name: &str,
     s: &[Band],

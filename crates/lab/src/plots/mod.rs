@@ -19,14 +19,14 @@ mod axis;
 mod draw;
 
 pub(crate) use axis::COLORS;
-pub(crate) use draw::{draw_envelopes, draw_hist, err};
+pub(crate) use draw::{Metric, band_panel, draw_envelopes, draw_hist, err};
 
 use crate::compare::Comparison;
 use crate::html::{Figure, report_html};
 use crate::output::write_atomic;
 use crate::report::SummaryOut;
-use axis::{LATE_RED, Mark, TARGET_BLACK};
-use draw::{Metric, bands, fault_windows, fig4, overlaid};
+pub(crate) use axis::{LATE_RED, Mark, TARGET_BLACK};
+use draw::{bands, fault_windows, fig4, overlaid};
 use plotters::prelude::*;
 use std::io;
 use std::path::Path;

@@ -1,0 +1,478 @@
+//! The judge: what a master that ecsync does not control (any master on the other end of
+//! `ecsync serve`) did right or wrong, from the segment's ground truth, frame by frame.
+//!
+//! Per run and per drive, over the frames with process data (any LRW, LRD or LWR datagram):
+//! the working counter against the run's usual one; the frame's phase at the reference (the
+//! first slave whose SYNC0 runs) against its SYNC0 pulses; each DC drive's SYNC0 margin (its
+//! next pulse minus the instant the frame's last bit passed it), the frames that came after
+//! the pulse they were meant for (`late`) and the pulses with no new outputs since the one
+//! before (`missed`); the drives' spread and 0x092C as the master would read it; lost,
+//! late-answered and repeated frames; the AL errors the master read; the way back to OP after
+//! each fault. [`Judge::summary`] gives it as [`JudgeOut`] (summary.json), [`report_html`]
+//! as compare's report, [`Expect`] tests it against thresholds (`--expect`).
+//!
+//! A black box does not say which pulse a frame was meant for: the judge takes the pulse whose
+//! offset from the frame is nearest the typical offset of the last 16 frames (their median,
+//! kept within one cycle before a pulse), and calls the frame late at a drive when its last
+//! bit passed the drive after that pulse. [`Judge::frame`] allocates nothing once the drives
+//! are known (it runs in serve's real-time loop).
+
+mod expect;
+mod out;
+mod parse;
+mod report;
+mod track;
+
+pub use expect::{Expect, ExpectError};
+pub use out::{DriveOut, FaultOut, JudgeOut, PhaseOut, per_drive_table};
+pub use report::report_html;
+
+use crate::stats::Stats;
+use ecsync_sim::Segment;
+use ecsync_sim::fault::{Edge, FaultEvent};
+use ecsync_sim::phy::frame_wire_time_ps;
+use ecsync_wire::AlState;
+use ecsync_wire::dc_time::decode_time_difference;
+use parse::{AlRead, MAX_AL_READS, parse};
+use track::{BandBlocks, Slope, Tracker, WkcWatch};
+
+/// How a [`Judge`] is set up.
+#[derive(Debug, Clone)]
+pub struct JudgeOptions {
+    /// Per network position, the scenario's slave names (missing ones are named `slave N`).
+    pub names: Vec<String>,
+    /// The preset or scenario served, for the report.
+    pub preset: String,
+    /// A reply the serving host sent more than this past its wire time is counted late, ns.
+    pub late_reply_ns: u64,
+    /// A frame that repeats the index and datagram headers of one sent less than this before
+    /// is a retry, ns (and one that repeats a lost frame's within 100 ms).
+    pub retry_window_ns: u64,
+    /// Frames with process data per point of the plots' bands.
+    pub band_frames: u64,
+}
+
+impl Default for JudgeOptions {
+    fn default() -> Self {
+        JudgeOptions {
+            names: Vec::new(),
+            preset: String::new(),
+            late_reply_ns: 10_000,
+            retry_window_ns: 500_000,
+            band_frames: 1000,
+        }
+    }
+}
+
+/// What became of a frame on its way (the fault player's verdict, or the segment's).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lost {
+    /// Answered.
+    No,
+    /// Lost before the first slave: the segment did not process it (its trace is not this
+    /// frame's).
+    Out,
+    /// Processed, then lost on the way back: its outputs reached the drives, the master got
+    /// no answer.
+    Back,
+}
+
+/// Within this after a lost frame, a frame repeating its index and headers is a retry, ps.
+const RETRY_AFTER_LOSS_PS: u64 = 100_000_000_000;
+
+/// One drive's state and figures.
+#[derive(Debug, Clone)]
+struct Drive {
+    name: String,
+    /// Its SYNC0 (start time, cycle) at the last frame.
+    sync0: Option<(u64, u32)>,
+    track: Tracker,
+    margin: Stats,
+    late: u64,
+    missed: u64,
+    /// The system time (ns) its last outputs were complete at.
+    last_out_ns: Option<u64>,
+    frames: u64,
+    time_diff: Stats,
+    /// Largest |system time - the reference's|, ns.
+    dev_max_ns: f64,
+    al_errors: u64,
+    /// The AL status codes seen with the error flag, in order of first appearance.
+    al_codes: Vec<u16>,
+    al_error_now: bool,
+    in_op: bool,
+    reached: bool,
+}
+
+impl Drive {
+    fn new(name: String) -> Self {
+        Drive {
+            name,
+            sync0: None,
+            track: Tracker::default(),
+            margin: Stats::new(),
+            late: 0,
+            missed: 0,
+            last_out_ns: None,
+            frames: 0,
+            time_diff: Stats::new(),
+            dev_max_ns: 0.0,
+            al_errors: 0,
+            al_codes: Vec::with_capacity(8),
+            al_error_now: false,
+            in_op: false,
+            reached: false,
+        }
+    }
+}
+
+/// A fault that started, and the way back.
+#[derive(Debug, Clone)]
+struct FaultRec {
+    fault: usize,
+    kind: String,
+    detail: String,
+    start_ps: u64,
+    end_ps: Option<u64>,
+    /// Positions in OP when it started.
+    in_op: Vec<usize>,
+    /// The usual working counter before it.
+    usual_wkc: Option<u32>,
+    recovered_ps: Option<u64>,
+}
+
+/// An index's last frame: its headers' hash, when, whether it was lost.
+#[derive(Debug, Clone, Copy, Default)]
+struct Sent {
+    shape: u64,
+    t_ps: u64,
+    /// The last interval at which frames of this index and shape repeated (not a retry), ps.
+    gap_ps: u64,
+    seen: bool,
+    lost: bool,
+}
+
+/// The judge of a black-box master: see the module documentation.
+#[derive(Debug, Clone)]
+pub struct Judge {
+    opts: JudgeOptions,
+    drives: Vec<Drive>,
+    first_ps: Option<u64>,
+    last_ps: u64,
+    frames: u64,
+    pd_frames: u64,
+    lost: u64,
+    lost_pd: u64,
+    wkc: WkcWatch,
+    last_wkc: Option<u32>,
+    /// The reference's SYNC0 (position, start, cycle) at the last frame that had one.
+    reference: Option<(usize, u64, u32)>,
+    phase_track: Tracker,
+    phase: Stats,
+    phase_fit: Slope,
+    spread: Stats,
+    worst_margin: Stats,
+    late: u64,
+    missed: u64,
+    replies_late: u64,
+    reply_late_max_ns: u64,
+    retries: u64,
+    sent: Box<[Sent; 256]>,
+    faults: Vec<FaultRec>,
+    phase_bands: BandBlocks,
+    margin_bands: BandBlocks,
+    al: [Option<AlRead>; MAX_AL_READS],
+}
+
+impl Judge {
+    /// A judge of the master that will talk to `seg`.
+    pub fn new(seg: &Segment, opts: JudgeOptions) -> Judge {
+        let drives = (0..seg.len())
+            .map(|p| {
+                let name = opts
+                    .names
+                    .get(p)
+                    .cloned()
+                    .unwrap_or_else(|| format!("slave {}", p + 1));
+                Drive::new(name)
+            })
+            .collect();
+        Judge {
+            phase_bands: BandBlocks::new(opts.band_frames),
+            margin_bands: BandBlocks::new(opts.band_frames),
+            opts,
+            drives,
+            first_ps: None,
+            last_ps: 0,
+            frames: 0,
+            pd_frames: 0,
+            lost: 0,
+            lost_pd: 0,
+            wkc: WkcWatch::default(),
+            last_wkc: None,
+            reference: None,
+            phase_track: Tracker::default(),
+            phase: Stats::new(),
+            phase_fit: Slope::default(),
+            spread: Stats::new(),
+            worst_margin: Stats::new(),
+            late: 0,
+            missed: 0,
+            replies_late: 0,
+            reply_late_max_ns: 0,
+            retries: 0,
+            sent: Box::new([Sent::default(); 256]),
+            faults: Vec::with_capacity(16),
+            al: [None; MAX_AL_READS],
+        }
+    }
+
+    /// After the segment processed (or the fault player dropped) one frame that left the master
+    /// at real time `t_ps` (ps, the segment's time line): `frame` as the segment returned it
+    /// (working counters filled in; the request itself when [`Lost::Out`]); `seg.trace()` is
+    /// this frame's unless it was lost on the way out. Call it for every frame, the bring-up's
+    /// too (AL status reads, retries).
+    pub fn frame(&mut self, seg: &Segment, frame: &[u8], t_ps: u64, lost: Lost) {
+        self.first_ps.get_or_insert(t_ps);
+        self.last_ps = self.last_ps.max(t_ps);
+        self.frames += 1;
+        let (info, n_al) = parse(frame, &mut self.al);
+        self.retry(&info, t_ps, lost);
+        if lost != Lost::No {
+            self.lost += 1;
+            self.lost_pd += u64::from(info.process_data);
+        }
+        if lost == Lost::Out {
+            // Nothing reached a slave.
+            return;
+        }
+        let trace = seg.trace();
+        for (p, d) in self.drives.iter_mut().enumerate() {
+            d.in_op = seg.esc(p).al_state() == AlState::Op && !seg.is_powered_off(p);
+            d.reached = trace.pu_ps(p).is_some();
+        }
+        if lost == Lost::No {
+            self.al_reads(seg, n_al);
+        }
+        if !info.process_data {
+            return;
+        }
+        let k = self.pd_frames;
+        self.pd_frames += 1;
+        self.wkc.add(info.pd_wkc, self.last_wkc);
+        self.last_wkc = Some(info.pd_wkc);
+        if lost == Lost::No {
+            self.recoveries(info.pd_wkc, t_ps);
+        }
+        self.reference_phase(seg, k, t_ps);
+        if info.outputs {
+            let wire_ps = frame_wire_time_ps(frame.len());
+            self.margins(seg, k, wire_ps);
+        }
+    }
+
+    /// The serving host sent a reply `host_late_ns` past its wire time.
+    pub fn reply_late(&mut self, host_late_ns: u64) {
+        if host_late_ns > self.opts.late_reply_ns {
+            self.replies_late += 1;
+        }
+        self.reply_late_max_ns = self.reply_late_max_ns.max(host_late_ns);
+    }
+
+    /// A fault the player played (its start or end).
+    pub fn fault_event(&mut self, ev: &FaultEvent) {
+        match ev.edge {
+            Edge::Start => self.faults.push(FaultRec {
+                fault: ev.fault,
+                kind: ev.kind.as_str().to_string(),
+                detail: ev.detail.clone(),
+                start_ps: ev.t_ps,
+                end_ps: None,
+                in_op: (0..self.drives.len())
+                    .filter(|&p| self.drives[p].in_op)
+                    .collect(),
+                usual_wkc: self.wkc.usual,
+                recovered_ps: None,
+            }),
+            Edge::End => {
+                if let Some(f) = self.faults.iter_mut().rev().find(|f| f.fault == ev.fault) {
+                    f.end_ps = Some(ev.t_ps);
+                }
+            }
+        }
+    }
+
+    /// A retry: the index and headers of a frame sent a moment ago, or of a lost one.
+    fn retry(&mut self, info: &parse::FrameInfo, t_ps: u64, lost: Lost) {
+        let s = &mut self.sent[usize::from(info.index)];
+        let mut gap_ps = 0;
+        if s.seen && s.shape == info.shape {
+            let dt = t_ps.saturating_sub(s.t_ps);
+            // Sooner than this index's frames usually repeat (a master that sends its cyclic
+            // frame with one index every cycle does not retry each time).
+            let sooner = s.gap_ps == 0 || dt.saturating_mul(4) < s.gap_ps.saturating_mul(3);
+            let window = dt < self.opts.retry_window_ns * 1000;
+            if sooner && (window || (s.lost && dt < RETRY_AFTER_LOSS_PS)) {
+                self.retries += 1;
+            } else {
+                gap_ps = dt;
+            }
+        }
+        *s = Sent {
+            shape: info.shape,
+            t_ps,
+            gap_ps: if gap_ps > 0 { gap_ps } else { s.gap_ps },
+            seen: true,
+            lost: lost != Lost::No,
+        };
+    }
+
+    /// The AL status reads of an answered frame: an error flag that appears counts once.
+    fn al_reads(&mut self, seg: &Segment, n: usize) {
+        let visited = (0..seg.len()).filter(|&p| self.drives[p].reached).count() as u16;
+        for r in self.al[..n].iter().flatten() {
+            let pos = match (r.station, r.returned_adp) {
+                (Some(st), _) => (0..seg.len()).find(|&p| seg.esc(p).station_address() == st),
+                (None, Some(adp)) => Some(usize::from(visited.wrapping_sub(adp))),
+                _ => None,
+            };
+            let Some(d) = pos.and_then(|p| self.drives.get_mut(p)) else {
+                continue;
+            };
+            let error = r.status & 0x10 != 0;
+            if error && !d.al_error_now {
+                d.al_errors += 1;
+            }
+            if error
+                && let Some(c) = r.code
+                && !d.al_codes.contains(&c)
+            {
+                d.al_codes.push(c);
+            }
+            d.al_error_now = error;
+        }
+    }
+
+    /// A frame with process data that came back: faults whose drives are all in OP again.
+    fn recoveries(&mut self, wkc: u32, t_ps: u64) {
+        for f in self.faults.iter_mut().filter(|f| f.recovered_ps.is_none()) {
+            let flowing = wkc != 0 && f.usual_wkc.is_none_or(|u| u == wkc);
+            let all_op = f
+                .in_op
+                .iter()
+                .all(|&p| self.drives[p].in_op && self.drives[p].reached);
+            if flowing && all_op && t_ps >= f.start_ps {
+                f.recovered_ps = Some(t_ps);
+            }
+        }
+    }
+
+    /// The frame's phase at the reference: the first slave whose SYNC0 runs; its spread
+    /// every 8th frame.
+    fn reference_phase(&mut self, seg: &Segment, k: u64, t_ps: u64) {
+        let trace = seg.trace();
+        let found = (0..seg.len()).find_map(|p| {
+            let dc = seg.esc(p).dc()?;
+            let (s, c) = dc.sync0().filter(|x| x.1 > 0)?;
+            Some((p, s, c, dc))
+        });
+        let Some((r, s, c, dc)) = found else {
+            return;
+        };
+        if self.reference.is_some_and(|x| x != (r, s, c)) {
+            self.phase_track.reset();
+        }
+        self.reference = Some((r, s, c));
+        let Some(pu) = trace.pu_ps(r) else { return };
+        let at = dc.system_time_split(pu);
+        let p = f64::from(c);
+        let x = after_pulse(at, s, c, dc.is_64bit());
+        let phase = self.phase_track.place(x, p);
+        self.phase.add(phase);
+        self.phase_fit.add(t_ps as f64 / 1e12, phase);
+        self.phase_bands.add(k, phase);
+        if k.is_multiple_of(8) {
+            let mut worst = 0.0f64;
+            for (x, d) in self.drives.iter_mut().enumerate() {
+                let Some(dx) = seg.esc(x).dc().filter(|u| u.sync0().is_some()) else {
+                    continue;
+                };
+                if x == r {
+                    continue;
+                }
+                let v = dx.system_time_split(pu);
+                let dev = ((v.0.wrapping_sub(at.0) as i64) as f64 + (v.1 - at.1)).abs();
+                d.dev_max_ns = d.dev_max_ns.max(dev);
+                worst = worst.max(dev);
+            }
+            self.spread.add(worst);
+        }
+    }
+
+    /// Each DC drive's margin before the SYNC0 pulse the frame's outputs were meant for, its
+    /// late frames and missed pulses, and its 0x092C.
+    fn margins(&mut self, seg: &Segment, k: u64, wire_ps: u64) {
+        let trace = seg.trace();
+        let mut worst = f64::INFINITY;
+        // The drives share one grid: the pulses a frame's lateness left without outputs are
+        // counted once for the run (the most any drive missed), per drive each.
+        let mut most_missed = 0;
+        for (x, d) in self.drives.iter_mut().enumerate() {
+            let esc = seg.esc(x);
+            let sync = esc.dc().and_then(|u| u.sync0()).filter(|s| s.1 > 0);
+            if sync != d.sync0 || seg.is_powered_off(x) {
+                d.track.reset();
+                d.last_out_ns = None;
+                d.al_error_now &= !seg.is_powered_off(x);
+            }
+            d.sync0 = sync;
+            let (Some(dc), Some((s, c)), Some(pu)) = (esc.dc(), sync, trace.pu_ps(x)) else {
+                continue;
+            };
+            d.frames += 1;
+            let mut raw = [0u8; 4];
+            dc.read_time_difference(&mut raw, false);
+            let td = decode_time_difference(u32::from_le_bytes(raw));
+            d.time_diff.add(f64::from(td).abs());
+            // Complete when the last bit has passed: the outputs take effect after the FCS.
+            let e = dc.system_time_split(pu + wire_ps);
+            let x_after = after_pulse(e, s, c, dc.is_64bit());
+            let margin = -d.track.place(x_after, f64::from(c));
+            d.margin.add(margin);
+            worst = worst.min(margin);
+            d.late += u64::from(margin < 0.0);
+            // The pulses since the last outputs: all but the first found none new.
+            let pulse_no = |t: u64| (dc_diff(t, s, dc.is_64bit())).div_euclid(i64::from(c));
+            if let Some(prev) = d.last_out_ns.replace(e.0) {
+                let n = pulse_no(e.0) - pulse_no(prev);
+                let m = (n - 1).max(0) as u64;
+                d.missed += m;
+                most_missed = most_missed.max(m);
+            }
+        }
+        self.missed += most_missed;
+        self.late += u64::from(worst < 0.0);
+        if worst.is_finite() {
+            self.worst_margin.add(worst);
+            self.margin_bands.add(k, worst);
+        }
+    }
+}
+
+/// System time `t` minus `s`, ns, in the width of the slave's system time.
+fn dc_diff(t: u64, s: u64, is_64bit: bool) -> i64 {
+    let d = t.wrapping_sub(s);
+    if is_64bit {
+        d as i64
+    } else {
+        i64::from(d as u32 as i32)
+    }
+}
+
+/// The time of `at` (system time, ns and fraction) after the last SYNC0 pulse at or before
+/// it (pulses at `s` + n `c`), in [0, c), ns.
+fn after_pulse(at: (u64, f64), s: u64, c: u32, is_64bit: bool) -> f64 {
+    let c = i64::from(c);
+    let x = dc_diff(at.0, s, is_64bit).rem_euclid(c) as f64 + at.1;
+    if x >= c as f64 { x - c as f64 } else { x }
+}

@@ -1,0 +1,262 @@
+//! The judge against independent truth: a master written here, frame by frame, on the
+//! letter's segment with ideal crystals (system time = real time, exactly), whose SYNC0 it
+//! programs itself; every expected phase, margin, late frame and missed pulse is worked out by
+//! hand from the instants it sends at and the segment's trace.
+
+use ecsync_lab::judge::{Expect, Judge, JudgeOptions, Lost, per_drive_table, report_html};
+use ecsync_sim::Segment;
+use ecsync_sim::clock::CrystalParams;
+use ecsync_sim::phy::frame_wire_time_ps;
+use ecsync_wire::register as reg;
+use ecsync_wire::{Command, DatagramAddress, FrameBuilder};
+
+const CYCLE_NS: u64 = 1_000_000;
+const START_NS: u64 = 10_000_000;
+const LEAD_NS: u64 = 300_000;
+
+fn frame(dgs: &[(Command, u8, DatagramAddress, &[u8])]) -> Vec<u8> {
+    let mut buf = vec![0u8; 1514];
+    let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0x02, 0, 0, 0, 0, 1]).unwrap();
+    for (c, i, a, d) in dgs {
+        b.push(*c, *i, *a, d).unwrap();
+    }
+    let n = b.finish();
+    buf.truncate(n);
+    buf
+}
+
+fn segment() -> Segment {
+    let mut specs = ecsync_sim::preset::paper_2024();
+    for s in &mut specs {
+        s.crystal = CrystalParams::default();
+    }
+    Segment::new(&specs).unwrap()
+}
+
+fn lrw(index: u8) -> Vec<u8> {
+    frame(&[(
+        Command::Lrw,
+        index,
+        DatagramAddress::Logical(0x1000),
+        &[0u8; 12],
+    )])
+}
+
+struct Rig {
+    seg: Segment,
+    judge: Judge,
+    /// From a frame's send to its first bit at the reference, ps.
+    to_ref_ps: u64,
+}
+
+impl Rig {
+    /// The segment with SYNC0 programmed on every slave (one frame of broadcast writes at
+    /// 1 ms): pulses at 10 ms + n x 1 ms of system time, which is real time here.
+    fn new() -> Rig {
+        let mut seg = segment();
+        let names = (1..=6).map(|i| format!("drive-{i}")).collect();
+        let mut judge = Judge::new(
+            &seg,
+            JudgeOptions {
+                names,
+                preset: "paper-2024 (ideal crystals)".into(),
+                ..JudgeOptions::default()
+            },
+        );
+        let b = |ado| DatagramAddress::Position { adp: 0, ado };
+        let mut f = frame(&[
+            (
+                Command::Bwr,
+                1,
+                b(reg::DC_START_TIME),
+                &START_NS.to_le_bytes(),
+            ),
+            (
+                Command::Bwr,
+                2,
+                b(reg::DC_SYNC0_CYCLE),
+                &(CYCLE_NS as u32).to_le_bytes(),
+            ),
+            (Command::Bwr, 3, b(reg::DC_ACTIVATION), &[0x03]),
+        ]);
+        seg.process(&mut f, 1_000_000_000);
+        judge.frame(&seg, &f, 1_000_000_000, Lost::No);
+        for x in 0..seg.len() {
+            assert_eq!(
+                seg.esc(x).dc().unwrap().sync0(),
+                Some((START_NS, CYCLE_NS as u32))
+            );
+        }
+        let to_ref_ps = seg.trace().pu_ps(0).unwrap() - 1_000_000_000;
+        Rig {
+            seg,
+            judge,
+            to_ref_ps,
+        }
+    }
+
+    /// The instant to send so that the frame's first bit reaches the reference `lead_ns`
+    /// before pulse `n`, ps.
+    fn send_ps(&self, n: u64, lead_ns: u64) -> u64 {
+        (START_NS + n * CYCLE_NS - lead_ns) * 1000 - self.to_ref_ps
+    }
+
+    fn send(&mut self, f: &[u8], t_ps: u64, lost: Lost) -> Vec<u8> {
+        let mut f = f.to_vec();
+        if lost != Lost::Out {
+            self.seg.process(&mut f, t_ps);
+        }
+        self.judge.frame(&self.seg, &f, t_ps, lost);
+        f
+    }
+}
+
+#[test]
+fn phase_margin_late_missed_by_hand() {
+    let mut r = Rig::new();
+    let f = lrw(0);
+    let wire_ps = frame_wire_time_ps(f.len());
+    // Frames 300 us before each pulse at the reference.
+    let mut hops_ps = Vec::new();
+    for n in 1..=100u64 {
+        let f = lrw(n as u8);
+        r.send(&f, r.send_ps(n, LEAD_NS), Lost::No);
+        if n == 1 {
+            let t = r.seg.trace();
+            hops_ps = (0..6)
+                .map(|x| t.pu_ps(x).unwrap() - t.pu_ps(0).unwrap())
+                .collect();
+        }
+    }
+    let out = r.judge.summary(&r.seg);
+    assert_eq!(out.pd_frames, 100);
+    assert_eq!(out.reference, Some(0));
+    assert_eq!(out.cycle_ns, Some(CYCLE_NS as u32));
+    let ph = out.phase;
+    assert!((ph.mean_ns.unwrap() + 300_000.0).abs() < 1e-3, "{ph:?}");
+    assert!(ph.std_ns.unwrap() < 1e-3);
+    assert!(ph.drift_ns_per_s.unwrap().abs() < 1e-3);
+    for (x, d) in out.drives.iter().enumerate() {
+        // SYNC0 at the drive minus the frame's last bit there: 300 us less the hops from the
+        // reference and the frame's wire time.
+        let want = LEAD_NS as f64 - (hops_ps[x] + wire_ps) as f64 / 1000.0;
+        let got = d.margin_min_ns.unwrap();
+        assert!((got - want).abs() < 1e-3, "drive {x}: {got} vs {want}");
+        assert!((d.margin_mean_ns.unwrap() - want).abs() < 1e-3);
+        assert_eq!((d.late, d.missed, d.frames), (0, 0, 100));
+        assert_eq!(d.name, format!("drive-{}", x + 1));
+    }
+    assert!(hops_ps[5] > 0);
+    assert_eq!(
+        (out.late, out.missed, out.lost, out.duplicates),
+        (0, 0, 0, 0)
+    );
+    let keep: Expect = "late=0,missed=0,phase_p999_us<=1,margin_min_us>=290"
+        .parse()
+        .unwrap();
+    assert_eq!(keep.check(&out), Vec::<String>::new());
+
+    // Frame 101 reaches the reference 10 us after its pulse: late at every drive, and pulse
+    // 101 finds no new outputs (the last came before pulse 100).
+    let f = lrw(101);
+    let t_late = r.send_ps(101, 0) + 10_000_000;
+    r.send(&f, t_late, Lost::No);
+    for n in 102..=110u64 {
+        r.send(&lrw(n as u8), r.send_ps(n, LEAD_NS), Lost::No);
+    }
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late, out.missed), (1, 1));
+    for (x, d) in out.drives.iter().enumerate() {
+        assert_eq!((d.late, d.missed), (1, 1), "drive {x}");
+        let want = -10_000.0 - (hops_ps[x] + wire_ps) as f64 / 1000.0;
+        assert!((d.margin_min_ns.unwrap() - want).abs() < 1e-3);
+    }
+    assert!((out.phase.max_ns.unwrap() - 10_000.0).abs() < 1e-3);
+    let broken = keep.check(&out);
+    assert!(
+        broken.contains(&"late = 1, expected 0".to_string()),
+        "{broken:?}"
+    );
+    assert!(broken.contains(&"missed = 1, expected 0".to_string()));
+    assert!(
+        broken.iter().any(|b| b.starts_with("margin_min_us = -1")),
+        "{broken:?}"
+    );
+
+    // Frame 111 lost on the way out: pulse 112 finds no new outputs. Frame 113 lost on the way
+    // back: its outputs arrived, nothing missed.
+    r.send(&lrw(111), r.send_ps(111, LEAD_NS), Lost::Out);
+    r.send(&lrw(112), r.send_ps(112, LEAD_NS), Lost::No);
+    r.send(&lrw(113), r.send_ps(113, LEAD_NS), Lost::Back);
+    r.send(&lrw(114), r.send_ps(114, LEAD_NS), Lost::No);
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late, out.missed, out.lost, out.lost_pd), (1, 2, 2, 2));
+    assert_eq!(
+        out.pd_frames, 113,
+        "a frame lost on the way out reached no drive"
+    );
+    assert!(out.drives.iter().all(|d| d.missed == 2));
+
+    // A retry: frame 114 again 100 us later, the same index and datagrams.
+    r.send(&lrw(114), r.send_ps(114, LEAD_NS) + 100_000_000, Lost::No);
+    let out = r.judge.summary(&r.seg);
+    assert_eq!(out.duplicates, 1);
+
+    // The serving host's lateness.
+    r.judge.reply_late(3_000);
+    r.judge.reply_late(25_000);
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late_replies, out.late_reply_max_ns), (1, 25_000));
+    let table = per_drive_table(&out);
+    assert!(table.contains("drive-6"), "{table}");
+    let html = report_html(&out);
+    assert!(html.contains("<svg") && html.contains("Broken") && html.contains("drive-6"));
+    let json = serde_json::to_string(&out).unwrap();
+    assert!(json.contains("\"late\":1"));
+}
+
+#[test]
+fn a_master_fixed_on_one_index_does_not_retry_each_cycle() {
+    let mut r = Rig::new();
+    for n in 1..=50u64 {
+        r.send(&lrw(7), r.send_ps(n, LEAD_NS), Lost::No);
+    }
+    r.send(&lrw(7), r.send_ps(51, LEAD_NS), Lost::Out);
+    for n in 52..=60u64 {
+        r.send(&lrw(7), r.send_ps(n, LEAD_NS), Lost::No);
+    }
+    let out = r.judge.summary(&r.seg);
+    assert_eq!(out.duplicates, 0);
+    assert_eq!(out.missed, 1);
+}
+
+#[test]
+fn frames_aimed_after_a_pulse_mean_the_next_one() {
+    // A master whose frames reach the reference 20 us after each pulse: their outputs are for
+    // the next pulse, 980 us on; not late.
+    let mut r = Rig::new();
+    for n in 1..=40u64 {
+        r.send(&lrw(n as u8), r.send_ps(n, 0) + 20_000_000, Lost::No);
+    }
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late, out.missed), (0, 0));
+    assert!((out.phase.mean_ns.unwrap() + 980_000.0).abs() < 1e-3);
+}
+
+#[test]
+fn expect_says_what_broke() {
+    let e: Expect = "late=0,recovery_ms<=100".parse().unwrap();
+    let mut r = Rig::new();
+    r.send(&lrw(1), r.send_ps(1, LEAD_NS), Lost::No);
+    assert!(e.check(&r.judge.summary(&r.seg)).is_empty());
+    let err = "late=0,jitter<5".parse::<Expect>().unwrap_err().to_string();
+    assert!(err.contains("unknown key `jitter`") && err.contains("margin_min_us"));
+    // Nothing measured: said so, not passed.
+    let r = Rig::new();
+    let b = "phase_std_us<=1"
+        .parse::<Expect>()
+        .unwrap()
+        .check(&r.judge.summary(&r.seg));
+    assert_eq!(b.len(), 1);
+    assert!(b[0].starts_with("phase_std_us: not measured"), "{b:?}");
+}
