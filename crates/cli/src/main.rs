@@ -37,6 +37,10 @@ enum Command {
     /// end (ecsync run, ethercrab, SOEM) sees its slaves.
     #[cfg(target_os = "linux")]
     Serve(net::ServeArgs),
+    /// Talks to a running `serve --control PATH`: inject or clear a fault, read the counters
+    /// and the judge, reset the segment, stop.
+    #[cfg(target_os = "linux")]
+    Ctl(net::CtlArgs),
     /// Runs the master on a network interface: scan, DC bring-up, SYNC0, and the cyclic loop
     /// with a synchronization method, in real time.
     #[cfg(target_os = "linux")]
@@ -68,6 +72,8 @@ fn main() -> ExitCode {
         Command::Bench(a) => bench::run(a),
         #[cfg(target_os = "linux")]
         Command::Serve(a) => net::serve(a),
+        #[cfg(target_os = "linux")]
+        Command::Ctl(a) => net::ctl(a),
         #[cfg(target_os = "linux")]
         Command::Run(a) => net::run(a),
         Command::Host(a) => host::run(a),

@@ -65,13 +65,15 @@ fn session_over_veth() -> Result<Outcome, String> {
         let stop = stop.clone();
         std::thread::spawn(move || {
             let mut segment = segment;
-            let r = ecsync_net::serve::serve::<std::io::Sink>(
+            let mut faults = ecsync_sim::fault::FaultPlayer::new(Default::default(), 0);
+            let r = ecsync_net::serve::serve::<std::io::Sink, ()>(
                 &sock,
                 &mut segment,
                 None,
-                None,
+                &mut faults,
+                ecsync_net::serve::ServeConfig::default(),
                 &stop,
-                |_| {},
+                (),
             );
             (r, segment)
         })

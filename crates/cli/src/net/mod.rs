@@ -1,10 +1,13 @@
 //! `ecsync serve` (the virtual segment on a network interface) and `ecsync run` (the master, its
 //! DC bring-up and a synchronization method on a network interface).
 
+mod control;
 mod sandbox;
 mod serve;
+mod served;
 mod text;
 
+pub use control::{CtlArgs, ctl};
 pub use serve::{ServeArgs, serve};
 
 use anyhow::{Context, Result, bail};

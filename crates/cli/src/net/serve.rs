@@ -34,8 +34,27 @@ pub struct ServeArgs {
     /// unless it says `epoch = "start"`.
     #[arg(long)]
     faults: Option<PathBuf>,
+    /// When replies leave: `wire`, at the segment's wire time (no earlier than the reply's
+    /// last bit would reach the master: round trip, hops, the frame's length at 100 Mbit/s;
+    /// how late this host sent them is reported apart), or `none`, as soon as processed.
+    #[arg(long, value_enum, default_value_t = PaceArg::Wire)]
+    pace: PaceArg,
+    /// A control socket (Unix, one JSON object a line): inject or clear a fault now or at a
+    /// time, read the counters and the judge, reset the segment to power-on, stop. `ecsync
+    /// ctl` is its client.
+    #[arg(long, value_name = "PATH")]
+    control: Option<PathBuf>,
     #[command(flatten)]
     sandbox: super::sandbox::SandboxArgs,
+}
+
+/// `--pace`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum PaceArg {
+    /// At the segment's wire time.
+    Wire,
+    /// As soon as processed.
+    None,
 }
 
 /// Opens the segment's socket (EtherCAT frames, untagged or in a VLAN tag, which the answer
@@ -51,7 +70,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     }
     let (name, specs) = args.source.segment()?;
     let mut seg = Segment::new(&specs).context("building the segment")?;
-    let mut faults = match &args.faults {
+    let schedule = match &args.faults {
         Some(p) => {
             let sched = ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
             if let Some((n, f)) = sched
@@ -66,8 +85,13 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
                     f.kind.name()
                 );
             }
-            Some(ecsync_sim::fault::FaultPlayer::new(sched, 0))
+            Some(sched)
         }
+        None => None,
+    };
+    let mut faults = super::served::player(schedule);
+    let control = match &args.control {
+        Some(p) => Some(super::control::ControlServer::bind(p)?),
         None => None,
     };
     let sock = open_socket(&args.iface)?;
@@ -112,25 +136,29 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     }
     super::sandbox::ready(&args.sandbox, &args.iface, seg.len(), &args.source)?;
     let t0 = Instant::now();
-    let mut last_print = Instant::now();
+    let hooks = super::served::CliHooks {
+        quiet: args.quiet,
+        t0,
+        last_print: Instant::now(),
+        control,
+        line_open: false,
+    };
+    let config = ecsync_net::serve::ServeConfig {
+        pace: match args.pace {
+            PaceArg::Wire => ecsync_net::serve::Pace::Wire,
+            PaceArg::None => ecsync_net::serve::Pace::None,
+        },
+        carrier_iface: Some(&args.iface),
+    };
     let quiet = args.quiet;
     let stats = ecsync_net::serve::serve(
         &sock,
         &mut seg,
         capture.as_mut(),
-        faults.as_mut(),
+        &mut faults,
+        config,
         &STOP,
-        |s| {
-            if !quiet && last_print.elapsed().as_secs_f64() >= 1.0 {
-                last_print = Instant::now();
-                eprint!(
-                    "\r{:>8.1} s: {} frames answered, {} not returned",
-                    t0.elapsed().as_secs_f64(),
-                    s.answered,
-                    s.not_returned
-                );
-            }
-        },
+        hooks,
     )
     .map_err(|e| anyhow::anyhow!("serving on {}: {e}", args.iface))?;
     if !quiet {
@@ -150,12 +178,28 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         stats.not_returned,
         stats.marked_on_arrival
     );
-    if let Some(f) = &faults {
+    if stats.paced > 0 {
+        eprintln!(
+            "replies at wire time: {}; this host sent {} of them more than {} us late, the latest {:.1} us late (the host's lateness, not the model's)",
+            stats.paced,
+            stats.host_late,
+            ecsync_net::serve::HOST_LATE_NS / 1000,
+            stats.host_late_max_ns as f64 / 1e3
+        );
+    }
+    if stats.carrier_changes > 0 {
+        eprintln!(
+            "{} went down and up with the first slave's link {} times",
+            args.iface,
+            stats.carrier_changes / 2
+        );
+    }
+    if !faults.events().is_empty() || stats.dropped_by_faults > 0 {
         eprintln!(
             "faults: {} frames dropped, {} replies deferred, the interface down {} times; events:",
             stats.dropped_by_faults, stats.deferred_sends, stats.link_down_errors
         );
-        for e in f.events() {
+        for e in faults.events() {
             eprintln!(
                 "  {:>10.3} s  {} {}: {}",
                 e.since_epoch_ns as f64 / 1e9,

@@ -1,0 +1,193 @@
+//! What `ecsync serve` does while the segment serves: the status line, warnings, faults as
+//! they happen, and the control socket's requests (taken between two frames).
+
+use super::control::{self, ControlServer, Request};
+use ecsync_net::serve::{ServeHooks, Served};
+use ecsync_sim::Segment;
+use ecsync_sim::fault::{FaultEvent, FaultPlayer};
+use serde_json::{Value, json};
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+/// `serve`'s hooks.
+pub(super) struct CliHooks {
+    pub(super) quiet: bool,
+    pub(super) t0: Instant,
+    pub(super) last_print: Instant,
+    pub(super) control: Option<ControlServer>,
+    /// Whether a status line is on the terminal (a message first ends it).
+    pub(super) line_open: bool,
+}
+
+impl CliHooks {
+    fn say(&mut self, text: &str) {
+        if self.line_open {
+            eprintln!();
+            self.line_open = false;
+        }
+        eprintln!("{text}");
+    }
+
+    fn answer(&mut self, req: &Value, served: &mut Served<'_>) -> Value {
+        let cmd = req.get("cmd").and_then(Value::as_str).unwrap_or("");
+        match cmd {
+            "status" => status(served),
+            "inject" => inject(req, served),
+            "clear" => {
+                let which = req.get("fault").and_then(Value::as_u64);
+                let which = which.map(|n| n as usize);
+                if let Some(n) = which
+                    && n >= served.faults.schedule().faults.len()
+                {
+                    return control::error(&format!(
+                        "clear: there is no fault {n} (0 to {})",
+                        served.faults.schedule().faults.len().saturating_sub(1)
+                    ));
+                }
+                served.faults.clear(served.segment, which, served.now_ps);
+                json!({"ok": true})
+            }
+            "reset" => {
+                // Every slave off and on again at once: registers, AL Init, new power-up
+                // times, as a segment switched on. The faults' windows stay as they are.
+                for p in 0..served.segment.len() {
+                    served.segment.power_off(p, served.now_ps);
+                }
+                for p in 0..served.segment.len() {
+                    served.segment.power_on(p, served.now_ps);
+                }
+                self.say("ecsync serve: reset to power-on (control socket)");
+                json!({"ok": true})
+            }
+            "stop" => {
+                super::STOP.store(true, Ordering::Relaxed);
+                json!({"ok": true})
+            }
+            "" => control::error(&format!(
+                "a request needs \"cmd\": one of {}",
+                control::COMMANDS
+            )),
+            other => control::error(&format!(
+                "unknown cmd {other:?}: one of {}",
+                control::COMMANDS
+            )),
+        }
+    }
+}
+
+fn status(served: &Served<'_>) -> Value {
+    let seg: &Segment = served.segment;
+    let slaves: Vec<Value> = (0..seg.len())
+        .map(|p| {
+            json!({
+                "position": p + 1,
+                "powered": !seg.is_powered_off(p),
+                "al_state": seg.esc(p).al_state().to_string(),
+            })
+        })
+        .collect();
+    json!({
+        "ok": true,
+        "t_s": served.now_ps as f64 / 1e12,
+        "epoch_s": served.faults.origin_ps().map(|o| o as f64 / 1e12),
+        "stats": served.stats,
+        "master_link_up": seg.master_link_up(),
+        "slaves": slaves,
+        "faults": served.faults.events(),
+    })
+}
+
+/// `inject`: one fault of the schedule's kinds, now (`in_s` from now, or `at_s` after the
+/// epoch).
+fn inject(req: &Value, served: &mut Served<'_>) -> Value {
+    let Some(fault) = req.get("fault") else {
+        return control::error(
+            "inject needs \"fault\": {\"kind\": ..., and the keys of a [[fault]] entry}",
+        );
+    };
+    let table = match serde_json::from_value::<toml::Table>(fault.clone()) {
+        Ok(t) => t,
+        Err(e) => return control::error(&format!("fault: {e}")),
+    };
+    let fault = match ecsync_sim::fault::parse_fault_entry(&table) {
+        Ok(f) => f,
+        Err(e) => return control::error(&format!("fault: {e}")),
+    };
+    if fault.kind.is_host_fault() {
+        return control::error(&format!(
+            "fault: \"{}\" is a fault of the master's host, which serve cannot play",
+            fault.kind.name()
+        ));
+    }
+    let secs = |k: &str| req.get(k).and_then(Value::as_f64);
+    let at_ps = match (secs("in_s"), secs("at_s")) {
+        (Some(_), Some(_)) => return control::error("give in_s or at_s, not both"),
+        (Some(s), None) if s >= 0.0 && s.is_finite() => served.now_ps + (s * 1e12) as u64,
+        (None, Some(s)) if s >= 0.0 && s.is_finite() => match served.faults.origin_ps() {
+            Some(o) => o + (s * 1e12) as u64,
+            None => {
+                return control::error(
+                    "at_s counts from the epoch, which has not come yet (no frame with process data): use in_s",
+                );
+            }
+        },
+        (None, None) => served.now_ps,
+        _ => return control::error("in_s and at_s are seconds >= 0"),
+    };
+    let n = served.faults.inject(fault, at_ps);
+    json!({"ok": true, "fault": n, "at_t_s": at_ps as f64 / 1e12})
+}
+
+impl ServeHooks for CliHooks {
+    fn fault_event(&mut self, e: &FaultEvent) {
+        if !self.quiet {
+            self.say(&format!(
+                "  {:>10.3} s  {} {}: {}",
+                e.since_epoch_ns as f64 / 1e9,
+                e.kind,
+                e.edge,
+                e.detail
+            ));
+        }
+    }
+
+    fn warning(&mut self, text: &str) {
+        self.say(&format!("ecsync serve: warning: {text}"));
+    }
+
+    fn poll(&mut self, served: &mut Served<'_>) {
+        while let Some(req) = self
+            .control
+            .as_ref()
+            .and_then(|c| c.requests.try_recv().ok())
+        {
+            let Request { body, answer } = req;
+            let a = self.answer(&body, served);
+            let _ = answer.send(a);
+        }
+        if !self.quiet && self.last_print.elapsed().as_secs_f64() >= 1.0 {
+            self.last_print = Instant::now();
+            let s = served.stats;
+            eprint!(
+                "\r{:>8.1} s: {} frames answered, {} not returned",
+                self.t0.elapsed().as_secs_f64(),
+                s.answered,
+                s.not_returned
+            );
+            self.line_open = true;
+        }
+    }
+
+    fn poll_interval_ns(&self) -> u64 {
+        if self.control.is_some() {
+            control::POLL_INTERVAL_NS
+        } else {
+            100_000_000
+        }
+    }
+}
+
+/// A player for serve: the schedule's, or an empty one that control requests fill.
+pub(super) fn player(schedule: Option<ecsync_sim::fault::FaultSchedule>) -> FaultPlayer {
+    FaultPlayer::new(schedule.unwrap_or_default(), 0)
+}
