@@ -1,0 +1,439 @@
+//! `ecsync serve --sandbox -- COMMAND`: the segment served in a private network made by the
+//! process itself (a network namespace, in a user namespace when unprivileged), COMMAND run on
+//! the other end of a veth pair with `ECSYNC_IFACE`, its exit code passed through, the ready
+//! line first on stdout; as the current user (root in CI) and as `nobody`, with a shell, SOEM
+//! (pysoem) and ethercrab as COMMAND.
+//!
+//! The tests that make namespaces are ignored unless asked for (a machine may refuse user
+//! namespaces: sysctls, AppArmor, a container's seccomp profile), and asked for they fail
+//! naming what was refused; the ones as `nobody` need setpriv (util-linux) and root to become
+//! nobody, the SOEM ones a Python with pysoem (`ECSYNC_PYSOEM_PYTHON`; as nobody it must be one
+//! that nobody can run: .ci/run makes it so).
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// The masters that run cycles in real time take the machine's cores one at a time.
+static TIMED: Mutex<()> = Mutex::new(());
+
+const NEEDS_NS: &str = "needs network namespaces (root or unprivileged user namespaces)";
+
+fn ecsync() -> &'static str {
+    env!("CARGO_BIN_EXE_ecsync")
+}
+
+fn script(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/pysoem")
+        .join(name)
+}
+
+/// A fresh directory any user can read and enter.
+fn tmp(name: &str) -> PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = std::env::temp_dir().join(format!("ecsync-sandbox-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777)).unwrap();
+    dir
+}
+
+/// What a command did: its status, stdout, stderr, and how long it took.
+struct Ran {
+    status: ExitStatus,
+    stdout: String,
+    stderr: String,
+    took: Duration,
+}
+
+/// Runs `cmd` to its end, killed after `limit` (a test must not hang); a command that cannot
+/// start, or that the sandbox could not be made for, fails the test with the reason.
+fn run(mut cmd: Command, limit: Duration) -> Ran {
+    let t0 = Instant::now();
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|e| panic!("cannot start {cmd:?}: {e}"));
+    let (out, err) = (drain(child.stdout.take()), drain(child.stderr.take()));
+    let status = wait_at_most(&mut child, limit);
+    let r = Ran {
+        status,
+        stdout: out.join().unwrap(),
+        stderr: err.join().unwrap(),
+        took: t0.elapsed(),
+    };
+    assert!(
+        !r.stderr.contains("--sandbox: cannot make"),
+        "this test {NEEDS_NS}, and this machine refused: {}",
+        r.stderr
+    );
+    assert!(t0.elapsed() < limit, "killed after {limit:?}: {}", r.stderr);
+    r
+}
+
+fn drain(r: Option<impl Read + Send + 'static>) -> std::thread::JoinHandle<String> {
+    std::thread::spawn(move || {
+        let mut s = String::new();
+        if let Some(mut r) = r {
+            let _ = r.read_to_string(&mut s);
+        }
+        s
+    })
+}
+
+fn wait_at_most(child: &mut Child, limit: Duration) -> ExitStatus {
+    let t0 = Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s;
+        }
+        if t0.elapsed() > limit {
+            let _ = child.kill();
+            return child.wait().unwrap();
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// `ecsync serve --quiet --sandbox [extra] -- command...`.
+fn sandboxed(extra: &[&str], command: &[&str]) -> Command {
+    let mut c = Command::new(ecsync());
+    c.args(["serve", "--preset", "paper-2024", "--quiet", "--sandbox"])
+        .args(extra)
+        .arg("--")
+        .args(command);
+    c
+}
+
+/// nobody's uid and gid.
+fn nobody() -> (u32, u32) {
+    let name = std::ffi::CString::new("nobody").unwrap();
+    // SAFETY: `name` is a live C string; getpwnam returns null or a pointer into static
+    // storage, read at once on this thread.
+    let pw = unsafe { libc::getpwnam(name.as_ptr()) };
+    assert!(!pw.is_null(), "this test needs a user nobody");
+    // SAFETY: checked non-null above.
+    unsafe { ((*pw).pw_uid, (*pw).pw_gid) }
+}
+
+/// `program args...` as nobody (setpriv, util-linux; needs root), in a directory nobody can
+/// enter, with HOME there.
+fn as_nobody(program: &str, dir: &Path) -> Command {
+    let ok = Command::new("setpriv")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(ok, "this test needs setpriv (util-linux)");
+    let (uid, gid) = nobody();
+    let probe = Command::new("setpriv")
+        .args([&format!("--reuid={uid}"), &format!("--regid={gid}")])
+        .args(["--clear-groups", "true"])
+        .output()
+        .unwrap();
+    assert!(
+        probe.status.success(),
+        "this test needs setpriv and root to become nobody: {}",
+        String::from_utf8_lossy(&probe.stderr)
+    );
+    let mut c = Command::new("setpriv");
+    c.args([&format!("--reuid={uid}"), &format!("--regid={gid}")])
+        .arg("--clear-groups")
+        .arg(program)
+        .current_dir(dir)
+        .env("HOME", dir);
+    c
+}
+
+/// `path` if nobody can read (and run) it where it is, else a copy of it in `dir` that nobody
+/// can (a clone under a private home).
+fn for_nobody(path: &Path, dir: &Path) -> PathBuf {
+    let (uid, gid) = nobody();
+    let readable = Command::new("setpriv")
+        .args([&format!("--reuid={uid}"), &format!("--regid={gid}")])
+        .args(["--clear-groups", "test", "-r"])
+        .arg(path)
+        .status()
+        .is_ok_and(|s| s.success());
+    if readable {
+        return path.to_path_buf();
+    }
+    use std::os::unix::fs::PermissionsExt;
+    let copy = dir.join(path.file_name().unwrap());
+    std::fs::copy(path, &copy).unwrap();
+    std::fs::set_permissions(&copy, std::fs::Permissions::from_mode(0o755)).unwrap();
+    copy
+}
+
+/// A Python with pysoem (`ECSYNC_PYSOEM_PYTHON`, else python3) that `check` runs: the test
+/// panics saying how to get one where there is none.
+fn python(check: impl Fn(&str) -> Command) -> String {
+    let py = std::env::var("ECSYNC_PYSOEM_PYTHON").unwrap_or_else(|_| "python3".into());
+    let ok = check(&py)
+        .args(["-c", "import pysoem"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(
+        ok,
+        "this test needs pysoem, and {py} has none for the user that runs it: pip install pysoem, or set ECSYNC_PYSOEM_PYTHON to a Python that has it (.ci/run makes a venv any user can run)"
+    );
+    py
+}
+
+fn code(r: &Ran) -> Option<i32> {
+    r.status.code()
+}
+
+#[test]
+fn serve_needs_an_interface_or_the_sandbox_and_the_sandbox_a_command() {
+    for (args, says) in [
+        (&["serve"][..], "--iface"),
+        (&["serve", "--sandbox"][..], "COMMAND"),
+        (&["serve", "--iface", "x", "--", "true"][..], "--sandbox"),
+    ] {
+        let o = Command::new(ecsync()).args(args).output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(e.contains(says), "{args:?}: {e}");
+    }
+}
+
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces)"]
+fn the_sandbox_passes_the_command_s_exit_code_through() {
+    let r = run(
+        sandboxed(&[], &["sh", "-c", "exit 3"]),
+        Duration::from_secs(30),
+    );
+    assert_eq!(code(&r), Some(3), "{}", r.stderr);
+    println!("exit 3 passed through in {:?}", r.took);
+    let r = run(
+        sandboxed(&[], &["sh", "-c", "kill -TERM $$"]),
+        Duration::from_secs(30),
+    );
+    assert_eq!(code(&r), Some(128 + libc::SIGTERM), "{}", r.stderr);
+    let r = run(
+        sandboxed(&[], &["ecsync-no-such-command"]),
+        Duration::from_secs(30),
+    );
+    assert_eq!(code(&r), Some(127), "{}", r.stderr);
+    assert!(r.stderr.contains("cannot run ecsync-no-such-command"));
+}
+
+/// The ready line is the first line on stdout (COMMAND starts after it), and the same in
+/// --ready-file; COMMAND finds its interface up, and the sandbox's sysfs shows the sandbox's
+/// interfaces, not the host's.
+fn ready_line_then_interface_up(r: &Ran, ready_file: &Path) {
+    assert_eq!(code(r), Some(0), "{}", r.stderr);
+    let mut lines = r.stdout.lines();
+    let first = lines.next().expect("a ready line");
+    let v: serde_json::Value = serde_json::from_str(first).expect("the ready line is JSON");
+    assert_eq!(v["event"], "ready", "{first}");
+    assert_eq!(v["iface"], "ecsync0", "{first}");
+    assert_eq!(v["master_iface"], "master0", "{first}");
+    assert_eq!(v["slaves"], 6, "{first}");
+    assert_eq!(v["preset"], "paper-2024", "{first}");
+    assert!(v["pid"].as_u64().is_some_and(|p| p > 0), "{first}");
+    assert!(first.starts_with(r#"{"event":"ready","#), "{first}");
+    assert_eq!(
+        std::fs::read_to_string(ready_file).unwrap(),
+        format!("{first}\n")
+    );
+    assert_eq!(lines.next(), Some("up"), "{}", r.stdout);
+    let mut ifaces: Vec<&str> = lines.collect();
+    ifaces.sort();
+    assert_eq!(ifaces, ["ecsync0", "lo", "master0"], "{}", r.stdout);
+}
+
+const CHECK_IFACE: &str = "cat /sys/class/net/$ECSYNC_IFACE/operstate && ls /sys/class/net";
+
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces)"]
+fn the_command_finds_its_interface_up_after_the_ready_line() {
+    let dir = tmp("ready");
+    let ready = dir.join("ready.json");
+    let r = run(
+        sandboxed(
+            &["--ready-file", ready.to_str().unwrap()],
+            &["sh", "-c", CHECK_IFACE],
+        ),
+        Duration::from_secs(30),
+    );
+    ready_line_then_interface_up(&r, &ready);
+    println!("{}", r.stdout.lines().next().unwrap());
+}
+
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces)"]
+fn a_sigterm_to_serve_reaches_the_command_and_its_code_is_serve_s() {
+    let mut child = sandboxed(&[], &["sleep", "60"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = drain(child.stderr.take());
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    if first.is_empty() {
+        let status = wait_at_most(&mut child, Duration::from_secs(10));
+        panic!(
+            "no ready line ({status}); this test {NEEDS_NS}: {}",
+            err.join().unwrap()
+        );
+    }
+    let v: serde_json::Value = serde_json::from_str(&first).expect("the ready line");
+    assert_eq!(v["pid"].as_u64(), Some(u64::from(child.id())));
+    let t0 = Instant::now();
+    // SAFETY: plain FFI call on the pid of a child not yet waited for.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let status = wait_at_most(&mut child, Duration::from_secs(20));
+    let e = err.join().unwrap();
+    assert_eq!(status.code(), Some(128 + libc::SIGTERM), "{e}");
+    assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
+    assert!(e.contains("COMMAND exited: signal: 15"), "{e}");
+}
+
+#[test]
+#[ignore = "needs setpriv (and root to become nobody)"]
+fn the_sandbox_works_for_nobody() {
+    let dir = tmp("nobody");
+    let bin = for_nobody(Path::new(ecsync()), &dir);
+    let bin = bin.to_str().unwrap();
+    let serve = |extra: &[&str], command: &[&str]| {
+        let mut c = as_nobody(bin, &dir);
+        c.args(["serve", "--preset", "paper-2024", "--quiet", "--sandbox"])
+            .args(extra)
+            .arg("--")
+            .args(command);
+        c
+    };
+    let r = run(serve(&[], &["sh", "-c", "exit 3"]), Duration::from_secs(30));
+    assert_eq!(code(&r), Some(3), "{}", r.stderr);
+    assert!(
+        r.stderr.contains("in a user namespace (unprivileged)"),
+        "{}",
+        r.stderr
+    );
+    let ready = dir.join("ready.json");
+    let r = run(
+        serve(
+            &["--ready-file", ready.to_str().unwrap()],
+            &["sh", "-c", CHECK_IFACE],
+        ),
+        Duration::from_secs(30),
+    );
+    ready_line_then_interface_up(&r, &ready);
+    // Refused real-time settings are one line each, and serve goes on.
+    for l in r.stderr.lines().filter(|l| l.contains("warning")) {
+        assert!(l.starts_with("ecsync serve: warning: "), "{l}");
+    }
+    println!("as nobody: {}", r.stderr);
+}
+
+#[test]
+#[ignore = "needs setpriv (and root to become nobody), pysoem"]
+fn pysoem_runs_a_master_s_ci_test_in_the_sandbox_as_nobody() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("pysoem-nobody");
+    let py = python(|py| as_nobody(py, &dir));
+    let bin = for_nobody(Path::new(ecsync()), &dir);
+    let cycle = for_nobody(&script("soem_cycle.py"), &dir);
+    let mut c = as_nobody(bin.to_str().unwrap(), &dir);
+    c.args([
+        "serve",
+        "--preset",
+        "paper-2024",
+        "--quiet",
+        "--sandbox",
+        "--",
+    ])
+    .arg(&py)
+    .arg(&cycle);
+    let r = run(c, Duration::from_secs(240));
+    println!("{}{}({:.1} s)", r.stdout, r.stderr, r.took.as_secs_f64());
+    assert_eq!(code(&r), Some(0), "{}", r.stderr);
+    let summary = r.stdout.lines().nth(1).unwrap_or_default();
+    assert!(
+        summary.starts_with(
+            "soem_cycle: 5000 cycles of 4000 us in OP on master0 (6 slaves, 6 with SYNC0"
+        ) && summary.contains(" 0 working counter errors (expected 18)"),
+        "{summary}"
+    );
+}
+
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces), pysoem"]
+fn twenty_back_to_back_pysoem_sessions_against_one_serve() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
+    let py = python(|py| Command::new(py));
+    let mut c = sandboxed(&[], &[py.as_str()]);
+    c.arg(script("sessions.py")).arg("20");
+    let r = run(c, Duration::from_secs(120));
+    println!("{}({:.1} s)", r.stdout, r.took.as_secs_f64());
+    assert_eq!(code(&r), Some(0), "{}{}", r.stdout, r.stderr);
+    assert!(r.stdout.contains("sessions: 20 of 20 ok"), "{}", r.stdout);
+}
+
+/// The ethercrab example, built as CI builds it (`cargo test` builds every example; this
+/// builds it again, a no-op then, so that the test also runs alone).
+fn ethercrab_example() -> PathBuf {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut c = Command::new(cargo);
+    c.args([
+        "build",
+        "-q",
+        "-p",
+        "ecsync-ethercrab",
+        "--example",
+        "ci_master",
+    ])
+    .arg("--message-format=json");
+    if !cfg!(debug_assertions) {
+        c.arg("--release");
+    }
+    let o = c.current_dir(env!("CARGO_MANIFEST_DIR")).output().unwrap();
+    assert!(
+        o.status.success(),
+        "building the ethercrab example: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter(|v| v["target"]["name"] == "ci_master")
+        .find_map(|v| v["executable"].as_str().map(PathBuf::from))
+        .expect("cargo names the example's executable")
+}
+
+#[test]
+#[ignore = "needs setpriv (and root to become nobody)"]
+fn the_ethercrab_example_runs_in_the_sandbox_as_nobody() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("ethercrab-nobody");
+    let example = for_nobody(&ethercrab_example(), &dir);
+    let bin = for_nobody(Path::new(ecsync()), &dir);
+    let mut c = as_nobody(bin.to_str().unwrap(), &dir);
+    c.args([
+        "serve",
+        "--preset",
+        "paper-2024",
+        "--quiet",
+        "--sandbox",
+        "--",
+    ])
+    .arg(&example);
+    let r = run(c, Duration::from_secs(120));
+    println!("{}{}({:.1} s)", r.stdout, r.stderr, r.took.as_secs_f64());
+    assert_eq!(code(&r), Some(0), "{}", r.stderr);
+    let summary = r.stdout.lines().nth(1).unwrap_or_default();
+    assert!(
+        summary.starts_with("ci_master: 5000 cycles of 2000 us in OP on master0")
+            && summary.contains(" 0 working counter errors (expected 18)"),
+        "{summary}"
+    );
+}
