@@ -5,6 +5,7 @@
 use super::{DatagramEffects, Esc};
 use crate::dc_unit::{DC_BLOCK_LEN, DC_BLOCK_START};
 use crate::model::{DcSupport, PortKind};
+use crate::segment::ErrorCounter;
 use ecsync_wire::register::{self as reg, sii_control};
 use ecsync_wire::{AlControl, AlControlRepr, AlState, DlStatus, DlStatusRepr, PortStatus};
 
@@ -25,6 +26,12 @@ const DL_CONTROL_LEN: usize = 4;
 const DL_CONTROL_RESET: u32 = 0x0007_0001;
 /// The RX error counters a write clears (0x0300-0x030B).
 const RX_ERROR_COUNTERS_LEN: usize = 0x0c;
+/// The ECAT processing unit error counter (0x030C) and the PDI error counter (0x030D): each
+/// cleared by a write to it alone.
+const PU_ERROR_COUNTER: usize = ErrorCounter::ProcessingUnit.address() as usize;
+const PDI_ERROR_COUNTER: usize = PU_ERROR_COUNTER + 1;
+/// The lost link counters (0x0310-0x0313), one per port, cleared together.
+const LOST_LINK_COUNTERS_LEN: usize = 4;
 
 /// Loop setting of a port (DL control 0x0100 bits 8+2p..9+2p).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -187,11 +194,52 @@ impl Esc {
         self.update_dl_status();
     }
 
-    /// Sets which ports have a physical link (done once by the segment).
+    /// Sets which ports have a physical link. A link lost at an open port in auto or
+    /// auto-close loop mode counts in its lost link counter (0x0310 + p; the datasheet's
+    /// section I, "Error Counters": "counts only if port is in Auto or Auto close mode"): a
+    /// port the master forced open or closed does not count.
     pub fn set_links(&mut self, link: [bool; 4]) {
+        for (p, &up) in link.iter().enumerate() {
+            let auto = matches!(self.loop_mode[p], LoopMode::Auto | LoopMode::AutoClose);
+            if auto && self.port_forwards(p) == Ok(true) && !up {
+                self.count_error(ErrorCounter::LostLink(p));
+            }
+        }
+        self.set_links_uncounted(link);
+    }
+
+    /// Sets which ports have a physical link without counting a lost one: the cables as the
+    /// segment starts (a port whose cable is plugged in later never had a link).
+    pub(crate) fn set_links_uncounted(&mut self, link: [bool; 4]) {
         self.generation += 1;
         self.link = link;
         self.update_dl_status();
+    }
+
+    /// Counts one error in `counter`, which stops at 0xFF. Errors are counted only at a port
+    /// that exists (section II: "only counted if the corresponding port is enabled").
+    pub(crate) fn count_error(&mut self, counter: ErrorCounter) {
+        let port = match counter {
+            ErrorCounter::InvalidFrame(p)
+            | ErrorCounter::ForwardedRxError(p)
+            | ErrorCounter::LostLink(p) => Some(p),
+            ErrorCounter::ProcessingUnit => None,
+        };
+        if port.is_some_and(|p| self.model.ports[p] == PortKind::None) {
+            return;
+        }
+        // (A counter is read through the register file, never through a recorded program:
+        // no generation moves.)
+        let r = &mut self.regs[usize::from(counter.address())];
+        *r = r.saturating_add(1);
+    }
+
+    /// The error counters, registers 0x0300-0x0313 as a master reads them (0x030E-0x030F do
+    /// not exist and read 0): for a status report that does not send a frame.
+    pub fn error_counters(&self) -> [u8; 0x14] {
+        let mut out = [0u8; 0x14];
+        out.copy_from_slice(self.reg_bytes(reg::RX_ERROR_COUNTER, 0x14));
+        out
     }
 
     /// Which ports have a physical link.
@@ -519,9 +567,21 @@ impl Esc {
             self.parse_dl_control();
             fx.loops_changed = true;
         }
+        // The error counters are cleared by a write, whatever its value (section II): any of
+        // 0x0300-0x030B clears all twelve, 0x030C and 0x030D each themselves, any of
+        // 0x0310-0x0313 all four.
         let rx_errors = usize::from(reg::RX_ERROR_COUNTER);
         if ranges_overlap(lo, hi, rx_errors, RX_ERROR_COUNTERS_LEN) {
             self.regs[rx_errors..rx_errors + RX_ERROR_COUNTERS_LEN].fill(0);
+        }
+        for a in [PU_ERROR_COUNTER, PDI_ERROR_COUNTER] {
+            if ranges_overlap(lo, hi, a, 1) {
+                self.regs[a] = 0;
+            }
+        }
+        let lost_links = usize::from(reg::LOST_LINK_COUNTER);
+        if ranges_overlap(lo, hi, lost_links, LOST_LINK_COUNTERS_LEN) {
+            self.regs[lost_links..lost_links + LOST_LINK_COUNTERS_LEN].fill(0);
         }
     }
 

@@ -27,7 +27,7 @@
 //! ```
 //!
 //! Kinds: `loss`, `corrupt` (the frame's FCS broken on its way back: the slaves acted on it, the
-//! master's NIC drops it), `delay` (`extra_us` on every reply while it lasts), `power_cycle`
+//! master's NIC drops it; the ESCs behind the break count it, see "Error counters" below), `delay` (`extra_us` on every reply while it lasts), `power_cycle`
 //! (the slave off for `for_s`, then up again from reset: registers, AL Init, a new power-up
 //! time of its clock; the SII is kept; the slaves behind it are cut off meanwhile),
 //! `link_down` (`slave`, `port`), `hot_connect` (`slaves`: the last N slaves absent until
@@ -54,6 +54,20 @@
 //! [`FaultPlayer::set_epoch`] (a control command's "now"; it wins over the file's if it comes
 //! first, and moves the schedule if it comes later). The file has no third value: an explicit
 //! epoch is a moment of the run, which a control command names and a file cannot.
+//!
+//! # Error counters
+//!
+//! The ESCs count what the faults do as the datasheet has them (section I "Error Counters",
+//! section II 0x0300-0x0313; each stops at 0xFF, a power cycle starts them at 0). A
+//! `link_down` counts one lost link (0x0310 + port) at both ends of the pulled cable, where the
+//! port is in auto or auto-close loop mode; so does a `power_cycle` at the neighbours of the
+//! slave switched off. A `corrupt` frame breaks on the first cable of its way back, from the
+//! last slave it reaches to that slave's upstream neighbour (a fixed place, so every run counts
+//! the same): the neighbour counts an invalid frame at the port it received it through
+//! (0x0300 + 2 * port, a CRC error, "initially detected") and marks it; every slave after it
+//! towards the master counts a forwarded RX error at its receiving port (0x0308 + port). The
+//! frame comes back through ports, not processing units: 0x030C does not count. With one slave
+//! the break is on the master's cable and no ESC sees it.
 //!
 //! # On demand
 //!

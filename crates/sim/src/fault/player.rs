@@ -300,7 +300,7 @@ impl FaultPlayer {
         for f in self.schedule.faults.iter() {
             if let FaultKind::HotConnect { slaves } = f.kind {
                 for p in hot_slaves(segment, slaves) {
-                    segment.set_link(p, segment.entry_port(p), false);
+                    segment.start_unplugged(p, segment.entry_port(p));
                 }
             }
         }
@@ -421,6 +421,9 @@ impl FaultPlayer {
             fate.corrupt = false;
         } else if fate.lost_back {
             self.counts.lost_back += 1;
+        }
+        if fate.corrupt {
+            segment.break_fcs_of_next_frame();
         }
         if pd && (fate.lost_out || fate.lost_back) {
             self.counts.lost_with_process_data += 1;

@@ -19,9 +19,11 @@ use ecsync_wire::{
 };
 use std::sync::Arc;
 
+mod counters;
 mod plans;
 mod process;
 mod topology;
+pub(crate) use counters::ErrorCounter;
 use plans::{SHAPE_SLOTS, ShapeCache, VisitPlan};
 use process::LongIndex;
 use topology::{
@@ -183,6 +185,8 @@ pub struct Segment {
     /// Bumped whenever an ESC's configuration generation changes or an ESC is handed out
     /// mutably: a visit plan holds only in the epoch it was made in.
     epoch: u64,
+    /// The next frame's FCS breaks on its way back ([`Segment::break_fcs_of_next_frame`]).
+    fcs_break_pending: bool,
 }
 
 // A visit on one cache line's worth of the plan.
@@ -215,6 +219,7 @@ impl Segment {
             plans: vec![None; SHAPE_SLOTS].into_boxed_slice(),
             long: LongIndex::default(),
             epoch: 0,
+            fcs_break_pending: false,
         })
     }
 
@@ -250,8 +255,20 @@ impl Segment {
     /// position `pos`: both ends lose or regain their link, and a port in auto mode closes or
     /// opens (the datasheet's loop control), so the segment behind a pulled cable is gone and
     /// the port loops frames back. A slave that is switched off keeps its links down. Returns
-    /// false if there is no cable there.
+    /// false if there is no cable there. A link lost counts in the lost link counters of both
+    /// ends (0x0310 + port, [`Esc::set_links`]).
     pub fn set_link(&mut self, pos: usize, port: usize, up: bool) -> bool {
+        self.set_link_counted(pos, port, up, true)
+    }
+
+    /// Leaves the cable at port `port` of the slave at network position `pos` unplugged from
+    /// the start (a slave that appears later, hot connect): as [`Segment::set_link`] with `up`
+    /// false, but no link was ever there to be lost, so no counter counts.
+    pub fn start_unplugged(&mut self, pos: usize, port: usize) -> bool {
+        self.set_link_counted(pos, port, false, false)
+    }
+
+    fn set_link_counted(&mut self, pos: usize, port: usize, up: bool, count: bool) -> bool {
         let Some(l) = self
             .nodes
             .get(pos)
@@ -260,20 +277,24 @@ impl Segment {
             return false;
         };
         let here = up && !self.nodes[pos].off;
-        self.set_port_link(pos, port, here);
+        self.set_port_link(pos, port, here, count);
         if let Peer::Slave(q) = l.peer {
             let q = usize::from(q);
             let there = up && !self.nodes[q].off;
-            self.set_port_link(q, usize::from(l.peer_port), there);
+            self.set_port_link(q, usize::from(l.peer_port), there, count);
         }
         true
     }
 
-    fn set_port_link(&mut self, pos: usize, port: usize, up: bool) {
+    fn set_port_link(&mut self, pos: usize, port: usize, up: bool, count: bool) {
         let esc = self.esc_mut(pos);
         let mut links = esc.links();
         links[port] = up;
-        esc.set_links(links);
+        if count {
+            esc.set_links(links);
+        } else {
+            esc.set_links_uncounted(links);
+        }
         let node = &mut self.nodes[pos];
         node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
     }

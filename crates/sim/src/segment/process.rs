@@ -172,6 +172,7 @@ impl Segment {
     /// as the wire would hand it back. `t_send_ps` is when its first bit leaves the master.
     pub fn process(&mut self, frame: &mut [u8], t_send_ps: u64) -> FrameOutcome {
         self.frames += 1;
+        let fcs_breaks = std::mem::take(&mut self.fcs_break_pending);
         // The cyclic frames repeat: if the headers are those of a remembered shape, the chain
         // is the same and already validated (and it is an EtherCAT frame: the shape's first
         // bytes are the Ethernet type).
@@ -212,6 +213,9 @@ impl Segment {
             self.process_flat::<false>(frame, kind, None, &tm, t_send_ps)
         };
         let back = tm.back;
+        if fcs_breaks && back.is_some() {
+            self.count_broken_fcs(&tm.flat);
+        }
         if !loops_changed {
             self.timing = Some(tm);
         }
