@@ -315,13 +315,8 @@ fn a_long_frame_comes_back_no_earlier_than_its_wire_time() {
     let data = LEN - 14 - 2 - 12;
     let mut buf = [0u8; 2048];
     let mut b = FrameBuilder::new(&mut buf, [0xff; 6], GLOBAL_MAC).unwrap();
-    b.push_zeroed(
-        Cmd::Brd,
-        0x51,
-        DatagramAddress::position(0, 0x1000),
-        data as u16,
-    )
-    .unwrap();
+    b.push_zeroed(Cmd::Brd, 0x51, DatagramAddress::position(0, 0x1000), data)
+        .unwrap();
     let n = b.finish();
     assert_eq!(n, LEN);
     let specs = ecsync_sim::config::parse_segment("paper-2024", preset::PAPER_2024_TOML).unwrap();
