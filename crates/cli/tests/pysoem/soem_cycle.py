@@ -44,6 +44,9 @@ def parse():
     p.add_argument("--jitter-every", type=int, default=0, metavar="N")
     p.add_argument("--jitter-us", type=int, default=0, metavar="U")
     p.add_argument("--max-wkc-errors", type=int, default=0)
+    p.add_argument("--recv-timeout-us", type=int, default=3000,
+                   help="how long receive_processdata waits for a reply (SOEM's EC_TIMEOUTRET "
+                        "is 2000; this leaves a loaded host's serve more of the 4 ms cycle)")
     a = p.parse_args()
     if not a.iface:
         p.error("no interface: give it as the first argument or in ECSYNC_IFACE")
@@ -130,6 +133,8 @@ def main():
     counted = wkc_errors = 0
     lateness = []
     worst_delta = 0
+    shift = a.sync0_shift_us * 1000
+    past_sync0 = 0
     first_bad = None
     t = time.monotonic_ns() + cycle
     toff = 0
@@ -141,7 +146,7 @@ def main():
         if a.jitter_every and phase == "counted" and counted % a.jitter_every == a.jitter_every - 1:
             time.sleep(a.jitter_us / 1e6)
         m.send_processdata()
-        wkc = m.receive_processdata(2_000)
+        wkc = m.receive_processdata(a.recv_timeout_us)
         toff = sync.correction(m.dc_time)
         if k == 0:
             toff = -sync.delta  # the first step straight onto the target
@@ -164,6 +169,10 @@ def main():
             counted += 1
             lateness.append(late)
             worst_delta = max(worst_delta, abs(sync.delta))
+            # Past SYNC0 by the reference's own time of the frame (the master's view; a frame
+            # later than half the rest of the cycle after SYNC0 reads as early for the next).
+            in_cycle = m.dc_time % cycle
+            past_sync0 += shift < in_cycle < shift + (cycle - shift) // 2
             if wkc != expected:
                 wkc_errors += 1
                 first_bad = first_bad or (counted, wkc)
@@ -182,7 +191,8 @@ def main():
     print(f"soem_cycle: {counted} cycles of {a.cycle_us} us in OP on {a.iface} ({n} "
           f"slaves, {len(dc)} with SYNC0 at +{a.sync0_shift_us} us{jitter}), {wkc_errors} working "
           f"counter errors (expected {expected}), loop lateness p99 {p99 / 1000:.0f} us, max "
-          f"{max_late / 1000:.0f} us ({sched}), max |DC phase - target| {worst_delta / 1000:.0f} us")
+          f"{max_late / 1000:.0f} us ({sched}), max |DC phase - target| {worst_delta / 1000:.0f} us, "
+          f"{past_sync0} frames past SYNC0 by the reference's time")
     if wkc_errors > a.max_wkc_errors:
         fail(f"{wkc_errors} cycles with a wrong working counter (the first: cycle {first_bad[0]}, "
              f"wkc {first_bad[1]}, expected {expected})")
