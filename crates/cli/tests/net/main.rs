@@ -31,6 +31,7 @@ mod common;
 mod ip;
 
 mod checked_run;
+mod control;
 mod disturb;
 mod esi_drives;
 mod ethercrab_faults;

@@ -1,0 +1,156 @@
+//! `serve --control`: faults on demand and by the clock, for a master `ecsync` does not
+//! drive. The master here is a raw socket in namespace B that exchanges its process data with
+//! LRD and LWR (no LRW), as some masters do, and pauses when the test says.
+
+use super::*;
+use ecsync_net::sys::PacketSocket;
+use ecsync_wire::{Command as Cmd, DatagramAddress, FrameBuilder};
+use serde_json::Value;
+
+/// An LRD and an LWR of 8 bytes each at logical 0, in one frame.
+fn lrd_lwr(index: u8) -> Vec<u8> {
+    let mut buf = [0u8; 128];
+    let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0x00, 0x1b, 0x21, 0, 0, 9]).unwrap();
+    b.push_zeroed(Cmd::Lrd, index, DatagramAddress::Logical(0), 8)
+        .unwrap();
+    b.push_zeroed(Cmd::Lwr, index, DatagramAddress::Logical(0x100), 8)
+        .unwrap();
+    let n = b.finish();
+    buf[..n].to_vec()
+}
+
+/// Sends `n` frames `every` apart from namespace `ns`; returns how many were answered.
+fn exchange_for(ns: &str, iface: &str, n: u32, every: Duration) -> u32 {
+    let (ns, iface) = (ns.to_string(), iface.to_string());
+    std::thread::spawn(move || {
+        ecsync_net::sys::enter_netns(&ns).expect("enter namespace B");
+        let sock = PacketSocket::open(&iface).expect("raw socket");
+        let mut buf = [0u8; 2048];
+        let mut answered = 0;
+        for i in 0..n {
+            let t0 = Instant::now();
+            sock.send(&lrd_lwr(i as u8)).expect("send");
+            while t0.elapsed() < every {
+                match sock.recv(&mut buf).expect("receive") {
+                    Some(_) => answered += 1,
+                    None => {
+                        sock.wait(1_000_000).expect("wait");
+                    }
+                }
+            }
+        }
+        answered
+    })
+    .join()
+    .expect("the master's thread")
+}
+
+/// `ecsync ctl --control sock words...`, its answer parsed.
+fn ctl(sock: &Path, words: &[&str]) -> Value {
+    let o = Command::new(ecsync())
+        .args(["ctl", "--control"])
+        .arg(sock)
+        .args(words)
+        .output()
+        .expect("ecsync ctl");
+    let text = String::from_utf8_lossy(&o.stdout);
+    let v: Value = serde_json::from_str(&text).unwrap_or_else(|e| {
+        panic!(
+            "ctl {words:?}: {e}: {text} {}",
+            String::from_utf8_lossy(&o.stderr)
+        )
+    });
+    assert_eq!(o.status.success(), v["ok"] == true, "{v}");
+    v
+}
+
+#[test]
+#[ignore = "needs network namespaces (root)"]
+fn a_power_cycle_injected_between_frames_happens_at_its_time_and_loss_starts_for_an_lrd_lwr_master()
+{
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("c");
+    let dir = tmp("control");
+    // The default epoch (the first frame with process data): every frame lost from 0.3 s
+    // to 0.6 s after it.
+    let faults = dir.join("loss.toml");
+    std::fs::write(
+        &faults,
+        "[[fault]]\nat_s = 0.3\nfor_s = 0.3\nkind = \"loss\"\nprobability = 1.0\n",
+    )
+    .unwrap();
+    let sock = dir.join("ctl.sock");
+    let _served = pair.serve(&[
+        "--faults",
+        faults.to_str().unwrap(),
+        "--control",
+        sock.to_str().unwrap(),
+    ]);
+    // Before any process data: no epoch.
+    let s = ctl(&sock, &["status"]);
+    assert_eq!(s["epoch_s"], Value::Null, "{s}");
+    // 100 frames, 10 ms apart: the first starts the epoch, those in 0.3-0.6 s are lost.
+    let answered = exchange_for(&pair.ns_b, &pair.if_b, 100, Duration::from_millis(10));
+    let s = ctl(&sock, &["status"]);
+    assert!(
+        s["epoch_s"].is_number(),
+        "the LRD/LWR frames started the epoch: {s}"
+    );
+    let lost = 100 - answered;
+    assert!(
+        (25..=35).contains(&lost),
+        "a 0.3 s loss window at 10 ms a frame: about 30 lost, {lost} were"
+    );
+    assert!(
+        s["stats"]["dropped_by_faults"].as_u64().unwrap() >= 25,
+        "{s}"
+    );
+    // No frame from now on: a power cycle of drive 2 in 50 ms, for 100 ms.
+    let i = ctl(
+        &sock,
+        &["inject", "power_cycle", "slave=2", "for_s=0.1", "in_s=0.05"],
+    );
+    let at = i["at_t_s"].as_f64().unwrap();
+    let n = i["fault"].as_u64().unwrap();
+    std::thread::sleep(Duration::from_millis(400));
+    let s = ctl(&sock, &["status"]);
+    let events: Vec<&Value> = s["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["fault"].as_u64() == Some(n))
+        .collect();
+    assert_eq!(events.len(), 2, "switched off and on with no frame: {s}");
+    assert_eq!(events[0]["edge"], "start");
+    assert_eq!(events[1]["edge"], "end");
+    // At their times exactly, not at a frame's.
+    let t = |e: &Value| e["t_ps"].as_u64().unwrap() as f64 / 1e12;
+    assert!((t(events[0]) - at).abs() < 1e-9, "{} vs {at}", t(events[0]));
+    assert!((t(events[1]) - at - 0.1).abs() < 1e-9, "{}", t(events[1]));
+    assert!(
+        events[0]["detail"]
+            .as_str()
+            .unwrap()
+            .contains("slave 2 switched off")
+    );
+    // The segment answers again, and drive 2 is back from reset (INIT).
+    assert_eq!(s["slaves"][1]["al_state"], "INIT", "{s}");
+    assert_eq!(
+        exchange_for(&pair.ns_b, &pair.if_b, 5, Duration::from_millis(10)),
+        5
+    );
+    // Clear, reset and a bad request.
+    ctl(&sock, &["clear"]);
+    ctl(&sock, &["reset"]);
+    let o = Command::new(ecsync())
+        .args(["ctl", "--control"])
+        .arg(&sock)
+        .args(["inject", "power_cycle", "slave=banana"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("slave"),
+        "{o:?}"
+    );
+}
