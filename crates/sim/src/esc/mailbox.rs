@@ -88,10 +88,11 @@ impl MailboxState {
         }
     }
 
-    /// The mailbox stops (the slave goes to INIT): the counters start again, as ETG's slave
-    /// stack's `MBX_StopMailboxHandler` resets `u8MbxWriteCounter` and `u8MbxReadCounter`. A new
-    /// master session's first message may carry the counter the last session ended with; kept,
-    /// it would be dropped as a repeat and the master's first SDO would time out.
+    /// The mailbox stops (the slave goes to INIT, or the master switches SM0 or SM1 off): the
+    /// counters start again, as ETG's slave stack's `MBX_StopMailboxHandler` resets
+    /// `u8MbxWriteCounter` and `u8MbxReadCounter`. A new master session's first message may
+    /// carry the counter the last session ended with; kept, it would be dropped as a repeat and
+    /// the master's first SDO would time out.
     pub(super) fn stop(&mut self) {
         self.last_counter = 0;
         self.own_counter = 0;
@@ -122,6 +123,12 @@ impl Esc {
                 .position(|s| s.enabled && s.mailbox && s.ecat_writes == ecat_writes)
         };
         let (out_sm, in_sm) = (find(true), find(false));
+        // SM0 or SM1 switched off (its activate bit 0 cleared, its control byte no longer
+        // mailbox mode, or moved) stops the mailbox as going to INIT does: ETG's slave stack
+        // calls MBX_StopMailboxHandler then too, and its counters start again.
+        if (m.out_sm.is_some() && out_sm != m.out_sm) || (m.in_sm.is_some() && in_sm != m.in_sm) {
+            m.stop();
+        }
         // A SyncManager switched off (or moved) forgets its buffer's state.
         if out_sm != m.out_sm {
             m.out_full = false;
