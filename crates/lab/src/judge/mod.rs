@@ -385,6 +385,10 @@ impl Judge {
         self.reference = Some((r, s, c));
         let Some(pu) = trace.pu_ps(r) else { return };
         let at = dc.system_time_split(pu);
+        if dc_diff(at.0, s, dc.is_64bit()) < -i64::from(c) {
+            // More than a cycle before SYNC0's first pulse: no grid yet.
+            return;
+        }
         let p = f64::from(c);
         let x = after_pulse(at, s, c, dc.is_64bit());
         let phase = self.phase_track.place(x, p);
@@ -436,19 +440,26 @@ impl Judge {
             d.time_diff.add(f64::from(td).abs());
             // Complete when the last bit has passed: the outputs take effect after the FCS.
             let e = dc.system_time_split(pu + wire_ps);
+            // The pulses since the last outputs (none before SYNC0's first): all but the first
+            // found none new.
+            let pulse_no = |t: u64| {
+                let d = dc_diff(t, s, dc.is_64bit());
+                if d < 0 { -1 } else { d / i64::from(c) }
+            };
+            if let Some(prev) = d.last_out_ns.replace(e.0) {
+                let m = (pulse_no(e.0) - pulse_no(prev) - 1).max(0) as u64;
+                d.missed += m;
+                most_missed = most_missed.max(m);
+            }
+            if dc_diff(e.0, s, dc.is_64bit()) < -i64::from(c) {
+                // More than a cycle before the first pulse: no deadline yet.
+                continue;
+            }
             let x_after = after_pulse(e, s, c, dc.is_64bit());
             let margin = -d.track.place(x_after, f64::from(c));
             d.margin.add(margin);
             worst = worst.min(margin);
             d.late += u64::from(margin < 0.0);
-            // The pulses since the last outputs: all but the first found none new.
-            let pulse_no = |t: u64| (dc_diff(t, s, dc.is_64bit())).div_euclid(i64::from(c));
-            if let Some(prev) = d.last_out_ns.replace(e.0) {
-                let n = pulse_no(e.0) - pulse_no(prev);
-                let m = (n - 1).max(0) as u64;
-                d.missed += m;
-                most_missed = most_missed.max(m);
-            }
         }
         self.missed += most_missed;
         self.late += u64::from(worst < 0.0);
