@@ -432,7 +432,7 @@ fn the_ethercrab_example_runs_in_the_sandbox_as_nobody() {
     assert_eq!(code(&r), Some(0), "{}", r.stderr);
     let summary = r.stdout.lines().nth(1).unwrap_or_default();
     assert!(
-        summary.starts_with("ci_master: 5000 cycles of 2000 us in OP on master0")
+        summary.starts_with("ci_master: 5000 cycles of 4000 us in OP on master0")
             && summary.contains(" 0 working counter errors (expected 18)"),
         "{summary}"
     );

@@ -135,6 +135,7 @@ def main():
     worst_delta = 0
     shift = a.sync0_shift_us * 1000
     past_sync0 = 0
+    host_to_dc = None
     first_bad = None
     t = time.monotonic_ns() + cycle
     toff = 0
@@ -143,7 +144,9 @@ def main():
         t += cycle + toff
         sleep_until(t)
         late = time.monotonic_ns() - t
-        if a.jitter_every and phase == "counted" and counted % a.jitter_every == a.jitter_every - 1:
+        jittered = (a.jitter_every and phase == "counted"
+                    and counted % a.jitter_every == a.jitter_every - 1)
+        if jittered:
             time.sleep(a.jitter_us / 1e6)
         m.send_processdata()
         wkc = m.receive_processdata(a.recv_timeout_us)
@@ -169,15 +172,20 @@ def main():
             counted += 1
             lateness.append(late)
             worst_delta = max(worst_delta, abs(sync.delta))
-            # Past SYNC0 by the reference's own time of the frame (the master's view; a frame
-            # later than half the rest of the cycle after SYNC0 reads as early for the next).
-            in_cycle = m.dc_time % cycle
-            past_sync0 += shift < in_cycle < shift + (cycle - shift) // 2
+            # Past the SYNC0 it was for, by the reference's time of the frame (the master's own
+            # view): the frame's aim is its deadline in DC time (the offset between the two
+            # clocks from the last cycle that woke on time and did not sleep on purpose).
+            if host_to_dc is not None:
+                aim = t + host_to_dc
+                sync0 = ((aim - shift) // cycle + 1) * cycle + shift
+                past_sync0 += m.dc_time > sync0
             if wkc != expected:
                 wkc_errors += 1
                 first_bad = first_bad or (counted, wkc)
             if counted >= a.cycles:
                 phase = "done"
+        if late < 200_000 and not jittered and wkc == expected:
+            host_to_dc = m.dc_time - t
         if phase == "settle" and k > settle_max:
             fail(f"the phase did not settle in {settle_max} cycles (last delta {sync.delta} ns)")
     n = len(m.slaves)
@@ -192,7 +200,7 @@ def main():
           f"slaves, {len(dc)} with SYNC0 at +{a.sync0_shift_us} us{jitter}), {wkc_errors} working "
           f"counter errors (expected {expected}), loop lateness p99 {p99 / 1000:.0f} us, max "
           f"{max_late / 1000:.0f} us ({sched}), max |DC phase - target| {worst_delta / 1000:.0f} us, "
-          f"{past_sync0} frames past SYNC0 by the reference's time")
+          f"{past_sync0} frames past their SYNC0 by the reference's time")
     if wkc_errors > a.max_wkc_errors:
         fail(f"{wkc_errors} cycles with a wrong working counter (the first: cycle {first_bad[0]}, "
              f"wkc {first_bad[1]}, expected {expected})")
