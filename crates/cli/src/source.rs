@@ -40,8 +40,14 @@ impl SourceArgs {
     /// The segment's slaves. The whole file is read as `compare` reads it, so an unknown
     /// section or field, or a value `compare` would refuse, is refused here with the same words.
     pub fn segment(&self) -> Result<(String, Vec<SlaveSpec>)> {
+        let (name, specs, _) = self.segment_named()?;
+        Ok((name, specs))
+    }
+
+    /// The segment's slaves and the names the scenario gives them.
+    pub fn segment_named(&self) -> Result<(String, Vec<SlaveSpec>, Vec<String>)> {
         let (name, text) = self.load()?;
         let s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
-        Ok((name, s.slaves))
+        Ok((name, s.slaves, s.slave_names))
     }
 }

@@ -11,8 +11,17 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
+/// What `ecsync serve --help` says after the options: the judge's `--expect` keys.
+fn serve_after_help() -> String {
+    format!(
+        "--expect keys (comma-separated key=value, key<=value, key>=value, key<value, key>value):\n{}",
+        ecsync_lab::judge::Expect::keys()
+    )
+}
+
 /// Arguments of `ecsync serve`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = serve_after_help())]
 pub struct ServeArgs {
     /// Network interface to serve the segment on (with --sandbox: the name of the served end).
     #[arg(long, required_unless_present = "sandbox", default_value = "")]
@@ -44,8 +53,28 @@ pub struct ServeArgs {
     /// ctl` is its client.
     #[arg(long, value_name = "PATH")]
     control: Option<PathBuf>,
+    /// Write the judge's summary.json and report.html (what the master did: its frames' phase
+    /// against SYNC0, each drive's margin, late frames, missed pulses, faults and recovery)
+    /// into this folder, on exit and every --report-every seconds.
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// How often the judge's files are written while serving, s.
+    #[arg(long, default_value_t = 10.0, value_name = "S", value_parser = positive_seconds)]
+    report_every: f64,
+    /// Thresholds on the judge's figures, e.g. `late=0,missed=0,phase_p999_us<=50`: serve
+    /// exits 1 naming each one broken (with --sandbox, unless COMMAND failed: then its code).
+    /// Keys: see `ecsync serve --help`'s end.
+    #[arg(long, value_name = "SPEC")]
+    expect: Option<ecsync_lab::judge::Expect>,
     #[command(flatten)]
     sandbox: super::sandbox::SandboxArgs,
+}
+
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("{s:?}: seconds > 0, e.g. 10")),
+    }
 }
 
 /// `--pace`.
@@ -68,7 +97,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         let iface = std::mem::take(&mut args.iface);
         return super::sandbox::run(command, &iface, |iface| serve(ServeArgs { iface, ..args }));
     }
-    let (name, specs) = args.source.segment()?;
+    let (name, specs, slave_names) = args.source.segment_named()?;
     let mut seg = Segment::new(&specs).context("building the segment")?;
     let schedule = match &args.faults {
         Some(p) => {
@@ -90,6 +119,10 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         None => None,
     };
     let mut faults = super::served::player(schedule);
+    if let Some(dir) = &args.out {
+        ecsync_lab::output::ensure_writable_dir(dir)
+            .with_context(|| format!("--out {}: cannot write there", dir.display()))?;
+    }
     let control = match &args.control {
         Some(p) => Some(super::control::ControlServer::bind(p)?),
         None => None,
@@ -136,12 +169,21 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     }
     super::sandbox::ready(&args.sandbox, &args.iface, seg.len(), &args.source)?;
     let t0 = Instant::now();
-    let hooks = super::served::CliHooks {
+    let judge_options = ecsync_lab::judge::JudgeOptions {
+        names: slave_names,
+        preset: name.clone(),
+        ..Default::default()
+    };
+    let mut hooks = super::served::CliHooks {
         quiet: args.quiet,
         t0,
         last_print: Instant::now(),
         control,
         line_open: false,
+        judge: ecsync_lab::judge::Judge::new(&seg, judge_options.clone()),
+        judge_options,
+        out: args.out.clone().map(|d| (d, args.report_every)),
+        last_write: Instant::now(),
     };
     let config = ecsync_net::serve::ServeConfig {
         pace: match args.pace {
@@ -158,7 +200,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         &mut faults,
         config,
         &STOP,
-        hooks,
+        &mut hooks,
     )
     .map_err(|e| anyhow::anyhow!("serving on {}: {e}", args.iface))?;
     if !quiet {
@@ -209,5 +251,33 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
             );
         }
     }
-    Ok(ExitCode::SUCCESS)
+    judged(&args, &hooks.judge.summary(&seg))
+}
+
+/// The judge's verdict at the end: its table, its files, the thresholds.
+fn judged(args: &ServeArgs, out: &ecsync_lab::judge::JudgeOut) -> Result<ExitCode> {
+    if out.frames > 0 {
+        eprint!("{}", ecsync_lab::judge::per_drive_table(out));
+    }
+    if let Some(dir) = &args.out {
+        super::served::write_judge(dir, out)
+            .with_context(|| format!("writing the judge's results into {}", dir.display()))?;
+        eprintln!(
+            "judge: {} and {}",
+            dir.join("summary.json").display(),
+            dir.join("report.html").display()
+        );
+    }
+    let Some(expect) = &args.expect else {
+        return Ok(ExitCode::SUCCESS);
+    };
+    let broken = expect.check(out);
+    if broken.is_empty() {
+        eprintln!("judge: every --expect threshold holds");
+        return Ok(ExitCode::SUCCESS);
+    }
+    for b in &broken {
+        eprintln!("judge: --expect broken: {b}");
+    }
+    Ok(ExitCode::FAILURE)
 }

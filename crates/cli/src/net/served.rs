@@ -2,10 +2,12 @@
 //! they happen, and the control socket's requests (taken between two frames).
 
 use super::control::{self, ControlServer, Request};
-use ecsync_net::serve::{ServeHooks, Served};
+use ecsync_lab::judge::{Judge, JudgeOptions, JudgeOut, Lost};
+use ecsync_net::serve::{FrameLoss, ServeHooks, Served};
 use ecsync_sim::Segment;
 use ecsync_sim::fault::{FaultEvent, FaultPlayer};
 use serde_json::{Value, json};
+use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
@@ -17,6 +19,20 @@ pub(super) struct CliHooks {
     pub(super) control: Option<ControlServer>,
     /// Whether a status line is on the terminal (a message first ends it).
     pub(super) line_open: bool,
+    /// The judge of the master on the other end.
+    pub(super) judge: Judge,
+    pub(super) judge_options: JudgeOptions,
+    /// `--out`: where summary.json and report.html go, and how often, s.
+    pub(super) out: Option<(PathBuf, f64)>,
+    pub(super) last_write: Instant,
+}
+
+/// Writes the judge's summary.json and report.html into `dir` (each atomically).
+pub(super) fn write_judge(dir: &std::path::Path, out: &JudgeOut) -> std::io::Result<()> {
+    let json = serde_json::to_string_pretty(out).map_err(std::io::Error::other)?;
+    ecsync_lab::output::write_atomic(&dir.join("summary.json"), (json + "\n").as_bytes())?;
+    let html = ecsync_lab::judge::report_html(out);
+    ecsync_lab::output::write_atomic(&dir.join("report.html"), html.as_bytes())
 }
 
 impl CliHooks {
@@ -32,6 +48,9 @@ impl CliHooks {
         let cmd = req.get("cmd").and_then(Value::as_str).unwrap_or("");
         match cmd {
             "status" => status(served),
+            "judge" => {
+                json!({"ok": true, "judge": self.judge.summary(served.segment)})
+            }
             "inject" => inject(req, served),
             "clear" => {
                 let which = req.get("fault").and_then(Value::as_u64);
@@ -57,6 +76,7 @@ impl CliHooks {
                     served.segment.power_on(p, served.now_ps);
                 }
                 self.say("ecsync serve: reset to power-on (control socket)");
+                self.judge = Judge::new(served.segment, self.judge_options.clone());
                 json!({"ok": true})
             }
             "stop" => {
@@ -139,7 +159,21 @@ fn inject(req: &Value, served: &mut Served<'_>) -> Value {
 }
 
 impl ServeHooks for CliHooks {
+    fn frame(&mut self, segment: &Segment, frame: &[u8], t_ps: u64, lost: FrameLoss) {
+        let lost = match lost {
+            FrameLoss::No => Lost::No,
+            FrameLoss::Out => Lost::Out,
+            FrameLoss::Back => Lost::Back,
+        };
+        self.judge.frame(segment, frame, t_ps, lost);
+    }
+
+    fn reply_sent(&mut self, late_ns: u64) {
+        self.judge.reply_late(late_ns);
+    }
+
     fn fault_event(&mut self, e: &FaultEvent) {
+        self.judge.fault_event(e);
         if !self.quiet {
             self.say(&format!(
                 "  {:>10.3} s  {} {}: {}",
@@ -164,6 +198,23 @@ impl ServeHooks for CliHooks {
             let Request { body, answer } = req;
             let a = self.answer(&body, served);
             let _ = answer.send(a);
+        }
+        if let Some((dir, every_s)) = &self.out
+            && self.last_write.elapsed().as_secs_f64() >= *every_s
+        {
+            self.last_write = Instant::now();
+            // The summary here (it reads the segment); the report is drawn and written on a
+            // thread of its own, off the serving loop.
+            let out = self.judge.summary(served.segment);
+            let dir = dir.clone();
+            std::thread::spawn(move || {
+                if let Err(e) = write_judge(&dir, &out) {
+                    eprintln!(
+                        "ecsync serve: warning: writing the judge's results into {}: {e}",
+                        dir.display()
+                    );
+                }
+            });
         }
         if !self.quiet && self.last_print.elapsed().as_secs_f64() >= 1.0 {
             self.last_print = Instant::now();

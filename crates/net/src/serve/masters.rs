@@ -88,10 +88,10 @@ impl MasterWatch {
         // The first datagram's index: after the Ethernet header (14), the EtherCAT header
         // (2) and the command (1).
         let index = frame[17];
-        if let Some(last) = self.last_index.replace(index) {
-            if index.wrapping_sub(last) >= 128 {
-                self.backward += 1;
-            }
+        if let Some(last) = self.last_index.replace(index)
+            && index.wrapping_sub(last) >= 128
+        {
+            self.backward += 1;
         }
         self.in_window += 1;
         if self.in_window == WINDOW {

@@ -123,8 +123,9 @@ pub struct Served<'a> {
 /// does nothing.
 pub trait ServeHooks {
     /// After a frame that left the master at `t_ps` (the segment's time line): `frame` as the
-    /// segment returned it (untagged), `lost` when a fault dropped it on the way out or back.
-    fn frame(&mut self, _segment: &Segment, _frame: &[u8], _t_ps: u64, _lost: bool) {}
+    /// segment returned it (untagged; the request when a fault dropped it on the way out,
+    /// `lost_out`); `lost_back` when a fault dropped it after the slaves processed it.
+    fn frame(&mut self, _segment: &Segment, _frame: &[u8], _t_ps: u64, _lost: FrameLoss) {}
     /// A reply left `late_ns` after its wire time.
     fn reply_sent(&mut self, _late_ns: u64) {}
     /// A fault started or ended.
@@ -143,11 +144,37 @@ pub trait ServeHooks {
 /// Hooks that do nothing.
 impl ServeHooks for () {}
 
-/// Whether the cable between the master and the first slave carries a link: not while it is
-/// pulled at the slave's entry port or the slave is off (its PHY is off).
-fn master_link_up(segment: &Segment) -> bool {
-    segment.is_empty()
-        || (!segment.is_powered_off(0) && segment.esc(0).links()[segment.entry_port(0)])
+/// A caller's hooks, lent: they are there after serving.
+impl<H: ServeHooks> ServeHooks for &mut H {
+    fn frame(&mut self, segment: &Segment, frame: &[u8], t_ps: u64, lost: FrameLoss) {
+        (**self).frame(segment, frame, t_ps, lost);
+    }
+    fn reply_sent(&mut self, late_ns: u64) {
+        (**self).reply_sent(late_ns);
+    }
+    fn fault_event(&mut self, event: &FaultEvent) {
+        (**self).fault_event(event);
+    }
+    fn warning(&mut self, text: &str) {
+        (**self).warning(text);
+    }
+    fn poll(&mut self, served: &mut Served<'_>) {
+        (**self).poll(served);
+    }
+    fn poll_interval_ns(&self) -> u64 {
+        (**self).poll_interval_ns()
+    }
+}
+
+/// What became of a frame on its way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameLoss {
+    /// Answered (or lost in the topology: the segment's own doing).
+    No,
+    /// A fault dropped it before the first slave: nothing processed it.
+    Out,
+    /// A fault dropped it after the slaves processed it: their outputs were taken.
+    Back,
 }
 
 /// A reply waiting for its time.
@@ -267,7 +294,7 @@ impl<H: ServeHooks> Loop<'_, H> {
             self.hooks.fault_event(e);
         }
         self.events_seen = events.len();
-        let up = master_link_up(segment);
+        let up = segment.master_link_up();
         let Some(iface) = self.config.carrier_iface else {
             return;
         };
@@ -477,12 +504,21 @@ pub fn serve<W: Write, H: ServeHooks>(
         lp.fault_events(segment, faults);
         if fate.lost_out {
             lp.stats.dropped_by_faults += 1;
-            lp.hooks.frame(segment, &buf[..len], t_ps, true);
+            lp.hooks.frame(segment, &buf[..len], t_ps, FrameLoss::Out);
             continue;
         }
         let out = segment.process(&mut buf[..len], t_ps);
         let lost_back = fate.lost_back && out.returned_sof_ps.is_some();
-        lp.hooks.frame(segment, &buf[..len], t_ps, lost_back);
+        lp.hooks.frame(
+            segment,
+            &buf[..len],
+            t_ps,
+            if lost_back {
+                FrameLoss::Back
+            } else {
+                FrameLoss::No
+            },
+        );
         if lost_back {
             lp.stats.dropped_by_faults += 1;
             continue;
