@@ -117,7 +117,10 @@ pub fn ready(args: &SandboxArgs, iface: &str, slaves: usize, source: &SourceArgs
             .with_context(|| format!("writing the ready file {}", p.display()))?;
     }
     let mut out = std::io::stdout().lock();
-    writeln!(out, "{line}").and_then(|()| out.flush())?;
+    if let Err(e) = writeln!(out, "{line}").and_then(|()| out.flush()) {
+        // A closed stdout is no reason not to serve.
+        eprintln!("ecsync serve: warning: the ready line could not be printed: {e}");
+    }
     drop(out);
     if let State::Pending { command, master } = std::mem::replace(&mut *st, State::Off) {
         sys::catch_termination_signals(&STOP).context("catching SIGINT/SIGTERM")?;
