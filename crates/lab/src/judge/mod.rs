@@ -385,10 +385,8 @@ impl Judge {
         self.reference = Some((r, s, c));
         let Some(pu) = trace.pu_ps(r) else { return };
         let at = dc.system_time_split(pu);
-        if dc_diff(at.0, s, dc.is_64bit()) < -i64::from(c) {
-            // More than a cycle before SYNC0's first pulse: no grid yet.
-            return;
-        }
+        // The pulses' grid runs back from the start time too (as compare's grid does): frames
+        // before SYNC0's first pulse are judged against it, and miss no pulse.
         let p = f64::from(c);
         let x = after_pulse(at, s, c, dc.is_64bit());
         let phase = self.phase_track.place(x, p);
@@ -450,10 +448,6 @@ impl Judge {
                 let m = (pulse_no(e.0) - pulse_no(prev) - 1).max(0) as u64;
                 d.missed += m;
                 most_missed = most_missed.max(m);
-            }
-            if dc_diff(e.0, s, dc.is_64bit()) < -i64::from(c) {
-                // More than a cycle before the first pulse: no deadline yet.
-                continue;
             }
             let x_after = after_pulse(e, s, c, dc.is_64bit());
             let margin = -d.track.place(x_after, f64::from(c));
