@@ -99,10 +99,20 @@ fn status(served: &Served<'_>) -> Value {
     let seg: &Segment = served.segment;
     let slaves: Vec<Value> = (0..seg.len())
         .map(|p| {
+            // 0x0300-0x0313 as the master would read them: per port the invalid frame and RX
+            // error counters, the forwarded RX errors, the processing unit's and PDI's errors,
+            // the lost links.
+            let c = seg.esc(p).error_counters();
             json!({
                 "position": p + 1,
                 "powered": !seg.is_powered_off(p),
                 "al_state": seg.esc(p).al_state().to_string(),
+                "invalid_frames": [c[0], c[2], c[4], c[6]],
+                "rx_errors": [c[1], c[3], c[5], c[7]],
+                "forwarded_rx_errors": &c[8..12],
+                "processing_unit_errors": c[12],
+                "pdi_errors": c[13],
+                "lost_links": &c[16..20],
             })
         })
         .collect();

@@ -154,3 +154,109 @@ fn a_power_cycle_injected_between_frames_happens_at_its_time_and_loss_starts_for
         "{o:?}"
     );
 }
+
+/// APRD of `len` bytes at `reg` of the slave at auto-increment position `pos`, from namespace
+/// `ns`: its data and working counter.
+fn aprd(ns: &str, iface: &str, pos: u16, reg: u16, len: usize) -> (Vec<u8>, u16) {
+    let mut buf = [0u8; 128];
+    let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0x00, 0x1b, 0x21, 0, 0, 9]).unwrap();
+    b.push_zeroed(Cmd::Aprd, 0x77, DatagramAddress::position(pos, reg), len)
+        .unwrap();
+    let n = b.finish();
+    let req = buf[..n].to_vec();
+    let (ns, iface) = (ns.to_string(), iface.to_string());
+    std::thread::spawn(move || {
+        ecsync_net::sys::enter_netns(&ns).expect("enter namespace B");
+        let sock = PacketSocket::open(&iface).expect("raw socket");
+        let mut buf = [0u8; 2048];
+        sock.send(&req).expect("send");
+        let t0 = Instant::now();
+        loop {
+            if let Some(r) = sock.recv(&mut buf).expect("receive") {
+                let f = ecsync_wire::EcatFrame::new_checked(&buf[..r.len]).expect("EtherCAT");
+                let d = f.datagrams().next().unwrap().unwrap();
+                return (d.data().to_vec(), d.wkc());
+            }
+            assert!(t0.elapsed() < Duration::from_secs(1), "no answer");
+            sock.wait(1_000_000).expect("wait");
+        }
+    })
+    .join()
+    .expect("the master's thread")
+}
+
+/// Whether `iface` in namespace `ns` has carrier, as `ip link` shows it.
+fn carrier(ns: &str, iface: &str) -> bool {
+    let o = Command::new("ip")
+        .args(["-n", ns, "-o", "link", "show", iface])
+        .output()
+        .expect("ip link show");
+    let s = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "ip link show {iface}: {s}");
+    !s.contains("NO-CARRIER") && s.contains(",UP")
+}
+
+#[test]
+#[ignore = "needs network namespaces (root)"]
+fn a_pulled_cable_counts_lost_links_and_the_first_drives_takes_the_carrier_down() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("k");
+    let sock = tmp("carrier").join("ctl.sock");
+    let _served = pair.serve(&["--control", sock.to_str().unwrap()]);
+    let lost_links = |pos: u16| {
+        let (data, wkc) = aprd(&pair.ns_b, &pair.if_b, pos, 0x0310, 4);
+        assert_eq!(wkc, 1, "APRD of 0x0310 at position {pos}");
+        data
+    };
+    assert_eq!(lost_links(3), vec![0; 4], "nothing lost before");
+    // The cable between drive 3 (its port 1) and drive 4 (its port 0), for 0.5 s.
+    ctl(
+        &sock,
+        &["inject", "link_down", "slave=3", "port=1", "for_s=0.5"],
+    );
+    std::thread::sleep(Duration::from_millis(700));
+    // The datasheet (ESC section II, 0x0310-0x0313): one lost link per port whose link went
+    // down; both ends of the cable saw it.
+    assert_eq!(lost_links(3), vec![1, 0, 0, 0], "drive 4, behind the cable");
+    assert_eq!(lost_links(2), vec![0, 1, 0, 0], "drive 3, before it");
+    assert_eq!(lost_links(0), vec![0; 4], "drive 1 saw nothing");
+    // A write to any of them clears all four.
+    {
+        let mut buf = [0u8; 128];
+        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0x00, 0x1b, 0x21, 0, 0, 9]).unwrap();
+        b.push_zeroed(Cmd::Apwr, 0x78, DatagramAddress::position(3, 0x0310), 1)
+            .unwrap();
+        let n = b.finish();
+        let (ns, iface, req) = (pair.ns_b.clone(), pair.if_b.clone(), buf[..n].to_vec());
+        std::thread::spawn(move || {
+            ecsync_net::sys::enter_netns(&ns).unwrap();
+            PacketSocket::open(&iface).unwrap().send(&req).unwrap();
+        })
+        .join()
+        .unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(lost_links(3), vec![0; 4], "cleared by a write");
+    // The cable at drive 1's port 0: the master's own link goes, and comes back.
+    assert!(carrier(&pair.ns_b, &pair.if_b), "carrier before");
+    ctl(
+        &sock,
+        &["inject", "link_down", "slave=1", "port=0", "for_s=0.5"],
+    );
+    let t0 = Instant::now();
+    let (mut went_down, mut came_back) = (false, false);
+    while t0.elapsed() < Duration::from_secs(2) {
+        let up = carrier(&pair.ns_b, &pair.if_b);
+        went_down |= !up;
+        if went_down && up {
+            came_back = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(went_down, "the master's interface lost carrier");
+    assert!(came_back, "and got it back after 0.5 s");
+    let s = ctl(&sock, &["status"]);
+    assert_eq!(s["stats"]["carrier_changes"], 2, "{s}");
+    assert_eq!(s["master_link_up"], true, "{s}");
+}
