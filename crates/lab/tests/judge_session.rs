@@ -184,4 +184,10 @@ fn the_judge_agrees_with_compares_ground_truth() {
     }
     assert_eq!((out.late, out.missed, out.wkc_errors), (0, 0, 0));
     assert_eq!(out.wkc_usual, Some(u32::from(net.expected_lrw_wkc)));
+    let html = ecsync_lab::judge::report_html(&out);
+    assert!(html.contains("The master kept every drive's outputs before SYNC0 (margin min"));
+    assert_eq!(html.matches("<svg").count(), 2);
+    if let Some(p) = std::env::var_os("ECSYNC_JUDGE_REPORT") {
+        std::fs::write(p, &html).unwrap();
+    }
 }

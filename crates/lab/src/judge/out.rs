@@ -327,7 +327,7 @@ pub fn per_drive_table(out: &JudgeOut) -> String {
         .max(5);
     let _ = writeln!(
         t,
-        "{:>3}  {:<w$}  {:>8}  {:>9}  {:>9}  {:>6}  {:>6}  {:>9}  {:>9}  {:>7}  {:>6}  {}",
+        "{:>3}  {:<w$}  {:>8}  {:>9}  {:>9}  {:>6}  {:>6}  {:>9}  {:>9}  {:>7}  {:>6}  state",
         "pos",
         "drive",
         "frames",
@@ -339,7 +339,6 @@ pub fn per_drive_table(out: &JudgeOut) -> String {
         "|092C|",
         "dev",
         "AL err",
-        "state"
     );
     let _ = writeln!(
         t,
