@@ -332,7 +332,7 @@ impl Judge {
         let visited = (0..seg.len()).filter(|&p| self.drives[p].reached).count() as u16;
         for r in self.al[..n].iter().flatten() {
             let pos = match (r.station, r.returned_adp) {
-                (Some(st), _) => (0..seg.len()).find(|&p| seg.esc(p).station_address() == st),
+                (Some(st), _) => position_of(seg, st),
                 (None, Some(adp)) => Some(usize::from(visited.wrapping_sub(adp))),
                 _ => None,
             };
@@ -462,6 +462,23 @@ impl Judge {
             self.margin_bands.add(k, worst);
         }
     }
+}
+
+/// The position of the slave with station address `st`: masters number them 0x1000 + n (SOEM,
+/// ecsync), n + 1 or n, so those are tried first; then every slave (a large network's master
+/// reads many slaves' AL status every cycle).
+fn position_of(seg: &Segment, st: u16) -> Option<usize> {
+    let n = seg.len();
+    let is = |p: usize| p < n && seg.esc(p).station_address() == st;
+    let guesses = [
+        usize::from(st.wrapping_sub(0x1000)),
+        usize::from(st.wrapping_sub(1)),
+        usize::from(st),
+    ];
+    guesses
+        .into_iter()
+        .find(|&p| is(p))
+        .or_else(|| (0..n).find(|&p| is(p)))
 }
 
 /// System time `t` minus `s`, ns, in the width of the slave's system time.
