@@ -260,3 +260,27 @@ fn expect_says_what_broke() {
     assert_eq!(b.len(), 1);
     assert!(b[0].starts_with("phase_std_us: not measured"), "{b:?}");
 }
+
+#[test]
+fn a_master_drifting_over_the_grid_misses_one_pulse_once() {
+    // A master not synchronized to DC: each frame 5 us later against the pulses than the one
+    // before. Where its frames pass the pulse, one pulse finds no new outputs and one frame
+    // came after its pulse; the frames after it are meant for the next pulse, not late.
+    let mut r = Rig::new();
+    let mut t = r.send_ps(1, 24_000);
+    for n in 1..=60u64 {
+        r.send(&lrw(n as u8), t, Lost::No);
+        t += (CYCLE_NS + 5_000) * 1000;
+    }
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late, out.missed), (1, 1));
+    for d in &out.drives {
+        assert_eq!((d.late, d.missed), (1, 1), "{}", d.name);
+        // The smallest margin: the frame that came after its pulse, 4 us before the pulse at
+        // the reference (its last bit passed every drive after it: 5.8 us on the wire).
+        assert!(d.margin_min_ns.unwrap() < 0.0);
+    }
+    // At the reference the phase follows the frames over the pulse to the next one: its
+    // figures span most of a cycle (a master not synchronized has no phase to hold).
+    assert!(out.phase.max_ns.unwrap() - out.phase.min_ns.unwrap() > 250_000.0);
+}

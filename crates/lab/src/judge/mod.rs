@@ -14,8 +14,19 @@
 //! A black box does not say which pulse a frame was meant for: the judge takes the pulse whose
 //! offset from the frame is nearest the typical offset of the last 16 frames (their median,
 //! kept within one cycle before a pulse), and calls the frame late at a drive when its last
-//! bit passed the drive after that pulse. [`Judge::frame`] allocates nothing once the drives
-//! are known (it runs in serve's real-time loop).
+//! bit passed the drive after that pulse. A second late frame in a row with one pulse since the
+//! first means the master's frames moved past the pulse for good (a master not synchronized to
+//! DC drifting over the grid): from it on they are meant for the next pulse, and the crossing
+//! costs one late frame and one missed pulse. The pulses' grid runs back from SYNC0's start
+//! time as compare's grid does; no pulse is missed before the first. [`Judge::frame`]
+//! allocates nothing once the statistics' ranges are settled (it runs in serve's real-time
+//! loop).
+//!
+//! What a frame carries is read from its datagrams: the process data frames' outputs are taken
+//! to reach every DC drive the frame passes (the FMMU mapping is not read: a master that splits
+//! its drives' outputs over several frames has each drive's missed pulses undercounted), and
+//! the AL errors are those the master read (FPRD/APRD/FPRW/APRW of 0x0130 with 0x0134), which
+//! a master that never reads AL status does not see either.
 
 mod expect;
 mod out;
@@ -102,6 +113,8 @@ struct Drive {
     al_error_now: bool,
     in_op: bool,
     reached: bool,
+    /// The last frame came after its pulse.
+    prev_late: bool,
 }
 
 impl Drive {
@@ -122,6 +135,7 @@ impl Drive {
             al_error_now: false,
             in_op: false,
             reached: false,
+            prev_late: false,
         }
     }
 }
@@ -425,6 +439,7 @@ impl Judge {
             if sync != d.sync0 || seg.is_powered_off(x) {
                 d.track.reset();
                 d.last_out_ns = None;
+                d.prev_late = false;
                 d.al_error_now &= !seg.is_powered_off(x);
             }
             d.sync0 = sync;
@@ -444,13 +459,27 @@ impl Judge {
                 let d = dc_diff(t, s, dc.is_64bit());
                 if d < 0 { -1 } else { d / i64::from(c) }
             };
+            let mut pulses = None;
             if let Some(prev) = d.last_out_ns.replace(e.0) {
-                let m = (pulse_no(e.0) - pulse_no(prev) - 1).max(0) as u64;
+                let n = pulse_no(e.0) - pulse_no(prev);
+                let m = (n - 1).max(0) as u64;
                 d.missed += m;
                 most_missed = most_missed.max(m);
+                pulses = Some(n);
             }
             let x_after = after_pulse(e, s, c, dc.is_64bit());
-            let margin = -d.track.place(x_after, f64::from(c));
+            let p = f64::from(c);
+            let v = d.track.place(x_after, p);
+            let mut margin = -v;
+            if margin < 0.0 && d.prev_late && pulses == Some(1) {
+                // A second frame after its pulse with one pulse since the last (late) one: the
+                // master's frames have moved past the pulse (a master drifting over the grid,
+                // not synchronized to it): they are meant for the next pulse, which this one
+                // makes. The pulse the move skipped is counted missed, once.
+                d.track.reanchor(v - p, p);
+                margin += p;
+            }
+            d.prev_late = margin < 0.0;
             d.margin.add(margin);
             worst = worst.min(margin);
             d.late += u64::from(margin < 0.0);

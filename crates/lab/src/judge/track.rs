@@ -39,6 +39,15 @@ impl Tracker {
         self.at = 0;
     }
 
+    /// Takes `v` (in [-p, 0)) as the typical offset from now on, forgetting the frames so far.
+    pub(crate) fn reanchor(&mut self, v: f64, p: f64) {
+        let v = if v < -p { v + p } else { v };
+        self.ring[0] = v;
+        self.len = 1;
+        self.at = 1;
+        self.typical = v;
+    }
+
     /// `x` in [0, `p`): a time after the last pulse before it, ns. Returns the time after the
     /// pulse the frame was meant for (negative: before it), and takes it into the typical.
     pub(crate) fn place(&mut self, x: f64, p: f64) -> f64 {
