@@ -284,3 +284,31 @@ fn a_master_drifting_over_the_grid_misses_one_pulse_once() {
     // figures span most of a cycle (a master not synchronized has no phase to hold).
     assert!(out.phase.max_ns.unwrap() - out.phase.min_ns.unwrap() > 250_000.0);
 }
+
+#[test]
+fn a_retry_of_a_frame_lost_on_its_way_out_is_one() {
+    // An APRD of slave 3's AL status lost before the first slave (the request), sent again
+    // 2 ms later (SOEM's timeout): the answer's position field has been counted up by every
+    // slave, and it is still the same datagram.
+    let mut r = Rig::new();
+    let aprd = frame(&[(
+        Command::Aprd,
+        0x42,
+        DatagramAddress::position(3, reg::AL_STATUS),
+        &[0u8; 6],
+    )]);
+    r.send(&aprd, 50_000_000_000, Lost::Out);
+    let back = r.send(&aprd, 52_000_000_000, Lost::No);
+    assert_ne!(
+        back[18..20],
+        aprd[18..20],
+        "the position field came back counted up"
+    );
+    // Not EtherCAT: no datagram, no retry.
+    let mut other = vec![0u8; 60];
+    other[12..14].copy_from_slice(&0x0800u16.to_be_bytes());
+    r.judge.frame(&r.seg, &other, 53_000_000_000, Lost::No);
+    r.judge.frame(&r.seg, &other, 53_000_100_000, Lost::No);
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.duplicates, out.lost, out.pd_frames), (1, 1, 0));
+}

@@ -318,6 +318,9 @@ impl Judge {
 
     /// A retry: the index and headers of a frame sent a moment ago, or of a lost one.
     fn retry(&mut self, info: &parse::FrameInfo, t_ps: u64, lost: Lost) {
+        if info.datagrams == 0 {
+            return;
+        }
         let s = &mut self.sent[usize::from(info.index)];
         let mut gap_ps = 0;
         if s.seen && s.shape == info.shape {

@@ -16,6 +16,8 @@ pub(crate) struct FrameInfo {
     pub(crate) pd_wkc: u32,
     /// The first datagram's index.
     pub(crate) index: u8,
+    /// Datagrams read.
+    pub(crate) datagrams: u16,
     /// The datagrams' headers (command, index, address, length) hashed: a retry repeats them.
     pub(crate) shape: u64,
 }
@@ -51,9 +53,18 @@ pub(crate) fn parse(frame: &[u8], al: &mut [Option<AlRead>; MAX_AL_READS]) -> (F
             info.index = d.index();
             first = false;
         }
+        info.datagrams += 1;
+        // The position field comes back incremented by every slave passed: a retry of a frame
+        // lost on its way out (the request) is recognised by the rest.
+        let positional = matches!(
+            d.command(),
+            Ok(Command::Aprd | Command::Apwr | Command::Aprw | Command::Armw)
+        );
+        let adp = if positional { 0 } else { d.adp() };
         for b in [code, d.index()]
             .into_iter()
-            .chain(d.address_raw().to_le_bytes())
+            .chain(adp.to_le_bytes())
+            .chain(d.ado().to_le_bytes())
             .chain((d.data_len() as u16).to_le_bytes())
         {
             h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
