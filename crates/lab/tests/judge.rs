@@ -312,3 +312,29 @@ fn a_retry_of_a_frame_lost_on_its_way_out_is_one() {
     let out = r.judge.summary(&r.seg);
     assert_eq!((out.duplicates, out.lost, out.pd_frames), (1, 1, 0));
 }
+
+#[test]
+fn a_frame_delayed_most_of_a_cycle_is_late_for_the_pulse_it_missed() {
+    // Frames 300 us before each pulse; frame 21 is 800 us late: it reaches the reference 500 us
+    // after pulse 21, which is 500 us before pulse 22 (nearer the usual 300 us before a pulse
+    // than 800 us after one). Pulse 21 found no new outputs, and the interval before pulse 22
+    // got two frames (21 and 22): frame 21 was late for pulse 21, counted when frame 22 shows
+    // it. A frame the master did not send (23) is a missed pulse, not a late frame.
+    let mut r = Rig::new();
+    for n in 1..=20u64 {
+        r.send(&lrw(n as u8), r.send_ps(n, LEAD_NS), Lost::No);
+    }
+    r.send(&lrw(21), r.send_ps(21, LEAD_NS) + 800_000_000, Lost::No);
+    for n in 22..=30u64 {
+        if n != 25 {
+            r.send(&lrw(n as u8), r.send_ps(n, LEAD_NS), Lost::No);
+        }
+    }
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late, out.missed), (1, 2), "late 21; missed 21 and 25");
+    for d in &out.drives {
+        assert_eq!((d.late, d.missed), (1, 2), "{}", d.name);
+    }
+    let broken = "late=0".parse::<Expect>().unwrap().check(&out);
+    assert_eq!(broken, vec!["late = 1, expected 0".to_string()]);
+}

@@ -115,6 +115,14 @@ struct Drive {
     reached: bool,
     /// The last frame came after its pulse.
     prev_late: bool,
+    /// Frames with outputs between the last pulse and the next, so far.
+    in_interval: u32,
+    /// How many a steady interval gets (one per pulse for a master whose cycle is SYNC0's).
+    usual_in_interval: u32,
+    /// The pulse before this interval found no new outputs.
+    after_miss: bool,
+    /// A frame of this interval was counted late already.
+    interval_late: bool,
 }
 
 impl Drive {
@@ -136,7 +144,43 @@ impl Drive {
             in_op: false,
             reached: false,
             prev_late: false,
+            in_interval: 0,
+            usual_in_interval: 1,
+            after_miss: false,
+            interval_late: false,
         }
+    }
+
+    /// Counts a frame with outputs into the pulse intervals (`pulses`: the pulses since the
+    /// last one's outputs, `None` for the first) and says whether it shows that the frame
+    /// before it was late: a pulse found no new outputs, and the interval after it gets one
+    /// frame more than a steady interval does. The first frame of that interval was meant for
+    /// the pulse it missed (a master delayed past its pulse by more than the distance from its
+    /// usual instant to the pulse after: the tracker alone takes it for an early frame for the
+    /// next pulse).
+    fn interval(&mut self, pulses: Option<i64>, late_now: bool) -> bool {
+        match pulses {
+            Some(0) => self.in_interval += 1,
+            Some(n) if n > 0 => {
+                if !self.after_miss && self.in_interval > 0 {
+                    self.usual_in_interval = self.in_interval;
+                }
+                self.after_miss = n >= 2;
+                self.in_interval = 1;
+                self.interval_late = false;
+            }
+            _ => {
+                self.in_interval = 1;
+                self.after_miss = false;
+                self.interval_late = false;
+            }
+        }
+        let retro = self.after_miss
+            && !self.interval_late
+            && !late_now
+            && self.in_interval == self.usual_in_interval + 1;
+        self.interval_late |= late_now || retro;
+        retro
     }
 }
 
@@ -436,6 +480,7 @@ impl Judge {
         // The drives share one grid: the pulses a frame's lateness left without outputs are
         // counted once for the run (the most any drive missed), per drive each.
         let mut most_missed = 0;
+        let mut any_retro = false;
         for (x, d) in self.drives.iter_mut().enumerate() {
             let esc = seg.esc(x);
             let sync = esc.dc().and_then(|u| u.sync0()).filter(|s| s.1 > 0);
@@ -485,10 +530,13 @@ impl Judge {
             d.prev_late = margin < 0.0;
             d.margin.add(margin);
             worst = worst.min(margin);
-            d.late += u64::from(margin < 0.0);
+            let retro = d.interval(pulses, margin < 0.0);
+            d.late += u64::from(margin < 0.0 || retro);
+            any_retro |= retro;
         }
         self.missed += most_missed;
-        self.late += u64::from(worst < 0.0);
+        // A frame found late afterwards (see `Drive::interval`) is counted with this one's.
+        self.late += u64::from(worst < 0.0) + u64::from(any_retro);
         if worst.is_finite() {
             self.worst_margin.add(worst);
             self.margin_bands.add(k, worst);
