@@ -74,8 +74,13 @@ const KEYS: &[Key] = &[
     },
     Key {
         name: "al_errors",
-        what: "AL errors read",
+        what: "AL errors raised",
         get: |o| Some(o.al_errors as f64),
+    },
+    Key {
+        name: "al_errors_read",
+        what: "AL errors the master read",
+        get: |o| Some(o.al_errors_read as f64),
     },
     Key {
         name: "wkc_errors",

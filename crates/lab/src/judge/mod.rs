@@ -7,9 +7,10 @@
 //! next pulse minus the instant the frame's last bit passed it), the frames that came after
 //! the pulse they were meant for (`late`) and the pulses with no new outputs since the one
 //! before (`missed`); the drives' spread and 0x092C as the master would read it; lost,
-//! late-answered and repeated frames; the AL errors the master read; the way back to OP after
-//! each fault. [`Judge::summary`] gives it as [`JudgeOut`] (summary.json), [`report_html`]
-//! as compare's report, [`Expect`] tests it against thresholds (`--expect`).
+//! late-answered and repeated frames; the AL errors raised (the drives' own error flags) and
+//! those the master read; the way back to OP after each fault. [`Judge::summary`] gives it as
+//! [`JudgeOut`] (summary.json), [`report_html`] as compare's report, [`Expect`] tests it
+//! against thresholds (`--expect`).
 //!
 //! A black box does not say which pulse a frame was meant for: the judge takes the pulse whose
 //! offset from the frame is nearest the typical offset of the last 16 frames (their median,
@@ -24,9 +25,14 @@
 //!
 //! What a frame carries is read from its datagrams: the process data frames' outputs are taken
 //! to reach every DC drive the frame passes (the FMMU mapping is not read: a master that splits
-//! its drives' outputs over several frames has each drive's missed pulses undercounted), and
-//! the AL errors are those the master read (FPRD/APRD/FPRW/APRW of 0x0130 with 0x0134), which
-//! a master that never reads AL status does not see either.
+//! its drives' outputs over several frames has each drive's missed pulses undercounted).
+//!
+//! AL errors are counted from the segment's truth: each time a drive's error flag (0x0130 bit
+//! 4) goes from clear to set, with its code (0x0134), as the ESC holds them after each frame
+//! (an error raised between two frames is seen at the next; the master need not read AL
+//! status). A flag raised and cleared again between two frames' ends (acknowledged in the
+//! frame that read it) is counted when that frame read it set. What the master read
+//! (FPRD/APRD/FPRW/APRW of 0x0130) is counted apart, as the error flag appearing in its reads.
 
 mod expect;
 mod out;
@@ -107,10 +113,16 @@ struct Drive {
     time_diff: Stats,
     /// Largest |system time - the reference's|, ns.
     dev_max_ns: f64,
+    /// AL errors raised: the error flag going from clear to set (the ESC's, or a read's).
     al_errors: u64,
     /// The AL status codes seen with the error flag, in order of first appearance.
     al_codes: Vec<u16>,
+    /// The error flag as the ESC held it after the last frame.
     al_error_now: bool,
+    /// AL errors the master read: the error flag appearing in its reads of 0x0130.
+    al_errors_read: u64,
+    /// The error flag as the master last read it.
+    al_read_now: bool,
     in_op: bool,
     reached: bool,
     /// The last frame came after its pulse.
@@ -142,6 +154,8 @@ impl Drive {
             al_codes: Vec::with_capacity(8),
             al_error_now: false,
             in_op: false,
+            al_errors_read: 0,
+            al_read_now: false,
             reached: false,
             prev_late: false,
             in_interval: 0,
@@ -301,7 +315,8 @@ impl Judge {
             self.lost_pd += u64::from(info.process_data);
         }
         if lost == Lost::Out {
-            // Nothing reached a slave.
+            // Nothing reached a slave; an error raised since the last frame is there.
+            self.al_truth(seg);
             return;
         }
         let trace = seg.trace();
@@ -317,6 +332,7 @@ impl Judge {
         }
         let k = self.pd_frames;
         self.pd_frames += 1;
+        self.al_truth(seg);
         self.wkc.add(info.pd_wkc, self.last_wkc);
         self.last_wkc = Some(info.pd_wkc);
         if lost == Lost::No {
@@ -388,7 +404,25 @@ impl Judge {
         };
     }
 
-    /// The AL status reads of an answered frame: an error flag that appears counts once.
+    /// The AL errors as the ESCs hold them after a frame: a drive's error flag going from clear
+    /// to set counts once, with its code (a powered-off drive's flag is clear).
+    fn al_truth(&mut self, seg: &Segment) {
+        for (p, d) in self.drives.iter_mut().enumerate().take(seg.len()) {
+            let (_, set, code) = seg.esc(p).al_status();
+            let set = set && !seg.is_powered_off(p);
+            if set && !d.al_error_now {
+                d.al_errors += 1;
+            }
+            if set && !d.al_codes.contains(&code) {
+                d.al_codes.push(code);
+            }
+            d.al_error_now = set;
+        }
+    }
+
+    /// The AL status reads of an answered frame: an error flag that appears in them counts
+    /// once as read; one the ESC did not hold after the last frame counts as raised (the same
+    /// frame may clear it before [`Judge::al_truth`] looks).
     fn al_reads(&mut self, seg: &Segment, n: usize) {
         let visited = (0..seg.len()).filter(|&p| self.drives[p].reached).count() as u16;
         for r in self.al[..n].iter().flatten() {
@@ -406,11 +440,15 @@ impl Judge {
             }
             if error
                 && let Some(c) = r.code
+            if error && !d.al_read_now {
+                d.al_errors_read += 1;
+            }
                 && !d.al_codes.contains(&c)
             {
+                d.al_error_now = true;
                 d.al_codes.push(c);
             }
-            d.al_error_now = error;
+            d.al_read_now = error;
         }
     }
 
@@ -488,7 +526,7 @@ impl Judge {
                 d.track.reset();
                 d.last_out_ns = None;
                 d.prev_late = false;
-                d.al_error_now &= !seg.is_powered_off(x);
+                d.al_read_now &= !seg.is_powered_off(x);
             }
             d.sync0 = sync;
             let (Some(dc), Some((s, c)), Some(pu)) = (esc.dc(), sync, trace.pu_ps(x)) else {

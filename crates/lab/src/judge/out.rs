@@ -62,9 +62,12 @@ pub struct DriveOut {
     pub time_diff_max_ns: Option<f64>,
     /// Largest |system time - the reference's| (every 8th frame), ns.
     pub deviation_max_ns: f64,
-    /// AL errors the master read (the error flag of 0x0130 appearing).
+    /// AL errors raised: its error flag (0x0130 bit 4) going from clear to set, from the
+    /// segment's truth after each frame, whether the master read it or not.
     pub al_errors: u64,
-    /// The AL status codes (0x0134) read with the error flag, as `0x001A`.
+    /// Of those, how many the master read (the error flag appearing in its reads of 0x0130).
+    pub al_errors_read: u64,
+    /// The AL status codes (0x0134) seen with the error flag, as `0x001A`.
     pub al_codes: Vec<String>,
     /// AL state at the end.
     pub al_state: String,
@@ -139,8 +142,11 @@ pub struct JudgeOut {
     pub late_reply_max_ns: u64,
     /// Retries: frames repeating the index and headers of one just sent or lost.
     pub duplicates: u64,
-    /// AL errors read, summed over drives.
+    /// AL errors raised (the drives' error flags, from the segment's truth), summed over
+    /// drives.
     pub al_errors: u64,
+    /// AL errors the master read, summed over drives.
+    pub al_errors_read: u64,
     /// Per drive.
     pub drives: Vec<DriveOut>,
     /// The faults played, with the way back.
@@ -238,6 +244,7 @@ impl Judge {
                     time_diff_max_ns: some(td.max),
                     deviation_max_ns: d.dev_max_ns,
                     al_errors: d.al_errors,
+                    al_errors_read: d.al_errors_read,
                     al_codes: d.al_codes.iter().map(|c| format!("0x{c:04X}")).collect(),
                     al_state: format!("{:?}", seg.esc(p).al_state()),
                 }
@@ -287,6 +294,7 @@ impl Judge {
             late_reply_max_ns: self.reply_late_max_ns,
             duplicates: self.retries,
             al_errors: drives.iter().map(|d| d.al_errors).sum(),
+            al_errors_read: drives.iter().map(|d| d.al_errors_read).sum(),
             drives,
             faults,
             band_frames: self.phase_bands.block(),

@@ -243,7 +243,10 @@ fn run_table(h: &mut String, out: &JudgeOut) {
             ),
         ),
         ("retries", out.duplicates.to_string()),
-        ("AL errors", out.al_errors.to_string()),
+        (
+            "AL errors raised (read by the master)",
+            format!("{} ({})", out.al_errors, out.al_errors_read),
+        ),
     ];
     h.push_str("<h2>The run</h2><table>");
     for (k, v) in rows {

@@ -22,6 +22,12 @@ impl Esc {
         let _ = status.emit(&mut AlStatus::new_unchecked(regs));
     }
 
+    /// AL status as the ESC holds it (what 0x0130-0x0135 read): the state, the error
+    /// indication (0x0130 bit 4) and the AL status code (0x0134).
+    pub fn al_status(&self) -> (AlState, bool, u16) {
+        (self.al_state, self.al_error, u16::from(self.al_code))
+    }
+
     /// AL control was written: the master requests a state.
     pub(super) fn al_control_written(&mut self) {
         let control = AlControl::new_unchecked(self.reg_bytes(reg::AL_CONTROL, AL_CONTROL_LEN));
