@@ -338,3 +338,38 @@ fn a_frame_delayed_most_of_a_cycle_is_late_for_the_pulse_it_missed() {
     let broken = "late=0".parse::<Expect>().unwrap().check(&out);
     assert_eq!(broken, vec!["late = 1, expected 0".to_string()]);
 }
+
+#[test]
+fn a_master_that_stalls_and_sends_the_cycles_it_owes_at_once_is_late_for_each() {
+    // Frames 31-33 held back by a stall and sent at once, 10 us apart: pulses 31, 32 and 33
+    // find no new outputs, and each of those frames came after the pulse it was for. Sent
+    // right after pulse 33, the tracker sees them late; sent 600 us before pulse 34 (nearer its
+    // usual 300 us than pulse 33's), the interval before pulse 34 gets four frames where a
+    // steady one gets one: three of them were late.
+    for after_pulse_33 in [true, false] {
+        let mut r = Rig::new();
+        for n in 1..=30u64 {
+            r.send(&lrw(n as u8), r.send_ps(n, LEAD_NS), Lost::No);
+        }
+        let t0 = if after_pulse_33 {
+            r.send_ps(33, 0) + 100_000_000
+        } else {
+            r.send_ps(34, 600_000)
+        };
+        for (i, n) in (31..=33u64).enumerate() {
+            r.send(&lrw(n as u8), t0 + i as u64 * 10_000_000, Lost::No);
+        }
+        for n in 34..=40u64 {
+            r.send(&lrw(n as u8), r.send_ps(n, LEAD_NS), Lost::No);
+        }
+        let out = r.judge.summary(&r.seg);
+        assert_eq!(
+            (out.late, out.missed),
+            (3, 3),
+            "after pulse 33: {after_pulse_33}"
+        );
+        for d in &out.drives {
+            assert_eq!((d.late, d.missed), (3, 3), "{}", d.name);
+        }
+    }
+}
