@@ -153,9 +153,9 @@ impl Drive {
             al_errors: 0,
             al_codes: Vec::with_capacity(8),
             al_error_now: false,
-            in_op: false,
             al_errors_read: 0,
             al_read_now: false,
+            in_op: false,
             reached: false,
             prev_late: false,
             in_interval: 0,
@@ -327,12 +327,12 @@ impl Judge {
         if lost == Lost::No {
             self.al_reads(seg, n_al);
         }
+        self.al_truth(seg);
         if !info.process_data {
             return;
         }
         let k = self.pd_frames;
         self.pd_frames += 1;
-        self.al_truth(seg);
         self.wkc.add(info.pd_wkc, self.last_wkc);
         self.last_wkc = Some(info.pd_wkc);
         if lost == Lost::No {
@@ -435,17 +435,17 @@ impl Judge {
                 continue;
             };
             let error = r.status & 0x10 != 0;
-            if error && !d.al_error_now {
-                d.al_errors += 1;
-            }
-            if error
-                && let Some(c) = r.code
             if error && !d.al_read_now {
                 d.al_errors_read += 1;
             }
+            if error && !d.al_error_now {
+                d.al_errors += 1;
+                d.al_error_now = true;
+            }
+            if error
+                && let Some(c) = r.code
                 && !d.al_codes.contains(&c)
             {
-                d.al_error_now = true;
                 d.al_codes.push(c);
             }
             d.al_read_now = error;
