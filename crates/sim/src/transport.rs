@@ -156,6 +156,24 @@ pub struct Exchange {
     pub received_ps: Option<u64>,
 }
 
+/// What became of a frame a [`FrameTap`] sees.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TapLoss {
+    /// Processed and answered (its reply may still come after the master stopped waiting).
+    No,
+    /// Lost on its way out (the fault player's): the segment did not process it; the tap sees
+    /// the request, and the segment's trace is not this frame's.
+    Out,
+    /// Processed, then lost on its way back: the outputs reached the slaves, no reply came.
+    Back,
+}
+
+/// Sees every frame that reaches the wire, right after the segment processed it (or the fault
+/// player lost it): the segment, the frame as the segment returned it (the request when
+/// [`TapLoss::Out`]), the real time its first bit left the master (ps), and its fate. Frames
+/// the host dropped before the wire (a missed launch time) are not seen.
+pub type FrameTap = Box<dyn FnMut(&Segment, &[u8], u64, TapLoss) + Send + Sync>;
+
 /// A simulated host's timing of one cycle: how it delays the cyclic task's wake-up, execution
 /// and send (the letter's j_s + e_m) and the NIC's path to the wire (tx latency + j_c).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -214,6 +232,7 @@ pub struct SimTransport {
     cycle_mode: bool,
     capture: Option<PcapCapture<BufWriter<File>>>,
     faults: Option<FaultPlayer>,
+    tap: Option<FrameTap>,
 }
 
 impl std::fmt::Debug for SimTransport {
@@ -248,6 +267,7 @@ impl SimTransport {
             cycle_mode: false,
             capture: None,
             faults: None,
+            tap: None,
         }
     }
 
@@ -275,6 +295,7 @@ impl SimTransport {
             cycle_mode: false,
             capture: None,
             faults: self.faults.clone(),
+            tap: None,
         }
     }
 
@@ -282,6 +303,12 @@ impl SimTransport {
     /// task's wake-ups and the master's clock.
     pub fn set_faults(&mut self, faults: FaultPlayer) {
         self.faults = Some(faults);
+    }
+
+    /// Hands every frame that reaches the wire from now on to `tap` (see [`FrameTap`]);
+    /// `None` removes it. A fork does not take it.
+    pub fn set_frame_tap(&mut self, tap: Option<FrameTap>) {
+        self.tap = tap;
     }
 
     /// The fault player, if one plays.
@@ -574,6 +601,14 @@ impl Transport for SimTransport {
                     .then(|| t + frame_wire_time_ps(n) + self.rx_latency_ps + fate.extra_delay_ps)
             })
         };
+        if let Some(tap) = &mut self.tap {
+            let loss = match (fate.lost_out, back.is_some()) {
+                (true, _) => TapLoss::Out,
+                (false, true) => TapLoss::No,
+                (false, false) => TapLoss::Back,
+            };
+            tap(&self.segment, &buf, tx_ps, loss);
+        }
         match back {
             Some(t) => {
                 if let Some(lag) = fate.copy_after_ps {

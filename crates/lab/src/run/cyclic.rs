@@ -294,6 +294,18 @@ impl Run {
         self.session.driver().sync_counters()
     }
 
+    /// Hands every frame of the cycles run from now on to `tap` as the segment saw it (see
+    /// [`ecsync_sim::transport::FrameTap`]: the judge of `ecsync serve` can follow a run of
+    /// ecsync's own master); `None` removes it. The run's result does not change.
+    pub fn set_frame_tap(&mut self, tap: Option<ecsync_sim::transport::FrameTap>) {
+        self.sim.set_frame_tap(tap);
+    }
+
+    /// The simulator's transport (its segment's ground truth, its faults).
+    pub fn sim(&self) -> &SimTransport {
+        &self.sim
+    }
+
     /// Cycles run so far (warm-up included).
     pub fn cycles_run(&self) -> u64 {
         self.next_cycle
