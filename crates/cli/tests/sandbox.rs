@@ -437,3 +437,127 @@ fn the_ethercrab_example_runs_in_the_sandbox_as_nobody() {
         "{summary}"
     );
 }
+
+/// The master's own count of its frames that reached the reference after the SYNC0 they were
+/// for (its deadline in DC time against the reference's time of the frame): the independent
+/// figure the judge's `late` is checked against.
+fn own_past_sync0(summary: &str) -> u64 {
+    let end = summary
+        .find(" frames past their SYNC0")
+        .unwrap_or_else(|| panic!("no count of frames past SYNC0 in {summary:?}"));
+    summary[..end]
+        .rsplit(' ')
+        .next()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{summary:?}"))
+}
+
+/// The judge's summary.json in `dir`.
+fn judged(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("summary.json")).expect("the judge's summary");
+    serde_json::from_str(&text).unwrap()
+}
+
+/// `master args...` (a path nobody can run) under `serve --sandbox --expect late=0 --out` as
+/// nobody: the run, its master's summary line and the judge's figures.
+fn judged_run(dir: &Path, master: &[&str], args: &[&str]) -> (Ran, String, serde_json::Value) {
+    let bin = for_nobody(Path::new(ecsync()), dir);
+    let out = dir.join("judge");
+    std::fs::create_dir_all(&out).unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&out, std::fs::Permissions::from_mode(0o777)).unwrap();
+    let mut c = as_nobody(bin.to_str().unwrap(), dir);
+    c.args(["serve", "--preset", "paper-2024", "--quiet", "--out"])
+        .arg(&out)
+        .args(["--expect", "late=0", "--sandbox", "--"])
+        .args(master)
+        .args(args);
+    let r = run(c, Duration::from_secs(240));
+    println!("{}{}({:.1} s)", r.stdout, r.stderr, r.took.as_secs_f64());
+    let summary = r.stdout.lines().nth(1).unwrap_or_default().to_string();
+    (r, summary, judged(&out))
+}
+
+/// What `--expect late=0` must make of a run: exit 0 when the judge found no frame after its
+/// SYNC0, else 1 naming the threshold. In step, a master that counted none of its own frames
+/// past SYNC0 (by its deadline and the reference's time of each frame) gets none from the
+/// judge; jittered (`sleeps` sleeps of 3 ms in a 4 ms cycle whose frames come 2 ms before
+/// SYNC0), every sleep costs a pulse without new outputs and the judge finds late frames. (The
+/// counts are not compared one for one: a master that skips the cycle it slept through has
+/// missed a pulse without a late frame, and the master's own count is its estimate.)
+fn check_expect_late(r: &Ran, summary: &str, judge: &serde_json::Value, sleeps: u64) {
+    let own = own_past_sync0(summary);
+    let late = judge["late"].as_u64().unwrap();
+    let missed = judge["missed"].as_u64().unwrap();
+    if sleeps == 0 && own == 0 {
+        assert_eq!(late, 0, "in step by the master's own count: {summary}");
+    }
+    if sleeps > 0 {
+        assert!(
+            missed >= sleeps && late > 0 && own > 0,
+            "{sleeps} sleeps past SYNC0: the judge found {late} late frames, {missed} missed pulses; the master {own}: {summary}"
+        );
+    }
+    if late == 0 {
+        assert_eq!(code(r), Some(0), "{}", r.stderr);
+        assert!(
+            r.stderr.contains("every --expect threshold holds"),
+            "{}",
+            r.stderr
+        );
+    } else {
+        assert_eq!(code(r), Some(1), "{}", r.stderr);
+        assert!(
+            r.stderr.contains(&format!(
+                "judge: --expect broken: late = {late}, expected 0"
+            )),
+            "{}",
+            r.stderr
+        );
+    }
+}
+
+#[test]
+#[ignore = "needs setpriv (and root to become nobody), pysoem"]
+fn expect_late_0_passes_pysoem_in_step_and_fails_it_jittered_past_sync0() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("pysoem-expect");
+    let py = python(|py| as_nobody(py, &dir));
+    let cycle = for_nobody(&script("soem_cycle.py"), &dir);
+    let master = [py.as_str(), cycle.to_str().unwrap()];
+    let (r, summary, judge) = judged_run(&dir, &master, &["--cycles", "3000"]);
+    check_expect_late(&r, &summary, &judge, 0);
+    // A 3 ms sleep every 500 cycles of 4 ms (six in 3000): those frames reach the drives past
+    // the SYNC0 (2 ms after their usual instant) they were for.
+    let jitter = [
+        "--cycles",
+        "3000",
+        "--jitter-every",
+        "500",
+        "--jitter-us",
+        "3000",
+    ];
+    let (r, summary, judge) = judged_run(&dir, &master, &jitter);
+    check_expect_late(&r, &summary, &judge, 6);
+}
+
+#[test]
+#[ignore = "needs setpriv (and root to become nobody)"]
+fn expect_late_0_passes_the_ethercrab_example_in_step_and_fails_it_jittered() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tmp("ethercrab-expect");
+    let example = for_nobody(&ethercrab_example(), &dir);
+    let master = [example.to_str().unwrap()];
+    let (r, summary, judge) = judged_run(&dir, &master, &["--cycles", "3000"]);
+    check_expect_late(&r, &summary, &judge, 0);
+    let jitter = [
+        "--cycles",
+        "3000",
+        "--jitter-every",
+        "500",
+        "--jitter-us",
+        "3000",
+    ];
+    let (r, summary, judge) = judged_run(&dir, &master, &jitter);
+    check_expect_late(&r, &summary, &judge, 6);
+}

@@ -47,7 +47,7 @@ pub fn setup(priority: i32, pin: Pin) -> RtReport {
         match sys::set_fifo(priority) {
             Ok(()) => r.fifo_priority = Some(priority),
             Err(e) => r.warnings.push(format!(
-                "SCHED_FIFO priority {priority} not granted ({e}): the cycle task runs at normal priority; run as root or give the user an rtprio limit in /etc/security/limits.conf"
+                "SCHED_FIFO priority {priority} not granted ({e}): the real-time thread runs at normal priority; run as root or give the user an rtprio limit in /etc/security/limits.conf"
             )),
         }
     }
