@@ -131,10 +131,11 @@ struct Drive {
     in_interval: u32,
     /// How many a steady interval gets (one per pulse for a master whose cycle is SYNC0's).
     usual_in_interval: u32,
-    /// The pulse before this interval found no new outputs.
+    /// The pulses before this interval that found no new outputs and no frame of this
+    /// interval was counted late for yet.
+    missed_unclaimed: u32,
+    /// This interval followed a missed pulse.
     after_miss: bool,
-    /// A frame of this interval was counted late already.
-    interval_late: bool,
 }
 
 impl Drive {
@@ -160,18 +161,18 @@ impl Drive {
             prev_late: false,
             in_interval: 0,
             usual_in_interval: 1,
+            missed_unclaimed: 0,
             after_miss: false,
-            interval_late: false,
         }
     }
 
     /// Counts a frame with outputs into the pulse intervals (`pulses`: the pulses since the
-    /// last one's outputs, `None` for the first) and says whether it shows that the frame
-    /// before it was late: a pulse found no new outputs, and the interval after it gets one
-    /// frame more than a steady interval does. The first frame of that interval was meant for
-    /// the pulse it missed (a master delayed past its pulse by more than the distance from its
-    /// usual instant to the pulse after: the tracker alone takes it for an early frame for the
-    /// next pulse).
+    /// last one's outputs, `None` for the first) and says whether it shows that a frame before
+    /// it was late: pulses found no new outputs, and the interval after them gets more frames
+    /// than a steady interval does. Each frame more was meant for one of the pulses missed
+    /// (a master delayed past its pulse by more than the distance from its usual instant to the
+    /// pulse after, which the tracker alone takes for an early frame for the next pulse; or a
+    /// master that stalled and then sends the cycles it owes at once).
     fn interval(&mut self, pulses: Option<i64>, late_now: bool) -> bool {
         match pulses {
             Some(0) => self.in_interval += 1,
@@ -180,20 +181,24 @@ impl Drive {
                     self.usual_in_interval = self.in_interval;
                 }
                 self.after_miss = n >= 2;
+                self.missed_unclaimed = (n - 1) as u32;
                 self.in_interval = 1;
-                self.interval_late = false;
             }
             _ => {
                 self.in_interval = 1;
                 self.after_miss = false;
-                self.interval_late = false;
+                self.missed_unclaimed = 0;
             }
         }
-        let retro = self.after_miss
-            && !self.interval_late
-            && !late_now
-            && self.in_interval == self.usual_in_interval + 1;
-        self.interval_late |= late_now || retro;
+        if late_now {
+            // Late by the tracker: it claims one of the pulses missed.
+            self.missed_unclaimed = self.missed_unclaimed.saturating_sub(1);
+            return false;
+        }
+        let retro = self.missed_unclaimed > 0 && self.in_interval > self.usual_in_interval;
+        if retro {
+            self.missed_unclaimed -= 1;
+        }
         retro
     }
 }
@@ -537,6 +542,14 @@ impl Judge {
             dc.read_time_difference(&mut raw, false);
             let td = decode_time_difference(u32::from_le_bytes(raw));
             d.time_diff.add(f64::from(td).abs());
+            if esc.al_state() == AlState::SafeOp {
+                // A drive in SAFE-OP keeps its outputs safe and takes none from the frames (a
+                // master brings the process data up there before OP): no margin, no late
+                // frame, no missed pulse until it is in OP.
+                d.last_out_ns = None;
+                d.prev_late = false;
+                continue;
+            }
             // Complete when the last bit has passed: the outputs take effect after the FCS.
             let e = dc.system_time_split(pu + wire_ps);
             // The pulses since the last outputs (none before SYNC0's first): all but the first
