@@ -561,3 +561,70 @@ fn expect_late_0_passes_the_ethercrab_example_in_step_and_fails_it_jittered() {
     let (r, summary, judge) = judged_run(&dir, &master, &jitter);
     check_expect_late(&r, &summary, &judge, 6);
 }
+
+/// Two masters' frames on one segment, from a raw socket of Python's standard library: a BRD
+/// from one source address, then from another; and from one address, two index streams
+/// interleaved (two master processes on one interface).
+const TWO_MASTERS_PY: &str = r#"
+import os, socket, struct, sys, time
+s = socket.socket(socket.AF_PACKET, socket.SOCK_RAW)
+s.bind((os.environ["ECSYNC_IFACE"], 0))
+def brd(src, index):
+    dg = struct.pack("<BBHHHH", 7, index, 0, 0x0000, 1, 0) + b"\0" + b"\0\0"
+    return b"\xff" * 6 + src + b"\x88\xa4" + struct.pack("<H", len(dg) | 0x1000) + dg + b"\0" * 40
+a, b = bytes.fromhex("001b21000001"), bytes.fromhex(sys.argv[1])
+frames = [brd(a, 1), brd(b, 2)] if sys.argv[2] == "address" else [
+    brd(a, (i // 2 if i % 2 == 0 else 100 + i // 2) % 256) for i in range(600)]
+for f in frames:
+    s.send(f)
+    time.sleep(0.001)
+time.sleep(0.2)
+"#;
+
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces)"]
+fn a_second_master_on_the_segment_is_warned_about() {
+    let r = run(
+        sandboxed(
+            &[],
+            &["python3", "-c", TWO_MASTERS_PY, "001b21000002", "address"],
+        ),
+        Duration::from_secs(30),
+    );
+    assert_eq!(code(&r), Some(0), "{}", r.stderr);
+    assert_eq!(
+        r.stderr
+            .matches("warning: a second master on the segment")
+            .count(),
+        1,
+        "{}",
+        r.stderr
+    );
+    assert!(
+        r.stderr
+            .contains("frames from 00:1b:21:00:00:02 besides 00:1b:21:00:00:01")
+    );
+    // One address, two index streams.
+    let r = run(
+        sandboxed(
+            &[],
+            &["python3", "-c", TWO_MASTERS_PY, "001b21000001", "streams"],
+        ),
+        Duration::from_secs(30),
+    );
+    assert_eq!(code(&r), Some(0), "{}", r.stderr);
+    assert!(
+        r.stderr.contains("the datagram index stepped back"),
+        "{}",
+        r.stderr
+    );
+    // One master alone: no warning.
+    let r = run(
+        sandboxed(
+            &[],
+            &["python3", "-c", TWO_MASTERS_PY, "001b21000001", "address"],
+        ),
+        Duration::from_secs(30),
+    );
+    assert!(!r.stderr.contains("second master"), "{}", r.stderr);
+}
