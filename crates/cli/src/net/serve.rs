@@ -99,25 +99,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     }
     let (name, specs, slave_names) = args.source.segment_named()?;
     let mut seg = Segment::new(&specs).context("building the segment")?;
-    let schedule = match &args.faults {
-        Some(p) => {
-            let sched = ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
-            if let Some((n, f)) = sched
-                .faults
-                .iter()
-                .enumerate()
-                .find(|(_, f)| f.kind.is_host_fault())
-            {
-                anyhow::bail!(
-                    "{}: fault[{n}].kind: \"{}\" is a fault of the master's host, which serve cannot play; fix: remove it here (compare --faults plays it in virtual time)",
-                    p.display(),
-                    f.kind.name()
-                );
-            }
-            Some(sched)
-        }
-        None => None,
-    };
+    let schedule = load_schedule(&args)?;
     let mut faults = super::served::player(schedule);
     if let Some(dir) = &args.out {
         ecsync_lab::output::ensure_writable_dir(dir)
@@ -140,33 +122,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         ),
         None => None,
     };
-    let reference = (0..seg.len()).find(|&i| seg.esc(i).model().dc.has_system_time());
-    eprintln!(
-        "ecsync serve: {name}, {} slaves, on {} (kernel timestamps: rx {}, promiscuous {}); Ctrl-C stops.",
-        seg.len(),
-        args.iface,
-        if sock.timestamps().rx_software {
-            "yes"
-        } else {
-            "no"
-        },
-        if sock.promiscuous() { "yes" } else { "no" },
-    );
-    if let Some(r) = reference {
-        let truth = seg.true_delays_ns(r);
-        let list: Vec<String> = truth
-            .iter()
-            .enumerate()
-            .map(|(i, d)| match d {
-                Some(d) => format!("{i}: {d:.1}"),
-                None => format!("{i}: -"),
-            })
-            .collect();
-        eprintln!(
-            "true propagation delays from the reference (position {r}), ns: {}",
-            list.join(", ")
-        );
-    }
+    print_start(&seg, &sock, &name, &args.iface);
     super::sandbox::ready(&args.sandbox, &args.iface, seg.len(), &args.source)?;
     let t0 = Instant::now();
     let judge_options = ecsync_lab::judge::JudgeOptions {
@@ -211,6 +167,71 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         c.finish().context("writing the pcap file")?;
         eprintln!("captured {n} frames");
     }
+    print_stopped(&args, &stats, &faults, t0);
+    judged(&args, &hooks.judge.summary(&seg))
+}
+
+/// `--faults`: the schedule, refused when it holds a fault of the master's host.
+fn load_schedule(args: &ServeArgs) -> Result<Option<ecsync_sim::fault::FaultSchedule>> {
+    Ok(match &args.faults {
+        Some(p) => {
+            let sched = ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
+            if let Some((n, f)) = sched
+                .faults
+                .iter()
+                .enumerate()
+                .find(|(_, f)| f.kind.is_host_fault())
+            {
+                anyhow::bail!(
+                    "{}: fault[{n}].kind: \"{}\" is a fault of the master's host, which serve cannot play; fix: remove it here (compare --faults plays it in virtual time)",
+                    p.display(),
+                    f.kind.name()
+                );
+            }
+            Some(sched)
+        }
+        None => None,
+    })
+}
+
+/// What is served, on stderr.
+fn print_start(seg: &Segment, sock: &PacketSocket, name: &str, iface: &str) {
+    let reference = (0..seg.len()).find(|&i| seg.esc(i).model().dc.has_system_time());
+    eprintln!(
+        "ecsync serve: {name}, {} slaves, on {} (kernel timestamps: rx {}, promiscuous {}); Ctrl-C stops.",
+        seg.len(),
+        iface,
+        if sock.timestamps().rx_software {
+            "yes"
+        } else {
+            "no"
+        },
+        if sock.promiscuous() { "yes" } else { "no" },
+    );
+    if let Some(r) = reference {
+        let truth = seg.true_delays_ns(r);
+        let list: Vec<String> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, d)| match d {
+                Some(d) => format!("{i}: {d:.1}"),
+                None => format!("{i}: -"),
+            })
+            .collect();
+        eprintln!(
+            "true propagation delays from the reference (position {r}), ns: {}",
+            list.join(", ")
+        );
+    }
+}
+
+/// What serving did, on stderr.
+fn print_stopped(
+    args: &ServeArgs,
+    stats: &ecsync_net::serve::ServeStats,
+    faults: &ecsync_sim::fault::FaultPlayer,
+    t0: Instant,
+) {
     eprintln!(
         "ecsync serve: stopped after {:.1} s: {} frames received, {} answered ({} in their VLAN tag), {} not returned; {} arrived with bit 0x02 of the source address set (processed as any frame).",
         t0.elapsed().as_secs_f64(),
@@ -251,7 +272,6 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
             );
         }
     }
-    judged(&args, &hooks.judge.summary(&seg))
 }
 
 /// The judge's verdict at the end: its table, its files, the thresholds.
