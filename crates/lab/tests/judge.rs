@@ -262,6 +262,32 @@ fn expect_says_what_broke() {
 }
 
 #[test]
+fn two_late_frames_in_a_row_of_a_steady_master_are_both_late() {
+    // Frames 300 us before each pulse at the reference; frames 20 and 21 both 5 us after
+    // theirs (a loaded host's two bad cycles), then 300 us before again. Each came after the
+    // pulse it was meant for at every drive: two late frames; pulse 20 found no new outputs
+    // (pulse 21 took frame 20's, pulse 22 frame 21's and 22's): one missed pulse. The master
+    // did not drift over the grid (its frames did not march over the pulse): the second late
+    // frame is not taken for an early one for the next pulse, and no margin is a cycle long.
+    let mut r = Rig::new();
+    for n in 1..=40u64 {
+        let t = if n == 20 || n == 21 {
+            r.send_ps(n, 0) + 5_000_000
+        } else {
+            r.send_ps(n, LEAD_NS)
+        };
+        r.send(&lrw(n as u8), t, Lost::No);
+    }
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late, out.missed), (2, 1));
+    for d in &out.drives {
+        assert_eq!((d.late, d.missed), (2, 1), "{}", d.name);
+        let m = d.margin_mean_ns.unwrap();
+        assert!(m < LEAD_NS as f64, "{}: margin mean {m}", d.name);
+    }
+}
+
+#[test]
 fn a_master_drifting_over_the_grid_misses_one_pulse_once() {
     // A master not synchronized to DC: each frame 5 us later against the pulses than the one
     // before. Where its frames pass the pulse, one pulse finds no new outputs and one frame

@@ -16,9 +16,12 @@
 //! offset from the frame is nearest the typical offset of the last 16 frames (their median,
 //! kept within one cycle before a pulse), and calls the frame late at a drive when its last
 //! bit passed the drive after that pulse. A second late frame in a row with one pulse since the
-//! first means the master's frames moved past the pulse for good (a master not synchronized to
-//! DC drifting over the grid): from it on they are meant for the next pulse, and the crossing
-//! costs one late frame and one missed pulse. The pulses' grid runs back from SYNC0's start
+//! first, the last four frames marching steadily over the pulse, means the master's frames
+//! moved past it for good (a master not synchronized to DC drifting over the grid): from it on
+//! they are meant for the next pulse, and the crossing costs one late frame and one missed
+//! pulse; a master whose frames jitter late twice in a row has two late frames, as compare
+//! counts them (its late frames, missed pulses, phase and margins are compare's on
+//! paper-2024, tests/judge_compare.rs). The pulses' grid runs back from SYNC0's start
 //! time as compare's grid does; no pulse is missed before the first. [`Judge::frame`]
 //! allocates nothing once the statistics' ranges are settled (it runs in serve's real-time
 //! loop).
@@ -570,11 +573,13 @@ impl Judge {
             let p = f64::from(c);
             let v = d.track.place(x_after, p);
             let mut margin = -v;
-            if margin < 0.0 && d.prev_late && pulses == Some(1) {
-                // A second frame after its pulse with one pulse since the last (late) one: the
-                // master's frames have moved past the pulse (a master drifting over the grid,
-                // not synchronized to it): they are meant for the next pulse, which this one
-                // makes. The pulse the move skipped is counted missed, once.
+            if margin < 0.0 && d.prev_late && pulses == Some(1) && d.track.marching() {
+                // A second frame after its pulse with one pulse since the last (late) one, the
+                // recent frames marching steadily over it: the master's frames have moved past
+                // the pulse (a master drifting over the grid, not synchronized to it): they
+                // are meant for the next pulse, which this one makes. The pulse the move
+                // skipped is counted missed, once. (Two late frames in a row of a master whose
+                // frames jitter, a loaded host's, are both late, as compare counts them.)
                 d.track.reanchor(v - p, p);
                 margin += p;
             }

@@ -48,6 +48,22 @@ impl Tracker {
         self.typical = v;
     }
 
+    /// The last 4 offsets (the newest included) rise steadily: every step forward, the largest
+    /// at most 3 times the smallest. A master drifting over the grid marches so; one whose
+    /// frames jitter around their usual instant and are late now and then does not (its step
+    /// into lateness is far larger than the steps before).
+    pub(crate) fn marching(&self) -> bool {
+        if self.len < 4 {
+            return false;
+        }
+        let at = |back: usize| self.ring[(self.at + RING - 1 - back) % RING];
+        let steps = [at(0) - at(1), at(1) - at(2), at(2) - at(3)];
+        let (lo, hi) = steps.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &x| {
+            (lo.min(x), hi.max(x))
+        });
+        lo > 0.0 && hi <= 3.0 * lo
+    }
+
     /// `x` in [0, `p`): a time after the last pulse before it, ns. Returns the time after the
     /// pulse the frame was meant for (negative: before it), and takes it into the typical.
     pub(crate) fn place(&mut self, x: f64, p: f64) -> f64 {
