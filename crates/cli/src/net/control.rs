@@ -1,7 +1,7 @@
 //! `serve --control PATH`: a local control socket (Unix stream, one JSON object a line each
-//! way) to inject a fault now or at a time, clear it, read the counters and the judge's
-//! figures, reset the segment to power-on, and stop; and `ecsync ctl`, its command-line
-//! client.
+//! way) to inject a fault now or at a time, clear it, start the schedule's clock (its epoch)
+//! now, read the counters and the judge's figures, reset the segment to power-on, and stop; and
+//! `ecsync ctl`, its command-line client.
 //!
 //! The socket is served by a thread of its own; each request goes to the serving loop through
 //! a channel and is answered between two frames (the loop polls every
@@ -120,7 +120,7 @@ pub fn error(text: &str) -> Value {
 }
 
 /// The commands, for errors and help.
-pub const COMMANDS: &str = "status, judge, inject, clear, reset, stop";
+pub const COMMANDS: &str = "status, judge, inject, clear, epoch, reset, stop";
 
 /// Arguments of `ecsync ctl`.
 #[derive(Debug, clap::Args)]
@@ -129,7 +129,7 @@ pub struct CtlArgs {
     /// The control socket `serve --control` opened.
     #[arg(long)]
     control: PathBuf,
-    /// The command: `status`, `judge`, `reset`, `stop`, `clear [FAULT]`, `inject KIND
+    /// The command: `status`, `judge`, `epoch`, `reset`, `stop`, `clear [FAULT]`, `inject KIND
     /// [key=value ...]` (the keys of a `[[fault]]` entry; `in_s=` or `at_s=` say when), or
     /// one JSON object as is.
     #[arg(required = true, num_args = 1.., allow_hyphen_values = true)]
@@ -167,7 +167,9 @@ pub fn request_of(words: &[String]) -> Result<Value> {
         return Ok(v);
     }
     match first {
-        "status" | "judge" | "reset" | "stop" if words.len() == 1 => Ok(json!({"cmd": first})),
+        "status" | "judge" | "epoch" | "reset" | "stop" if words.len() == 1 => {
+            Ok(json!({"cmd": first}))
+        }
         "clear" => match words.get(1) {
             None => Ok(json!({"cmd": "clear"})),
             Some(n) => Ok(

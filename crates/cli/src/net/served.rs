@@ -79,6 +79,11 @@ impl CliHooks {
                 self.judge = Judge::new(served.segment, self.judge_options.clone());
                 json!({"ok": true})
             }
+            "epoch" => {
+                // The schedule's at_s count from now, whatever its `epoch` says.
+                served.faults.set_epoch(served.now_ps);
+                json!({"ok": true, "epoch_s": served.now_ps as f64 / 1e12})
+            }
             "stop" => {
                 super::STOP.store(true, Ordering::Relaxed);
                 json!({"ok": true})

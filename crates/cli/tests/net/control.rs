@@ -139,8 +139,11 @@ fn a_power_cycle_injected_between_frames_happens_at_its_time_and_loss_starts_for
         exchange_for(&pair.ns_b, &pair.if_b, 5, Duration::from_millis(10)),
         5
     );
-    // Clear, reset and a bad request.
+    // Clear, a new epoch now, reset and a bad request.
     ctl(&sock, &["clear"]);
+    let e = ctl(&sock, &["epoch"]);
+    let s = ctl(&sock, &["status"]);
+    assert_eq!(s["epoch_s"], e["epoch_s"], "{s}");
     ctl(&sock, &["reset"]);
     let o = Command::new(ecsync())
         .args(["ctl", "--control"])
