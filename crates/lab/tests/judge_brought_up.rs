@@ -29,6 +29,9 @@ struct Master {
     sync0: (u64, u32),
     now_ps: u64,
     index: u8,
+    /// Also send, 400 us after each cycle's frame (100 us after the pulse), a frame whose LRW
+    /// maps no drive's outputs (a master's second frame for other devices).
+    unmapped: bool,
 }
 
 impl Master {
@@ -111,11 +114,29 @@ impl Master {
             if fate.lost_back { Lost::Back } else { Lost::No }
         };
         self.judge.frame(&self.seg, &f, t, lost);
+        if self.unmapped {
+            let mut buf = vec![0u8; 128];
+            let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0x02, 0, 0, 0, 0, 1]).unwrap();
+            b.push_zeroed(
+                Command::Lrw,
+                0xee,
+                DatagramAddress::Logical(0x4000_0000),
+                16,
+            )
+            .unwrap();
+            let n = b.finish();
+            buf.truncate(n);
+            let t = t + 400_000_000;
+            self.seg.advance_to(t);
+            self.seg.process(&mut buf, t);
+            self.judge.frame(&self.seg, &buf, t, Lost::No);
+        }
     }
 }
 
-#[test]
-fn a_master_of_our_own_on_the_brought_up_segment() {
+/// The segment as the bring-up left it, a master of ours on it, the first pulse to aim at;
+/// the bring-up's process data chunk.
+fn brought_up() -> (Master, u64, ecsync_master::pdi::LrwChunk) {
     let s = ecsync_lab::parse("paper-2024.toml", PAPER_2024_TOML).unwrap();
     let up = ecsync_lab::run::bring_up(&s, 0).unwrap();
     let net = up.network().clone();
@@ -156,6 +177,7 @@ fn a_master_of_our_own_on_the_brought_up_segment() {
         sync0,
         now_ps,
         index: 0,
+        unmapped: false,
     };
     // The way to the reference, from one frame of the cycle's shape sent now.
     let mut f = m.frame(None);
@@ -169,6 +191,12 @@ fn a_master_of_our_own_on_the_brought_up_segment() {
     let (s0, c) = sync0;
     let sys = m.seg.esc(reference).dc().unwrap().system_time_ns(t);
     let first = sys.saturating_sub(s0) / u64::from(c) + 2;
+    (m, first, chunk)
+}
+
+#[test]
+fn a_master_of_our_own_on_the_brought_up_segment() {
+    let (mut m, first, chunk) = brought_up();
     for n in first..first + 400 {
         m.cycle(n, 0.0, None);
     }
@@ -248,4 +276,24 @@ fn a_master_of_our_own_on_the_brought_up_segment() {
     assert!(r > 50.0 && r < 55.0, "{r}");
     assert!(out.drives.iter().all(|d| d.al_state == "Op"));
     assert!(e.check(&out).len() == 1);
+}
+
+#[test]
+fn a_frame_that_maps_no_drive_s_outputs_is_not_judged_as_theirs() {
+    // Each cycle a second frame 100 us after the pulse whose LRW writes no drive (its logical
+    // address is in no FMMU): the drives' applications take no outputs from it, and the judge,
+    // which asks them, finds no late frame and the margins of the cycle's own frame.
+    let (mut m, first, _) = brought_up();
+    m.unmapped = true;
+    for n in first..first + 400 {
+        m.cycle(n, 0.0, None);
+    }
+    let out = m.judge.summary(&m.seg);
+    assert_eq!(out.pd_frames, 800);
+    assert_eq!((out.late, out.missed), (0, 0));
+    for d in &out.drives {
+        let mm = d.margin_min_ns.unwrap();
+        assert!(mm < LEAD_NS && mm > LEAD_NS - 60_000.0, "{}: {mm}", d.name);
+        assert_eq!(d.frames, 400, "{}", d.name);
+    }
 }

@@ -130,6 +130,8 @@ struct Drive {
     reached: bool,
     /// The last frame came after its pulse.
     prev_late: bool,
+    /// The drive application's last outputs as the judge last saw them (drives on SYNC0).
+    outputs_seen_ns: Option<u64>,
     /// Frames with outputs between the last pulse and the next, so far.
     in_interval: u32,
     /// How many a steady interval gets (one per pulse for a master whose cycle is SYNC0's).
@@ -162,6 +164,7 @@ impl Drive {
             in_op: false,
             reached: false,
             prev_late: false,
+            outputs_seen_ns: None,
             in_interval: 0,
             usual_in_interval: 1,
             missed_unclaimed: 0,
@@ -540,7 +543,6 @@ impl Judge {
             let (Some(dc), Some((s, c)), Some(pu)) = (esc.dc(), sync, trace.pu_ps(x)) else {
                 continue;
             };
-            d.frames += 1;
             let mut raw = [0u8; 4];
             dc.read_time_difference(&mut raw, false);
             let td = decode_time_difference(u32::from_le_bytes(raw));
@@ -553,6 +555,17 @@ impl Judge {
                 d.prev_late = false;
                 continue;
             }
+            if esc.runs_on_sync0() {
+                // The drive's application says whether this frame wrote its outputs: a frame
+                // whose logical datagrams map only other drives' (a master that splits its
+                // process data over frames) is not this drive's.
+                let w = esc.last_outputs_ns();
+                if w.is_none() || w == d.outputs_seen_ns {
+                    continue;
+                }
+                d.outputs_seen_ns = w;
+            }
+            d.frames += 1;
             // Complete when the last bit has passed: the outputs take effect after the FCS.
             let e = dc.system_time_split(pu + wire_ps);
             // The pulses since the last outputs (none before SYNC0's first): all but the first

@@ -43,7 +43,7 @@ pub struct DriveOut {
     pub name: String,
     /// Its SYNC0 cycle at the end, ns (None: SYNC0 not running).
     pub sync0_cycle_ns: Option<u32>,
-    /// Frames with outputs that reached it while its SYNC0 ran.
+    /// Frames whose outputs it took (in OP; a drive on SYNC0 says which) while its SYNC0 ran.
     pub frames: u64,
     /// SYNC0 margin (the pulse the outputs were meant for minus the instant the frame's last
     /// bit passed the drive, its system time): smallest, 0.1th percentile and mean, ns.

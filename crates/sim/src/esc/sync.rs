@@ -367,6 +367,13 @@ impl Esc {
         self.sync.dc_mode
     }
 
+    /// The system time its application last took outputs at, ns: while it runs on SYNC0 in OP
+    /// (`None` otherwise). A frame whose datagrams wrote this drive's outputs moves it; one that
+    /// carried only other drives' does not.
+    pub fn last_outputs_ns(&self) -> Option<u64> {
+        self.sync.last_write_ns
+    }
+
     /// SM events missed (0x1C32:0B) as the drive counted them up to its last outputs, without
     /// the 16-bit object's ceiling.
     pub fn sm_events_missed(&self) -> u64 {
