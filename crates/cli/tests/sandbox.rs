@@ -489,8 +489,14 @@ fn check_expect_late(r: &Ran, summary: &str, judge: &serde_json::Value, sleeps: 
     let own = own_past_sync0(summary);
     let late = judge["late"].as_u64().unwrap();
     let missed = judge["missed"].as_u64().unwrap();
-    if sleeps == 0 && own == 0 {
-        assert_eq!(late, 0, "in step by the master's own count: {summary}");
+    if sleeps == 0 {
+        // In step the two counts are of the host's stalls: equal but at the edge (a frame whose
+        // first bit reached the reference before the pulse and whose last bit passed the
+        // drives after it is late for the judge, not for the master's count).
+        assert!(
+            late.abs_diff(own) <= 1 + own / 10,
+            "in step: the judge's {late} late frames against the master's own {own}: {summary}"
+        );
     }
     if sleeps > 0 {
         assert!(
