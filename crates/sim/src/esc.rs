@@ -250,6 +250,17 @@ impl Esc {
         esc
     }
 
+    /// Puts `image` into this ESC's SII EEPROM in place of the one built from its description
+    /// (a real device's EEPROM: a dump, or the words a capture read) and loads it as at power-up
+    /// (the registers at their reset values, the words the ESC takes from the EEPROM then:
+    /// PDI control, PDI configuration, SYNC pulse length, station alias). Meant for an ESC that
+    /// has not seen a frame yet; a power cycle keeps the image, as it keeps any EEPROM's.
+    pub fn load_sii_image(&mut self, image: Vec<u8>) {
+        self.generation += 1;
+        self.sii = SiiState::new(image, self.model.sii_read_busy_us);
+        self.reset_registers();
+    }
+
     /// The ESC model.
     pub fn model(&self) -> &EscModel {
         &self.model
