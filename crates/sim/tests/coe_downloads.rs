@@ -17,10 +17,14 @@ use ecsync_sim::model::{DeviceInfo, MailboxLayout};
 
 /// The CoE header of an SDO request (number 0, service 2), little-endian.
 const SDO_REQ: [u8; 2] = [0x00, 0x20];
-/// An SDO download response (service 3, command 0x60) to `index:sub`.
-fn download_response(index: u16, sub: u8) -> Vec<u8> {
+/// An SDO download response (service 3, command 0x60) to `index:sub`, bytes 6-9 those of
+/// the request (`request4`: an expedited request's data, a normal one's size), as the real
+/// EL3004 and EK1914 answer (../shared/captures/replay-ek1914-el3004-configure.pcapng).
+fn download_response(index: u16, sub: u8, request4: [u8; 4]) -> Vec<u8> {
     let [lo, hi] = index.to_le_bytes();
-    vec![0x00, 0x30, 0x60, lo, hi, sub, 0, 0, 0, 0]
+    let mut r = vec![0x00, 0x30, 0x60, lo, hi, sub];
+    r.extend_from_slice(&request4);
+    r
 }
 
 /// The CoE part of an answer (after the mailbox header).
@@ -46,7 +50,7 @@ fn a_normal_download_writes_the_entry() {
     let mut m = SDO_REQ.to_vec();
     m.extend_from_slice(&[0x21, 0xf1, 0x10, 0x02, 0x02, 0x00, 0x00, 0x00, 0x04, 0x00]);
     let r = d.coe(&m);
-    assert_eq!(coe_of(&r), download_response(0x10f1, 2));
+    assert_eq!(coe_of(&r), download_response(0x10f1, 2, [2, 0, 0, 0]));
     assert_eq!(upload4(&mut d, 0x10f1, 2), [4, 0, 0, 0]);
     // The complete size says 4 where the entry has 2: 0x06070012 (length too high), and the
     // value stays.
@@ -145,11 +149,11 @@ fn a_remapping_written_with_complete_access_is_the_process_image() {
         m.extend_from_slice(&[0x31, 0x00, 0x16, 0x00, 0x0a, 0x00, 0x00, 0x00]);
         m.extend_from_slice(&remap_target_then_controlword());
         let r = d.coe(&m);
-        assert_eq!(coe_of(&r), download_response(0x1600, 0));
+        assert_eq!(coe_of(&r), download_response(0x1600, 0, [10, 0, 0, 0]));
         let mut m = SDO_REQ.to_vec();
         m.extend_from_slice(&[0x33, 0x12, 0x1c, 0x00, 0x01, 0x00, 0x00, 0x16]);
         let r = d.coe(&m);
-        assert_eq!(coe_of(&r), download_response(0x1c12, 0));
+        assert_eq!(coe_of(&r), download_response(0x1c12, 0, [1, 0, 0, 0x16]));
         // Read back with complete access (command 0x50): 0x43-less normal answer 0x41, size
         // 10, the bytes written.
         let r = d.coe(&[0x00, 0x20, 0x50, 0x00, 0x16, 0x00, 0, 0, 0, 0]);
@@ -227,7 +231,7 @@ fn a_segmented_download_alternates_the_toggle_and_writes_the_object() {
         "0x08: {r:02x?}"
     );
     let r = d.coe(&initiate(16));
-    assert_eq!(coe_of(&r), download_response(0x1600, 0));
+    assert_eq!(coe_of(&r), download_response(0x1600, 0, [30, 0, 0, 0]));
     let r = d.coe(&segment(0x00, &data[16..23]));
     assert_eq!(coe_of(&r), seg_response(0));
     // The toggle again 0: aborted, the transfer gone.
@@ -243,7 +247,7 @@ fn a_segmented_download_alternates_the_toggle_and_writes_the_object() {
     );
     // Anew, right this time.
     let r = d.coe(&initiate(16));
-    assert_eq!(coe_of(&r), download_response(0x1600, 0));
+    assert_eq!(coe_of(&r), download_response(0x1600, 0, [30, 0, 0, 0]));
     let r = d.coe(&segment(0x00, &data[16..23]));
     assert_eq!(coe_of(&r), seg_response(0));
     let r = d.coe(&segment(0x11, &data[23..30]));

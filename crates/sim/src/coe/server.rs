@@ -46,9 +46,14 @@ fn sdo_response(cmd: u8, index: u16, sub: u8, data4: [u8; 4], rest: &[u8]) -> Ve
     out
 }
 
-/// A download's initiate response (expedited or normal).
-fn download_response(index: u16, subindex: u8) -> Vec<u8> {
-    sdo_response(coe::SDO_DOWNLOAD_RESPONSE, index, subindex, [0; 4], &[])
+/// A download's initiate response (expedited or normal), bytes 6-9 those of the request
+/// (`request4`: its data, or a normal download's size). Real devices answer so: the EL3004's
+/// and EK1914's responses carry the request's data (../shared/captures/
+/// replay-ek1914-el3004-configure.pcapng, replay-ek1914-el3004-mailbox.pcapng: 0x1A00 after a
+/// download of 0x1A00 to 0x1C13:01, 1 after 0xF008:00 = 1), as ETG's slave stack code does,
+/// which builds the response in the request's buffer and changes the command byte only.
+fn download_response(index: u16, subindex: u8, request4: [u8; 4]) -> Vec<u8> {
+    sdo_response(coe::SDO_DOWNLOAD_RESPONSE, index, subindex, request4, &[])
 }
 
 /// The SDO server of one drive: its dictionary and the transfer in progress.
@@ -198,12 +203,13 @@ impl SdoServer {
                 size,
             } => {
                 self.transfer = None;
+                let d4 = s.data4().unwrap_or([0; 4]);
                 if expedited {
-                    let d4 = s.data4().unwrap_or([0; 4]);
                     self.expedited_download(index, subindex, complete_access, size, d4, state)
                 } else {
                     let total = size.unwrap_or(0) as usize;
                     self.initiate_download(index, subindex, complete_access, total, s.rest(), state)
+                        .map(|()| download_response(index, subindex, d4))
                 }
             }
             SdoRequest::DownloadSegment {
@@ -234,10 +240,15 @@ impl SdoServer {
             self.od.read(index, subindex)
         }
         .map_err(|c| (index, subindex, c))?;
-        if data.len() <= 4 && !complete_access {
+        // Up to 4 bytes go expedited, a complete access's too (its command byte with the
+        // complete access bit): the LAN9252 (ETG's slave stack code) answers a complete
+        // access of a 4-byte 0x1C12 so, 0x53 with length 10
+        // (../shared/captures/soem-single-lan9252.pcapng), where a normal answer (0x51,
+        // length 14) would carry the same bytes; ETG.1000.6 allows either.
+        if data.len() <= 4 {
             let mut d = [0u8; 4];
             d[..data.len()].copy_from_slice(&data);
-            let cmd = coe::upload_expedited_command(data.len().max(1), false);
+            let cmd = coe::upload_expedited_command(data.len().max(1), complete_access);
             return Ok(sdo_response(cmd, index, subindex, d, &[]));
         }
         let size = (data.len() as u32).to_le_bytes();
@@ -320,11 +331,11 @@ impl SdoServer {
             self.od.write(index, subindex, v, state)
         };
         r.map_err(|c| (index, subindex, c))?;
-        Ok(download_response(index, subindex))
+        Ok(download_response(index, subindex, d4))
     }
 
     /// A normal download's initiate: `total` bytes written if the request carries them all
-    /// (`got`), else the start of a segmented transfer.
+    /// (`got`), else the start of a segmented transfer; `Ok`: the response is due.
     fn initiate_download(
         &mut self,
         index: u16,
@@ -333,7 +344,7 @@ impl SdoServer {
         total: usize,
         got: &[u8],
         state: AlState,
-    ) -> Result<Vec<u8>, SdoAbort> {
+    ) -> Result<(), SdoAbort> {
         if got.len() >= total {
             self.od
                 .write_access(index, subindex, complete_access, &got[..total], state)
@@ -348,7 +359,7 @@ impl SdoServer {
                 toggle: false,
             });
         }
-        Ok(download_response(index, subindex))
+        Ok(())
     }
 
     /// A segment of the download in progress (`seg`, of which `short_size` bytes count if

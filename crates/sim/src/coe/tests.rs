@@ -35,9 +35,10 @@ fn expedited_uploads_answer_the_identity_and_the_sync_mode() {
 #[test]
 fn the_sync_mode_is_written_in_pre_op_and_refused_after() {
     let mut s = server();
-    // Expedited download of 2 bytes (0x2B): DC SYNC0.
+    // Expedited download of 2 bytes (0x2B): DC SYNC0; the response carries the request's
+    // data bytes, as the EL3004's do (../shared/captures/replay-ek1914-el3004-mailbox.pcapng).
     let r = ask(&mut s, &[0x2b, 0x32, 0x1c, 1, 2, 0, 0, 0], AlState::PreOp);
-    assert_eq!(r, [0x00, 0x30, 0x60, 0x32, 0x1c, 1, 0, 0, 0, 0]);
+    assert_eq!(r, [0x00, 0x30, 0x60, 0x32, 0x1c, 1, 2, 0, 0, 0]);
     assert_eq!(s.od.read_u32(0x1c32, 1), 2);
     let r = ask(&mut s, &[0x2b, 0x32, 0x1c, 1, 0, 0, 0, 0], AlState::SafeOp);
     assert_eq!(
@@ -77,12 +78,11 @@ fn aborts_name_what_is_wrong() {
 #[test]
 fn the_pdo_assignment_reads_with_complete_access_and_is_rewritten_in_pre_op() {
     let mut s = server();
-    // Complete access upload of 0x1C12 (0x50): subindex 0 as 16 bits, then 0x1600.
+    // Complete access upload of 0x1C12 (0x50): subindex 0 as 16 bits, then 0x1600; 4 bytes,
+    // so expedited with the complete access bit (0x53), as the LAN9252 answers it
+    // (../shared/captures/soem-single-lan9252.pcapng).
     let r = ask(&mut s, &[0x50, 0x12, 0x1c, 0, 0, 0, 0, 0], AlState::PreOp);
-    assert_eq!(
-        &r[2..],
-        &[0x51, 0x12, 0x1c, 0, 4, 0, 0, 0, 1, 0, 0x00, 0x16]
-    );
+    assert_eq!(&r[2..], &[0x53, 0x12, 0x1c, 0, 1, 0, 0x00, 0x16]);
     // The mapping rewritten the way a master does: 0 entries, two entries, count 2.
     for (sub, v) in [
         (0u8, vec![0u8]),
