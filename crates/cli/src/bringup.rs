@@ -250,7 +250,7 @@ fn slave_rows(
             parent: s.parent,
             delay_ns: s.delay_ns,
             true_delay_ns: truth[usize::from(s.position)]
-                .filter(|_| s.dc == DcCapability::SystemTime),
+                .filter(|_| s.dc != DcCapability::None),
             delay_spread_ns: s.delay_spread_ns,
             offset: s.offset,
             offset_error_ns: offset_error[usize::from(s.position)],

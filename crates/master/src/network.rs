@@ -21,7 +21,7 @@ pub enum Phase {
     /// ESC type, features and ports, the SII identity; with [`Stage::Lock`](crate::bringup::Stage::Lock) and beyond also the
     /// device name and the process data SyncManagers.
     Identify,
-    /// Which slaves without the DC feature have receive times; the reference clock.
+    /// Which slaves without a system time have receive times; the reference clock.
     DcProbe,
     /// Receive time latches, topology and propagation delays.
     Delays,
@@ -99,15 +99,17 @@ impl fmt::Display for SlaveId {
     }
 }
 
-/// DC capability as read from 0x0008 and the presence of receive times.
+/// What a slave's DC unit keeps, as the master learns it from which reads count: a read of
+/// the system time (0x0910), else of the receive times (0x0900). Never from 0x0008, whose DC
+/// bit real devices set with receive times alone.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum DcCapability {
     /// No DC.
     None,
-    /// Port receive times only.
+    /// Port receive times only: delays measured, never the reference nor synchronised.
     ReceiveTimes,
-    /// System time (can be synchronised).
+    /// System time: can be the reference or be synchronised.
     SystemTime,
 }
 

@@ -58,6 +58,7 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod catalog;
 pub mod clock;
 pub mod coe;
 pub mod config;

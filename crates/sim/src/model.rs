@@ -117,6 +117,9 @@ pub struct EscModel {
     pub link_phy_delay_ns: f64,
     /// How long the EEPROM interface stays busy for a read, us.
     pub sii_read_busy_us: f64,
+    /// 0x0008 bit 8, enhanced DC SYNC activation: set on the ET1200 terminals and the AKD the
+    /// captures show, clear on ET1100s and on the EL2889 (see [`EscModel::features`]).
+    pub enhanced_dc_sync: bool,
 }
 
 impl EscModel {
@@ -143,6 +146,7 @@ impl EscModel {
             processing_delay_ns: 180.0,
             link_phy_delay_ns: 300.0,
             sii_read_busy_us: 20.0,
+            enhanced_dc_sync: false,
         }
     }
 
@@ -157,6 +161,7 @@ impl EscModel {
             esc_type: ESC_TYPE_AKD,
             revision: 0x02,
             dc: DcSupport::Full32,
+            enhanced_dc_sync: true,
             ..Self::servo_mii()
         }
     }
@@ -182,6 +187,19 @@ impl EscModel {
             processing_delay_ns: 140.0,
             link_phy_delay_ns: 10.0,
             sii_read_busy_us: 20.0,
+            enhanced_dc_sync: true,
+        }
+    }
+
+    /// The ET1200 of the EL2889 (16 digital outputs): an [`EscModel::ebus_terminal`] whose
+    /// 0x0008 reads 0x00FC, without enhanced DC SYNC activation (replay-dc.pcapng,
+    /// replay-ek1100-alias-address.pcapng: FPRD 0x0008 of station 0x1002). An ET1200 all the
+    /// same: the BRD of 0x0000 ORs to 0x13 (0x11 EK1100 | 0x12), and FMMU 3 (0x0630) and SM 4
+    /// (0x0820) count on the EK1100 only (replay-issue-255.pcapng, frames 12 and 46).
+    pub fn ebus_terminal_el2889(dc: DcSupport) -> Self {
+        EscModel {
+            enhanced_dc_sync: false,
+            ..Self::ebus_terminal(dc)
         }
     }
 
@@ -201,12 +219,13 @@ impl EscModel {
             processing_delay_ns: 180.0,
             link_phy_delay_ns: 300.0,
             sii_read_busy_us: 20.0,
+            enhanced_dc_sync: false,
         }
     }
 
     /// The ESC features register 0x0008 for this model: the value real chips of its ESC type
-    /// show (read from the captures of real devices in ../shared/captures/), with the DC bits
-    /// following the model's [`DcSupport`]:
+    /// show (read from the captures of real devices in ../shared/captures/), with bit 8 from
+    /// [`EscModel::enhanced_dc_sync`] and the DC bits following the model's [`DcSupport`]:
     /// - ET1100 (type 0x11): 0x00FC, read from the EK1100 (replay-dc.pcapng,
     ///   soem-sdinfo-ek1100-el1004.pcapng) and the EK1914 (replay-ek1914-el3004-mailbox.pcapng;
     ///   both have 8 FMMUs, so ET1100s): FMMU bit 0 clear (bit oriented), DC, 64-bit DC, low
@@ -215,21 +234,22 @@ impl EscModel {
     /// - ET1200 (type 0x12): 0x01FC, read from the EL2828 (replay-dc.pcapng), EL3004
     ///   (replay-ek1914-el3004-mailbox.pcapng) and EL1004 (soem-sdinfo-ek1100-el1004.pcapng):
     ///   the ET1100's bits plus enhanced DC SYNC activation. Model: ebus-terminal. Not every
-    ///   ET1200 device shows bit 8: the EL2889 in replay-dc.pcapng (3 FMMUs and 4
-    ///   SyncManagers, as an ET1200 has) reads 0x00FC.
+    ///   ET1200 device shows bit 8: the EL2889 (replay-dc.pcapng,
+    ///   replay-ek1100-alias-address.pcapng) reads 0x00FC, [`EscModel::ebus_terminal_el2889`].
     /// - The AKD's ESC (type 0x04): 0x0184, read from the Kollmorgen AKD
     ///   (soem-sdinfo-akd.pcapng): DC (32 bit), separate FCS error handling, enhanced DC SYNC
     ///   activation. Model: servo-mii-dc32.
     /// - Any other type (a model built in code): the ET1100's value.
     ///
-    /// DC (bit 2) is set when the model has a system time, 64-bit DC (bit 3) when it is 64 bits
-    /// wide: ebus-terminal-no-dc reads 0x01F0 (no real ET1200 lacks DC; the other bits are the
-    /// ET1200's), a 32-bit ET1100 model 0x00F4. Real chips differ here in one case: the EL2828
-    /// has receive times but no system time (0x0910 and 0x0918 do not count in
-    /// replay-dc.pcapng) and still reads 0x01FC, bit 2 meaning "at least receive times" as
-    /// ETG1000.4 defines it. A [`DcSupport::ReceiveTimes`] model clears bits 2 and 3 instead,
-    /// because ecsync's bring-up (`ecsync_master::bringup`) reads bit 2 as "has a system time"
-    /// and probes receive times only on slaves without it.
+    /// DC (bit 2) and 64-bit DC (bit 3) mean "DC available" and "64-bit DC" as ETG.1000.4
+    /// defines them, which real chips set whenever they latch receive times, system time or
+    /// not: [`DcSupport::ReceiveTimes`] reads the class's DC bits as the EL2828, EL1004, EK1914
+    /// and EL3004 do (0x01FC/0x00FC), though every access to 0x0910-0x0930 gets working counter
+    /// 0 there (replay-dc.pcapng: the EL2828's 0x0910, 0x0918, 0x0920 and 0x092C do not count).
+    /// A master learns whether a slave keeps a system time from whether a read of 0x0910
+    /// counts, never from this register. [`DcSupport::Full32`] sets bit 2 without bit 3,
+    /// [`DcSupport::Full64`] both; [`DcSupport::None`] clears both (ebus-terminal-no-dc reads
+    /// 0x01F0: no real ET1200 lacks DC, the other bits are the ET1200's).
     pub fn features(&self) -> u16 {
         use ecsync_wire::register::features;
         let observed = match self.esc_type {
@@ -237,11 +257,16 @@ impl EscModel {
             ESC_TYPE_AKD => FEATURES_AKD,
             _ => FEATURES_ET1100,
         };
-        let mut f = observed & !(features::DC | features::DC_64BIT);
+        let dc_bits = features::DC | features::DC_64BIT;
+        let mut f = observed & !(dc_bits | features::ENHANCED_DC_SYNC);
+        if self.enhanced_dc_sync {
+            f |= features::ENHANCED_DC_SYNC;
+        }
         match self.dc {
-            DcSupport::None | DcSupport::ReceiveTimes => {}
+            DcSupport::None => {}
+            DcSupport::ReceiveTimes => f |= observed & dc_bits,
             DcSupport::Full32 => f |= features::DC,
-            DcSupport::Full64 => f |= features::DC | features::DC_64BIT,
+            DcSupport::Full64 => f |= dc_bits,
         }
         f
     }
@@ -568,11 +593,21 @@ mod tests {
         assert_eq!(akd.features() & (f::DC | f::DC_64BIT), f::DC);
         assert_eq!(akd.dc, DcSupport::Full32);
         assert_eq!((akd.esc_type, akd.revision), (0x04, 0x02));
-        // Without a system time the DC bits are clear, the rest is the class's.
+        // Without DC at all the DC bits are clear, the rest is the class's.
         assert_eq!(EscModel::ebus_terminal(DcSupport::None).features(), 0x01f0);
+        // Receive times only: the DC bits as the EL2828 reads them (0x01FC), the EK1914's
+        // ET1100 (0x00FC).
         assert_eq!(
             EscModel::ebus_terminal(DcSupport::ReceiveTimes).features(),
-            0x01f0
+            0x01fc
+        );
+        let mut et1100_rx = EscModel::junction_mii();
+        et1100_rx.dc = DcSupport::ReceiveTimes;
+        assert_eq!(et1100_rx.features(), 0x00fc);
+        // The EL2889's ET1200: no enhanced DC SYNC activation (0x00FC).
+        assert_eq!(
+            EscModel::ebus_terminal_el2889(DcSupport::Full64).features(),
+            0x00fc
         );
         let mut et1100_32 = EscModel::servo_mii();
         et1100_32.dc = DcSupport::Full32;

@@ -315,10 +315,22 @@ pub fn build_described(model: &EscModel, dev: &DeviceInfo, c: &SiiContents) -> V
     }
     if !c.sync_managers.is_empty() {
         let mut sm = Vec::new();
-        for d in &c.sync_managers {
+        for (k, d) in c.sync_managers.iter().enumerate() {
+            // A process data SyncManager as long as the PDOs assigned to it by default; the
+            // device's outputs or inputs where none names it (the EL2889 spreads its outputs
+            // over two, one byte each).
+            let assigned = |pdos: &[PdoDescription], all: usize| {
+                let bits: usize = pdos
+                    .iter()
+                    .filter(|p| p.sm == Some(k as u8))
+                    .flat_map(|p| &p.entries)
+                    .map(|e| usize::from(e.bits))
+                    .sum();
+                if bits > 0 { bits.div_ceil(8) } else { all }
+            };
             let len = match d.sm_type {
-                sii::sm_type::OUTPUTS => dev.output_bytes() as u16,
-                sii::sm_type::INPUTS => dev.input_bytes() as u16,
+                sii::sm_type::OUTPUTS => assigned(&c.rx_pdos, dev.output_bytes()) as u16,
+                sii::sm_type::INPUTS => assigned(&c.tx_pdos, dev.input_bytes()) as u16,
                 _ => d.default_len,
             };
             sm.extend_from_slice(&d.start.to_le_bytes());

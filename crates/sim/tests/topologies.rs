@@ -114,6 +114,7 @@ fn build(g: &Gen) -> (Vec<SlaveSpec>, Vec<EsiTiming>) {
                 r.f(100.0, 500.0)
             },
             sii_read_busy_us: 5.0,
+            enhanced_dc_sync: false,
         };
         let mut device = DeviceInfo::coupler("random", i as u32);
         device.product_code = 0x1000 + i as u32;

@@ -68,7 +68,9 @@ pub(super) async fn measure_delays(
     for (i, s) in slaves.iter_mut().enumerate() {
         s.parent = d.tree[i].parent;
         s.entry_port = d.tree[i].entry_port;
-        if s.dc == DcCapability::SystemTime && d.delays[i].is_some() {
+        // Receive-time-only slaves get theirs too (a master's picture of the segment), though
+        // nothing is written to them.
+        if s.dc != DcCapability::None && d.delays[i].is_some() {
             s.delay_ns = Some(d.sums[i] / f64::from(rounds));
             s.delay_spread_ns = Some(d.maxs[i] - d.mins[i]);
         }

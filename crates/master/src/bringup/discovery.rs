@@ -6,7 +6,7 @@ use crate::io::{Link, Pdu};
 use crate::network::{DcCapability, MailboxInfo, Phase, SlaveId, SlaveInfo, SmConfig};
 use crate::sii::{SiiReader, pdo_bits_for_sm};
 use ecsync_wire::dl::DlStatus;
-use ecsync_wire::register::{self as reg, features};
+use ecsync_wire::register::{self as reg};
 use ecsync_wire::sii::{self, category};
 use ecsync_wire::{AlControlRepr, AlState, Command, DatagramAddress};
 
@@ -111,7 +111,8 @@ pub(super) async fn identify(
     Ok(slaves)
 }
 
-/// ESC type, features and open ports, then the SII: identity always; the device name and
+/// ESC type, features and open ports, whether it keeps a system time (see
+/// [`take_eeprom_probing_system_time`]), then the SII: identity always; the device name and
 /// the process data SyncManagers (with their PDO sizes) only when the bring-up goes beyond
 /// the delays, since they cost many EEPROM reads.
 pub(super) async fn identify_slave(
@@ -160,9 +161,9 @@ pub(super) async fn identify_slave(
     let dls = DlStatus::new_checked(&r[2].data[..])
         .map_err(|_| MasterError::BadReply("DL status shorter than its register"))?;
     let open = dls.ports().map(|p| p.open());
+    let system_time = take_eeprom_probing_system_time(link, station).await?;
     let mut sii =
         SiiReader::new(link, station).with_busy_timeout_ns(cfg.timeouts.sii_busy_timeout_ns);
-    sii.take_ownership().await?;
     let id_bytes = sii.read(sii::WORD_VENDOR_ID, 16).await?;
     let identity = sii::identity(&{
         let mut img = vec![0u8; 16];
@@ -230,7 +231,8 @@ pub(super) async fn identify_slave(
             });
         }
     }
-    let dc = if feats & features::DC != 0 {
+    // Receive times are probed later, on the slaves without a system time ([`probe_dc`]).
+    let dc = if system_time {
         DcCapability::SystemTime
     } else {
         DcCapability::None
@@ -263,6 +265,44 @@ pub(super) async fn identify_slave(
     })
 }
 
+/// Takes the EEPROM for the EtherCAT side as [`SiiReader::take_ownership`] does (0x0500 =
+/// 0x02, then 0x00) and reads the system time (0x0910) in the second frame: whether that read
+/// counts is whether the slave keeps a system time. 0x0008's DC bit does not say it: the
+/// EL2828, EL1004, EK1914 and EL3004 set it and latch receive times, yet every access to
+/// 0x0910-0x0930 gets working counter 0 there (../shared/captures/README.md). The read rides
+/// in the frame's padding (a 1-byte write is a 29-byte frame, the read adds 20, under the
+/// 60-byte Ethernet minimum): it costs no wire time, and a bring-up takes as long as before.
+async fn take_eeprom_probing_system_time(link: &Link, station: u16) -> Result<bool, MasterError> {
+    link.fpwr(station, reg::SII_CONFIG, &[0x02], "SII owner")
+        .await?;
+    let (r, _) = link
+        .pdus(
+            &[
+                Pdu::new(
+                    Command::Fpwr,
+                    DatagramAddress::configured(station, reg::SII_CONFIG),
+                    vec![0x00],
+                ),
+                Pdu::new(
+                    Command::Fprd,
+                    DatagramAddress::configured(station, reg::DC_SYSTEM_TIME),
+                    vec![0; 8],
+                ),
+            ],
+            "SII owner",
+        )
+        .await?;
+    if r[0].wkc != 1 {
+        return Err(MasterError::WorkingCounter {
+            command: Command::Fpwr,
+            what: "SII owner",
+            expected: 1,
+            got: r[0].wkc,
+        });
+    }
+    Ok(r[1].wkc == 1)
+}
+
 /// The slave whose system time the others follow.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct ReferenceClock {
@@ -272,9 +312,10 @@ pub(super) struct ReferenceClock {
     pub(super) id: SlaveId,
 }
 
-/// [`Phase::DcProbe`]: slaves without the DC feature may still have receive times (junctions
-/// must): probe 0x0900 with a read and see who counts it. The reference clock is the first
-/// slave with a system time.
+/// [`Phase::DcProbe`]: slaves without a system time (whose read of 0x0910 did not count, see
+/// [`identify_slave`]) may still have receive times (junctions must, and terminals such as the
+/// EL2828 do): probe 0x0900 with a read and see who counts it. The reference clock is the
+/// first slave with a system time.
 pub(super) async fn probe_dc(
     link: &Link,
     slaves: &mut [SlaveInfo],

@@ -4,10 +4,21 @@
 //!
 //! The FMMU and SyncManager registers are decoded through the wire crate's views when they are
 //! written; the datagram path then works on the decoded copies below.
+//!
+//! An FMMU maps any physical address, registers included (datasheet section I, "FMMU"): the
+//! digital I/O terminals map their outputs onto the digital output register 0x0F00, where a
+//! SyncManager is configured too (the EL2828 and EL2889 in ../shared/captures/: FPWR 0x0800 =
+//! `00 0f 01 00 44 00 01 00`, FMMU to 0x0F00, every LRW counted). A SyncManager in register
+//! space belongs to the digital I/O PDI, which has no firmware to hold it back: its buffer takes
+//! writes whenever it is enabled, in any AL state (replay-dc.pcapng, frame 3022: the LRW before
+//! SAFE-OP counts 4 at the two terminals). Through an FMMU the model writes only the registers
+//! that hold plain data (the digital outputs 0x0F00-0x0F03, the user RAM 0x0F80-0x0FFF) and reads
+//! the registers the register file holds as they stand (not the DC block or the EEPROM
+//! interface, which it computes on a physical read): no master maps the others.
 
 use super::cia402::{self, DriveMemory, DrivePlan};
 use super::recorder::{Act, LogicalOp};
-use super::registers::REG_SPACE;
+use super::registers::{EXISTS, REG_SPACE, WRITABLE};
 use super::{Esc, FMMUS, SMS};
 use ecsync_wire::register as reg;
 use ecsync_wire::{AlState, Command, FMMU_ENTRY_LEN, Fmmu, SM_ENTRY_LEN, SmDirection, SyncManager};
@@ -305,9 +316,24 @@ impl Esc {
         }
     }
 
-    /// The part of the logical range `lstart..lstart + len` that FMMU `f` maps into the
-    /// process RAM area and the SyncManagers let through: (offset in the datagram's data,
-    /// offset in RAM, bytes). The bytes may still run past the end of the RAM.
+    /// The part of the logical range `lstart..lstart + len` that FMMU `f` maps: (offset in the
+    /// datagram's data, physical address, bytes). The bytes may still run past the end of the
+    /// RAM.
+    #[inline]
+    fn fmmu_span(f: FmmuMapping, lstart: u64, len: u64) -> Option<(usize, usize, usize)> {
+        let fs = u64::from(f.logical);
+        let fe = fs + u64::from(f.len);
+        let (s, e) = (lstart.max(fs), (lstart + len).min(fe));
+        if s >= e {
+            return None;
+        }
+        let phys = u64::from(f.physical) + (s - fs);
+        Some(((s - lstart) as usize, phys as usize, (e - s) as usize))
+    }
+
+    /// The part of the logical range that FMMU `f` maps into the process RAM area and the
+    /// SyncManagers let through: (offset in the datagram's data, offset in RAM, bytes). The
+    /// bytes may still run past the end of the RAM.
     #[inline]
     fn fmmu_window(
         &self,
@@ -316,21 +342,125 @@ impl Esc {
         len: u64,
         write: bool,
     ) -> Option<(usize, usize, usize)> {
-        let fs = u64::from(f.logical);
-        let fe = fs + u64::from(f.len);
-        let (s, e) = (lstart.max(fs), (lstart + len).min(fe));
-        if s >= e {
+        let (d0, phys, n) = Self::fmmu_span(f, lstart, len)?;
+        if phys < REG_SPACE || !self.sm_allows(phys as u16, write) {
             return None;
         }
-        let phys = u64::from(f.physical) + (s - fs);
-        if phys < REG_SPACE as u64 || !self.sm_allows(phys as u16, write) {
-            return None;
+        Some((d0, phys - REG_SPACE, n))
+    }
+
+    /// The part of the logical range that FMMU `f` maps into register space: (offset in the
+    /// datagram's data, register address, bytes), the bytes clipped to the registers.
+    #[inline(never)]
+    fn fmmu_register_window(
+        &self,
+        f: FmmuMapping,
+        lstart: u64,
+        len: u64,
+    ) -> Option<(usize, usize, usize)> {
+        let (d0, phys, n) = Self::fmmu_span(f, lstart, len)?;
+        (phys < REG_SPACE).then(|| (d0, phys, n.min(REG_SPACE - phys)))
+    }
+
+    /// Whether register `a` takes an FMMU's write: a register holding plain data (see the
+    /// module's documentation), writable, and inside an enabled process data SyncManager the
+    /// EtherCAT side writes if one covers it.
+    fn register_takes_logical_write(&self, a: usize) -> bool {
+        (0x0f00..REG_SPACE).contains(&a)
+            && self.attr[a] & WRITABLE != 0
+            && self.register_sm_allows(a as u16, true)
+    }
+
+    /// Whether register `a` gives an FMMU's read: a register the register file holds (not the
+    /// DC block or the EEPROM interface), inside an enabled SyncManager the EtherCAT side
+    /// reads if one covers it.
+    fn register_gives_logical_read(&self, a: usize) -> bool {
+        let computed = (0x0500..0x0510).contains(&a) || (0x0900..0x0a00).contains(&a);
+        !computed && self.attr[a] & EXISTS != 0 && self.register_sm_allows(a as u16, false)
+    }
+
+    /// A process data SyncManager in register space: its buffer is the register's bytes, open
+    /// whenever it is enabled, in the direction it was set up for (no application holds it:
+    /// see the module's documentation). Registers no enabled SyncManager covers are open.
+    fn register_sm_allows(&self, addr: u16, write: bool) -> bool {
+        let mut covering = self
+            .sms
+            .iter()
+            .take(usize::from(self.model.sm_count))
+            .filter(|s| s.enabled && s.contains(addr))
+            .peekable();
+        covering.peek().is_none() || covering.any(|s| !s.mailbox && s.ecat_writes == write)
+    }
+
+    /// The writes and reads of a logical access that FMMUs map into register space: what
+    /// [`Esc::logical`] adds to the working counter for them (write hit, read hit). Such an
+    /// access is never recorded for the fast path (it copies into the RAM only).
+    #[inline(never)]
+    fn logical_registers(&mut self, cmd: Command, lstart: u64, data: &mut [u8]) -> (bool, bool) {
+        let len = data.len() as u64;
+        let (mut write_hit, mut read_hit) = (false, false);
+        if cmd.writes() {
+            for k in 0..usize::from(self.fmmu_writers.1) {
+                let f = self.fmmus[usize::from(self.fmmu_writers.0[k])];
+                let Some((d0, a0, n)) = self.fmmu_register_window(f, lstart, len) else {
+                    continue;
+                };
+                self.rec.uncacheable();
+                for i in 0..n {
+                    if self.register_takes_logical_write(a0 + i) {
+                        self.regs[a0 + i] = data[d0 + i];
+                        write_hit = true;
+                    }
+                }
+                // The outputs' buffer restarts the watchdog, as in process RAM.
+                self.pd_written |= write_hit;
+            }
         }
-        Some((
-            (s - lstart) as usize,
-            phys as usize - REG_SPACE,
-            (e - s) as usize,
-        ))
+        if cmd.reads() {
+            for k in 0..usize::from(self.fmmu_readers.1) {
+                let f = self.fmmus[usize::from(self.fmmu_readers.0[k])];
+                let Some((d0, a0, n)) = self.fmmu_register_window(f, lstart, len) else {
+                    continue;
+                };
+                self.rec.uncacheable();
+                for i in 0..n {
+                    if self.register_gives_logical_read(a0 + i) {
+                        data[d0 + i] = self.regs[a0 + i];
+                        read_hit = true;
+                    }
+                }
+            }
+        }
+        (write_hit, read_hit)
+    }
+
+    /// Whether an FMMU maps into register space (the common process data never does: its
+    /// logical path stays as it was).
+    #[inline]
+    fn maps_registers(&self) -> bool {
+        self.fmmus[..usize::from(self.fmmu_count())]
+            .iter()
+            .any(|f| f.len > 0 && usize::from(f.physical) < REG_SPACE)
+    }
+
+    /// The outputs as the device takes them: the buffers of the enabled process data
+    /// SyncManagers the EtherCAT side writes, in SyncManager order, from the register file
+    /// (the digital output register 0x0F00, which drives a terminal's outputs) or the process
+    /// RAM. Empty without such a SyncManager.
+    pub fn outputs(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        for s in self.sms.iter().take(usize::from(self.sm_count())) {
+            if !(s.enabled && s.ecat_writes && !s.mailbox) {
+                continue;
+            }
+            for a in usize::from(s.start)..usize::from(s.start) + usize::from(s.len) {
+                out.push(match a.checked_sub(REG_SPACE) {
+                    None => self.regs[a],
+                    Some(r) => self.ram.get(r).copied().unwrap_or(0),
+                });
+            }
+        }
+        out
     }
 
     /// LRD/LWR/LRW through the FMMUs. Returns the working counter increment.
@@ -384,6 +514,11 @@ impl Esc {
                     len: n as u16,
                 });
             }
+        }
+        if self.maps_registers() {
+            let (w, r) = self.logical_registers(cmd, lstart, data);
+            write_hit |= w;
+            read_hit |= r;
         }
         match cmd {
             Command::Lrd => u16::from(read_hit),
