@@ -100,8 +100,8 @@ impl fmt::Display for SlaveId {
 }
 
 /// What a slave's DC unit keeps, as the master learns it from which reads count: a read of
-/// the system time (0x0910), else of the receive times (0x0900). Never from 0x0008, whose DC
-/// bit real devices set with receive times alone.
+/// the system time's registers (0x0920), else of the receive times (0x0900). Never from
+/// 0x0008, whose DC bit real devices set with receive times alone.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum DcCapability {

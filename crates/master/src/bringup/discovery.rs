@@ -266,12 +266,16 @@ pub(super) async fn identify_slave(
 }
 
 /// Takes the EEPROM for the EtherCAT side as [`SiiReader::take_ownership`] does (0x0500 =
-/// 0x02, then 0x00) and reads the system time (0x0910) in the second frame: whether that read
-/// counts is whether the slave keeps a system time. 0x0008's DC bit does not say it: the
+/// 0x02, then 0x00) and reads the system time offset (0x0920) in the second frame: whether that
+/// read counts is whether the slave keeps a system time. 0x0008's DC bit does not say it: the
 /// EL2828, EL1004, EK1914 and EL3004 set it and latch receive times, yet every access to
-/// 0x0910-0x0930 gets working counter 0 there (../shared/captures/README.md). The read rides
-/// in the frame's padding (a 1-byte write is a 29-byte frame, the read adds 20, under the
-/// 60-byte Ethernet minimum): it costs no wire time, and a bring-up takes as long as before.
+/// 0x0910-0x0930 gets working counter 0 there (../shared/captures/README.md; the EL2828's
+/// 0x0910, 0x0918, 0x0920 and 0x092C in replay-dc.pcapng). The system time's registers exist
+/// together or not at all; of them the offset is read, which the master writes next, and whose
+/// read leaves the virtual segment's clocks as they were (a read of 0x0910 brings the simulated
+/// clock to the read's instant, which moves later figures in their last bits). The read rides in
+/// the frame's padding (a 1-byte write is a 29-byte frame, the read adds 20, under the 60-byte
+/// Ethernet minimum): it costs no wire time, and a bring-up takes as long as before.
 async fn take_eeprom_probing_system_time(link: &Link, station: u16) -> Result<bool, MasterError> {
     link.fpwr(station, reg::SII_CONFIG, &[0x02], "SII owner")
         .await?;
@@ -285,7 +289,7 @@ async fn take_eeprom_probing_system_time(link: &Link, station: u16) -> Result<bo
                 ),
                 Pdu::new(
                     Command::Fprd,
-                    DatagramAddress::configured(station, reg::DC_SYSTEM_TIME),
+                    DatagramAddress::configured(station, reg::DC_SYSTEM_TIME_OFFSET),
                     vec![0; 8],
                 ),
             ],
@@ -312,7 +316,7 @@ pub(super) struct ReferenceClock {
     pub(super) id: SlaveId,
 }
 
-/// [`Phase::DcProbe`]: slaves without a system time (whose read of 0x0910 did not count, see
+/// [`Phase::DcProbe`]: slaves without a system time (whose read of 0x0920 did not count, see
 /// [`identify_slave`]) may still have receive times (junctions must, and terminals such as the
 /// EL2828 do): probe 0x0900 with a read and see who counts it. The reference clock is the
 /// first slave with a system time.
