@@ -205,6 +205,33 @@ fn pdo_flags(p: &PdoDescription) -> u16 {
     u16::from(p.mandatory) | (u16::from(p.sm.is_some()) << 1) | (u16::from(p.fixed) << 4)
 }
 
+/// The SyncManager category of a described device: each SyncManager as described, a process
+/// data one as long as the PDOs assigned to it by default, or the device's outputs or inputs
+/// where none names it (the EL2889 spreads its outputs over two, one byte each).
+fn sm_category(dev: &DeviceInfo, c: &SiiContents) -> Vec<u8> {
+    let mut sm = Vec::new();
+    for (k, d) in c.sync_managers.iter().enumerate() {
+        let assigned = |pdos: &[PdoDescription], all: usize| {
+            let bits: usize = pdos
+                .iter()
+                .filter(|p| p.sm == Some(k as u8))
+                .flat_map(|p| &p.entries)
+                .map(|e| usize::from(e.bits))
+                .sum();
+            if bits > 0 { bits.div_ceil(8) } else { all }
+        };
+        let len = match d.sm_type {
+            sii::sm_type::OUTPUTS => assigned(&c.rx_pdos, dev.output_bytes()) as u16,
+            sii::sm_type::INPUTS => assigned(&c.tx_pdos, dev.input_bytes()) as u16,
+            _ => d.default_len,
+        };
+        sm.extend_from_slice(&d.start.to_le_bytes());
+        sm.extend_from_slice(&len.to_le_bytes());
+        sm.extend_from_slice(&[d.control, 0x00, u8::from(d.enable), d.sm_type]);
+    }
+    sm
+}
+
 /// The SII image of a device whose description gives its SII's contents (an ESI, ETG.2000 to
 /// ETG.2010): words 0-6 from its ConfigData with the checksum computed over them (word 7),
 /// the alias of word 4 the device's; the identity; the mailbox words and the protocols; the
@@ -314,30 +341,7 @@ pub fn build_described(model: &EscModel, dev: &DeviceInfo, c: &SiiContents) -> V
         push_category(&mut cats, category::FMMU, c.fmmus.clone());
     }
     if !c.sync_managers.is_empty() {
-        let mut sm = Vec::new();
-        for (k, d) in c.sync_managers.iter().enumerate() {
-            // A process data SyncManager as long as the PDOs assigned to it by default; the
-            // device's outputs or inputs where none names it (the EL2889 spreads its outputs
-            // over two, one byte each).
-            let assigned = |pdos: &[PdoDescription], all: usize| {
-                let bits: usize = pdos
-                    .iter()
-                    .filter(|p| p.sm == Some(k as u8))
-                    .flat_map(|p| &p.entries)
-                    .map(|e| usize::from(e.bits))
-                    .sum();
-                if bits > 0 { bits.div_ceil(8) } else { all }
-            };
-            let len = match d.sm_type {
-                sii::sm_type::OUTPUTS => assigned(&c.rx_pdos, dev.output_bytes()) as u16,
-                sii::sm_type::INPUTS => assigned(&c.tx_pdos, dev.input_bytes()) as u16,
-                _ => d.default_len,
-            };
-            sm.extend_from_slice(&d.start.to_le_bytes());
-            sm.extend_from_slice(&len.to_le_bytes());
-            sm.extend_from_slice(&[d.control, 0x00, u8::from(d.enable), d.sm_type]);
-        }
-        push_category(&mut cats, category::SYNC_MANAGER, sm);
+        push_category(&mut cats, category::SYNC_MANAGER, sm_category(dev, c));
     }
     let kinds = std::iter::repeat_n(category::TXPDO, c.tx_pdos.len())
         .chain(std::iter::repeat_n(category::RXPDO, c.rx_pdos.len()));
