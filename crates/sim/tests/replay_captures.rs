@@ -30,12 +30,6 @@ fn replay_and_check(file: &str, wkc: &[Known], timing: &[Known], values: &[Known
 
 // The causes of the differences known today (issue 32's points), shared by the captures.
 
-const LRW_0F00: &str = "the EL2828 and EL2889 map their outputs through SyncManagers and an FMMU at \
-    0x0F00 (the digital output register); the model refuses FMMU targets below 0x1000 \
-    (process_data.rs, fmmu_window), so none of the LRWs counts there (issue 32 point 3); and \
-    the EL2889 has two output SyncManagers of one byte each (0x0F00, 0x0F01: its SII), where \
-    the model's PRE-OP -> SAFE-OP check (al.rs) wants one as long as all its outputs and \
-    refuses SAFE-OP with 0x001D";
 const SAFEOP_EL2889: &str = "the EL2889 reaches SAFE-OP and OP; the model refuses SAFE-OP with \
     0x001D: its check (al.rs, check_process_data_config) wants one output SyncManager as long \
     as all outputs, the EL2889's SII has two of one byte each (0x0F00, 0x0F01)";
@@ -49,10 +43,9 @@ const AL_TIME: &str = "the real device was still in the state it had been asked 
     and 14 ms to SAFE-OP); the model changes state at once (issue 32 point 4; al.rs)";
 const DL_STATUS: &str = "DL status 0x0110: the EK1100 reads 0x5A31 (no PDI watchdog bit 1), the \
     LAN9252 0x5617 (bit 2 too); the model 0x5A33, 0x5613 (issue 32 point 8; registers.rs)";
-const FEATURES: &str = "0x0008: the EL2828, EK1914 and EL1004 read 0x00FC/0x01FC (DC bits set, \
-    no system time), the model clears the DC bits of an ESC without a system time; the EL2889 \
-    reads 0x00FC where the ET1200 model shows 0x01FC; the LAN9252 0x01CC, the model the \
-    ET1100's 0x00FC (issue 32 points 2 and 8; model.rs)";
+const FEATURES: &str = "0x0007 and 0x0008: the EL1004's port descriptor reads 0x4A (port 2 \
+    not configured shows 0b10), the model 0x0A; the LAN9252's features read 0x01CC, the model \
+    the ET1100's 0x00FC (issue 32 point 8; model.rs)";
 const ESC_REVISION: &str = "BRD 0x0000-0x0001: the EL1004 (ET1200) has revision 1, the model 0 \
     (issue 32 point 8; model.rs)";
 const SII_BUSY: &str = "Beckhoff EEPROMs stay busy 0.6-0.9 ms per read; the model's 20 us is \
@@ -132,18 +125,17 @@ fn assert_ek1100_el2828_el2889(r: &Replayed) {
 #[ignore = "needs ../shared/captures"]
 fn replay_dc() {
     const LISTS: Lists = (
-        &[k("LRW logical: wkc", 257, LRW_0F00)],
+        &[],
         &[],
         &[
             k("FPRD AL status 0x0130-0x0135: bit 4 alone", 5, AL_ACK),
-            k("FPRD AL status 0x0130-0x0135: state", 494, SAFEOP_EL2889),
+            k("FPRD AL status 0x0130-0x0135: state", 258, SAFEOP_EL2889),
             k("FPRD DL status 0x0110: value", 1, DL_STATUS),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 478, SII_BUSY),
         ],
     );
     let r = replay_and_check("replay-dc.pcapng", LISTS.0, LISTS.1, LISTS.2);
-    assert_eq!(figures(&r), (2838, 2581, 257, 0));
+    assert_eq!(figures(&r), (2838, 2838, 0, 0));
     assert_ek1100_el2828_el2889(&r);
     assert_matches_dump(&r, 0, "ek1100-eeprom-dump.bin");
     // README: BWR 0x0900 = 3, BWR 0x0910 = 2, and 0x092C (read-only) counts nowhere on this
@@ -163,7 +155,6 @@ fn replay_ek1100_alias_address() {
         &[
             k("FPRD AL status 0x0130-0x0135: bit 4 alone", 3, AL_ACK),
             k("FPRD DL status 0x0110: value", 1, DL_STATUS),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 154, SII_BUSY),
             k(
                 "FPRD SII control/address 0x0502: read size/errors",
@@ -186,13 +177,12 @@ fn replay_ek1100_alias_address() {
 #[ignore = "needs ../shared/captures"]
 fn replay_ek1100_el2828_el2889() {
     const LISTS: Lists = (
-        &[k("LRW logical: wkc", 263, LRW_0F00)],
+        &[],
         &[],
         &[
             k("FPRD AL status 0x0130-0x0135: bit 4 alone", 3, AL_ACK),
-            k("FPRD AL status 0x0130-0x0135: state", 258, SAFEOP_EL2889),
+            k("FPRD AL status 0x0130-0x0135: state", 10, SAFEOP_EL2889),
             k("FPRD DL status 0x0110: value", 1, DL_STATUS),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 484, SII_BUSY),
         ],
     );
@@ -202,7 +192,7 @@ fn replay_ek1100_el2828_el2889() {
         LISTS.1,
         LISTS.2,
     );
-    assert_eq!(figures(&r), (2062, 1799, 263, 0));
+    assert_eq!(figures(&r), (2062, 2062, 0, 0));
     assert_ek1100_el2828_el2889(&r);
 }
 
@@ -210,18 +200,17 @@ fn replay_ek1100_el2828_el2889() {
 #[ignore = "needs ../shared/captures"]
 fn replay_issue_255() {
     const LISTS: Lists = (
-        &[k("LRW logical: wkc", 64, LRW_0F00)],
+        &[],
         &[],
         &[
             k("FPRD AL status 0x0130-0x0135: bit 4 alone", 3, AL_ACK),
-            k("FPRD AL status 0x0130-0x0135: state", 80, SAFEOP_EL2889),
+            k("FPRD AL status 0x0130-0x0135: state", 66, SAFEOP_EL2889),
             k("FPRD DL status 0x0110: value", 1, DL_STATUS),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 484, SII_BUSY),
         ],
     );
     let r = replay_and_check("replay-issue-255.pcapng", LISTS.0, LISTS.1, LISTS.2);
-    assert_eq!(figures(&r), (1684, 1620, 64, 0));
+    assert_eq!(figures(&r), (1684, 1684, 0, 0));
     assert_ek1100_el2828_el2889(&r);
 }
 
@@ -263,7 +252,6 @@ fn replay_ek1914_el3004_configure() {
         )],
         &[
             k("FPRD AL status 0x0130-0x0135: state", 4, AL_TIME),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 104, SII_BUSY),
             k("FPRD SM status 0x0805+8n: other bits", 51, SM_STATUS),
         ],
@@ -286,7 +274,6 @@ fn replay_ek1914_el3004_mailbox() {
         &[],
         &[
             k("FPRD AL status 0x0130-0x0135: state", 6, AL_TIME),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 104, SII_BUSY),
             k("FPRD SM status 0x0805+8n: other bits", 11, SM_STATUS),
         ],
@@ -313,7 +300,6 @@ fn replay_ek1914_no_complete_access() {
         )],
         &[
             k("FPRD AL status 0x0130-0x0135: state", 3, AL_TIME),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 86, SII_BUSY),
             k("FPRD SM status 0x0805+8n: other bits", 241, SM_STATUS),
         ],
@@ -336,7 +322,6 @@ fn replay_ek1914_segmented_upload() {
         &[],
         &[
             k("FPRD AL status 0x0130-0x0135: state", 5, AL_TIME),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 104, SII_BUSY),
             k("FPRD SM status 0x0805+8n: other bits", 1, SM_STATUS),
         ],
@@ -399,7 +384,7 @@ fn soem_sdinfo_ek1100_el1004() {
             k("BRD ESC information 0x0000-0x000F: value", 1, ESC_REVISION),
             k("FPRD AL status 0x0130-0x0135: bit 4 alone", 4, AL_ACK),
             k("FPRD DL status 0x0110: value", 1, DL_STATUS),
-            k("FPRD ESC information 0x0000-0x000F: value", 2, FEATURES),
+            k("FPRD ESC information 0x0000-0x000F: value", 1, FEATURES),
             k("FPRD SII control/address 0x0502: busy", 36, SII_BUSY),
         ],
     );

@@ -71,6 +71,10 @@ fn model(f: &SlaveFacts, first: bool) -> EscModel {
         _ => EscModel::servo_mii(),
     };
     m.dc = dc;
+    // 0x0008 bit 8, enhanced DC SYNC activation, as read (the EL2889's ET1200 lacks it).
+    if let Some(v) = f.reg16(0x0008) {
+        m.enhanced_dc_sync = v & 0x0100 != 0;
+    }
     for (addr, field) in [
         (0x0000u16, 0usize),
         (0x0001, 1),
