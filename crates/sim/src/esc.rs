@@ -36,6 +36,7 @@ mod process_data;
 mod recorder;
 mod registers;
 mod sii;
+mod sm_status;
 mod sync;
 mod watchdog;
 
@@ -52,6 +53,7 @@ use sii::SiiState;
 pub use datagram::DatagramEffects;
 pub(crate) use fast::{Deferred, MAX_PROGRAM_DATAGRAMS, PlannedSteps};
 pub use registers::LoopMode;
+pub use sm_status::AnswerBufferHabit;
 
 /// FMMUs and SyncManagers an ESC has at most (the register map's room).
 const FMMUS: usize = MAX_FMMUS as usize;
@@ -150,6 +152,8 @@ pub struct Esc {
     rec: Recorder,
     /// The mailbox and its CoE server (a device with a mailbox); boxed, it is rarely used.
     mbx: Option<Box<mailbox::MailboxState>>,
+    /// The mailbox SyncManagers' status bits besides "full".
+    sm_status: sm_status::MailboxStatusBits,
 }
 
 // The hot lines as laid out above (a field added to a hot line must fit it): a large
@@ -227,6 +231,7 @@ impl Esc {
             pd_written: false,
             sync_pending: false,
             sync: sync::SyncMonitor::default(),
+            sm_status: sm_status::MailboxStatusBits::default(),
         };
         esc.build_attributes();
         esc.reset_registers();
@@ -247,6 +252,7 @@ impl Esc {
         let mut esc = Esc::new_at(self.model.clone(), (*self.device).clone(), crystal, t_ps);
         esc.sii = self.sii.clone();
         esc.sii.power_up();
+        esc.set_answer_buffer_habit(self.answer_buffer_habit());
         esc
     }
 

@@ -59,10 +59,10 @@ const SAFEOP_AKD: &str = "the AKD refused SAFE-OP with 0x001D (invalid output co
     after SOEM set SM2 to 0x1100, 17 bytes, control 0x24; the model, with the dictionary the \
     capture shows (0x1C12 and the mappings: 17 bytes), takes it. The AKD's own rule is not in \
     the capture (al.rs)";
-const SM_STATUS: &str = "SM status bits other than mailbox full: interrupt write (bit 0: the \
-    writer filled the buffer), interrupt read (bit 1: the reader emptied it), write buffer \
-    open (bit 7: the application writing its answer); the model shows bit 3 only (issue 32 \
-    point 7)";
+const READ_INTERRUPT_TIMING: &str = "the EK1914's firmware takes the read interrupt (SM1 status \
+    0x02 -> 0x00) between 0.3 and 0.9 ms after the master's read; the one time that fits most \
+    of its answers (ecsync_sim::AnswerBufferHabit, fitted by the harness) leaves three polls \
+    that still saw 0x02 where the segment's device had taken it";
 const POLL_TIMING: &str = "the answer came at another time than the segment's device gives it \
     (one answer time per device, the one that fits most of the capture's exchanges: the real \
     ones scatter, the EK1914's 0.4-6.9 ms, the EL3004's 0.3-0.9 ms, the AKD's 0.6-2.2 ms); \
@@ -253,7 +253,6 @@ fn replay_ek1914_el3004_configure() {
         &[
             k("FPRD AL status 0x0130-0x0135: state", 4, AL_TIME),
             k("FPRD SII control/address 0x0502: busy", 104, SII_BUSY),
-            k("FPRD SM status 0x0805+8n: other bits", 51, SM_STATUS),
         ],
     );
     let r = replay_and_check(
@@ -275,7 +274,6 @@ fn replay_ek1914_el3004_mailbox() {
         &[
             k("FPRD AL status 0x0130-0x0135: state", 6, AL_TIME),
             k("FPRD SII control/address 0x0502: busy", 104, SII_BUSY),
-            k("FPRD SM status 0x0805+8n: other bits", 11, SM_STATUS),
         ],
     );
     let r = replay_and_check(
@@ -301,7 +299,11 @@ fn replay_ek1914_no_complete_access() {
         &[
             k("FPRD AL status 0x0130-0x0135: state", 3, AL_TIME),
             k("FPRD SII control/address 0x0502: busy", 86, SII_BUSY),
-            k("FPRD SM status 0x0805+8n: other bits", 241, SM_STATUS),
+            k(
+                "FPRD SM status 0x0805+8n: other bits",
+                3,
+                READ_INTERRUPT_TIMING,
+            ),
         ],
     );
     let r = replay_and_check(
@@ -323,7 +325,6 @@ fn replay_ek1914_segmented_upload() {
         &[
             k("FPRD AL status 0x0130-0x0135: state", 5, AL_TIME),
             k("FPRD SII control/address 0x0502: busy", 104, SII_BUSY),
-            k("FPRD SM status 0x0805+8n: other bits", 1, SM_STATUS),
         ],
     );
     let r = replay_and_check(
@@ -355,7 +356,6 @@ fn soem_sdinfo_akd() {
                 53,
                 SII_READ_SIZE,
             ),
-            k("FPRD SM status 0x0805+8n: other bits", 155, SM_STATUS),
         ],
     );
     let r = replay_and_check("soem-sdinfo-akd.pcapng", LISTS.0, LISTS.1, LISTS.2);
@@ -436,7 +436,6 @@ fn soem_single_lan9252() {
                 55,
                 SII_READ_SIZE,
             ),
-            k("FPRD SM status 0x0805+8n: other bits", 266, SM_STATUS),
         ],
     );
     let r = replay_and_check("soem-single-lan9252.pcapng", LISTS.0, LISTS.1, LISTS.2);

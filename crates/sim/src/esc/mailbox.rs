@@ -155,22 +155,26 @@ impl Esc {
         self.update_mailbox_status();
     }
 
-    /// SM status bit 3 (mailbox full) of both mailbox SyncManagers.
+    /// SM status bit 3 (mailbox full) of both mailbox SyncManagers; the other bits follow
+    /// (`sm_status`).
     fn update_mailbox_status(&mut self) {
         let Some(m) = self.mbx.as_deref() else {
             return;
         };
-        for (sm, full) in [(m.out_sm, m.out_full), (m.in_sm, m.in_full)] {
+        let (out_sm, out_full, in_sm, in_full) = (m.out_sm, m.out_full, m.in_sm, m.in_full);
+        for (sm, full) in [(out_sm, out_full), (in_sm, in_full)] {
             if let Some(i) = sm {
                 let at = usize::from(reg::sync_manager_address(i as u8)) + 5;
                 self.regs[at] = (self.regs[at] & !0x08) | (u8::from(full) << 3);
             }
         }
+        self.sm_status_follow(out_sm, out_full, in_sm, in_full);
     }
 
     /// The answer, once it is ready at `t_ps`, goes into the mailbox in buffer (when that is
     /// empty).
     pub(super) fn mailbox_tick(&mut self, t_ps: u64) {
+        self.sm_status_tick(t_ps);
         let Some(m) = self.mbx.as_deref_mut() else {
             return;
         };

@@ -9,7 +9,7 @@ use ecsync_sim::model::{
     DcSupport, DeviceInfo, EscModel, MailboxLayout, PdoDescription, PdoEntry, PortKind,
     SiiContents, SmDescription,
 };
-use ecsync_sim::{Segment, SlaveSpec, Upstream};
+use ecsync_sim::{AnswerBufferHabit, Segment, SlaveSpec, Upstream};
 use ecsync_wire::sii::{self, SmCategoryEntry, category};
 
 /// Beckhoff's vendor ID (ETG vendor list) and the low half of its product codes: "EK"
@@ -26,6 +26,8 @@ pub struct Slave {
     pub image: Vec<u8>,
     /// Its object dictionary, if it has a mailbox with CoE.
     pub dictionary: Option<ObjectDictionary>,
+    /// What its application does with the answer buffer after the master read an answer.
+    pub habit: AnswerBufferHabit,
 }
 
 /// The SII EEPROM of a slave from the words the capture read (an erased EEPROM, 0xFFFF,
@@ -294,6 +296,7 @@ pub fn slaves(
                 },
                 image,
                 dictionary,
+                habit: AnswerBufferHabit::default(),
             }
         })
         .collect()
@@ -307,6 +310,7 @@ pub fn segment(slaves: &[Slave]) -> Segment {
         let s = &slaves[seg.spec_index(pos)];
         let esc = seg.esc_mut(pos);
         esc.load_sii_image(s.image.clone());
+        esc.set_answer_buffer_habit(s.habit);
         if let (Some(od), Some(server)) = (&s.dictionary, esc.sdo_server_mut()) {
             server.od = od.clone();
         }

@@ -10,6 +10,7 @@ pub mod network;
 pub mod od;
 
 use crate::common::captures_dir;
+use ecsync_sim::AnswerBufferHabit;
 use std::collections::BTreeMap;
 
 /// How long a device takes to answer a mailbox request when the capture shows none, ns
@@ -49,6 +50,38 @@ pub fn response_time(windows: &[(u64, u64)]) -> u64 {
     (lo + hi).div_ceil(2)
 }
 
+/// The habit most of a device's answers show (see [`network::Habit`]), its time fitted as
+/// [`response_time`] fits the answer time; the datasheet's behaviour (the read interrupt kept)
+/// when the capture shows none.
+pub fn habit(habits: &[network::Habit]) -> AnswerBufferHabit {
+    use network::Habit;
+    let kind = |h: &Habit| match h {
+        Habit::Keeps => None,
+        Habit::Takes { opens, .. } => Some(*opens),
+    };
+    let Some(most) = habits
+        .iter()
+        .map(kind)
+        .max_by_key(|k| habits.iter().filter(|h| kind(h) == *k).count())
+    else {
+        return AnswerBufferHabit::KeepsReadInterrupt;
+    };
+    let Some(opens) = most else {
+        return AnswerBufferHabit::KeepsReadInterrupt;
+    };
+    let windows: Vec<(u64, u64)> = habits
+        .iter()
+        .filter_map(|h| match h {
+            Habit::Takes { opens: o, window } if *o == opens => Some(*window),
+            _ => None,
+        })
+        .collect();
+    AnswerBufferHabit::TakesReadInterrupt {
+        after_ns: response_time(&windows),
+        opens,
+    }
+}
+
 /// Reads `file` from the shared captures, builds its network and replays it.
 pub fn replay(file: &str) -> Replayed {
     let exchanges = capture::load(&captures_dir().join(file));
@@ -61,7 +94,11 @@ pub fn replay(file: &str) -> Replayed {
         .iter()
         .map(|s| response_time(&s.response_windows))
         .collect();
-    let slaves = build::slaves(&network, dictionaries, &response_ns);
+    let habits: Vec<AnswerBufferHabit> = network.slaves.iter().map(|s| habit(&s.habits)).collect();
+    let mut slaves = build::slaves(&network, dictionaries, &response_ns);
+    for (s, h) in slaves.iter_mut().zip(&habits) {
+        s.habit = *h;
+    }
     let mut seg = build::segment(&slaves);
     let mailboxes: Vec<_> = network.slaves.iter().map(|s| s.mailbox).collect();
     let outcome = compare::replay(&exchanges, &mut seg, &mailboxes);

@@ -56,6 +56,20 @@ pub struct SlaveFacts {
     /// last SM1 status poll that found SM1 empty (lower bound) and no later than the first
     /// that found it full (upper bound).
     pub response_windows: Vec<(u64, u64)>,
+    /// For each answer the master read, what the SM1 status polls showed after it until the
+    /// next answer (see [`Habit`]).
+    pub habits: Vec<Habit>,
+}
+
+/// What the SM1 status polls after the master read an answer show the application did with
+/// its answer buffer (ecsync_sim::AnswerBufferHabit) until its next answer: the read
+/// interrupt (0x02) kept all along, or taken (cleared, and the buffer opened: 0x80, or not:
+/// 0x00) in a window after the read (ns: after the last poll that still showed 0x02, no
+/// later than the first that did not).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Habit {
+    Keeps,
+    Takes { opens: bool, window: (u64, u64) },
 }
 
 impl SlaveFacts {
@@ -97,6 +111,10 @@ struct Track {
     sii_written: bool,
     /// The pending mailbox request: when it was written and the last empty poll after it, ns.
     request_ns: Option<(u64, u64)>,
+    /// Since the master's last read of an answer: when it read; the last SM1 status poll that
+    /// still showed the read interrupt, and the first that did not (time, status).
+    after_read: Option<u64>,
+    polls: [Option<(u64, u8)>; 2],
 }
 
 /// Reads the network out of the capture's exchanges.
@@ -240,6 +258,14 @@ fn mailbox_timing(f: &mut SlaveFacts, t: &mut Track, d: &Dg, rd: bool, wr: bool,
         t.request_ns = Some((t_ns, 0));
         return;
     }
+    if rd && m.is_in(d.ado, d.data.len()) {
+        t.after_read = Some(t_ns);
+        t.polls = [None, None];
+        return;
+    }
+    if rd && d.ado == 0x080d && !d.data.is_empty() {
+        habit(f, t, d.data[0], t_ns);
+    }
     let Some((req, lower)) = t.request_ns else {
         return;
     };
@@ -252,4 +278,29 @@ fn mailbox_timing(f: &mut SlaveFacts, t: &mut Track, d: &Dg, rd: bool, wr: bool,
             t.request_ns = None;
         }
     }
+}
+
+/// An SM1 status poll `status` at `t_ns` after the master read an answer: the application's
+/// habit with its buffer, decided at its next answer (full).
+fn habit(f: &mut SlaveFacts, t: &mut Track, status: u8, t_ns: u64) {
+    let Some(read) = t.after_read else {
+        return;
+    };
+    if status & 0x08 == 0 {
+        match (status & 0x83, t.polls[1]) {
+            (0x02, None) => t.polls[0] = Some((t_ns, 0x02)),
+            (bits @ (0x00 | 0x80), None) => t.polls[1] = Some((t_ns, bits)),
+            _ => {}
+        }
+        return;
+    }
+    t.after_read = None;
+    let lo = t.polls[0].map_or(0, |p| p.0 - read);
+    f.habits.push(match t.polls[1] {
+        Some((at, bits)) => Habit::Takes {
+            opens: bits == 0x80,
+            window: (lo, at - read),
+        },
+        None => Habit::Keeps,
+    });
 }
