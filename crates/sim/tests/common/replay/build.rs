@@ -9,7 +9,7 @@ use ecsync_sim::model::{
     DcSupport, DeviceInfo, EscModel, MailboxLayout, PdoDescription, PdoEntry, PortKind,
     SiiContents, SmDescription,
 };
-use ecsync_sim::{AnswerBufferHabit, Segment, SlaveSpec, Upstream};
+use ecsync_sim::{AnswerBufferHabit, Segment, SlaveSpec, Upstream, catalog};
 use ecsync_wire::sii::{self, SmCategoryEntry, category};
 
 /// Beckhoff's vendor ID (ETG vendor list) and the low half of its product codes: "EK"
@@ -58,21 +58,42 @@ fn model(f: &SlaveFacts, first: bool) -> EscModel {
     let product = f.sii_dword(sii::WORD_PRODUCT_CODE).unwrap_or(0);
     let esc_type = f.regs.get(&0x0000).copied();
     let dc = dc_support(f);
-    let mut m = match (vendor, product & 0xffff, esc_type) {
+    let mut m = match (vendor, product, esc_type) {
+        // The devices the project's catalog has, as the captures show them.
+        (catalog::BECKHOFF, p, _) if p == catalog::EK1100_PRODUCT.0 => catalog::ek1100_model(),
+        (catalog::BECKHOFF, p, _) if p == catalog::EL2828_PRODUCT.0 => catalog::el2828_model(),
+        (catalog::BECKHOFF, p, _) if p == catalog::EL2889_PRODUCT.0 => catalog::el2889_model(),
+        (BECKHOFF, p, t) => beckhoff(p, t, dc),
+        // The Kollmorgen AKD's ESC (type 0x04, soem-sdinfo-akd.pcapng).
+        (_, _, Some(0x04)) => EscModel::servo_mii_dc32(),
+        _ => EscModel::servo_mii(),
+    };
+    if m.dc != dc {
+        // What the capture shows of the DC unit goes before the family's.
+        m.dc = dc;
+    }
+    registers(&mut m, f, first);
+    m
+}
+
+/// A Beckhoff device outside the catalog, by the kind its product code names.
+fn beckhoff(product: u32, esc_type: Option<u8>, dc: DcSupport) -> EscModel {
+    match (product & 0xffff, esc_type) {
         // Beckhoff couplers are ET1100s (8 FMMUs and SyncManagers, 0x0008 = 0x00FC as the
         // EK1100 and EK1914 read it): RJ45 port 0 (MII) towards the master, EBUS port 1.
-        (BECKHOFF, BECKHOFF_EK, _) => {
+        (BECKHOFF_EK, _) => {
             let mut m = EscModel::junction_mii();
             m.ports = [PortKind::Mii, PortKind::Ebus, PortKind::Mii, PortKind::None];
             m
         }
         // Beckhoff terminals are ET1200s with EBUS ports 0 and 1 (3 FMMUs, 4 SyncManagers).
-        (BECKHOFF, BECKHOFF_EL, _) => EscModel::ebus_terminal(dc),
-        // The Kollmorgen AKD's ESC (type 0x04, soem-sdinfo-akd.pcapng).
-        (_, _, Some(0x04)) => EscModel::servo_mii_dc32(),
+        (BECKHOFF_EL, _) => EscModel::ebus_terminal(dc),
         _ => EscModel::servo_mii(),
-    };
-    m.dc = dc;
+    }
+}
+
+/// The registers the capture read from the slave, over its family's.
+fn registers(m: &mut EscModel, f: &SlaveFacts, first: bool) {
     // 0x0008 bit 8, enhanced DC SYNC activation, as read (the EL2889's ET1200 lacks it).
     if let Some(v) = f.reg16(0x0008) {
         m.enhanced_dc_sync = v & 0x0100 != 0;
@@ -114,7 +135,6 @@ fn model(f: &SlaveFacts, first: bool) -> EscModel {
             *kind = PortKind::Mii;
         }
     }
-    m
 }
 
 /// The DC unit the capture shows: a system time where an access of 0x0910-0x0937 counted,
