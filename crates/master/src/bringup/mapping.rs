@@ -17,21 +17,34 @@ pub(super) struct ProcessImage {
     pub(super) lrw: Vec<crate::pdi::LrwChunk>,
 }
 
+/// Bytes of a slave's process data SyncManagers of SII type `kind` (3 outputs, 4 inputs),
+/// together: a slave may spread its outputs over several (the EL2889: two of one byte, at
+/// 0x0F00 and 0x0F01), which the image holds one after the other.
+fn sm_bytes(s: &SlaveInfo, kind: u8) -> u16 {
+    s.sms
+        .iter()
+        .filter(|m| m.kind == kind)
+        .map(|m| m.len)
+        .fold(0, u16::saturating_add)
+}
+
 /// Process data mapping: outputs of all slaves, then inputs, in the logical image (recorded
 /// in each slave's `outputs` and `inputs`). No frames: the SyncManagers and FMMUs are written
 /// in [`Phase::ProcessData`].
 pub(super) fn map_process_image(slaves: &mut [SlaveInfo]) -> ProcessImage {
     let mut logical = 0u32;
     for s in slaves.iter_mut() {
-        if let Some(sm) = s.sms.iter().find(|m| m.kind == 3) {
-            s.outputs = (logical, sm.len);
-            logical += u32::from(sm.len);
+        if s.sms.iter().any(|m| m.kind == 3) {
+            let len = sm_bytes(s, 3);
+            s.outputs = (logical, len);
+            logical += u32::from(len);
         }
     }
     for s in slaves.iter_mut() {
-        if let Some(sm) = s.sms.iter().find(|m| m.kind == 4) {
-            s.inputs = (logical, sm.len);
-            logical += u32::from(sm.len);
+        if s.sms.iter().any(|m| m.kind == 4) {
+            let len = sm_bytes(s, 4);
+            s.inputs = (logical, len);
+            logical += u32::from(len);
         }
     }
     let pdi_len = logical;
@@ -165,7 +178,9 @@ pub(crate) async fn configure_sync_mode(
 }
 
 /// [`Phase::ProcessData`]: each slave's process data SyncManagers and an FMMU for each, mapped
-/// where [`map_process_image`] placed them; returns the LRW working counter OP must show.
+/// where [`map_process_image`] placed them (several of one direction one after the other);
+/// returns the LRW working counter OP must show: 2 per slave that takes outputs and 1 per
+/// slave that gives inputs, however many FMMUs it has (an ESC counts a datagram once).
 pub(crate) async fn configure_process_data(
     link: &Link,
     slaves: &[SlaveInfo],
@@ -173,11 +188,20 @@ pub(crate) async fn configure_process_data(
     let mut expected_lrw_wkc = 0u16;
     for s in slaves {
         let mut fmmu_n = 0u16;
+        // The next logical address of each direction's SyncManagers.
+        let (mut next_out, mut next_in) = (s.outputs.0, s.inputs.0);
         for sm in &s.sms {
-            let (log, len) = if sm.kind == 3 { s.outputs } else { s.inputs };
+            let len = sm.len;
             if len == 0 {
                 continue;
             }
+            let next = if sm.kind == 3 {
+                &mut next_out
+            } else {
+                &mut next_in
+            };
+            let log = *next;
+            *next += u32::from(len);
             // The SII's control byte, as the slave describes its buffer (a reserved mode or
             // direction is the slave's error, reported, never written).
             let control = SmControl::from_bits(sm.control).map_err(|_| {
@@ -224,7 +248,12 @@ pub(crate) async fn configure_process_data(
             .await
             .map_err(|e| e.at(Phase::ProcessData, s.id()))?;
             fmmu_n += 1;
-            expected_lrw_wkc += if sm.kind == 3 { 2 } else { 1 };
+        }
+        if s.outputs.1 > 0 {
+            expected_lrw_wkc += 2;
+        }
+        if s.inputs.1 > 0 {
+            expected_lrw_wkc += 1;
         }
     }
     Ok(expected_lrw_wkc)
