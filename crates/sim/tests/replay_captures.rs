@@ -450,3 +450,51 @@ fn soem_single_lan9252() {
     );
     assert!((37_000_000..39_000_000).contains(&r.response_ns[0]));
 }
+
+/// Issue 32 point 7: the AKD answers TwinCAT's EoE Set IP Parameter request (its SII declares
+/// EoE: mailbox protocols 0x000E), where the model gave a mailbox error. The AKD as the SOEM
+/// capture builds it, after the replay (PRE-OP): a Set IP request (ETG.1000.6 EoE frame type
+/// 2, IP address and subnet mask) through SM0 is answered in SM1 with mailbox type 2 (EoE),
+/// frame type 3, result 0.
+#[test]
+#[ignore = "needs ../shared/captures"]
+fn soem_sdinfo_akd_answers_eoe_set_ip() {
+    use common::{datagrams, fp};
+    use ecsync_wire::{Command, FrameBuilder};
+    let mut r = replay::replay("soem-sdinfo-akd.pcapng");
+    let m = r.network.slaves[0].mailbox.unwrap();
+    let station = r.network.slaves[0].station.unwrap();
+    let mut t_ps = 7_000_000_000_000;
+    let mut send = |c: Command, ado: u16, data: &[u8]| {
+        let mut buf = [0u8; 1514];
+        let mut b = FrameBuilder::new(&mut buf, [0xff; 6], [0x10; 6]).unwrap();
+        b.push(c, 0, fp(station, ado), data).unwrap();
+        let n = b.finish();
+        t_ps += 5_000_000_000;
+        r.segment.process(&mut buf[..n], t_ps);
+        datagrams(&buf[..n]).remove(0)
+    };
+    // Mailbox header: 4 + 58 bytes, type 2 (EoE), counter 1; EoE header: Set IP, last
+    // fragment; flags 0x06 (IP address, subnet mask), the fields at their fixed places.
+    let mut msg = vec![62, 0, 0, 0, 0, 0x12, 0x02, 0x01, 0x00, 0x00];
+    let mut p = [0u8; 58];
+    p[0] = 0x06;
+    p[10..14].copy_from_slice(&[192, 168, 1, 20]);
+    p[14..18].copy_from_slice(&[255, 255, 255, 0]);
+    msg.extend_from_slice(&p);
+    msg.resize(usize::from(m.out_len), 0);
+    assert_eq!(
+        send(Command::Fpwr, m.out_start, &msg).wkc,
+        1,
+        "SM0 takes it"
+    );
+    let a = send(Command::Fprd, m.in_start, &vec![0; usize::from(m.in_len)]);
+    assert_eq!(a.wkc, 1, "an answer");
+    assert_eq!(&a.data[..4], &[4, 0, 0, 0], "4 bytes, address 0");
+    assert_eq!(a.data[5] & 0x0f, 0x02, "EoE");
+    assert_eq!(
+        &a.data[6..10],
+        &[0x03, 0x01, 0x00, 0x00],
+        "Set IP response, result 0"
+    );
+}

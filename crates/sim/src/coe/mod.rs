@@ -23,9 +23,11 @@
 
 mod device;
 mod dictionary;
+mod eoe;
 mod server;
 
 pub use dictionary::{DEVICE_TYPE_SERVO, ObjectDictionary};
+pub use eoe::EoeServer;
 pub use server::{MailboxFault, SdoServer};
 
 /// CiA data types: the wire crate's codes ([`ecsync_wire::data_type`]: those SDO Information

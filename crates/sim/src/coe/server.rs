@@ -2,6 +2,7 @@
 //! segmented and complete access, SDO Information).
 
 use super::dictionary::o_max_sub;
+use super::eoe::EoeServer;
 use super::*;
 use crate::model::DeviceInfo;
 use ecsync_wire::AlState;
@@ -67,6 +68,8 @@ pub struct SdoServer {
     fragments: std::collections::VecDeque<Vec<u8>>,
     /// [`SdoServer::set_request_room`].
     request_room: Option<usize>,
+    /// EoE, for a device whose SII declares it (see [`SdoServer::eoe`]).
+    eoe: Option<EoeServer>,
 }
 
 impl SdoServer {
@@ -77,12 +80,26 @@ impl SdoServer {
             Some(d) => ObjectDictionary::clone(d).completed_for(dev),
             None => ObjectDictionary::for_device(dev),
         };
+        // EoE where the SII's mailbox protocols (word 0x1C) have its bit.
+        let eoe_bit = ecsync_wire::mailbox::MailboxType::Eoe.protocol_bit();
+        let eoe = dev
+            .sii
+            .as_ref()
+            .is_some_and(|c| c.mailbox_protocols & eoe_bit != 0)
+            .then(EoeServer::default);
         SdoServer {
             od,
             transfer: None,
             fragments: std::collections::VecDeque::new(),
             request_room: None,
+            eoe,
         }
+    }
+
+    /// Answers the EoE message `req` (the mailbox payload): `None` for a device without EoE
+    /// (the mailbox answers with an error), `Some(None)` for a message that gets no answer.
+    pub fn eoe(&mut self, req: &[u8]) -> Option<Option<Vec<u8>>> {
+        self.eoe.as_mut().map(|e| e.handle(req))
     }
 
     /// Answers the CoE message `req` (the mailbox payload) in `state`, with at most `room`

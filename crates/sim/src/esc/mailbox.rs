@@ -373,6 +373,13 @@ fn answer(
     // master included): 0x02, SSC's `MailboxServiceInd` default.
     match msg.mailbox_type() {
         Ok(MailboxType::Coe) => {}
+        // EoE where the device has it (crate::coe's EoE part).
+        Ok(MailboxType::Eoe) => {
+            return match m.server.eoe(msg.payload()) {
+                Some(answer) => answer.map(|a| message(m, MailboxType::Eoe, &a)),
+                None => error(m, MailboxErrorCode::UnsupportedProtocol),
+            };
+        }
         _ => return error(m, MailboxErrorCode::UnsupportedProtocol),
     }
     let coe = match m.server.handle(msg.payload(), state, room) {
@@ -405,17 +412,23 @@ fn next_counter(m: &mut MailboxState) -> u8 {
 
 /// A CoE message `coe` of the slave's, its mailbox header in front with the next counter.
 fn coe_message(m: &mut MailboxState, coe: &[u8]) -> Vec<u8> {
-    let mut out = vec![0u8; MAILBOX_HEADER_LEN + coe.len()];
+    message(m, MailboxType::Coe, coe)
+}
+
+/// A message `data` of the slave's of protocol `mailbox_type`, its mailbox header in front
+/// with the next counter.
+fn message(m: &mut MailboxState, mailbox_type: MailboxType, data: &[u8]) -> Vec<u8> {
+    let mut out = vec![0u8; MAILBOX_HEADER_LEN + data.len()];
     let c = next_counter(m);
     Mailbox::new_unchecked(&mut out[..]).set_header(&MailboxRepr {
-        length: coe.len() as u16,
+        length: data.len() as u16,
         address: ANSWER_ADDRESS,
         channel: 0,
         priority: 0,
-        mailbox_type: MailboxType::Coe,
+        mailbox_type,
         counter: c,
     });
-    out[MAILBOX_HEADER_LEN..].copy_from_slice(coe);
+    out[MAILBOX_HEADER_LEN..].copy_from_slice(data);
     out
 }
 

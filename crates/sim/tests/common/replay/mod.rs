@@ -25,6 +25,8 @@ pub struct Replayed {
     /// Each slave's mailbox answer time, ns, as fitted to the capture.
     pub response_ns: Vec<u64>,
     pub outcome: compare::Outcome,
+    /// The segment as the replay left it.
+    pub segment: ecsync_sim::Segment,
 }
 
 /// The answer time that fits the most of a device's exchanges: inside as many of the
@@ -108,6 +110,7 @@ pub fn replay(file: &str) -> Replayed {
         slaves,
         response_ns,
         outcome,
+        segment: seg,
     }
 }
 
