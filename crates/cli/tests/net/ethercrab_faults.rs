@@ -9,8 +9,20 @@ use ethercrab::{MainDevice, MainDeviceConfig, PduStorage, Timeouts, error::Error
 
 const MAX_PDU_DATA: usize = PduStorage::element_size(1100);
 type Storage = PduStorage<16, MAX_PDU_DATA>;
-static STORAGE: Storage = PduStorage::new();
+/// One storage per attempt: ethercrab splits a storage once.
+const ATTEMPTS: usize = 3;
+static STORAGES: [Storage; ATTEMPTS] = [const { PduStorage::new() }; ATTEMPTS];
 const CYCLE: Duration = Duration::from_millis(1);
+
+/// What ethercrab's cycles returned around the power cycle.
+#[derive(Debug, Default)]
+struct Seen {
+    ok: usize,
+    errors: usize,
+    short_wkc_after: usize,
+    all_op_after: usize,
+    first_error_at: Option<(Duration, String)>,
+}
 
 #[test]
 #[ignore = "needs network namespaces (root)"]
@@ -26,70 +38,104 @@ fn ethercrab_meets_a_reference_power_cycle_and_does_not_bring_it_back() {
         "[[fault]]\nat_s = 4\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = \"reference\"\n",
     )
     .unwrap();
-    let _served = pair.serve(&["--faults", faults.to_str().unwrap()]);
-    let n = 6u16;
-    let (tx, rx, pdu_loop) = STORAGE.try_split().expect("split once");
-    let io = EthercrabIo::start(&pair, tx, rx);
+    // ethercrab ends its TX/RX task for good on a send error or on a reply it no longer waits
+    // for (one later than its 30 ms PDU timeout: on this 2-core machine, other work can hold
+    // serve or ethercrab off the CPU that long); every cycle after that times out, whatever the
+    // segment does. Its scan and bring-up fail the same way on one PDU later than 30 ms. Such
+    // an attempt says nothing about the power cycle: it is reported and run again with a fresh
+    // serve and storage. An attempt that reached the cycles with its task alive is judged.
+    for (attempt, storage) in STORAGES.iter().enumerate() {
+        let served = pair.serve(&["--faults", faults.to_str().unwrap()]);
+        let (seen, died) = attempt_once(&pair, storage);
+        drop(served);
+        let last = attempt + 1 == ATTEMPTS;
+        match (seen, died) {
+            (Ok(seen), None) => return check(seen),
+            (seen, died) if !last => println!(
+                "attempt {attempt}: ethercrab's TX/RX task ended ({died:?}), its cycles: \
+                 {seen:?}; again"
+            ),
+            (seen, died) => panic!(
+                "ethercrab against ecsync serve --faults, in every attempt; the last: {seen:?}, \
+                 its TX/RX task ended: {died:?}"
+            ),
+        }
+    }
+}
+
+/// One run of ethercrab against the served segment: what its cycles returned, and its TX/RX
+/// task's error if the task ended on one.
+fn attempt_once(
+    pair: &NetPair,
+    storage: &'static Storage,
+) -> (Result<Seen, Error>, Option<String>) {
+    let (tx, rx, pdu_loop) = storage.try_split().expect("split once");
+    let io = EthercrabIo::start(pair, tx, rx);
     // Its own PDU timeout (30 ms): the frames of the 200 ms off are lost, not late.
     let timeouts = Timeouts {
         eeprom: Duration::from_millis(500),
         ..Timeouts::default()
     };
     let maindevice = MainDevice::new(pdu_loop, timeouts, MainDeviceConfig::default());
-    let result: Result<(), Error> = futures_lite::future::block_on(async {
+    let n = 6u16;
+    let result: Result<Seen, Error> = futures_lite::future::block_on(async {
         let group = maindevice.init_single_group::<8, 256>(ethercat_now).await?;
         let group = into_op_on_sync0(group, &maindevice, CYCLE).await?;
         // Cycles until well after the power cycle: what each one returned.
-        let (mut ok, mut errors, mut short_wkc_after, mut all_op_after) = (0, 0, 0, 0);
-        let mut first_error_at = None;
+        let mut seen = Seen::default();
         let t0 = Instant::now();
         while t0.elapsed() < Duration::from_secs(6) {
             let now = Instant::now();
             match group.tx_rx_dc(&maindevice).await {
                 Ok(r) => {
-                    ok += 1;
-                    if first_error_at.is_some() {
-                        short_wkc_after += usize::from(r.working_counter < 3 * n);
-                        all_op_after += usize::from(r.all_op());
+                    seen.ok += 1;
+                    if seen.first_error_at.is_some() {
+                        seen.short_wkc_after += usize::from(r.working_counter < 3 * n);
+                        seen.all_op_after += usize::from(r.all_op());
                     }
                     async_io::Timer::at(now + r.extra.next_cycle_wait.min(CYCLE * 2)).await;
                 }
                 Err(e) => {
-                    errors += 1;
-                    first_error_at.get_or_insert((t0.elapsed(), format!("{e:?}")));
+                    seen.errors += 1;
+                    seen.first_error_at
+                        .get_or_insert((t0.elapsed(), format!("{e:?}")));
                 }
             }
         }
-        println!(
-            "ethercrab: {ok} cycles answered, {errors} failed (the first at {:?}); after it: \
-             {short_wkc_after} cycles with a short working counter, {all_op_after} with every \
-             drive in OP",
-            first_error_at
-        );
-        // What a real power cycle does to ethercrab 0.7, as the segment played it (seen on
-        // this machine: 7 cycles failed with Timeout(Pdu), then every cycle short): the
-        // cycles of the 200 ms off fail (its PDUs time out); the drives behind the
-        // reference, without outputs for those 200 ms, leave OP on their process data
-        // watchdogs (SAFE-OP, 0x001B); afterwards the working counter stays short for good
-        // and all_op() says so, since ethercrab brings neither the reset slave nor the
-        // others back.
-        assert!(errors >= 1, "the frames of the 200 ms off failed");
-        let (at, what) = first_error_at.clone().unwrap();
-        assert!(
-            at > Duration::from_millis(2_000),
-            "the first failure at {at:?}: {what}"
-        );
-        assert!(what.contains("Timeout"), "ethercrab's error: {what}");
-        assert!(
-            short_wkc_after > 500,
-            "short working counters after: {short_wkc_after}"
-        );
-        assert_eq!(
-            all_op_after, 0,
-            "ethercrab's all_op() after the power cycle: {all_op_after}"
-        );
-        Ok(())
+        Ok(seen)
     });
+    let died = io.died();
     drop(io);
-    result.expect("ethercrab against ecsync serve --faults");
+    (result, died)
+}
+
+fn check(seen: Seen) {
+    println!(
+        "ethercrab: {} cycles answered, {} failed (the first at {:?}); after it: {} cycles with \
+         a short working counter, {} with every drive in OP",
+        seen.ok, seen.errors, seen.first_error_at, seen.short_wkc_after, seen.all_op_after
+    );
+    // What a real power cycle does to ethercrab 0.7, as the segment played it (seen on this
+    // machine: 7 cycles failed with Timeout(Pdu), then every cycle short): the cycles of the
+    // 200 ms off fail (its PDUs time out); the drives behind the reference, without outputs for
+    // those 200 ms, leave OP on their process data watchdogs (SAFE-OP, 0x001B); afterwards the
+    // working counter stays short for good and all_op() says so, since ethercrab brings
+    // neither the reset slave nor the others back.
+    assert!(seen.errors >= 1, "the frames of the 200 ms off failed");
+    let (at, what) = seen.first_error_at.clone().unwrap();
+    assert!(
+        at > Duration::from_millis(2_000),
+        "the first failure at {at:?}: {what}"
+    );
+    assert!(what.contains("Timeout"), "ethercrab's error: {what}");
+    assert!(
+        seen.short_wkc_after > 500,
+        "short working counters after: {}",
+        seen.short_wkc_after
+    );
+    assert_eq!(
+        seen.all_op_after, 0,
+        "ethercrab's all_op() after the power cycle: {}",
+        seen.all_op_after
+    );
 }

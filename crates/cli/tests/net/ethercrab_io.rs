@@ -14,6 +14,10 @@ use std::thread::JoinHandle;
 pub(crate) struct EthercrabIo {
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
+    /// How ethercrab's task ended before it was stopped, if it did: ethercrab ends it for good
+    /// on any send error and on any reply it no longer waits for (one that came after its PDU
+    /// timeout, as on a host loaded by other work), and every PDU after that times out.
+    died: Arc<std::sync::Mutex<Option<String>>>,
 }
 
 impl EthercrabIo {
@@ -23,6 +27,8 @@ impl EthercrabIo {
         let stop = Arc::new(AtomicBool::new(false));
         let (ns_b, if_b) = (pair.ns_b.clone(), pair.if_b.clone());
         let stop_io = stop.clone();
+        let died = Arc::new(std::sync::Mutex::new(None));
+        let died_io = died.clone();
         let (ready_tx, ready_rx) = std::sync::mpsc::channel();
         let thread = std::thread::spawn(move || {
             ecsync_net::sys::enter_netns(&ns_b).expect("enter namespace B");
@@ -35,7 +41,9 @@ impl EthercrabIo {
             };
             async_io::block_on(futures_lite::future::or(
                 async {
-                    let _ = task.await;
+                    if let Err(e) = task.await {
+                        *died_io.lock().unwrap_or_else(|p| p.into_inner()) = Some(format!("{e:?}"));
+                    }
                 },
                 stopped,
             ));
@@ -46,7 +54,13 @@ impl EthercrabIo {
         EthercrabIo {
             stop,
             thread: Some(thread),
+            died,
         }
+    }
+
+    /// ethercrab's error if its TX/RX task has ended on one.
+    pub(crate) fn died(&self) -> Option<String> {
+        self.died.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
 }
 
