@@ -39,8 +39,8 @@ const AL_HANDSHAKE: &str = "a microcontroller ESC (AKD, LAN9252) gives working c
 const AL_ACK: &str = "device-emulation ESCs (EK1100, EL1004) copy AL control into AL status, the \
     acknowledge bit 4 too (0x11 after 0x11); the model shows 0x01 (issue 32 point 8; al.rs)";
 const AL_TIME: &str = "the real device was still in the state it had been asked to leave (the \
-    EK1914 takes 2-6 ms from INIT to PRE-OP, the AKD about 6 ms, the LAN9252 18 ms to PRE-OP \
-    and 14 ms to SAFE-OP); the model changes state at once (issue 32 point 4; al.rs)";
+    EK1914 takes 2-6 ms from INIT to PRE-OP, the AKD about 6 ms, the LAN9252 about 18 ms to PRE-OP \
+    and to SAFE-OP); the model changes state at once (issue 32 point 4; al.rs)";
 const DL_STATUS: &str = "DL status 0x0110: the EK1100 reads 0x5A31 (no PDI watchdog bit 1), the \
     LAN9252 0x5617 (bit 2 too); the model 0x5A33, 0x5613 (issue 32 point 8; registers.rs)";
 const FEATURES: &str = "0x0007 and 0x0008: the EL1004's port descriptor reads 0x4A (port 2 \
