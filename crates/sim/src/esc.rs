@@ -137,6 +137,9 @@ pub struct Esc {
     sii: SiiState,
     al_error: bool,
     al_code: AlStatusCode,
+    /// An AL control write the firmware has not taken yet: when it takes it, ps, and the
+    /// value written.
+    al_pending: Option<(u64, u16)>,
     fmmus: Box<[FmmuMapping; FMMUS]>,
     /// Indices of active FMMUs with write / read enabled, lowest first.
     fmmu_writers: ([u8; FMMUS], u8),
@@ -179,7 +182,9 @@ impl Esc {
     /// then).
     pub fn new_at(model: EscModel, device: DeviceInfo, crystal: CrystalParams, t_ps: u64) -> Self {
         let image = sii_image::build(&model, &device);
-        let mbx = device.mailbox.map(|l| {
+        let mbx = device.mailbox.map(|mut l| {
+            // A device family's own response time (the application's) over the device's.
+            l.response_ns = model.mailbox_response_ns.unwrap_or(l.response_ns);
             Box::new(mailbox::MailboxState::new(
                 l,
                 crate::coe::SdoServer::new(&device),
@@ -207,6 +212,7 @@ impl Esc {
             al_state: AlState::Init,
             al_error: false,
             al_code: AlStatusCode::NoError,
+            al_pending: None,
             fmmus: Box::new([FmmuMapping::default(); FMMUS]),
             fmmu_writers: ([0; FMMUS], 0),
             fmmu_readers: ([0; FMMUS], 0),
@@ -342,8 +348,13 @@ mod testing {
     /// A servo drive's ESC with a link on port 0, without a mailbox (the AL state machine
     /// goes to PRE-OP without one set up; the mailbox has its own tests).
     pub(super) fn esc() -> Esc {
+        esc_of(EscModel::servo_mii())
+    }
+
+    /// [`esc`] on another ESC model.
+    pub(super) fn esc_of(model: EscModel) -> Esc {
         let mut e = Esc::new(
-            EscModel::servo_mii(),
+            model,
             DeviceInfo {
                 mailbox: None,
                 ..DeviceInfo::servo_drive(7)

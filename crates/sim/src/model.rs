@@ -1,6 +1,8 @@
 //! What a virtual slave is: its ESC model (ports, delays, DC capability, memory sizes) and its
 //! device description (identity, name, process data), from which the SII image is built.
 
+pub mod families;
+
 /// Physical start of the output SyncManager (SM0) buffer of a device without a mailbox.
 pub const SM_OUTPUT_START: u16 = 0x1000;
 /// Physical start of the input SyncManager (SM1) buffer of a device without a mailbox.
@@ -85,6 +87,51 @@ pub const FEATURES_ET1100: u16 = 0x00fc;
 pub const FEATURES_ET1200: u16 = 0x01fc;
 /// 0x0008 as the Kollmorgen AKD shows it (soem-sdinfo-akd.pcapng): 32-bit DC.
 pub const FEATURES_AKD: u16 = 0x0184;
+/// ESC type (0x0000) of the Microchip LAN9252 (soem-single-lan9252.pcapng, frame 8: BRD of
+/// 0x0000 on a segment of one LAN9252 reads 0xC0, revision 0x02).
+pub const ESC_TYPE_LAN9252: u8 = 0xc0;
+/// 0x0008 as the LAN9252 shows it (soem-single-lan9252.pcapng, frame 92: FPRD of 0x0008 =
+/// 0x01CC): DC with 64-bit system time, enhanced link detection MII, enhanced DC SYNC
+/// activation; no EBUS bits (it has no EBUS).
+pub const FEATURES_LAN9252: u16 = 0x01cc;
+
+/// How the AL state machine is run: by the ESC itself (device emulation) or by a firmware on
+/// a microcontroller behind the PDI (ESC datasheet section II, 0x0140 bit 8 "Device
+/// emulation" and 0x0120 "AL Control").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AlBehaviour {
+    /// Device emulation (0x0140 bit 8 set, no application processor): the ESC copies AL
+    /// control into AL status within the frame, the acknowledge bit included, and checks
+    /// nothing (section II, 0x0120). The EK1100, EL1004, EL2828 and EL2889 do so: written
+    /// 0x11, AL status reads 0x11 (soem-sdinfo-ek1100-el1004.pcapng frames 4-9 and
+    /// replay-dc.pcapng); written 0x12, 0x12.
+    DeviceEmulation,
+    /// A firmware reads AL control, checks the request and writes AL status and the AL status
+    /// code (the acknowledge bit is not shown: written 0x11, a LAN9252 and an AKD read 0x01).
+    Firmware(AlFirmware),
+}
+
+/// A firmware's AL handling (see [`AlBehaviour::Firmware`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AlFirmware {
+    /// Time from an AL control write until the firmware has read it and AL status shows the
+    /// outcome, ns. 0: within the frame (the models calibrated before the device families).
+    pub response_ns: u64,
+    /// AL control is a mailbox (device emulation off, section II, 0x0120: "The PDI has to read
+    /// the AL Control register after ECAT has written it. Otherwise ECAT can not write again
+    /// to the AL Control register"): a write before the firmware has read the previous one is
+    /// not taken and does not count (working counter 0).
+    pub control_handshake: bool,
+}
+
+impl AlFirmware {
+    /// The application answers within the frame: what every model did before the device
+    /// families, kept by the calibrated constructors.
+    pub const INSTANT: AlFirmware = AlFirmware {
+        response_ns: 0,
+        control_handshake: false,
+    };
+}
 
 /// An ESC model: the silicon and the board around it.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,9 +167,53 @@ pub struct EscModel {
     /// 0x0008 bit 8, enhanced DC SYNC activation: set on the ET1200 terminals and the AKD the
     /// captures show, clear on ET1100s and on the EL2889 (see [`EscModel::features`]).
     pub enhanced_dc_sync: bool,
+    /// SII control/status 0x0502-0x0503 when idle: the static bits, of which bit 6 says how
+    /// many bytes a read delivers (set: 8 into 0x0508-0x050F; clear: 4 into 0x0508-0x050B),
+    /// bit 5 EEPROM emulation by the PDI, bit 7 two address bytes (section II, 0x0502).
+    pub sii_control_idle: u16,
+    /// Who runs the AL state machine, and how fast.
+    pub al: AlBehaviour,
+    /// The time the application takes to answer a mailbox message, ns, over the device's
+    /// ([`MailboxLayout::response_ns`]); `None`: the device's.
+    pub mailbox_response_ns: Option<u64>,
+    /// SII word 0 (PDI control, loaded into 0x0140-0x0141 at power-up): PDI type in the low
+    /// byte, ESC configuration in the high byte (bit 8: device emulation). `None`: the SII
+    /// image's default ([`crate::sii_image::build`]: 0x0005, SPI, with the DC units).
+    pub pdi_control: Option<u16>,
+    /// Ports (bit p: port p) that do not exist but read "not configured" (0b01) in the port
+    /// descriptor 0x0007 rather than "not implemented" (0b00), as an unused port of a real ESC
+    /// configured by its SII does.
+    pub unconfigured_ports: u8,
 }
 
 impl EscModel {
+    /// What every model was before the device families, kept byte for byte by the calibrated
+    /// constructors ([`EscModel::servo_mii`], [`EscModel::ebus_terminal`],
+    /// [`EscModel::junction_mii`]; the presets paper-2024, twelve-drives and tsn-2020 are built
+    /// on them): 8-byte SII reads (0x0502 = 0x0040), AL handled within the frame, the device's
+    /// mailbox response time, the SII image's PDI control, unused ports "not implemented".
+    /// Its other fields are [`EscModel::servo_mii`]'s.
+    const CALIBRATED_DEFAULTS: EscModel = EscModel {
+        esc_type: ESC_TYPE_ET1100,
+        revision: 0,
+        build: 0,
+        fmmu_count: 8,
+        sm_count: 8,
+        ram_kib: 8,
+        ports: [PortKind::Mii, PortKind::Mii, PortKind::None, PortKind::None],
+        dc: DcSupport::Full64,
+        forwarding_delay_ns: 180.0,
+        processing_delay_ns: 180.0,
+        link_phy_delay_ns: 300.0,
+        sii_read_busy_us: 20.0,
+        sii_control_idle: ecsync_wire::register::sii_control::READ_SIZE_8,
+        al: AlBehaviour::Firmware(AlFirmware::INSTANT),
+        mailbox_response_ns: None,
+        pdi_control: None,
+        unconfigured_ports: 0,
+        enhanced_dc_sync: false,
+    };
+
     /// An ET1100-class ESC with MII ports 0 and 1 to 100BASE-TX PHYs, as in a servo drive with
     /// two RJ45 sockets. Delays, assumed: about 485 ns per direction per hop, 180 ns through the
     /// ESC plus 300 ns for the two PHYs of the 100BASE-TX link plus 5 ns/m of cable; tDiff = 0
@@ -147,6 +238,7 @@ impl EscModel {
             link_phy_delay_ns: 300.0,
             sii_read_busy_us: 20.0,
             enhanced_dc_sync: false,
+            ..Self::CALIBRATED_DEFAULTS
         }
     }
 
@@ -188,6 +280,7 @@ impl EscModel {
             link_phy_delay_ns: 10.0,
             sii_read_busy_us: 20.0,
             enhanced_dc_sync: true,
+            ..Self::CALIBRATED_DEFAULTS
         }
     }
 
@@ -220,6 +313,7 @@ impl EscModel {
             link_phy_delay_ns: 300.0,
             sii_read_busy_us: 20.0,
             enhanced_dc_sync: false,
+            ..Self::CALIBRATED_DEFAULTS
         }
     }
 
@@ -239,6 +333,8 @@ impl EscModel {
     /// - The AKD's ESC (type 0x04): 0x0184, read from the Kollmorgen AKD
     ///   (soem-sdinfo-akd.pcapng): DC (32 bit), separate FCS error handling, enhanced DC SYNC
     ///   activation. Model: servo-mii-dc32.
+    /// - The LAN9252 (type 0xC0): 0x01CC, read from soem-single-lan9252.pcapng
+    ///   ([`FEATURES_LAN9252`]). Model: lan9252.
     /// - Any other type (a model built in code): the ET1100's value.
     ///
     /// DC (bit 2) and 64-bit DC (bit 3) mean "DC available" and "64-bit DC" as ETG.1000.4
@@ -255,6 +351,7 @@ impl EscModel {
         let observed = match self.esc_type {
             ESC_TYPE_ET1200 => FEATURES_ET1200,
             ESC_TYPE_AKD => FEATURES_AKD,
+            ESC_TYPE_LAN9252 => FEATURES_LAN9252,
             _ => FEATURES_ET1100,
         };
         let dc_bits = features::DC | features::DC_64BIT;
@@ -271,12 +368,14 @@ impl EscModel {
         f
     }
 
-    /// The port descriptor register 0x0007.
+    /// The port descriptor register 0x0007: each port's kind, 0b01 ("not configured") for the
+    /// [`EscModel::unconfigured_ports`] that do not exist.
     pub fn port_descriptor(&self) -> u8 {
-        self.ports
-            .iter()
-            .enumerate()
-            .fold(0, |acc, (p, k)| acc | (k.descriptor() << (2 * p)))
+        self.ports.iter().enumerate().fold(0, |acc, (p, k)| {
+            let unconfigured = *k == PortKind::None && self.unconfigured_ports & (1 << p) != 0;
+            let code = if unconfigured { 0b01 } else { k.descriptor() };
+            acc | (code << (2 * p))
+        })
     }
 }
 

@@ -93,7 +93,8 @@ pub fn build(model: &EscModel, dev: &DeviceInfo) -> Vec<u8> {
     } else {
         0x00
     };
-    w.word(0, 0x0005 | (esc_cfg << 8));
+    // (A device family's own PDI control where its model gives one.)
+    w.word(0, model.pdi_control.unwrap_or(0x0005 | (esc_cfg << 8)));
     w.word(1, 0x0000);
     w.word(2, SYNC_PULSE_LENGTH_10NS);
     w.word(3, 0x0000);
@@ -253,7 +254,7 @@ pub fn build_described(model: &EscModel, dev: &DeviceInfo, c: &SiiContents) -> V
         0x00
     };
     let config = c.config_words.unwrap_or([
-        0x0005 | (esc_cfg << 8),
+        model.pdi_control.unwrap_or(0x0005 | (esc_cfg << 8)),
         0,
         SYNC_PULSE_LENGTH_10NS,
         0,

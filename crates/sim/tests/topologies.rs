@@ -115,6 +115,7 @@ fn build(g: &Gen) -> (Vec<SlaveSpec>, Vec<EsiTiming>) {
             },
             sii_read_busy_us: 5.0,
             enhanced_dc_sync: false,
+            ..EscModel::servo_mii()
         };
         let mut device = DeviceInfo::coupler("random", i as u32);
         device.product_code = 0x1000 + i as u32;

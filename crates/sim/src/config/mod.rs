@@ -5,8 +5,10 @@
 //! [[segment.slave]]
 //! name = "drive-1"
 //! model = "servo-mii"        # servo-mii | servo-mii-dc32 | ebus-terminal | ebus-terminal-no-dc
-//!                            # | junction-mii
-//! device = "servo-drive"     # servo-drive (default) | coupler (default of junction-mii);
+//!                            # | junction-mii; device families: et1100-coupler | et1200-terminal
+//!                            # | et1200-terminal-receive-times | lan9252 | akd
+//! device = "servo-drive"     # servo-drive (default) | coupler (default of junction-mii and
+//!                            # the et1100/et1200 families);
 //!                            # with `esi`: the ESI device's type name
 //! # esi = "drives.xml"       # an ESI file (ETG.2000) describing the device, relative to this
 //!                            # file's folder; `device` selects one of its devices by its
@@ -31,6 +33,18 @@
 //! - `ebus-terminal`: ET1200-class EBUS terminal, 64-bit DC, features 0x01FC.
 //! - `ebus-terminal-no-dc`: the same without a DC unit (features 0x01F0).
 //! - `junction-mii`: ET1100-class junction with four MII ports, 64-bit DC, features 0x00FC.
+//!
+//! Device families (`crate::model::families`: each value from a capture of real hardware or
+//! a datasheet; registers, resources, hop delays, SII timing and read size, AL behaviour,
+//! mailbox response time):
+//! - `et1100-coupler`: an ET1100 coupler like the EK1100 (MII in, EBUS to terminals, MII out),
+//!   device emulation, 64-bit DC.
+//! - `et1200-terminal`: an ET1200 EBUS terminal like the EL2889, device emulation, 64-bit DC.
+//! - `et1200-terminal-receive-times`: the same with receive times only, like the EL2828.
+//! - `lan9252`: a Microchip LAN9252 board (two 100BASE-TX ports, 64-bit DC), a firmware that
+//!   takes AL control 17.5 ms after a write and refuses another write until then.
+//! - `akd`: a microcontroller drive like the Kollmorgen AKD (two MII ports, 32-bit DC), a
+//!   firmware that takes AL control 4.5 ms after a write, 4-byte SII reads.
 
 use crate::clock::CrystalParams;
 use crate::model::{DcSupport, DeviceInfo, EscModel, PortKind};
@@ -119,13 +133,20 @@ pub struct SlaveConfig {
     pub device_name: Option<String>,
 }
 
-/// The ESC models a file names, with the model each name builds.
-pub const MODEL_NAMES: [&str; 5] = [
+/// The ESC models a file names, with the model each name builds: the calibrated models first
+/// (a real ESC whose registers fit one of them exactly is given it, see
+/// [`model_for_registers`]), then the device families.
+pub const MODEL_NAMES: [&str; 10] = [
     "servo-mii",
     "servo-mii-dc32",
     "ebus-terminal",
     "ebus-terminal-no-dc",
     "junction-mii",
+    "et1100-coupler",
+    "et1200-terminal",
+    "et1200-terminal-receive-times",
+    "lan9252",
+    "akd",
 ];
 
 /// The model a name in a file builds (`None`: no such model).
@@ -136,8 +157,24 @@ pub fn model_named(name: &str) -> Option<EscModel> {
         "ebus-terminal" => EscModel::ebus_terminal(DcSupport::Full64),
         "ebus-terminal-no-dc" => EscModel::ebus_terminal(DcSupport::None),
         "junction-mii" => EscModel::junction_mii(),
+        "et1100-coupler" => EscModel::et1100_coupler(),
+        "et1200-terminal" => EscModel::et1200_terminal(DcSupport::Full64),
+        "et1200-terminal-receive-times" => EscModel::et1200_terminal(DcSupport::ReceiveTimes),
+        "lan9252" => EscModel::lan9252(),
+        "akd" => EscModel::akd_drive(),
         _ => return None,
     })
+}
+
+/// The device a model's slaves are when a file names none: a coupler for junctions,
+/// couplers and EBUS terminals of the families (they drive no motor), else a servo drive.
+fn default_device(model: &str) -> &'static str {
+    match model {
+        "junction-mii" | "et1100-coupler" | "et1200-terminal" | "et1200-terminal-receive-times" => {
+            "coupler"
+        }
+        _ => "servo-drive",
+    }
 }
 
 /// How well [`model_for_registers`] matched a real ESC's registers.
@@ -287,7 +324,7 @@ impl SegmentConfig {
                 at.line,
                 "model",
                 format!("unknown ESC model \"{}\"", s.model),
-                "use servo-mii, servo-mii-dc32, ebus-terminal, ebus-terminal-no-dc or junction-mii",
+                &format!("use one of {}", MODEL_NAMES.join(", ")),
             ));
         };
         let serial = s.serial.unwrap_or(at.i as u32 + 1);
@@ -372,11 +409,8 @@ impl SlaveConfig {
             None => match self
                 .device
                 .as_deref()
-                .unwrap_or(if self.model == "junction-mii" {
-                    "coupler"
-                } else {
-                    "servo-drive"
-                }) {
+                .unwrap_or(default_device(&self.model))
+            {
                 "servo-drive" => DeviceInfo::servo_drive(serial),
                 "coupler" => DeviceInfo::coupler(&self.name, serial),
                 other => {
@@ -676,6 +710,17 @@ ppm = -3.5
                 EscModel::ebus_terminal(DcSupport::None),
             ),
             ("junction-mii", EscModel::junction_mii()),
+            ("et1100-coupler", EscModel::et1100_coupler()),
+            (
+                "et1200-terminal",
+                EscModel::et1200_terminal(DcSupport::Full64),
+            ),
+            (
+                "et1200-terminal-receive-times",
+                EscModel::et1200_terminal(DcSupport::ReceiveTimes),
+            ),
+            ("lan9252", EscModel::lan9252()),
+            ("akd", EscModel::akd_drive()),
         ] {
             let text = GOOD.replace("name = \"b\"", &format!("name = \"b\"\nmodel = \"{name}\""));
             let specs = parse_segment("net.toml", &text).unwrap();
@@ -690,11 +735,15 @@ ppm = -3.5
         assert_eq!(specs[1].model.features(), 0x0184);
         let e = parse_segment(
             "net.toml",
-            &GOOD.replace("name = \"b\"", "name = \"b\"\nmodel = \"akd\""),
+            &GOOD.replace("name = \"b\"", "name = \"b\"\nmodel = \"et9999\""),
         )
         .unwrap_err();
         assert_eq!(e.field, "segment.slave[1].model");
-        assert!(e.fix.contains("servo-mii-dc32"), "{e}");
+        assert!(e.message.contains("et9999"), "{e}");
+        // The fix names every model, the families too.
+        for name in MODEL_NAMES {
+            assert!(e.fix.contains(name), "{name}: {e}");
+        }
     }
 
     /// Where `locate` puts a problem: the key's line, the header of the table the key names,

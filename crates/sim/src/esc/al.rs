@@ -4,8 +4,9 @@
 //! place ([`ecsync_wire::AlState`]).
 
 use super::Esc;
+use crate::model::{AlBehaviour, AlFirmware};
 use ecsync_wire::register as reg;
-use ecsync_wire::{AL_CONTROL_LEN, AL_STATUS_BLOCK_LEN, AlControl, AlState, AlStatus};
+use ecsync_wire::{AL_STATUS_BLOCK_LEN, AlControl, AlState, AlStatus};
 use ecsync_wire::{AlStatusCode, AlStatusRepr};
 
 impl Esc {
@@ -28,11 +29,70 @@ impl Esc {
         (self.al_state, self.al_error, u16::from(self.al_code))
     }
 
-    /// AL control was written: the master requests a state.
-    pub(super) fn al_control_written(&mut self) {
-        let control = AlControl::new_unchecked(self.reg_bytes(reg::AL_CONTROL, AL_CONTROL_LEN));
+    /// AL control was written at `t_ps`: the master requests a state. Who answers is the
+    /// model's [`AlBehaviour`]: the ESC itself at once (device emulation), or a firmware, at
+    /// once or when it takes the write ([`AlFirmware::response_ns`] later, see
+    /// [`Esc::al_tick`]).
+    pub(super) fn al_control_written(&mut self, t_ps: u64) {
+        let value = self.get_u16(reg::AL_CONTROL);
+        match self.model.al {
+            AlBehaviour::DeviceEmulation => self.emulate_al(value),
+            AlBehaviour::Firmware(AlFirmware { response_ns: 0, .. }) => self.take_al_control(value),
+            AlBehaviour::Firmware(f) => {
+                self.al_pending = Some((t_ps.saturating_add(f.response_ns * 1000), value));
+            }
+        }
+    }
+
+    /// Whether AL control refuses a write now: its firmware has not read the last one yet
+    /// (the handshake of [`AlFirmware::control_handshake`]).
+    pub(super) fn al_control_locked(&self) -> bool {
+        matches!(self.model.al, AlBehaviour::Firmware(f) if f.control_handshake)
+            && self.al_pending.is_some()
+    }
+
+    /// The firmware takes a pending AL control write whose time has come (by `t_ps`).
+    pub(super) fn al_tick(&mut self, t_ps: u64) {
+        if let Some((at, value)) = self.al_pending
+            && t_ps >= at
+        {
+            self.al_pending = None;
+            self.take_al_control(value);
+            // The process data watchdog follows the state (it runs in OP only).
+            self.update_watchdog(t_ps);
+        }
+    }
+
+    /// The firmware acts on AL control `value`.
+    fn take_al_control(&mut self, value: u16) {
+        let bytes = value.to_le_bytes();
+        let control = AlControl::new_unchecked(&bytes[..]);
         let (requested, ack) = (control.requested(), control.error_ack());
         self.request_state(requested, ack);
+    }
+
+    /// Device emulation: AL control `value` copied to AL status, the acknowledge bit shown as
+    /// the error indication, the status code left 0 (section II, 0x0120 and 0x0130): nothing is
+    /// checked. A value that names no state leaves AL status as it was.
+    fn emulate_al(&mut self, value: u16) {
+        let bytes = value.to_le_bytes();
+        let control = AlControl::new_unchecked(&bytes[..]);
+        self.generation += 1;
+        if let Ok(to) = control.requested() {
+            let from = self.al_state;
+            self.al_error = control.error_ack();
+            self.al_code = AlStatusCode::NoError;
+            self.al_state = to;
+            if matches!(to, AlState::SafeOp | AlState::Op)
+                && !matches!(from, AlState::SafeOp | AlState::Op)
+            {
+                // The outputs and inputs as the master set the SyncManagers up, if they fit
+                // the device (else none: the device has no process data to act on).
+                let _ = self.check_process_data_config();
+            }
+            self.state_entered();
+        }
+        self.update_al_registers();
     }
 
     /// A state request: the transitions of the datasheet's state machine (figure "EtherCAT
@@ -119,13 +179,19 @@ impl Esc {
         } else {
             self.al_state = to;
         }
+        self.state_entered();
+    }
+
+    /// What the state now in AL status means for the rest of the ESC: in INIT the mailbox
+    /// stops; below SAFE-OP the application has no process data.
+    fn state_entered(&mut self) {
+        use AlState::{Init, Op, SafeOp};
         if self.al_state == Init
             && let Some(m) = self.mbx.as_deref_mut()
         {
             m.stop();
         }
         if !matches!(self.al_state, SafeOp | Op) {
-            // Below SAFE-OP the application has no process data.
             self.output_sm = None;
             self.input_sm = None;
             self.app = None;
@@ -303,5 +369,84 @@ mod tests {
         // Requesting INIT clears the error without an acknowledge.
         e.process_datagram(&mut dg(Command::Bwr, 0, 0x0120, &[0x01, 0]), 0);
         assert_eq!(st(&mut e), (0x01, 0x00));
+    }
+
+    /// AL status byte and working counter of a read of 0x0130 at `t_ps`.
+    fn status(e: &mut super::Esc, t_ps: u64) -> (u8, u16) {
+        let mut d = dg(Command::Brd, 0, 0x0130, &[0, 0]);
+        e.process_datagram(&mut d, t_ps);
+        (d[10], super::super::testing::wkc(&d))
+    }
+
+    /// The working counter of a write of AL control at `t_ps`.
+    fn control(e: &mut super::Esc, value: u8, t_ps: u64) -> u16 {
+        let mut d = dg(Command::Bwr, 0, 0x0120, &[value, 0]);
+        e.process_datagram(&mut d, t_ps);
+        super::super::testing::wkc(&d)
+    }
+
+    /// A firmware with the handshake (section II, 0x0120: AL control behaves like a mailbox
+    /// while device emulation is off): a second write before the firmware has read the first
+    /// is not taken and does not count; the state shows when the firmware takes the request;
+    /// then AL control takes writes again.
+    #[test]
+    fn a_firmware_takes_al_control_after_its_response_time_and_refuses_writes_until_then() {
+        use crate::model::{AlBehaviour, AlFirmware, EscModel};
+        let mut model = EscModel::servo_mii();
+        model.al = AlBehaviour::Firmware(AlFirmware {
+            response_ns: 4_000_000,
+            control_handshake: true,
+        });
+        let mut e = super::super::testing::esc_of(model);
+        const MS: u64 = 1_000_000_000;
+        assert_eq!(control(&mut e, 0x02, 0), 1, "after reset: taken");
+        assert_eq!(status(&mut e, MS), (0x01, 1), "not yet acted on");
+        assert_eq!(control(&mut e, 0x02, MS), 0, "refused: not read yet");
+        assert_eq!(e.get_u16(0x0120), 0x0002, "AL control kept the first");
+        assert_eq!(status(&mut e, 3 * MS), (0x01, 1));
+        assert_eq!(status(&mut e, 4 * MS), (0x02, 1), "PRE-OP when taken");
+        // Taken: the next write counts, and an invalid request shows its error in time.
+        assert_eq!(control(&mut e, 0x08, 5 * MS), 1);
+        assert_eq!(status(&mut e, 8 * MS), (0x02, 1));
+        assert_eq!(status(&mut e, 9 * MS), (0x12, 1), "PRE-OP -> OP refused");
+        // Without the handshake every write counts; the last one is acted on... after its
+        // own response time from the write.
+        let mut model = EscModel::servo_mii();
+        model.al = AlBehaviour::Firmware(AlFirmware {
+            response_ns: 4_000_000,
+            control_handshake: false,
+        });
+        let mut e = super::super::testing::esc_of(model);
+        assert_eq!(control(&mut e, 0x02, 0), 1);
+        assert_eq!(control(&mut e, 0x02, MS), 1);
+        assert_eq!(
+            status(&mut e, 4 * MS),
+            (0x01, 1),
+            "the second write restarted it"
+        );
+        assert_eq!(status(&mut e, 5 * MS), (0x02, 1));
+    }
+
+    /// Device emulation (section II, 0x0120/0x0130): AL control copied to AL status within the
+    /// frame, the acknowledge bit as the error indication, no check, code 0.
+    #[test]
+    fn device_emulation_copies_al_control_to_al_status() {
+        use crate::model::{DcSupport, EscModel};
+        let mut e = super::super::testing::esc_of(EscModel::et1200_terminal(DcSupport::Full64));
+        let code = |e: &mut super::Esc| {
+            let mut d = dg(Command::Brd, 0, 0x0134, &[0, 0]);
+            e.process_datagram(&mut d, 0);
+            u16::from_le_bytes([d[10], d[11]])
+        };
+        for (written, read) in [(0x11, 0x11), (0x12, 0x12), (0x02, 0x02), (0x04, 0x04)] {
+            assert_eq!(control(&mut e, written, 0), 1);
+            assert_eq!(status(&mut e, 0), (read, 1), "written {written:#04x}");
+            assert_eq!(code(&mut e), 0);
+        }
+        // INIT -> OP is not refused either: nothing is checked.
+        let mut e = super::super::testing::esc_of(EscModel::et1100_coupler());
+        assert_eq!(control(&mut e, 0x08, 0), 1);
+        assert_eq!(status(&mut e, 0), (0x08, 1));
+        assert_eq!(control(&mut e, 0x08, 0), 1, "every write is taken");
     }
 }

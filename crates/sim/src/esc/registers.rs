@@ -6,7 +6,7 @@ use super::{DatagramEffects, Esc};
 use crate::dc_unit::{DC_BLOCK_LEN, DC_BLOCK_START};
 use crate::model::{DcSupport, PortKind};
 use crate::segment::ErrorCounter;
-use ecsync_wire::register::{self as reg, sii_control};
+use ecsync_wire::register as reg;
 use ecsync_wire::{AlControl, AlControlRepr, AlState, DlStatus, DlStatusRepr, PortStatus};
 
 /// Bytes of register space before the process RAM.
@@ -19,6 +19,9 @@ pub(super) const WRITABLE: u8 = 2;
 /// Registers the EEPROM interface write-protects while it is busy (0x0502-0x050F).
 const SII_INTERFACE: core::ops::Range<usize> =
     reg::SII_CONTROL as usize..reg::SII_CONTROL as usize + 14;
+/// AL control (0x0120-0x0121).
+const AL_CONTROL_BYTES: core::ops::Range<usize> =
+    reg::AL_CONTROL as usize..reg::AL_CONTROL as usize + ecsync_wire::AL_CONTROL_LEN;
 /// Bytes of DL control (0x0100).
 const DL_CONTROL_LEN: usize = 4;
 /// DL control at reset: forwarding rule 1 (non-EtherCAT frames destroyed), loops auto, RX
@@ -176,7 +179,7 @@ impl Esc {
             .copy_from_slice(&DL_CONTROL_RESET.to_le_bytes());
         self.put_u16(reg::PDI_CONTROL, w0);
         self.put_u16(0x0150, w1);
-        self.put_u16(reg::SII_CONTROL, sii_control::READ_SIZE_8);
+        self.put_u16(reg::SII_CONTROL, self.model.sii_control_idle);
         // The watchdogs' reset values: 100 us ticks, 100 ms each; process data watchdog
         // running (0x0440 bit 0 = 1: not expired).
         self.put_u16(0x0400, super::watchdog::WATCHDOG_DIVIDER_RESET);
@@ -278,10 +281,17 @@ impl Esc {
                 communication: implemented && self.link[p],
             }
         });
+        // From PDI control (0x0140-0x0141, loaded from the SII): an ESC without a PDI (type
+        // 0) has no PDI watchdog reloaded, as the EK1100 shows (DL status 0x5A31, bit 1
+        // clear, in replay-dc.pcapng and soem-sdinfo-ek1100-el1004.pcapng with 0x0140 = 0);
+        // enhanced link detection (bit 2) as 0x0141 bit 1 enables it for all ports (the
+        // LAN9252: 0x0141 = 0x0E, DL status 0x5617 in soem-single-lan9252.pcapng).
+        let pdi_type = self.regs[usize::from(reg::PDI_CONTROL)];
+        let esc_config = self.regs[usize::from(reg::PDI_CONTROL) + 1];
         let status = DlStatusRepr {
             pdi_operational: true,
-            pdi_watchdog_ok: true,
-            enhanced_link_detection: false,
+            pdi_watchdog_ok: pdi_type != 0,
+            enhanced_link_detection: esc_config & 0x02 != 0,
             ports,
         };
         status.emit(&mut DlStatus::new_unchecked(
@@ -322,6 +332,7 @@ impl Esc {
         if self.mbx.is_some() {
             self.mailbox_tick(t_ps);
         }
+        self.al_tick(t_ps);
         let lo = usize::from(ado);
         let hi = lo + out.len();
         let mut counted = false;
@@ -439,6 +450,7 @@ impl Esc {
         if self.mbx.is_some() {
             self.mailbox_tick(t_ps);
         }
+        self.al_tick(t_ps);
         if lo >= REG_SPACE {
             return self.write_ram_gated(lo, hi, data, t_ps);
         }
@@ -446,9 +458,12 @@ impl Esc {
         // While the EEPROM interface is busy its registers are write-protected.
         self.sii_update(t_ps);
         let sii_busy = self.sii.busy();
+        // While the firmware has not read the last AL control write, AL control takes none:
+        // its bytes neither change nor count.
+        let al_locked = self.al_control_locked();
         let mut counted = false;
         for (i, a) in (lo..rhi).enumerate() {
-            if self.attr[a] & WRITABLE != 0 {
+            if self.attr[a] & WRITABLE != 0 && !(al_locked && AL_CONTROL_BYTES.contains(&a)) {
                 counted = true;
                 if !(sii_busy && SII_INTERFACE.contains(&a)) {
                     self.regs[a] = data[i];
@@ -458,7 +473,7 @@ impl Esc {
         if !counted {
             return hi > REG_SPACE && self.write_ram_gated(lo, hi, data, t_ps);
         }
-        self.registers_written(lo, rhi, data, sii_busy, t_ps, fx);
+        self.registers_written(lo, rhi, data, (sii_busy, al_locked), t_ps, fx);
         if hi > REG_SPACE {
             self.write_ram_gated(lo, hi, data, t_ps);
         }
@@ -491,16 +506,18 @@ impl Esc {
         }
     }
 
-    /// What a write of `data` to registers `lo..hi` sets off in the other parts of the ESC.
+    /// What a write of `data` to registers `lo..hi` sets off in the other parts of the ESC
+    /// (`locked`: the EEPROM interface was busy, AL control refused the write).
     fn registers_written(
         &mut self,
         lo: usize,
         hi: usize,
         data: &[u8],
-        sii_busy: bool,
+        locked: (bool, bool),
         t_ps: u64,
         fx: &mut DatagramEffects,
     ) {
+        let (sii_busy, al_locked) = locked;
         let dc_start = usize::from(DC_BLOCK_START);
         if ranges_overlap(lo, hi, dc_start, DC_BLOCK_LEN)
             && let Some(dc) = &mut self.dc
@@ -512,13 +529,8 @@ impl Esc {
                 self.sync0_activation_changed();
             }
         }
-        if ranges_overlap(
-            lo,
-            hi,
-            usize::from(reg::AL_CONTROL),
-            ecsync_wire::AL_CONTROL_LEN,
-        ) {
-            self.al_control_written();
+        if !al_locked && ranges_overlap(lo, hi, AL_CONTROL_BYTES.start, AL_CONTROL_BYTES.len()) {
+            self.al_control_written(t_ps);
         }
         let sii_control = usize::from(reg::SII_CONTROL);
         if ranges_overlap(lo, hi, sii_control, 2) && !sii_busy {

@@ -6,9 +6,8 @@ use super::Esc;
 use ecsync_wire::register::{self as reg, sii_control};
 use ecsync_wire::sii as layout;
 
-/// Bytes of the data register a read fills (8-byte reads, as [`sii_control::READ_SIZE_8`]
-/// announces).
-const READ_BYTES: usize = 8;
+/// Bytes of the data register 0x0508-0x050F.
+const DATA_BYTES: usize = 8;
 
 /// The EEPROM behind the interface and the command in progress.
 #[derive(Debug, Clone)]
@@ -79,8 +78,15 @@ impl Esc {
         self.generation += 1;
         let at = addr as usize * 2;
         let data = usize::from(reg::SII_DATA);
-        for i in 0..READ_BYTES {
-            self.regs[data + i] = self.sii.image.get(at + i).copied().unwrap_or(0xff);
+        // 8 or 4 bytes, as 0x0502 bit 6 announces; after a 4-byte read 0x050C-0x050F read
+        // zeros, as the AKD's emulated EEPROM gives them (issue 32, point 5).
+        let n = self.model.sii_read_bytes();
+        for i in 0..DATA_BYTES {
+            self.regs[data + i] = if i < n {
+                self.sii.image.get(at + i).copied().unwrap_or(0xff)
+            } else {
+                0
+            };
         }
         self.sii.pending_read = None;
         let c = self.get_u16(reg::SII_CONTROL) & !(sii_control::BUSY | sii_control::COMMAND_MASK);
@@ -89,7 +95,8 @@ impl Esc {
 
     /// The master wrote `written` to the control register (0x0502): starts its command.
     pub(super) fn sii_control_written(&mut self, written: u16, t_ps: u64) {
-        let status_bits = sii_control::READ_SIZE_8;
+        // The static bits (read size, emulation, address bytes) are the model's.
+        let status_bits = self.model.sii_control_idle;
         let mut c = status_bits | (self.get_u16(reg::SII_CONTROL) & 0xf800 & !sii_control::BUSY);
         match written & sii_control::COMMAND_MASK {
             0 => c &= !(sii_control::COMMAND_ERROR | sii_control::WRITE_ENABLE_ERROR),
@@ -207,5 +214,39 @@ mod tests {
             0,
         );
         assert_eq!(status(&mut e) & 0x2000, 0x2000);
+    }
+
+    /// An ESC announcing 4-byte reads (0x0502 bit 6 clear, as the AKD's 0x0020) fills
+    /// 0x0508-0x050B and reads zeros in 0x050C-0x050F; its idle status is the model's.
+    #[test]
+    fn four_byte_reads_fill_half_the_data_register() {
+        let mut e = super::super::testing::esc_of(crate::model::EscModel::akd_drive());
+        e.process_datagram(&mut dg(Command::Apwr, 0, 0x0010, &[0x00, 0x10]), 0);
+        let mut s = dg(Command::Fprd, 0x1000, 0x0502, &[0, 0]);
+        e.process_datagram(&mut s, 0);
+        assert_eq!(
+            u16::from_le_bytes([s[10], s[11]]),
+            0x0020,
+            "idle, as the AKD"
+        );
+        // Read word 8 (vendor ID, product code follow).
+        e.process_datagram(
+            &mut dg(
+                Command::Fpwr,
+                0x1000,
+                0x0502,
+                &[0x00, 0x01, 0x08, 0x00, 0x00, 0x00],
+            ),
+            1_000_000,
+        );
+        let mut r = dg(Command::Fprd, 0x1000, 0x0508, &[0xaa; 8]);
+        e.process_datagram(&mut r, 1_000_000_000);
+        assert_eq!(wkc(&r), 1);
+        let id = ecsync_wire::sii::identity(e.sii_image()).unwrap();
+        assert_eq!(
+            u32::from_le_bytes(r[10..14].try_into().unwrap()),
+            id.vendor_id
+        );
+        assert_eq!(&r[14..18], &[0, 0, 0, 0], "0x050C-0x050F");
     }
 }
