@@ -22,11 +22,21 @@ pub fn paper_2024() -> Vec<SlaveSpec> {
 /// The `twelve-drives` preset file (the repository's `presets/twelve-drives.toml`).
 pub const TWELVE_DRIVES_TOML: &str = include_str!("../../../presets/twelve-drives.toml");
 
+/// The `akd` preset file (the repository's `presets/akd.toml`): two drives like the
+/// Kollmorgen AKD (the `akd` device family).
+pub const AKD_TOML: &str = include_str!("../../../presets/akd.toml");
+
+/// The `lan9252-pair` preset file (the repository's `presets/lan9252-pair.toml`): two
+/// Microchip LAN9252 boards over 100BASE-TX (the `lan9252` device family).
+pub const LAN9252_PAIR_TOML: &str = include_str!("../../../presets/lan9252-pair.toml");
+
 /// Every built-in network (a scenario with a `[segment]`), by the name of its file in
 /// `presets/`.
-pub const NETWORKS: [(&str, &str); 2] = [
+pub const NETWORKS: [(&str, &str); 4] = [
     ("paper-2024", PAPER_2024_TOML),
     ("twelve-drives", TWELVE_DRIVES_TOML),
+    ("akd", AKD_TOML),
+    ("lan9252-pair", LAN9252_PAIR_TOML),
 ];
 
 /// Looks up a built-in network by name: its TOML text.

@@ -70,6 +70,7 @@ static PDU_STORAGE_MII: Storage = PduStorage::new();
 static PDU_STORAGE_EBUS: Storage = PduStorage::new();
 static PDU_STORAGE_DC32: Storage = PduStorage::new();
 static PDU_STORAGE_ESI: Storage = PduStorage::new();
+static PDU_STORAGE_AKD: Storage = PduStorage::new();
 
 /// A query run by the TX/RX thread on the segment it owns (the segment is not `Sync`).
 type Query = Box<dyn FnOnce(&mut Segment) + Send>;
@@ -249,6 +250,18 @@ fn ethercrab_brings_an_ebus_segment_to_op_with_dc() {
         })
         .collect();
     run(&PDU_STORAGE_EBUS, specs, EBUS_DELAY_TOLERANCE_NS, 0);
+}
+
+/// The `akd` preset (two drives of the AKD family, issue 32 acceptance 5): a firmware that
+/// takes AL control 4.5 ms after a write and refuses a second write until then (working
+/// counter 0), answers the mailbox after 1.2 ms, reads the SII 4 bytes at a time and keeps a
+/// 32-bit system time. ethercrab, which retries what is refused, reaches OP with DC.
+#[test]
+fn ethercrab_brings_akd_drives_to_op() {
+    let specs = ecsync_sim::config::parse_segment("presets/akd.toml", preset::AKD_TOML)
+        .expect("the built-in preset is valid");
+    assert!(specs.iter().all(|s| s.model == EscModel::akd_drive()));
+    run(&PDU_STORAGE_AKD, specs, MII_DELAY_TOLERANCE_NS, 0);
 }
 
 /// An Ingenia EVS-NET-01 servo drive built from its vendor's ESI (../shared/esi/, see its

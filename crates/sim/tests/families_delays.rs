@@ -137,3 +137,22 @@ fn delays_on_a_lan9252_pair_agree_with_the_captured_hop() {
     eprintln!("LAN9252 pair: second board's delay {d:.1} ns (half of 1440: 720)");
     assert!((d - 1440.0 / 2.0).abs() <= 10.0, "{d}");
 }
+
+/// ecsync's own master brings the presets of the microcontroller families up: their firmware
+/// takes AL control milliseconds after a write and refuses writes until then.
+#[test]
+fn ecsync_brings_the_akd_and_lan9252_presets_up() {
+    for (name, toml) in [
+        ("presets/akd.toml", ecsync_sim::preset::AKD_TOML),
+        (
+            "presets/lan9252-pair.toml",
+            ecsync_sim::preset::LAN9252_PAIR_TOML,
+        ),
+    ] {
+        let specs = ecsync_sim::config::parse_segment(name, toml).unwrap();
+        let net = bring_up(&specs);
+        eprintln!("{name}: {:?}", net.lock);
+        assert!(net.lock.converged, "{name}");
+        assert_eq!(net.slaves.len(), 2, "{name}");
+    }
+}
