@@ -281,17 +281,25 @@ impl Esc {
                 communication: implemented && self.link[p],
             }
         });
-        // From PDI control (0x0140-0x0141, loaded from the SII): an ESC without a PDI (type
-        // 0) has no PDI watchdog reloaded, as the EK1100 shows (DL status 0x5A31, bit 1
-        // clear, in replay-dc.pcapng and soem-sdinfo-ek1100-el1004.pcapng with 0x0140 = 0);
-        // enhanced link detection (bit 2) as 0x0141 bit 1 enables it for all ports (the
-        // LAN9252: 0x0141 = 0x0E, DL status 0x5617 in soem-single-lan9252.pcapng).
-        let pdi_type = self.regs[usize::from(reg::PDI_CONTROL)];
-        let esc_config = self.regs[usize::from(reg::PDI_CONTROL) + 1];
+        // A device family (its model gives its PDI control, see `EscModel::pdi_control`)
+        // shows what PDI control (0x0140-0x0141) sets: an ESC without a PDI (type 0) has no PDI
+        // watchdog reloaded, as the EK1100 shows (DL status 0x5A31, bit 1 clear, in
+        // replay-dc.pcapng and soem-sdinfo-ek1100-el1004.pcapng, with 0x0140 = 0); enhanced
+        // link detection (bit 2) as 0x0141 bit 1 enables it for all ports (the LAN9252: 0x0141 =
+        // 0x0E, DL status 0x5617 in soem-single-lan9252.pcapng). The other models show a PDI
+        // with its watchdog reloaded and no enhanced link detection, as they always did.
+        let (pdi_watchdog_ok, enhanced_link_detection) = match self.model.pdi_control {
+            Some(_) => {
+                let pdi_type = self.regs[usize::from(reg::PDI_CONTROL)];
+                let esc_config = self.regs[usize::from(reg::PDI_CONTROL) + 1];
+                (pdi_type != 0, esc_config & 0x02 != 0)
+            }
+            None => (true, false),
+        };
         let status = DlStatusRepr {
             pdi_operational: true,
-            pdi_watchdog_ok: pdi_type != 0,
-            enhanced_link_detection: esc_config & 0x02 != 0,
+            pdi_watchdog_ok,
+            enhanced_link_detection,
             ports,
         };
         status.emit(&mut DlStatus::new_unchecked(
