@@ -6,8 +6,8 @@ use super::network::{Network, SlaveFacts};
 use ecsync_sim::clock::CrystalParams;
 use ecsync_sim::coe::ObjectDictionary;
 use ecsync_sim::model::{
-    DcSupport, DeviceInfo, EscModel, MailboxLayout, PdoDescription, PdoEntry, PortKind,
-    SiiContents, SmDescription,
+    AlBehaviour, AlFirmware, DcSupport, DeviceInfo, ESC_TYPE_AKD, ESC_TYPE_LAN9252, EscModel,
+    MailboxLayout, PdoDescription, PdoEntry, PortKind, SiiContents, SmDescription,
 };
 use ecsync_sim::{AnswerBufferHabit, Segment, SlaveSpec, Upstream, catalog};
 use ecsync_wire::sii::{self, SmCategoryEntry, category};
@@ -31,8 +31,9 @@ pub struct Slave {
 }
 
 /// The SII EEPROM of a slave from the words the capture read (an erased EEPROM, 0xFFFF,
-/// elsewhere), as long as word 0x3E says (2 KiB if it was not read).
-pub fn sii_image(f: &SlaveFacts) -> Vec<u8> {
+/// elsewhere), as long as word 0x3E says (2 KiB if it was not read); word 0 (PDI control) as
+/// the ESC loaded it into 0x0140 if the master read that, else the family's (`model`).
+pub fn sii_image(f: &SlaveFacts, model: &EscModel) -> Vec<u8> {
     let bytes = f
         .sii_word(sii::WORD_SIZE)
         .filter(|&w| w < 0x100)
@@ -40,7 +41,7 @@ pub fn sii_image(f: &SlaveFacts) -> Vec<u8> {
     let mut img = vec![0xffu8; bytes];
     // Word 0 (PDI control, ESC configuration) as the ESC loaded it into 0x0140-0x0141,
     // where the master read those but not the word.
-    if let Some(v) = f.reg16(0x0140) {
+    if let Some(v) = f.reg16(0x0140).or(model.pdi_control) {
         img[..2].copy_from_slice(&v.to_le_bytes());
     }
     for (&w, &v) in &f.sii {
@@ -52,48 +53,50 @@ pub fn sii_image(f: &SlaveFacts) -> Vec<u8> {
     img
 }
 
-/// The ESC model of a slave: its family by its identity, the registers the capture read.
+/// The ESC model of a slave: its device family (crate::model's families) by its identity or
+/// ESC type, with the DC unit the capture shows; a device of no family gets a generic model
+/// with the registers the capture read over it.
 fn model(f: &SlaveFacts, first: bool) -> EscModel {
     let vendor = f.sii_dword(sii::WORD_VENDOR_ID).unwrap_or(0);
     let product = f.sii_dword(sii::WORD_PRODUCT_CODE).unwrap_or(0);
     let esc_type = f.regs.get(&0x0000).copied();
     let dc = dc_support(f);
-    let mut m = match (vendor, product, esc_type) {
-        // The devices the project's catalog has, as the captures show them.
-        (catalog::BECKHOFF, p, _) if p == catalog::EK1100_PRODUCT.0 => catalog::ek1100_model(),
-        (catalog::BECKHOFF, p, _) if p == catalog::EL2828_PRODUCT.0 => catalog::el2828_model(),
-        (catalog::BECKHOFF, p, _) if p == catalog::EL2889_PRODUCT.0 => catalog::el2889_model(),
-        (BECKHOFF, p, t) => beckhoff(p, t, dc),
-        // The Kollmorgen AKD's ESC (type 0x04, soem-sdinfo-akd.pcapng).
-        (_, _, Some(0x04)) => EscModel::servo_mii_dc32(),
-        _ => EscModel::servo_mii(),
+    let family = match (vendor, product & 0xffff, esc_type) {
+        // Beckhoff's couplers (EK1100, EK1914) are ET1100 couplers, its terminals ET1200s; the
+        // EL2889's ET1200 lacks 0x0008 bit 8 (the catalog's EL2889).
+        (BECKHOFF, BECKHOFF_EK, _) => Some(EscModel::et1100_coupler()),
+        (BECKHOFF, BECKHOFF_EL, _) if product == catalog::EL2889_PRODUCT.0 => Some(EscModel {
+            enhanced_dc_sync: catalog::el2889_model().enhanced_dc_sync,
+            ..EscModel::et1200_terminal(dc)
+        }),
+        (BECKHOFF, BECKHOFF_EL, _) => Some(EscModel::et1200_terminal(dc)),
+        // By the ESC type of a network of one (BRD 0x0000): the AKD's, the LAN9252's.
+        (_, _, Some(ESC_TYPE_AKD)) => Some(EscModel::akd_drive()),
+        (_, _, Some(ESC_TYPE_LAN9252)) => Some(EscModel::lan9252()),
+        _ => None,
     };
-    if m.dc != dc {
-        // What the capture shows of the DC unit goes before the family's.
-        m.dc = dc;
+    let mut m = family.clone().unwrap_or_else(EscModel::servo_mii);
+    // What the capture shows of the DC unit goes before the family's (the EK1914, an ET1100
+    // coupler, keeps no system time).
+    m.dc = dc;
+    if f.mailbox.is_some() && m.al == AlBehaviour::DeviceEmulation {
+        // A mailbox needs an application behind the PDI: a firmware runs AL, not the ESC's
+        // device emulation (ESC datasheet section II, 0x0140 bit 8), whatever the family of
+        // its ESC (the EK1914 is an ET1100 coupler with a microcontroller: written 0x11, its
+        // AL status reads 0x01). How fast it answers is not the family's (taken within the
+        // frame), nor is its PDI control word.
+        m.al = AlBehaviour::Firmware(AlFirmware::INSTANT);
+        m.pdi_control = None;
     }
-    registers(&mut m, f, first);
+    if family.is_none() {
+        registers(&mut m, f);
+    }
+    ports_with_links(&mut m, f, first);
     m
 }
 
-/// A Beckhoff device outside the catalog, by the kind its product code names.
-fn beckhoff(product: u32, esc_type: Option<u8>, dc: DcSupport) -> EscModel {
-    match (product & 0xffff, esc_type) {
-        // Beckhoff couplers are ET1100s (8 FMMUs and SyncManagers, 0x0008 = 0x00FC as the
-        // EK1100 and EK1914 read it): RJ45 port 0 (MII) towards the master, EBUS port 1.
-        (BECKHOFF_EK, _) => {
-            let mut m = EscModel::junction_mii();
-            m.ports = [PortKind::Mii, PortKind::Ebus, PortKind::Mii, PortKind::None];
-            m
-        }
-        // Beckhoff terminals are ET1200s with EBUS ports 0 and 1 (3 FMMUs, 4 SyncManagers).
-        (BECKHOFF_EL, _) => EscModel::ebus_terminal(dc),
-        _ => EscModel::servo_mii(),
-    }
-}
-
-/// The registers the capture read from the slave, over its family's.
-fn registers(m: &mut EscModel, f: &SlaveFacts, first: bool) {
+/// The registers the capture read from the slave, over a generic model's.
+fn registers(m: &mut EscModel, f: &SlaveFacts) {
     // 0x0008 bit 8, enhanced DC SYNC activation, as read (the EL2889's ET1200 lacks it).
     if let Some(v) = f.reg16(0x0008) {
         m.enhanced_dc_sync = v & 0x0100 != 0;
@@ -127,8 +130,10 @@ fn registers(m: &mut EscModel, f: &SlaveFacts, first: bool) {
             };
         }
     }
-    // Whatever the family, a port with a link exists (a port "not configured" in 0x0007
-    // that has a link would not).
+}
+
+/// Whatever the model, a port with a link exists (and the first slave's port 0).
+fn ports_with_links(m: &mut EscModel, f: &SlaveFacts, first: bool) {
     let links = links(f);
     for (p, (&link, kind)) in links.iter().zip(m.ports.iter_mut()).enumerate() {
         if (link || (first && p == 0)) && *kind == PortKind::None {
@@ -295,8 +300,8 @@ pub fn slaves(
         .zip(dictionaries)
         .enumerate()
         .map(|(p, (f, dictionary))| {
-            let image = sii_image(f);
             let mut model = model(f, p == 0);
+            let image = sii_image(f, &model);
             // The port towards the upstream device exists.
             if model.ports[0] == PortKind::None {
                 model.ports[0] = PortKind::Mii;
