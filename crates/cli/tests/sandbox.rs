@@ -379,6 +379,34 @@ fn twenty_back_to_back_pysoem_sessions_against_one_serve() {
     assert!(r.stdout.contains("sessions: 20 of 20 ok"), "{}", r.stdout);
 }
 
+/// `ecsync serve --preset akd` (issue 32, acceptance 5): two drives whose firmware takes AL
+/// control 4.5 ms after a write and refuses another write until then (working counter 0), as
+/// the Kollmorgen AKD does, answers the mailbox after 1.2 ms and reads the SII 4 bytes at a
+/// time. SOEM (through pysoem), which writes AL control twice at its start and polls the
+/// states, reaches OP and exchanges process data with every working counter as expected.
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces), pysoem"]
+fn pysoem_reaches_op_on_the_akd_preset() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
+    let py = python(|py| Command::new(py));
+    let mut c = Command::new(ecsync());
+    c.args(["serve", "--preset", "akd", "--quiet", "--sandbox", "--"])
+        .arg(&py)
+        .arg(script("soem_cycle.py"))
+        .args(["--slaves", "2", "--cycles", "1000"]);
+    let r = run(c, Duration::from_secs(120));
+    println!("{}{}({:.1} s)", r.stdout, r.stderr, r.took.as_secs_f64());
+    assert_eq!(code(&r), Some(0), "{}", r.stderr);
+    let summary = r.stdout.lines().find(|l| l.starts_with("soem_cycle:"));
+    let summary = summary.unwrap_or_default();
+    assert!(
+        summary.starts_with("soem_cycle: 1000 cycles of 4000 us in OP on ")
+            && summary.contains("(2 slaves, 2 with SYNC0")
+            && summary.contains(" 0 working counter errors"),
+        "{summary}"
+    );
+}
+
 /// The ethercrab example, built as CI builds it (`cargo test` builds every example; this
 /// builds it again, a no-op then, so that the test also runs alone).
 fn ethercrab_example() -> PathBuf {
