@@ -699,6 +699,34 @@ ppm = -3.5
         assert_eq!(specs[1].crystal.ppm, -3.5);
     }
 
+    /// A real ESC's registers as the captures read them find their device family: the EK1100
+    /// (type 0x11, 0x0008 = 0x00FC, 0x0007 = 0x3B, soem-sdinfo-ek1100-el1004.pcapng) the
+    /// et1100-coupler, the LAN9252 (0xC0, 0x01CC, 0x1F, soem-single-lan9252.pcapng) the
+    /// lan9252, the EL1004 (0x12, 0x01FC, 0x4A) an ET1200 terminal; the AKD (0x04, 0x0184,
+    /// 0x0F) the calibrated servo-mii-dc32 first, which has the same registers.
+    #[test]
+    fn real_registers_find_their_family() {
+        assert_eq!(
+            model_for_registers(0x11, 0x00fc, 0x3b),
+            ("et1100-coupler", ModelMatch::Exact)
+        );
+        assert_eq!(
+            model_for_registers(0xc0, 0x01cc, 0x1f),
+            ("lan9252", ModelMatch::Exact)
+        );
+        assert_eq!(
+            model_for_registers(0x12, 0x01fc, 0x4a),
+            ("et1200-terminal", ModelMatch::Exact)
+        );
+        assert_eq!(
+            model_for_registers(0x04, 0x0184, 0x0f),
+            ("servo-mii-dc32", ModelMatch::Exact)
+        );
+        for name in MODEL_NAMES {
+            assert!(model_named(name).is_some(), "{name}");
+        }
+    }
+
     #[test]
     fn every_model_name_builds_its_model() {
         for (name, model) in [
