@@ -71,6 +71,7 @@ static PDU_STORAGE_EBUS: Storage = PduStorage::new();
 static PDU_STORAGE_DC32: Storage = PduStorage::new();
 static PDU_STORAGE_ESI: Storage = PduStorage::new();
 static PDU_STORAGE_AKD: Storage = PduStorage::new();
+static PDU_STORAGE_LAN9252: Storage = PduStorage::new();
 
 /// A query run by the TX/RX thread on the segment it owns (the segment is not `Sync`).
 type Query = Box<dyn FnOnce(&mut Segment) + Send>;
@@ -264,6 +265,18 @@ fn ethercrab_brings_akd_drives_to_op() {
     run(&PDU_STORAGE_AKD, specs, MII_DELAY_TOLERANCE_NS, 0);
 }
 
+/// The `lan9252-pair` preset: two boards of the LAN9252 family, whose firmware takes AL
+/// control 17.5 ms after a write and refuses writes until then, and answers the mailbox after
+/// 38.3 ms. ethercrab reaches OP with DC.
+#[test]
+fn ethercrab_brings_a_lan9252_pair_to_op() {
+    let specs =
+        ecsync_sim::config::parse_segment("presets/lan9252-pair.toml", preset::LAN9252_PAIR_TOML)
+            .expect("the built-in preset is valid");
+    assert!(specs.iter().all(|s| s.model == EscModel::lan9252()));
+    run(&PDU_STORAGE_LAN9252, specs, MII_DELAY_TOLERANCE_NS, 0);
+}
+
 /// An Ingenia EVS-NET-01 servo drive built from its vendor's ESI (../shared/esi/, see its
 /// README.md), scanned by ethercrab: the identity and names from the SII the ESI gives
 /// (`Type`, `Name`, ConfigData), then over CoE in PRE-OP, through the mailbox at 0x1000/0x1400
@@ -409,6 +422,8 @@ fn run(
             (0x11, DcSupport::Full64) => 0x00fc,
             (0x12, DcSupport::Full64) => 0x01fc,
             (0x04, DcSupport::Full32) => 0x0184,
+            // The LAN9252 (soem-single-lan9252.pcapng, frame 92).
+            (0xc0, DcSupport::Full64) => 0x01cc,
             other => panic!("no real chip to compare with: {other:?}"),
         })
         .collect();
