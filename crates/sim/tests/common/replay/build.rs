@@ -88,6 +88,14 @@ fn model(f: &SlaveFacts, first: bool) -> EscModel {
         m.al = AlBehaviour::Firmware(AlFirmware::INSTANT);
         m.pdi_control = None;
     }
+    if m.al == AlBehaviour::Firmware(AlFirmware::INSTANT) && !f.al_windows.is_empty() {
+        // A firmware whose time no family gives: the one that fits most of the capture's AL
+        // transitions (the EK1914's), as the mailbox's answer time is fitted.
+        m.al = AlBehaviour::Firmware(AlFirmware {
+            response_ns: super::response_time(&f.al_windows),
+            control_handshake: false,
+        });
+    }
     if family.is_none() {
         registers(&mut m, f);
     }

@@ -56,6 +56,10 @@ pub struct SlaveFacts {
     /// last SM1 status poll that found SM1 empty (lower bound) and no later than the first
     /// that found it full (upper bound).
     pub response_windows: Vec<(u64, u64)>,
+    /// For each AL control write to this slave alone that asked for another state: when AL
+    /// status showed it, ns after the write (after the last read that still showed the old
+    /// state, no later than the first that showed the new one).
+    pub al_windows: Vec<(u64, u64)>,
     /// For each answer the master read, what the SM1 status polls showed after it until the
     /// next answer (see [`Habit`]).
     pub habits: Vec<Habit>,
@@ -111,6 +115,11 @@ struct Track {
     sii_written: bool,
     /// The pending mailbox request: when it was written and the last empty poll after it, ns.
     request_ns: Option<(u64, u64)>,
+    /// The AL state requested by the last write of AL control, when, and the last read after
+    /// it that still showed another state (ns).
+    al_request: Option<(u8, u64, u64)>,
+    /// AL status (state bits) as last read.
+    al_shown: Option<u8>,
     /// Since the master's last read of an answer: when it read; the last SM1 status poll that
     /// still showed the read interrupt, and the first that did not (time, status).
     after_read: Option<u64>,
@@ -188,6 +197,7 @@ fn one_slave(f: &mut SlaveFacts, t: &mut Track, d: &Dg, t_ns: u64) {
     if wr && (0x0800..0x0880).contains(&d.ado) {
         sync_managers(f, d);
     }
+    al_timing(f, t, d, rd, wr, t_ns);
     mailbox_timing(f, t, d, rd, wr, t_ns);
 }
 
@@ -303,4 +313,30 @@ fn habit(f: &mut SlaveFacts, t: &mut Track, status: u8, t_ns: u64) {
         },
         None => Habit::Keeps,
     });
+}
+
+/// When AL status showed the state an AL control write asked for (state bits 0-3; a write of
+/// the state already shown is no transition).
+fn al_timing(f: &mut SlaveFacts, t: &mut Track, d: &Dg, rd: bool, wr: bool, t_ns: u64) {
+    let state = |b: u8| b & 0x0f;
+    if wr && d.ado == 0x0120 && !d.data.is_empty() {
+        let want = state(d.data[0]);
+        t.al_request = (t.al_shown != Some(want)).then_some((want, t_ns, 0));
+        return;
+    }
+    if !(rd && d.ado == 0x0130 && !d.data.is_empty()) {
+        return;
+    }
+    t.al_shown = Some(state(d.data[0]));
+    let Some((want, at, lower)) = t.al_request else {
+        return;
+    };
+    let after = t_ns.saturating_sub(at);
+    if state(d.data[0]) == want || d.data[0] & 0x10 != 0 {
+        // Reached, or refused (the error indication): the firmware has answered.
+        f.al_windows.push((lower, after));
+        t.al_request = None;
+    } else {
+        t.al_request = Some((want, at, after));
+    }
 }
