@@ -98,8 +98,12 @@ struct Out {
     pcap_frames: u64,
 }
 
-/// True system time of slave `pos` minus the reference's at real time `t_ps`, ns.
+/// True system time of slave `pos` minus the reference's at real time `t_ps`, ns (`None` for a
+/// slave without a system time: receive times only, as the EL2828's, or no DC).
 fn true_diff(seg: &Segment, pos: usize, reference: usize, t_ps: u64) -> Option<f64> {
+    if !seg.esc(pos).model().dc.has_system_time() {
+        return None;
+    }
     let a = seg.esc(pos).dc()?.system_time_split(t_ps);
     let r = seg.esc(reference).dc()?.system_time_split(t_ps);
     Some((a.0.wrapping_sub(r.0) as i64) as f64 + (a.1 - r.1))
@@ -249,8 +253,7 @@ fn slave_rows(
             identity: SlaveIdentity::of(s),
             parent: s.parent,
             delay_ns: s.delay_ns,
-            true_delay_ns: truth[usize::from(s.position)]
-                .filter(|_| s.dc != DcCapability::None),
+            true_delay_ns: truth[usize::from(s.position)].filter(|_| s.dc != DcCapability::None),
             delay_spread_ns: s.delay_spread_ns,
             offset: s.offset,
             offset_error_ns: offset_error[usize::from(s.position)],

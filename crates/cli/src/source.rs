@@ -7,7 +7,8 @@ use std::path::PathBuf;
 /// `--preset NAME` or `--config FILE`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SourceArgs {
-    /// Built-in network: paper-2024 or twelve-drives (the networks in the repository's presets/).
+    /// Built-in network, by the name of its file in the repository's presets/: paper-2024,
+    /// twelve-drives, akd, lan9252-pair or ek1100-el2828-el2889.
     #[arg(long, conflicts_with = "config")]
     pub preset: Option<String>,
     /// A TOML file describing the network (see presets/paper-2024.toml).

@@ -8,7 +8,7 @@
 //! The network of the captures, `presets/ek1100-el2828-el2889.toml`, is built from these.
 
 use crate::model::{
-    DcSupport, DeviceInfo, EscModel, PdoDescription, PdoEntry, PortKind, SiiContents, SmDescription,
+    DcSupport, DeviceInfo, EscModel, PdoDescription, PdoEntry, SiiContents, SmDescription,
 };
 use ecsync_wire::sii::sm_type;
 use std::sync::Arc;
@@ -35,31 +35,31 @@ const EEPROM_BYTES: usize = 2048;
 /// The CiA data type code of BOOL, the terminals' output entries' (SII RxPDO category).
 const BOOL: u16 = 0x0001;
 
-/// The EK1100's ESC: an ET1100 (ESC type 0x11, 8 FMMUs and 8 SyncManagers: BWR 0x0630 and
-/// 0x0838 count at it alone, replay-issue-255.pcapng frames 12 and 52), 64-bit DC with a system
-/// time (0x0008 = 0x00FC, BWR 0x0910 counts there), port 0 MII (X1, towards the master), port 1
-/// EBUS (the terminals), port 2 MII (X2; port descriptor 0x3B in
-/// soem-sdinfo-ek1100-el1004.pcapng, the SII's physical ports 0x0131), port 3 absent. Hop delays
-/// as [`EscModel::junction_mii`]'s ET1100, the EBUS link's as the terminals'.
+/// The EK1100's ESC: an ET1100 coupler ([`EscModel::et1100_coupler`]: its registers, ports,
+/// delays, SII timing and device emulation from the captures). As the captures show it: 8 FMMUs
+/// and 8 SyncManagers (BWR 0x0630 and 0x0838 count at it alone, replay-issue-255.pcapng frames
+/// 12 and 52), a 64-bit system time (0x0008 = 0x00FC, BWR 0x0910 counts there), port 0 MII
+/// (X1, towards the master), port 1 EBUS (the terminals), port 2 MII (X2; port descriptor 0x3B
+/// in soem-sdinfo-ek1100-el1004.pcapng, the SII's physical ports 0x0131), port 3 absent.
 pub fn ek1100_model() -> EscModel {
-    EscModel {
-        ports: [PortKind::Mii, PortKind::Ebus, PortKind::Mii, PortKind::None],
-        link_phy_delay_ns: EscModel::ebus_terminal(DcSupport::Full64).link_phy_delay_ns,
-        ..EscModel::junction_mii()
-    }
+    EscModel::et1100_coupler()
 }
 
-/// The EL2828's ESC: an ET1200 terminal (3 FMMUs, 4 SyncManagers) that latches receive times
-/// but keeps no system time (0x0910, 0x0918, 0x0920, 0x092C and 0x0981 never count there in
-/// replay-dc.pcapng and replay-issue-255.pcapng) and reads 0x0008 = 0x01FC all the same.
+/// The EL2828's ESC: an ET1200 terminal ([`EscModel::et1200_terminal`]) that latches receive
+/// times but keeps no system time (0x0910, 0x0918, 0x0920, 0x092C and 0x0981 never count there
+/// in replay-dc.pcapng and replay-issue-255.pcapng) and reads 0x0008 = 0x01FC all the same.
 pub fn el2828_model() -> EscModel {
-    EscModel::ebus_terminal(DcSupport::ReceiveTimes)
+    EscModel::et1200_terminal(DcSupport::ReceiveTimes)
 }
 
 /// The EL2889's ESC: an ET1200 terminal with a 64-bit system time (BWR 0x0910 counts 2, at the
-/// EK1100 and here) whose 0x0008 reads 0x00FC ([`EscModel::ebus_terminal_el2889`]).
+/// EK1100 and here) whose 0x0008 reads 0x00FC, without enhanced DC SYNC activation
+/// (replay-dc.pcapng, replay-ek1100-alias-address.pcapng: FPRD 0x0008 of station 0x1002).
 pub fn el2889_model() -> EscModel {
-    EscModel::ebus_terminal_el2889(DcSupport::Full64)
+    EscModel {
+        enhanced_dc_sync: false,
+        ..EscModel::et1200_terminal(DcSupport::Full64)
+    }
 }
 
 /// The EK1100 EtherCAT coupler: no process data, no mailbox (SII words 0x18-0x1B are 0).

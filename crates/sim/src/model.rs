@@ -284,18 +284,6 @@ impl EscModel {
         }
     }
 
-    /// The ET1200 of the EL2889 (16 digital outputs): an [`EscModel::ebus_terminal`] whose
-    /// 0x0008 reads 0x00FC, without enhanced DC SYNC activation (replay-dc.pcapng,
-    /// replay-ek1100-alias-address.pcapng: FPRD 0x0008 of station 0x1002). An ET1200 all the
-    /// same: the BRD of 0x0000 ORs to 0x13 (0x11 EK1100 | 0x12), and FMMU 3 (0x0630) and SM 4
-    /// (0x0820) count on the EK1100 only (replay-issue-255.pcapng, frames 12 and 46).
-    pub fn ebus_terminal_el2889(dc: DcSupport) -> Self {
-        EscModel {
-            enhanced_dc_sync: false,
-            ..Self::ebus_terminal(dc)
-        }
-    }
-
     /// An ET1100-class junction with four MII ports (star coupler), with the ET1100's 64-bit DC
     /// unit (0x0008 = 0x00FC as on the EK1100).
     pub fn junction_mii() -> Self {
@@ -329,7 +317,7 @@ impl EscModel {
     ///   (replay-ek1914-el3004-mailbox.pcapng) and EL1004 (soem-sdinfo-ek1100-el1004.pcapng):
     ///   the ET1100's bits plus enhanced DC SYNC activation. Model: ebus-terminal. Not every
     ///   ET1200 device shows bit 8: the EL2889 (replay-dc.pcapng,
-    ///   replay-ek1100-alias-address.pcapng) reads 0x00FC, [`EscModel::ebus_terminal_el2889`].
+    ///   replay-ek1100-alias-address.pcapng) reads 0x00FC ([`crate::catalog::el2889_model`]).
     /// - The AKD's ESC (type 0x04): 0x0184, read from the Kollmorgen AKD
     ///   (soem-sdinfo-akd.pcapng): DC (32 bit), separate FCS error handling, enhanced DC SYNC
     ///   activation. Model: servo-mii-dc32.
@@ -704,10 +692,9 @@ mod tests {
         et1100_rx.dc = DcSupport::ReceiveTimes;
         assert_eq!(et1100_rx.features(), 0x00fc);
         // The EL2889's ET1200: no enhanced DC SYNC activation (0x00FC).
-        assert_eq!(
-            EscModel::ebus_terminal_el2889(DcSupport::Full64).features(),
-            0x00fc
-        );
+        assert_eq!(crate::catalog::el2889_model().features(), 0x00fc);
+        assert_eq!(crate::catalog::el2828_model().features(), 0x01fc);
+        assert_eq!(crate::catalog::ek1100_model().features(), 0x00fc);
         let mut et1100_32 = EscModel::servo_mii();
         et1100_32.dc = DcSupport::Full32;
         assert_eq!(et1100_32.features(), 0x00f4);

@@ -30,13 +30,19 @@ pub const AKD_TOML: &str = include_str!("../../../presets/akd.toml");
 /// Microchip LAN9252 boards over 100BASE-TX (the `lan9252` device family).
 pub const LAN9252_PAIR_TOML: &str = include_str!("../../../presets/lan9252-pair.toml");
 
+/// The `ek1100-el2828-el2889` preset file (the repository's `presets/ek1100-el2828-el2889.toml`):
+/// the network of the captures of real hardware in `../shared/captures/`.
+pub const EK1100_EL2828_EL2889_TOML: &str =
+    include_str!("../../../presets/ek1100-el2828-el2889.toml");
+
 /// Every built-in network (a scenario with a `[segment]`), by the name of its file in
 /// `presets/`.
-pub const NETWORKS: [(&str, &str); 4] = [
+pub const NETWORKS: [(&str, &str); 5] = [
     ("paper-2024", PAPER_2024_TOML),
     ("twelve-drives", TWELVE_DRIVES_TOML),
     ("akd", AKD_TOML),
     ("lan9252-pair", LAN9252_PAIR_TOML),
+    ("ek1100-el2828-el2889", EK1100_EL2828_EL2889_TOML),
 ];
 
 /// Looks up a built-in network by name: its TOML text.

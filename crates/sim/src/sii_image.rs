@@ -239,8 +239,9 @@ fn sm_category(dev: &DeviceInfo, c: &SiiContents) -> Vec<u8> {
 /// EEPROM size; strings (name, group, order number = the ESI's type name, PDO and entry
 /// names); the general category with CoE's details; FMMU usage; the SyncManagers as
 /// described, the process data ones as long as the default assignment lays out (the length
-/// the application checks at PRE-OP -> SAFE-OP); one PDO category per PDO, its SyncManager
-/// 0xFF when it is not assigned by default (no SyncManager has that number).
+/// the application checks at PRE-OP -> SAFE-OP); one PDO category per direction holding its
+/// PDOs, a PDO's SyncManager 0xFF when it is not assigned by default (no SyncManager has that
+/// number).
 pub fn build_described(model: &EscModel, dev: &DeviceInfo, c: &SiiContents) -> Vec<u8> {
     let bytes = c
         .eeprom_bytes
@@ -344,31 +345,34 @@ pub fn build_described(model: &EscModel, dev: &DeviceInfo, c: &SiiContents) -> V
     if !c.sync_managers.is_empty() {
         push_category(&mut cats, category::SYNC_MANAGER, sm_category(dev, c));
     }
-    let kinds = std::iter::repeat_n(category::TXPDO, c.tx_pdos.len())
-        .chain(std::iter::repeat_n(category::RXPDO, c.rx_pdos.len()));
-    for ((p, kind), (name_idx, entry_idx)) in c
-        .tx_pdos
-        .iter()
-        .chain(&c.rx_pdos)
-        .zip(kinds)
-        .zip(&pdo_names)
-    {
-        let mut d = Vec::with_capacity(8 + 8 * p.entries.len());
-        d.extend_from_slice(&p.index.to_le_bytes());
-        d.push(p.entries.len().min(255) as u8);
-        d.push(p.sm.unwrap_or(0xff));
-        d.push(0); // DC sync
-        d.push(*name_idx);
-        d.extend_from_slice(&pdo_flags(p).to_le_bytes());
-        for (i, e) in p.entries.iter().enumerate().take(255) {
-            d.extend_from_slice(&e.index.to_le_bytes());
-            d.push(e.subindex);
-            d.push(entry_idx[i]);
-            d.push(p.entry_data_types.get(i).copied().unwrap_or(0) as u8);
-            d.push(e.bits);
-            d.extend_from_slice(&0u16.to_le_bytes());
+    // One category per direction holding all its PDOs, as real SIIs have them (the EL2889's
+    // 16 RxPDOs in one RxPDO category, replay-dc.pcapng) and as masters read them: SOEM and
+    // ethercrab take the first category of each kind.
+    let (tx_names, rx_names) = pdo_names.split_at(c.tx_pdos.len());
+    for (kind, pdos, names) in [
+        (category::TXPDO, &c.tx_pdos, tx_names),
+        (category::RXPDO, &c.rx_pdos, rx_names),
+    ] {
+        let mut d = Vec::new();
+        for (p, (name_idx, entry_idx)) in pdos.iter().zip(names) {
+            d.extend_from_slice(&p.index.to_le_bytes());
+            d.push(p.entries.len().min(255) as u8);
+            d.push(p.sm.unwrap_or(0xff));
+            d.push(0); // DC sync
+            d.push(*name_idx);
+            d.extend_from_slice(&pdo_flags(p).to_le_bytes());
+            for (i, e) in p.entries.iter().enumerate().take(255) {
+                d.extend_from_slice(&e.index.to_le_bytes());
+                d.push(e.subindex);
+                d.push(entry_idx[i]);
+                d.push(p.entry_data_types.get(i).copied().unwrap_or(0) as u8);
+                d.push(e.bits);
+                d.extend_from_slice(&0u16.to_le_bytes());
+            }
         }
-        push_category(&mut cats, kind, d);
+        if !d.is_empty() {
+            push_category(&mut cats, kind, d);
+        }
     }
     cats.extend_from_slice(&category::END.to_le_bytes());
 

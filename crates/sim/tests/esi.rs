@@ -288,22 +288,19 @@ fn an_ingenia_drive_from_its_esi() {
     );
     assert_eq!(dev.process_data_starts(), (0x1800, 0x1c00));
     assert_eq!((dev.output_bytes(), dev.input_bytes()), (11, 11));
-    // Three RxPDOs and three TxPDOs in the SII's categories, the first of each on SM2/SM3,
-    // the others not assigned (0xFF).
+    // Three RxPDOs and three TxPDOs in the SII's categories (one per direction, as real SIIs
+    // and the masters that read the first have them), the first of each on SM2/SM3, the
+    // others not assigned (0xFF).
     let pdo_sms = |kind: u16| {
-        let mut at = usize::from(sii::WORD_FIRST_CATEGORY) * 2;
-        let mut out = Vec::new();
-        while at + 4 <= img.len() {
-            let k = u16::from_le_bytes([img[at], img[at + 1]]);
-            let words = usize::from(u16::from_le_bytes([img[at + 2], img[at + 3]]));
-            if k == category::END {
-                break;
-            }
-            if k == kind {
-                let c = &img[at + 4..];
-                out.push((u16::from_le_bytes([c[0], c[1]]), c[3]));
-            }
-            at += 4 + 2 * words;
+        let cats: Vec<_> = sii::categories(img)
+            .filter_map(Result::ok)
+            .filter(|c| c.kind == kind)
+            .collect();
+        assert_eq!(cats.len(), 1, "one category of kind {kind:#x}");
+        let (mut c, mut out) = (cats[0].data, Vec::new());
+        while c.len() >= 8 {
+            out.push((u16::from_le_bytes([c[0], c[1]]), c[3]));
+            c = &c[8 + 8 * usize::from(c[2])..];
         }
         out
     };

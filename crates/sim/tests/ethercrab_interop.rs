@@ -758,3 +758,116 @@ fn run(
     }
     eprintln!("{frames} frames, test runtime {:?}", t_test.elapsed());
 }
+
+static PDU_STORAGE_CAPTURED: Storage = PduStorage::new();
+
+/// The working counters the real devices gave the LRWs of a capture in `../shared/captures/`.
+fn captured_lrw_working_counters(file: &str) -> Vec<u16> {
+    common::read_pcapng(&common::captures_dir().join(file))
+        .iter()
+        .filter(|f| common::has_returned(&f.data))
+        .flat_map(|f| common::datagrams(&f.data))
+        .filter(|d| d.command == ecsync_wire::Command::Lrw.code())
+        .map(|d| d.wkc)
+        .collect()
+}
+
+/// The network of the captures of real hardware, `presets/ek1100-el2828-el2889.toml` (an
+/// EK1100 with an EL2828 and an EL2889, their outputs through SyncManagers at 0x0F00): ethercrab
+/// scans it, reads the identities the real devices have, brings it up with DC and into OP, as
+/// it did the real devices in replay-issue-255.pcapng; every LRW of its cyclic exchange counts
+/// what that capture's LRWs counted at the real terminals, and the outputs it writes are the
+/// terminals' own (their digital output register, by the segment's truth).
+#[test]
+#[ignore = "needs ../shared/captures"]
+fn ethercrab_brings_the_captured_network_to_op_with_the_captures_lrw_counts() {
+    let real = captured_lrw_working_counters("replay-issue-255.pcapng");
+    assert_eq!(real.len(), 64, "the capture's LRWs");
+    let mut real_counts = real.clone();
+    real_counts.dedup();
+    let name = "ek1100-el2828-el2889";
+    let specs = ecsync_sim::config::parse_segment(name, preset::named(name).expect("the preset"))
+        .expect("the built-in preset is valid");
+    let segment = Segment::new(&specs).expect("segment");
+    let ids: Vec<(u32, u32)> = (0..segment.len())
+        .map(|i| {
+            let d = segment.esc(i).device();
+            (d.vendor_id, d.product_code)
+        })
+        .collect();
+    let (tx, rx, pdu_loop) = PDU_STORAGE_CAPTURED.try_split().expect("split once");
+    let start = Instant::now();
+    let wire = Wire::spawn(segment, tx, rx, start);
+    let timeouts = Timeouts {
+        pdu: Duration::from_millis(500),
+        eeprom: Duration::from_millis(500),
+        ..Timeouts::default()
+    };
+    // 100 static drift frames, as ethercrab ran them in the captures.
+    let maindevice = MainDevice::new(
+        pdu_loop,
+        timeouts,
+        MainDeviceConfig {
+            dc_static_sync_iterations: 100,
+            ..Default::default()
+        },
+    );
+    let mut wkcs = Vec::new();
+    let mut written = Vec::new();
+    let result: Result<(), Error> = futures_lite::future::block_on(async {
+        let group = maindevice
+            .init_single_group::<MAX_SUBDEVICES, PDI_LEN>(|| {
+                u64::try_from(start.elapsed().as_nanos()).unwrap()
+            })
+            .await?;
+        let found: Vec<(u32, u32)> = group
+            .iter(&maindevice)
+            .map(|sd| (sd.identity().vendor_id, sd.identity().product_id))
+            .collect();
+        assert_eq!(found, ids, "the identities of the real devices");
+        assert_eq!(
+            found,
+            [(2, 0x044c_2c52), (2, 0x0b0c_3052), (2, 0x0b49_3052)],
+            "Beckhoff's EK1100, EL2828, EL2889"
+        );
+        let group = group.into_op(&maindevice).await?;
+        let t_op = Instant::now();
+        loop {
+            let r = group.tx_rx(&maindevice).await?;
+            if r.all_op() {
+                break;
+            }
+            assert!(t_op.elapsed() < Duration::from_secs(5), "not all OP");
+            thread::sleep(CYCLE);
+        }
+        // The outputs: a count on the EL2828's 8 channels, its complement and the count on the
+        // EL2889's 16, as many cycles as the capture has LRWs.
+        for k in 0..real.len() as u8 {
+            let mut pattern = Vec::new();
+            for (i, sd) in group.iter(&maindevice).enumerate() {
+                let mut o = sd.outputs_raw_mut();
+                let bytes: Vec<u8> = match i {
+                    1 => vec![k],
+                    2 => vec![!k, k],
+                    _ => Vec::new(),
+                };
+                assert_eq!(o.len(), bytes.len(), "subdevice {i}: its outputs' bytes");
+                o.copy_from_slice(&bytes);
+                pattern.push(bytes);
+            }
+            let r = group.tx_rx(&maindevice).await?;
+            wkcs.push(r.working_counter);
+            written = pattern;
+            thread::sleep(CYCLE);
+        }
+        Ok(())
+    });
+    let (segment, frames) = wire.finish();
+    result.expect("ethercrab against the captured network");
+    eprintln!("{frames} frames; LRW working counters {wkcs:?}, the capture's {real_counts:?}");
+    assert_eq!(wkcs, real, "every LRW counts as at the real devices");
+    for (i, bytes) in written.iter().enumerate() {
+        assert_eq!(segment.esc(i).al_state(), ecsync_wire::AlState::Op);
+        assert_eq!(&segment.esc(i).outputs(), bytes, "subdevice {i}'s outputs");
+    }
+}

@@ -184,12 +184,13 @@ impl Run {
         })?;
         sim.set_rx_latency_ps(rx_latency_ps);
         let eng = session.engine();
-        // The slaves whose SYNC0 the ground truth judges: those with a DC unit and process
+        // The slaves whose SYNC0 the ground truth judges: those with a system time (SYNC0 runs
+        // on it: a terminal with receive times only, as the EL2828, has none) and process
         // data that the bring-up took in. A coupler (no process data) takes no outputs at
         // SYNC0, and a slave that was absent then (hot-connected later) has no SYNC0 running:
         // neither has a deadline.
         let dc_slaves: Vec<usize> = (0..sim.segment().len())
-            .filter(|&x| sim.segment().esc(x).dc().is_some())
+            .filter(|&x| sim.segment().esc(x).model().dc.has_system_time())
             .filter(|&x| {
                 net.slaves
                     .get(x)

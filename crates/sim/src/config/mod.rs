@@ -6,9 +6,11 @@
 //! name = "drive-1"
 //! model = "servo-mii"        # servo-mii | servo-mii-dc32 | ebus-terminal | ebus-terminal-no-dc
 //!                            # | junction-mii; device families: et1100-coupler | et1200-terminal
-//!                            # | et1200-terminal-receive-times | lan9252 | akd
+//!                            # | et1200-terminal-receive-times | lan9252 | akd; real devices:
+//!                            # ek1100 | el2828 | el2889
 //! device = "servo-drive"     # servo-drive (default) | coupler (default of junction-mii and
-//!                            # the et1100/et1200 families);
+//!                            # the et1100/et1200 families) | ek1100 | el2828 | el2889 (the
+//!                            # default of the model of the same name);
 //!                            # with `esi`: the ESI device's type name
 //! # esi = "drives.xml"       # an ESI file (ETG.2000) describing the device, relative to this
 //!                            # file's folder; `device` selects one of its devices by its
@@ -45,7 +47,14 @@
 //!   takes AL control 17.5 ms after a write and refuses another write until then.
 //! - `akd`: a microcontroller drive like the Kollmorgen AKD (two MII ports, 32-bit DC), a
 //!   firmware that takes AL control 4.5 ms after a write, 4-byte SII reads.
+//!
+//! Real devices as the captures of real hardware show them ([`crate::catalog`]), each a model
+//! and a device of the same name (the device is the model's default): `ek1100` (the coupler,
+//! an et1100-coupler), `el2828` (8 digital outputs, an et1200-terminal with receive times
+//! only), `el2889` (16 digital outputs, an et1200-terminal with a system time); the
+//! terminals' outputs at the digital output register 0x0F00.
 
+use crate::catalog;
 use crate::clock::CrystalParams;
 use crate::model::{DcSupport, DeviceInfo, EscModel, PortKind};
 use crate::segment::{SlaveSpec, Upstream};
@@ -135,8 +144,8 @@ pub struct SlaveConfig {
 
 /// The ESC models a file names, with the model each name builds: the calibrated models first
 /// (a real ESC whose registers fit one of them exactly is given it, see
-/// [`model_for_registers`]), then the device families.
-pub const MODEL_NAMES: [&str; 10] = [
+/// [`model_for_registers`]), then the device families, then the real devices.
+pub const MODEL_NAMES: [&str; 13] = [
     "servo-mii",
     "servo-mii-dc32",
     "ebus-terminal",
@@ -147,6 +156,19 @@ pub const MODEL_NAMES: [&str; 10] = [
     "et1200-terminal-receive-times",
     "lan9252",
     "akd",
+    "ek1100",
+    "el2828",
+    "el2889",
+];
+
+/// A real device of [`crate::catalog`]: its name, its model, its device with a serial number.
+type CatalogEntry = (&'static str, fn() -> EscModel, fn(u32) -> DeviceInfo);
+
+/// The real devices of [`crate::catalog`]: a model and a device each, by the same name.
+const CATALOG: [CatalogEntry; 3] = [
+    ("ek1100", catalog::ek1100_model, catalog::ek1100),
+    ("el2828", catalog::el2828_model, catalog::el2828),
+    ("el2889", catalog::el2889_model, catalog::el2889),
 ];
 
 /// The model a name in a file builds (`None`: no such model).
@@ -162,7 +184,7 @@ pub fn model_named(name: &str) -> Option<EscModel> {
         "et1200-terminal-receive-times" => EscModel::et1200_terminal(DcSupport::ReceiveTimes),
         "lan9252" => EscModel::lan9252(),
         "akd" => EscModel::akd_drive(),
-        _ => return None,
+        _ => return CATALOG.iter().find(|c| c.0 == name).map(|c| c.1()),
     })
 }
 
@@ -173,7 +195,11 @@ fn default_device(model: &str) -> &'static str {
         "junction-mii" | "et1100-coupler" | "et1200-terminal" | "et1200-terminal-receive-times" => {
             "coupler"
         }
-        _ => "servo-drive",
+        // A real device's model: that device.
+        m => CATALOG
+            .iter()
+            .find(|c| c.0 == m)
+            .map_or("servo-drive", |c| c.0),
     }
 }
 
@@ -405,7 +431,7 @@ impl SlaveConfig {
                 (at.field("device"), at.key_line("device")),
             )?,
             // A junction is a coupler unless the file says otherwise: an ET1100 with four MII
-            // ports branches the line, it drives no motor.
+            // ports branches the line, it drives no motor. A real device's model is that device.
             None => match self
                 .device
                 .as_deref()
@@ -413,14 +439,17 @@ impl SlaveConfig {
             {
                 "servo-drive" => DeviceInfo::servo_drive(serial),
                 "coupler" => DeviceInfo::coupler(&self.name, serial),
-                other => {
-                    return Err(at.error(
-                        at.line,
-                        "device",
-                        format!("unknown device \"{other}\""),
-                        "use servo-drive or coupler, or describe the device with esi = \"file.xml\"",
-                    ));
-                }
+                other => match CATALOG.iter().find(|c| c.0 == other) {
+                    Some(c) => c.2(serial),
+                    None => {
+                        return Err(at.error(
+                            at.line,
+                            "device",
+                            format!("unknown device \"{other}\""),
+                            "use servo-drive, coupler, ek1100, el2828 or el2889, or describe the device with esi = \"file.xml\"",
+                        ));
+                    }
+                },
             },
         })
     }
