@@ -11,6 +11,9 @@ use std::time::{Duration, Instant};
 
 const PRESET: &str = "ek1100-el2828-el2889";
 
+/// The masters that run in real time take the machine's cores one at a time.
+static TIMED: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn ecsync() -> Command {
     Command::new(env!("CARGO_BIN_EXE_ecsync"))
 }
@@ -143,6 +146,7 @@ fn captured_lrw_working_counters(file: &str) -> Vec<u16> {
 #[test]
 #[ignore = "needs network namespaces (root or unprivileged user namespaces), pysoem, ../shared/captures"]
 fn pysoem_reaches_op_with_the_captures_lrw_working_counters() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
     let real = captured_lrw_working_counters("replay-issue-255.pcapng");
     assert_eq!(real.len(), 64, "the capture's LRWs");
     let py = std::env::var("ECSYNC_PYSOEM_PYTHON").unwrap_or_else(|_| "python3".into());
@@ -205,4 +209,46 @@ fn pysoem_reaches_op_with_the_captures_lrw_working_counters() {
         .collect();
     assert_eq!(wkc, real, "every LRW counts as at the real devices");
     assert_eq!(v["expected_wkc"], 4, "SOEM's own expectation");
+}
+
+/// `ecsync run` (ecsync's own master, in real time over a veth pair) against `serve --preset
+/// ek1100-el2828-el2889 --sandbox`: the same choice as in virtual time (the EK1100 the
+/// reference, the EL2889 the one clock synchronised, the EL2828 with receive times only), the
+/// terminals' 3 bytes of outputs in OP, and no LRW with another working counter than 4.
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces)"]
+fn ecsync_run_over_serve_picks_the_ek1100_and_syncs_the_el2889_alone() {
+    let _one = TIMED.lock().unwrap_or_else(|e| e.into_inner());
+    let run = format!(
+        "{} run --iface \"$ECSYNC_IFACE\" --method median --duration 2 --static-drift 2000 --json",
+        env!("CARGO_BIN_EXE_ecsync")
+    );
+    let out = ecsync()
+        .args(["serve", "--preset", PRESET, "--quiet", "--sandbox", "--"])
+        .args(["sh", "-c", &run])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !stderr.contains("--sandbox: cannot make"),
+        "this test needs network namespaces, and this machine refused: {stderr}"
+    );
+    assert!(out.status.success(), "{stdout}{stderr}");
+    // The ready line, then run's summary.
+    let at = stdout.find("\n{").expect("run's JSON after the ready line");
+    let v: serde_json::Value = serde_json::from_str(&stdout[at + 1..]).unwrap();
+    let b = &v["bringup"];
+    assert_eq!(b["reference"], 0, "the EK1100");
+    let slaves = b["slaves"].as_array().unwrap();
+    let dc: Vec<&str> = slaves.iter().map(|s| s["dc"].as_str().unwrap()).collect();
+    assert_eq!(dc, ["system-time", "receive-times", "system-time"]);
+    let synced: Vec<bool> = slaves.iter().map(|s| s["offset"].is_u64()).collect();
+    assert_eq!(synced, [true, false, true], "offsets written");
+    assert_eq!(b["converged"], true);
+    assert_eq!(
+        (b["pdi_bytes"].as_u64(), b["expected_lrw_wkc"].as_u64()),
+        (Some(3), Some(4))
+    );
+    assert_eq!(v["bad_wkc"], 0, "{stdout}");
 }
