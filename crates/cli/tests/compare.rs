@@ -295,3 +295,40 @@ fn an_unwritable_out_fails_before_the_simulation() {
         assert!(!dir.join("out/summary.json").exists());
     }
 }
+
+/// Bus shift writes the master's time into the reference; a 32-bit reference keeps its lower
+/// half. The letter's M-rS (reference time minus send stamp) then compares modulo 2^32: on the
+/// same network and noise, a 32-bit reference (ESC type 0x04 like the AKD) gives the figures a
+/// 64-bit one gives (it printed -8.5e14 us, the master's upper half, before).
+#[test]
+fn bus_shift_m_rs_on_a_32_bit_reference_equals_the_64_bit_one() {
+    let preset = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/akd.toml"),
+    )
+    .unwrap();
+    let dir = tmp("dc32");
+    let m_rs = |model: &str| {
+        let cfg = dir.join(format!("{model}.toml"));
+        std::fs::write(
+            &cfg,
+            preset.replace("model = \"akd\"", &format!("model = \"{model}\"")),
+        )
+        .unwrap();
+        let out = dir.join(model);
+        let s = run(
+            &out,
+            &[
+                "--config",
+                cfg.to_str().unwrap(),
+                "--methods",
+                "bus-shift",
+                "--cycles",
+                "3000",
+            ],
+        );
+        s["methods"]["bus-shift"]["m_rs"].clone()
+    };
+    let (wide, narrow) = (m_rs("servo-mii"), m_rs("servo-mii-dc32"));
+    assert!(wide["mean"].as_f64().unwrap().abs() < 1_000.0, "{wide}");
+    assert_eq!(narrow, wide, "32-bit reference against 64-bit");
+}

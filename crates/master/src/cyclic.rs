@@ -139,6 +139,9 @@ pub struct CyclicEngine<S> {
     last_ref_send_ns: u64,
     /// That cycle's round trip (send to reply), master time, ns.
     last_ref_round_trip_ns: u64,
+    /// The reference's last reading had no upper half: a 32-bit DC unit, whose time is the
+    /// master's written time modulo 2^32 under bus shift.
+    reference_32bit: bool,
     /// A reference time not believed and the cycle it came in: a new timeline if it goes on.
     candidate: Option<(u64, u64)>,
     /// The send timestamp of the candidate's cycle.
@@ -333,6 +336,7 @@ impl<S: MasterSync> CyclicEngine<S> {
             last_ref_cycle: 0,
             last_ref_send_ns: 0,
             last_ref_round_trip_ns: 0,
+            reference_32bit: false,
             candidate: None,
             candidate_send_ns: 0,
             h_sum: 0,
@@ -636,6 +640,7 @@ impl<S: MasterSync> CyclicEngine<S> {
                     .map_or(0, |d| d.wkc());
                 if frmw_wkc > 0 {
                     let raw = u64::from_le_bytes(r[at..at + 8].try_into().unwrap_or([0; 8]));
+                    self.reference_32bit = raw >> 32 == 0;
                     // A 32-bit reference reads 0 in the upper half: extend next to the
                     // expectation.
                     let t = match self.last_ref_ns {
@@ -729,7 +734,15 @@ impl<S: MasterSync> CyclicEngine<S> {
     #[inline]
     fn m_rs_ns(&mut self, t_ra: u64, send_ns: u64, nominal: u64) -> Option<i64> {
         if !self.sync.is_master_shift() {
-            return Some(diff_u64(t_ra, send_ns));
+            // Bus shift writes the master's time into the reference; a 32-bit reference keeps
+            // its lower half, so the two compare modulo 2^32 (the reference's time extended
+            // from its first reading has none of the master's upper half).
+            let d = diff_u64(t_ra, send_ns);
+            return Some(if self.reference_32bit {
+                i64::from(d as i32)
+            } else {
+                d
+            });
         }
         if self.cycle < self.cfg.measure_init_frames {
             self.h_sum += i128::from(diff_u64(send_ns, t_ra));
