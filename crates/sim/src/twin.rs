@@ -18,11 +18,11 @@
 //!   stamps.
 
 use crate::clock::CrystalParams;
-use crate::config::{ModelMatch, model_for_registers, model_named};
-use crate::model::{DeviceInfo, EscModel};
+use crate::config::{MODEL_NAMES, ModelMatch, model_for_registers, model_named};
+use crate::model::{DcSupport, DeviceInfo, EscModel};
 use crate::transport::SimTransport;
 use crate::{CABLE_PS_PER_M, Segment, SlaveSpec, Upstream};
-use ecsync_master::bringup::{DcCapability, Network, Stage};
+use ecsync_master::bringup::{DcCapability, Network, SlaveInfo, Stage};
 use ecsync_master::{BringupConfig, Engine};
 use std::fmt::Write as _;
 
@@ -174,6 +174,18 @@ pub fn twin_toml(
     })
 }
 
+/// The model whose registers (ESC type, 0x0008, port descriptor) are slave `s`'s and whose DC
+/// unit has receive times only, as the master found the slave's (by what answered).
+fn receive_times_twin(s: &SlaveInfo) -> Option<&'static str> {
+    MODEL_NAMES.into_iter().find(|n| {
+        model_named(n).is_some_and(|m| {
+            m.dc == DcSupport::ReceiveTimes
+                && (m.esc_type, m.features(), m.port_descriptor())
+                    == (s.esc_type, s.features, s.port_descriptor)
+        })
+    })
+}
+
 /// Each slave's model (by its ESC registers) and the segment's spec before the cables are
 /// solved; a note where no model fits exactly.
 fn model_specs(net: &Network, notes: &mut Vec<String>) -> (Vec<&'static str>, Vec<SlaveSpec>) {
@@ -181,7 +193,7 @@ fn model_specs(net: &Network, notes: &mut Vec<String>) -> (Vec<&'static str>, Ve
     let mut models = Vec::with_capacity(n);
     let mut specs: Vec<SlaveSpec> = Vec::with_capacity(n);
     for (i, s) in net.slaves.iter().enumerate() {
-        let (name, how) = model_for_registers(s.esc_type, s.features, s.port_descriptor);
+        let (mut name, how) = model_for_registers(s.esc_type, s.features, s.port_descriptor);
         match how {
             ModelMatch::Exact => {}
             ModelMatch::Ports => notes.push(format!(
@@ -194,9 +206,14 @@ fn model_specs(net: &Network, notes: &mut Vec<String>) -> (Vec<&'static str>, Ve
             )),
         }
         if s.dc == DcCapability::ReceiveTimes {
-            notes.push(format!(
-                "slave {i}: has receive times but no system time, which no model has; {name} has a full DC unit"
-            ));
+            // 0x0008 says DC with receive times alone (the EL2828 reads 0x01FC): the model of
+            // the same registers with receive times only, where there is one.
+            match receive_times_twin(s) {
+                Some(n) => name = n,
+                None => notes.push(format!(
+                    "slave {i}: has receive times but no system time, which no model with its registers has; {name} has a full DC unit"
+                )),
+            }
         }
         models.push(name);
         let upstream = match s.parent {

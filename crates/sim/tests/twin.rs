@@ -200,3 +200,35 @@ fn a_twin_has_the_original_s_delays_models_ports_and_crystals() {
         "{slaves} slaves over 4 segments: worst delay error {worst_delay_ns:.1} ns, worst relative crystal error {worst_ppm:.4} ppm"
     );
 }
+
+/// The twin of the captures' network (presets/ek1100-el2828-el2889.toml): the EL2828 reads
+/// 0x0008 = 0x01FC, DC bits set, as the EL2889's ET1200 with a system time does (less bit 8),
+/// yet the master finds receive times only: its twin gets the model with its registers and
+/// receive times only (the EL2889's 0x00FC is the el2889 model's alone), and the twin's
+/// bring-up finds the same clocks.
+#[test]
+fn a_receive_times_terminal_is_twinned_with_receive_times() {
+    let name = "ek1100-el2828-el2889";
+    let specs = parse_segment(name, ecsync_sim::preset::named(name).expect("the preset"))
+        .expect("the preset is valid");
+    let (net, _) = bring_up(&specs);
+    let twin = twin_toml(&net, "the simulator", None).expect("a twin");
+    assert_eq!(
+        twin.models,
+        ["et1100-coupler", "et1200-terminal-receive-times", "el2889"],
+        "{}",
+        twin.toml
+    );
+    let twin_specs = parse_segment("twin.toml", &twin.toml).expect("the twin parses");
+    let (net2, _) = bring_up(&twin_specs);
+    let dc = |n: &Network| n.slaves.iter().map(|s| s.dc).collect::<Vec<_>>();
+    assert_eq!(dc(&net2), dc(&net));
+    assert_eq!(
+        twin_specs.iter().map(|s| s.model.dc).collect::<Vec<_>>(),
+        [
+            DcSupport::Full64,
+            DcSupport::ReceiveTimes,
+            DcSupport::Full64
+        ]
+    );
+}
