@@ -4,47 +4,78 @@
 //!
 //! # Time control loop model
 //!
-//! The datasheet describes the loop by its registers, not its circuit, so this is a model with
-//! the following assumptions, chosen so that the registers behave as the datasheet says and the
-//! loop converges the way real segments do (tens of ns after the recommended ~15 000 system time
-//! writes of static drift compensation):
+//! The ESC datasheet (Beckhoff, "EtherCAT Slave Controller", section I "Technology" 9.1.4-9.1.5,
+//! section II "Registers" 0x092C-0x0935) describes the loop by its registers, not its circuit.
+//! Each rule below says what the datasheet says and, where it is silent, what is assumed and
+//! why. The code is in `dc_unit/control_loop.rs`; the numbers refer to its comments.
 //!
-//! 1. A write to System Time (0x0910) in a frame whose first bit reached the processing unit at
-//!    real time `t` compares bits 31:0 of the written value `V` with the local copy of the system
-//!    time latched at that instant (quantised, as the register reads it):
-//!    `dt = (L(t) + offset - delay) - V` (datasheet section I, 9.1.3.3). Differences of 2^30 ns
-//!    or more are shown but do not steer the clock (the datasheet guarantees nothing there).
-//! 2. `dt` is averaged with an exponential filter of weight `2^-depth` (depth = 0x0934 bits 3:0;
-//!    depth 0 means no averaging). 0x092C shows `dt_filtered` = local copy - received,
-//!    sign-magnitude: bits 30:0 the magnitude, bit 31 set when the local copy is smaller than the
-//!    received time (Beckhoff ESC register description as Infineon's XMC4800 reference manual
-//!    reproduces it). The reset value is 0x00000000, and an exact zero difference reads 0 too,
-//!    so the reference clock, which is never compared, reads 0 (as real ones do).
-//! 3. Phase: after each write the clock is slewed by `-dt_filtered`, one nanosecond per
-//!    `speed counter start` (0x0930) ticks of 10 ns, i.e. at a rate of `1 / (10 * start)`
-//!    (24.4 ppm for the default 0x1000), until that amount is applied or the next write replaces
-//!    it. This is the datasheet's "local time is incremented by 9 or 11 ns instead of 10 ns".
-//! 4. Drift: the ESC estimates how fast `dt` drifts when no phase slew acts — the residual
-//!    frequency error, the change of `dt` the slew does not explain, per time — and integrates
-//!    it into a frequency correction `c_drift -= r * 2^-depth` per write (depth = 0x0935 bits
-//!    3:0, the speed counter filter depth). The residual is measured over a batch of
-//!    `2^(depth/2)` writes (64 for the default 12), `r = sum(dt_k - expected_k) / sum(T_k)`, and
-//!    applied once per batch with the batch's weight: the sum telescopes, so the arrival jitter
-//!    of the writes enters once per batch instead of once per write. (Measured write by write,
-//!    a master whose frames leave with microseconds of jitter, as a bus shift master on a
-//!    general-purpose host does, makes `c_drift` wander by tens of ppm, beyond what the phase
-//!    slew can hold, and the clock walks away; the averaging of 0x0935 is "of the calculated
-//!    clock period deviations", datasheet section I, 9.1.5.) `c_drift` is what the speed
-//!    counter diff (0x0932) represents; it is limited to the range the speed counter can
-//!    express, `1 / (10 * 0x80)` = 781 ppm. Writes less than 1 us apart, or after a reset, only
-//!    seed the estimator.
-//! 5. Writing 0x0930 resets 0x092C and the drift correction; writing 0x0934 resets 0x092C; writing
-//!    0x0920 or 0x0928 restarts the estimator (the next difference is not a drift).
+//! 1. **Compare.** A write to System Time (0x0910, by ARMW or FRMW) compares bits 31:0 of the
+//!    written value with the local copy of the system time: "Δt = (t_Local time + t_Offset −
+//!    t_Propagation delay) − t_Received System Time"; "If Δt is positive, the local time is
+//!    running faster than the System time, and has to be slowed down" (section I, 9.1.5). The
+//!    local copy is the one latched at the frame's start on port 0's receive clock (as 0x0910
+//!    reads). Assumed: differences of 2^30 ns or more (a master writing 0 while it resets) are
+//!    shown but do not steer the clock, and the next write starts a new interval (the
+//!    datasheet promises nothing for such differences).
+//! 2. **0x092C, the mean difference.** "Mean difference between local copy of System Time and
+//!    received System Time values", bits 30:0 the magnitude, bit 31 set when the local copy is
+//!    smaller, reset value 0 (section II, 0x092C); 0x0934 sets the "filter depth for mean value
+//!    calculation of the received System Times" (section I, 9.1.5), `2^depth` values (bits
+//!    3:0; depth 0 shows every difference as it is; reset value 4 as the model had it, the
+//!    register table was not at hand). The reference clock, never
+//!    compared, reads 0 (as real ones do). Assumed: a reset mean holds no values and averages
+//!    the ones it has until `2^depth` are in (weight `1/n` for the n-th), then weighs a new
+//!    one `2^-depth` (an exponential mean of that depth). The datasheet says the filters must
+//!    be reset before drift compensation because their state "can have negative impact on the
+//!    settling time" (section I, 9.1.4); it does not say how a reset filter fills. A filter
+//!    that restarted from zero with weight `2^-depth` would still be held near zero by its
+//!    reset for thousands of values: ethercrab's 100 writes would teach it 2.4 % of a drift
+//!    (`1 - (1 - 2^-12)^100`), where the real EL2889 in replay-dc.pcapng lost most of it
+//!    (tests/drift_loop.rs).
+//! 3. **The speed counter, phase.** 0x0930, Speed Counter Start, is the "bandwidth for
+//!    adjustment of local copy of System Time (larger values → smaller bandwidth and smoother
+//!    adjustment)" (section II: reset value 0x1000, "Minimum value: 0x0080 to 0x3FFF"); the
+//!    note to 0x0932 counts a speed counter period as `start ± diff + 2` ticks. Assumed (the
+//!    datasheet does not draw the circuit): the local time advances 10 ns per 100 MHz tick and
+//!    the loop makes one tick per speed counter period advance 11 or 9 ns instead; after a
+//!    write the mean difference is stepped away so, one nanosecond per `start + 2` ticks
+//!    (`1 / (10 ns * 4098)` = 24.4 ppm at 0x1000), until it is gone or the next write
+//!    replaces it.
+//! 4. **0x0932, the speed counter diff.** "Representation of the deviation between local clock
+//!    period and Reference Clock's clock period (representation: two's complement). Range:
+//!    ±(Speed Counter Start − 0x7F)"; its note: "Calculate the clock deviation after System Time
+//!    Difference has settled at a low value as follows: Deviation = Speed Counter Diff / (5
+//!    (Speed Counter Start + Speed Counter Diff + 2) (Speed Counter Start − Speed Counter Diff +
+//!    2))" (section II, 0x0932; the formula as typeset there, read back from its text); 0x0935 sets the "filter depth for mean value calculation ... of
+//!    the calculated clock period deviations" (section I, 9.1.5; bits 3:0, reset value 12 as the
+//!    model had it).
+//!    Modelled: at every write that follows another (since the last reset, at least 1 us
+//!    earlier) the loop calculates the clock period deviation over the interval between them —
+//!    the change of the difference that its own steps (phase and frequency) do not explain,
+//!    per elapsed time — and averages it as 0x092C is averaged (rule 2, depth 0x0935). The mean,
+//!    within the range the register can represent (763 ppm at 0x1000), is the frequency
+//!    correction the speed counter applies; 0x0932 reads the integer whose deviation by the
+//!    note's formula is nearest to it. Assumed: the sign (positive when the local clock period
+//!    is the longer, i.e. the crystal slow and the loop speeding it up, as the register's name
+//!    reads); the rate is applied unquantised (the integer steps of 0x0932 are 0.012 ppm at
+//!    0x1000); and a single interval's deviation is not limited to the range, only their mean
+//!    is: the mean telescopes, so a master whose frames leave with microseconds of jitter (a
+//!    bus shift master on a general-purpose host: 5 us in 1 ms is 5 000 ppm for one interval)
+//!    enters it once, not once per write, as real ESCs followed the letter's bus shift master.
+//! 5. **Resets.** Writing 0x0930 "resets System Time Difference (0x092C:0x092F) and Speed
+//!    Counter Diff (0x0932:0x0933)" (section II) and the internal filters: "Writing the current
+//!    value of the register again is sufficient to reset the filters" (section I, 9.1.4): both
+//!    means empty, no previous write, no phase step pending. Nothing else resets the loop: the
+//!    note to 0x0928 asks the master to "reset internal system time difference filter and speed
+//!    counter filter by writing Speed Counter Start (0x0930:0x0931) after changing this value",
+//!    so a new offset or delay without that reset reaches the means as a step, as on the real
+//!    ESC; a new filter depth applies from the next value on (assumed).
 //!
-//! 0x0932 is shown as `c_drift` in units of 2^-24 (0.0596 ppm), an encoding of this model: no
-//! master interprets that register.
+//! The clock between writes is [`LocalClock`]'s: crystal, frequency correction, pending phase
+//! step, all evaluated analytically.
 
 use crate::clock::{CrystalParams, LocalClock};
+use control_loop::SPEED_COUNTER_START_RESET;
 use ecsync_wire::dc_time;
 use ecsync_wire::register as reg;
 
@@ -52,12 +83,6 @@ use ecsync_wire::register as reg;
 pub const DC_BLOCK_START: u16 = 0x0900;
 /// Size of the DC block.
 pub const DC_BLOCK_LEN: usize = 0x100;
-
-const SPEED_COUNTER_MIN: u16 = 0x0080;
-const SPEED_COUNTER_MAX: u16 = 0x3fff;
-const MAX_DRIFT_CORRECTION: f64 = 1.0 / (10.0 * SPEED_COUNTER_MIN as f64);
-/// 0x0932 units.
-const SPEED_DIFF_UNIT: f64 = 1.0 / (1u64 << 24) as f64;
 
 /// Static configuration of a DC unit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -138,34 +163,39 @@ pub struct DcUnit {
     diff_register: u32,
     dt_filtered: f64,
     start_time: u64,
-    writes: u64,
+    /// Samples in the means of 0x092C and of the clock period deviation since the last reset
+    /// (each counts up to its depth's `2^depth`).
+    dt_count: u32,
+    speed_count: u32,
     sync0_cycle: u32,
     is_64bit: bool,
     activation: u8,
     cyclic_control: u8,
-    /// `last_sample_*` hold the drift estimator's last sample.
+    /// `last_sample_*` hold the previous write since the last reset.
     has_last_sample: bool,
     // Line 1: the time control loop, derived from the registers, kept so the hot path
-    // divides nothing.
+    // divides nothing once the means are full.
+    /// The weights of a full mean, `2^-depth` (0x0934, 0x0935).
     dt_weight: f64,
-    speed_gain: f64,
+    speed_weight: f64,
+    /// The phase step rate, `1 / (10 ns * (speed counter start + 2))`.
     slew_rate: f64,
-    /// The last sample: when (ps), and the difference it aimed for.
+    /// The largest frequency correction the speed counter diff's range allows (a fraction).
+    deviation_max: f64,
+    /// The previous write: when (ps), and the difference it aimed for.
     last_sample_ps: u64,
     last_sample_dt: f64,
-    /// The drift residual's batch so far: unexplained change of `dt` (ns), elapsed (ns), writes.
-    batch_change_ns: f64,
-    batch_elapsed_ns: f64,
-    batch_writes: u32,
-    /// Writes per batch, `2^(speed counter filter depth / 2)`.
-    batch_len: u32,
+    /// The sample counts of full means, `2^depth`.
+    dt_full: u32,
+    speed_full: u32,
+    /// The loop's registers: 0x0930, 0x0934 and 0x0935 bits 3:0.
+    speed_counter_start: u16,
+    dt_filter_depth: u8,
+    speed_filter_depth: u8,
     /// Line 2: its hot part first (one line), its crystal parameters and random generator
     /// after.
     clock: LocalClock,
-    // Cold: the time control loop's registers, the latches, the cyclic unit's rest.
-    dt_filter_depth: u8,
-    speed_counter_start: u16,
-    speed_filter_depth: u8,
+    // Cold: the latches, the cyclic unit's rest.
     port_times: [u32; 4],
     pu_time: u64,
     pulse_length: u16,
@@ -209,29 +239,29 @@ impl DcUnit {
     pub fn new_at(params: DcParams, t_ps: u64) -> Self {
         let clock = LocalClock::new_at(params.crystal, t_ps);
         let res = (params.sof_resolution_ns.max(10) / 10) * 10;
-        DcUnit {
+        let mut unit = DcUnit {
             sof_res: res,
             sof_phase: port_phase(&clock, 0, res),
             clock,
             is_64bit: params.is_64bit,
             offset: 0,
             delay: 0,
-            speed_counter_start: 0x1000,
-            dt_filter_depth: 4,
-            speed_filter_depth: 12,
+            speed_counter_start: SPEED_COUNTER_START_RESET,
+            dt_filter_depth: 0,
+            speed_filter_depth: 0,
             dt_filtered: 0.0,
             diff_register: 0,
-            dt_weight: 1.0 / 16.0,
-            speed_gain: 1.0 / 4096.0,
-            slew_rate: 1.0 / (10.0 * 4096.0),
+            dt_weight: 1.0,
+            speed_weight: 1.0,
+            dt_full: 1,
+            speed_full: 1,
+            slew_rate: 0.0,
+            deviation_max: 0.0,
             has_last_sample: false,
             last_sample_ps: 0,
             last_sample_dt: 0.0,
-            batch_change_ns: 0.0,
-            batch_elapsed_ns: 0.0,
-            batch_writes: 0,
-            batch_len: 1 << 6,
-            writes: 0,
+            dt_count: 0,
+            speed_count: 0,
             port_times: [0; 4],
             pu_time: 0,
             cyclic_control: 0,
@@ -242,7 +272,13 @@ impl DcUnit {
             sync1_cycle: 0,
             sync0_status_cleared_at: None,
             latch_mode: 0,
-        }
+        };
+        // Reset values (section II): 0x0930 = 0x1000, 0x0934 = 0x04, 0x0935 = 0x0C; the
+        // loop's filters empty.
+        unit.write_speed_counter_start(SPEED_COUNTER_START_RESET, t_ps);
+        unit.set_dt_filter_depth(4);
+        unit.set_speed_filter_depth(12);
+        unit
     }
 
     /// The local clock.
@@ -371,10 +407,10 @@ impl DcUnit {
                 reg::DC_SPEED_COUNTER_START,
                 &self.speed_counter_start.to_le_bytes(),
             );
-            let diff = (self.clock.drift_correction() / SPEED_DIFF_UNIT)
-                .round()
-                .clamp(i16::MIN as f64, i16::MAX as f64) as i16;
-            put(reg::DC_SPEED_COUNTER_DIFF, &diff.to_le_bytes());
+            put(
+                reg::DC_SPEED_COUNTER_DIFF,
+                &self.speed_counter_diff().to_le_bytes(),
+            );
             put(reg::DC_TIME_DIFF_FILTER_DEPTH, &[self.dt_filter_depth]);
             put(
                 reg::DC_SPEED_COUNTER_FILTER_DEPTH,
@@ -469,7 +505,6 @@ impl DcUnit {
                 reg::DC_SYSTEM_TIME_OFFSET,
                 &byte,
             ));
-            self.restart_estimator();
         }
         if touches(reg::DC_SYSTEM_TIME_DELAY, 4) {
             self.delay = u32::from_le_bytes(merge(
@@ -477,7 +512,6 @@ impl DcUnit {
                 reg::DC_SYSTEM_TIME_DELAY,
                 &byte,
             ));
-            self.restart_estimator();
         }
         if touches(reg::DC_SPEED_COUNTER_START, 2) {
             let v = u16::from_le_bytes(merge(
@@ -485,23 +519,13 @@ impl DcUnit {
                 reg::DC_SPEED_COUNTER_START,
                 &byte,
             ));
-            self.speed_counter_start = v.clamp(SPEED_COUNTER_MIN, SPEED_COUNTER_MAX);
-            self.slew_rate = 1.0 / (10.0 * f64::from(self.speed_counter_start));
-            self.clock.set_drift_correction(t_ps, 0.0);
-            self.clock.set_slew(t_ps, 0.0, 0.0);
-            self.set_dt_filtered(0.0);
-            self.restart_estimator();
+            self.write_speed_counter_start(v, t_ps);
         }
         if let Some(b) = byte(reg::DC_TIME_DIFF_FILTER_DEPTH) {
-            self.dt_filter_depth = b & 0x0f;
-            self.dt_weight = 1.0 / f64::from(1u32 << self.dt_filter_depth);
-            self.set_dt_filtered(0.0);
+            self.set_dt_filter_depth(b);
         }
         if let Some(b) = byte(reg::DC_SPEED_COUNTER_FILTER_DEPTH) {
-            self.speed_filter_depth = b & 0x0f;
-            self.speed_gain = 1.0 / f64::from(1u32 << self.speed_filter_depth);
-            self.batch_len = 1 << (self.speed_filter_depth / 2);
-            self.restart_estimator();
+            self.set_speed_filter_depth(b);
         }
         if let Some(b) = byte(0x0936) {
             self.latch_mode = b;
@@ -712,71 +736,11 @@ impl DcUnit {
             dc_time::encode_time_difference(ns)
         };
     }
-
-    /// The next write only seeds the drift estimator; the batch restarts.
-    fn restart_estimator(&mut self) {
-        self.has_last_sample = false;
-        self.batch_change_ns = 0.0;
-        self.batch_elapsed_ns = 0.0;
-        self.batch_writes = 0;
-    }
-
-    #[inline(always)]
-    fn compare_system_time<const BRANCH_FREE: bool>(&mut self, received: u32, t_ps: u64) {
-        self.clock.advance_to_in::<BRANCH_FREE>(t_ps);
-        let read = self
-            .sof_at_anchor()
-            .wrapping_add(self.offset)
-            .wrapping_sub(u64::from(self.delay));
-        let dt = dc_time::diff_u32(read as u32, received);
-        // The datasheet guarantees stability only for |dt| < 2^30 ns; larger differences (a
-        // master writing 0 during its reset sequence, say) are shown but do not steer the clock.
-        if dt.unsigned_abs() >= 1 << 30 {
-            self.set_dt_filtered(f64::from(dt));
-            self.restart_estimator();
-            return;
-        }
-        let dt = f64::from(dt);
-        self.writes += 1;
-
-        // (2) Filtered difference.
-        self.set_dt_filtered_in::<BRANCH_FREE>(
-            self.dt_filtered + (dt - self.dt_filtered) * self.dt_weight,
-        );
-
-        // (4) Drift estimation from consecutive differences.
-        let slew_left = self.clock.slew_remaining_ns();
-        let mut c = self.clock.drift_correction();
-        if self.has_last_sample {
-            let (t_prev, dt_expected) = (self.last_sample_ps, self.last_sample_dt);
-            let elapsed_ns = (t_ps - t_prev) as i64 as f64 * 1e-3;
-            if elapsed_ns >= 1_000.0 {
-                // dt_expected is the difference the previous write aimed for once its slew was
-                // complete; slew still pending (signed, opposite to the difference it removes)
-                // is expected to be left over.
-                self.batch_change_ns += dt - (dt_expected - slew_left);
-                self.batch_elapsed_ns += elapsed_ns;
-                self.batch_writes += 1;
-                if self.batch_writes >= self.batch_len {
-                    let residual = (self.batch_change_ns / self.batch_elapsed_ns)
-                        .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
-                    c = (c - residual * self.speed_gain * f64::from(self.batch_writes))
-                        .clamp(-MAX_DRIFT_CORRECTION, MAX_DRIFT_CORRECTION);
-                    self.batch_change_ns = 0.0;
-                    self.batch_elapsed_ns = 0.0;
-                    self.batch_writes = 0;
-                }
-            }
-        }
-
-        // (3) Slew the filtered difference away (the clock is at `t_ps` already).
-        self.clock
-            .retune_at_anchor_in::<BRANCH_FREE>(c, -self.dt_filtered, self.slew_rate);
-        self.has_last_sample = true;
-        self.last_sample_ps = t_ps;
-        self.last_sample_dt = dt - self.dt_filtered;
-    }
 }
+
+mod control_loop;
+
+pub use control_loop::{speed_counter_deviation, speed_counter_diff_for};
 
 #[cfg(test)]
 mod tests;

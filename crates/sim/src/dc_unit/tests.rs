@@ -203,3 +203,97 @@ fn sync0_start_in_the_past_waits_for_the_32_bit_wrap() {
     u.write(reg::DC_ACTIVATION, &[0x03], 0);
     assert_eq!(u.sync0().unwrap().0, 1_000 + (1 << 32));
 }
+
+/// 0x0932 and 0x092C as the registers read at `t_ps`.
+fn loop_registers(u: &mut DcUnit, t_ps: u64) -> (i16, i32) {
+    let mut block = [0u8; DC_BLOCK_LEN];
+    u.refresh(&mut block, 0x092c, 0x0936, t_ps);
+    let diff = i16::from_le_bytes([block[0x32], block[0x33]]);
+    let dt = u32::from_le_bytes(block[0x2c..0x30].try_into().unwrap());
+    (diff, dc_time::decode_time_difference(dt))
+}
+
+/// A unit as masters set it up (replay-dc.pcapng: 0x0934 = 0x00, 0x0935 = 0x0C, then 0x0930 =
+/// 0x1000).
+fn reset_unit(ppm: f64) -> DcUnit {
+    let mut u = unit(ppm, 0);
+    u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0x00, 0x0c], 0);
+    u.write(reg::DC_SPEED_COUNTER_START, &0x1000u16.to_le_bytes(), 0);
+    u
+}
+
+#[test]
+fn the_speed_counter_diff_formula() {
+    // Section II, note to 0x0932: deviation = diff / (5 (start + diff + 2)(start - diff + 2)).
+    // At 0x1000: diff 188 is 188 / (5 * 4286 * 3910) = 2.2437e-6.
+    let d = speed_counter_deviation(0x1000, 188.0);
+    assert!((d - 188.0 / (5.0 * 4286.0 * 3910.0)).abs() < 1e-15, "{d}");
+    assert!((d - 2.2437e-6).abs() < 1e-10, "{d}");
+    // Odd in diff, and read back.
+    assert_eq!(speed_counter_deviation(0x1000, -188.0), -d);
+    assert!((speed_counter_diff_for(0x1000, d) - 188.0).abs() < 1e-9);
+    assert_eq!(speed_counter_diff_for(0x1000, 0.0), 0.0);
+    // The range's end, diff = start - 0x7F = 3969: 3969 / (5 * 8067 * 129) = 762.8 ppm.
+    let end = speed_counter_deviation(0x1000, 3969.0);
+    assert!((end - 3969.0 / (5.0 * 8067.0 * 129.0)).abs() < 1e-15);
+    assert!((speed_counter_diff_for(0x1000, end) - 3969.0).abs() < 1e-6);
+}
+
+#[test]
+fn the_mean_difference_averages_what_it_has_since_the_reset() {
+    // 0x0934 = 4: a mean of up to 16 differences. Three writes at the same instant (no phase
+    // step in between; local system time 100_000): -300, then the mean of -300 and -100, then
+    // of -300, -100 and +100.
+    let mut u = unit(0.0, 0);
+    u.write(reg::DC_TIME_DIFF_FILTER_DEPTH, &[0x04], 0);
+    u.write(reg::DC_SPEED_COUNTER_START, &0x1000u16.to_le_bytes(), 0);
+    let t = 100 * US;
+    for (written, mean) in [(100_300u64, -300), (100_100, -200), (99_900, -100)] {
+        u.write(reg::DC_SYSTEM_TIME, &written.to_le_bytes(), t);
+        assert_eq!(loop_registers(&mut u, t).1, mean, "after {written}");
+    }
+}
+
+#[test]
+fn a_constant_drift_is_learned_and_shown_in_0x0932() {
+    // A crystal 2.24 ppm fast (the EL2889 against the EK1100 in the captures), a perfect
+    // reference, a write every millisecond. The clock period deviation's mean after N writes
+    // is the change of the difference over the (N - 1) ms its own steps do not explain: the
+    // drift, within the 10 ns quantisation of the two ends over 1 s (0.02 ppm).
+    let mut u = reset_unit(2.24);
+    let mut t = 0;
+    for _ in 0..1_001 {
+        t += 1_000 * US;
+        u.write(reg::DC_SYSTEM_TIME, &(t / 1000).to_le_bytes(), t);
+    }
+    let c = u.clock().drift_correction();
+    assert!((c + 2.24e-6).abs() < 0.03e-6, "correction {c}");
+    // 0x0932: the loop slows a fast crystal, a negative diff; by the formula 2.24e-6 is
+    // 2.24e-6 * 5 * (4098^2 - 188^2) = 187.7, and 0.03 ppm is 2.5 of its steps.
+    let (diff, dt) = loop_registers(&mut u, t);
+    assert!((-191..=-185).contains(&diff), "0x0932 = {diff}");
+    let shown = speed_counter_deviation(0x1000, f64::from(diff));
+    assert!((shown - c).abs() < 0.01e-6, "{shown} against {c}");
+    assert!(dt.abs() <= 20, "0x092C {dt}");
+    // 0x0930 written: 0x092C and 0x0932 read 0, and the next write only starts an interval.
+    u.write(reg::DC_SPEED_COUNTER_START, &0x1000u16.to_le_bytes(), t);
+    assert_eq!(loop_registers(&mut u, t), (0, 0));
+    t += 1_000 * US;
+    u.write(reg::DC_SYSTEM_TIME, &(t / 1000).to_le_bytes(), t);
+    assert_eq!(u.clock().drift_correction(), 0.0);
+}
+
+#[test]
+fn the_correction_stays_within_the_speed_counter_range() {
+    // 1 000 ppm fast is beyond 0x0932's range at 0x1000 (±3969, 762.8 ppm): the loop holds
+    // the range's end and the register reads -3969.
+    let mut u = reset_unit(1_000.0);
+    let mut t = 0;
+    for _ in 0..200 {
+        t += 1_000 * US;
+        u.write(reg::DC_SYSTEM_TIME, &(t / 1000).to_le_bytes(), t);
+    }
+    let end = speed_counter_deviation(0x1000, 3969.0);
+    assert_eq!(u.clock().drift_correction(), -end);
+    assert_eq!(loop_registers(&mut u, t).0, -3969);
+}
