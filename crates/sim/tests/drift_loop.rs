@@ -19,29 +19,20 @@
 mod common;
 
 use common::{captures_dir, datagrams, has_returned, read_pcapng, u32_of, u64_of};
+use ecsync_sim::catalog;
 use ecsync_sim::clock::CrystalParams;
-use ecsync_sim::model::{DcSupport, DeviceInfo, EscModel, PortKind};
 use ecsync_sim::{Segment, SlaveSpec, Upstream};
 use ecsync_wire::dc_time;
 use ecsync_wire::register as reg;
 
-/// The captured line: EK1100 (ET1100: MII to the master, EBUS on), EL2828 (receive times
-/// only), EL2889 (ET1200, 64-bit DC). `ppm[i]` and `local_ns[i]` are device `i`'s crystal
-/// error and local time at real time 0.
+/// The captured line, EK1100, EL2828, EL2889, of the catalog's models of those devices (as
+/// tests/replay.rs builds it). `ppm[i]` and `local_ns[i]` are device `i`'s crystal error and
+/// local time at real time 0.
 fn captured_segment(ppm: [f64; 3], local_ns: [u64; 3]) -> Vec<SlaveSpec> {
-    let mut ek1100 = EscModel::junction_mii();
-    ek1100.ports = [
-        PortKind::Mii,
-        PortKind::Ebus,
-        PortKind::None,
-        PortKind::None,
-    ];
-    let el2828 = EscModel::ebus_terminal(DcSupport::ReceiveTimes);
-    let el2889 = EscModel::ebus_terminal(DcSupport::Full64);
     [
-        (ek1100, DeviceInfo::coupler("EK1100", 1)),
-        (el2828, DeviceInfo::coupler("EL2828", 2)),
-        (el2889, DeviceInfo::coupler("EL2889", 3)),
+        (catalog::ek1100_model(), catalog::ek1100(1)),
+        (catalog::el2828_model(), catalog::el2828(2)),
+        (catalog::el2889_model(), catalog::el2889(3)),
     ]
     .into_iter()
     .enumerate()
