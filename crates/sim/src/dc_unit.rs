@@ -52,16 +52,20 @@
 //!    Modelled: at every write that follows another (since the last reset, at least 1 us
 //!    earlier) the loop calculates the clock period deviation over the interval between them —
 //!    the change of the difference that its own steps (phase and frequency) do not explain,
-//!    per elapsed time — and averages it as 0x092C is averaged (rule 2, depth 0x0935). The mean,
-//!    within the range the register can represent (763 ppm at 0x1000), is the frequency
-//!    correction the speed counter applies; 0x0932 reads the integer whose deviation by the
-//!    note's formula is nearest to it. Assumed: the sign (positive when the local clock period
-//!    is the longer, i.e. the crystal slow and the loop speeding it up, as the register's name
-//!    reads); the rate is applied unquantised (the integer steps of 0x0932 are 0.012 ppm at
-//!    0x1000); and a single interval's deviation is not limited to the range, only their mean
-//!    is: the mean telescopes, so a master whose frames leave with microseconds of jitter (a
-//!    bus shift master on a general-purpose host: 5 us in 1 ms is 5 000 ppm for one interval)
-//!    enters it once, not once per write, as real ESCs followed the letter's bus shift master.
+//!    per elapsed time — as the register can represent it (within its range: 763 ppm at
+//!    0x1000), and takes the mean of these deviations over the time of their intervals, filled
+//!    as 0x092C's mean is (rule 2, `2^depth` intervals at depth 0x0935). The mean is the
+//!    frequency correction the speed counter applies; 0x0932 reads the integer whose
+//!    deviation by the note's formula is nearest to it. Assumed: the sign (positive when the
+//!    local clock period is the longer, i.e. the crystal slow and the loop speeding it up, as
+//!    the register's name reads); the rate is applied unquantised (the integer steps of
+//!    0x0932 are 0.012 ppm at 0x1000); each interval's deviation limited to the register's
+//!    range (a fixed-width representation saturates: a master's 1 ms clock step is one
+//!    interval of 10^6 ppm, and unlimited it would move the mean by 244 ppm at once); and the
+//!    mean weighted by the intervals' lengths, so that the deviation a write's arrival jitter
+//!    puts into one interval comes out of the next (a bus shift master on a general-purpose
+//!    host writes with microseconds of jitter: 5 us in 1 ms is 5 000 ppm for one interval),
+//!    and a short interval (a frame resent within microseconds) weighs by its shortness.
 //! 5. **Resets.** Writing 0x0930 "resets System Time Difference (0x092C:0x092F) and Speed
 //!    Counter Diff (0x0932:0x0933)" (section II) and the internal filters: "Writing the current
 //!    value of the register again is sufficient to reset the filters" (section I, 9.1.4): both
@@ -185,17 +189,18 @@ pub struct DcUnit {
     /// The previous write: when (ps), and the difference it aimed for.
     last_sample_ps: u64,
     last_sample_dt: f64,
-    /// The sample counts of full means, `2^depth`.
-    dt_full: u32,
-    speed_full: u32,
-    /// The loop's registers: 0x0930, 0x0934 and 0x0935 bits 3:0.
-    speed_counter_start: u16,
-    dt_filter_depth: u8,
-    speed_filter_depth: u8,
+    /// The clock period deviations' mean as its two sums: of each interval's deviation times
+    /// its length (ns), and of the lengths (ns).
+    deviation_sum_ns: f64,
+    elapsed_sum_ns: f64,
     /// Line 2: its hot part first (one line), its crystal parameters and random generator
     /// after.
     clock: LocalClock,
-    // Cold: the latches, the cyclic unit's rest.
+    // Cold: the loop's registers (0x0930, 0x0934 and 0x0935 bits 3:0), the latches, the
+    // cyclic unit's rest.
+    speed_counter_start: u16,
+    dt_filter_depth: u8,
+    speed_filter_depth: u8,
     port_times: [u32; 4],
     pu_time: u64,
     pulse_length: u16,
@@ -253,8 +258,8 @@ impl DcUnit {
             diff_register: 0,
             dt_weight: 1.0,
             speed_weight: 1.0,
-            dt_full: 1,
-            speed_full: 1,
+            deviation_sum_ns: 0.0,
+            elapsed_sum_ns: 0.0,
             slew_rate: 0.0,
             deviation_max: 0.0,
             has_last_sample: false,

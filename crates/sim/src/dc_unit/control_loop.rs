@@ -40,16 +40,27 @@ pub fn speed_counter_diff_for(start: u16, deviation: f64) -> f64 {
     2.0 * k * s / (1.0 + (1.0 + 4.0 * k * k).sqrt())
 }
 
-/// The weight of the next sample in a mean of depth `full` (`2^depth` samples) that holds
-/// `count` samples: `1 / (count + 1)` while it fills, `1 / full` once full (`w_full`).
-/// Counts the sample in.
+/// The weight of the next value in a mean of `1 / w_full` (`2^depth`) values that holds
+/// `count`: `1 / (count + 1)` while it fills, `w_full` once full. Counts the value in.
 #[inline(always)]
-fn mean_weight(count: &mut u32, full: u32, w_full: f64) -> f64 {
-    if *count < full {
+fn mean_weight(count: &mut u32, w_full: f64) -> f64 {
+    if f64::from(*count) * w_full < 1.0 {
         *count += 1;
         1.0 / f64::from(*count)
     } else {
         w_full
+    }
+}
+
+/// What a sum of the mean of `1 / w_full` values that holds `count` keeps of itself when the
+/// next value comes: all while it fills, `1 - w_full` once full. Counts the value in.
+#[inline(always)]
+fn mean_keep(count: &mut u32, w_full: f64) -> f64 {
+    if f64::from(*count) * w_full < 1.0 {
+        *count += 1;
+        1.0
+    } else {
+        1.0 - w_full
     }
 }
 
@@ -78,6 +89,8 @@ impl DcUnit {
         self.set_dt_filtered(0.0);
         self.dt_count = 0;
         self.speed_count = 0;
+        self.deviation_sum_ns = 0.0;
+        self.elapsed_sum_ns = 0.0;
         self.has_last_sample = false;
     }
 
@@ -86,15 +99,13 @@ impl DcUnit {
     /// reset).
     pub(super) fn set_dt_filter_depth(&mut self, depth: u8) {
         self.dt_filter_depth = depth & 0x0f;
-        self.dt_full = 1 << self.dt_filter_depth;
-        self.dt_weight = 1.0 / f64::from(self.dt_full);
+        self.dt_weight = 1.0 / f64::from(1u32 << self.dt_filter_depth);
     }
 
     /// The filter depth of the clock period deviation mean (0x0935 bits 3:0), likewise.
     pub(super) fn set_speed_filter_depth(&mut self, depth: u8) {
         self.speed_filter_depth = depth & 0x0f;
-        self.speed_full = 1 << self.speed_filter_depth;
-        self.speed_weight = 1.0 / f64::from(self.speed_full);
+        self.speed_weight = 1.0 / f64::from(1u32 << self.speed_filter_depth);
     }
 
     /// The time control loop's step on a write of `received` (bits 31:0 of the written system
@@ -123,7 +134,7 @@ impl DcUnit {
         let dt = f64::from(dt);
 
         // (2) The mean difference, 0x092C.
-        let w = mean_weight(&mut self.dt_count, self.dt_full, self.dt_weight);
+        let w = mean_weight(&mut self.dt_count, self.dt_weight);
         self.set_dt_filtered_in::<BRANCH_FREE>(self.dt_filtered + (dt - self.dt_filtered) * w);
 
         // (4) The clock period deviation over the interval since the previous write, its mean
@@ -136,11 +147,15 @@ impl DcUnit {
             if elapsed_ns >= 1_000.0 {
                 let pending = self.clock.slew_remaining_ns();
                 let unexplained = dt - (self.last_sample_dt - pending);
-                // The correction the crystal's deviation over the interval asks for; the mean
-                // within the speed counter diff's range.
-                let sample = c - unexplained / elapsed_ns;
-                let w = mean_weight(&mut self.speed_count, self.speed_full, self.speed_weight);
-                c = (c + (sample - c) * w).clamp(-self.deviation_max, self.deviation_max);
+                // The correction the crystal's deviation over the interval asks for, as the
+                // speed counter diff can represent it, times the interval; the mean over the
+                // intervals' time.
+                let limit = self.deviation_max * elapsed_ns;
+                let sample = (c * elapsed_ns - unexplained).clamp(-limit, limit);
+                let keep = mean_keep(&mut self.speed_count, self.speed_weight);
+                self.deviation_sum_ns = self.deviation_sum_ns * keep + sample;
+                self.elapsed_sum_ns = self.elapsed_sum_ns * keep + elapsed_ns;
+                c = self.deviation_sum_ns / self.elapsed_sum_ns;
             }
         }
 

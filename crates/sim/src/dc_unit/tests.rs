@@ -297,3 +297,32 @@ fn the_correction_stays_within_the_speed_counter_range() {
     assert_eq!(u.clock().drift_correction(), -end);
     assert_eq!(loop_registers(&mut u, t).0, -3969);
 }
+
+#[test]
+fn a_step_of_the_received_time_moves_the_mean_by_one_saturated_interval() {
+    // After 1 000 intervals of 1 ms (the mean not yet full at depth 12: all of them count),
+    // one write carrying a time 1 ms ahead (the local clock seems to have lost 1 ms in 1 ms):
+    // its interval's deviation (10^6 ppm) saturates at the range's end, 762.8 ppm, and weighs
+    // 1 ms of the 1.001 s: the mean moves by (762.8 ppm + 2.24 ppm) / 1001 = +0.764 ppm,
+    // where unlimited it would move by about 1 000 ppm.
+    let mut u = reset_unit(2.24);
+    let mut t = 0;
+    for _ in 0..1_001 {
+        t += 1_000 * US;
+        u.write(reg::DC_SYSTEM_TIME, &(t / 1000).to_le_bytes(), t);
+    }
+    let before = u.clock().drift_correction();
+    t += 1_000 * US;
+    u.write(
+        reg::DC_SYSTEM_TIME,
+        &(t / 1000 + 1_000_000).to_le_bytes(),
+        t,
+    );
+    let moved = u.clock().drift_correction() - before;
+    let end = speed_counter_deviation(0x1000, 3969.0);
+    let expected = (end - before) / 1001.0;
+    assert!(
+        (moved - expected).abs() < 0.005e-6,
+        "{moved} against {expected}"
+    );
+}
