@@ -46,26 +46,28 @@
 //!    ±(Speed Counter Start − 0x7F)"; its note: "Calculate the clock deviation after System Time
 //!    Difference has settled at a low value as follows: Deviation = Speed Counter Diff / (5
 //!    (Speed Counter Start + Speed Counter Diff + 2) (Speed Counter Start − Speed Counter Diff +
-//!    2))" (section II, 0x0932; the formula as typeset there, read back from its text); 0x0935 sets the "filter depth for mean value calculation ... of
-//!    the calculated clock period deviations" (section I, 9.1.5; bits 3:0, reset value 12 as the
-//!    model had it).
+//!    2))" (section II, 0x0932; the formula as typeset there, read back from its text); 0x0935
+//!    sets the "filter depth for mean value calculation ... of the calculated clock period
+//!    deviations" (section I, 9.1.5; bits 3:0, reset value 12 as the model had it).
 //!    Modelled: at every write that follows another (since the last reset, at least 1 us
 //!    earlier) the loop calculates the clock period deviation over the interval between them —
 //!    the change of the difference that its own steps (phase and frequency) do not explain,
-//!    per elapsed time — as the register can represent it (within its range: 763 ppm at
-//!    0x1000), and takes the mean of these deviations over the time of their intervals, filled
-//!    as 0x092C's mean is (rule 2, `2^depth` intervals at depth 0x0935). The mean is the
-//!    frequency correction the speed counter applies; 0x0932 reads the integer whose
-//!    deviation by the note's formula is nearest to it. Assumed: the sign (positive when the
-//!    local clock period is the longer, i.e. the crystal slow and the loop speeding it up, as
-//!    the register's name reads); the rate is applied unquantised (the integer steps of
-//!    0x0932 are 0.012 ppm at 0x1000); each interval's deviation limited to the register's
-//!    range (a fixed-width representation saturates: a master's 1 ms clock step is one
-//!    interval of 10^6 ppm, and unlimited it would move the mean by 244 ppm at once); and the
-//!    mean weighted by the intervals' lengths, so that the deviation a write's arrival jitter
-//!    puts into one interval comes out of the next (a bus shift master on a general-purpose
-//!    host writes with microseconds of jitter: 5 us in 1 ms is 5 000 ppm for one interval),
-//!    and a short interval (a frame resent within microseconds) weighs by its shortness.
+//!    per elapsed time — and takes the mean of these deviations over the time of their
+//!    intervals, filled as 0x092C's mean is (rule 2, `2^depth` intervals at depth 0x0935). The
+//!    mean, within the range the register can represent (763 ppm at 0x1000), is the frequency
+//!    correction the speed counter applies; 0x0932 reads the integer whose deviation by the
+//!    note's formula is nearest to it. Assumed: the sign (positive when the local clock period
+//!    is the longer, i.e. the crystal slow and the loop speeding it up, as the register's name
+//!    reads); the rate is applied unquantised (the integer steps of 0x0932 are 0.012 ppm at
+//!    0x1000); the mean weighted by the intervals' lengths, and a single interval's deviation
+//!    not limited, only the mean: so the deviation a write's arrival jitter or a stamp's 40 ns
+//!    cell puts into one interval comes out of the next (a bus shift master on a
+//!    general-purpose host writes with microseconds of jitter: 5 us in 1 ms is 5 000 ppm for
+//!    one interval), and a short interval (a frame resent within microseconds) weighs by its
+//!    shortness. (Limited per interval to the range, the 40 ns cells of two MII stamps, up to
+//!    80 ns over the tens of microseconds between static drift compensation frames, are cut
+//!    unevenly around the drift: paper-2024's slaves left the bring-up having learnt 10-12 %
+//!    less than their drift, where static drift compensation is there to teach it whole.)
 //! 5. **Resets.** Writing 0x0930 "resets System Time Difference (0x092C:0x092F) and Speed
 //!    Counter Diff (0x0932:0x0933)" (section II) and the internal filters: "Writing the current
 //!    value of the register again is sufficient to reset the filters" (section I, 9.1.4): both

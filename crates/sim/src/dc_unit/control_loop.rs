@@ -147,15 +147,15 @@ impl DcUnit {
             if elapsed_ns >= 1_000.0 {
                 let pending = self.clock.slew_remaining_ns();
                 let unexplained = dt - (self.last_sample_dt - pending);
-                // The correction the crystal's deviation over the interval asks for, as the
-                // speed counter diff can represent it, times the interval; the mean over the
-                // intervals' time.
-                let limit = self.deviation_max * elapsed_ns;
-                let sample = (c * elapsed_ns - unexplained).clamp(-limit, limit);
+                // The correction the crystal's deviation over the interval asks for, times the
+                // interval; their mean over the intervals' time, within the speed counter
+                // diff's range.
+                let sample = c * elapsed_ns - unexplained;
                 let keep = mean_keep(&mut self.speed_count, self.speed_weight);
                 self.deviation_sum_ns = self.deviation_sum_ns * keep + sample;
                 self.elapsed_sum_ns = self.elapsed_sum_ns * keep + elapsed_ns;
-                c = self.deviation_sum_ns / self.elapsed_sum_ns;
+                c = (self.deviation_sum_ns / self.elapsed_sum_ns)
+                    .clamp(-self.deviation_max, self.deviation_max);
             }
         }
 

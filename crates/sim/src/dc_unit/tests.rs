@@ -299,12 +299,12 @@ fn the_correction_stays_within_the_speed_counter_range() {
 }
 
 #[test]
-fn a_step_of_the_received_time_moves_the_mean_by_one_saturated_interval() {
+fn a_late_write_leaves_the_mean_with_the_next_interval() {
     // After 1 000 intervals of 1 ms (the mean not yet full at depth 12: all of them count),
-    // one write carrying a time 1 ms ahead (the local clock seems to have lost 1 ms in 1 ms):
-    // its interval's deviation (10^6 ppm) saturates at the range's end, 762.8 ppm, and weighs
-    // 1 ms of the 1.001 s: the mean moves by (762.8 ppm + 2.24 ppm) / 1001 = +0.764 ppm,
-    // where unlimited it would move by about 1 000 ppm.
+    // one write whose time is 5 us behind (its frame left late, a master's send jitter): its
+    // interval shows the local clock 5 000 ppm fast, and weighing 1 ms of the 1.001 s it moves
+    // the mean by -5 ppm; the next interval shows the same 5 us the other way and takes it
+    // back, to within the stamps' 10 ns over the 1.002 s (0.01 ppm).
     let mut u = reset_unit(2.24);
     let mut t = 0;
     for _ in 0..1_001 {
@@ -313,16 +313,24 @@ fn a_step_of_the_received_time_moves_the_mean_by_one_saturated_interval() {
     }
     let before = u.clock().drift_correction();
     t += 1_000 * US;
+    u.write(reg::DC_SYSTEM_TIME, &(t / 1000 - 5_000).to_le_bytes(), t);
+    let spiked = u.clock().drift_correction() - before;
+    assert!((spiked + 5e-6).abs() < 0.05e-6, "moved by {spiked}");
+    t += 1_000 * US;
+    u.write(reg::DC_SYSTEM_TIME, &(t / 1000).to_le_bytes(), t);
+    let after = u.clock().drift_correction() - before;
+    assert!(after.abs() < 0.01e-6, "left {after}");
+    // A frame resent 10 us after the last, 20 ns off: 2 000 ppm over its 10 us, weighing 10 us
+    // (-0.02 ppm); the next interval, 990 us, takes the 20 ns back. (A mean over the writes
+    // instead of their time would keep about -2 ppm of it: 2 000 ppm / 1 003.)
+    let before = u.clock().drift_correction();
     u.write(
         reg::DC_SYSTEM_TIME,
-        &(t / 1000 + 1_000_000).to_le_bytes(),
-        t,
+        &((t + 10 * US) / 1000 - 20).to_le_bytes(),
+        t + 10 * US,
     );
-    let moved = u.clock().drift_correction() - before;
-    let end = speed_counter_deviation(0x1000, 3969.0);
-    let expected = (end - before) / 1001.0;
-    assert!(
-        (moved - expected).abs() < 0.005e-6,
-        "{moved} against {expected}"
-    );
+    t += 1_000 * US;
+    u.write(reg::DC_SYSTEM_TIME, &(t / 1000).to_le_bytes(), t);
+    let after = u.clock().drift_correction() - before;
+    assert!(after.abs() < 0.01e-6, "left {after}");
 }
