@@ -147,8 +147,8 @@ fn replay(
 /// and EL2889 answered (frames 504 and 512), with the whole capture replayed into it: replayed
 /// to the latch with local times `base`, then made again with the local times shifted by the
 /// difference. `None` when three tries do not land both stamps (the tick and port phases
-/// follow the local time at power-up), which the caller then skips. `seed` picks the crystals' wander
-/// seeds, which also set the phase of each port's receive clock against the tick.
+/// follow the local time at power-up), which the caller then skips. `seed` picks the crystals'
+/// wander seeds, which also set the phase of each port's receive clock against the tick.
 fn matched_segment(
     frames: &[common::CapturedFrame],
     ppm: [f64; 3],
