@@ -393,7 +393,11 @@ fn pysoem_reaches_op_on_the_akd_preset() {
     c.args(["serve", "--preset", "akd", "--quiet", "--sandbox", "--"])
         .arg(&py)
         .arg(script("soem_cycle.py"))
-        .args(["--slaves", "2", "--cycles", "1000"]);
+        // The AKD's 32-bit DC time wraps every 2^32 ns, not a whole number of 4 ms cycles:
+        // the phase SOEM's loop reads jumps by 967 us there, and when a wrap fell within the
+        // 200 cycles it holds before requesting OP, the script gave up (a third of the runs).
+        // What is tested here is the AL handshake and OP, so the phase is not waited for.
+        .args(["--slaves", "2", "--cycles", "1000", "--settle-us", "2000"]);
     let r = run(c, Duration::from_secs(120));
     println!("{}{}({:.1} s)", r.stdout, r.stderr, r.took.as_secs_f64());
     assert_eq!(code(&r), Some(0), "{}", r.stderr);
@@ -518,11 +522,14 @@ fn check_expect_late(r: &Ran, summary: &str, judge: &serde_json::Value, sleeps: 
     let late = judge["late"].as_u64().unwrap();
     let missed = judge["missed"].as_u64().unwrap();
     if sleeps == 0 {
-        // In step the two counts are of the host's stalls: equal but at the edge (a frame whose
-        // first bit reached the reference before the pulse and whose last bit passed the
-        // drives after it is late for the judge, not for the master's count).
+        // In step the judge's late frames are the host's stalls the master saw itself: never
+        // more than its own count but at the edge (a frame whose first bit reached the
+        // reference before the pulse and whose last bit passed the drives after it is late for
+        // the judge, not for the master's count). Fewer is the master's estimate erring (its
+        // DC time of a frame is reckoned from the last cycle that woke on time: CI saw 1
+        // against its 4 after a 3 ms stall).
         assert!(
-            late.abs_diff(own) <= 1 + own / 10,
+            late <= own + 1,
             "in step: the judge's {late} late frames against the master's own {own}: {summary}"
         );
     }

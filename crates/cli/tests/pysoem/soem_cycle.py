@@ -44,6 +44,8 @@ def parse():
     p.add_argument("--jitter-every", type=int, default=0, metavar="N")
     p.add_argument("--jitter-us", type=int, default=0, metavar="U")
     p.add_argument("--max-wkc-errors", type=int, default=0)
+    p.add_argument("--settle-us", type=int, default=100,
+                   help="|DC phase - target| to hold 200 cycles before OP is requested")
     p.add_argument("--recv-timeout-us", type=int, default=3000,
                    help="how long receive_processdata waits for a reply (SOEM's EC_TIMEOUTRET "
                         "is 2000; this leaves a loaded host's serve more of the 4 ms cycle)")
@@ -155,7 +157,7 @@ def main():
             toff = -sync.delta  # the first step straight onto the target
         k += 1
         if phase == "settle":
-            settled = settled + 1 if abs(sync.delta) < 100_000 else 0
+            settled = settled + 1 if abs(sync.delta) < a.settle_us * 1000 else 0
             if settled >= 200:
                 m.state = pysoem.OP_STATE
                 m.write_state()
