@@ -224,11 +224,33 @@ pub(super) async fn enter_op(
     grid: &mut CycleGrid,
 ) -> Result<(), MasterError> {
     let op = AlControlRepr::request(AlState::Op).to_bytes();
+    // Requests that one by one would take longer than a cycle (a round trip each, ~1 s for a
+    // 1 000-drive line) leave the first drives in OP with their outputs late or missing,
+    // counting missed SYNC0 pulses (a drive with SSC's error limit leaves OP for it): they go
+    // in one exchange (as many frames as it needs), right after a cycle's process data. Where
+    // the wire alone says so, every slave's request goes there: a first request on its own
+    // left the first drive of a 1 000-drive line in OP through the long exchange of the
+    // others' requests, and it missed the SYNC0 pulse that exchange covered.
+    let one_request = Pdu::new(
+        Command::Fpwr,
+        DatagramAddress::Configured {
+            adp: 0,
+            ado: reg::AL_CONTROL,
+        },
+        op.to_vec(),
+    );
+    let one_by_one_ns = exchange_estimate_ns([&one_request], slaves) * slaves.len() as u64;
+    let slaves_one_by_one = if one_by_one_ns > grid.cycle_ns {
+        request_op_at_once(link, slaves, &op, cyclic, grid).await?;
+        &[][..]
+    } else {
+        slaves
+    };
     // The process data keeps coming while the requests go out one by one (a large network's
     // take longer than a cycle): a slave in OP without outputs for its watchdog time (100 ms)
     // would fall back to SAFE-OP.
     let mut last_cyclic = link.now().as_ns();
-    for (n, s) in slaves.iter().enumerate() {
+    for (n, s) in slaves_one_by_one.iter().enumerate() {
         let sent = link.now().as_ns();
         link.fpwr(s.station, reg::AL_CONTROL, &op, "request OP")
             .await
@@ -238,11 +260,7 @@ pub(super) async fn enter_op(
             link.pdus(&cyclic.pdus, "cyclic").await?;
             last_cyclic = link.now().as_ns();
         }
-        // Requests that one by one would take longer than a cycle (a large network's: a round
-        // trip each, ~1 s for a 1 000-drive line) leave the first drives in OP with their
-        // outputs late or missing, counting missed SYNC0 pulses (a drive with SSC's error
-        // limit leaves OP for it): the others go in one exchange (as many frames as it needs),
-        // right after a cycle's process data.
+        // The measured round trip (a host's latency included) says so: the others at once.
         if n == 0 && round_trip_ns.saturating_mul(slaves.len() as u64) > grid.cycle_ns {
             request_op_at_once(link, &slaves[1..], &op, cyclic, grid).await?;
             break;
