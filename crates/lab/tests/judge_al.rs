@@ -182,3 +182,120 @@ fn al_errors_from_the_truth_with_their_codes_by_hand() {
         vec!["al_errors = 4, expected <= 3".to_string()]
     );
 }
+
+/// The captured network (EK1100, EL2828, EL2889 of the catalog) as SOEM starts it: BWR of AL
+/// control 0x11 (INIT, acknowledge). The EK1100 and the ET1200 terminals are device emulation
+/// ESCs: AL status then reads 0x11, the acknowledge copied (the captures' README), with code 0.
+/// That is no error of a device: the judge counts none, from the truth or from the master's
+/// read. SOEM then switches SYNC0 on in every slave with a system time, the EK1100 included;
+/// the coupler has no outputs, so no frame is meant for its pulses: 0 frames, no margin, where
+/// the EL2889 with its output SyncManager at 0x0F00 counts every frame.
+#[test]
+fn an_echoed_acknowledge_and_a_coupler_without_outputs_are_not_judged() {
+    use ecsync_sim::{SlaveSpec, Upstream, catalog};
+    let specs: Vec<SlaveSpec> = [
+        (catalog::ek1100_model(), catalog::ek1100(1)),
+        (catalog::el2828_model(), catalog::el2828(2)),
+        (catalog::el2889_model(), catalog::el2889(3)),
+    ]
+    .into_iter()
+    .enumerate()
+    .map(|(i, (model, device))| SlaveSpec {
+        model,
+        device,
+        crystal: CrystalParams::default(),
+        upstream: if i == 0 {
+            Upstream::Master
+        } else {
+            Upstream::Slave {
+                index: i - 1,
+                port: 1,
+            }
+        },
+        entry_port: 0,
+        cable_m: 0.0,
+    })
+    .collect();
+    let seg = Segment::new(&specs).unwrap();
+    let judge = Judge::new(&seg, JudgeOptions::default());
+    let mut r = Rig {
+        seg,
+        judge,
+        player: FaultPlayer::new(FaultSchedule::default(), 1),
+        events: 0,
+        t_ps: 0,
+    };
+    let all = |ado: u16| DatagramAddress::position(0, ado);
+    r.send(&frame(&[(
+        Command::Bwr,
+        all(reg::AL_CONTROL),
+        &[0x11, 0x00],
+    )]));
+    for p in [0, 2] {
+        assert!(r.seg.esc(p).al_status().1, "position {p}: the flag as read");
+        assert!(r.seg.esc(p).al_error_is_echo());
+    }
+    let reads = frame(&[
+        (
+            Command::Aprd,
+            DatagramAddress::position(0, reg::AL_STATUS),
+            &[0u8; 6],
+        ),
+        (
+            Command::Aprd,
+            DatagramAddress::position(2, reg::AL_STATUS),
+            &[0u8; 6],
+        ),
+    ]);
+    let back = r.send(&reads);
+    // The master reads 0x11 from both.
+    assert_eq!(back[14 + 2 + 10], 0x11);
+    // SYNC0 every 1 ms from 10.5 ms on (the frames come every 1 ms from 1 ms; system time 0
+    // at power-up: the crystals start at 0).
+    let sync0 = frame(&[
+        (
+            Command::Bwr,
+            all(reg::DC_SYNC0_CYCLE),
+            &1_000_000u32.to_le_bytes(),
+        ),
+        (
+            Command::Bwr,
+            all(reg::DC_START_TIME),
+            &10_500_000u64.to_le_bytes(),
+        ),
+        (Command::Bwr, all(reg::DC_ACTIVATION), &[0x03]),
+        // The EL2889's outputs: SM2 at 0x0F00, 2 bytes, written by EtherCAT, enabled.
+        (
+            Command::Apwr,
+            DatagramAddress::position(2, reg::SM_BASE + 2 * reg::SM_LEN),
+            &[0x00, 0x0f, 0x02, 0x00, 0x44, 0x00, 0x01, 0x00],
+        ),
+    ]);
+    r.send(&sync0);
+    assert!(r.seg.esc(2).has_outputs() && !r.seg.esc(0).has_outputs());
+    // Its FMMU 0: logical 0x1000, 2 bytes, to 0x0F00, written.
+    let mut fmmu = [0u8; 16];
+    fmmu[..4].copy_from_slice(&0x1000u32.to_le_bytes());
+    fmmu[4] = 2;
+    fmmu[7] = 7;
+    fmmu[8..10].copy_from_slice(&0x0f00u16.to_le_bytes());
+    (fmmu[11], fmmu[12]) = (0x02, 0x01);
+    r.send(&frame(&[(
+        Command::Apwr,
+        DatagramAddress::position(2, 0x0600),
+        &fmmu,
+    )]));
+    // The process data, one LRW a cycle.
+    r.cycles(20);
+    assert_eq!(r.seg.esc(2).outputs(), vec![0, 0]);
+    let out = r.judge.summary(&r.seg);
+    assert_eq!(
+        (out.al_errors, out.al_errors_read),
+        (0, 0),
+        "{:?}",
+        out.drives
+    );
+    assert_eq!(out.drives[0].frames, 0, "the EK1100: {:?}", out.drives[0]);
+    assert!(out.drives[0].margin_min_ns.is_none());
+    assert!(out.drives[2].frames >= 9, "the EL2889: {:?}", out.drives[2]);
+}

@@ -420,7 +420,8 @@ impl Judge {
     fn al_truth(&mut self, seg: &Segment) {
         for (p, d) in self.drives.iter_mut().enumerate().take(seg.len()) {
             let (_, set, code) = seg.esc(p).al_status();
-            let set = set && !seg.is_powered_off(p);
+            // A device emulation ESC's copied acknowledge is no error of the device.
+            let set = set && !seg.esc(p).al_error_is_echo() && !seg.is_powered_off(p);
             if set && !d.al_error_now {
                 d.al_errors += 1;
             }
@@ -442,10 +443,11 @@ impl Judge {
                 (None, Some(adp)) => Some(usize::from(visited.wrapping_sub(adp))),
                 _ => None,
             };
-            let Some(d) = pos.and_then(|p| self.drives.get_mut(p)) else {
+            let Some((p, d)) = pos.and_then(|p| Some((p, self.drives.get_mut(p)?))) else {
                 continue;
             };
-            let error = r.status & 0x10 != 0;
+            let echo = p < seg.len() && seg.esc(p).al_error_is_echo();
+            let error = r.status & 0x10 != 0 && !echo;
             if error && !d.al_read_now {
                 d.al_errors_read += 1;
             }
@@ -553,6 +555,11 @@ impl Judge {
                 // frame, no missed pulse until it is in OP.
                 d.last_out_ns = None;
                 d.prev_late = false;
+                continue;
+            }
+            if !esc.runs_on_sync0() && !esc.has_outputs() {
+                // A device without outputs (a coupler whose SYNC0 a master switched on, as
+                // SOEM does on every DC slave): no frame is meant for a pulse of its.
                 continue;
             }
             if esc.runs_on_sync0() {

@@ -29,6 +29,16 @@ impl Esc {
         (self.al_state, self.al_error, u16::from(self.al_code))
     }
 
+    /// Whether the error indication is only the master's acknowledge copied back: a device
+    /// emulation ESC shows AL control as written, bit 4 included (0x11 after a write of 0x11,
+    /// as the EK1100 and ET1200 terminals read in the captures), with no status code. Such a
+    /// flag reports no error of the device.
+    pub fn al_error_is_echo(&self) -> bool {
+        self.al_error
+            && matches!(self.model.al, AlBehaviour::DeviceEmulation)
+            && self.al_code == AlStatusCode::NoError
+    }
+
     /// AL control was written at `t_ps`: the master requests a state. Who answers is the
     /// model's [`AlBehaviour`]: the ESC itself at once (device emulation), or a firmware, at
     /// once or when it takes the write ([`AlFirmware::response_ns`] later, see

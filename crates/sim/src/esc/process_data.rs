@@ -463,6 +463,13 @@ impl Esc {
         out
     }
 
+    /// Whether the device has outputs at all: process data it declares for the master to
+    /// write (a coupler such as the EK1100 has none).
+    pub fn has_outputs(&self) -> bool {
+        let d = self.device();
+        !d.outputs.is_empty() || d.out_len > 0
+    }
+
     /// LRD/LWR/LRW through the FMMUs. Returns the working counter increment.
     pub(super) fn logical(&mut self, cmd: Command, laddr: u32, data: &mut [u8]) -> u16 {
         self.rec.act = Act::Logical;
