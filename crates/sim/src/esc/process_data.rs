@@ -466,8 +466,7 @@ impl Esc {
     /// Whether the device has outputs at all: process data it declares for the master to
     /// write (a coupler such as the EK1100 has none).
     pub fn has_outputs(&self) -> bool {
-        let d = self.device();
-        !d.outputs.is_empty() || d.out_len > 0
+        !self.device().outputs.is_empty()
     }
 
     /// LRD/LWR/LRW through the FMMUs. Returns the working counter increment.
