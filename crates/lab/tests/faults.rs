@@ -97,7 +97,10 @@ fn a_host_stall_skips_its_cycles_without_a_burst() {
         // period and none came late at the SYNC0 shift.
         assert_eq!(mo.ground_truth.late_frames, 0, "{m}: late frames");
         if m != "bus-shift" {
-            let bound = if m == "dcm-bus-shift" { 200 } else { 100 };
+            // The BRD ORs every slave's sign-magnitude register: slaves within their MII
+            // stamps' 40 ns cells of the reference read up to 127 together (the letter's
+            // rS-IS maxima, 132 ns, are such ORs too).
+            let bound = if m == "dcm-bus-shift" { 200 } else { 128 };
             assert!(f.max_rs_is_ns < bound, "{m}: |0x092C| {}", f.max_rs_is_ns);
         }
     }

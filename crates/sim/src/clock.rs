@@ -130,6 +130,9 @@ pub struct LocalClock {
     c_drift: f64,
     slew_rate: f64,
     slew_remaining_ns: f64,
+    /// The time control loop's corrections accumulated since power-up, ns: the local time
+    /// minus the crystal's own count (the MII receive clocks' edges are the crystal's).
+    corr_ns: f64,
     // (The hot part ends here: 64 bytes.)
     /// Residue of the counter's values modulo 10 ns.
     tick_residue: u64,
@@ -157,6 +160,7 @@ impl LocalClock {
             c_drift: 0.0,
             slew_rate: 0.0,
             slew_remaining_ns: 0.0,
+            corr_ns: 0.0,
         }
     }
 
@@ -234,6 +238,11 @@ impl LocalClock {
     /// Local time at real time `t_ps` as the registers show it: the counter at its last tick.
     pub fn local_ns(&self, t_ps: u64) -> u64 {
         self.quantise(self.local_exact_ns(t_ps).0)
+    }
+
+    /// The time control loop's corrections accumulated up to the anchor, ns.
+    pub fn corrections_ns(&self) -> f64 {
+        self.corr_ns
     }
 
     /// Local time (register view) at the anchor.
@@ -326,14 +335,17 @@ impl LocalClock {
             let remaining = self.slew_remaining_ns - slewed;
             self.slew_remaining_ns = remaining;
             self.slew_rate = std::hint::select_unpredictable(remaining <= 0.0, 0.0, rate);
+            self.corr_ns += dt_ns * self.c_drift + slewed.copysign(rate);
             self.anchor_local = self.anchor_local.add(d);
             self.anchor_ps = t_ps;
             return;
         }
         let mut d = dt_ns * (self.one_plus_osc + self.c_drift);
+        self.corr_ns += dt_ns * self.c_drift;
         if self.slew_rate != 0.0 {
             let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
             d += slewed.copysign(self.slew_rate);
+            self.corr_ns += slewed.copysign(self.slew_rate);
             self.slew_remaining_ns -= slewed;
             if self.slew_remaining_ns <= 0.0 {
                 self.slew_remaining_ns = 0.0;

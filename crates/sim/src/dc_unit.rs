@@ -359,10 +359,14 @@ impl DcUnit {
     ) {
         for (p, t) in ports.iter().enumerate() {
             if let Some(t) = t {
-                let v = self.clock.local_ns(*t);
                 let res = res_ns[p].max(10) / 10 * 10;
                 let phase = port_phase(&self.clock, p, res);
-                let q = v - (v.wrapping_sub(phase) % res);
+                let q = if res == 40 {
+                    self.on_crystal_grid(self.clock.local_exact_ns(*t).0, phase)
+                } else {
+                    let v = self.clock.local_ns(*t);
+                    v - (v.wrapping_sub(phase) % res)
+                };
                 self.port_times[p] = q as u32;
                 if p == 0 && pu_is_port0 {
                     let mut pu = q;
@@ -639,8 +643,12 @@ impl DcUnit {
     /// minus the system time delay, i.e. the system time at which the frame passed the reference
     /// clock (datasheet section II, 0x0910 "including system time delay").
     pub fn system_time_read_ns(&self, t_ps: u64) -> u64 {
-        let v = self
-            .sof(self.clock.local_ns(t_ps))
+        let v = if self.sof_res == 40 {
+            self.on_crystal_grid(self.clock.local_exact_ns(t_ps).0, self.sof_phase)
+        } else {
+            self.sof(self.clock.local_ns(t_ps))
+        };
+        let v = v
             .wrapping_add(self.offset)
             .wrapping_sub(u64::from(self.delay));
         if self.is_64bit { v } else { v & 0xffff_ffff }
@@ -686,12 +694,32 @@ impl DcUnit {
     /// instant after power-up).
     #[inline]
     fn sof_at_anchor(&self) -> u64 {
+        if self.sof_res == 40 {
+            return self.on_crystal_grid(self.clock.anchor_ns(), self.sof_phase);
+        }
         let raw = self.clock.anchor_ns();
         if raw >= self.sof_phase + 10 {
             self.sof(raw)
         } else {
             self.sof(self.clock.local_ns_at_anchor())
         }
+    }
+
+    /// The counter at the last edge of an MII port's 25 MHz receive clock at or before local
+    /// time `local_ns` (whole nanoseconds): the edges are the ESC's crystal's, every fourth
+    /// tick from `phase`, while the counter is the crystal's count plus the time control
+    /// loop's corrections (the 9 and 11 ns steps). So a reference clock, never corrected,
+    /// stamps on one residue modulo 40 ns for good (replay-dc: every FRMW the EK1100 answered
+    /// reads 0 modulo 40), and a corrected clock's stamps move over the 40 ns as its
+    /// corrections add up: a slave cannot steer its stamps' cells onto the reference's, and
+    /// its 0x092C keeps the quantisation's ±40 ns (as the letter's rS-IS of 61-132 ns reads)
+    /// where stamps on the corrected time let the loop hide it (0 or 40 ns).
+    #[inline]
+    fn on_crystal_grid(&self, local_ns: u64, phase: u64) -> u64 {
+        let corrections = self.clock.corrections_ns().floor() as i64 as u64;
+        let crystal = local_ns.wrapping_sub(corrections);
+        let back = rem40(crystal.wrapping_sub(phase));
+        self.clock.quantise(local_ns - back)
     }
 
     /// Reads the registers the cyclic frame reads (0x0910 by ARMW/FRMW/FPRD, 0x092C by BRD or

@@ -200,9 +200,9 @@ fn el2889_092c(answered: &Answered) -> i32 {
 /// reaches the EL2889 on the EK1100's 40 ns MII grid, and 40 ns over the 29 ms of writes is
 /// 1.4 ppm, 470 ns over the 340 ms without writes. Which cell of that grid each write fell in,
 /// the capture does not fix (it fixes the stamps, not where in their cells the frames were).
-/// So the reading is checked over those phases: the real +253 ns lies among the model's
-/// readings, and at every phase the loop has removed most of the drift (an estimator that
-/// learns 2^-12 per write, as the model did before, reads about +740 ns at every phase).
+/// So the reading is checked over those phases: at every phase the loop has removed most of
+/// the drift (an estimator that learns 2^-12 per write, as the model did before, reads about
+/// +740 ns at every phase); where the real one falls among them is the next test's.
 #[test]
 #[ignore = "needs ../shared/captures"]
 fn el2889_time_difference_after_static_drift_compensation() {
@@ -246,10 +246,6 @@ fn el2889_time_difference_after_static_drift_compensation() {
         readings[readings.len() - 1]
     );
     assert!(readings.len() >= 20, "phases matched: {}", readings.len());
-    assert!(
-        readings[0] <= 253 && 253 <= readings[readings.len() - 1],
-        "the real +253 ns among the model's readings {readings:?}"
-    );
     assert!(
         readings
             .iter()
@@ -306,4 +302,12 @@ fn el2889_time_difference_over_arrival_jitter() {
         readings[n * 9 / 10],
         below as f64 / n as f64
     );
+    // The real reading is one the model gives (within its 5th to 95th percentile), and the
+    // model's typical reading has most of the 760 ns of drift removed.
+    let (p5, p95) = (readings[n / 20], readings[n - 1 - n / 20]);
+    assert!(
+        p5 <= 253 && 253 <= p95,
+        "real +253 outside p5..p95 {p5}..{p95}"
+    );
+    assert!(readings[n / 2].abs() < 380, "median {}", readings[n / 2]);
 }

@@ -334,3 +334,41 @@ fn a_late_write_leaves_the_mean_with_the_next_interval() {
     let after = u.clock().drift_correction() - before;
     assert!(after.abs() < 0.01e-6, "left {after}");
 }
+
+/// MII stamps are taken on the crystal's 25 MHz edges, the counter counts the crystal plus the
+/// loop's corrections. Worked by hand: a clock never corrected (a reference) reads 0x0910 on
+/// one residue modulo 40 ns at every frame (replay-dc: every FRMW the EK1100 answered is 0
+/// modulo 40); a clock corrected by +20 ppm gains 40 ns on its crystal every 2 ms, so its
+/// stamps, read every 100 us over 4 ms, fall on all four 10 ns residues.
+#[test]
+fn mii_stamps_are_on_the_crystals_grid_not_the_corrected_time() {
+    let mii = |seed: u64| {
+        DcUnit::new(DcParams {
+            sof_resolution_ns: 40,
+            crystal: CrystalParams {
+                initial_local_ns: 1_000_000 + seed,
+                seed,
+                ..Default::default()
+            },
+            is_64bit: true,
+        })
+    };
+    let residues = |u: &mut DcUnit| {
+        let mut seen = std::collections::BTreeSet::new();
+        for k in 1..=40u64 {
+            let t = k * 100 * US + k * 7_777; // arbitrary instants within the cells
+            u.clock.advance_to(t);
+            seen.insert(u.system_time_read_ns(t) % 40);
+        }
+        seen
+    };
+    for seed in 0..8 {
+        let mut reference = mii(seed);
+        assert_eq!(residues(&mut reference).len(), 1, "seed {seed}");
+        let mut corrected = mii(seed);
+        corrected.clock.set_drift_correction(0, 20e-6);
+        let r = residues(&mut corrected);
+        assert_eq!(r.len(), 4, "seed {seed}: {r:?}");
+        assert!(r.iter().all(|x| x % 10 == r.first().unwrap() % 10));
+    }
+}
