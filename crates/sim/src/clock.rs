@@ -109,6 +109,15 @@ impl Split {
     }
 }
 
+/// Fraction bits of the crystal's count (see `LocalClock::crystal_ns`): a rate of 1 + 50 ppm
+/// is 2^50 / 1000 units per ps, exact to 4e-13, and a count spans 2^64 ns.
+const CRYSTAL_FP_BITS: u32 = 50;
+
+/// The crystal's rate `one_plus_osc` (local ns per real ns) in 2^-50 ns per ps.
+fn crystal_rate_fp(one_plus_osc: f64) -> u64 {
+    (one_plus_osc * (1u64 << CRYSTAL_FP_BITS) as f64 / 1000.0).round() as u64
+}
+
 /// The local clock of one ESC.
 ///
 /// `repr(C)`, the fields every read uses first (one cache line), the crystal's parameters and
@@ -130,10 +139,15 @@ pub struct LocalClock {
     c_drift: f64,
     slew_rate: f64,
     slew_remaining_ns: f64,
-    /// The time control loop's corrections accumulated since power-up, ns: the local time
-    /// minus the crystal's own count (the MII receive clocks' edges are the crystal's).
-    corr_ns: f64,
     // (The hot part ends here: 64 bytes.)
+    /// The crystal's own count (local time without the loop's corrections) at real time
+    /// `crystal_ref_ps`, the last change of its rate, in 2^-50 ns; and the crystal's rate in
+    /// 2^-50 ns per ps. Fixed point: an MII stamp reads it, and a floating-point chain there
+    /// made the FRMW's work per slave half as long again (21 -> 33 ns in `ecsync bench --part
+    /// frmw`).
+    crystal_ref_ps: u64,
+    crystal_ref_fp: u128,
+    crystal_rate_fp: u64,
     /// Residue of the counter's values modulo 10 ns.
     tick_residue: u64,
     /// Current wander, as a fraction (not ppm).
@@ -160,7 +174,9 @@ impl LocalClock {
             c_drift: 0.0,
             slew_rate: 0.0,
             slew_remaining_ns: 0.0,
-            corr_ns: 0.0,
+            crystal_ref_ps: 0,
+            crystal_ref_fp: u128::from(params.initial_local_ns) << CRYSTAL_FP_BITS,
+            crystal_rate_fp: crystal_rate_fp(1.0 + params.ppm * 1e-6),
         }
     }
 
@@ -169,6 +185,7 @@ impl LocalClock {
     pub fn new_at(params: CrystalParams, t_ps: u64) -> Self {
         let mut c = LocalClock::new(params);
         c.anchor_ps = t_ps;
+        c.crystal_ref_ps = t_ps;
         c.next_wander_ps = t_ps.saturating_add(params.wander_step_ps.max(1));
         c
     }
@@ -189,29 +206,19 @@ impl LocalClock {
     }
 
     /// Local time advance over `dt_ns` real nanoseconds from the anchor, without crossing a
-    /// wander grid point.
-    ///
-    /// `BRANCH_FREE`: the same figure without a branch on whether a slew is running (see
-    /// [`LocalClock::advance_to_in`]).
+    /// wander grid point. Without a branch on whether a slew is running: see
+    /// [`LocalClock::move_anchor`].
     #[inline]
-    fn delta_from_anchor<const BRANCH_FREE: bool>(&self, dt_ns: f64) -> f64 {
+    fn delta_from_anchor(&self, dt_ns: f64) -> f64 {
         let base = dt_ns * (self.one_plus_osc + self.c_drift);
-        if BRANCH_FREE {
-            // With no slew (rate and remainder 0) the slewed part is +0, and `base` (nonzero,
-            // or +0) plus +0 is `base` exactly.
-            let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
-            return base + slewed.copysign(self.slew_rate);
-        }
-        let mut d = base;
-        if self.slew_rate != 0.0 {
-            let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
-            d += slewed.copysign(self.slew_rate);
-        }
-        d
+        // With no slew (rate and remainder 0) the slewed part is +0, and `base` (nonzero, or
+        // +0) plus +0 is `base` exactly.
+        let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
+        base + slewed.copysign(self.slew_rate)
     }
 
     /// The counter value at the last tick at or before local time `ns`.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn quantise(&self, ns: u64) -> u64 {
         ns - (ns.wrapping_sub(self.tick_residue) % 10)
     }
@@ -229,9 +236,7 @@ impl LocalClock {
     #[inline]
     pub(crate) fn local_exact_ns_in<const BRANCH_FREE: bool>(&self, t_ps: u64) -> (u64, f64) {
         let dt_ns = (t_ps as i64).wrapping_sub(self.anchor_ps as i64) as f64 * 1e-3;
-        let s = self
-            .anchor_local
-            .add(self.delta_from_anchor::<BRANCH_FREE>(dt_ns));
+        let s = self.anchor_local.add(self.delta_from_anchor(dt_ns));
         (s.ns, s.frac)
     }
 
@@ -240,9 +245,20 @@ impl LocalClock {
         self.quantise(self.local_exact_ns(t_ps).0)
     }
 
-    /// The time control loop's corrections accumulated up to the anchor, ns.
-    pub fn corrections_ns(&self) -> f64 {
-        self.corr_ns
+    /// The crystal's own count at real time `t_ps` (at or after the last wander step), whole
+    /// nanoseconds: the local time without the time control loop's corrections. The MII
+    /// receive clocks' edges are the crystal's. Computed when asked (a stamp), from the count
+    /// at the last change of the crystal's rate: nothing is added on the clock's hot path.
+    #[inline(always)]
+    pub fn crystal_ns(&self, t_ps: u64) -> u64 {
+        (self.crystal_fp(t_ps) >> CRYSTAL_FP_BITS) as u64
+    }
+
+    #[inline(always)]
+    fn crystal_fp(&self, t_ps: u64) -> u128 {
+        let dt_ps = t_ps.wrapping_sub(self.crystal_ref_ps);
+        self.crystal_ref_fp
+            .wrapping_add(u128::from(dt_ps) * u128::from(self.crystal_rate_fp))
     }
 
     /// Local time (register view) at the anchor.
@@ -293,7 +309,7 @@ impl LocalClock {
             return;
         }
         if t_ps < self.next_wander_ps {
-            self.move_anchor::<BRANCH_FREE>(t_ps);
+            self.move_anchor(t_ps);
         } else {
             self.advance_across_wander(t_ps);
         }
@@ -304,54 +320,44 @@ impl LocalClock {
     fn advance_across_wander(&mut self, t_ps: u64) {
         while self.next_wander_ps <= t_ps {
             let at = self.next_wander_ps;
-            self.move_anchor::<false>(at);
+            self.move_anchor(at);
             if self.params.wander_ppm_per_sqrt_s > 0.0 {
+                self.crystal_ref_fp = self.crystal_fp(at);
+                self.crystal_ref_ps = at;
                 let step_s = self.params.wander_step_ps as f64 * 1e-12;
                 let z: f64 = StandardNormal.sample(&mut *self.rng);
                 self.wander += z * self.params.wander_ppm_per_sqrt_s * 1e-6 * step_s.sqrt();
                 self.one_plus_osc = 1.0 + self.oscillator_error();
+                self.crystal_rate_fp = crystal_rate_fp(self.one_plus_osc);
             }
             self.next_wander_ps = at.saturating_add(self.params.wander_step_ps.max(1));
         }
-        self.move_anchor::<false>(t_ps);
+        self.move_anchor(t_ps);
     }
 
     // (Inline: the cyclic frames move a DC unit's anchor once per drive and frame.)
+    /// Moves the anchor to `t_ps` without a branch on whether a slew is running, for every
+    /// network: a large network's drives end their slews before the next frame in some cycles
+    /// and not in others, a pattern the branch predictor does not learn for hundreds of them
+    /// (a 1 000-drive slave-cycle took 7-10 % longer with the branch), and since MII stamps
+    /// sit on the crystal's grid a small network's slaves step their phase at most frames too
+    /// (`ecsync bench` on paper-2024: 38 -> 35.5 ns per slave-cycle without the branch).
     #[inline(always)]
-    fn move_anchor<const BRANCH_FREE: bool>(&mut self, t_ps: u64) {
+    fn move_anchor(&mut self, t_ps: u64) {
         if t_ps <= self.anchor_ps {
             return;
         }
         // Through i64: one conversion instruction (u64 -> f64 takes several on x86-64).
         let dt_ns = (t_ps - self.anchor_ps) as i64 as f64 * 1e-3;
-        if BRANCH_FREE {
-            // No slew is rate and remainder 0 (`retune_at_anchor_in`, `set_slew` and the end
-            // below set both): the slewed part is then +0, and `d` (positive) exactly what
-            // the branch below leaves. `slewed` is at most the remainder, so what remains is
-            // +0 when the slew ends, never negative: only the rate is set to 0 then.
-            let rate = self.slew_rate;
-            let slewed = (rate.abs() * dt_ns).min(self.slew_remaining_ns);
-            let d = dt_ns * (self.one_plus_osc + self.c_drift) + slewed.copysign(rate);
-            let remaining = self.slew_remaining_ns - slewed;
-            self.slew_remaining_ns = remaining;
-            self.slew_rate = std::hint::select_unpredictable(remaining <= 0.0, 0.0, rate);
-            self.corr_ns += dt_ns * self.c_drift + slewed.copysign(rate);
-            self.anchor_local = self.anchor_local.add(d);
-            self.anchor_ps = t_ps;
-            return;
-        }
-        let mut d = dt_ns * (self.one_plus_osc + self.c_drift);
-        self.corr_ns += dt_ns * self.c_drift;
-        if self.slew_rate != 0.0 {
-            let slewed = (self.slew_rate.abs() * dt_ns).min(self.slew_remaining_ns);
-            d += slewed.copysign(self.slew_rate);
-            self.corr_ns += slewed.copysign(self.slew_rate);
-            self.slew_remaining_ns -= slewed;
-            if self.slew_remaining_ns <= 0.0 {
-                self.slew_remaining_ns = 0.0;
-                self.slew_rate = 0.0;
-            }
-        }
+        // No slew is rate and remainder 0 (`retune_at_anchor_in`, `set_slew` and the end below
+        // set both): the slewed part is then +0. `slewed` is at most the remainder, so what
+        // remains is +0 when the slew ends, never negative: only the rate is set to 0 then.
+        let rate = self.slew_rate;
+        let slewed = (rate.abs() * dt_ns).min(self.slew_remaining_ns);
+        let d = dt_ns * (self.one_plus_osc + self.c_drift) + slewed.copysign(rate);
+        let remaining = self.slew_remaining_ns - slewed;
+        self.slew_remaining_ns = remaining;
+        self.slew_rate = std::hint::select_unpredictable(remaining <= 0.0, 0.0, rate);
         self.anchor_local = self.anchor_local.add(d);
         self.anchor_ps = t_ps;
     }

@@ -362,7 +362,7 @@ impl DcUnit {
                 let res = res_ns[p].max(10) / 10 * 10;
                 let phase = port_phase(&self.clock, p, res);
                 let q = if res == 40 {
-                    self.on_crystal_grid(self.clock.local_exact_ns(*t).0, phase)
+                    self.on_crystal_grid(self.clock.local_exact_ns(*t).0, *t, phase)
                 } else {
                     let v = self.clock.local_ns(*t);
                     v - (v.wrapping_sub(phase) % res)
@@ -644,7 +644,7 @@ impl DcUnit {
     /// clock (datasheet section II, 0x0910 "including system time delay").
     pub fn system_time_read_ns(&self, t_ps: u64) -> u64 {
         let v = if self.sof_res == 40 {
-            self.on_crystal_grid(self.clock.local_exact_ns(t_ps).0, self.sof_phase)
+            self.on_crystal_grid(self.clock.local_exact_ns(t_ps).0, t_ps, self.sof_phase)
         } else {
             self.sof(self.clock.local_ns(t_ps))
         };
@@ -695,7 +695,11 @@ impl DcUnit {
     #[inline]
     fn sof_at_anchor(&self) -> u64 {
         if self.sof_res == 40 {
-            return self.on_crystal_grid(self.clock.anchor_ns(), self.sof_phase);
+            return self.on_crystal_grid(
+                self.clock.anchor_ns(),
+                self.clock.anchor_ps(),
+                self.sof_phase,
+            );
         }
         let raw = self.clock.anchor_ns();
         if raw >= self.sof_phase + 10 {
@@ -706,7 +710,7 @@ impl DcUnit {
     }
 
     /// The counter at the last edge of an MII port's 25 MHz receive clock at or before local
-    /// time `local_ns` (whole nanoseconds): the edges are the ESC's crystal's, every fourth
+    /// time `local_ns` (whole nanoseconds) at real time `t_ps`: the edges are the ESC's crystal's, every fourth
     /// tick from `phase`, while the counter is the crystal's count plus the time control
     /// loop's corrections (the 9 and 11 ns steps). So a reference clock, never corrected,
     /// stamps on one residue modulo 40 ns for good (replay-dc: every FRMW the EK1100 answered
@@ -714,11 +718,9 @@ impl DcUnit {
     /// corrections add up: a slave cannot steer its stamps' cells onto the reference's, and
     /// its 0x092C keeps the quantisation's ±40 ns (as the letter's rS-IS of 61-132 ns reads)
     /// where stamps on the corrected time let the loop hide it (0 or 40 ns).
-    #[inline]
-    fn on_crystal_grid(&self, local_ns: u64, phase: u64) -> u64 {
-        let corrections = self.clock.corrections_ns().floor() as i64 as u64;
-        let crystal = local_ns.wrapping_sub(corrections);
-        let back = rem40(crystal.wrapping_sub(phase));
+    #[inline(always)]
+    fn on_crystal_grid(&self, local_ns: u64, t_ps: u64, phase: u64) -> u64 {
+        let back = rem40(self.clock.crystal_ns(t_ps).wrapping_sub(phase));
         self.clock.quantise(local_ns - back)
     }
 
