@@ -692,7 +692,7 @@ impl DcUnit {
     /// at or before the unquantised time: the tick quantisation can be skipped whenever no
     /// subtraction wraps (local time from `sof_phase + 10` on, i.e. always but in the first
     /// instant after power-up).
-    #[inline]
+    #[inline(always)]
     fn sof_at_anchor(&self) -> u64 {
         if self.sof_res == 40 {
             return self.on_crystal_grid(
