@@ -149,3 +149,27 @@ fn an_m_rs_mean_that_differs_by_aim_is_explained() {
     let table = ecsync_lab::report::table1_text(&out, &order);
     assert!(table.trim_end().ends_with(note.as_str()), "{table}");
 }
+
+/// A gain the letter's method cannot hold (k = 0.5 behind an 11-frame median: the
+/// correction comes back around before the median sees it) makes it unstable: its schedule
+/// runs away, the engine holds each start within two periods, and the verdict leaves it out
+/// of the ranking saying why, where it used to hang the run (the task slept towards a start
+/// hours away, one wander step of the master's crystal at a time).
+#[test]
+fn an_unstable_gain_is_reported_not_ranked() {
+    let mut s = testbed("median-fit,pi-m2s", 1, 20_000);
+    s.params.median_fit.gain = 0.5;
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    let mf = &out.methods["median-fit"];
+    assert!(mf.wild_schedule_cycles > 0, "{}", mf.wild_schedule_cycles);
+    assert_eq!(out.recommendation.ranking, ["pi-m2s"]);
+    let nr = &out.recommendation.not_ranked;
+    assert!(
+        nr.len() == 1 && nr[0].method == "median-fit" && nr[0].why.contains("went unstable"),
+        "{nr:?}"
+    );
+    // The letter's gain stays stable: nothing held.
+    s.params.median_fit.gain = 0.01;
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    assert_eq!(out.methods["median-fit"].wild_schedule_cycles, 0);
+}

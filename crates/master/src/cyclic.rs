@@ -183,6 +183,10 @@ pub struct Health {
     /// master's clock minus this, the timeline it had before (the schedule the task sleeps to
     /// and the reported timestamps stay the clock's own).
     pub master_clock_correction_ns: i64,
+    /// Cycles whose method asked for the next start less than nothing or more than two
+    /// periods after this one's (an unstable controller): the start was held to that range,
+    /// as a task's timer can be, and the method saw what was done.
+    pub wild_schedule_cycles: u64,
     /// Slaves seem to have lost their configuration: a recovery should run.
     pub needs_recovery: bool,
     /// Slaves answer that the bring-up did not take in (hot-connected): their |0x092C| is not
@@ -719,13 +723,34 @@ impl<S: MasterSync> CyclicEngine<S> {
         {
             rec.m_rs_ns = self.m_rs_ns(t_ra, send_ns, nominal);
         }
-        self.scheduled_ns = rec
+        let asked = rec
             .output
             .next_start
             .as_ns()
             .wrapping_add(correction as u64);
+        self.scheduled_ns = self.held_to_range(asked);
         self.cycle += 1;
         rec
+    }
+
+    /// The next start a method asked for (`asked`, on the master's clock), held within two
+    /// periods after the current cycle's start: a controller gone unstable would otherwise
+    /// put the task to sleep for hours (or schedule a cycle before this one), and with it the
+    /// network. The method sees the start it got in the next cycle's input.
+    #[inline]
+    fn held_to_range(&mut self, asked: u64) -> u64 {
+        let two_periods = 2 * u64::from(self.cfg.period_ns);
+        let step = asked.wrapping_sub(self.scheduled_ns);
+        if step <= two_periods {
+            return asked;
+        }
+        self.health.wild_schedule_cycles += 1;
+        // Back in time (a wrapped difference) holds to this start, forward to two periods.
+        if (step as i64) < 0 {
+            self.scheduled_ns
+        } else {
+            self.scheduled_ns.wrapping_add(two_periods)
+        }
     }
 
     /// The letter's M-rS error of this cycle, ns, from the reference's time `t_ra` and the

@@ -160,6 +160,7 @@ pub(super) fn method_out(
             .collect(),
         cycles_done: rs.iter().map(|r| r.cycles_done).sum(),
         lock_ms: lock.iter().sum::<f64>() / lock.len().max(1) as f64,
+        wild_schedule_cycles: rs.iter().map(|r| r.wild_schedule_cycles).sum(),
         wall_s: c.method_wall_s[m],
         faults: rs.iter().filter_map(|r| r.faults.clone()).collect(),
         left_op: rs.iter().flat_map(|r| r.left_op.iter().cloned()).collect(),

@@ -6,6 +6,11 @@ use ecsync_sim::send::Entry;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
+/// For `skip_serializing_if`: a count that is 0 is left out of summary.json.
+fn is_zero(n: &u64) -> bool {
+    *n == 0
+}
+
 /// The letter's four indicators of one error, means over runs, ns.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Indicators {
@@ -152,6 +157,10 @@ pub struct MethodOut {
     pub cycles_done: u64,
     /// Time to DC lock in the bring-up, ms (mean over runs).
     pub lock_ms: f64,
+    /// Cycles whose next start the method asked for more than two periods on (or before the
+    /// cycle's own) and the engine held: an unstable controller, all runs (absent when 0).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub wild_schedule_cycles: u64,
     /// CPU time of this method's runs, s (in timing.json, not summary.json: a scenario and a
     /// seed give the same summary.json byte for byte on any machine).
     #[serde(skip)]

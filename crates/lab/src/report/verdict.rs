@@ -77,6 +77,15 @@ pub(super) fn not_ranked(
         .iter()
         .filter_map(|m| {
             let mo = methods.get(m)?;
+            if mo.wild_schedule_cycles > 0 {
+                return Some(NotRanked {
+                    method: m.clone(),
+                    why: format!(
+                        "{m} went unstable: in {} cycles it asked for the next start more than two cycles away (or before the cycle's own), which the engine held; its figures describe a broken schedule, not the method at work (smaller gains?)",
+                        mo.wild_schedule_cycles
+                    ),
+                });
+            }
             let lost = mo.ground_truth.lost_frames;
             let share = lost as f64 / mo.cycles_done.max(1) as f64;
             (mo.faults.is_empty() && lost > 0 && share > UNRANKED_LOST_SHARE).then(|| NotRanked {

@@ -95,6 +95,7 @@ fn empty_result(
         late_frames: 0,
         latest_end_ns: f64::NEG_INFINITY,
         lost_frames: 0,
+        wild_schedule_cycles: 0,
         bad_wkc: 0,
         series: Default::default(),
         series_block: Bands::new(s.cycles).block_cycles(),
@@ -397,6 +398,7 @@ impl Run {
                 });
             }
         }
+        res.wild_schedule_cycles = self.session.engine().health().wild_schedule_cycles;
         res.faults =
             faults.map(|f| f.finish(&self.sim, driver, self.session.engine().health(), t0));
         let [a, b, c] = series;

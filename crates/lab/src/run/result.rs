@@ -264,6 +264,9 @@ pub struct RunResult {
     pub latest_end_ns: f64,
     /// Frames lost.
     pub lost_frames: u64,
+    /// Cycles whose method asked for a next start the engine held (more than two periods
+    /// on, or before the cycle's own): a controller gone unstable (warm-up included).
+    pub wild_schedule_cycles: u64,
     /// Cycles whose LRW working counter was not the expected one.
     pub bad_wkc: u64,
     /// Time series of M-rS, rS-IS and the true phase.

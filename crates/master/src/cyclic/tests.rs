@@ -252,3 +252,62 @@ fn a_large_image_takes_several_frames() {
     assert_eq!(rec.receive, None);
     assert_eq!(rec.lrw_wkc, None);
 }
+
+/// Asks for the next start `jump_ns` after the nominal one from cycle 3 on (a controller
+/// gone unstable, in either direction).
+struct Jumps(i64);
+
+impl MasterSync for Jumps {
+    fn name(&self) -> &'static str {
+        "jumps"
+    }
+    fn update(&mut self, input: &CycleInput) -> CycleOutput {
+        let p = u64::from(input.period_ns);
+        let jump = if input.cycle >= 2 { self.0 } else { 0 };
+        CycleOutput {
+            next_start: MasterInstant::from_ns(
+                input
+                    .scheduled_start
+                    .as_ns()
+                    .wrapping_add(p)
+                    .wrapping_add(jump as u64),
+            ),
+            ..CycleOutput::default()
+        }
+    }
+}
+
+/// A method asking for a start hours away (or in the past) gets one two periods on (or the
+/// cycle's own), counted: the task does not sleep for hours, and the comparison can say the
+/// method went unstable. Two periods minus a period's step are still the method's.
+#[test]
+fn an_unstable_method_s_schedule_is_held_within_two_periods() {
+    let p = 1_000_000u64;
+    for (jump, step, wild) in [
+        (3_600_000_000_000i64, 2 * p, 3),
+        (-5 * p as i64, 0, 3),
+        (p as i64, 2 * p, 0),
+        (-(p as i64), 0, 0),
+    ] {
+        let mut e = CyclicEngine::new(
+            Jumps(jump),
+            no_image_config(p),
+            MasterInstant::from_ns(10 * p),
+        )
+        .unwrap();
+        let mut starts = vec![e.scheduled_start().as_ns()];
+        for _ in 0..5 {
+            let send = e.scheduled_start().as_ns() + 20_000;
+            let f = reply_with_reference_time(&mut e, send, send + 7_000);
+            e.complete(
+                Some(&f),
+                MasterInstant::from_ns(send),
+                MasterInstant::from_ns(send + 50_000),
+            );
+            starts.push(e.scheduled_start().as_ns());
+        }
+        let steps: Vec<u64> = starts.windows(2).map(|w| w[1].wrapping_sub(w[0])).collect();
+        assert_eq!(steps, [p, p, step, step, step], "jump {jump}");
+        assert_eq!(e.health().wild_schedule_cycles, wild, "jump {jump}");
+    }
+}
