@@ -13,6 +13,7 @@ mod host;
 mod net;
 mod progress;
 mod source;
+mod sweep;
 mod tsn;
 
 /// EtherCAT Distributed Clocks: bring-up, master synchronization methods, measurement.
@@ -31,6 +32,9 @@ enum Command {
     /// Runs every master synchronization method on the same network, host and noise, and
     /// reports the letter's Table 1 beside ours, ground truth, plots and report.html.
     Compare(compare::Args),
+    /// Runs a comparison at every point of a grid or list over any scenario or method
+    /// parameter; results in an SQLite database that resumes, shards and merges.
+    Sweep(sweep::Args),
     /// Measures the simulator's speed.
     Bench(bench::Args),
     /// Serves the virtual segment on a network interface: any EtherCAT master on the other
@@ -62,13 +66,18 @@ fn main() -> ExitCode {
     // (`serve`, `run`) fault no 2 MiB page in the middle of a cycle.
     if matches!(
         cli.command,
-        Command::Bringup(_) | Command::Compare(_) | Command::Bench(_) | Command::Tsn(_)
+        Command::Bringup(_)
+            | Command::Compare(_)
+            | Command::Sweep(_)
+            | Command::Bench(_)
+            | Command::Tsn(_)
     ) {
         heap::use_huge_pages();
     }
     let r = match cli.command {
         Command::Bringup(a) => bringup::run(a),
         Command::Compare(a) => compare::run(a),
+        Command::Sweep(a) => sweep::run(a),
         Command::Bench(a) => bench::run(a),
         #[cfg(target_os = "linux")]
         Command::Serve(a) => net::serve(a),

@@ -1,0 +1,160 @@
+//! What a sweep says: per method its best point, and the best of them.
+//!
+//! A point is good for a method when the method had no late and no lost frame there and held
+//! its target; the best good point is the one with the smallest safe SYNC0 shift (the margin
+//! a design can spend elsewhere), then the smallest phase error p99.9.
+
+use super::db::{ResultRow, Store};
+use super::grid::Points;
+use anyhow::Result;
+use ecsync_lab::report::{SHIFT_TIE_PCT, SummaryOut};
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+/// One point's comparison in a line: its pick and the pick's figures.
+pub fn point_line(out: &SummaryOut) -> String {
+    let rec = &out.recommendation;
+    match out.methods.get(&rec.method) {
+        Some(m) if !rec.ranking.is_empty() => format!(
+            "pick {} (smallest safe shift {:.1} %, phase error p99.9 {:.0} ns, {} late, {} lost)",
+            rec.method,
+            m.ground_truth.smallest_safe_shift_pct,
+            m.ground_truth.phase_error.p999_abs,
+            m.ground_truth.late_frames,
+            m.ground_truth.lost_frames
+        ),
+        _ => format!("no pick: {}", rec.reason),
+    }
+}
+
+fn good(r: &ResultRow) -> bool {
+    r.ranked
+        && r.late_frames == 0
+        && r.lost_frames == 0
+        && r.holds_target
+        && r.safe_shift_pct.is_finite()
+}
+
+fn better(a: &ResultRow, b: &ResultRow) -> bool {
+    (a.safe_shift_pct, a.phase_error_p999_ns) < (b.safe_shift_pct, b.phase_error_p999_ns)
+}
+
+/// The points of `method` as good as its best `best` on the smallest safe shift: within the
+/// comparison's tie step ([`SHIFT_TIE_PCT`] of the cycle), which the verdict counts as no
+/// difference either.
+fn ties<'a>(rows: &'a [ResultRow], best: &ResultRow) -> Vec<&'a ResultRow> {
+    rows.iter()
+        .filter(|r| {
+            r.method == best.method
+                && r.point != best.point
+                && good(r)
+                && r.safe_shift_pct <= best.safe_shift_pct + SHIFT_TIE_PCT
+        })
+        .collect()
+}
+
+/// Point numbers, the first few.
+fn some_points(rows: &[&ResultRow]) -> String {
+    let mut s: Vec<String> = rows.iter().take(8).map(|r| r.point.to_string()).collect();
+    if rows.len() > 8 {
+        s.push(format!("and {} more", rows.len() - 8));
+    }
+    s.join(", ")
+}
+
+/// The sweep's answer from the database's rows.
+pub fn text(store: &Store, pts: &Points) -> Result<String> {
+    let rows = store.rows()?;
+    let done = store.done()?.len();
+    let mut best: BTreeMap<&str, Option<&ResultRow>> = BTreeMap::new();
+    for r in &rows {
+        let slot = best.entry(r.method.as_str()).or_insert(None);
+        if good(r) && slot.is_none_or(|b| better(r, b)) {
+            *slot = Some(r);
+        }
+    }
+    let mut t = String::new();
+    let overall = best
+        .values()
+        .flatten()
+        .copied()
+        .reduce(|a, b| if better(b, a) { b } else { a });
+    let tie_words = format!("within {SHIFT_TIE_PCT} % of the cycle, the comparison's tie step");
+    match overall {
+        Some(r) => {
+            let _ = writeln!(
+                t,
+                "Answer: {} at point {} ({}): smallest safe SYNC0 shift {:.1} %, phase error p99.9 {:.0} ns, slave spread p99.9 {:.0} ns, no late or lost frame.",
+                r.method,
+                r.point,
+                pts.describe(r.point),
+                r.safe_shift_pct,
+                r.phase_error_p999_ns,
+                r.slave_spread_p999_ns
+            );
+            let same = ties(&rows, r);
+            let points_of = rows.iter().filter(|x| x.method == r.method).count();
+            if same.len() + 1 == points_of && points_of > 1 {
+                let _ = writeln!(
+                    t,
+                    "  Every point of {} is as good ({tie_words}): the swept parameters make no difference to it here beyond noise.",
+                    r.method
+                );
+            } else if !same.is_empty() {
+                let _ = writeln!(t, "  As good ({tie_words}): points {}.", some_points(&same));
+            }
+            let others: Vec<String> = best
+                .iter()
+                .filter_map(|(m, b)| b.map(|b| (m, b)))
+                .filter(|(m, b)| {
+                    **m != r.method && b.safe_shift_pct <= r.safe_shift_pct + SHIFT_TIE_PCT
+                })
+                .map(|(m, b)| format!("{m} ({:.1} % at point {})", b.safe_shift_pct, b.point))
+                .collect();
+            if !others.is_empty() {
+                let _ = writeln!(
+                    t,
+                    "  Other methods as good at their best ({tie_words}): {}.",
+                    others.join(", ")
+                );
+            }
+        }
+        None => {
+            let _ = writeln!(
+                t,
+                "Answer: none: no method at any of the {done} points ran without late or lost frames on its target."
+            );
+        }
+    }
+    let _ = writeln!(
+        t,
+        "Each method's best point of {done} ({} swept):",
+        pts.rows.len()
+    );
+    let width = best.keys().map(|m| m.len()).max().unwrap_or(0);
+    for (m, r) in &best {
+        match r {
+            Some(r) => {
+                let _ = writeln!(
+                    t,
+                    "  {m:<width$}  point {}: safe shift {:.1} %, phase error p99.9 {:.0} ns ({})",
+                    r.point,
+                    r.safe_shift_pct,
+                    r.phase_error_p999_ns,
+                    pts.describe(r.point)
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    t,
+                    "  {m:<width$}  no point without late or lost frames on target"
+                );
+            }
+        }
+    }
+    let _ = writeln!(
+        t,
+        "Every point ran with the same seed (its noise the same): sweep run.seed, or give --runs 3 or more, to see how far the figures move from run to run."
+    );
+    Ok(t)
+}

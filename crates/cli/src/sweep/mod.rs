@@ -1,0 +1,307 @@
+//! `ecsync sweep`: a deterministic comparison at every point of a grid (or list) over any
+//! scenario or method parameter, the results in an SQLite database that resumes, shards and
+//! merges, and the answer: which point, for which method.
+
+mod answer;
+mod db;
+mod grid;
+
+use crate::source::SourceArgs;
+use anyhow::{Context, Result, bail};
+use db::{Meta, Store};
+use ecsync_lab::compare::{Options, compare_with};
+use ecsync_lab::report::summarize;
+use ecsync_lab::run::RunError;
+use grid::{Param, Points};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Instant;
+
+/// Set by Ctrl-C or SIGTERM: the point in progress is dropped, the ones done are kept.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+/// `ecsync sweep` and `ecsync sweep merge`.
+#[derive(Debug, clap::Args)]
+#[command(args_conflicts_with_subcommands = true, after_help = after_help())]
+pub struct Args {
+    #[command(subcommand)]
+    command: Option<Sub>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum Sub {
+    /// Joins the databases of a sweep's shards into one, equal to the sweep run whole.
+    Merge(MergeArgs),
+}
+
+/// Merges shard databases.
+#[derive(Debug, clap::Args)]
+struct MergeArgs {
+    /// The merged database (made, or extended when it holds the same sweep).
+    #[arg(long)]
+    db: PathBuf,
+    /// The shards' databases.
+    #[arg(required = true)]
+    shards: Vec<PathBuf>,
+}
+
+/// Runs a sweep.
+#[derive(Debug, clap::Args)]
+struct RunArgs {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// A swept parameter: KEY=V1,V2,... or KEY=START:STOP:STEP (both ends included), KEY a
+    /// field of the scenario file (run.sync0_shift_pct, methods.median-fit.gain,
+    /// segment.slave.2.ppm, host.preset). Repeat it for a grid: every combination, the last
+    /// one changing fastest. One value sets it for every point.
+    #[arg(long = "grid", value_name = "KEY=VALUES")]
+    grid: Vec<String>,
+    /// The points as a CSV list instead of a grid: a header of keys, one point per line.
+    #[arg(long, conflicts_with = "grid", value_name = "FILE")]
+    list: Option<PathBuf>,
+    /// The results database (SQLite): made when absent; a rerun of the same sweep skips the
+    /// points it holds.
+    #[arg(long, default_value = "sweep.db")]
+    db: PathBuf,
+    /// Run only the points whose number modulo N is I (0 <= I < N), e.g.
+    /// `--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT`; `sweep merge` joins the shards.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
+    /// Methods compared at every point (default: the scenario's).
+    #[arg(long, value_delimiter = ',')]
+    methods: Option<Vec<String>>,
+    /// Runs per point (default: the scenario's).
+    #[arg(long)]
+    runs: Option<u32>,
+    /// Recorded cycles per run (default: the scenario's).
+    #[arg(long)]
+    cycles: Option<u64>,
+    /// Warm-up per run, s (default: the scenario's).
+    #[arg(long)]
+    warmup_s: Option<f64>,
+    /// Simulation threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// No line per point.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn after_help() -> String {
+    "A point's scenario is the base with the point's values written into it, checked as \
+     `compare --config` checks a file. Every point runs with the scenario's seed: the methods \
+     and the points see the same noise (sweep run.seed for run-to-run noise). The database's \
+     view sweep_results has one row per point and method; `sqlite3 sweep.db 'select * from \
+     sweep_results'`. Ctrl-C keeps the points done; the same command goes on."
+        .to_string()
+}
+
+/// Runs `ecsync sweep`.
+pub fn run(args: Args) -> Result<ExitCode> {
+    match args.command {
+        Some(Sub::Merge(m)) => merge(&m),
+        None => sweep(&args.run),
+    }
+}
+
+/// `--shard I/N`.
+fn shard(arg: Option<&str>) -> Result<(usize, usize)> {
+    let Some(s) = arg else { return Ok((0, 1)) };
+    let bad = || {
+        anyhow::anyhow!(
+            "--shard {s}: not I/N with 0 <= I < N; fix: e.g. --shard 0/4 for the first of four shards"
+        )
+    };
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let (i, n) = (
+        i.trim().parse::<usize>().map_err(|_| bad())?,
+        n.trim().parse::<usize>().map_err(|_| bad())?,
+    );
+    if n == 0 || i >= n {
+        return Err(bad());
+    }
+    Ok((i, n))
+}
+
+/// The base scenario as a TOML table with the command line's settings written in.
+fn base(a: &RunArgs) -> Result<(String, toml::Table)> {
+    let (name, text) = a.source.load()?;
+    // Read as compare reads it first, so that a bad base is named as the file.
+    ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
+    let mut t: toml::Table = text.parse().with_context(|| name.clone())?;
+    let run = t
+        .entry("run")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let toml::Value::Table(run) = run else {
+        bail!("{name}: [run] is not a table");
+    };
+    if let Some(m) = &a.methods {
+        run.insert("methods".into(), m.clone().into());
+    }
+    if let Some(r) = a.runs {
+        run.insert("runs".into(), i64::from(r).into());
+    }
+    if let Some(c) = a.cycles {
+        run.insert("cycles".into(), (c as i64).into());
+    }
+    if let Some(w) = a.warmup_s {
+        run.insert("warmup_s".into(), w.into());
+    }
+    Ok((name, t))
+}
+
+fn points(a: &RunArgs) -> Result<Points> {
+    if let Some(path) = &a.list {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("--list: cannot read {}", path.display()))?;
+        return Points::list(&path.display().to_string(), &text);
+    }
+    if a.grid.is_empty() {
+        bail!("no points; fix: give --grid KEY=V1,V2,... (repeat it for a grid) or --list FILE");
+    }
+    let params: Vec<Param> = a
+        .grid
+        .iter()
+        .map(|g| grid::parse_param(g))
+        .collect::<Result<_>>()?;
+    Points::grid(&params)
+}
+
+/// Every point's scenario, checked before any runs: a bad value is refused now, naming it.
+fn scenarios(name: &str, base: &toml::Table, pts: &Points) -> Result<Vec<String>> {
+    pts.rows
+        .iter()
+        .enumerate()
+        .map(|(i, row)| {
+            let text = grid::apply(base, &pts.keys, row)?;
+            ecsync_lab::parse(&format!("{name} at point {i}"), &text)
+                .map_err(|e| anyhow::anyhow!("point {i} ({}): {e}", pts.describe(i)))?;
+            Ok(text)
+        })
+        .collect()
+}
+
+fn sweep(a: &RunArgs) -> Result<ExitCode> {
+    let (shard_i, shard_n) = shard(a.shard.as_deref())?;
+    if a.threads == Some(0) {
+        bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
+    }
+    let (name, base) = base(a)?;
+    let pts = points(a)?;
+    let texts = scenarios(&name, &base, &pts)?;
+    let meta = Meta {
+        base_name: name.clone(),
+        base_toml: toml::to_string(&base)?,
+        points: pts.clone(),
+    };
+    let mut store = Store::open(&a.db, &meta)?;
+    let done = store.done()?;
+    let mine: Vec<usize> = (0..pts.rows.len())
+        .filter(|p| p % shard_n == shard_i)
+        .collect();
+    let todo: Vec<usize> = mine.iter().copied().filter(|p| !done.contains(p)).collect();
+    let shard_text = format!("{shard_i}/{shard_n}");
+    if !a.quiet {
+        eprintln!(
+            "ecsync sweep: {} points over {}; shard {shard_text}: {} points, {} already in {}, {} to run",
+            pts.rows.len(),
+            pts.keys.join(", "),
+            mine.len(),
+            mine.len() - todo.len(),
+            a.db.display(),
+            todo.len()
+        );
+    }
+    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    let threads = a
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let started = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs() as i64);
+    let t0 = Instant::now();
+    let mut ran = 0;
+    for (k, &p) in todo.iter().enumerate() {
+        let t = Instant::now();
+        let s = ecsync_lab::parse(&format!("{name} at point {p}"), &texts[p])
+            .map_err(anyhow::Error::msg)?;
+        let opts = Options {
+            stop: Some(&STOP),
+            ..Default::default()
+        };
+        let cmp = match compare_with(&s, threads, &AtomicU64::new(0), &opts) {
+            Ok(c) if !c.interrupted => c,
+            Ok(_) | Err(RunError::Interrupted) => break,
+            Err(e) => bail!("point {p} ({}): {e}", pts.describe(p)),
+        };
+        let out = summarize(&cmp);
+        store.put(p, &pts.rows[p], &texts[p], &out)?;
+        ran += 1;
+        if !a.quiet {
+            eprintln!(
+                "point {p} [{}/{}] {}: {} ({:.1} s)",
+                k + 1,
+                todo.len(),
+                pts.describe(p),
+                answer::point_line(&out),
+                t.elapsed().as_secs_f64()
+            );
+        }
+    }
+    let stopped = STOP.load(Ordering::Relaxed);
+    store.log(
+        &shard_text,
+        started,
+        ran,
+        t0.elapsed().as_secs_f64(),
+        stopped,
+    )?;
+    if stopped {
+        let now = store.done()?;
+        eprintln!(
+            "ecsync sweep: stopped; {} of the shard's {} points are in {} ({ran} this time); the same command goes on with the rest",
+            mine.iter().filter(|p| now.contains(p)).count(),
+            mine.len(),
+            a.db.display()
+        );
+        return Ok(ExitCode::from(130));
+    }
+    print!("{}", answer::text(&store, &pts)?);
+    Ok(ExitCode::SUCCESS)
+}
+
+fn merge(m: &MergeArgs) -> Result<ExitCode> {
+    let meta = db::read_meta(&m.shards[0])?;
+    for s in &m.shards[1..] {
+        if db::read_meta(s)? != meta {
+            bail!(
+                "{} is of another sweep than {}; fix: merge the shards of one sweep (same scenario and points)",
+                s.display(),
+                m.shards[0].display()
+            );
+        }
+    }
+    let mut out = Store::open(&m.db, &meta)?;
+    for s in &m.shards {
+        let n = out.merge_from(s)?;
+        eprintln!("ecsync sweep merge: {}: {n} points", s.display());
+    }
+    let done = out.done()?.len();
+    let total = meta.points.rows.len();
+    eprintln!(
+        "ecsync sweep merge: {done} of {total} points in {}",
+        m.db.display()
+    );
+    print!("{}", answer::text(&out, &meta.points)?);
+    if done < total {
+        eprintln!(
+            "ecsync sweep merge: {} points missing; fix: run the shards that hold them again (each goes on where it stopped)",
+            total - done
+        );
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
+}

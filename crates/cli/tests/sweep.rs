@@ -1,0 +1,291 @@
+//! `ecsync sweep` (issue 33, acceptance 3): a sweep run whole and the same sweep as four shards
+//! in four processes, merged, give the same database; Ctrl-C keeps the points done and a rerun
+//! does only the rest; bad points, shards and databases are refused before any work.
+
+use rusqlite::Connection;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+fn ecsync() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ecsync"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ecsync-sweep-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A short comparison per point: one run of 2 000 cycles after the 10 s of warm-up the
+/// median methods' init frames need, two methods.
+const SHORT: &[&str] = &[
+    "--runs",
+    "1",
+    "--cycles",
+    "2000",
+    "--warmup-s",
+    "10",
+    "--methods",
+    "median-fit,soem-pi",
+    "--quiet",
+];
+
+/// 40 points: the letter's gain (and four more) x eight SYNC0 shifts.
+const GRID_40: &[&str] = &[
+    "--grid",
+    "methods.median-fit.gain=0.005,0.01,0.02,0.04,0.08",
+    "--grid",
+    "run.sync0_shift_pct=5:40:5",
+];
+
+fn sweep(db: &Path, extra: &[&str]) -> Command {
+    let mut c = ecsync();
+    c.arg("sweep")
+        .args(GRID_40)
+        .args(SHORT)
+        .arg("--db")
+        .arg(db)
+        .args(extra);
+    c
+}
+
+fn ok(mut c: Command) -> Output {
+    let o = c.output().unwrap();
+    assert!(
+        o.status.success(),
+        "{:?}: {}{}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
+/// Every row of the tables a sweep's result is (not `log`, which says who ran what when),
+/// in key order, as text.
+fn content(db: &Path) -> Vec<String> {
+    let c = Connection::open(db).unwrap();
+    let mut all = Vec::new();
+    for (table, order) in [
+        ("sweep", "key"),
+        ("points", "point"),
+        ("results", "point, method"),
+    ] {
+        let mut q = c
+            .prepare(&format!("SELECT * FROM {table} ORDER BY {order}"))
+            .unwrap();
+        let n = q.column_count();
+        let rows = q
+            .query_map([], |r| {
+                let cells: Vec<String> = (0..n)
+                    .map(|i| format!("{:?}", r.get_ref(i).unwrap()))
+                    .collect();
+                Ok(format!("{table}: {}", cells.join(" | ")))
+            })
+            .unwrap();
+        all.extend(rows.map(Result::unwrap));
+    }
+    all
+}
+
+fn count(db: &Path, sql: &str) -> i64 {
+    Connection::open(db)
+        .unwrap()
+        .query_row(sql, [], |r| r.get(0))
+        .unwrap()
+}
+
+#[test]
+fn forty_points_whole_and_as_four_merged_shards_are_the_same_database() {
+    let dir = tmp("shards");
+    let whole = dir.join("whole.db");
+    let o = ok(sweep(&whole, &[]));
+    let answer = String::from_utf8_lossy(&o.stdout);
+    assert!(answer.starts_with("Answer: "), "{answer}");
+    assert_eq!(count(&whole, "SELECT count(*) FROM points"), 40);
+    assert_eq!(count(&whole, "SELECT count(*) FROM sweep_results"), 80);
+    // Four processes at once, each its share.
+    let shards: Vec<PathBuf> = (0..4).map(|i| dir.join(format!("shard-{i}.db"))).collect();
+    let children: Vec<_> = shards
+        .iter()
+        .enumerate()
+        .map(|(i, db)| {
+            sweep(db, &["--shard", &format!("{i}/4"), "--threads", "1"])
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for (i, c) in children.into_iter().enumerate() {
+        let o = c.wait_with_output().unwrap();
+        assert!(
+            o.status.success(),
+            "shard {i}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert_eq!(count(&shards[i], "SELECT count(*) FROM points"), 10);
+        let mine = count(
+            &shards[i],
+            &format!("SELECT count(*) FROM points WHERE point % 4 = {i}"),
+        );
+        assert_eq!(mine, 10, "shard {i} ran its own points");
+    }
+    let merged = dir.join("merged.db");
+    let mut m = ecsync();
+    m.args(["sweep", "merge", "--db"])
+        .arg(&merged)
+        .args(&shards);
+    let o = ok(m);
+    // The same answer, and the same tables, row for row.
+    assert_eq!(String::from_utf8_lossy(&o.stdout), answer);
+    let (a, b) = (content(&whole), content(&merged));
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x, y);
+    }
+    assert_eq!(count(&merged, "SELECT count(*) FROM log"), 4);
+    // A shard merged twice adds nothing; a shard of another sweep is refused.
+    let mut again = ecsync();
+    again
+        .args(["sweep", "merge", "--db"])
+        .arg(&merged)
+        .arg(&shards[0]);
+    ok(again);
+    assert_eq!(content(&merged), a);
+    let other = dir.join("other.db");
+    let mut c = ecsync();
+    c.args(["sweep", "--grid", "run.sync0_shift_pct=10"])
+        .args(SHORT)
+        .arg("--db")
+        .arg(&other);
+    ok(c);
+    let o = ecsync()
+        .args(["sweep", "merge", "--db"])
+        .arg(&merged)
+        .arg(&other)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("another sweep"), "{e}");
+}
+
+/// Ctrl-C after some points: exit 130, those points kept whole; the same command again runs
+/// the others only (the log says how many) and leaves the first ones' rows as they were.
+#[test]
+fn ctrl_c_keeps_the_points_done_and_a_rerun_does_only_the_rest() {
+    let dir = tmp("interrupt");
+    let db = dir.join("sweep.db");
+    // Longer points, with a line each on stderr (no --quiet).
+    let args = [
+        "sweep",
+        "--grid",
+        "run.sync0_shift_pct=5:60:5",
+        "--runs",
+        "1",
+        "--cycles",
+        "200000",
+        "--warmup-s",
+        "10",
+        "--methods",
+        "median-fit,soem-pi",
+    ];
+    let mut child = ecsync()
+        .args(args)
+        .arg("--db")
+        .arg(&db)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut seen = Vec::new();
+    while seen
+        .iter()
+        .filter(|l: &&String| l.starts_with("point "))
+        .count()
+        < 2
+    {
+        let l = lines.next().expect("a line").unwrap();
+        seen.push(l);
+    }
+    // SAFETY: plain FFI call on the pid of a child not yet waited for.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    let rest: Vec<String> = lines.map(Result::unwrap).collect();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{seen:?} {rest:?}");
+    assert!(
+        rest.iter()
+            .any(|l| l.contains("stopped;") && l.contains("the same command goes on")),
+        "{rest:?}"
+    );
+    let kept = count(&db, "SELECT count(*) FROM points");
+    assert!((2..12).contains(&kept), "{kept} points kept");
+    // Every point kept is whole: its two methods' rows are there.
+    assert_eq!(count(&db, "SELECT count(*) FROM results"), 2 * kept);
+    let before = content(&db);
+    let o = ok({
+        let mut c = ecsync();
+        c.args(args).arg("--db").arg(&db);
+        c
+    });
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains(&format!("12 points, {kept} already in")), "{e}");
+    assert_eq!(count(&db, "SELECT count(*) FROM points"), 12);
+    let ran = count(
+        &db,
+        "SELECT points_run FROM log ORDER BY invocation DESC LIMIT 1",
+    );
+    assert_eq!(ran, 12 - kept, "the rerun ran only the points not done");
+    let after = content(&db);
+    for row in before.iter().filter(|r| !r.starts_with("sweep:")) {
+        assert!(after.contains(row), "a kept row changed: {row}");
+    }
+}
+
+/// What is wrong is named before any point runs: a field the scenario does not have, a value
+/// it refuses, a bad shard, a database of another sweep.
+#[test]
+fn bad_points_shards_and_databases_are_refused_first() {
+    let dir = tmp("bad");
+    let db = dir.join("sweep.db");
+    let run = |args: &[&str]| {
+        let o = ecsync()
+            .arg("sweep")
+            .args(args)
+            .args(SHORT)
+            .arg("--db")
+            .arg(&db)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(1), "{args:?}");
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    let e = run(&["--grid", "run.sync0_shift=10,20"]);
+    assert!(e.contains("sync0_shift") && e.contains("fix:"), "{e}");
+    let e = run(&["--grid", "methods.median-fit.gain=0.01,2"]);
+    assert!(
+        e.contains("point 1") && e.contains("gain") && e.contains("fix:"),
+        "{e}"
+    );
+    let e = run(&["--grid", "run.sync0_shift_pct=10", "--shard", "4/4"]);
+    assert!(e.contains("--shard 4/4") && e.contains("fix:"), "{e}");
+    let e = run(&["--grid", "run.sync0_shift_pct=40:10:5"]);
+    assert!(e.contains("STOP not below START"), "{e}");
+    assert!(!db.exists(), "nothing made before the points were checked");
+    ok({
+        let mut c = ecsync();
+        c.args(["sweep", "--grid", "run.sync0_shift_pct=10"])
+            .args(SHORT)
+            .arg("--db")
+            .arg(&db);
+        c
+    });
+    let e = run(&["--grid", "run.sync0_shift_pct=20"]);
+    assert!(
+        e.contains("holds another sweep") && e.contains("fix:"),
+        "{e}"
+    );
+}
