@@ -126,6 +126,20 @@ def compare_default_verdict(r):
     return shown("ecsync compare", text + "...\n")
 
 
+SWEEP_EXAMPLE = (
+    "ecsync sweep --preset twelve-drives --grid run.target_phase_us=0,20,40 "
+    "--grid methods.median-fit.gain=0.005,0.01,0.02 --methods median-fit,soem-pi --runs 2 "
+    "--cycles 100000 --quiet"
+)
+
+
+def sweep_example(r):
+    """The sweep's answer (stdout), its database in a fresh file (sweep.db for the reader)."""
+    db = r.tmp / f"sweep{len(os.listdir(r.tmp))}.db"
+    text, _ = r.run((*SWEEP_EXAMPLE.split()[1:], "--db", str(db)))
+    return shown(SWEEP_EXAMPLE, text)
+
+
 GENERATORS = {
     "compare-default": compare_default,
     "compare-default-verdict": compare_default_verdict,
@@ -148,6 +162,7 @@ GENERATORS = {
     ),
     "bringup-paper-2024": plain("ecsync bringup --preset paper-2024"),
     "bringup-junction-coupler": plain("ecsync bringup --config docs/examples/junction-coupler.toml"),
+    "sweep-twelve-drives": sweep_example,
     "tsn-models": plain("ecsync tsn models"),
     "tsn-run": plain("ecsync tsn run", "out/tsn"),
 }
