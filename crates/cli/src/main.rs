@@ -15,6 +15,7 @@ mod progress;
 mod source;
 mod sweep;
 mod tsn;
+mod tune;
 
 /// EtherCAT Distributed Clocks: bring-up, master synchronization methods, measurement.
 #[derive(Debug, Parser)]
@@ -35,6 +36,9 @@ enum Command {
     /// Runs a comparison at every point of a grid or list over any scenario or method
     /// parameter; results in an SQLite database that resumes, shards and merges.
     Sweep(sweep::Args),
+    /// Tunes one method's gains on the network and host for the smallest safe SYNC0 shift,
+    /// weighs them against the defaults run by run, and finds the shortest cycle it holds.
+    Tune(tune::Args),
     /// Measures the simulator's speed.
     Bench(bench::Args),
     /// Serves the virtual segment on a network interface: any EtherCAT master on the other
@@ -69,6 +73,7 @@ fn main() -> ExitCode {
         Command::Bringup(_)
             | Command::Compare(_)
             | Command::Sweep(_)
+            | Command::Tune(_)
             | Command::Bench(_)
             | Command::Tsn(_)
     ) {
@@ -78,6 +83,7 @@ fn main() -> ExitCode {
         Command::Bringup(a) => bringup::run(a),
         Command::Compare(a) => compare::run(a),
         Command::Sweep(a) => sweep::run(a),
+        Command::Tune(a) => tune::run(a),
         Command::Bench(a) => bench::run(a),
         #[cfg(target_os = "linux")]
         Command::Serve(a) => net::serve(a),

@@ -4,7 +4,8 @@
 
 mod answer;
 mod db;
-mod grid;
+pub(crate) mod grid;
+pub(crate) mod point;
 
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};

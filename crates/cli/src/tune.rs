@@ -1,0 +1,567 @@
+//! `ecsync tune`: one method's gains searched on the user's network and host for the smallest
+//! SYNC0 shift that no frame misses, holding the target: a coarse grid around the defaults,
+//! then a finer one around the best; the winner weighed against the defaults run by run (the
+//! same seeds, so the same noise); optionally the shortest cycle the host holds, by bisection.
+
+use crate::source::SourceArgs;
+use crate::sweep::{grid, point};
+use anyhow::{Result, bail};
+use ecsync_dc::MethodKind;
+use ecsync_lab::report::{SHIFT_TIE_PCT, SummaryOut};
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use toml::Value;
+
+/// Set by Ctrl-C or SIGTERM.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+/// `ecsync tune`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    source: SourceArgs,
+    /// The method to tune (median, median-fit, pi-m2s, dcm-bus-shift, dcm-master-shift have
+    /// gains; the others only get their shift and cycle).
+    #[arg(long)]
+    method: String,
+    /// Runs per point: the spread between them is the noise the tuned figure is weighed
+    /// against (at least 2 to weigh it).
+    #[arg(long, default_value_t = 3)]
+    runs: u32,
+    /// Recorded cycles per run (default: the scenario's).
+    #[arg(long)]
+    cycles: Option<u64>,
+    /// Warm-up per run, s (default: the scenario's).
+    #[arg(long)]
+    warmup_s: Option<f64>,
+    /// Also find the shortest cycle this host holds with the tuned parameters at the
+    /// scenario's SYNC0 shift (no late or lost frame), by bisection over run.cycle_us.
+    #[arg(long)]
+    shortest_cycle: bool,
+    /// The shortest-cycle search's resolution, us.
+    #[arg(long, default_value_t = 10.0)]
+    cycle_step_us: f64,
+    /// Simulation threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// No line per point.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// A parameter the search moves: its key in the scenario file and the values it tries
+/// around `centre`.
+#[derive(Debug, Clone)]
+struct Knob {
+    key: String,
+    /// Odd integers from a list (a median window), else a positive real.
+    window: bool,
+}
+
+/// The knobs of a method and their defaults in the base scenario.
+fn knobs(kind: MethodKind, s: &ecsync_lab::Scenario) -> Vec<(Knob, f64)> {
+    let p = &s.params;
+    let k = |name: &str, window: bool, v: f64| {
+        (
+            Knob {
+                key: format!("methods.{kind}.{name}"),
+                window,
+            },
+            v,
+        )
+    };
+    match kind {
+        MethodKind::Median => vec![
+            k("gain", false, p.median.gain),
+            k("window", true, p.median.window as f64),
+        ],
+        MethodKind::MedianFit => vec![
+            k("gain", false, p.median_fit.gain),
+            k("window", true, p.median_fit.window as f64),
+        ],
+        MethodKind::PiM2s => vec![k("kp", false, p.pi_m2s.kp), k("ki", false, p.pi_m2s.ki)],
+        MethodKind::DcmBusShift => vec![
+            k("kp", false, p.dcm_bus_shift.kp),
+            k("ki", false, p.dcm_bus_shift.ki),
+        ],
+        MethodKind::DcmMasterShift => vec![
+            k("kp", false, p.dcm_master_shift.kp),
+            k("ki", false, p.dcm_master_shift.ki),
+        ],
+        MethodKind::BusShift | MethodKind::Snap | MethodKind::SoemPi => Vec::new(),
+    }
+}
+
+/// A knob's values around `centre`: a real times each factor (rounded to 4 significant
+/// digits, so the fragment reads as typed), a window from 5, 11, 21 and the centre.
+fn values(knob: &Knob, centre: f64, factors: &[f64]) -> Vec<Value> {
+    if knob.window {
+        let mut w: Vec<i64> = vec![5, 11, 21, centre as i64];
+        w.sort_unstable();
+        w.dedup();
+        return w.into_iter().map(Value::Integer).collect();
+    }
+    let mut v: Vec<f64> = factors.iter().map(|f| round4(centre * f)).collect();
+    v.dedup();
+    v.into_iter().map(Value::Float).collect()
+}
+
+fn round4(x: f64) -> f64 {
+    if x == 0.0 || !x.is_finite() {
+        return x;
+    }
+    let e = 10f64.powi(3 - x.abs().log10().floor() as i32);
+    (x * e).round() / e
+}
+
+/// What a point gave the method.
+#[derive(Debug, Clone)]
+struct Outcome {
+    /// Ranked, no late or lost frame, on target.
+    good: bool,
+    safe_shift_pct: f64,
+    phase_error_p999_ns: f64,
+    late_frames: u64,
+    lost_frames: u64,
+    /// Each run's smallest safe shift, %.
+    per_run_pct: Vec<f64>,
+}
+
+impl Outcome {
+    fn of(out: &SummaryOut, method: &str) -> Option<Outcome> {
+        let m = out.methods.get(method)?;
+        let g = &m.ground_truth;
+        let ranked = out.recommendation.ranking.iter().any(|r| r == method);
+        Some(Outcome {
+            good: ranked && g.late_frames == 0 && g.lost_frames == 0 && g.holds_target,
+            safe_shift_pct: g.smallest_safe_shift_pct,
+            phase_error_p999_ns: g.phase_error.p999_abs,
+            late_frames: g.late_frames,
+            lost_frames: g.lost_frames,
+            per_run_pct: m
+                .runs
+                .iter()
+                .map(|r| r.keys.smallest_safe_shift_pct)
+                .collect(),
+        })
+    }
+
+    /// Smaller is better: good first, then the safe shift, then the phase error.
+    fn key(&self) -> (u8, f64, f64) {
+        let nan = |x: f64| if x.is_nan() { f64::INFINITY } else { x };
+        (
+            u8::from(!self.good),
+            nan(self.safe_shift_pct),
+            nan(self.phase_error_p999_ns),
+        )
+    }
+}
+
+/// The search's state: the base, what ran, how to say it.
+struct Search<'a> {
+    name: String,
+    base: toml::Table,
+    method: String,
+    threads: usize,
+    quiet: bool,
+    /// Every point run, by its values' text.
+    seen: BTreeMap<String, Option<Outcome>>,
+    args: &'a Args,
+}
+
+impl Search<'_> {
+    /// The outcome at `keys` = `vals` (`None`: the scenario refuses the values, or the point
+    /// never ran a cycle). `Err` with the stop flag set: stopped.
+    fn eval(&mut self, keys: &[String], vals: &[Value]) -> Result<Option<Outcome>> {
+        let what: Vec<String> = keys
+            .iter()
+            .zip(vals)
+            .map(|(k, v)| format!("{k}={}", grid::show(v)))
+            .collect();
+        let what = what.join(", ");
+        if let Some(o) = self.seen.get(&what) {
+            return Ok(o.clone());
+        }
+        let o = match point::scenario_text(&self.name, &self.base, keys, vals, &what) {
+            Err(_) => None,
+            Ok(text) => {
+                let Some(out) = point::run(&self.name, &text, self.threads, &STOP)? else {
+                    bail!("stopped");
+                };
+                Outcome::of(&out, &self.method)
+            }
+        };
+        if !self.quiet {
+            match &o {
+                Some(o) => eprintln!(
+                    "  {what}: safe shift {:.1} %, phase error p99.9 {:.0} ns, {} late, {} lost{}",
+                    o.safe_shift_pct,
+                    o.phase_error_p999_ns,
+                    o.late_frames,
+                    o.lost_frames,
+                    if o.good { "" } else { " (not a candidate)" }
+                ),
+                None => eprintln!("  {what}: refused by the scenario's checks"),
+            }
+        }
+        self.seen.insert(what, o.clone());
+        Ok(o)
+    }
+
+    /// Every combination of `grid`'s values; the best (values, outcome).
+    fn best_of(
+        &mut self,
+        keys: &[String],
+        grid: &[Vec<Value>],
+    ) -> Result<Option<(Vec<Value>, Outcome)>> {
+        let mut rows: Vec<Vec<Value>> = vec![Vec::new()];
+        for vals in grid {
+            rows = rows
+                .into_iter()
+                .flat_map(|r| {
+                    vals.iter().map(move |v| {
+                        let mut r = r.clone();
+                        r.push(v.clone());
+                        r
+                    })
+                })
+                .collect();
+        }
+        let mut best: Option<(Vec<Value>, Outcome)> = None;
+        for r in rows {
+            if let Some(o) = self.eval(keys, &r)?
+                && best.as_ref().is_none_or(|(_, b)| o.key() < b.key())
+            {
+                best = Some((r, o));
+            }
+        }
+        Ok(best)
+    }
+}
+
+/// Student's t at 95 % (two-sided) for `df` degrees of freedom.
+fn t95(df: usize) -> f64 {
+    const T: [f64; 9] = [12.71, 4.30, 3.18, 2.78, 2.57, 2.45, 2.36, 2.31, 2.26];
+    T.get(df.wrapping_sub(1)).copied().unwrap_or(2.0)
+}
+
+/// Runs `ecsync tune`.
+pub fn run(args: Args) -> Result<ExitCode> {
+    let Ok(kind) = args.method.parse::<MethodKind>() else {
+        bail!(
+            "--method: unknown method \"{}\"; fix: use one of: {}",
+            args.method,
+            MethodKind::list()
+        );
+    };
+    if args.threads == Some(0) {
+        bail!("--threads: 0 threads; fix: give at least 1 (default: all cores)");
+    }
+    if !(args.cycle_step_us.is_finite() && args.cycle_step_us >= 1.0) {
+        bail!(
+            "--cycle-step-us: {}; fix: give at least 1 us",
+            args.cycle_step_us
+        );
+    }
+    let (name, text) = args.source.load()?;
+    let mut run_set = vec![
+        (
+            "methods",
+            Value::Array(vec![Value::String(kind.to_string())]),
+        ),
+        ("runs", Value::Integer(i64::from(args.runs.max(1)))),
+    ];
+    if let Some(c) = args.cycles {
+        run_set.push(("cycles", Value::Integer(c as i64)));
+    }
+    if let Some(w) = args.warmup_s {
+        run_set.push(("warmup_s", Value::Float(w)));
+    }
+    let base = point::base_table(&name, &text, &run_set)?;
+    let base_s = ecsync_lab::parse(&name, &toml::to_string(&base)?).map_err(anyhow::Error::msg)?;
+    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    let mut search = Search {
+        name: name.clone(),
+        base,
+        method: kind.to_string(),
+        threads: args
+            .threads
+            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
+        quiet: args.quiet,
+        seen: BTreeMap::new(),
+        args: &args,
+    };
+    match tune(&mut search, kind, &base_s) {
+        Ok(t) => {
+            print!("{t}");
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e) if STOP.load(Ordering::Relaxed) => {
+            eprintln!("ecsync tune: {e}; nothing to report");
+            Ok(ExitCode::from(130))
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// The search and its report.
+fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) -> Result<String> {
+    let knobs = knobs(kind, base_s);
+    let keys: Vec<String> = knobs.iter().map(|(k, _)| k.key.clone()).collect();
+    let defaults: Vec<Value> = knobs
+        .iter()
+        .map(|(k, v)| {
+            if k.window {
+                Value::Integer(*v as i64)
+            } else {
+                Value::Float(*v)
+            }
+        })
+        .collect();
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
+        "Tuning {kind} on {} ({} x {} cycles per point, SYNC0 shift {} %, target phase {:.1} us):",
+        search.name,
+        plural_runs(base_s.runs),
+        base_s.cycles,
+        base_s.sync0_shift_pct,
+        base_s.target_phase_ns as f64 / 1000.0
+    );
+    if !search.quiet {
+        eprintln!("ecsync tune: the defaults");
+    }
+    let Some(def) = search.eval(&keys, &defaults)? else {
+        bail!("the scenario with the defaults ran no cycle");
+    };
+    let (best_vals, best) = if keys.is_empty() {
+        (defaults.clone(), def.clone())
+    } else {
+        if !search.quiet {
+            eprintln!("ecsync tune: coarse grid around the defaults (x 1/4, 1/2, 1, 2, 4)");
+        }
+        let coarse: Vec<Vec<Value>> = knobs
+            .iter()
+            .map(|(k, v)| values(k, *v, &[0.25, 0.5, 1.0, 2.0, 4.0]))
+            .collect();
+        let (cv, co) = search
+            .best_of(&keys, &coarse)?
+            .unwrap_or((defaults.clone(), def.clone()));
+        if !search.quiet {
+            eprintln!("ecsync tune: finer grid around the best (x 0.7, 1, 1.4)");
+        }
+        let fine: Vec<Vec<Value>> = knobs
+            .iter()
+            .zip(&cv)
+            .map(|((k, _), v)| match v {
+                Value::Float(x) => values(k, *x, &[0.7, 1.0, 1.4]),
+                v => vec![v.clone()],
+            })
+            .collect();
+        let best = search.best_of(&keys, &fine)?.unwrap_or((cv, co));
+        // The defaults stay the answer unless something beat them.
+        if best.1.key() < def.key() {
+            best
+        } else {
+            (defaults.clone(), def.clone())
+        }
+    };
+    let _ = writeln!(t, "  points run: {}", search.seen.len());
+    let describe = |vals: &[Value]| -> String {
+        if vals.is_empty() {
+            return "no gains of its own".into();
+        }
+        keys.iter()
+            .zip(vals)
+            .map(|(k, v)| format!("{} {}", k.rsplit('.').next().unwrap_or(k), grid::show(v)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    for (what, vals, o) in [("defaults", &defaults, &def), ("tuned", &best_vals, &best)] {
+        let _ = writeln!(
+            t,
+            "  {what:<8} ({}): smallest safe shift {:.1} %, phase error p99.9 {:.0} ns, {} late, {} lost{}",
+            describe(vals),
+            o.safe_shift_pct,
+            o.phase_error_p999_ns,
+            o.late_frames,
+            o.lost_frames,
+            if o.good {
+                ""
+            } else {
+                ", not holding (late, lost or off target)"
+            }
+        );
+    }
+    let (verdict, beats) = weigh(&def, &best, best_vals == defaults);
+    let _ = writeln!(t, "{verdict}");
+    // The fragment gives what the verdict chose: the defaults unless the tuned point beat
+    // them beyond noise.
+    let (best_vals, best) = if beats {
+        (best_vals, best)
+    } else {
+        (defaults.clone(), def.clone())
+    };
+    if !best.good {
+        let _ = writeln!(
+            t,
+            "Nothing to paste: late or lost frames, or off its target, at every point: {kind} on this network and host needs more than other gains."
+        );
+        return Ok(t);
+    }
+    let _ = writeln!(t, "Scenario fragment (paste into the scenario file):");
+    let margin = best.safe_shift_pct + SHIFT_TIE_PCT;
+    let _ = writeln!(
+        t,
+        "  [run]\n  sync0_shift_pct = {margin:.1}   # the smallest safe shift {:.1} % plus {SHIFT_TIE_PCT} % (the comparison's tie step) as margin",
+        best.safe_shift_pct
+    );
+    if !keys.is_empty() {
+        let _ = writeln!(t, "  [methods.{kind}]");
+        for (k, v) in keys.iter().zip(&best_vals) {
+            let _ = writeln!(t, "  {} = {v}", k.rsplit('.').next().unwrap_or(k));
+        }
+    }
+    if search.args.shortest_cycle {
+        t.push_str(&shortest_cycle(search, &keys, &best_vals, base_s)?);
+    }
+    Ok(t)
+}
+
+fn plural_runs(n: u32) -> String {
+    ecsync_lab::scenario::plural(u64::from(n), "run", "runs")
+}
+
+/// The tuned point against the defaults, run by run: the same seeds give both the same
+/// noise, so each run's difference of the smallest safe shift is the tuning's effect plus
+/// what the method's own response does with that noise; their mean against its 95 % interval.
+fn weigh(def: &Outcome, best: &Outcome, same: bool) -> (String, bool) {
+    if !def.good && !best.good {
+        return (
+            "Verdict: neither the defaults nor any point of the search held.".into(),
+            false,
+        );
+    }
+    if same {
+        return (
+            "Verdict: the defaults are the best point found; keep them.".into(),
+            false,
+        );
+    }
+    let d: Vec<f64> = def
+        .per_run_pct
+        .iter()
+        .zip(&best.per_run_pct)
+        .map(|(a, b)| a - b)
+        .collect();
+    let n = d.len();
+    let mean = d.iter().sum::<f64>() / n.max(1) as f64;
+    let runs: Vec<String> = d.iter().map(|x| format!("{x:.1}")).collect();
+    if !def.good && best.good {
+        return (
+            format!(
+                "Verdict: the tuned parameters hold where the defaults do not (late or lost frames, or off target); use them (per run, defaults minus tuned: {} % of the cycle).",
+                runs.join(", ")
+            ),
+            true,
+        );
+    }
+    if n < 2 {
+        return (
+            format!(
+                "Verdict: the tuned point's shift is {mean:.1} % of the cycle smaller, from 1 run: whether that is more than run-to-run noise needs --runs 2 or more; keep the defaults until then."
+            ),
+            false,
+        );
+    }
+    let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
+    let half = t95(n - 1) * sd / (n as f64).sqrt();
+    if mean - half > 0.0 {
+        (
+            format!(
+                "Verdict: the tuned parameters beat the defaults by {mean:.2} % of the cycle on the smallest safe shift, beyond run-to-run noise (per run, defaults minus tuned: {}; 95 % interval +-{half:.2}); use them.",
+                runs.join(", ")
+            ),
+            true,
+        )
+    } else {
+        (
+            format!(
+                "Verdict: the tuned parameters' {mean:.2} % of the cycle is within run-to-run noise (per run, defaults minus tuned: {}; 95 % interval +-{half:.2}): keep the defaults.",
+                runs.join(", ")
+            ),
+            false,
+        )
+    }
+}
+
+/// The shortest cycle the host holds with `vals` at the scenario's SYNC0 shift (no late or
+/// lost frame, on target), by bisection over run.cycle_us, then confirmed one step below.
+fn shortest_cycle(
+    search: &mut Search,
+    keys: &[String],
+    vals: &[Value],
+    base_s: &ecsync_lab::Scenario,
+) -> Result<String> {
+    let step = search.args.cycle_step_us;
+    let mut keys = keys.to_vec();
+    keys.push("run.cycle_us".into());
+    let holds = |search: &mut Search, us: f64| -> Result<Option<Outcome>> {
+        let mut v = vals.to_vec();
+        v.push(Value::Float(us));
+        search.eval(&keys, &v)
+    };
+    let hi0 = f64::from(base_s.cycle_ns) / 1000.0;
+    let mut t = String::new();
+    if !search.quiet {
+        eprintln!("ecsync tune: the shortest cycle, by bisection in steps of {step} us");
+    }
+    if !holds(search, hi0)?.is_some_and(|o| o.good) {
+        let _ = writeln!(
+            t,
+            "Shortest cycle: the scenario's own {hi0} us does not hold at {} % (late or lost frames): nothing shorter will.",
+            base_s.sync0_shift_pct
+        );
+        return Ok(t);
+    }
+    let (mut lo, mut hi) = (0.0f64, hi0);
+    while hi - lo > step {
+        let mid = ((lo + hi) / 2.0 / step).round() * step;
+        let mid = mid.clamp(lo + step, hi - step);
+        if holds(search, mid)?.is_some_and(|o| o.good) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    let below = hi - step;
+    let b = if below >= 10.0 {
+        holds(search, below)?
+    } else {
+        None
+    };
+    let at = holds(search, hi)?.expect("held");
+    let _ = writeln!(
+        t,
+        "Shortest cycle this host holds with these parameters at a {} % SYNC0 shift: {hi} us (no late or lost frame, safe shift {:.1} %); at {below} us: {}.",
+        base_s.sync0_shift_pct,
+        at.safe_shift_pct,
+        match &b {
+            Some(o) if o.good => "it held too (noise near the edge: run more cycles)".to_string(),
+            Some(o) => format!(
+                "{} late and {} lost frames{}",
+                o.late_frames,
+                o.lost_frames,
+                if o.late_frames + o.lost_frames == 0 {
+                    ", off target"
+                } else {
+                    ""
+                }
+            ),
+            None => "refused or never ran (below what the network takes)".to_string(),
+        }
+    );
+    Ok(t)
+}

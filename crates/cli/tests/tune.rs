@@ -1,0 +1,168 @@
+//! `ecsync tune` (issue 33, acceptance 5), checked against `compare`, which is checked against
+//! the segment's ground truth: the figures tune prints for the defaults and for the tuned
+//! parameters are the ones `compare` gives with those parameters in the file; the tuned ones
+//! beat defaults that are bad (pi-m2s at kp 1.5) beyond the runs' noise; the shortest cycle it
+//! names holds in `compare` and the cycle one step below does not.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn ecsync() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_ecsync"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ecsync-tune-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const SHORT: &[&str] = &["--runs", "3", "--cycles", "20000", "--warmup-s", "10"];
+
+/// paper-2024 with pi-m2s's kp and ki set (the preset's lines replaced).
+fn with_pi(kp: &str, ki: &str) -> String {
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
+    )
+    .unwrap();
+    let at = text.find("[methods.pi-m2s]").unwrap();
+    let (head, tail) = text.split_at(at);
+    let mut out = String::from(head);
+    for line in tail.lines() {
+        if line.starts_with("kp = ") && !out.contains("\nkp = ") {
+            out.push_str(&format!("kp = {kp}\n"));
+        } else if line.starts_with("ki = ") && !out.contains("\nki = ") {
+            out.push_str(&format!("ki = {ki}\n"));
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// The number after `key` in `line` ("safe shift 9.3 %" → 9.3).
+fn number_after(line: &str, key: &str) -> f64 {
+    let rest = &line[line.find(key).unwrap_or_else(|| panic!("{key} in {line}")) + key.len()..];
+    let n: String = rest
+        .trim_start()
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || *c == '.' || *c == 'e' || *c == '-')
+        .collect();
+    n.parse()
+        .unwrap_or_else(|_| panic!("a number after {key} in {line}"))
+}
+
+/// `compare` on `cfg` with pi-m2s: its summary.json's pi-m2s entry.
+fn compare(cfg: &Path, extra: &[&str]) -> serde_json::Value {
+    let o = ecsync()
+        .args(["compare", "--config"])
+        .arg(cfg)
+        .args(["--methods", "pi-m2s", "--json", "--quiet", "--out"])
+        .arg(cfg.with_extension("out"))
+        .args(SHORT)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["methods"]["pi-m2s"].clone()
+}
+
+#[test]
+fn tuned_gains_beat_bad_defaults_and_the_shortest_cycle_holds_in_compare() {
+    let dir = tmp("pi");
+    let cfg = dir.join("kp15.toml");
+    std::fs::write(&cfg, with_pi("1.5", "0.0005")).unwrap();
+    let o = ecsync()
+        .args(["tune", "--method", "pi-m2s", "--config"])
+        .arg(&cfg)
+        .args(SHORT)
+        .args(["--quiet", "--shortest-cycle", "--cycle-step-us", "100"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    println!("{text}");
+    let line = |p: &str| {
+        text.lines()
+            .find(|l| l.trim_start().starts_with(p))
+            .unwrap_or_else(|| panic!("{p} in {text}"))
+            .to_string()
+    };
+    assert!(
+        line("Verdict:").contains("beyond run-to-run noise"),
+        "{text}"
+    );
+    let (def, tuned) = (line("defaults"), line("tuned"));
+    let kp = number_after(&tuned, "(kp ").to_string();
+    let ki = tuned[tuned.find("ki ").unwrap() + 3..tuned.find(')').unwrap()].to_string();
+    // The fragment holds what the tuned line names.
+    assert!(text.contains(&format!("  kp = {kp}\n")), "{text}");
+    // compare with each parameter set gives the figures tune printed.
+    for (what, l, kp, ki) in [
+        ("defaults", &def, "1.5".to_string(), "0.0005".to_string()),
+        ("tuned", &tuned, kp.clone(), ki.clone()),
+    ] {
+        let f = dir.join(format!("{what}.toml"));
+        std::fs::write(&f, with_pi(&kp, &ki)).unwrap();
+        let m = compare(&f, &[]);
+        let safe = m["ground_truth"]["smallest_safe_shift_pct"]
+            .as_f64()
+            .unwrap();
+        assert!(
+            (safe - number_after(l, "smallest safe shift")).abs() < 0.051,
+            "{what}: compare says {safe} %, tune: {l}"
+        );
+    }
+    // The shortest cycle: held at it, not one step (100 us) below, as compare sees it.
+    let sc = line("Shortest cycle");
+    let us = number_after(&sc, "SYNC0 shift: ");
+    let tuned_cfg = dir.join("tuned.toml");
+    let at = compare(
+        &tuned_cfg,
+        &["--cycle-us", &us.to_string(), "--shift-pct", "30"],
+    );
+    let g = &at["ground_truth"];
+    assert_eq!(g["late_frames"], 0, "{sc}");
+    assert_eq!(g["lost_frames"], 0, "{sc}");
+    assert_eq!(g["holds_target"], true, "{sc}");
+    let below = compare(
+        &tuned_cfg,
+        &["--cycle-us", &(us - 100.0).to_string(), "--shift-pct", "30"],
+    );
+    let g = &below["ground_truth"];
+    assert!(
+        g["late_frames"].as_u64().unwrap() + g["lost_frames"].as_u64().unwrap() > 0
+            || g["holds_target"] == false,
+        "{sc}: {g}"
+    );
+}
+
+/// When nothing beats the defaults beyond noise the fragment gives the defaults.
+#[test]
+fn defaults_that_nothing_beats_are_kept() {
+    let dir = tmp("keep");
+    let o = ecsync()
+        .args(["tune", "--method", "soem-pi", "--preset", "paper-2024"])
+        .args(SHORT)
+        .arg("--quiet")
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{text}");
+    assert!(
+        text.contains("Verdict: the defaults are the best point found; keep them."),
+        "{text}"
+    );
+    assert!(
+        !text.contains("[methods.soem-pi]"),
+        "no gains to paste: {text}"
+    );
+}
