@@ -163,6 +163,10 @@ GENERATORS = {
     "bringup-paper-2024": plain("ecsync bringup --preset paper-2024"),
     "bringup-junction-coupler": plain("ecsync bringup --config docs/examples/junction-coupler.toml"),
     "sweep-twelve-drives": sweep_example,
+    "tune-median-fit": plain(
+        "ecsync tune --method median-fit --runs 3 --cycles 100000 --warmup-s 12 --quiet "
+        "--shortest-cycle --cycle-step-us 50"
+    ),
     "tsn-models": plain("ecsync tsn models"),
     "tsn-run": plain("ecsync tsn run", "out/tsn"),
 }
