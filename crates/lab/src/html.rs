@@ -25,6 +25,18 @@ pub(crate) fn inline_svg(svg: &str) -> &str {
     svg.find("<svg").map_or("", |k| svg[k..].trim_end())
 }
 
+/// `f` as a figure of a report page: the SVG inline, its caption, links to its SVG and PNG
+/// files (compare's report.html and the sweep's sweep.html alike).
+pub(crate) fn figure_html(h: &mut String, f: &Figure<'_>) {
+    let _ = write!(
+        h,
+        "<figure id=\"{name}\">{}<figcaption>{} <small>(also <a href=\"{name}.svg\">{name}.svg</a>, <a href=\"{name}.png\">{name}.png</a>)</small></figcaption></figure>",
+        inline_svg(&f.svg),
+        esc(f.caption),
+        name = f.name
+    );
+}
+
 /// The style sheet of compare's report, shared by the judge's (`crate::judge`).
 pub(crate) const CSS: &str = "body{font-family:sans-serif;margin:2em;max-width:1200px;color:#222}table{border-collapse:collapse;margin:1em 0}\
 td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}td.l{white-space:nowrap}th{background:#eee}td.l,th.l{text-align:left}\
@@ -90,13 +102,7 @@ pub(crate) fn report_html(out: &SummaryOut, order: &[String], plots: &[Figure<'_
     letter_table(&mut h, out, order);
     let _ = write!(h, "<h2>Plots</h2>");
     for f in plots {
-        let _ = write!(
-            h,
-            "<figure id=\"{name}\">{}<figcaption>{} <small>(also <a href=\"{name}.svg\">{name}.svg</a>, <a href=\"{name}.png\">{name}.png</a>)</small></figcaption></figure>",
-            inline_svg(&f.svg),
-            esc(f.caption),
-            name = f.name
-        );
+        figure_html(&mut h, f);
     }
     let _ = write!(
         h,

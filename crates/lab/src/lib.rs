@@ -42,6 +42,7 @@ pub mod run;
 pub mod scenario;
 pub mod session;
 pub mod stats;
+pub mod sweep_report;
 pub mod tsn;
 
 pub use compare::{Comparison, compare};

@@ -27,8 +27,9 @@ pub fn point_line(out: &SummaryOut) -> String {
     }
 }
 
-fn good(r: &ResultRow) -> bool {
-    r.ranked
+/// Whether `r` counts for the answer: what the report draws filled.
+pub fn good(r: &ResultRow) -> bool {
+    r.rank.is_some()
         && r.late_frames == 0
         && r.lost_frames == 0
         && r.holds_target
@@ -62,23 +63,44 @@ fn some_points(rows: &[&ResultRow]) -> String {
     s.join(", ")
 }
 
-/// The sweep's answer from the database's rows.
-pub fn text(store: &Store, pts: &Points) -> Result<String> {
-    let rows = store.rows()?;
-    let done = store.done()?.len();
-    let mut best: BTreeMap<&str, Option<&ResultRow>> = BTreeMap::new();
-    for r in &rows {
-        let slot = best.entry(r.method.as_str()).or_insert(None);
+/// Each method's best good point (`None`: it has none), and the best of them: what the
+/// answer names and the report marks, decided here only so that the two never disagree.
+pub struct Best<'a> {
+    /// Per method, by name.
+    pub per_method: BTreeMap<&'a str, Option<&'a ResultRow>>,
+    /// The answer's point.
+    pub overall: Option<&'a ResultRow>,
+}
+
+/// The best points of `rows`.
+pub fn best(rows: &[ResultRow]) -> Best<'_> {
+    let mut per_method: BTreeMap<&str, Option<&ResultRow>> = BTreeMap::new();
+    for r in rows {
+        let slot = per_method.entry(r.method.as_str()).or_insert(None);
         if good(r) && slot.is_none_or(|b| better(r, b)) {
             *slot = Some(r);
         }
     }
-    let mut t = String::new();
-    let overall = best
+    let overall = per_method
         .values()
         .flatten()
         .copied()
         .reduce(|a, b| if better(b, a) { b } else { a });
+    Best {
+        per_method,
+        overall,
+    }
+}
+
+/// The sweep's answer from the database's rows.
+pub fn text(store: &Store, pts: &Points) -> Result<String> {
+    let rows = store.rows()?;
+    let done = store.done()?.len();
+    let Best {
+        per_method: best,
+        overall,
+    } = best(&rows);
+    let mut t = String::new();
     let tie_words = format!("within {SHIFT_TIE_PCT} % of the cycle, the comparison's tie step");
     match overall {
         Some(r) => {

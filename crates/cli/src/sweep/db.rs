@@ -332,8 +332,8 @@ impl Store {
         Ok(())
     }
 
-    /// The per-method rows of every point done, for the sweep's answer: (point, method,
-    /// late frames, lost frames, smallest safe shift %, phase error p99.9 ns, holds target).
+    /// The per-method rows of every point done, in point and method order, for the sweep's
+    /// answer and its report.
     pub fn rows(&self) -> Result<Vec<ResultRow>> {
         let mut q = self.conn.prepare(
             "SELECT point, method, late_frames, lost_frames, smallest_safe_shift_pct,
@@ -350,7 +350,7 @@ impl Store {
                 phase_error_p999_ns: r.get::<_, Option<f64>>(5)?.unwrap_or(f64::NAN),
                 holds_target: r.get::<_, i64>(6)? != 0,
                 slave_spread_p999_ns: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
-                ranked: r.get::<_, Option<i64>>(8)?.is_some(),
+                rank: r.get::<_, Option<i64>>(8)?.map(|k| k as u32),
             })
         })?;
         Ok(rows.collect::<Result<_, _>>()?)
@@ -415,13 +415,20 @@ pub fn read_meta(path: &Path) -> Result<Meta> {
             path.display()
         );
     }
+    Ok(read(path)?.1)
+}
+
+/// The sweep database at `path`, opened to read only (the report changes nothing in it), and
+/// the sweep it holds.
+pub fn read(path: &Path) -> Result<(Store, Meta)> {
     let conn = Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
         .with_context(|| format!("cannot open {}", path.display()))?;
     let store = Store { conn };
-    store
+    let meta = store
         .meta()
         .with_context(|| format!("{}", path.display()))?
-        .with_context(|| format!("{}: not a sweep database (no sweep table)", path.display()))
+        .with_context(|| format!("{}: not a sweep database (no sweep table)", path.display()))?;
+    Ok((store, meta))
 }
 
 /// One method at one point, as the sweep's answer reads it.
@@ -443,9 +450,9 @@ pub struct ResultRow {
     pub holds_target: bool,
     /// p99.9 of |slave - reference|, ns.
     pub slave_spread_p999_ns: f64,
-    /// Whether the point's verdict ranked it (an unstable method, or one that lost most
-    /// frames, is not).
-    pub ranked: bool,
+    /// Its place in the point's ranking, 1 best; `None` when the verdict did not rank it (an
+    /// unstable method, or one that lost most frames).
+    pub rank: Option<u32>,
 }
 
 /// [`Points::canonical`] read back.

@@ -6,6 +6,7 @@ mod answer;
 mod db;
 pub(crate) mod grid;
 pub(crate) mod point;
+mod report;
 
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
@@ -36,6 +37,20 @@ pub struct Args {
 enum Sub {
     /// Joins the databases of a sweep's shards into one, equal to the sweep run whole.
     Merge(MergeArgs),
+    /// Writes the report of a sweep's database (run whole, or shards merged): tradeoff.svg,
+    /// heatmap-<method>.svg when two keys are swept, sweep.html.
+    Report(ReportArgs),
+}
+
+/// Writes a sweep's report from its database.
+#[derive(Debug, clap::Args)]
+struct ReportArgs {
+    /// The sweep's database.
+    #[arg(long, default_value = "sweep.db")]
+    db: PathBuf,
+    /// The report's folder (made when absent; the files in it replaced).
+    #[arg(long, default_value = "out/sweep")]
+    out: PathBuf,
 }
 
 /// Merges shard databases.
@@ -89,6 +104,11 @@ struct RunArgs {
     /// No line per point.
     #[arg(long)]
     quiet: bool,
+    /// Also write the report into this folder when the sweep is done: tradeoff.svg (every
+    /// point's safe shift against its phase error), heatmap-<method>.svg (two swept keys),
+    /// sweep.html. From the database alone, as `ecsync sweep report` writes it.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
 }
 
 fn after_help() -> String {
@@ -104,6 +124,7 @@ fn after_help() -> String {
 pub fn run(args: Args) -> Result<ExitCode> {
     match args.command {
         Some(Sub::Merge(m)) => merge(&m),
+        Some(Sub::Report(r)) => write_report(&r),
         None => sweep(&args.run),
     }
 }
@@ -193,6 +214,11 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
     let (name, base) = base(a)?;
     let pts = points(a)?;
     let texts = scenarios(&name, &base, &pts)?;
+    // Before the database is made and any point runs: a report that cannot be written fails
+    // now, not after the sweep.
+    if let Some(dir) = &a.report {
+        report::check_dir("--report", dir)?;
+    }
     let meta = Meta {
         base_name: name.clone(),
         base_toml: toml::to_string(&base)?,
@@ -268,9 +294,47 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
             mine.len(),
             a.db.display()
         );
+        if a.report.is_some() {
+            eprintln!(
+                "ecsync sweep: no report written (stopped); `ecsync sweep report --db {}` writes it from the points done",
+                a.db.display()
+            );
+        }
         return Ok(ExitCode::from(130));
     }
     print!("{}", answer::text(&store, &pts)?);
+    if let Some(dir) = &a.report {
+        report::write(&store, &meta, "--report", dir)?;
+        if !a.quiet {
+            eprintln!(
+                "ecsync sweep: report in {}",
+                dir.join("sweep.html").display()
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `ecsync sweep report`: the database is checked first (a wrong path is named as --db), then
+/// the folder, then the report is written.
+fn write_report(r: &ReportArgs) -> Result<ExitCode> {
+    if !r.db.is_file() {
+        bail!(
+            "--db: {}: no such file; fix: give the sweep's database (`ecsync sweep --db F`, or `ecsync sweep merge --db F` of its shards)",
+            r.db.display()
+        );
+    }
+    let (store, meta) = db::read(&r.db).map_err(|e| anyhow::anyhow!("--db: {e:#}"))?;
+    report::check_dir("--out", &r.out)?;
+    let files = report::write(&store, &meta, "--out", &r.out)?;
+    let done = store.done()?.len();
+    let total = meta.points.rows.len();
+    print!("{}", answer::text(&store, &meta.points)?);
+    eprintln!(
+        "ecsync sweep report: {done} of {total} points; wrote {} into {}",
+        files.join(", "),
+        r.out.display()
+    );
     Ok(ExitCode::SUCCESS)
 }
 

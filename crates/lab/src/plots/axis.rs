@@ -126,6 +126,66 @@ pub(crate) fn rebin(h: &Dist, lo: f64, hi: f64, bins: usize) -> Vec<u64> {
     out
 }
 
+/// Viridis at ten evenly spaced steps (matplotlib's `viridis(linspace(0, 1, 10))`): the heat
+/// maps' colour scale. Perceptually uniform and readable in grey and by the colour-blind, and
+/// none of its colours is the grey a heat map draws a point that is not good in.
+const VIRIDIS: [RGBColor; 10] = [
+    RGBColor(0x44, 0x01, 0x54),
+    RGBColor(0x48, 0x28, 0x78),
+    RGBColor(0x3e, 0x49, 0x89),
+    RGBColor(0x31, 0x68, 0x8e),
+    RGBColor(0x26, 0x82, 0x8e),
+    RGBColor(0x1f, 0x9e, 0x89),
+    RGBColor(0x35, 0xb7, 0x79),
+    RGBColor(0x6e, 0xce, 0x58),
+    RGBColor(0xb5, 0xde, 0x2b),
+    RGBColor(0xfd, 0xe7, 0x25),
+];
+
+/// The colour of `t` on the heat maps' scale (0: dark purple, 1: yellow), interpolated
+/// between [`VIRIDIS`]'s steps; `t` outside 0..1 takes the end's colour, so a colour always
+/// matches the colour bar.
+pub(crate) fn viridis(t: f64) -> RGBColor {
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let x = t * (VIRIDIS.len() - 1) as f64;
+    let k = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let f = x - k as f64;
+    let (a, b) = (VIRIDIS[k], VIRIDIS[k + 1]);
+    let mix = |p: u8, q: u8| (f64::from(p) + (f64::from(q) - f64::from(p)) * f).round() as u8;
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// Whether text on `bg` is drawn white (on a dark colour) rather than black: by the colour's
+/// relative luminance (Rec. 709 weights), so a cell's value stays readable on any colour.
+pub(crate) fn white_text_on(bg: RGBColor) -> bool {
+    let y = 0.2126 * f64::from(bg.0) + 0.7152 * f64::from(bg.1) + 0.0722 * f64::from(bg.2);
+    y < 128.0
+}
+
+/// Hatching of the box from `a` to `b` (px, y down): lines `step` px apart rising to the
+/// right, each from edge to edge, none outside the box (a hatch that spilled would paint the
+/// next cell).
+pub(crate) fn hatch(a: (i32, i32), b: (i32, i32), step: i32) -> Vec<((i32, i32), (i32, i32))> {
+    let (x0, x1) = (a.0.min(b.0), a.0.max(b.0));
+    let (y0, y1) = (a.1.min(b.1), a.1.max(b.1));
+    let mut out = Vec::new();
+    let mut c = x0 + y0 + step.max(1);
+    while c < x1 + y1 {
+        // The line x + y = c within the box: y from the larger of y0 and c - x1 to the
+        // smaller of y1 and c - x0.
+        let (lo, hi) = ((c - x1).max(y0), (c - x0).min(y1));
+        if lo < hi {
+            out.push(((c - lo, lo), (c - hi, hi)));
+        }
+        c += step.max(1);
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -269,5 +329,32 @@ mod tests {
         ]));
         // A flat series (no span) is no reason to split.
         assert!(!ranges_differ_tenfold(&[(5.0, 5.0), (0.0, 1000.0)]));
+    }
+
+    #[test]
+    fn the_heat_scale_runs_from_viridis_start_to_end_and_clamps() {
+        assert_eq!(viridis(0.0), VIRIDIS[0]);
+        assert_eq!(viridis(1.0), VIRIDIS[9]);
+        assert_eq!(viridis(-3.0), VIRIDIS[0]);
+        assert_eq!(viridis(7.0), VIRIDIS[9]);
+        assert_eq!(viridis(f64::NAN), VIRIDIS[0]);
+        // Half way between two steps: the mean of the two.
+        let m = viridis(0.5 / 9.0);
+        assert_eq!(m, RGBColor(0x46, 0x15, 0x66));
+        assert!(white_text_on(viridis(0.0)) && !white_text_on(viridis(1.0)));
+    }
+
+    #[test]
+    fn hatching_stays_inside_its_box() {
+        let lines = hatch((10, 20), (40, 38), 6);
+        assert!(lines.len() >= 7, "{lines:?}");
+        for (p, q) in &lines {
+            for (x, y) in [p, q] {
+                assert!((10..=40).contains(x) && (20..=38).contains(y), "{lines:?}");
+            }
+            // Each rises to the right at 45 degrees.
+            assert_eq!(q.0 - p.0, p.1 - q.1);
+        }
+        assert!(hatch((0, 0), (0, 0), 6).is_empty());
     }
 }

@@ -3,8 +3,8 @@
 //! every text is at least [`TICK`] (14.5 px at the figure's own width).
 
 use super::axis::{
-    LATE_RED, LEGEND, Mark, PANEL_TITLE, TICK, TITLE, cover, cover_dists, dashed_series, rebin,
-    series_color, with_marks,
+    LATE_RED, LEGEND, Mark, PANEL_TITLE, TICK, TITLE, cover, cover_dists, dashed_series, hatch,
+    rebin, series_color, with_marks,
 };
 use crate::compare::Comparison;
 use crate::run::{Band, RunResult};
@@ -23,20 +23,40 @@ pub(crate) fn err<E: std::fmt::Display>(e: E) -> io::Error {
 /// [`LEGEND`].
 const STRIP: u32 = 250;
 
-/// A legend entry: its label (a second line after `\n`), its colour, whether dashed.
+/// A legend entry: its label (a second line after `\n`), its colour, what it shows.
 pub(crate) struct Key {
     pub label: String,
     pub color: RGBColor,
-    pub dashed: bool,
+    pub swatch: Swatch,
 }
 
-fn font(size: u32) -> TextStyle<'static> {
+/// How a legend entry shows what it names: the same shape the plot draws it with, so that a
+/// reader matches them by eye.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Swatch {
+    /// A line (a series or a marker), dashed or solid.
+    Line { dashed: bool },
+    /// A dot, filled or hollow (an outline): the sweep's points.
+    Dot { filled: bool },
+    /// A ring: the sweep's best point.
+    Ring,
+    /// A heat map's cell, plain or hatched (a point that is not good).
+    Cell { hatched: bool },
+    /// A cell's outline: the heat map's best point.
+    Frame,
+}
+
+/// The grey a heat map draws a cell that is not good in, and its hatching.
+pub(crate) const BAD_GREY: RGBColor = RGBColor(0xd9, 0xd9, 0xd9);
+pub(crate) const HATCH_GREY: RGBColor = RGBColor(0x80, 0x80, 0x80);
+
+pub(crate) fn font(size: u32) -> TextStyle<'static> {
     TextStyle::from(("sans-serif", size).into_font())
 }
 
 /// A log axis's tick (a power of ten) as a plain number from 0.001 to 1000 (100, 1, 0.001),
 /// beyond as a power (1e6): short enough for the label area.
-fn decade(v: &f64) -> String {
+pub(crate) fn decade(v: &f64) -> String {
     let exp = v.log10().round();
     if exp.abs() > 3.0 {
         format!("1e{exp:.0}")
@@ -72,8 +92,7 @@ pub(crate) fn legend<DB: DrawingBackend>(
         for (n, text) in key.label.lines().enumerate() {
             let mid = y + row / 2;
             if n == 0 {
-                area.draw(&line(vec![(6, mid), (40, mid)], key.color, 3, key.dashed))
-                    .map_err(err)?;
+                swatch(area, key, mid)?;
             }
             let style = font(LEGEND).pos(Pos::new(HPos::Left, VPos::Center));
             area.draw(&Text::new(text.to_string(), (48, mid), style))
@@ -84,8 +103,46 @@ pub(crate) fn legend<DB: DrawingBackend>(
     Ok(())
 }
 
+/// Draws `key`'s swatch in the legend's first 40 px, centred on row `mid`.
+fn swatch<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    key: &Key,
+    mid: i32,
+) -> io::Result<()> {
+    let c = key.color;
+    match key.swatch {
+        Swatch::Line { dashed } => area.draw(&line(vec![(6, mid), (40, mid)], c, 3, dashed)),
+        Swatch::Dot { filled } => {
+            let style = if filled {
+                c.filled()
+            } else {
+                c.stroke_width(2)
+            };
+            area.draw(&Circle::new((23, mid), 6, style))
+        }
+        Swatch::Ring => area.draw(&Circle::new((23, mid), 10, c.stroke_width(3))),
+        Swatch::Cell { hatched } => {
+            let (a, b) = ((10, mid - 9), (36, mid + 9));
+            area.draw(&Rectangle::new([a, b], c.filled()))
+                .map_err(err)?;
+            if hatched {
+                for (p, q) in hatch(a, b, 6) {
+                    area.draw(&PathElement::new(vec![p, q], HATCH_GREY.stroke_width(1)))
+                        .map_err(err)?;
+                }
+            }
+            area.draw(&Rectangle::new([a, b], HATCH_GREY.stroke_width(1)))
+        }
+        Swatch::Frame => area.draw(&Rectangle::new(
+            [(10, mid - 9), (36, mid + 9)],
+            c.stroke_width(3),
+        )),
+    }
+    .map_err(err)
+}
+
 /// Splits `area` into the plot (left) and the legend strip (right).
-fn with_strip<DB: DrawingBackend>(
+pub(crate) fn with_strip<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
 ) -> (DrawingArea<DB, Shift>, DrawingArea<DB, Shift>) {
     let w = area.dim_in_pixel().0;
@@ -140,7 +197,7 @@ fn mark_key(mk: &Mark, lo: f64, hi: f64, unit_div: f64, unit: &str) -> Key {
     Key {
         label,
         color: mk.color,
-        dashed: true,
+        swatch: Swatch::Line { dashed: true },
     }
 }
 
@@ -203,7 +260,7 @@ pub(crate) fn overlaid<DB: DrawingBackend>(
         keys.push(Key {
             label: (*name).clone(),
             color: col,
-            dashed,
+            swatch: Swatch::Line { dashed },
         });
     }
     for mk in &m.marks {
@@ -435,13 +492,15 @@ pub(crate) fn fault_windows<DB: DrawingBackend>(
         .map(|(i, name, _)| Key {
             label: (*name).clone(),
             color: series_color(*i),
-            dashed: dashed_series(*i),
+            swatch: Swatch::Line {
+                dashed: dashed_series(*i),
+            },
         })
         .collect();
     keys.push(Key {
         label: "lock band, 100 ns".into(),
         color: LATE_RED,
-        dashed: true,
+        swatch: Swatch::Line { dashed: true },
     });
     legend(&strip, &keys, 30)?;
     let rows = panels.split_evenly((n, 1));

@@ -19,7 +19,11 @@ mod axis;
 mod draw;
 
 pub(crate) use axis::COLORS;
-pub(crate) use draw::{Metric, band_panel, draw_envelopes, draw_hist, err};
+pub(crate) use axis::{TICK, TITLE, cover, hatch, series_color, viridis, white_text_on};
+pub(crate) use draw::{
+    BAD_GREY, HATCH_GREY, Key, Metric, Swatch, band_panel, decade, draw_envelopes, draw_hist, err,
+    font, legend, with_strip,
+};
 
 use crate::compare::Comparison;
 use crate::html::{Figure, report_html};
@@ -84,22 +88,34 @@ pub fn write_all(c: &Comparison, out: &SummaryOut, order: &[String], dir: &Path)
     plots.extend(series(c, order, lines));
     let mut figures = Vec::with_capacity(plots.len());
     for pl in &plots {
-        for (ext, svg) in [("svg", true), ("png", false)] {
-            let fin = dir.join(format!("{}.{ext}", pl.name));
-            let tmp = dir.join(format!("{}.tmp-ecsync.{ext}", pl.name));
-            (pl.draw)(&tmp, svg)?;
-            std::fs::rename(&tmp, &fin)?;
-        }
         // report.html holds the SVG itself: a link would show nothing when the file is
         // mailed, attached or opened away from its folder.
         figures.push(Figure {
             name: pl.name,
             caption: &pl.caption,
-            svg: std::fs::read_to_string(dir.join(format!("{}.svg", pl.name)))?,
+            svg: write_svg_png(dir, pl.name, &pl.draw)?,
         });
     }
     let html = report_html(out, order, &figures);
     write_atomic(&dir.join("report.html"), html.as_bytes())
+}
+
+/// Writes plot `name` into `dir` as SVG and PNG, each drawn (`draw(path, svg)`) to a temporary
+/// file and renamed over the old one, so that a reader, or a run stopped mid-write, never
+/// meets half a plot; returns the SVG's text, which the reports hold inline. Every report's
+/// plots are written here (compare's, the TSN run's, the sweep's).
+pub(crate) fn write_svg_png(
+    dir: &Path,
+    name: &str,
+    draw: &dyn Fn(&Path, bool) -> io::Result<()>,
+) -> io::Result<String> {
+    for (ext, svg) in [("svg", true), ("png", false)] {
+        let fin = dir.join(format!("{name}.{ext}"));
+        let tmp = dir.join(format!("{name}.tmp-ecsync.{ext}"));
+        draw(&tmp, svg)?;
+        std::fs::rename(&tmp, &fin)?;
+    }
+    std::fs::read_to_string(dir.join(format!("{name}.svg")))
 }
 
 /// Where the phase plots draw their lines, ns after the DC grid point.

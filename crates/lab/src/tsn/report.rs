@@ -4,7 +4,7 @@
 use super::{TsnScenario, Variant, VariantResult};
 use crate::html::esc;
 use crate::output::write_atomic;
-use crate::plots::{COLORS, draw_envelopes, draw_hist, err, fonts};
+use crate::plots::{COLORS, draw_envelopes, draw_hist, err, fonts, write_svg_png};
 use crate::stats::Summary;
 use ecsync_tsn::qbv::GateControlEntry;
 use plotters::coord::Shift;
@@ -508,21 +508,10 @@ pub fn write_all(sum: &TsnSummary, results: &[VariantResult], dir: &Path) -> io:
             }),
         ));
     }
-    for (name, f) in &plots {
-        for (ext, svg) in [("svg", true), ("png", false)] {
-            let fin = dir.join(format!("{name}.{ext}"));
-            let tmp = dir.join(format!("{name}.tmp-ecsync.{ext}"));
-            f(&tmp, svg)?;
-            std::fs::rename(&tmp, &fin)?;
-        }
-    }
     // report.html holds the SVGs themselves: the file alone shows its plots.
     let mut figures = Vec::with_capacity(plots.len());
-    for (name, _) in &plots {
-        figures.push((
-            *name,
-            std::fs::read_to_string(dir.join(format!("{name}.svg")))?,
-        ));
+    for (name, f) in &plots {
+        figures.push((*name, write_svg_png(dir, name, f.as_ref())?));
     }
     write_atomic(
         &dir.join("report.html"),
