@@ -32,12 +32,13 @@ const SHORT: &[&str] = &[
     "--quiet",
 ];
 
-/// Six points: three gains x two SYNC0 shifts.
+/// Six points: three gains x two SYNC0 shifts. At 5 % frames come late (the smallest safe
+/// shift is near 7 % here), so half the points are not good and the report has to draw both.
 const GRID: &[&str] = &[
     "--grid",
     "methods.median-fit.gain=0.005,0.01,0.02",
     "--grid",
-    "run.sync0_shift_pct=10,30",
+    "run.sync0_shift_pct=5,30",
 ];
 
 fn sweep(db: &Path, extra: &[&str]) -> Command {
@@ -81,6 +82,31 @@ fn best_by_sql(db: &Path, method: Option<&str>) -> (String, i64) {
         |r| Ok((r.get(0)?, r.get(1)?)),
     )
     .unwrap()
+}
+
+/// Whether each (point, method) is good, by SQL: no late or lost frame, ranked, on target.
+fn good_by_sql(db: &Path) -> BTreeSet<(String, String)> {
+    let c = Connection::open(db).unwrap();
+    let mut q = c
+        .prepare(
+            "SELECT point, method FROM sweep_results
+             WHERE rank IS NOT NULL AND late_frames = 0 AND lost_frames = 0 AND holds_target = 1
+               AND smallest_safe_shift_pct IS NOT NULL",
+        )
+        .unwrap();
+    q.query_map([], |r| Ok((r.get::<_, i64>(0)?.to_string(), r.get(1)?)))
+        .unwrap()
+        .map(Result::unwrap)
+        .collect()
+}
+
+/// The (point, method) of every element of `svg` drawn as good (`data-good="1"`) or not.
+fn drawn_good(svg: &str, good: bool) -> BTreeSet<(String, String)> {
+    let marker = format!("data-good=\"{}\"", u8::from(good));
+    attrs(svg, &marker, "data-point")
+        .into_iter()
+        .zip(attrs(svg, &marker, "data-method"))
+        .collect()
 }
 
 /// The values of `attr` on every element of `svg` that carries `marker`.
@@ -137,6 +163,17 @@ fn the_report_draws_every_point_and_marks_the_point_sql_finds_best() {
         .unwrap();
     assert_eq!(results, 12);
     assert_eq!(tradeoff.matches(" data-point=\"").count(), results as usize);
+    // Filled exactly where SQL finds a point good; hollow elsewhere (and there are both).
+    let good = good_by_sql(&db);
+    assert!(
+        !good.is_empty() && good.len() < results as usize,
+        "{good:?}"
+    );
+    assert_eq!(drawn_good(&tradeoff, true), good);
+    assert_eq!(
+        drawn_good(&tradeoff, false).len() + good.len(),
+        results as usize
+    );
     // Each heat map: one cell per point, every point once; the method's best (by SQL) outlined.
     for m in ["median-fit", "soem-pi"] {
         let svg = read(&rep.join(format!("heatmap-{m}.svg")));
@@ -153,6 +190,13 @@ fn the_report_draws_every_point_and_marks_the_point_sql_finds_best() {
         let best = attrs(&svg, "data-best=\"1\"", "data-point");
         assert_eq!(best, [p.to_string()], "{m}'s best cell");
         assert!(svg.contains("safe shift, %"), "{m}: the colour bar's unit");
+        let good_here: BTreeSet<_> = good.iter().filter(|g| g.1 == m).cloned().collect();
+        assert_eq!(drawn_good(&svg, true), good_here, "{m}: coloured cells");
+        assert_eq!(
+            drawn_good(&svg, false).len() + good_here.len(),
+            6,
+            "{m}: hatched cells"
+        );
     }
     // The page: the answer, the plots inline, a row per point and method.
     let html = read(&rep.join("sweep.html"));
@@ -167,6 +211,10 @@ fn the_report_draws_every_point_and_marks_the_point_sql_finds_best() {
         "tradeoff and two heat maps inline"
     );
     assert_eq!(html.matches("<tr").count(), results as usize + 1);
+    assert_eq!(
+        html.matches("<tr class=bad>").count(),
+        results as usize - good.len()
+    );
     assert!(
         !html.contains("src=\"") && !html.contains("<link"),
         "self-contained"

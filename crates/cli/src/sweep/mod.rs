@@ -38,7 +38,7 @@ enum Sub {
     /// Joins the databases of a sweep's shards into one, equal to the sweep run whole.
     Merge(MergeArgs),
     /// Writes the report of a sweep's database (run whole, or shards merged): tradeoff.svg,
-    /// heatmap-<method>.svg when two keys are swept, sweep.html.
+    /// heatmap-METHOD.svg when two keys are swept, sweep.html.
     Report(ReportArgs),
 }
 
@@ -105,7 +105,7 @@ struct RunArgs {
     #[arg(long)]
     quiet: bool,
     /// Also write the report into this folder when the sweep is done: tradeoff.svg (every
-    /// point's safe shift against its phase error), heatmap-<method>.svg (two swept keys),
+    /// point's safe shift against its phase error), heatmap-METHOD.svg (two swept keys),
     /// sweep.html. From the database alone, as `ecsync sweep report` writes it.
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,

@@ -118,7 +118,8 @@ fn swatch<DB: DrawingBackend>(
             } else {
                 c.stroke_width(2)
             };
-            area.draw(&Circle::new((23, mid), 6, style))
+            // As the sweep's trade-off draws them: a hollow ring wider than a dot.
+            area.draw(&Circle::new((23, mid), if filled { 6 } else { 8 }, style))
         }
         Swatch::Ring => area.draw(&Circle::new((23, mid), 10, c.stroke_width(3))),
         Swatch::Cell { hatched } => {

@@ -189,7 +189,7 @@ fn color_bar<DB: DrawingBackend>(
     let mut chart = ChartBuilder::on(&bar)
         .caption("safe shift, %", font(TICK))
         .margin(8)
-        .margin_right(60)
+        .margin_right(44)
         .y_label_area_size(64)
         .build_cartesian_2d(0.0..1.0, lo..hi)
         .map_err(err)?;
@@ -198,6 +198,7 @@ fn color_bar<DB: DrawingBackend>(
         .disable_mesh()
         .x_labels(0)
         .y_labels(5)
+        .set_all_tick_mark_size(6)
         .y_label_formatter(&|v| format!("{v:.1}"))
         .label_style(font(TICK))
         .draw()

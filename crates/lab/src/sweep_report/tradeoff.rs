@@ -198,17 +198,19 @@ where
         for r in drawn(s).filter(|r| r.good == good) {
             let c = series_color(s.color_index(&r.method));
             let at = (r.safe_shift_pct, r.phase_error_p999_ns);
-            let style = if good {
-                c.filled()
+            // A hollow ring is wider than a dot: where a bad point has the same figures as a
+            // good one (the same noise at another parameter), it shows around it.
+            let (radius, style) = if good {
+                (6, c.filled())
             } else {
-                c.mix(0.6).stroke_width(2)
+                (9, c.mix(0.6).stroke_width(2))
             };
             chart
-                .draw_series(std::iter::once(Circle::new(at, 6, style)))
+                .draw_series(std::iter::once(Circle::new(at, radius, style)))
                 .map_err(err)?;
             let (x, y) = chart.backend_coord(&at);
             hots.push(Hot {
-                shape: HotShape::Circle(x, y, 8),
+                shape: HotShape::Circle(x, y, radius + 2),
                 point: r.point,
                 method: r.method.clone(),
                 good: r.good,
