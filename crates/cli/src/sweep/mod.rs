@@ -11,13 +11,10 @@ mod report;
 use crate::source::SourceArgs;
 use anyhow::{Context, Result, bail};
 use db::{Meta, Store};
-use ecsync_lab::compare::{Options, compare_with};
-use ecsync_lab::report::summarize;
-use ecsync_lab::run::RunError;
 use grid::{Param, Points};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 /// Set by Ctrl-C or SIGTERM: the point in progress is dropped, the ones done are kept.
@@ -151,27 +148,20 @@ fn shard(arg: Option<&str>) -> Result<(usize, usize)> {
 /// The base scenario as a TOML table with the command line's settings written in.
 fn base(a: &RunArgs) -> Result<(String, toml::Table)> {
     let (name, text) = a.source.load()?;
-    // Read as compare reads it first, so that a bad base is named as the file.
-    ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
-    let mut t: toml::Table = text.parse().with_context(|| name.clone())?;
-    let run = t
-        .entry("run")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-    let toml::Value::Table(run) = run else {
-        bail!("{name}: [run] is not a table");
-    };
+    let mut run: Vec<(&str, toml::Value)> = Vec::new();
     if let Some(m) = &a.methods {
-        run.insert("methods".into(), m.clone().into());
+        run.push(("methods", m.clone().into()));
     }
     if let Some(r) = a.runs {
-        run.insert("runs".into(), i64::from(r).into());
+        run.push(("runs", i64::from(r).into()));
     }
     if let Some(c) = a.cycles {
-        run.insert("cycles".into(), (c as i64).into());
+        run.push(("cycles", (c as i64).into()));
     }
     if let Some(w) = a.warmup_s {
-        run.insert("warmup_s".into(), w.into());
+        run.push(("warmup_s", w.into()));
     }
+    let t = point::base_table(&name, &text, &run)?;
     Ok((name, t))
 }
 
@@ -194,14 +184,10 @@ fn points(a: &RunArgs) -> Result<Points> {
 
 /// Every point's scenario, checked before any runs: a bad value is refused now, naming it.
 fn scenarios(name: &str, base: &toml::Table, pts: &Points) -> Result<Vec<String>> {
-    pts.rows
-        .iter()
-        .enumerate()
-        .map(|(i, row)| {
-            let text = grid::apply(base, &pts.keys, row)?;
-            ecsync_lab::parse(&format!("{name} at point {i}"), &text)
-                .map_err(|e| anyhow::anyhow!("point {i} ({}): {e}", pts.describe(i)))?;
-            Ok(text)
+    (0..pts.rows.len())
+        .map(|i| {
+            let what = format!("point {i} ({})", pts.describe(i));
+            point::scenario_text(name, base, &pts.keys, &pts.rows[i], &what)
         })
         .collect()
 }
@@ -253,18 +239,11 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
     let mut ran = 0;
     for (k, &p) in todo.iter().enumerate() {
         let t = Instant::now();
-        let s = ecsync_lab::parse(&format!("{name} at point {p}"), &texts[p])
-            .map_err(anyhow::Error::msg)?;
-        let opts = Options {
-            stop: Some(&STOP),
-            ..Default::default()
-        };
-        let cmp = match compare_with(&s, threads, &AtomicU64::new(0), &opts) {
-            Ok(c) if !c.interrupted => c,
-            Ok(_) | Err(RunError::Interrupted) => break,
+        let out = match point::run(&format!("{name} at point {p}"), &texts[p], threads, &STOP) {
+            Ok(Some(out)) => out,
+            Ok(None) => break,
             Err(e) => bail!("point {p} ({}): {e}", pts.describe(p)),
         };
-        let out = summarize(&cmp);
         store.put(p, &pts.rows[p], &texts[p], &out)?;
         ran += 1;
         if !a.quiet {
