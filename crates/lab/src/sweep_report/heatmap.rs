@@ -1,4 +1,4 @@
-//! heatmap-<method>.svg: one method's smallest safe SYNC0 shift over the two swept keys, a
+//! `heatmap-<method>.svg`: one method's smallest safe SYNC0 shift over the two swept keys, a
 //! cell per point, so that a reader sees where in the grid the method does well and how
 //! sharply it falls off. Every method's map shares one colour scale (the colours compare
 //! across files); a point that is not good is grey and hatched whatever its value, since its
