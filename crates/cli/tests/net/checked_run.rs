@@ -150,10 +150,13 @@ fn run_method_once(pair: &NetPair, method: &str) {
         // moves the reference's time while it pulls in (10 s here, from the tens of
         // microseconds the host's send latency puts the first frames off), which the slaves
         // follow within a hundred ns or so: twice the threshold.
+        // Since MII stamps sit on the crystals' 40 ns grids (issue 32) a slave's |0x092C| moves
+        // in those cells: Table 1's rS-IS MMax of the master-shift methods is 126 ns (the
+        // letter's 132), and a run over veth reached p99 126 ns for snap (CI): four cells.
         let p99_bound = if method == "dcm-bus-shift" {
             200.0
         } else {
-            100.0
+            160.0
         };
         assert!(
             rs_is["p99_abs"].as_f64().unwrap() <= p99_bound,
