@@ -184,8 +184,12 @@ impl Search<'_> {
         if let Some(o) = self.seen.get(&what) {
             return Ok(o.clone());
         }
+        let mut refused = None;
         let o = match point::scenario_text(&self.name, &self.base, keys, vals, &what) {
-            Err(_) => None,
+            Err(e) => {
+                refused = Some(e);
+                None
+            }
             Ok(text) => {
                 let Some(out) = point::run(&self.name, &text, self.threads, &STOP)? else {
                     bail!("stopped");
@@ -203,7 +207,10 @@ impl Search<'_> {
                     o.lost_frames,
                     if o.good { "" } else { " (not a candidate)" }
                 ),
-                None => eprintln!("  {what}: refused by the scenario's checks"),
+                None => match &refused {
+                    Some(e) => eprintln!("  refused: {e:#}"),
+                    None => eprintln!("  {what}: no cycle ran"),
+                },
             }
         }
         self.seen.insert(what, o.clone());

@@ -98,6 +98,8 @@ pub fn compare_with(
     opts: &Options<'_>,
 ) -> Result<Comparison, RunError> {
     let t0 = Instant::now();
+    // A cycle the network's frames do not fit in is refused before minutes of bring-up.
+    crate::run::check_cycle_fits(scenario)?;
     let stopped = || opts.stop.is_some_and(|s| s.load(Ordering::Relaxed));
     let methods = scenario.entries();
     let runs = scenario.runs as usize;

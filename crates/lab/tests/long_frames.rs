@@ -1,7 +1,8 @@
 //! A network whose cycle's frames take more than half the cycle on the wire (a long line):
-//! its replies are not counted lost (they come back well before the next cycle), and a cycle
-//! shorter than the frames' way round makes every method lose its frames: the verdict then
-//! ranks none, says why, and warns that the cycle is too short.
+//! its replies are not counted lost (they come back well before the next cycle); a cycle
+//! shorter than the frames' way round is refused before anything is simulated, with the
+//! cycle the network needs, worked out from the devices exactly as the engine lays out its
+//! frames after the bring-up.
 
 use ecsync_lab::report::summarize;
 use std::fmt::Write as _;
@@ -33,7 +34,8 @@ seed = 3\nmethods = [\"soem-pi\", \"dcm-master-shift\"]\nstatic_drift_frames = 2
 }
 
 #[test]
-fn frames_longer_than_half_the_cycle_come_back_and_a_cycle_too_short_ranks_nothing() {
+fn frames_longer_than_half_the_cycle_come_back_and_a_cycle_too_short_is_refused_before_the_bring_up()
+ {
     // 150 drives: the cycle's frames take about 0.45 ms on the wire (more than half of a
     // 0.8 ms cycle) and come back within it.
     let text = line(150, 800);
@@ -72,19 +74,35 @@ fn frames_longer_than_half_the_cycle_come_back_and_a_cycle_too_short_ranks_nothi
         out.warnings
     );
 
-    // The same line at 0.4 ms: the frames alone are longer than the cycle.
+    // What the check before the bring-up works out from the devices is what the engine
+    // built after it: the same frames on the wire.
+    let fit = ecsync_lab::run::cycle_fit(&s).unwrap();
+    assert_eq!(
+        fit.wire_ns,
+        (wire_ns * 1000.0).round() as u64 / 1000,
+        "{fit:?}"
+    );
+    assert!(fit.needed_cycle_ns <= 800_000, "{fit:?}");
+
+    // The same line at 0.4 ms: the frames alone are longer than the cycle. Nothing is
+    // simulated: the error says what the network needs and which cycle to configure.
     let text = line(150, 400);
     let s = ecsync_lab::parse("line-150-short.toml", &text).unwrap();
-    let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
-    let out = summarize(&c);
-    let r = &out.recommendation;
-    assert_eq!(r.method, "", "{r:?}");
-    assert!(r.ranking.is_empty(), "{r:?}");
-    assert_eq!(r.not_ranked.len(), 2, "{r:?}");
-    assert!(r.reason.starts_with("none"), "{}", r.reason);
+    let t = std::time::Instant::now();
+    let e = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap_err();
+    let ecsync_lab::run::RunError::CycleTooShort { cycle_us, fit: f } = &e else {
+        panic!("{e}");
+    };
+    assert_eq!((*cycle_us, *f), (400.0, fit), "{e}");
+    let msg = e.to_string();
     assert!(
-        out.warnings.iter().any(|w| w.kind == "cycle_too_short"),
-        "{:?}",
-        out.warnings
+        msg.contains("400 us cycle is too short")
+            && msg.contains(&format!(
+                "set run.cycle_us (or --cycle-us) to {} or more",
+                fit.suggested_cycle_us()
+            )),
+        "{msg}"
     );
+    // (Not a timing assertion: a bring-up of 150 drives is seconds, the check milliseconds.)
+    eprintln!("refused in {:?}", t.elapsed());
 }

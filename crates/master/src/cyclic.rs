@@ -310,6 +310,17 @@ fn plan_frames(cfg: &CyclicConfig, bus_register: Option<u16>) -> Result<Vec<Fram
     Ok(plans)
 }
 
+/// The lengths of the frames a cycle sends, bytes, as [`CyclicEngine::new`] plans them
+/// (`bus_shift`: with a bus-shift method's 8-byte write to the reference in the first frame):
+/// how long a cycle's frames take on the wire is known before any engine runs.
+pub fn cycle_frame_lens(cfg: &CyclicConfig, bus_shift: bool) -> Result<Vec<usize>, WireError> {
+    let bus_register = bus_shift.then_some(reg::DC_SYSTEM_TIME);
+    Ok(plan_frames(cfg, bus_register)?
+        .iter()
+        .map(|p| p.template.len())
+        .collect())
+}
+
 impl<S: MasterSync> CyclicEngine<S> {
     /// An engine whose first cycle starts at `first_start`.
     pub fn new(sync: S, cfg: CyclicConfig, first_start: MasterInstant) -> Result<Self, WireError> {

@@ -24,8 +24,8 @@ pub fn base_table(name: &str, text: &str, run: &[(&str, Value)]) -> Result<Table
     Ok(t)
 }
 
-/// The TOML text of `base` with `keys` set to `values`, checked as a scenario file (the error
-/// names `what`, the point).
+/// The TOML text of `base` with `keys` set to `values`, checked as a scenario file and against
+/// the cycle its network needs (the error names `what`, the point).
 pub fn scenario_text(
     name: &str,
     base: &Table,
@@ -34,8 +34,9 @@ pub fn scenario_text(
     what: &str,
 ) -> Result<String> {
     let text = grid::apply(base, keys, values)?;
-    ecsync_lab::parse(&format!("{name} at {what}"), &text)
+    let s = ecsync_lab::parse(&format!("{name} at {what}"), &text)
         .map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
+    ecsync_lab::run::check_cycle_fits(&s).map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
     Ok(text)
 }
 

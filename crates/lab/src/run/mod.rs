@@ -29,10 +29,12 @@ use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 mod cyclic;
+mod fit;
 mod observe;
 mod result;
 
 pub use cyclic::Run;
+pub use fit::{CycleFit, check_cycle_fits, cycle_fit};
 pub use result::*;
 
 /// Why a run could not complete.
@@ -44,6 +46,24 @@ pub enum RunError {
     /// The cyclic frame does not fit.
     #[error("cyclic frame: {0}")]
     Frame(ecsync_wire::WireError),
+    /// The cycle is shorter than the network's frames need to come back (every one would be
+    /// lost): found before anything is simulated.
+    #[error(
+        "the {cycle_us} us cycle is too short for this network: its {} cyclic frames take {:.1} us on the wire, their first bit {:.1} us round the segment and the host {:.1} us, so the last reply comes {:.1} us after the cycle's start (with {} us of margin) and every frame would be lost; set run.cycle_us (or --cycle-us) to {} or more",
+        fit.frames,
+        fit.wire_ns as f64 / 1000.0,
+        fit.round_trip_ns as f64 / 1000.0,
+        fit.host_ns as f64 / 1000.0,
+        fit.needed_cycle_ns as f64 / 1000.0,
+        REPLY_MARGIN_NS / 1000,
+        fit.suggested_cycle_us()
+    )]
+    CycleTooShort {
+        /// The scenario's cycle, us.
+        cycle_us: f64,
+        /// What the network needs.
+        fit: CycleFit,
+    },
     /// Stopped (Ctrl-C) before the bring-up was done: nothing was measured.
     #[error("stopped during the bring-up, before any cycle was measured")]
     Interrupted,

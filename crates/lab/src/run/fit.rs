@@ -1,0 +1,100 @@
+//! Whether a network's cyclic frames fit its cycle, worked out from the scenario before
+//! anything is simulated: a network of thousands of drives needs frames for milliseconds, and a
+//! cycle shorter than their way round loses every one of them (each reply comes after the next
+//! cycle has begun), after minutes of bring-up.
+//!
+//! The frames are the master's own plan ([`ecsync_master::cyclic::cycle_frame_lens`]) of the
+//! process image the bring-up maps: every reached slave's outputs, then every one's inputs, as
+//! the devices describe them, in LRWs of at most a frame ([`ecsync_master::pdi::lrw_chunks`]).
+//! A cycle's replies are all back after the host's execution and transmit latency, the frames
+//! back to back on the wire, the first bit's way round the segment and the receive latency; the
+//! cycle must hold that and a margin for the host's wake-up jitter.
+
+use super::{REPLY_MARGIN_NS, RunError};
+use crate::Scenario;
+use ecsync_master::MasterError;
+use ecsync_master::cyclic::{CyclicConfig, cycle_frame_lens};
+use ecsync_master::pdi::lrw_chunks;
+use ecsync_sim::{Segment, frame_wire_time_ps};
+
+/// What a cycle of the scenario's network takes, ns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CycleFit {
+    /// Frames per cycle.
+    pub frames: usize,
+    /// The cycle's frames back to back on the wire.
+    pub wire_ns: u64,
+    /// A frame's first bit from the master round the segment and back.
+    pub round_trip_ns: u64,
+    /// The host's part: execution before the send, transmit and receive latency.
+    pub host_ns: u64,
+    /// From the cycle's start to its last reply, with the margin: the shortest cycle.
+    pub needed_cycle_ns: u64,
+}
+
+impl CycleFit {
+    /// The shortest cycle, rounded up to a multiple of 100 us (what to configure), us.
+    pub fn suggested_cycle_us(&self) -> u64 {
+        self.needed_cycle_ns.div_ceil(100_000) * 100
+    }
+}
+
+/// The cycle the scenario's network needs (the longest of its methods': a bus-shift method's
+/// write to the reference lengthens the first frame).
+pub fn cycle_fit(s: &Scenario) -> Result<CycleFit, RunError> {
+    let config = |e: String| RunError::Bringup(MasterError::Config(e));
+    let seg = Segment::new(&s.slaves).map_err(|e| config(e.to_string()))?;
+    let reached = seg.pu_offsets_ps();
+    let slaves: Vec<(u32, u32)> = (0..seg.len())
+        .filter(|&x| reached.get(x).is_some_and(Option::is_some))
+        .map(|x| {
+            let d = seg.esc(x).device();
+            (d.output_bytes() as u32, d.input_bytes() as u32)
+        })
+        .collect();
+    // The bring-up's image: all outputs (working counter 2 each), then all inputs (1 each).
+    let mut ranges = Vec::with_capacity(2 * slaves.len());
+    let mut logical = 0u32;
+    for (len, wkc) in slaves
+        .iter()
+        .map(|&(o, _)| (o, 2))
+        .chain(slaves.iter().map(|&(_, i)| (i, 1)))
+        .filter(|&(len, _)| len > 0)
+    {
+        ranges.push((logical, len, wkc));
+        logical += len;
+    }
+    let cfg = CyclicConfig {
+        period_ns: s.cycle_ns,
+        reference_station: 0x1000,
+        pdi_len: logical,
+        measure_init_frames: 0,
+        reference_offset_ns: 0,
+        lrw: lrw_chunks(logical, &ranges),
+    };
+    let bus_shift = s.methods.iter().any(|k| !k.is_master_shift());
+    let lens = cycle_frame_lens(&cfg, bus_shift).map_err(RunError::Frame)?;
+    let wire_ns = lens.iter().map(|&n| frame_wire_time_ps(n)).sum::<u64>() / 1000;
+    let round_trip_ns = seg.round_trip_ps() / 1000;
+    let h = &s.host;
+    let host_ns = (h.em_ns + h.tx_latency_ns + h.rx_latency_ns).max(0.0) as u64;
+    Ok(CycleFit {
+        frames: lens.len(),
+        wire_ns,
+        round_trip_ns,
+        host_ns,
+        needed_cycle_ns: host_ns + wire_ns + round_trip_ns + REPLY_MARGIN_NS,
+    })
+}
+
+/// [`cycle_fit`], refused when the scenario's cycle is shorter than the network needs.
+pub fn check_cycle_fits(s: &Scenario) -> Result<CycleFit, RunError> {
+    let fit = cycle_fit(s)?;
+    if u64::from(s.cycle_ns) < fit.needed_cycle_ns {
+        return Err(RunError::CycleTooShort {
+            cycle_us: f64::from(s.cycle_ns) / 1000.0,
+            fit,
+        });
+    }
+    Ok(fit)
+}
