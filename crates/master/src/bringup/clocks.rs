@@ -259,10 +259,13 @@ pub(super) async fn wait_for_lock(
     let mut grid = CycleGrid::after_now(link, cfg.cycle_ns);
     let lock_start = link.now().as_ns();
     let timeout_ns = cfg.timeouts.lock_timeout_ns;
+    let mut checks = 0u64;
     while !synced.is_empty() && !lock.is_locked() {
-        if link.now().as_ns().saturating_sub(lock_start) > timeout_ns {
-            return Err(MasterError::NoLock(timeout_ns / 1_000_000));
+        let waited_ns = link.now().as_ns().saturating_sub(lock_start);
+        if waited_ns > timeout_ns && checks >= cfg.timeouts.lock_timeout_checks {
+            return Err(MasterError::NoLock(waited_ns / 1_000_000));
         }
+        checks += 1;
         grid.tick(link).await;
         let (r, _) = link.pdus(&dc.check_pdus(true), "cyclic DC").await?;
         frmw_frames += 1;
