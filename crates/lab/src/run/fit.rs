@@ -7,8 +7,10 @@
 //! process image the bring-up maps: every reached slave's outputs, then every one's inputs, as
 //! the devices describe them, in LRWs of at most a frame ([`ecsync_master::pdi::lrw_chunks`]).
 //! A cycle's replies are all back after the host's execution and transmit latency, the frames
-//! back to back on the wire, the first bit's way round the segment and the receive latency; the
-//! cycle must hold that and a margin for the host's wake-up jitter.
+//! back to back on the wire, the first bit's way round the segment and the receive latency: a
+//! shorter cycle loses every frame even on a host without jitter, and is refused. A cycle just
+//! above that loses the frames the host's jitter delays: the simulation counts those, and the
+//! cycle the refusal suggests leaves room for them.
 
 use super::{REPLY_MARGIN_NS, RunError};
 use crate::Scenario;
@@ -28,14 +30,15 @@ pub struct CycleFit {
     pub round_trip_ns: u64,
     /// The host's part: execution before the send, transmit and receive latency.
     pub host_ns: u64,
-    /// From the cycle's start to its last reply, with the margin: the shortest cycle.
+    /// From the cycle's start to its last reply on a host without jitter: the shortest cycle.
     pub needed_cycle_ns: u64,
 }
 
 impl CycleFit {
-    /// The shortest cycle, rounded up to a multiple of 100 us (what to configure), us.
+    /// The cycle to configure: the shortest with room for the host's jitter (the engine's
+    /// reply margin), rounded up to 10 us, us.
     pub fn suggested_cycle_us(&self) -> u64 {
-        self.needed_cycle_ns.div_ceil(100_000) * 100
+        (self.needed_cycle_ns + REPLY_MARGIN_NS).div_ceil(10_000) * 10
     }
 }
 
@@ -83,7 +86,7 @@ pub fn cycle_fit(s: &Scenario) -> Result<CycleFit, RunError> {
         wire_ns,
         round_trip_ns,
         host_ns,
-        needed_cycle_ns: host_ns + wire_ns + round_trip_ns + REPLY_MARGIN_NS,
+        needed_cycle_ns: host_ns + wire_ns + round_trip_ns,
     })
 }
 
