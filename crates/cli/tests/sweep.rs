@@ -2,35 +2,18 @@
 //! in four processes, merged, give the same database; Ctrl-C keeps the points done and a rerun
 //! does only the rest; bad points, shards and databases are refused before any work.
 
+mod sweeps;
+
 use rusqlite::Connection;
+use sweeps::{SHORT, ecsync, ok, sweep_over};
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 
-fn ecsync() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_ecsync"))
+fn tmp_dir(name: &str) -> std::path::PathBuf {
+    sweeps::tmp("ecsync-sweep", name)
 }
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ecsync-sweep-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// A short comparison per point: one run of 2 000 cycles after the 10 s of warm-up the
-/// median methods' init frames need, two methods.
-const SHORT: &[&str] = &[
-    "--runs",
-    "1",
-    "--cycles",
-    "2000",
-    "--warmup-s",
-    "10",
-    "--methods",
-    "median-fit,soem-pi",
-    "--quiet",
-];
 
 /// 40 points: the letter's gain (and four more) x eight SYNC0 shifts.
 const GRID_40: &[&str] = &[
@@ -41,26 +24,7 @@ const GRID_40: &[&str] = &[
 ];
 
 fn sweep(db: &Path, extra: &[&str]) -> Command {
-    let mut c = ecsync();
-    c.arg("sweep")
-        .args(GRID_40)
-        .args(SHORT)
-        .arg("--db")
-        .arg(db)
-        .args(extra);
-    c
-}
-
-fn ok(mut c: Command) -> Output {
-    let o = c.output().unwrap();
-    assert!(
-        o.status.success(),
-        "{:?}: {}{}",
-        o.status,
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    o
+    sweep_over(GRID_40, db, extra)
 }
 
 /// Every row of the tables a sweep's result is (not `log`, which says who ran what when),
@@ -99,7 +63,7 @@ fn count(db: &Path, sql: &str) -> i64 {
 
 #[test]
 fn forty_points_whole_and_as_four_merged_shards_are_the_same_database() {
-    let dir = tmp("shards");
+    let dir = tmp_dir("shards");
     let whole = dir.join("whole.db");
     let o = ok(sweep(&whole, &[]));
     let answer = String::from_utf8_lossy(&o.stdout);
@@ -176,7 +140,7 @@ fn forty_points_whole_and_as_four_merged_shards_are_the_same_database() {
 /// the others only (the log says how many) and leaves the first ones' rows as they were.
 #[test]
 fn ctrl_c_keeps_the_points_done_and_a_rerun_does_only_the_rest() {
-    let dir = tmp("interrupt");
+    let dir = tmp_dir("interrupt");
     let db = dir.join("sweep.db");
     // Longer points, with a line each on stderr (no --quiet).
     let args = [
@@ -249,7 +213,7 @@ fn ctrl_c_keeps_the_points_done_and_a_rerun_does_only_the_rest() {
 /// it refuses, a bad shard, a database of another sweep.
 #[test]
 fn bad_points_shards_and_databases_are_refused_first() {
-    let dir = tmp("bad");
+    let dir = tmp_dir("bad");
     let db = dir.join("sweep.db");
     let run = |args: &[&str]| {
         let o = ecsync()

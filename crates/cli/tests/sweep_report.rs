@@ -3,34 +3,18 @@
 //! truth here is the query, not the code under test), a merged database gives the same bytes
 //! as the sweep run whole, and a folder that cannot take the report fails before any point.
 
+mod sweeps;
+
 use rusqlite::Connection;
+use sweeps::{ecsync, ok, sweep_over};
+
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
-fn ecsync() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_ecsync"))
+fn tmp_dir(name: &str) -> std::path::PathBuf {
+    sweeps::tmp("ecsync-sweeprep", name)
 }
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("ecsync-sweeprep-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// One run of 2 000 cycles per point after the median methods' 10 s of warm-up, two methods.
-const SHORT: &[&str] = &[
-    "--runs",
-    "1",
-    "--cycles",
-    "2000",
-    "--warmup-s",
-    "10",
-    "--methods",
-    "median-fit,soem-pi",
-    "--quiet",
-];
 
 /// Six points: three gains x two SYNC0 shifts. At 5 % frames come late (the smallest safe
 /// shift is near 7 % here), so half the points are not good and the report has to draw both.
@@ -42,26 +26,7 @@ const GRID: &[&str] = &[
 ];
 
 fn sweep(db: &Path, extra: &[&str]) -> Command {
-    let mut c = ecsync();
-    c.arg("sweep")
-        .args(GRID)
-        .args(SHORT)
-        .arg("--db")
-        .arg(db)
-        .args(extra);
-    c
-}
-
-fn ok(mut c: Command) -> Output {
-    let o = c.output().unwrap();
-    assert!(
-        o.status.success(),
-        "{:?}: {}{}",
-        o.status,
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    o
+    sweep_over(GRID, db, extra)
 }
 
 fn read(p: &Path) -> String {
@@ -122,7 +87,7 @@ fn attrs(svg: &str, marker: &str, attr: &str) -> Vec<String> {
 
 #[test]
 fn the_report_draws_every_point_and_marks_the_point_sql_finds_best() {
-    let d = tmp("whole");
+    let d = tmp_dir("whole");
     let db = d.join("s.db");
     let rep = d.join("report");
     let o = ok(sweep(&db, &["--report", rep.to_str().unwrap()]));
@@ -240,7 +205,7 @@ fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
 
 #[test]
 fn a_merged_database_of_two_shards_gives_the_same_report_byte_for_byte() {
-    let d = tmp("merged");
+    let d = tmp_dir("merged");
     let whole = d.join("whole.db");
     let rep_whole = d.join("whole");
     ok(sweep(&whole, &["--report", rep_whole.to_str().unwrap()]));
@@ -294,7 +259,7 @@ fn a_merged_database_of_two_shards_gives_the_same_report_byte_for_byte() {
 
 #[test]
 fn a_report_folder_that_cannot_be_written_fails_before_any_point_runs() {
-    let d = tmp("unwritable");
+    let d = tmp_dir("unwritable");
     // A file where the folder should be: refused for root too.
     let file = d.join("plain-file");
     std::fs::write(&file, b"x").unwrap();

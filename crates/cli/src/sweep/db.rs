@@ -11,6 +11,8 @@
 use super::grid::{Points, show};
 use anyhow::{Context, Result, bail};
 use ecsync_lab::report::SummaryOut;
+/// One method at one point, as the sweep's answer and its report read it.
+pub use ecsync_lab::sweep_report::Row as ResultRow;
 use rusqlite::{Connection, OptionalExtension, params, types::Value as SqlValue};
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -333,7 +335,7 @@ impl Store {
     }
 
     /// The per-method rows of every point done, in point and method order, for the sweep's
-    /// answer and its report.
+    /// answer and its report (each one's `good` as the answer counts it).
     pub fn rows(&self) -> Result<Vec<ResultRow>> {
         let mut q = self.conn.prepare(
             "SELECT point, method, late_frames, lost_frames, smallest_safe_shift_pct,
@@ -351,9 +353,14 @@ impl Store {
                 holds_target: r.get::<_, i64>(6)? != 0,
                 slave_spread_p999_ns: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
                 rank: r.get::<_, Option<i64>>(8)?.map(|k| k as u32),
+                good: false,
             })
         })?;
-        Ok(rows.collect::<Result<_, _>>()?)
+        let mut rows: Vec<ResultRow> = rows.collect::<Result<_, _>>()?;
+        for r in &mut rows {
+            r.good = super::answer::good(r);
+        }
+        Ok(rows)
     }
 
     /// Copies the points and results of the sweep database `src` into this one, and its log.
@@ -429,30 +436,6 @@ pub fn read(path: &Path) -> Result<(Store, Meta)> {
         .with_context(|| format!("{}", path.display()))?
         .with_context(|| format!("{}: not a sweep database (no sweep table)", path.display()))?;
     Ok((store, meta))
-}
-
-/// One method at one point, as the sweep's answer reads it.
-#[derive(Debug, Clone)]
-pub struct ResultRow {
-    /// The point.
-    pub point: usize,
-    /// The method (with its send mode).
-    pub method: String,
-    /// Late frames.
-    pub late_frames: u64,
-    /// Lost frames.
-    pub lost_frames: u64,
-    /// The smallest safe SYNC0 shift, %.
-    pub safe_shift_pct: f64,
-    /// p99.9 of |phase - target|, ns.
-    pub phase_error_p999_ns: f64,
-    /// Whether it holds its target.
-    pub holds_target: bool,
-    /// p99.9 of |slave - reference|, ns.
-    pub slave_spread_p999_ns: f64,
-    /// Its place in the point's ranking, 1 best; `None` when the verdict did not rank it (an
-    /// unstable method, or one that lost most frames).
-    pub rank: Option<u32>,
 }
 
 /// [`Points::canonical`] read back.

@@ -9,7 +9,7 @@ use super::answer;
 use super::db::{Meta, ResultRow, Store};
 use super::grid::show;
 use anyhow::{Result, anyhow};
-use ecsync_lab::sweep_report::{Row, Sweep};
+use ecsync_lab::sweep_report::Sweep;
 use std::path::Path;
 
 /// Makes `dir` and checks that a file can be written into it: before any point runs, so that
@@ -44,21 +44,6 @@ fn method_order(meta: &Meta, rows: &[ResultRow]) -> Vec<String> {
 fn sweep(store: &Store, meta: &Meta) -> Result<Sweep> {
     let rows = store.rows()?;
     let best = answer::best(&rows);
-    let out: Vec<Row> = rows
-        .iter()
-        .map(|r| Row {
-            point: r.point,
-            method: r.method.clone(),
-            late_frames: r.late_frames,
-            lost_frames: r.lost_frames,
-            safe_shift_pct: r.safe_shift_pct,
-            phase_error_p999_ns: r.phase_error_p999_ns,
-            slave_spread_p999_ns: r.slave_spread_p999_ns,
-            rank: r.rank,
-            holds_target: r.holds_target,
-            good: answer::good(r),
-        })
-        .collect();
     Ok(Sweep {
         scenario: meta.base_name.clone(),
         keys: meta.points.keys.clone(),
@@ -77,7 +62,7 @@ fn sweep(store: &Store, meta: &Meta) -> Result<Sweep> {
             .map(|r| (r.method.clone(), r.point))
             .collect(),
         answer: answer::text(store, &meta.points)?,
-        rows: out,
+        rows,
     })
 }
 
