@@ -1,0 +1,114 @@
+//! The cycle check before the bring-up (`ecsync_lab::run::cycle_fit`) predicts the frames the
+//! engine lays out after it: on every built-in network (drives, an AKD, LAN9252 boards, an
+//! EK1100 with an EL2828 whose outputs go through register space and an EL2889 with two
+//! output SyncManagers) and on random lines and trees of drives, couplers, LAN9252 boards and
+//! AKDs with 20 to 160 slaves. The truth is the bring-up's own process image: its length, and
+//! the frames its LRWs take on the wire, laid out as the engine does.
+
+use ecsync_lab::run::{BringupWatch, bring_up_watched, cycle_fit};
+use ecsync_master::cyclic::{CyclicConfig, cycle_frame_lens};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::fmt::Write as _;
+
+/// The bring-up's image of scenario `text`, and the frames it takes on the wire, ns.
+fn actual(name: &str, text: &str) -> (u32, usize, u64) {
+    let s = ecsync_lab::parse(name, text).unwrap();
+    let up =
+        bring_up_watched(&s, 0, &BringupWatch::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let net = up.network();
+    let cfg = CyclicConfig {
+        period_ns: s.cycle_ns,
+        reference_station: net.slaves[usize::from(net.reference)].station,
+        pdi_len: net.pdi_len,
+        measure_init_frames: 0,
+        reference_offset_ns: 0,
+        lrw: net.lrw.clone(),
+    };
+    let bus_shift = s.methods.iter().any(|k| !k.is_master_shift());
+    let lens = cycle_frame_lens(&cfg, bus_shift).unwrap();
+    let wire_ps: u64 = lens
+        .iter()
+        .map(|&n| ecsync_sim::frame_wire_time_ps(n))
+        .sum();
+    (net.pdi_len, lens.len(), wire_ps / 1000)
+}
+
+fn check(name: &str, text: &str) {
+    let s = ecsync_lab::parse(name, text).unwrap();
+    let fit = cycle_fit(&s).unwrap();
+    let (pdi_len, frames, wire_ns) = actual(name, text);
+    assert_eq!(
+        (fit.frames, fit.wire_ns),
+        (frames, wire_ns),
+        "{name}: predicted {fit:?}, the bring-up's image is {pdi_len} bytes"
+    );
+    assert!(
+        fit.needed_cycle_ns > fit.wire_ns + fit.round_trip_ns,
+        "{name}: {fit:?}"
+    );
+}
+
+#[test]
+fn the_prediction_is_the_engines_frames_on_every_built_in_network() {
+    for (name, text) in ecsync_sim::preset::NETWORKS {
+        check(name, text);
+    }
+}
+
+/// A random line or tree of `n` slaves: servo drives on MII ESCs, LAN9252 boards and AKDs as
+/// drives, junctions as couplers (no process data), cables and crystals drawn.
+fn network(rng: &mut ChaCha8Rng, n: usize) -> String {
+    let mut t = String::from("[segment]\n");
+    let _ = writeln!(t, "seed = {}", rng.random::<u32>());
+    let mut tails: Vec<(String, u8)> = vec![("master".into(), 0)];
+    for i in 0..n {
+        let name = format!("s{i}");
+        let k = rng.random_range(0..tails.len());
+        let (up, port) = tails.remove(k);
+        let (model, device) = match rng.random_range(0..10) {
+            0 => ("junction-mii", "coupler"),
+            1 => ("lan9252", "servo-drive"),
+            2 => ("akd", "servo-drive"),
+            _ => ("servo-mii", "servo-drive"),
+        };
+        let _ = writeln!(
+            t,
+            "[[segment.slave]]\nname = \"{name}\"\nmodel = \"{model}\"\ndevice = \"{device}\"\nupstream = \"{up}\""
+        );
+        if up != "master" {
+            let _ = writeln!(t, "upstream_port = {port}");
+        }
+        let _ = writeln!(
+            t,
+            "cable_m = {:.2}\nppm = {:.3}",
+            rng.random_range(0.2..20.0),
+            rng.random_range(-50.0..50.0),
+        );
+        tails.push((name.clone(), 1));
+        if model == "junction-mii" {
+            tails.push((name.clone(), 2));
+            tails.push((name, 3));
+        }
+    }
+    let _ = write!(
+        t,
+        "[run]\ncycle_us = 4000\nsync0_shift_pct = 85\nruns = 1\ncycles = 1000\nwarmup_s = 1\nstatic_drift_frames = 500\nmethods = [\"{}\"]\n[methods.median-fit]\ninit_frames = 100\n",
+        if rng.random_bool(0.5) {
+            "bus-shift"
+        } else {
+            "median-fit"
+        }
+    );
+    t
+}
+
+#[test]
+fn the_prediction_is_the_engines_frames_on_random_networks() {
+    let mut rng = ChaCha8Rng::seed_from_u64(33);
+    for case in 0..8 {
+        let n = rng.random_range(20..160);
+        let text = network(&mut rng, n);
+        check(&format!("random-{case}-{n}"), &text);
+    }
+}
