@@ -335,7 +335,7 @@ impl Store {
     }
 
     /// The per-method rows of every point done, in point and method order, for the sweep's
-    /// answer and its report (each one's `good` as the answer counts it).
+    /// answer and its report (`good` left false: the answer decides it, `answer::good`).
     pub fn rows(&self) -> Result<Vec<ResultRow>> {
         let mut q = self.conn.prepare(
             "SELECT point, method, late_frames, lost_frames, smallest_safe_shift_pct,
@@ -356,11 +356,7 @@ impl Store {
                 good: false,
             })
         })?;
-        let mut rows: Vec<ResultRow> = rows.collect::<Result<_, _>>()?;
-        for r in &mut rows {
-            r.good = super::answer::good(r);
-        }
-        Ok(rows)
+        Ok(rows.collect::<Result<_, _>>()?)
     }
 
     /// Copies the points and results of the sweep database `src` into this one, and its log.

@@ -42,7 +42,10 @@ fn method_order(meta: &Meta, rows: &[ResultRow]) -> Vec<String> {
 
 /// What the report shows, read from `store`.
 fn sweep(store: &Store, meta: &Meta) -> Result<Sweep> {
-    let rows = store.rows()?;
+    let mut rows = store.rows()?;
+    for r in &mut rows {
+        r.good = answer::good(r);
+    }
     let best = answer::best(&rows);
     Ok(Sweep {
         scenario: meta.base_name.clone(),
