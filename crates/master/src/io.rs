@@ -13,6 +13,8 @@ use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::task::{Context, Poll, Waker};
 
+mod side_by_side;
+
 /// Source MAC of frames the master sends (locally administered bit clear, so returning frames,
 /// which the first ESC marks, are told apart).
 pub const MASTER_MAC: [u8; 6] = [0x00, 0x1b, 0x21, 0xec, 0x00, 0x01];

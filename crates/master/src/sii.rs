@@ -11,12 +11,18 @@ use ecsync_wire::sii::{self, category};
 /// [`crate::bringup::BringupTimeouts::sii_busy_timeout_ns`] for why).
 pub const BUSY_TIMEOUT_NS: u64 = 100_000_000;
 
+/// The bytes of EEPROM a reader reads at most (4 096 words: the categories a master reads lie
+/// well within).
+const MAX_BYTES: usize = 8192;
+
 /// Reads EEPROM words of one slave, remembering what it has read.
 #[derive(Debug)]
 pub struct SiiReader<'a> {
     link: &'a Link,
     station: u16,
     busy_timeout_ns: u64,
+    /// The bytes read so far from the start of the EEPROM, grown as reads go (a network's
+    /// slaves are identified side by side: each reader holds only what it has read).
     cache: Vec<Option<u8>>,
 }
 
@@ -28,7 +34,7 @@ impl<'a> SiiReader<'a> {
             link,
             station,
             busy_timeout_ns: BUSY_TIMEOUT_NS,
-            cache: vec![None; 8192],
+            cache: Vec::new(),
         }
     }
 
@@ -100,7 +106,10 @@ impl<'a> SiiReader<'a> {
             .await?;
         for (i, b) in data.into_iter().enumerate() {
             let at = usize::from(word) * 2 + i;
-            if at < self.cache.len() {
+            if at < MAX_BYTES {
+                if at >= self.cache.len() {
+                    self.cache.resize(at + 1, None);
+                }
                 self.cache[at] = Some(b);
             }
         }
@@ -110,17 +119,16 @@ impl<'a> SiiReader<'a> {
     /// Reads `len` bytes starting at byte address `2 * word`.
     pub async fn read(&mut self, word: u16, len: usize) -> Result<Vec<u8>, MasterError> {
         let start = usize::from(word) * 2;
-        let end = (start + len).min(self.cache.len());
+        let end = (start + len).min(MAX_BYTES);
         let mut at = start;
         while at < end {
-            if self.cache[at].is_none() {
+            if self.cache.get(at).is_none_or(Option::is_none) {
                 self.read_chunk((at / 2) as u16).await?;
             }
             at += 1;
         }
-        Ok(self.cache[start..end]
-            .iter()
-            .map(|b| b.unwrap_or(0xff))
+        Ok((start..end)
+            .map(|at| self.cache.get(at).copied().flatten().unwrap_or(0xff))
             .collect())
     }
 
@@ -138,7 +146,7 @@ impl<'a> SiiReader<'a> {
                 return Ok(Some((w + 2, usize::from(size) * 2)));
             }
             match w.checked_add(2 + size) {
-                Some(n) if usize::from(n) * 2 < self.cache.len() => w = n,
+                Some(n) if usize::from(n) * 2 < MAX_BYTES => w = n,
                 _ => return Ok(None),
             }
         }

@@ -347,7 +347,10 @@ fn a_lost_cyclic_frame_in_op_fails_the_monitor() {
 }
 
 #[test]
-fn a_slave_dead_before_identification_is_named() {
+fn a_slave_dead_during_identification_is_named() {
+    // The slaves are identified side by side: the first frame (every slave's ESC information)
+    // has left when the phase is reported, and the dead slave's next datagram, its EEPROM
+    // owner write, gets no working counter.
     let e = bring_up(
         quick(),
         |_| {},
@@ -363,16 +366,15 @@ fn a_slave_dead_before_identification_is_named() {
     assert_eq!(
         e.root(),
         &MasterError::WorkingCounter {
-            command: Command::Fprd,
-            what: "read ESC information",
+            command: Command::Fpwr,
+            what: "SII owner",
             expected: 1,
             got: 0,
         }
     );
     assert_eq!(
         e.to_string(),
-        "identify: slave 3 (station 0x1003): FPRD read ESC information: working counter 0, \
-         expected 1"
+        "identify: slave 3 (station 0x1003): FPWR SII owner: working counter 0, expected 1"
     );
 }
 

@@ -101,14 +101,20 @@ pub(super) async fn identify(
     addressed: &Addressed,
     cfg: &BringupConfig,
 ) -> Result<Vec<SlaveInfo>, MasterError> {
-    let mut slaves = Vec::with_capacity(addressed.slaves.len());
-    for &id in &addressed.slaves {
-        let s = identify_slave(link, id, cfg)
-            .await
-            .map_err(|e| e.at(Phase::Identify, id))?;
-        slaves.push(s);
-    }
-    Ok(slaves)
+    // Side by side: a long line's round trip is milliseconds, and one slave's identification
+    // takes hundreds of exchanges (most of them EEPROM commands and busy polls).
+    let each = link
+        .side_by_side(
+            addressed.slaves.clone(),
+            |l, id| async move {
+                identify_slave(&l, id, cfg)
+                    .await
+                    .map_err(|e| e.at(Phase::Identify, id))
+            },
+            "identify",
+        )
+        .await?;
+    each.into_iter().collect()
 }
 
 /// ESC type, features and open ports, whether it keeps a system time (see
