@@ -161,11 +161,12 @@ fn a_bench_line_longer_than_a_millisecond_runs_sync0_on_its_cycle() {
     );
 }
 
-/// A 512-drive line's bring-up (2 ms cycle, frames ~1.7 ms) programs SYNC0 one slave at a
-/// time, four round trips each (~2 s), longer than the start time's 100 ms lead. Every drive
-/// runs SYNC0 on one grid, and by the end of the bring-up it has started: a start time already
-/// past when SYNC0 is switched on fires only 2^32 ns later (the ESC compares the low 32 bits),
-/// off the grid, which before was the fate of every drive after the 49th (checked).
+/// A 512-drive line's bring-up (2 ms cycle, frames ~1.7 ms) programs SYNC0 on every drive, four
+/// writes each: one slave at a time that took ~2 s, longer than the start time's 100 ms lead,
+/// and every drive after the 49th got a start already past (it fires only 2^32 ns later, the
+/// ESC comparing the low 32 bits, off the grid); the starts then moved on by whole cycles, and
+/// now the drives are programmed side by side in four rounds. Every drive runs SYNC0 on one
+/// grid, and by the end of the bring-up it has started.
 #[test]
 fn a_large_line_runs_sync0_everywhere() {
     let specs = preset::line(512, 11);
