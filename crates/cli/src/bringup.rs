@@ -99,13 +99,13 @@ struct Out {
 }
 
 /// True system time of slave `pos` minus the reference's at real time `t_ps`, ns (`None` for a
-/// slave without a system time: receive times only, as the EL2828's, or no DC).
-fn true_diff(seg: &Segment, pos: usize, reference: usize, t_ps: u64) -> Option<f64> {
+/// slave without a system time: receive times only, as the EL2828's, or no DC). `r` is the
+/// reference's system time then (computed once for all the slaves of an exchange).
+fn true_diff(seg: &Segment, pos: usize, r: (u64, f64), t_ps: u64) -> Option<f64> {
     if !seg.esc(pos).model().dc.has_system_time() {
         return None;
     }
     let a = seg.esc(pos).dc()?.system_time_split(t_ps);
-    let r = seg.esc(reference).dc()?.system_time_split(t_ps);
     Some((a.0.wrapping_sub(r.0) as i64) as f64 + (a.1 - r.1))
 }
 
@@ -161,22 +161,27 @@ pub fn run(args: Args) -> Result<ExitCode> {
         for e in events {
             if let Event::Phase(p) = e {
                 eprintln!(
-                    "ecsync: {:.1} s, bring-up: {p} ({frames} frames)",
-                    started.elapsed().as_secs_f64()
+                    "ecsync: {:.1} s, bring-up: {p} ({frames} frames, {:.3} s simulated)",
+                    started.elapsed().as_secs_f64(),
+                    ex.sent_ps as f64 * 1e-12
                 );
             }
         }
-        if events.contains(&Event::OffsetsWritten) {
+        let r = seg
+            .esc(reference)
+            .dc()
+            .map(|d| d.system_time_split(ex.sent_ps));
+        if let Some(r) = r.filter(|_| events.contains(&Event::OffsetsWritten)) {
             after_offsets = true;
             for (i, e) in offset_error.iter_mut().enumerate() {
                 if seg.esc(i).model().dc.has_system_time() {
-                    *e = true_diff(seg, i, reference, ex.sent_ps).map(|d| d.round() as i64);
+                    *e = true_diff(seg, i, r, ex.sent_ps).map(|d| d.round() as i64);
                 }
             }
         }
-        if after_offsets {
+        if let Some(r) = r.filter(|_| after_offsets) {
             let worst = (0..seg.len())
-                .filter_map(|i| true_diff(seg, i, reference, ex.sent_ps))
+                .filter_map(|i| true_diff(seg, i, r, ex.sent_ps))
                 .fold(0.0f64, |w, d| w.max(d.abs()));
             samples.push((ex.sent_ps, worst));
         }
