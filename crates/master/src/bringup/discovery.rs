@@ -81,16 +81,30 @@ pub(super) async fn assign_station_addresses(
     scanned: Scanned,
 ) -> Result<Addressed, MasterError> {
     let slaves: Vec<SlaveId> = (0..scanned.count).map(SlaveId::at_position).collect();
-    for &id in &slaves {
-        link.pdu_wkc(
-            Command::Apwr,
-            DatagramAddress::position(id.position, reg::STATION_ADDRESS),
-            id.station.to_le_bytes().to_vec(),
-            1,
-            "set station address",
-        )
-        .await
-        .map_err(|e| e.at(Phase::StationAddresses, id))?;
+    // Every slave's APWR in one exchange (a long line's round trip is milliseconds: one by
+    // one, a 2 000-drive line took 3.9 s). Each names its slave by position, which no earlier
+    // datagram of the exchange changes.
+    let writes: Vec<Pdu> = slaves
+        .iter()
+        .map(|id| {
+            Pdu::new(
+                Command::Apwr,
+                DatagramAddress::position(id.position, reg::STATION_ADDRESS),
+                id.station.to_le_bytes().to_vec(),
+            )
+        })
+        .collect();
+    let (replies, _) = link.pdus(&writes, "set station address").await?;
+    for (r, &id) in replies.iter().zip(&slaves) {
+        if r.wkc != 1 {
+            return Err(MasterError::WorkingCounter {
+                command: Command::Apwr,
+                what: "set station address",
+                expected: 1,
+                got: r.wkc,
+            }
+            .at(Phase::StationAddresses, id));
+        }
     }
     Ok(Addressed { slaves })
 }
