@@ -57,19 +57,22 @@ def main():
            f"{a.drives}{flags} --cycle-us {a.cycle_us} --sync0-shift-pct {a.sync0_shift_pct}.\n",
            "# Host, run and methods: presets/twelve-drives.toml's.\n\n[segment]\nseed = 2024\n"]
 
-    def drive(k, up, port):
+    def slave(name, model, up, port, power_up_ns, device=True):
         port_line = "" if port is None else f"upstream_port = {port}\n"
+        device_line = 'device = "servo-drive"\n' if device else ""
         out.append(f"""
 [[segment.slave]]
-name = "drive-{k}"
-model = "servo-mii"
-device = "servo-drive"
-upstream = "{up}"
+name = "{name}"
+model = "{model}"
+{device_line}upstream = "{up}"
 {port_line}cable_m = {rng.uniform(0.3, 3.0):.1f}
 ppm = {rng.uniform(-50.0, 50.0):.1f}
-power_up_ns = {1_000_000_000 + 123_456_789 * (k - 1) % 900_000_000}
+power_up_ns = {power_up_ns}
 wander_ppm_per_sqrt_s = 0.005
 """)
+
+    def drive(k, up, port):
+        slave(f"drive-{k}", "servo-mii", up, port, 1_000_000_000 + 123_456_789 * (k - 1) % 900_000_000)
 
     if a.branches == 1:
         for k in range(1, a.drives + 1):
@@ -80,17 +83,8 @@ wander_ppm_per_sqrt_s = 0.005
             j = b // 2 + 1
             if b % 2 == 0:
                 up, port = ("master", None) if j == 1 else (f"junction-{j - 1}", 1)
-                port_line = "" if port is None else f"upstream_port = {port}\n"
-                out.append(f"""
-[[segment.slave]]
-name = "junction-{j}"
-model = "junction-mii"
-upstream = "{up}"
-{port_line}cable_m = {rng.uniform(0.3, 3.0):.1f}
-ppm = {rng.uniform(-50.0, 50.0):.1f}
-power_up_ns = {1_000_000_000 + 987_654_321 * j % 900_000_000}
-wander_ppm_per_sqrt_s = 0.005
-""")
+                slave(f"junction-{j}", "junction-mii", up, port,
+                      1_000_000_000 + 987_654_321 * j % 900_000_000, device=False)
             n = a.drives // a.branches + (1 if b < a.drives % a.branches else 0)
             for i in range(n):
                 k += 1

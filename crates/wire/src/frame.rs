@@ -199,6 +199,17 @@ impl<'a> DatagramIter<'a> {
     pub fn offset(&self) -> usize {
         self.offset
     }
+
+    /// Each datagram with its offset from the start of the frame (what a frame's bytes are
+    /// indexed by), as [`EcatFrame::datagrams`] yields them.
+    pub fn with_frame_offsets(
+        mut self,
+    ) -> impl Iterator<Item = (usize, Result<Datagram<&'a [u8]>, WireError>)> + 'a {
+        core::iter::from_fn(move || {
+            let at = ETH_HEADER_LEN + ECAT_HEADER_LEN + self.offset;
+            self.next().map(|d| (at, d))
+        })
+    }
 }
 
 impl<'a> Iterator for DatagramIter<'a> {

@@ -34,21 +34,14 @@ impl Request {
     fn parse(member: usize, frame: Vec<u8>, pdus: &mut Vec<Pdu>) -> Option<Self> {
         let mut offsets = Vec::new();
         let f = EcatFrame::new_checked(&frame[..]).ok()?;
-        let mut iter = f.datagrams();
-        loop {
-            let at = EcatFrame::<&[u8]>::first_datagram_offset() + iter.offset();
-            match iter.next() {
-                None => break,
-                Some(Err(_)) => return None,
-                Some(Ok(d)) => {
-                    pdus.push(Pdu {
-                        command: d.command().ok()?,
-                        address: d.address_raw(),
-                        data: d.data().to_vec(),
-                    });
-                    offsets.push(at);
-                }
-            }
+        for (at, d) in f.datagrams().with_frame_offsets() {
+            let d = d.ok()?;
+            pdus.push(Pdu {
+                command: d.command().ok()?,
+                address: d.address_raw(),
+                data: d.data().to_vec(),
+            });
+            offsets.push(at);
         }
         Some(Request {
             member,
@@ -214,22 +207,16 @@ mod tests {
                 Action::Send(f) => {
                     let mut f = f.to_vec();
                     let mut seen = Vec::new();
-                    let offsets: Vec<usize> = {
-                        let frame = EcatFrame::new_checked(&f[..]).unwrap();
-                        let mut iter = frame.datagrams();
-                        let mut v = Vec::new();
-                        loop {
-                            let at = EcatFrame::<&[u8]>::first_datagram_offset() + iter.offset();
-                            match iter.next() {
-                                Some(d) => {
-                                    let d = d.unwrap();
-                                    seen.push((d.adp(), d.ado()));
-                                    v.push(at);
-                                }
-                                None => break v,
-                            }
-                        }
-                    };
+                    let offsets: Vec<usize> = EcatFrame::new_checked(&f[..])
+                        .unwrap()
+                        .datagrams()
+                        .with_frame_offsets()
+                        .map(|(at, d)| {
+                            let d = d.unwrap();
+                            seen.push((d.adp(), d.ado()));
+                            at
+                        })
+                        .collect();
                     // The slave at station s answers with (s, register) and counts it.
                     for at in offsets {
                         let mut d = Datagram::new_unchecked(&mut f[at..]);

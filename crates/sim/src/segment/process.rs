@@ -127,19 +127,12 @@ pub(super) fn process_long_frame(esc: &mut Esc, frame: &mut [u8], t_ps: u64) -> 
 pub(super) fn datagram_offsets(frame: &[u8], out: &mut [u16]) -> Option<usize> {
     let f = EcatFrame::new_checked(frame).ok()?;
     let mut n = 0;
-    let mut iter = f.datagrams();
-    loop {
-        let at = EcatFrame::<&[u8]>::first_datagram_offset() + iter.offset();
-        match iter.next() {
-            None => break,
-            Some(Err(_)) => return None,
-            Some(Ok(_)) => {
-                if n < out.len() {
-                    out[n] = at as u16;
-                }
-                n += 1;
-            }
+    for (at, d) in f.datagrams().with_frame_offsets() {
+        d.ok()?;
+        if n < out.len() {
+            out[n] = at as u16;
         }
+        n += 1;
     }
     Some(n)
 }
