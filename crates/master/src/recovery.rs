@@ -151,8 +151,9 @@ pub async fn recover(
         return Ok(out);
     }
     restore_addresses(&link, &net, &reset).await?;
-    out.reference_offset = restore_dc(&link, &net, &cfg, &reset).await?;
-    out.positions = restore_states(&link, &net, &cfg, &reset, &left_op).await?;
+    let dc = restore_dc(&link, &net, &cfg, &reset).await?;
+    out.reference_offset = dc.reference_offset;
+    out.positions = restore_states(&link, &net, &cfg, &reset, &left_op, dc.first_pulses_ns).await?;
     Ok(out)
 }
 
@@ -278,14 +279,14 @@ async fn restore_dc(
     net: &Network,
     cfg: &RecoveryConfig,
     reset: &[u16],
-) -> Result<Option<u64>, MasterError> {
+) -> Result<RestoredDc, MasterError> {
     let dc_reset: Vec<u16> = reset
         .iter()
         .copied()
         .filter(|&p| info(net, p).dc == DcCapability::SystemTime)
         .collect();
     if dc_reset.is_empty() {
-        return Ok(None);
+        return Ok(RestoredDc::default());
     }
     let keeper = std::iter::once(net.reference)
         .chain(
@@ -304,8 +305,20 @@ async fn restore_dc(
     let k = info(net, keeper);
     let reference_offset = write_offsets(link, net, k, &dc_reset).await?;
     compensate_drift(link, net, cfg, &dc_reset).await?;
-    restart_sync0(link, net, k, cfg, &dc_reset).await?;
-    Ok(reference_offset)
+    let first_pulses_ns = restart_sync0(link, net, k, cfg, &dc_reset).await?;
+    Ok(RestoredDc {
+        reference_offset,
+        first_pulses_ns: Some(first_pulses_ns),
+    })
+}
+
+/// What [`restore_dc`] leaves for the states.
+#[derive(Debug, Clone, Copy, Default)]
+struct RestoredDc {
+    /// The reference's new offset, if it was reset.
+    reference_offset: Option<u64>,
+    /// Master time by which every restarted SYNC0 has pulsed, ns.
+    first_pulses_ns: Option<u64>,
 }
 
 /// Latches the receive times and writes each slave of `dc_reset` its delay and the offset
@@ -442,19 +455,22 @@ async fn compensate_drift(
 }
 
 /// SYNC0 of the reset slaves on the segment's grid (the start time is a grid point plus the
-/// shift), read from the keeper `k`'s system time.
+/// shift), read from the keeper `k`'s system time. Returns the master time by which the
+/// first pulse has come and a cycle more (the start is less than the lead and a cycle after
+/// the time read).
 async fn restart_sync0(
     link: &Link,
     net: &Network,
     k: &SlaveInfo,
     cfg: &RecoveryConfig,
     dc_reset: &[u16],
-) -> Result<(), MasterError> {
+) -> Result<u64, MasterError> {
     let now_sys = u64_of(
         &link
             .fprd(k.station, reg::DC_SYSTEM_TIME, 8, "read system time")
             .await?,
     );
+    let read_at_ns = link.now().as_ns();
     let start = ecsync_dc::sync0_start_time(
         SystemTime::from_ns(now_sys),
         cfg.sync0_lead_ns,
@@ -478,7 +494,9 @@ async fn restart_sync0(
         link.fpwr(st, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
             .await?;
     }
-    Ok(())
+    Ok(read_at_ns
+        .saturating_add(cfg.sync0_lead_ns)
+        .saturating_add(2 * u64::from(cfg.cycle_ns)))
 }
 
 /// The states of the reset slaves and of those that left OP, the process data between
@@ -490,6 +508,7 @@ async fn restore_states(
     cfg: &RecoveryConfig,
     reset: &[u16],
     left_op: &[LeftOp],
+    first_pulses_ns: Option<u64>,
 ) -> Result<Vec<u16>, MasterError> {
     let mut states: Vec<u16> = reset
         .iter()
@@ -515,6 +534,12 @@ async fn restore_states(
         }
         crate::bringup::configure_process_data(link, std::slice::from_ref(s)).await?;
         request_state(link, s.station, AlState::SafeOp, &cfg.timeouts).await?;
+        // A restarted SYNC0 pulses before its slave is asked for OP (as in the bring-up).
+        if let Some(t) = first_pulses_ns.filter(|_| reset.contains(&pos))
+            && link.now().as_ns() < t
+        {
+            link.sleep_until(t).await;
+        }
         request_state(link, s.station, AlState::Op, &cfg.timeouts).await?;
     }
     Ok(states)

@@ -250,13 +250,13 @@ fn a_large_lines_clocks_stay_together_through_the_configuration() {
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
-    // (real time, the largest |slave - reference| then), every 32nd exchange.
+    // (real time, the largest |slave - reference| then), every 8th exchange.
     let mut samples: Vec<(u64, f64)> = Vec::new();
     let mut exchanges = 0u64;
     let net = sim
         .run_procedure(&mut engine, |tr, _, _| {
             exchanges += 1;
-            if !exchanges.is_multiple_of(32) {
+            if !exchanges.is_multiple_of(8) {
                 return;
             }
             let (seg, t_ps) = (tr.segment(), tr.last_exchange().sent_ps);

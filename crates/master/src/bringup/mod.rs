@@ -24,11 +24,12 @@ use clocks::{CycleGrid, DcGroup, static_drift, wait_for_lock, write_offsets};
 use delays::measure_delays;
 use discovery::{assign_station_addresses, identify, probe_dc, reset, scan};
 use mapping::{map_process_image, request_all};
-use operational::{CyclicFrame, enter_op, monitor, start_sync0};
+use operational::{CyclicFrame, await_first_pulses, enter_op, monitor, start_sync0};
 
 pub use crate::network::*;
 pub use config::{BringupConfig, BringupTimeouts, EsiTiming, Stage};
 pub use delays::measure_clock_rates;
+use mapping::configure_sync_modes;
 pub(crate) use mapping::{configure_mailboxes, configure_process_data, configure_sync_mode};
 pub use operational::{request_state, request_state_with};
 
@@ -133,19 +134,16 @@ async fn configure_and_start(
     )
     .await
     .map_err(|e| e.during(Phase::PreOp))?;
-    for s in &net.slaves {
-        configure_sync_mode(link, s, cfg.cycle_ns, cfg.sync_error_limit)
-            .await
-            .map_err(|e| e.at(Phase::PreOp, s.id()))?;
-    }
+    configure_sync_modes(link, &net.slaves, cfg.cycle_ns, cfg.sync_error_limit).await?;
     net.expected_lrw_wkc = configure_process_data(link, &net.slaves)
         .await
         .map_err(|e| e.during(Phase::ProcessData))?;
 
     link.event(Event::Phase(Phase::Sync0));
-    net.sync0 = start_sync0(link, cfg, &net.slaves, dc)
+    let sync0 = start_sync0(link, cfg, &net.slaves, dc)
         .await
         .map_err(|e| e.during(Phase::Sync0))?;
+    net.sync0 = sync0.map(|(s, _)| s);
 
     let cyclic = CyclicFrame::new(dc, &net.lrw, &net.slaves, cfg.cycle_ns);
     link.event(Event::Phase(Phase::SafeOp));
@@ -158,6 +156,11 @@ async fn configure_and_start(
     )
     .await
     .map_err(|e| e.during(Phase::SafeOp))?;
+    if let Some((_, first_pulses_ns)) = sync0 {
+        await_first_pulses(link, &cyclic, grid, first_pulses_ns)
+            .await
+            .map_err(|e| e.during(Phase::SafeOp))?;
+    }
     link.event(Event::Phase(Phase::Op));
     enter_op(link, &cfg.timeouts, &net.slaves, &cyclic, grid)
         .await

@@ -12,14 +12,15 @@ use ecsync_wire::{
 };
 
 /// [`Phase::Sync0`]: SYNC0 on the absolute grid of the reference's system time, programmed in
-/// every slave with a system time. `None` if there is none to program (not reached: the
-/// reference has one).
+/// every slave with a system time, and the master time by which every programmed slave has
+/// had its first pulse. `None` if there is none to program (not reached: the reference has
+/// one).
 pub(super) async fn start_sync0(
     link: &Link,
     cfg: &BringupConfig,
     slaves: &[SlaveInfo],
     dc: &DcGroup,
-) -> Result<Option<Sync0Config>, MasterError> {
+) -> Result<Option<(Sync0Config, u64)>, MasterError> {
     let now_sys = link
         .fprd(
             dc.reference.station,
@@ -70,18 +71,20 @@ pub(super) async fn start_sync0(
                 // same grid, once less than half the lead is left (the system time estimated
                 // by the master's clock since the read: their rates differ by parts per
                 // million).
-                let sys_now_ns = now_sys.wrapping_add(l.now().as_ns().saturating_sub(read_at_ns));
-                let start = if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > first_start {
-                    ecsync_dc::sync0_start_time(
-                        SystemTime::from_ns(sys_now_ns),
-                        cfg.sync0_lead_ns,
-                        cfg.cycle_ns,
-                        cfg.sync0_shift_ns,
-                    )
-                    .as_ns()
-                } else {
-                    first_start
-                };
+                let master_now_ns = l.now().as_ns();
+                let sys_now_ns = now_sys.wrapping_add(master_now_ns.saturating_sub(read_at_ns));
+                let (start, basis_ns) =
+                    if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > first_start {
+                        let start = ecsync_dc::sync0_start_time(
+                            SystemTime::from_ns(sys_now_ns),
+                            cfg.sync0_lead_ns,
+                            cfg.cycle_ns,
+                            cfg.sync0_shift_ns,
+                        );
+                        (start.as_ns(), master_now_ns)
+                    } else {
+                        (first_start, read_at_ns)
+                    };
                 l.fpwr(
                     id.station,
                     reg::DC_START_TIME,
@@ -92,17 +95,53 @@ pub(super) async fn start_sync0(
                 .map_err(at)?;
                 l.fpwr(id.station, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
                     .await
-                    .map_err(at)
+                    .map_err(at)?;
+                Ok::<u64, MasterError>(basis_ns)
             },
             "SYNC0",
         )
         .await?;
-    each.into_iter().collect::<Result<Vec<()>, _>>()?;
-    Ok(Some(Sync0Config {
-        start_ns: first_start,
-        cycle_ns: cfg.cycle_ns,
-        shift_ns: cfg.sync0_shift_ns,
-    }))
+    // Each start lies less than the lead and a cycle after the system time it was computed
+    // from: the master's time then, plus that, is past every first pulse (the clocks' rates
+    // differ by parts per million, microseconds over the lead). Not the start itself: where
+    // its grid falls in the master's cycle would then move the bring-up's end by a cycle (a
+    // 32-bit reference's grid is another than a 64-bit one's on the same network).
+    let basis_ns = each
+        .into_iter()
+        .collect::<Result<Vec<u64>, _>>()?
+        .into_iter()
+        .max()
+        .unwrap_or(read_at_ns);
+    let first_pulses_ns = basis_ns
+        .saturating_add(cfg.sync0_lead_ns)
+        .saturating_add(u64::from(cfg.cycle_ns));
+    Ok(Some((
+        Sync0Config {
+            start_ns: first_start,
+            cycle_ns: cfg.cycle_ns,
+            shift_ns: cfg.sync0_shift_ns,
+        },
+        first_pulses_ns,
+    )))
+}
+
+/// Part of [`Phase::SafeOp`]: the cyclic frame on the grid until every slave's SYNC0 has
+/// pulsed (`first_pulses_ns`, master time) and a cycle more. A drive asked for OP before its
+/// first SYNC0 pulse has no synchronisation to check (real drives refuse OP then, or count
+/// the missing pulses as sync errors); the process data and the reference's time keep coming
+/// meanwhile, as in OP.
+pub(super) async fn await_first_pulses(
+    link: &Link,
+    cyclic: &CyclicFrame,
+    grid: &mut CycleGrid,
+    first_pulses_ns: u64,
+) -> Result<(), MasterError> {
+    let until_ns = first_pulses_ns.saturating_add(grid.cycle_ns);
+    while link.now().as_ns() < until_ns {
+        grid.tick(link).await;
+        link.pdus(&cyclic.pdus, "cyclic").await?;
+    }
+    Ok(())
 }
 
 /// The cyclic frame of OP: the FRMW first (its send is the reference's time), the process

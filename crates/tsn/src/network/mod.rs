@@ -244,6 +244,11 @@ pub struct TsnNetwork<'a> {
     bridge: Bridge<'a>,
     /// The master's view of the EtherCAT windows, shrunk by the launch margin.
     master_view: Option<PortSchedule>,
+    /// The same of the return windows (the bridge's master-facing port).
+    master_view_back: Option<PortSchedule>,
+    /// The longest a frame's first bit took from the bridge through the segment and back,
+    /// ps: what the master has measured of the segment (it aims its frames by it).
+    segment_round_trip_ps: u64,
     now_ps: u64,
     link_ps: u64,
     noise: Noise,
@@ -297,25 +302,28 @@ impl<'a> TsnNetwork<'a> {
         });
         let phc = Phc::new(crystal, master_initial);
         let margin = m.launch_margin_ns;
-        let ep = &b.ethercat_port;
-        let shrunk: Vec<Window> = ep
-            .windows()
-            .iter()
-            .map(|w| {
-                if w.close_ns - w.open_ns > 2 * margin + wire_ns(1514) {
-                    Window {
-                        open_ns: w.open_ns + margin,
-                        close_ns: w.close_ns - margin,
+        let view = |port: &PortSchedule| {
+            let shrunk: Vec<Window> = port
+                .windows()
+                .iter()
+                .map(|w| {
+                    if w.close_ns - w.open_ns > 2 * margin + wire_ns(1514) {
+                        Window {
+                            open_ns: w.open_ns + margin,
+                            close_ns: w.close_ns - margin,
+                        }
+                    } else {
+                        *w
                     }
-                } else {
-                    *w
-                }
-            })
-            .collect();
-        let master_view = variant
-            .has_bridge()
-            .then(|| PortSchedule::new(ep.cycle_ns(), b.base_ns, &shrunk, 0).ok())
-            .flatten();
+                })
+                .collect();
+            variant
+                .has_bridge()
+                .then(|| PortSchedule::new(port.cycle_ns(), b.base_ns, &shrunk, 0).ok())
+                .flatten()
+        };
+        let master_view = view(&b.ethercat_port);
+        let master_view_back = view(&b.master_port);
         let link_ps = ((m.cable_m * CABLE_NS_PER_M + PHY_PAIR_NS) * 1000.0).round() as u64;
         let gptp = (variant == Variant::M3).then(|| {
             let identity = |p1: u8, id: u8| {
@@ -351,6 +359,8 @@ impl<'a> TsnNetwork<'a> {
             phc,
             bridge: Bridge::new(b, bridge_clock, cross),
             master_view,
+            master_view_back,
+            segment_round_trip_ps: 0,
             now_ps: 0,
             link_ps,
             noise: Noise::new(p.seed ^ (variant as u64 + 1).wrapping_mul(0x5851_f42d_4c95_7f2d)),
@@ -512,13 +522,37 @@ impl<'a> TsnNetwork<'a> {
     /// When (master clock) a frame the master wants to send at `want_ns` leaves: the first
     /// instant at which, by the schedule on the master's clock, it reaches the bridge's egress
     /// inside a window.
+    /// The frame's way back counts too: it must come to the bridge's master-facing port
+    /// inside a return window (by the segment's round trip as measured so far), else the
+    /// next start that brings it back inside one (a long frame sent late in its window would
+    /// wait at the return gate: the bring-up's merged exchanges are such frames).
     fn launch_at(&self, want_ns: u64, len: usize) -> u64 {
         let Some(view) = &self.master_view else {
             return want_ns;
         };
-        let lead = self.lead_ns(len);
-        view.ethercat_start(want_ns + lead, wire_ns(len))
-            .map_or(want_ns, |t| t - lead)
+        let (lead, frame_ns) = (self.lead_ns(len), wire_ns(len));
+        let Some(first) = view.ethercat_start(want_ns + lead, frame_ns) else {
+            return want_ns;
+        };
+        let back_after_ns =
+            (self.segment_round_trip_ps + frame_wire_time_ps(len) + self.bridge.residence_ps)
+                .div_ceil(1000);
+        let comes_back = |t: u64| {
+            self.master_view_back.as_ref().is_none_or(|back| {
+                back.ethercat_start(t + back_after_ns, frame_ns) == Some(t + back_after_ns)
+            })
+        };
+        // Later starts a frame's length apart, over two gate cycles at most.
+        let mut t = first;
+        let step_ns = frame_ns.max(1_000);
+        let limit = first + 2 * view.cycle_ns();
+        while !comes_back(t) {
+            match view.ethercat_start(t + step_ns, frame_ns) {
+                Some(next) if next <= limit => t = next,
+                _ => return first - lead,
+            }
+        }
+        t - lead
     }
 
     /// Sends `frame` at master time `launch_ns` and brings it back (in place).
@@ -560,6 +594,7 @@ impl<'a> TsnNetwork<'a> {
                 wait_ret_ps: 0,
             };
         };
+        self.segment_round_trip_ps = self.segment_round_trip_ps.max(back_sof - t_seg);
         let (back_ps, wait_ret_ps) = if self.variant.has_bridge() {
             let ready = back_sof + wire_ps + residence_ps;
             let (start, w) = self.bridge.gate(ready, len, false);
