@@ -165,7 +165,7 @@ GENERATORS = {
     "sweep-twelve-drives": sweep_example,
     "tune-median-fit": plain(
         "ecsync tune --method median-fit --runs 3 --cycles 100000 --warmup-s 12 --quiet "
-        "--shortest-cycle --cycle-step-us 50"
+        "--send-modes --shortest-cycle --cycle-step-us 50"
     ),
     "tsn-models": plain("ecsync tsn models"),
     "tsn-run": plain("ecsync tsn run", "out/tsn"),

@@ -8,6 +8,7 @@ use crate::sweep::{grid, point};
 use anyhow::{Result, bail};
 use ecsync_dc::MethodKind;
 use ecsync_lab::report::{SHIFT_TIE_PCT, SummaryOut};
+use ecsync_master::transport::SendMode;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::process::ExitCode;
@@ -40,6 +41,11 @@ pub struct Args {
     /// scenario's SYNC0 shift (no late or lost frame), by bisection over run.cycle_us.
     #[arg(long)]
     shortest_cycle: bool,
+    /// Also weigh the host's other send modes (spin, txtime, and hwstamp for a master-shift
+    /// method) with the chosen gains against the scenario's plain sends, run by run: what the
+    /// send jitter after the method's decision costs, which no gain can filter.
+    #[arg(long)]
+    send_modes: bool,
     /// The shortest-cycle search's resolution, us.
     #[arg(long, default_value_t = 10.0)]
     cycle_step_us: f64,
@@ -411,6 +417,19 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
     } else {
         (defaults.clone(), def.clone())
     };
+    let (mut keys, mut best_vals, mut best) = (keys, best_vals, best);
+    if search.args.send_modes {
+        let (text, pick) = send_modes(search, kind, &keys, &best_vals, &best)?;
+        t.push_str(&text);
+        if let Some((mode, o)) = pick {
+            // From here on (the shortest cycle) the method runs with that mode, under its
+            // name in the summary.
+            search.method = format!("{kind}+{mode}");
+            keys.push("send.modes".into());
+            best_vals.push(Value::Array(vec![Value::String(mode.name().into())]));
+            best = o;
+        }
+    }
     if !best.good {
         let _ = writeln!(
             t,
@@ -425,11 +444,14 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
         "  [run]\n  sync0_shift_pct = {margin:.1}   # the smallest safe shift {:.1} % plus {SHIFT_TIE_PCT} % (the comparison's tie step) as margin",
         best.safe_shift_pct
     );
-    if !keys.is_empty() {
-        let _ = writeln!(t, "  [methods.{kind}]");
-        for (k, v) in keys.iter().zip(&best_vals) {
-            let _ = writeln!(t, "  {} = {v}", k.rsplit('.').next().unwrap_or(k));
+    let mut table = "";
+    for (k, v) in keys.iter().zip(&best_vals) {
+        let (head, field) = k.rsplit_once('.').unwrap_or(("", k));
+        if head != table {
+            let _ = writeln!(t, "  [{head}]");
+            table = head;
         }
+        let _ = writeln!(t, "  {field} = {v}");
     }
     if search.args.shortest_cycle {
         t.push_str(&shortest_cycle(search, &keys, &best_vals, base_s)?);
@@ -437,8 +459,131 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
     Ok(t)
 }
 
+/// `--send-modes`: each other send mode the method runs with, at `vals`, against the
+/// scenario's plain sends (`plain`, the same seeds: the same noise before the send mode acts
+/// on it); the best that beats plain beyond run-to-run noise, with its outcome.
+fn send_modes(
+    search: &mut Search,
+    kind: MethodKind,
+    keys: &[String],
+    vals: &[Value],
+    plain: &Outcome,
+) -> Result<(String, Option<(SendMode, Outcome)>)> {
+    if !search.quiet {
+        eprintln!("ecsync tune: the send modes with these gains");
+    }
+    let mut keys = keys.to_vec();
+    keys.push("send.modes".into());
+    let mut t = String::from(
+        "Send modes with these gains (the send jitter after the method's decision, which no gain filters):\n",
+    );
+    let mut pick: Option<(SendMode, Outcome)> = None;
+    let method = std::mem::take(&mut search.method);
+    for mode in SendMode::ALL {
+        if mode == SendMode::Plain || !mode.applies_to(kind) {
+            continue;
+        }
+        let mut v = vals.to_vec();
+        v.push(Value::Array(vec![Value::String(mode.name().into())]));
+        search.method = format!("{method}+{mode}");
+        let o = search.eval(&keys, &v);
+        search.method.clone_from(&method);
+        let Some(o) = o? else {
+            let _ = writeln!(t, "  {mode}: refused or never ran");
+            continue;
+        };
+        let (verdict, beats) = against_plain(plain, &o, mode);
+        let _ = writeln!(
+            t,
+            "  {mode}: smallest safe shift {:.1} % (plain {:.1} %), phase error p99.9 {:.0} ns, {} late, {} lost: {verdict}",
+            o.safe_shift_pct,
+            plain.safe_shift_pct,
+            o.phase_error_p999_ns,
+            o.late_frames,
+            o.lost_frames
+        );
+        if beats && o.good && pick.as_ref().is_none_or(|(_, b)| o.key() < b.key()) {
+            pick = Some((mode, o));
+        }
+    }
+    search.method = method;
+    let _ = match &pick {
+        Some((mode, _)) => writeln!(
+            t,
+            "Send mode: {mode} (in the fragment below; it {}).",
+            match mode {
+                SendMode::Spin =>
+                    "busy-waits up to [send] spin_margin_us each cycle on the master's core",
+                SendMode::Txtime =>
+                    "needs SO_TXTIME and the ETF qdisc on the master's interface (a NIC with launch time for the [send] launch_jitter_ns figure); `ecsync run` says which is missing",
+                _ => "needs a NIC with hardware transmit stamps",
+            }
+        ),
+        None => writeln!(
+            t,
+            "Send mode: plain; no other mode beat it beyond run-to-run noise."
+        ),
+    };
+    Ok((t, pick))
+}
+
 fn plural_runs(n: u32) -> String {
     ecsync_lab::scenario::plural(u64::from(n), "run", "runs")
+}
+
+/// A send mode's outcome against plain sends', run by run (as [`weigh`] does): the verdict's
+/// words and whether it beats plain beyond run-to-run noise.
+fn against_plain(plain: &Outcome, o: &Outcome, mode: SendMode) -> (String, bool) {
+    if !o.good {
+        return (
+            "does not hold (late or lost frames, or off target).".into(),
+            false,
+        );
+    }
+    if !plain.good {
+        return ("holds where plain does not.".into(), true);
+    }
+    let (d, mean, half) = paired(plain, o);
+    let runs: Vec<String> = d.iter().map(|x| format!("{x:.1}")).collect();
+    let runs = runs.join(", ");
+    match half {
+        None => (
+            format!(
+                "{mean:.1} % of the cycle smaller from 1 run: weighing it needs --runs 2 or more."
+            ),
+            false,
+        ),
+        Some(h) if mean - h > 0.0 => (
+            format!(
+                "{mean:.2} % of the cycle smaller, beyond run-to-run noise (per run, plain minus {mode}: {runs}; 95 % interval +-{h:.2})."
+            ),
+            true,
+        ),
+        Some(h) => (
+            format!(
+                "within run-to-run noise of plain ({mean:.2} %; per run, plain minus {mode}: {runs}; 95 % interval +-{h:.2})."
+            ),
+            false,
+        ),
+    }
+}
+
+/// Each run's smallest safe shift of `a` minus `b`'s, % of the cycle, their mean and the half
+/// width of its 95 % interval (`None` from one run).
+fn paired(a: &Outcome, b: &Outcome) -> (Vec<f64>, f64, Option<f64>) {
+    let d: Vec<f64> = a
+        .per_run_pct
+        .iter()
+        .zip(&b.per_run_pct)
+        .map(|(x, y)| x - y)
+        .collect();
+    let n = d.len();
+    let mean = d.iter().sum::<f64>() / n.max(1) as f64;
+    if n < 2 {
+        return (d, mean, None);
+    }
+    let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
+    (d, mean, Some(t95(n - 1) * sd / (n as f64).sqrt()))
 }
 
 /// The tuned point against the defaults, run by run: the same seeds give both the same
@@ -457,14 +602,7 @@ fn weigh(def: &Outcome, best: &Outcome, same: bool) -> (String, bool) {
             false,
         );
     }
-    let d: Vec<f64> = def
-        .per_run_pct
-        .iter()
-        .zip(&best.per_run_pct)
-        .map(|(a, b)| a - b)
-        .collect();
-    let n = d.len();
-    let mean = d.iter().sum::<f64>() / n.max(1) as f64;
+    let (d, mean, half) = paired(def, best);
     let runs: Vec<String> = d.iter().map(|x| format!("{x:.1}")).collect();
     if !def.good && best.good {
         return (
@@ -475,16 +613,14 @@ fn weigh(def: &Outcome, best: &Outcome, same: bool) -> (String, bool) {
             true,
         );
     }
-    if n < 2 {
+    let Some(half) = half else {
         return (
             format!(
                 "Verdict: the tuned point's shift is {mean:.1} % of the cycle smaller, from 1 run: whether that is more than run-to-run noise needs --runs 2 or more; keep the defaults until then."
             ),
             false,
         );
-    }
-    let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
-    let half = t95(n - 1) * sd / (n as f64).sqrt();
+    };
     if mean - half > 0.0 {
         (
             format!(

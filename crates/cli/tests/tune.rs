@@ -166,3 +166,72 @@ fn defaults_that_nothing_beats_are_kept() {
         "no gains to paste: {text}"
     );
 }
+
+/// `--send-modes` on paper-2024 with median-fit: its gains are already the best within noise
+/// (the safe shift is the host's send jitter after the method's decision), but a send mode
+/// that takes that jitter away beats plain sends beyond noise. The mode tune picks, with the
+/// shift its fragment gives, holds in `compare` (no late frame), and `compare` measures the
+/// smallest safe shift tune printed for it.
+#[test]
+fn a_send_mode_that_beats_plain_is_picked_and_holds_in_compare() {
+    let dir = tmp("send");
+    let o = ecsync()
+        .args(["tune", "--method", "median-fit", "--preset", "paper-2024"])
+        .args(SHORT)
+        .args(["--quiet", "--send-modes"])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{text}");
+    println!("{text}");
+    let line = |p: &str| {
+        text.lines()
+            .find(|l| l.trim_start().starts_with(p))
+            .unwrap_or_else(|| panic!("{p} in {text}"))
+            .to_string()
+    };
+    let pick = line("Send mode:");
+    let mode = pick["Send mode: ".len()..]
+        .split(' ')
+        .next()
+        .unwrap()
+        .to_string();
+    assert_ne!(mode, "plain", "{text}");
+    assert!(
+        line(&format!("{mode}:")).contains("beyond run-to-run noise"),
+        "{text}"
+    );
+    assert!(
+        text.contains(&format!("  [send]\n  modes = [\"{mode}\"]\n")),
+        "{text}"
+    );
+    let tuned_safe = number_after(&line(&format!("{mode}:")), "smallest safe shift ");
+    let shift = number_after(&line("sync0_shift_pct"), "sync0_shift_pct = ");
+    let out = dir.join("compare");
+    let o = ecsync()
+        .args([
+            "compare",
+            "--preset",
+            "paper-2024",
+            "--methods",
+            "median-fit",
+        ])
+        .args(["--send", &mode, "--shift-pct", &shift.to_string()])
+        .args(SHORT)
+        .args(["--json", "--quiet", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let g = &v["methods"][format!("median-fit+{mode}")]["ground_truth"];
+    assert_eq!(g["late_frames"], 0, "{g}");
+    assert_eq!(g["lost_frames"], 0, "{g}");
+    let safe = g["smallest_safe_shift_pct"].as_f64().unwrap();
+    assert!(
+        (safe - tuned_safe).abs() < 0.051,
+        "compare {safe} %, tune {tuned_safe} %"
+    );
+    assert!(safe < shift, "{safe} % within the fragment's {shift} %");
+}
