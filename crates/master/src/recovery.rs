@@ -456,8 +456,8 @@ async fn compensate_drift(
 
 /// SYNC0 of the reset slaves on the segment's grid (the start time is a grid point plus the
 /// shift), read from the keeper `k`'s system time. Returns the master time by which the
-/// first pulse has come and a cycle more (the start is less than the lead and a cycle after
-/// the time read).
+/// first pulse has come and a cycle more (each start is less than the lead and a cycle after
+/// the time it was computed from).
 async fn restart_sync0(
     link: &Link,
     net: &Network,
@@ -471,15 +471,26 @@ async fn restart_sync0(
             .await?,
     );
     let read_at_ns = link.now().as_ns();
-    let start = ecsync_dc::sync0_start_time(
-        SystemTime::from_ns(now_sys),
-        cfg.sync0_lead_ns,
-        cfg.cycle_ns,
-        cfg.sync0_shift_ns,
-    )
-    .as_ns();
+    let start_after = |sys_ns: u64| {
+        ecsync_dc::sync0_start_time(
+            SystemTime::from_ns(sys_ns),
+            cfg.sync0_lead_ns,
+            cfg.cycle_ns,
+            cfg.sync0_shift_ns,
+        )
+        .as_ns()
+    };
+    let (mut start, mut basis_ns) = (start_after(now_sys), read_at_ns);
     for &pos in dc_reset {
         let st = info(net, pos).station;
+        // Four frames a slave, one a cycle: with several reset slaves the start may come
+        // within half the lead; then a later one on the same grid (as the bring-up does: a
+        // start already past fires only when the low 32 bits wrap, 4.3 s on).
+        let now_ns = link.now().as_ns();
+        let sys_now_ns = now_sys.wrapping_add(now_ns.saturating_sub(read_at_ns));
+        if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > start {
+            (start, basis_ns) = (start_after(sys_now_ns), now_ns);
+        }
         link.fpwr(st, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
             .await?;
         link.fpwr(
@@ -494,7 +505,7 @@ async fn restart_sync0(
         link.fpwr(st, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
             .await?;
     }
-    Ok(read_at_ns
+    Ok(basis_ns
         .saturating_add(cfg.sync0_lead_ns)
         .saturating_add(2 * u64::from(cfg.cycle_ns)))
 }
@@ -535,7 +546,8 @@ async fn restore_states(
         crate::bringup::configure_process_data(link, std::slice::from_ref(s)).await?;
         request_state(link, s.station, AlState::SafeOp, &cfg.timeouts).await?;
         // A restarted SYNC0 pulses before its slave is asked for OP (as in the bring-up).
-        if let Some(t) = first_pulses_ns.filter(|_| reset.contains(&pos))
+        if let Some(t) =
+            first_pulses_ns.filter(|_| reset.contains(&pos) && s.dc == DcCapability::SystemTime)
             && link.now().as_ns() < t
         {
             link.sleep_until(t).await;

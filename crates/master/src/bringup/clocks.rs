@@ -228,8 +228,14 @@ impl CycleGrid {
         }
     }
 
-    /// Waits for the next grid point.
+    /// Waits for the next grid point. Points already past (the configuration between the
+    /// lock and the cyclic frames takes seconds in a large network) are skipped, not made up
+    /// by frames back to back: the next point on the same grid after now.
     pub(super) async fn tick(&mut self, link: &Link) {
+        let now_ns = link.now().as_ns();
+        if self.next_ns < now_ns {
+            self.next_ns += (now_ns - self.next_ns).div_ceil(self.cycle_ns) * self.cycle_ns;
+        }
         link.sleep_until(self.next_ns).await;
         self.next_ns += self.cycle_ns;
     }

@@ -134,7 +134,9 @@ async fn configure_and_start(
     )
     .await
     .map_err(|e| e.during(Phase::PreOp))?;
-    configure_sync_modes(link, &net.slaves, cfg.cycle_ns, cfg.sync_error_limit).await?;
+    configure_sync_modes(link, &net.slaves, cfg.cycle_ns, cfg.sync_error_limit)
+        .await
+        .map_err(|e| e.during(Phase::PreOp))?;
     net.expected_lrw_wkc = configure_process_data(link, &net.slaves)
         .await
         .map_err(|e| e.during(Phase::ProcessData))?;

@@ -581,6 +581,11 @@ impl<'a> TsnNetwork<'a> {
             None
         } else {
             let out = self.segment.process(frame, t_seg);
+            // The segment's own round trip, without a fault's extra delay (one delayed
+            // frame would otherwise move every later frame's aim).
+            if let Some(t) = out.returned_sof_ps {
+                self.segment_round_trip_ps = self.segment_round_trip_ps.max(t - t_seg);
+            }
             out.returned_sof_ps
                 .filter(|_| !fate.lost_back)
                 .map(|t| t + fate.extra_delay_ps)
@@ -594,7 +599,6 @@ impl<'a> TsnNetwork<'a> {
                 wait_ret_ps: 0,
             };
         };
-        self.segment_round_trip_ps = self.segment_round_trip_ps.max(back_sof - t_seg);
         let (back_ps, wait_ret_ps) = if self.variant.has_bridge() {
             let ready = back_sof + wire_ps + residence_ps;
             let (start, w) = self.bridge.gate(ready, len, false);
