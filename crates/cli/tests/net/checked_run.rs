@@ -5,7 +5,16 @@ use super::*;
 thread_local! {
     /// The wake-up p99 of the last `ecsync run` of this thread, us.
     static LAST_WAKE_P99_US: std::cell::Cell<f64> = const { std::cell::Cell::new(f64::NAN) };
+    /// The largest send-to-wire delay of the last run's first ten cycles, us.
+    static LAST_FIRST_TX_DELAY_US: std::cell::Cell<f64> = const { std::cell::Cell::new(f64::NAN) };
 }
+
+/// A first cycle's frame that sat this long between its timestamp and the wire says the host
+/// stalled the send as the cyclic phase began: bus shift then writes the reference a master
+/// time that old, and the ESC's time control loop learns from that step a clock period
+/// deviation it takes seconds to unlearn (CI once: 54 us in cycle 0, the reference then ran
+/// 16 ppm off the master for the whole 10 s run). Host noise, not the path: checked again.
+const NOISY_FIRST_TX_DELAY_US: f64 = 20.0;
 
 /// A wake-up p99 past this says the host, not the path, was in trouble: this shared VM has
 /// phases in which an idle guest's 1 ms timer wakes a millisecond late one cycle in a hundred
@@ -18,14 +27,16 @@ const NOISY_HOST_P99_US: f64 = 400.0;
 /// must pass them all.
 pub(crate) fn run_method(pair: &NetPair, method: &str) {
     LAST_WAKE_P99_US.with(|c| c.set(f64::NAN));
+    LAST_FIRST_TX_DELAY_US.with(|c| c.set(f64::NAN));
     let first = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         run_method_once(pair, method);
     }));
     if let Err(e) = first {
         let p99 = LAST_WAKE_P99_US.with(|c| c.get());
-        if p99 > NOISY_HOST_P99_US {
+        let first_tx = LAST_FIRST_TX_DELAY_US.with(|c| c.get());
+        if p99 > NOISY_HOST_P99_US || first_tx > NOISY_FIRST_TX_DELAY_US {
             println!(
-                "{method}: the checks failed with the host's wake-up p99 at {p99:.0} us (noisy): once more"
+                "{method}: the checks failed with the host's wake-up p99 at {p99:.0} us and its first cycles' largest send delay {first_tx:.0} us (noisy): once more"
             );
             run_method_once(pair, method);
         } else {
@@ -75,6 +86,11 @@ fn run_method_once(pair: &NetPair, method: &str) {
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON summary");
     let p99 = j["wake_latency"]["p99_us"].as_f64().unwrap_or(f64::NAN);
     LAST_WAKE_P99_US.with(|c| c.set(p99));
+    let first_tx_us = csv_column(&csv, "tx_delay_ns")
+        .iter()
+        .take(10)
+        .fold(0.0f64, |m, &d| m.max(d / 1000.0));
+    LAST_FIRST_TX_DELAY_US.with(|c| c.set(first_tx_us));
     let b = &j["bringup"];
     // Every slave found, delays within 20 ns of the preset's.
     let truth = true_delays();
