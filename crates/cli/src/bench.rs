@@ -274,7 +274,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         if let (Some(w), Some(r)) = (out.default_compare_wall_s, out.default_compare_cycles_per_s) {
             println!(
                 "default comparison (paper-2024, {} methods x 5 runs x 1.92 M cycles): {w:.1} s wall on {}, {:.2} M cycles/s",
-                ecsync_dc::MethodKind::ALL.len(),
+                ecsync_dc::MethodKind::DEFAULT.len(),
                 ecsync_lab::scenario::plural(out.threads as u64, "thread", "threads"),
                 r / 1e6
             );

@@ -143,7 +143,9 @@ fn faults_text(out: &SummaryOut, order: &[String]) -> String {
 
 /// What `--help` says after the options: the methods, the host presets, the defaults.
 pub fn after_help() -> String {
-    let mut t = String::from("Methods (default: all, in this order):\n");
+    let mut t = String::from(
+        "Methods (in report order; the first eight run unless --methods or the scenario names others):\n",
+    );
     for m in MethodKind::ALL {
         t.push_str(&format!("  {:<18} {}\n", m.name(), m.summary()));
     }

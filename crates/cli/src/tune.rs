@@ -96,7 +96,20 @@ fn knobs(kind: MethodKind, s: &ecsync_lab::Scenario) -> Vec<(Knob, f64)> {
             k("kp", false, p.dcm_master_shift.kp),
             k("ki", false, p.dcm_master_shift.ki),
         ],
-        MethodKind::BusShift | MethodKind::Snap | MethodKind::SoemPi => Vec::new(),
+        MethodKind::KickcatPll => vec![
+            k("kp", false, p.kickcat_pll.kp),
+            k("ki", false, p.kickcat_pll.ki),
+        ],
+        MethodKind::Des => vec![k("alpha", false, p.des.alpha), k("beta", false, p.des.beta)],
+        MethodKind::Kalman => vec![
+            k("meas_sigma_ns", false, p.kalman.meas_sigma_ns),
+            k("drift_walk_ns", false, p.kalman.drift_walk_ns),
+        ],
+        MethodKind::BusShift
+        | MethodKind::Snap
+        | MethodKind::SoemPi
+        | MethodKind::IghAppTime
+        | MethodKind::LinuxcncPll => Vec::new(),
     }
 }
 

@@ -139,7 +139,7 @@ fn every_figure_is_recomputed_from_the_samples() {
         .iter()
         .map(|v| v.as_str().unwrap())
         .collect();
-    assert_eq!(ranking.len(), ecsync_dc::MethodKind::NAMES.len());
+    assert_eq!(ranking.len(), ecsync_dc::MethodKind::DEFAULT.len());
     assert_eq!(rec["method"].as_str().unwrap(), ranking[0]);
     assert!(rec["reason"].as_str().unwrap().len() > 80, "{rec}");
     let late = |m: &str| {

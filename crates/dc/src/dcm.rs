@@ -51,7 +51,8 @@
 use crate::offset::round_ns;
 use crate::registry::MethodKind;
 use crate::sync::{
-    ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, grid_phase, wrap_phase,
+    ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, WriteTimes, grid_phase,
+    wrap_phase,
 };
 use ecsync_wire::dc_time::diff_u64;
 
@@ -227,7 +228,7 @@ impl MasterSync for Dcm {
         }
     }
 
-    fn reference_write(&self, _send_ns: u64) -> Option<u64> {
+    fn reference_write(&self, _at: WriteTimes) -> Option<u64> {
         match self.mode {
             DcmMode::BusShift => Some(round_ns(-self.adjustment) as u64),
             DcmMode::MasterShift => None,
@@ -392,7 +393,10 @@ mod tests {
         // First error: filter starts there; rate = kp 10000 + ki 10000.
         let rate = 0.004 * 10_000.0 + 4.0e-6 * 10_000.0;
         assert_eq!(log.adjustment_ns, round_ns(rate));
-        assert_eq!(c.reference_write(0), Some(round_ns(-rate) as u64));
+        assert_eq!(
+            c.reference_write(WriteTimes::default()),
+            Some(round_ns(-rate) as u64)
+        );
     }
 
     /// The enhanced set value takes this cycle's send delay out: a frame the host sent 30 us

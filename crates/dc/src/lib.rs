@@ -4,7 +4,7 @@
 //! `no_std` and allocation-free: every function works on slices the caller owns, so it runs in
 //! a microcontroller master as well as in the simulator.
 //!
-//! The master synchronization methods ([`sync`], [`dcm`]) are named once, in the
+//! The master synchronization methods ([`sync`], [`dcm`], [`masters`], [`estimate`]) are named once, in the
 //! [`registry`]; [`method`] holds their parameters with defaults and [`Method`], which runs any
 //! of them. With the `serde` feature the parameters deserialize from a scenario's
 //! `[methods.<name>]` tables.
@@ -42,8 +42,10 @@
 extern crate std;
 
 pub mod dcm;
+pub mod estimate;
 pub mod fit;
 pub mod lock;
+pub mod masters;
 pub mod method;
 pub mod offset;
 pub mod registry;
@@ -52,13 +54,15 @@ pub mod time;
 pub mod topology;
 
 pub use dcm::{Dcm, DcmMode, DcmParams, SetValueRef};
+pub use estimate::{Des, Kalman};
 pub use lock::LockDetector;
+pub use masters::{IghAppTime, KickcatPll, LinuxcncPll};
 pub use method::{Method, MethodContext, MethodParams, ParamError};
 pub use offset::{sync0_start_time, system_time_offset};
 pub use registry::MethodKind;
 pub use sync::{
     BusShift, ControllerLog, CycleInput, CycleOutput, MasterSync, MedianFit, MedianSync, PiM2s,
-    ReferenceWrite, Snap, SoemPi,
+    ReferenceWrite, Snap, SoemPi, WriteTimes,
 };
 pub use topology::{
     SlavePorts, TopologyError, TreeNode, arrival_times, build_tree, master_delay_ns,

@@ -22,10 +22,14 @@
 //! ```
 
 use crate::dcm::{Dcm, DcmMode, DcmParams, SetValueRef};
+use crate::estimate::{Des, DesParams, Kalman, KalmanParams};
+use crate::masters::{
+    IghAppTime, IghAppTimeParams, KickcatPll, KickcatPllParams, LinuxcncPll, LinuxcncPllParams,
+};
 pub use crate::registry::{MethodKind, MethodList, ParseMethodError};
 use crate::sync::{
     BusShift, ControllerLog, CycleInput, CycleOutput, MAX_WINDOW, MasterSync, MedianFit,
-    MedianSync, PiM2s, ReferenceWrite, Snap, SoemPi,
+    MedianSync, PiM2s, ReferenceWrite, Snap, SoemPi, WriteTimes,
 };
 use core::fmt;
 
@@ -220,6 +224,16 @@ pub struct MethodParams {
     pub snap: AimedParams,
     /// `soem-pi`.
     pub soem_pi: AimedParams,
+    /// `kickcat-pll`.
+    pub kickcat_pll: KickcatPllParams,
+    /// `igh-app-time`.
+    pub igh_app_time: IghAppTimeParams,
+    /// `linuxcnc-pll`.
+    pub linuxcnc_pll: LinuxcncPllParams,
+    /// `des`.
+    pub des: DesParams,
+    /// `kalman`.
+    pub kalman: KalmanParams,
 }
 
 /// What every method of a run shares: the cycle and the phase the frames aim at.
@@ -327,6 +341,124 @@ impl MethodParams {
                 }
             }
         }
+        self.check_more()
+    }
+
+    /// [`MethodParams::check`] of the methods after the letter's, the vendor's and the two
+    /// masters' first ones: every value within its range, named with its default.
+    fn check_more(&self) -> Result<(), ParamError> {
+        use MethodKind as K;
+        let (k, i, l) = (&self.kickcat_pll, &self.igh_app_time, &self.linuxcnc_pll);
+        let (dk, di, dl) = (
+            KickcatPllParams::default(),
+            IghAppTimeParams::default(),
+            LinuxcncPllParams::default(),
+        );
+        let (d, kf) = (&self.des, &self.kalman);
+        let (dd, dkf) = (DesParams::default(), KalmanParams::default());
+        let unit = |v: f64| v > 0.0 && v <= 1.0;
+        let gain = |v: f64| (0.0..=1.0).contains(&v);
+        let positive = |v: f64| v > 0.0 && v <= 1e9;
+        let some = |v: f64| (0.0..=1e9).contains(&v);
+        type Rule = (
+            MethodKind,
+            &'static str,
+            f64,
+            f64,
+            &'static str,
+            fn(f64) -> bool,
+        );
+        let rules: [Rule; 13] = [
+            (
+                K::KickcatPll,
+                "ema_alpha",
+                k.ema_alpha,
+                dk.ema_alpha,
+                "(0, 1]",
+                unit,
+            ),
+            (K::KickcatPll, "kp", k.kp, dk.kp, "[0, 1]", gain),
+            (K::KickcatPll, "ki", k.ki, dk.ki, "[0, 1]", gain),
+            (
+                K::KickcatPll,
+                "slew_limit_us",
+                k.slew_limit_us,
+                dk.slew_limit_us,
+                "(0, 1e9]",
+                positive,
+            ),
+            (
+                K::KickcatPll,
+                "integrator_clamp_us",
+                k.integrator_clamp_us,
+                dk.integrator_clamp_us,
+                "[0, 1e9]",
+                some,
+            ),
+            (
+                K::KickcatPll,
+                "outlier_reject_us",
+                k.outlier_reject_us,
+                dk.outlier_reject_us,
+                "(0, 1e9]",
+                positive,
+            ),
+            (
+                K::IghAppTime,
+                "sync_every",
+                i.sync_every as f64,
+                di.sync_every as f64,
+                "1 ..= 1000",
+                |v| (1.0..=1000.0).contains(&v),
+            ),
+            (
+                K::LinuxcncPll,
+                "step_ns",
+                l.step_ns as f64,
+                dl.step_ns as f64,
+                "0 (a thousandth of the cycle) ..= 100000",
+                |v| (0.0..=100_000.0).contains(&v),
+            ),
+            (K::Des, "alpha", d.alpha, dd.alpha, "(0, 1]", unit),
+            (K::Des, "beta", d.beta, dd.beta, "(0, 1]", unit),
+            (
+                K::Kalman,
+                "meas_sigma_ns",
+                kf.meas_sigma_ns,
+                dkf.meas_sigma_ns,
+                "(0, 1e9]",
+                positive,
+            ),
+            (
+                K::Kalman,
+                "drift_walk_ns",
+                kf.drift_walk_ns,
+                dkf.drift_walk_ns,
+                "[0, 1e9]",
+                some,
+            ),
+            (
+                K::Kalman,
+                "gate_sigma",
+                kf.gate_sigma,
+                dkf.gate_sigma,
+                "(0, 1e9]",
+                positive,
+            ),
+        ];
+        for (kind, key, value, default, range, ok) in rules {
+            if !(value.is_finite() && ok(value)) {
+                return Err(ParamError::method(
+                    kind,
+                    key,
+                    ParamProblem::OutOfRange {
+                        value,
+                        range,
+                        default,
+                    },
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -425,6 +557,16 @@ impl MethodParams {
             }),
             // SOEM's offset: the task runs that far after the reference's grid.
             MethodKind::SoemPi => Method::SoemPi(SoemPi::new(target)),
+            MethodKind::KickcatPll => Method::KickcatPll(KickcatPll::new(self.kickcat_pll, target)),
+            MethodKind::IghAppTime => Method::IghAppTime(IghAppTime::new(
+                self.igh_app_time.sync_every.max(1) as u64,
+                self.igh_app_time.app_time,
+            )),
+            MethodKind::LinuxcncPll => {
+                Method::LinuxcncPll(LinuxcncPll::new(self.linuxcnc_pll.step_ns, target))
+            }
+            MethodKind::Des => Method::Des(Des::new(self.des.alpha, self.des.beta, target)),
+            MethodKind::Kalman => Method::Kalman(Kalman::new(&self.kalman, target)),
         }
     }
 }
@@ -480,6 +622,15 @@ pub enum ParamProblem {
     DcmSlew(f64),
     /// A DCM hold time outside [0, 600000] ms.
     DcmHold(f64),
+    /// A value outside its range.
+    OutOfRange {
+        /// The value given.
+        value: f64,
+        /// The range, as the message says it.
+        range: &'static str,
+        /// The default.
+        default: f64,
+    },
     /// The target phase is no number or absurdly large, us.
     TargetPhaseNotANumber(f64),
     /// The target phase lies outside half a cycle of the grid point.
@@ -584,6 +735,15 @@ impl fmt::Display for Words<'_> {
             }
             (P::DcmHold(v), false) => write!(f, "{v} ms"),
             (P::DcmHold(_), true) => f.write_str("give between 0 and 600000 ms"),
+            (P::OutOfRange { value, range, .. }, false) => {
+                write!(f, "{value} is outside {range}")
+            }
+            (P::OutOfRange { range, default, .. }, true) => {
+                write!(
+                    f,
+                    "give a value in {range}, or leave it out for the default {default}"
+                )
+            }
             (P::TargetPhaseNotANumber(v), false) => write!(f, "{v}"),
             (P::TargetPhaseNotANumber(_), true) => {
                 f.write_str("give the target phase in us, within half a cycle of the grid point")
@@ -628,6 +788,16 @@ pub enum Method {
     Snap(Snap),
     /// `soem-pi`.
     SoemPi(SoemPi),
+    /// `kickcat-pll`.
+    KickcatPll(KickcatPll),
+    /// `igh-app-time`.
+    IghAppTime(IghAppTime),
+    /// `linuxcnc-pll`.
+    LinuxcncPll(LinuxcncPll),
+    /// `des`.
+    Des(Des),
+    /// `kalman`.
+    Kalman(Kalman),
 }
 
 impl Method {
@@ -641,6 +811,11 @@ impl Method {
             Method::Dcm(m) => m.kind(),
             Method::Snap(_) => MethodKind::Snap,
             Method::SoemPi(_) => MethodKind::SoemPi,
+            Method::KickcatPll(_) => MethodKind::KickcatPll,
+            Method::IghAppTime(_) => MethodKind::IghAppTime,
+            Method::LinuxcncPll(_) => MethodKind::LinuxcncPll,
+            Method::Des(_) => MethodKind::Des,
+            Method::Kalman(_) => MethodKind::Kalman,
         }
     }
 }
@@ -656,6 +831,11 @@ macro_rules! dispatch {
             Method::Dcm($m) => $body,
             Method::Snap($m) => $body,
             Method::SoemPi($m) => $body,
+            Method::KickcatPll($m) => $body,
+            Method::IghAppTime($m) => $body,
+            Method::LinuxcncPll($m) => $body,
+            Method::Des($m) => $body,
+            Method::Kalman($m) => $body,
         }
     };
 }
@@ -676,8 +856,8 @@ impl MasterSync for Method {
     }
 
     #[inline]
-    fn reference_write(&self, send_ns: u64) -> Option<u64> {
-        dispatch!(self, m => m.reference_write(send_ns))
+    fn reference_write(&self, at: WriteTimes) -> Option<u64> {
+        dispatch!(self, m => m.reference_write(at))
     }
 
     #[inline]
@@ -771,6 +951,11 @@ mod de {
                             MethodKind::DcmMasterShift => p.dcm_master_shift = map.next_value()?,
                             MethodKind::Snap => p.snap = map.next_value()?,
                             MethodKind::SoemPi => p.soem_pi = map.next_value()?,
+                            MethodKind::KickcatPll => p.kickcat_pll = map.next_value()?,
+                            MethodKind::IghAppTime => p.igh_app_time = map.next_value()?,
+                            MethodKind::LinuxcncPll => p.linuxcnc_pll = map.next_value()?,
+                            MethodKind::Des => p.des = map.next_value()?,
+                            MethodKind::Kalman => p.kalman = map.next_value()?,
                         }
                     }
                     Ok(p)
@@ -782,108 +967,5 @@ mod de {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn every_built_method_names_its_kind() {
-        let ctx = MethodContext {
-            cycle_ns: 1_000_000,
-            target_phase_ns: 250_000,
-        };
-        let p = MethodParams::default();
-        for kind in MethodKind::ALL {
-            let m = p.build(kind, &ctx);
-            assert_eq!(m.kind(), kind);
-            assert_eq!(m.name(), kind.name());
-            assert_eq!(m.init_cycles(), p.init_frames(kind));
-            assert_eq!(kind.has_init_frames(), p.init_frames(kind) > 0);
-            // The kind's word agrees with the built method's own.
-            assert_eq!(kind.is_master_shift(), m.is_master_shift(), "{kind}");
-        }
-        // The aimed methods take the target: snap as ethercrab's shift into the cycle.
-        assert_eq!(
-            p.build(
-                MethodKind::Snap,
-                &MethodContext {
-                    target_phase_ns: -250_000,
-                    ..ctx
-                }
-            ),
-            Method::Snap(Snap { shift_ns: 750_000 })
-        );
-        assert_eq!(
-            p.build(MethodKind::SoemPi, &ctx),
-            Method::SoemPi(SoemPi::new(250_000))
-        );
-    }
-
-    #[test]
-    fn the_dcm_settings_default_to_the_controllers_defaults() {
-        let d = DcmSettings::default().to_params(0, 1_000_000, false);
-        assert_eq!(d, DcmParams::default_for(0, 1_000_000));
-        let d = DcmSettings::default().to_params(7, 1_000_000, true);
-        assert_eq!(d, DcmParams::default_bus_shift(7, 1_000_000));
-        // The hold is a time: at 500 us it is twice the cycles.
-        let d = DcmSettings::default().to_params(0, 500_000, false);
-        assert_eq!(d.in_sync_hold_cycles, 3_000);
-    }
-
-    #[test]
-    fn rounding_is_half_away_from_zero_as_std_rounds() {
-        // f64::round's results, by hand (it is not in core).
-        for (x, r) in [
-            (0.0, 0),
-            (0.5, 1),
-            (-0.5, -1),
-            (1.5, 2),
-            (2.5, 3),
-            (-2.5, -3),
-            // The largest float below 0.5: adding 0.5 would round up to 1.
-            (0.499_999_999_999_999_94, 0),
-            (12_345.678_9, 12_346),
-            (-7.2, -7),
-            (4.5e15, 4_500_000_000_000_000),
-            (1e300, i64::MAX),
-            (-1e300, i64::MIN),
-            (f64::NAN, 0),
-        ] {
-            assert_eq!(round_to_i64(x), r, "{x}");
-        }
-    }
-
-    #[test]
-    fn refused_values_name_the_table_key_and_fix() {
-        let mut p = MethodParams::default();
-        p.median_fit.window = 10;
-        let e = p.check().unwrap_err();
-        assert_eq!(e.table, ParamTable::Method(MethodKind::MedianFit));
-        assert_eq!(e.key, "window");
-        let mut s = std::string::String::new();
-        core::fmt::write(&mut s, format_args!("{e}")).unwrap();
-        assert_eq!(
-            s,
-            "methods.median-fit.window: window w = 10 must be odd and between 1 and 63; fix: use an odd width such as 11 (the letter's), so the median is one of the samples"
-        );
-        let ctx = MethodContext {
-            cycle_ns: 40_000,
-            target_phase_ns: 0,
-        };
-        // DCM's default validity gate (50 us) does not fit a 40 us cycle: refused where DCM
-        // runs only.
-        let p = MethodParams::default();
-        assert!(p.check_use(MethodKind::Median, &ctx).is_ok());
-        let e = p.check_use(MethodKind::DcmBusShift, &ctx).unwrap_err();
-        assert_eq!(e.key, "max_valid_us");
-        let e = MethodContext {
-            cycle_ns: 1_000_000,
-            target_phase_ns: 500_000,
-        }
-        .check()
-        .unwrap_err();
-        assert_eq!(e.table, ParamTable::Run);
-        assert_eq!(e.key, "target_phase_us");
-        assert!(MethodContext::target_phase_from_us(f64::NAN).is_err());
-        assert_eq!(MethodContext::target_phase_from_us(-12.3456), Ok(-12_346));
-    }
-}
+#[path = "method_tests.rs"]
+mod tests;

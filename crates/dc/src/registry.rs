@@ -40,14 +40,44 @@ pub enum MethodKind {
     Snap,
     /// `soem-pi`: SOEM's sample loop ([`SoemPi`](crate::SoemPi)).
     SoemPi,
+    /// `kickcat-pll`: KickCAT's soft PLL ([`KickcatPll`](crate::KickcatPll)).
+    KickcatPll,
+    /// `igh-app-time`: IgH's bus shift, the application time written by FPWR
+    /// ([`IghAppTime`](crate::IghAppTime)).
+    IghAppTime,
+    /// `linuxcnc-pll`: linuxcnc-ethercat's PLL ([`LinuxcncPll`](crate::LinuxcncPll)).
+    LinuxcncPll,
+    /// `des`: double exponential smoothing of the offset and drift ([`Des`](crate::Des)).
+    Des,
+    /// `kalman`: a two-state Kalman filter of the offset and drift ([`Kalman`](crate::Kalman)).
+    Kalman,
 }
 
 /// How many methods there are.
-pub const METHOD_COUNT: usize = 8;
+pub const METHOD_COUNT: usize = 13;
 
 impl MethodKind {
     /// Every method, in report order.
     pub const ALL: [MethodKind; METHOD_COUNT] = [
+        MethodKind::Median,
+        MethodKind::MedianFit,
+        MethodKind::PiM2s,
+        MethodKind::BusShift,
+        MethodKind::DcmBusShift,
+        MethodKind::DcmMasterShift,
+        MethodKind::Snap,
+        MethodKind::SoemPi,
+        MethodKind::KickcatPll,
+        MethodKind::IghAppTime,
+        MethodKind::LinuxcncPll,
+        MethodKind::Des,
+        MethodKind::Kalman,
+    ];
+
+    /// The methods a scenario runs when it names none, and `compare`'s built-in presets: the
+    /// letter's four, the vendor note's two DCMs, and what ethercrab and SOEM ship. The others
+    /// run when named (`--methods`, a scenario's `run.methods`).
+    pub const DEFAULT: [MethodKind; 8] = [
         MethodKind::Median,
         MethodKind::MedianFit,
         MethodKind::PiM2s,
@@ -80,6 +110,11 @@ impl MethodKind {
             MethodKind::DcmMasterShift => "dcm-master-shift",
             MethodKind::Snap => "snap",
             MethodKind::SoemPi => "soem-pi",
+            MethodKind::KickcatPll => "kickcat-pll",
+            MethodKind::IghAppTime => "igh-app-time",
+            MethodKind::LinuxcncPll => "linuxcnc-pll",
+            MethodKind::Des => "des",
+            MethodKind::Kalman => "kalman",
         }
     }
 
@@ -110,6 +145,21 @@ impl MethodKind {
             MethodKind::SoemPi => {
                 "SOEM's sample loop: sign-counting integral on the reference time's phase"
             }
+            MethodKind::KickcatPll => {
+                "KickCAT's soft PLL: clamped PI on the smoothed phase, slew-limited, with lock hysteresis"
+            }
+            MethodKind::IghAppTime => {
+                "IgH's bus shift: the application time (taken at wake-up) written to 0x0910 by FPWR"
+            }
+            MethodKind::LinuxcncPll => {
+                "linuxcnc-ethercat's PLL: PI on the wrapped reference phase, moving the task's period"
+            }
+            MethodKind::Des => {
+                "double exponential smoothing of the master-to-reference offset and drift, fed forward"
+            }
+            MethodKind::Kalman => {
+                "a two-state Kalman filter of the master-to-reference offset and drift, fed forward"
+            }
         }
     }
 
@@ -118,7 +168,10 @@ impl MethodKind {
     /// leaves): only a master-shift method can take a transmit stamp, which comes after the
     /// send, as its t_ms.
     pub const fn is_master_shift(self) -> bool {
-        !matches!(self, MethodKind::BusShift | MethodKind::DcmBusShift)
+        !matches!(
+            self,
+            MethodKind::BusShift | MethodKind::DcmBusShift | MethodKind::IghAppTime
+        )
     }
 
     /// Whether the method spends initialisation frames before it corrects (their number is

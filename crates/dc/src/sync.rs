@@ -91,6 +91,16 @@ pub enum ReferenceWrite {
     OffsetAdjust,
 }
 
+/// When the cycle was to start and when its frame leaves, on the master's clock: the times a
+/// bus-shift method may write into the reference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WriteTimes {
+    /// `t_mt^i`: when the cycle's task was to wake (its target time).
+    pub scheduled: MasterInstant,
+    /// `t_ms^i`: the send timestamp, taken right before the frame leaves.
+    pub send: MasterInstant,
+}
+
 /// A controller's state after a cycle, for its log (the columns of a vendor DCM log).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ControllerLog {
@@ -133,10 +143,10 @@ pub trait MasterSync {
         }
     }
 
-    /// The value to write in the frame about to be sent at `send_ns` (see
+    /// The value to write in the frame about to leave (see
     /// [`MasterSync::reference_write_kind`]): a master time for System Time, an adjustment (ns,
     /// two's complement) for the offset; `None` writes nothing this cycle.
-    fn reference_write(&self, _send_ns: u64) -> Option<u64> {
+    fn reference_write(&self, _at: WriteTimes) -> Option<u64> {
         None
     }
 
@@ -597,8 +607,8 @@ impl MasterSync for BusShift {
         false
     }
 
-    fn reference_write(&self, send_ns: u64) -> Option<u64> {
-        Some(send_ns.wrapping_add(self.write_offset_ns as u64))
+    fn reference_write(&self, at: WriteTimes) -> Option<u64> {
+        Some(at.send.as_ns().wrapping_add(self.write_offset_ns as u64))
     }
 
     fn update(&mut self, input: &CycleInput) -> CycleOutput {
@@ -908,7 +918,13 @@ mod tests {
         let b = BusShift {
             write_offset_ns: 300,
         };
-        assert_eq!(b.reference_write(5_000), Some(5_300));
+        assert_eq!(
+            b.reference_write(WriteTimes {
+                scheduled: crate::time::MasterInstant::from_ns(1_000),
+                send: crate::time::MasterInstant::from_ns(5_000)
+            }),
+            Some(5_300)
+        );
         assert!(!b.is_master_shift());
         let mut b = b;
         let o = b.update(&input(3, 7, 8, Some(10)));

@@ -18,7 +18,7 @@
 //! assert_eq!(s.slaves.len(), 6);
 //! assert_eq!(s.cycle_ns, 1_000_000);
 //! assert_eq!((s.runs, s.cycles, s.seed), (5, 1_800_000, 2024));
-//! assert_eq!(s.methods, MethodKind::ALL);
+//! assert_eq!(s.methods, MethodKind::DEFAULT);
 //! assert!(s.is_letter_testbed());
 //!
 //! let bad = PAPER_2024_TOML.replace("cycle_us = 1000", "cycle_us = 0.5");

@@ -110,7 +110,10 @@ fn d_seed() -> u64 {
     2024
 }
 fn d_methods() -> Vec<String> {
-    MethodKind::NAMES.iter().map(|s| s.to_string()).collect()
+    MethodKind::DEFAULT
+        .iter()
+        .map(|m| m.name().to_string())
+        .collect()
 }
 fn d_static() -> i64 {
     15_000
@@ -710,7 +713,7 @@ mod tests {
         assert_eq!(s.runs, 5);
         assert_eq!(s.cycles, 1_800_000);
         assert_eq!(s.warmup_cycles, 120_000);
-        assert_eq!(s.methods, MethodKind::ALL);
+        assert_eq!(s.methods, MethodKind::DEFAULT);
         assert_eq!(s.params.median.window, 11);
         assert_eq!(s.target_phase_ns, 0);
         assert!(s.is_letter_testbed());

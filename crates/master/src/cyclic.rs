@@ -13,7 +13,8 @@ use crate::io::MASTER_MAC;
 use crate::network::ReferenceReading;
 use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
-    ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, extend_reference_time,
+    ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, WriteTimes,
+    extend_reference_time,
 };
 use ecsync_dc::time::{MasterDuration, MasterInstant, SystemTime};
 use ecsync_wire::dc_time::diff_u64;
@@ -378,7 +379,10 @@ impl<S: MasterSync> CyclicEngine<S> {
         // so far (the next write then writes the offset as the recovery did, not the
         // adjustment twice).
         let adjusted = match self.sync.reference_write_kind() {
-            ReferenceWrite::OffsetAdjust => self.sync.reference_write(0).unwrap_or(0),
+            ReferenceWrite::OffsetAdjust => self
+                .sync
+                .reference_write(WriteTimes::default())
+                .unwrap_or(0),
             _ => 0,
         };
         self.cfg.reference_offset_ns = offset_ns.wrapping_sub(adjusted);
@@ -564,22 +568,37 @@ impl<S: MasterSync> CyclicEngine<S> {
             ReferenceWrite::SystemTime => self.health.recovery_running,
             ReferenceWrite::None => false,
         };
-        if hold_write && let Some(at) = plan.bus_write_at {
-            // The reference's offset is not adjusted while its time is not believed or a
-            // recovery may be writing it anew (an adjustment of the old offset would throw a
-            // reset reference onto a timeline of its own), and the master's time is not
-            // written into it while a recovery waits for the slaves' |0x092C| to settle (the
-            // reference's own would be the master's jitter, which never does): the reference
-            // holds over, and the write becomes a read.
-            ecsync_wire::Datagram::new_unchecked(&mut out[at - DATAGRAM_HEADER_LEN..])
-                .set_command(Command::Fprd);
-        } else if let (Some(at), Some(v)) = (plan.bus_write_at, self.sync.reference_write(send_ns))
-        {
-            let v = match kind {
-                ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
-                _ => v,
-            };
-            out[at..at + 8].copy_from_slice(&v.to_le_bytes());
+        let Some(at) = plan.bus_write_at else {
+            return;
+        };
+        // The reference's offset is not adjusted while its time is not believed or a recovery
+        // may be writing it anew (an adjustment of the old offset would throw a reset
+        // reference onto a timeline of its own), and the master's time is not written into it
+        // while a recovery waits for the slaves' |0x092C| to settle (the reference's own would
+        // be the master's jitter, which never does): the reference holds over. A method that
+        // writes only some cycles holds it over in the others.
+        let scheduled_ns = self
+            .scheduled_ns
+            .wrapping_sub(self.health.master_clock_correction_ns as u64);
+        let value = if hold_write {
+            None
+        } else {
+            self.sync.reference_write(WriteTimes {
+                scheduled: MasterInstant::from_ns(scheduled_ns),
+                send: MasterInstant::from_ns(send_ns),
+            })
+        };
+        match value {
+            Some(v) => {
+                let v = match kind {
+                    ReferenceWrite::OffsetAdjust => self.cfg.reference_offset_ns.wrapping_add(v),
+                    _ => v,
+                };
+                out[at..at + 8].copy_from_slice(&v.to_le_bytes());
+            }
+            // The write becomes a read.
+            None => ecsync_wire::Datagram::new_unchecked(&mut out[at - DATAGRAM_HEADER_LEN..])
+                .set_command(Command::Fprd),
         }
     }
 

@@ -7,9 +7,9 @@ use plotters::style::RGBColor;
 
 /// The methods' colours, by their position in the report's order: no two alike, none red,
 /// black or grey (those are the markers'). Matplotlib's tab10 without its red and grey, then
-/// four more far from them; a comparison with more entries than colours (methods with several
+/// five more far from them; a comparison with more entries than colours (methods with several
 /// send modes) draws the later ones dashed (see [`dashed_series`]).
-pub(crate) const COLORS: [RGBColor; 12] = [
+pub(crate) const COLORS: [RGBColor; 13] = [
     RGBColor(0x1f, 0x77, 0xb4), // blue
     RGBColor(0x17, 0xbe, 0xcf), // cyan
     RGBColor(0x2c, 0xa0, 0x2c), // green
@@ -22,6 +22,7 @@ pub(crate) const COLORS: [RGBColor; 12] = [
     RGBColor(0x00, 0x8f, 0x6f), // teal
     RGBColor(0xff, 0xc8, 0x00), // amber
     RGBColor(0x7f, 0x9f, 0xff), // light blue
+    RGBColor(0xa0, 0x00, 0xa0), // magenta
 ];
 
 /// The colour of the method at `i` in the report's order.
