@@ -35,8 +35,18 @@
 //! assert!(close(after - next, period));
 //! assert_eq!(sync.cycles(), 1);
 //!
-//! // Bus shift writes to the reference, which `tx_rx_dc` cannot: refused.
+//! // Bus shift writes to the reference, which `tx_rx_dc` cannot: refused, IgH's way too.
 //! assert!(DcLoop::new(ecsync_dc::BusShift::default(), period).is_err());
+//! let igh = ecsync_dc::IghAppTime::new(2, ecsync_dc::masters::AppTime::Send);
+//! assert!(DcLoop::new(igh, period).is_err());
+//!
+//! // Every master-shift method of the registry drives the loop: KickCAT's soft PLL, say, or
+//! // the Kalman filter (any of them built by name from its parameters).
+//! use ecsync_dc::{MethodContext, MethodKind, MethodParams};
+//! let ctx = MethodContext { cycle_ns: 1_000_000, target_phase_ns: 0 };
+//! for kind in MethodKind::ALL.into_iter().filter(|k| k.is_master_shift()) {
+//!     assert!(DcLoop::new(MethodParams::default().build(kind, &ctx), period).is_ok());
+//! }
 //! ```
 //!
 //! In ethercrab's cyclic loop (needs a network interface and EtherCAT slaves):
@@ -75,7 +85,9 @@
 
 pub use ecsync_dc::sync::{CycleInput, CycleOutput, MasterSync};
 use ecsync_dc::time::{MasterInstant, SystemTime};
-pub use ecsync_dc::{MedianSync, PiM2s, Snap, SoemPi};
+pub use ecsync_dc::{
+    Des, Kalman, KickcatPll, LinuxcncPll, MedianFit, MedianSync, PiM2s, Snap, SoemPi,
+};
 use ethercrab::subdevice_group::CycleInfo;
 use std::time::{Duration, Instant};
 
