@@ -54,7 +54,10 @@ fn check(name: &str, out: &SummaryOut, text: &str, worst: &mut [f64; 4]) {
     let (igh, bus) = (g("igh-app-time"), g("bus-shift"));
     assert_eq!(igh.late_frames, 0, "{name}: igh-app-time late\n{text}");
     let d = (igh.offset_from_target_ns - bus.offset_from_target_ns).abs();
-    assert!(d <= 1_000.0, "{name}: igh-app-time {d} ns from bus shift\n{text}");
+    assert!(
+        d <= 1_000.0,
+        "{name}: igh-app-time {d} ns from bus shift\n{text}"
+    );
     let (si, sb) = (igh.slave_ref_diff.p999_abs, bus.slave_ref_diff.p999_abs);
     assert!(
         (si - sb).abs() <= 20.0,
@@ -71,10 +74,21 @@ fn the_new_methods_do_what_their_sources_say_on_the_letters_testbed_and_random_n
         .replace("warmup_s = 120", "warmup_s = 20");
     let paper = paper
         .lines()
-        .map(|l| if l.starts_with("methods = [") { METHODS } else { l })
+        .map(|l| {
+            if l.starts_with("methods = [") {
+                METHODS
+            } else {
+                l
+            }
+        })
         .collect::<Vec<_>>()
         .join("\n");
-    check("paper-2024", &run("paper-2024.toml", &paper), &paper, &mut worst);
+    check(
+        "paper-2024",
+        &run("paper-2024.toml", &paper),
+        &paper,
+        &mut worst,
+    );
     let mut rng = ChaCha8Rng::seed_from_u64(0x34_0005);
     for k in 0..12 {
         let n = rng.random_range(2..=24);
@@ -83,7 +97,12 @@ fn the_new_methods_do_what_their_sources_say_on_the_letters_testbed_and_random_n
             .replace("cycles = 12000", "cycles = 30000")
             .replace("warmup_s = 10.5", "warmup_s = 20");
         let name = format!("net{k} ({n} drives)");
-        check(&name, &run(&format!("net{k}.toml"), &text), &text, &mut worst);
+        check(
+            &name,
+            &run(&format!("net{k}.toml"), &text),
+            &text,
+            &mut worst,
+        );
     }
     println!(
         "13 networks: kickcat-pll at most {:.2} us off its target, des {:.2}, kalman {:.2}; linuxcnc-pll at most {:.1} us late",
@@ -91,5 +110,88 @@ fn the_new_methods_do_what_their_sources_say_on_the_letters_testbed_and_random_n
         worst[1] / 1e3,
         worst[2] / 1e3,
         worst[3] / 1e3
+    );
+}
+
+/// KickCAT's #374 on the letter's testbed: drives whose SYNC PLL loses lock past 1 us of
+/// |0x092C| (`pll_limit_us`). Bus shift writes the master's time, send jitter and all, into
+/// the reference, whose |0x092C| is then microseconds (Table 1's rS-IS MMax, 12 us): its PLL
+/// gives up with AL status code 0x0032, under `bus-shift` and IgH's `igh-app-time` alike; the
+/// master-shift methods leave the reference's clock alone (|0x092C| within 0.13 us) and no
+/// drive leaves OP. The verdict ranks the methods whose drives left OP last, and says why.
+#[test]
+fn a_pll_that_cannot_follow_bus_shift_raises_0x0032_and_the_verdict_says_so() {
+    let text = ecsync_sim::preset::PAPER_2024_TOML
+        .replace(
+            "[[segment.slave]]\n",
+            "[[segment.slave]]\npll_limit_us = 1\n",
+        )
+        .replace("runs = 5", "runs = 1")
+        .replace("cycles = 1800000", "cycles = 30000")
+        .replace("warmup_s = 120", "warmup_s = 15");
+    let bus = ["bus-shift", "igh-app-time"];
+    let master = [
+        "median-fit",
+        "dcm-master-shift",
+        "snap",
+        "soem-pi",
+        "kickcat-pll",
+        "linuxcnc-pll",
+        "des",
+        "kalman",
+    ];
+    let list: Vec<String> = bus
+        .iter()
+        .chain(&master)
+        .map(|m| format!("\"{m}\""))
+        .collect();
+    let text = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("methods = [") {
+                format!("methods = [{}]", list.join(", "))
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let out = run("pll.toml", &text);
+    for m in bus {
+        let left = &out.methods[m].left_op;
+        assert!(
+            !left.is_empty() && left.iter().all(|l| l.al_status_code == 0x0032),
+            "{m}: {left:?}"
+        );
+    }
+    for m in master {
+        assert!(
+            out.methods[m].left_op.is_empty(),
+            "{m}: {:?}",
+            out.methods[m].left_op
+        );
+    }
+    let rec = &out.recommendation;
+    let n = rec.ranking.len();
+    let mut last_two = rec.ranking[n - 2..].to_vec();
+    last_two.sort();
+    assert_eq!(last_two, ["bus-shift", "igh-app-time"], "{:?}", rec.ranking);
+    assert!(
+        rec.rule.starts_with("methods under which no drive left OP"),
+        "{}",
+        rec.rule
+    );
+    assert!(
+        rec.reason
+            .contains("bus-shift and igh-app-time drives left OP with an AL error"),
+        "{}",
+        rec.reason
+    );
+    assert!(
+        out.warnings
+            .iter()
+            .any(|w| w.kind == "left_op" && w.message.contains("0x0032")),
+        "{:?}",
+        out.warnings
     );
 }

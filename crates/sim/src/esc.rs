@@ -239,6 +239,7 @@ impl Esc {
             sync: sync::SyncMonitor::default(),
             sm_status: sm_status::MailboxStatusBits::default(),
         };
+        esc.sync.pll_limit_ns = esc.device.pll_limit_ns;
         esc.build_attributes();
         esc.reset_registers();
         esc

@@ -496,6 +496,10 @@ pub struct DeviceInfo {
     pub dc_opmodes: Vec<DcOpMode>,
     /// The SII's contents a device description gives; `None`: derived (see [`SiiContents`]).
     pub sii: Option<std::sync::Arc<SiiContents>>,
+    /// The limit on |0x092C| past which the application's SYNC PLL loses lock and the drive
+    /// leaves OP with AL status code 0x0032, ns; 0: none (a firmware setting, no object: see
+    /// [`crate::esc::Esc::set_pll_error_limit_ns`]).
+    pub pll_limit_ns: u32,
 }
 
 /// Where a device's mailbox buffers are (the SII's standard mailbox words 0x18-0x1B).
@@ -622,6 +626,7 @@ impl DeviceInfo {
             dictionary: None,
             dc_opmodes: Vec::new(),
             sii: None,
+            pll_limit_ns: 0,
         }
     }
 
@@ -640,6 +645,7 @@ impl DeviceInfo {
             dictionary: None,
             dc_opmodes: Vec::new(),
             sii: None,
+            pll_limit_ns: 0,
         }
     }
 }

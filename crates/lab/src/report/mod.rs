@@ -40,7 +40,9 @@ pub use summary::{
     Warning,
 };
 pub use text::{csv, m_rs_aim_note, per_slave_text, table1_text, truth_text, verdict_text};
-pub use verdict::{RANKING_RULE, SHIFT_TIE_PCT, SPREAD_TIE, UNRANKED_LOST_SHARE};
+pub use verdict::{
+    RANKING_RULE, RANKING_RULE_DRIVE_ERRORS, SHIFT_TIE_PCT, SPREAD_TIE, UNRANKED_LOST_SHARE,
+};
 
 use crate::compare::Comparison;
 use crate::stats::{QUANTILE_REL_ERROR, RESOLUTION_NS};
@@ -172,13 +174,21 @@ pub fn recommend(
         .into_iter()
         .cloned()
         .collect();
+    let rule = if ranking
+        .iter()
+        .any(|m| verdict::drive_errors(&methods[m]) > 0)
+    {
+        RANKING_RULE_DRIVE_ERRORS
+    } else {
+        RANKING_RULE
+    };
     Recommendation {
         method: ranking.first().cloned().unwrap_or_default(),
         send_modes: send_note(methods, order, ranking.first()),
         reason,
         ranking,
         within_noise: tied,
-        rule: RANKING_RULE,
+        rule,
         not_ranked: left_out,
     }
 }

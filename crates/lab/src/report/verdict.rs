@@ -100,6 +100,10 @@ pub(super) fn not_ranked(
         .collect()
 }
 
+/// The ranking rule when a drive left OP with an AL error under some method (with nothing to
+/// separate it is left out of the rule's words: the ranking is [`RANKING_RULE`]'s).
+pub const RANKING_RULE_DRIVE_ERRORS: &str = "methods under which no drive left OP with an AL error (a PLL or synchronization error: it stops a machine) first, then fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|; a difference the runs do not confirm (each run's difference between the two methods, which meet the same noise, against its 95 % interval) is reported as within run-to-run noise";
+
 /// The ranking rule, in words.
 pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|; a difference the runs do not confirm (each run's difference between the two methods, which meet the same noise, against its 95 % interval) is reported as within run-to-run noise";
 
@@ -157,7 +161,28 @@ pub(super) fn rank(methods: &BTreeMap<String, MethodOut>, order: &[String]) -> V
             .find(|o| o.is_ne())
             .unwrap_or(std::cmp::Ordering::Equal)
     });
+    // Drives that left OP with an error stop a machine: such methods go after the others,
+    // in the keys' order among themselves (a stable sort).
+    idx.sort_by_key(|&i| drive_errors(&methods[names[i]]) > 0);
     idx.into_iter().map(|i| names[i].clone()).collect()
+}
+
+/// How often a drive left OP with an AL error (a code other than 0) under the method: a PLL
+/// error (0x0032) of a reference pushed by bus shift, a synchronization error (0x001A) of late
+/// frames. (A power-cycled drive comes back in Init without an error: not counted.)
+pub(super) fn drive_errors(m: &MethodOut) -> usize {
+    m.left_op.iter().filter(|l| l.al_status_code != 0).count()
+}
+
+/// The distinct AL codes of the method's drive errors, as the summary words them.
+fn drive_error_codes(m: &MethodOut) -> String {
+    let mut codes: Vec<&str> = Vec::new();
+    for l in m.left_op.iter().filter(|l| l.al_status_code != 0) {
+        if !codes.contains(&l.reason.as_str()) {
+            codes.push(&l.reason);
+        }
+    }
+    codes.join(", ")
 }
 
 /// Why the pick, in words: its figures at the `s_pct` % shift, whether it holds its target,
@@ -206,8 +231,44 @@ pub(super) fn reason(
             }
         );
     }
-    if let Some(second) = ranking.get(1) {
-        second_note(&mut r, methods, ranking, pick, second);
+    if drive_errors(p) > 0 {
+        let _ = write!(
+            r,
+            " Under it too drives left OP with an AL error ({}, {} times; see the warnings): every method here had some.",
+            drive_error_codes(p),
+            drive_errors(p)
+        );
+    }
+    match ranking.get(1) {
+        Some(second) if drive_errors(&methods[second]) > 0 && drive_errors(p) == 0 => {
+            let q = &methods[second];
+            let _ = write!(
+                r,
+                " Next is {second}, under which drives left OP with an AL error ({}, {} times; see the warnings).",
+                drive_error_codes(q),
+                drive_errors(q)
+            );
+        }
+        Some(second) => second_note(&mut r, methods, ranking, pick, second),
+        None => {}
+    }
+    let failing: Vec<&str> = ranking
+        .iter()
+        .skip(2)
+        .filter(|m| drive_errors(&methods[*m]) > 0 && drive_errors(p) == 0)
+        .map(|m| m.as_str())
+        .collect();
+    if !failing.is_empty() {
+        let n = failing.len();
+        let list = match failing.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} and {last}", rest.join(", ")),
+            _ => failing.join(""),
+        };
+        let _ = write!(
+            r,
+            " Under {list} drives left OP with an AL error (see the warnings): {} ranked after the methods under which none did.",
+            if n == 1 { "it is" } else { "they are" }
+        );
     }
     let off: Vec<&str> = ranking
         .iter()
@@ -407,7 +468,9 @@ pub(super) fn within_noise<'a>(
     if ranking.is_empty() {
         return Vec::new();
     }
+    let pick_errors = drive_errors(&methods[&ranking[0]]) > 0;
     (1..ranking.len())
+        .filter(|&k| (drive_errors(&methods[&ranking[k]]) > 0) == pick_errors)
         .filter(|&k| {
             matches!(
                 versus(methods, ranking, 0, k),

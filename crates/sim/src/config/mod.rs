@@ -116,6 +116,11 @@ pub struct SlaveConfig {
     /// Local time at power-up (simulation start), ns.
     #[serde(default)]
     pub power_up_ns: Option<u64>,
+    /// The drive's SYNC PLL limit on |0x092C|, us: past it the drive leaves OP with AL status
+    /// code 0x0032 (PLL error), as drives whose PLL cannot follow a reference pushed by bus
+    /// shift do. Absent: no limit.
+    #[serde(default)]
+    pub pll_limit_us: Option<f64>,
     /// Serial number.
     #[serde(default)]
     pub serial: Option<u32>,
@@ -356,6 +361,7 @@ impl SegmentConfig {
         let serial = s.serial.unwrap_or(at.i as u32 + 1);
         let mut device = s.device(serial, at, esi_files)?;
         s.override_identity(&mut device, at)?;
+        device.pll_limit_ns = s.pll_limit_ns(at)?;
         s.override_delays(&mut model, at)?;
         s.check_cable_and_crystal(at)?;
         let upstream = s.upstream(&model, names, specs, at)?;
@@ -519,6 +525,22 @@ impl SlaveConfig {
     }
 
     /// The cable length, the crystal's error and its wander are in range.
+    /// `pll_limit_us` in ns (0: none).
+    fn pll_limit_ns(&self, at: &SlaveAt<'_>) -> Result<u32, ConfigError> {
+        let Some(us) = self.pll_limit_us else {
+            return Ok(0);
+        };
+        if !(us.is_finite() && us > 0.0 && us <= 1_000_000.0) {
+            return Err(at.error(
+                at.key_line("pll_limit_us"),
+                "pll_limit_us",
+                format!("{us} us is not a PLL limit"),
+                "give the |0x092C| in us past which the drive's PLL loses lock (above 0, at most 1000000), or leave it out for none",
+            ));
+        }
+        Ok((us * 1000.0).round().max(1.0) as u32)
+    }
+
     fn check_cable_and_crystal(&self, at: &SlaveAt<'_>) -> Result<(), ConfigError> {
         if !(self.cable_m.is_finite() && (0.0..=100_000.0).contains(&self.cable_m)) {
             return Err(at.error(
@@ -856,5 +878,16 @@ ppm = -3.5
         let bad = GOOD.replace("upstream_port = 1", "upstream_port = 2");
         let e = parse_segment("net.toml", &bad).unwrap_err();
         assert_eq!(e.field, "segment.slave[1].upstream_port");
+
+        // The drive's PLL limit: a positive time, carried to the device; refused otherwise.
+        let good = GOOD.replace("ppm = -3.5", "ppm = -3.5\npll_limit_us = 2.5");
+        let specs = parse_segment("net.toml", &good).unwrap();
+        assert_eq!(specs[1].device.pll_limit_ns, 2_500);
+        assert_eq!(specs[0].device.pll_limit_ns, 0);
+        let bad = GOOD.replace("ppm = -3.5", "ppm = -3.5\npll_limit_us = -1");
+        let e = parse_segment("net.toml", &bad).unwrap_err();
+        assert_eq!(e.field, "segment.slave[1].pll_limit_us");
+        assert_eq!(e.line, Some(12));
+        assert!(e.fix.contains("PLL"), "{e}");
     }
 }

@@ -15,8 +15,8 @@
 //! A drive whose PLL follows SYNC0 loses lock when its clock is too far from the reference's:
 //! past its limit on |0x092C| (checked with each frame's outputs in DC mode) it raises 0x0032
 //! (PLL error) and leaves OP. ETG.1020 names the code but no object for the limit; the virtual
-//! drive keeps it as a firmware setting ([`Esc::set_pll_error_limit_ns`]), 0 (off) by
-//! default: bus shift's |0x092C| is microseconds by design, and a comparison measures the
+//! drive keeps it as a firmware setting ([`Esc::set_pll_error_limit_ns`], a scenario's
+//! `pll_limit_us` of the slave), 0 (off) by default: bus shift's |0x092C| is microseconds by design, and a comparison measures the
 //! method.
 //!
 //! Assumptions, written down:
@@ -360,6 +360,8 @@ impl Esc {
     /// documentation).
     pub fn set_pll_error_limit_ns(&mut self, limit_ns: u32) {
         self.sync.pll_limit_ns = limit_ns;
+        // (A firmware setting: a power cycle keeps it.)
+        self.device.pll_limit_ns = limit_ns;
     }
 
     /// Whether the application runs on SYNC0 (set to DC SYNC0 mode over CoE, 0x1C32:01 = 2).

@@ -444,6 +444,7 @@ impl EsiDevice {
             dictionary: Some(Arc::new(self.dictionary())),
             dc_opmodes: self.dc_opmodes.clone(),
             sii: Some(Arc::new(sii)),
+            pll_limit_ns: 0,
         }
     }
 }
