@@ -140,8 +140,21 @@ def sweep_example(r):
     return shown(SWEEP_EXAMPLE, text)
 
 
+MORE_METHODS = (
+    "ecsync compare --methods median-fit,bus-shift,kickcat-pll,igh-app-time,linuxcnc-pll,des,kalman "
+    "--runs 1 --cycles 200000 --quiet"
+)
+
+
+def compare_more_methods(r):
+    """The verdict and the ground truth's table of issue 34's methods beside two of the letter's."""
+    text, _ = r.run(tuple(MORE_METHODS.split()[1:]), "out/compare")
+    return shown(MORE_METHODS, until(text, "Init-drift") + "...\n")
+
+
 GENERATORS = {
     "compare-default": compare_default,
+    "compare-more-methods": compare_more_methods,
     "compare-default-verdict": compare_default_verdict,
     "compare-twelve-drives": plain(
         "ecsync compare --preset twelve-drives --runs 1 --cycles 200000 --quiet", "out/compare"

@@ -149,10 +149,10 @@ impl MethodKind {
                 "KickCAT's soft PLL: clamped PI on the smoothed phase, slew-limited, with lock hysteresis"
             }
             MethodKind::IghAppTime => {
-                "IgH's bus shift: the application time (taken at wake-up) written to 0x0910 by FPWR"
+                "IgH's bus shift: the application time (read right before the send) written to 0x0910 by FPWR every second cycle"
             }
             MethodKind::LinuxcncPll => {
-                "linuxcnc-ethercat's PLL: PI on the wrapped reference phase, moving the task's period"
+                "linuxcnc-ethercat's PLL: the task's period stepped by +-P/1000 on the sign of the folded reference phase"
             }
             MethodKind::Des => {
                 "double exponential smoothing of the master-to-reference offset and drift, fed forward"

@@ -234,6 +234,11 @@ fn serve_and_run_with_every_other_method() {
         "dcm-bus-shift",
         "snap",
         "soem-pi",
+        "kickcat-pll",
+        "igh-app-time",
+        "linuxcnc-pll",
+        "des",
+        "kalman",
     ] {
         run_method(&pair, m);
     }

@@ -167,10 +167,15 @@ pub(super) fn rank(methods: &BTreeMap<String, MethodOut>, order: &[String]) -> V
     idx.into_iter().map(|i| names[i].clone()).collect()
 }
 
-/// How often a drive left OP with an AL error (a code other than 0) under the method: a PLL
-/// error (0x0032) of a reference pushed by bus shift, a synchronization error (0x001A) of late
-/// frames. (A power-cycled drive comes back in Init without an error: not counted.)
+/// How often a drive left OP with an AL error (a code other than 0) under the method, with no
+/// fault scheduled: a PLL error (0x0032) of a reference pushed by bus shift, a synchronization
+/// error (0x001A) of late frames. (With a fault schedule, drives that leave OP are the faults'
+/// doing, which every method meets alike: the warnings list them, the ranking does not count
+/// them, as it does not count the frames the faults lose.)
 pub(super) fn drive_errors(m: &MethodOut) -> usize {
+    if !m.faults.is_empty() {
+        return 0;
+    }
     m.left_op.iter().filter(|l| l.al_status_code != 0).count()
 }
 
