@@ -181,6 +181,11 @@ impl Esc {
             // SYNC0 faster than the drive's minimum cycle time (0x1C32:05): ETG.1020's 0x0036
             // (SYNC0 cycle time not supported).
             self.fail(AlStatusCode::DcSync0CycleTime);
+        } else if (from, to) == (SafeOp, Op) && self.cycle_time_disagrees_with_sync0() {
+            // The cycle time the master set (0x1C32:02) is not SYNC0's: the drive cannot tell
+            // which to run its control on (ETG.1020's 0x0035, invalid sync cycle time; SOEM
+            // #961: a master that leaves :02 at another value than the SYNC0 cycle).
+            self.fail(AlStatusCode::DcInvalidSyncCycleTime);
         } else if (from, to) == (PreOp, SafeOp) {
             match self.check_process_data_config() {
                 Ok(()) => self.al_state = to,
@@ -243,6 +248,24 @@ impl Esc {
             .as_ref()
             .and_then(|d| d.sync0())
             .is_some_and(|(_, cycle)| cycle > 0 && cycle < minimum)
+    }
+
+    /// The drive runs on SYNC0 (0x1C32:01 = 2), SYNC0 runs, and 0x1C32:02 (the cycle time, ns)
+    /// is neither 0 (not set: the drive follows SYNC0) nor SYNC0's cycle.
+    fn cycle_time_disagrees_with_sync0(&self) -> bool {
+        let Some(c) = self.sdo_server() else {
+            return false;
+        };
+        if c.od.read_u32(0x1c32, 1) != 2 {
+            return false;
+        }
+        let cycle_time = c.od.read_u32(0x1c32, 2);
+        cycle_time != 0
+            && self
+                .dc
+                .as_ref()
+                .and_then(|d| d.sync0())
+                .is_some_and(|(_, cycle)| cycle > 0 && cycle != cycle_time)
     }
 
     /// The drive is set to DC SYNC0 over CoE and its SYNC0 does not run.
