@@ -10,8 +10,9 @@
 //! send timestamp: the clocks' offset plus the way to the reference, with the NIC's noise only
 //! (the send's jitter moves both ends). It changes by the drift each cycle, whatever the master
 //! does, so the estimators run open-loop and their one-cycle-ahead forecast `ŷ` sets the next
-//! start: the frame sent `s̄` after its cycle's start (the send's mean delay, see [`SendDelay`])
-//! reaches the reference at `t_mt + s̄ + ŷ`, which is put on the target phase of the DC grid.
+//! start: the frame sent `s̄` after its cycle's start (the send's mean delay: the median of the
+//! first 63, then an average of the delays clamped to within 50 us of it) reaches the
+//! reference at `t_mt + s̄ + ŷ`, which is put on the target phase of the DC grid.
 //! The papers write the estimate into the slaves (the patent) or the reference; here, as
 //! master-shift methods, it moves the master's cycles (the comparison's master-shift family).
 

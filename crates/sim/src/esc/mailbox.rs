@@ -755,6 +755,28 @@ mod sync_mode_tests {
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x0032));
     }
 
+    /// 0x1C32:02 set (in PRE-OP) to 500 us while SYNC0 runs every 1 ms: OP refused with 0x0035;
+    /// at 0 (not set) the drive follows SYNC0 and goes to OP.
+    #[test]
+    fn a_cycle_time_other_than_sync0_s_refuses_op_with_0x0035() {
+        use ecsync_wire::AlState;
+        for (cycle_time, status, code) in [(500_000u32, 0x14, 0x0035), (0, 0x08, 0)] {
+            let mut e = safe_op(2, true);
+            e.sdo_server_mut()
+                .unwrap()
+                .od
+                .write(0x1c32, 2, &cycle_time.to_le_bytes(), AlState::PreOp)
+                .unwrap();
+            put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
+            let st = get(&mut e, 0x0130, 6, 3_000_000_000);
+            assert_eq!(
+                (st[0], u16::from_le_bytes([st[4], st[5]])),
+                (status, code),
+                "0x1C32:02 = {cycle_time}"
+            );
+        }
+    }
+
     /// SYNC0 every 25 us, under the drive's minimum cycle time (0x1C32:05, 31.25 us): OP
     /// refused with 0x0036.
     #[test]

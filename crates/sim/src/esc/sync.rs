@@ -11,7 +11,8 @@
 //! past 0x10F1:02 (Sync Error Counter Limit) the application raises AL status code 0x001A
 //! (synchronization error) and goes to SAFE-OP. A SYNC0 switched off while the drive runs on it
 //! in OP is a fatal sync error (0x002C); a drive in DC mode whose SYNC0 is not active refuses
-//! OP with 0x002D, one whose SYNC0 is faster than its minimum cycle time 0x0036 (see `al.rs`).
+//! OP with 0x002D, one whose SYNC0 is faster than its minimum cycle time 0x0036, one whose
+//! cycle time 0x1C32:02 is set to another than SYNC0's 0x0035 (see `al.rs`).
 //! A drive whose PLL follows SYNC0 loses lock when its clock is too far from the reference's:
 //! past its limit on |0x092C| (checked with each frame's outputs in DC mode) it raises 0x0032
 //! (PLL error) and leaves OP. ETG.1020 names the code but no object for the limit; the virtual
