@@ -442,16 +442,25 @@ impl DcUnit {
             } else {
                 0
             };
-            put(reg::DC_ACTIVATION_STATUS, &[u8::from(self.sync0_active())]);
+            // 0x098E: bit 0 SYNC0 activated, bit 1 SYNC1 activated.
+            let act = u8::from(self.sync0_active()) | u8::from(self.sync1_active()) << 1;
+            put(reg::DC_ACTIVATION_STATUS, &[act]);
             put(reg::DC_SYNC0_STATUS, &[status]);
-            put(reg::DC_SYNC1_STATUS, &[0]);
+            let status1 = self
+                .sync1()
+                .is_some_and(|(first, _)| dc_time::diff_u64(now, first) >= 0);
+            put(reg::DC_SYNC1_STATUS, &[u8::from(status1)]);
             let next0_v = if self.sync0_active() {
                 next0.unwrap_or(0)
             } else {
                 self.start_time
             };
             put(reg::DC_START_TIME, &next0_v.to_le_bytes());
-            let next1 = next0.map(|n| n.wrapping_add(u64::from(self.sync1_cycle)));
+            let next1 = if self.sync1_active() {
+                self.next_sync1_after(now)
+            } else {
+                next0.map(|n| n.wrapping_add(u64::from(self.sync1_cycle)))
+            };
             put(reg::DC_NEXT_SYNC1, &next1.unwrap_or(0).to_le_bytes());
             put(reg::DC_SYNC0_CYCLE, &self.sync0_cycle.to_le_bytes());
             put(reg::DC_SYNC1_CYCLE, &self.sync1_cycle.to_le_bytes());
@@ -631,6 +640,40 @@ impl DcUnit {
         let cyc = u64::from(self.sync0_cycle);
         let k = since as u64 / cyc + 1;
         Some(self.start_time.wrapping_add(k * cyc))
+    }
+
+    fn sync1_active(&self) -> bool {
+        self.activation & 0b101 == 0b101
+    }
+
+    /// SYNC1 as the ESC generates it, if active (0x0981 bits 0 and 2): (first pulse, period),
+    /// system time ns. The datasheet's rule (ESC datasheet section I, "SYNC1 signal"; TI's
+    /// SPRUII0 words it the same): SYNC1 comes the SYNC1 cycle time `d` (0x09A4) after a SYNC0
+    /// pulse, and the delay is measured anew only from the first SYNC0 pulse after that SYNC1
+    /// pulse (the start's excepted). So with SYNC0 every `c`, SYNC1 comes every
+    /// `(d / c + 1) c` at `start + d`: `d` under `c` delays each SYNC0 by `d`, `d = c (n - 1)`
+    /// makes one SYNC1 per `n` SYNC0 (oversampling by `n`, the EL4732 set-up of ethercrab
+    /// #368), and `d = 0` puts SYNC1 on every SYNC0. A single-shot SYNC0 (`c = 0`) has one.
+    pub fn sync1(&self) -> Option<(u64, u64)> {
+        if !self.sync1_active() {
+            return None;
+        }
+        let (c, d) = (u64::from(self.sync0_cycle), u64::from(self.sync1_cycle));
+        let period = d.checked_div(c).map_or(0, |n| (n + 1) * c);
+        Some((self.start_time.wrapping_add(d), period))
+    }
+
+    /// The system time of the first SYNC1 pulse strictly after system time `s`, if SYNC1 runs.
+    pub fn next_sync1_after(&self, s: u64) -> Option<u64> {
+        let (first, period) = self.sync1()?;
+        let since = dc_time::diff_u64(s, first);
+        if since < 0 {
+            return Some(first);
+        }
+        if period == 0 {
+            return None;
+        }
+        Some(first.wrapping_add((since as u64 / period + 1) * period))
     }
 
     /// SYNC0 configuration: (start time, cycle ns), if SYNC0 is active.

@@ -195,6 +195,53 @@ fn sync0_pulses_on_the_start_time_grid() {
     assert_eq!(u.next_sync0_after(7_000_000), Some(7_250_000));
 }
 
+/// SYNC1 by the datasheet's rule, computed by hand: the SYNC1 cycle time `d` after a SYNC0
+/// pulse, measured anew from the first SYNC0 after each SYNC1.
+#[test]
+fn sync1_follows_sync0_by_its_cycle_time() {
+    let setup = |d: u32, activation: u8| {
+        let mut u = unit(0.0, 0);
+        u.write(reg::DC_SYNC0_CYCLE, &250_000u32.to_le_bytes(), 0);
+        u.write(reg::DC_SYNC1_CYCLE, &d.to_le_bytes(), 0);
+        u.write(reg::DC_START_TIME, &5_000_000u64.to_le_bytes(), 0);
+        u.write(reg::DC_ACTIVATION, &[activation], 0);
+        u
+    };
+    // Oversampling by 4 (ethercrab #368: d = 250 us x 3): SYNC0 at 5.0, 5.25, 5.5, 5.75 ms...;
+    // SYNC1 at 5.75 (5.0 + 0.75), then from the SYNC0 after it (6.0): 6.75, 7.75: every 1 ms.
+    let u = setup(750_000, 0x07);
+    assert_eq!(u.sync1(), Some((5_750_000, 1_000_000)));
+    assert_eq!(u.next_sync1_after(0), Some(5_750_000));
+    assert_eq!(u.next_sync1_after(5_750_000), Some(6_750_000));
+    assert_eq!(u.next_sync1_after(7_000_000), Some(7_750_000));
+    // A delay under the SYNC0 cycle: every SYNC0 pulse, 100 us later.
+    let u = setup(100_000, 0x07);
+    assert_eq!(u.next_sync1_after(5_100_000), Some(5_350_000));
+    // No delay: SYNC1 with every SYNC0; 300 us: the pulse after the one 300 us on (every 2).
+    assert_eq!(setup(0, 0x07).sync1(), Some((5_000_000, 250_000)));
+    assert_eq!(setup(300_000, 0x07).sync1(), Some((5_300_000, 500_000)));
+    // SYNC1 not activated (bit 2 clear): none, and 0x098E says which run.
+    let mut u = setup(750_000, 0x03);
+    assert_eq!(u.sync1(), None);
+    let mut block = [0u8; DC_BLOCK_LEN];
+    u.refresh(&mut block, 0x098e, 0x098f, 0);
+    assert_eq!(
+        block[usize::from(reg::DC_ACTIVATION_STATUS - DC_BLOCK_START)],
+        0x01
+    );
+    let mut u = setup(750_000, 0x07);
+    u.refresh(&mut block, 0x098e, 0x098f, 0);
+    assert_eq!(
+        block[usize::from(reg::DC_ACTIVATION_STATUS - DC_BLOCK_START)],
+        0x03
+    );
+    // 0x0998, the next SYNC1 pulse, as a read at 6.2 ms of system time finds it.
+    u.refresh(&mut block, 0x0998, 0x09a0, 6_200 * US);
+    let at = usize::from(reg::DC_NEXT_SYNC1 - DC_BLOCK_START);
+    let next = u64::from_le_bytes(block[at..at + 8].try_into().unwrap());
+    assert_eq!(next, 6_750_000);
+}
+
 #[test]
 fn sync0_start_in_the_past_waits_for_the_32_bit_wrap() {
     let mut u = unit(0.0, 10_000_000);
