@@ -75,18 +75,18 @@ impl MethodKind {
     ];
 
     /// The methods a scenario runs when it names none, and `compare`'s built-in presets: the
-    /// letter's four, the vendor note's two DCMs, and what ethercrab and SOEM ship. The others
-    /// run when named (`--methods`, a scenario's `run.methods`).
-    pub const DEFAULT: [MethodKind; 8] = [
-        MethodKind::Median,
-        MethodKind::MedianFit,
-        MethodKind::PiM2s,
-        MethodKind::BusShift,
-        MethodKind::DcmBusShift,
-        MethodKind::DcmMasterShift,
-        MethodKind::Snap,
-        MethodKind::SoemPi,
-    ];
+    /// letter's four, the vendor note's two DCMs, and what ethercrab and SOEM ship: the first
+    /// eight of [`MethodKind::ALL`]. The others run when named (`--methods`, a scenario's
+    /// `run.methods`).
+    pub const DEFAULT: [MethodKind; 8] = {
+        let mut d = [MethodKind::Median; 8];
+        let mut i = 0;
+        while i < d.len() {
+            d[i] = MethodKind::ALL[i];
+            i += 1;
+        }
+        d
+    };
 
     /// Every method's name, in report order.
     pub const NAMES: [&'static str; METHOD_COUNT] = {
