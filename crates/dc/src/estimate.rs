@@ -18,7 +18,7 @@
 
 use crate::offset::round_ns;
 use crate::registry::MethodKind;
-use crate::sync::{CycleInput, CycleOutput, MasterSync, SlidingMedian, grid_phase};
+use crate::sync::{CycleInput, CycleOutput, MasterSync, SlidingMedian, grid_phase, next_nominal};
 use crate::time::MasterInstant;
 use ecsync_wire::dc_time::diff_u64;
 
@@ -108,10 +108,7 @@ impl Aim {
             }
             None => est.skip(),
         }
-        let next_nominal = input
-            .nominal_start
-            .as_ns()
-            .wrapping_add(u64::from(input.period_ns));
+        let next_nominal = next_nominal(input);
         if let Some(y0) = self.y0 {
             let ahead = sd + est.forecast();
             let offset = *self.offset.get_or_insert_with(|| {

@@ -13,17 +13,9 @@
 
 use crate::offset::round_ns;
 use crate::registry::MethodKind;
-use crate::sync::{CycleInput, CycleOutput, MasterSync, WriteTimes, grid_phase};
+use crate::sync::{CycleInput, CycleOutput, MasterSync, WriteTimes, grid_phase, next_nominal};
 use crate::time::MasterInstant;
 use ecsync_wire::dc_time::diff_u64;
-
-/// The nominal start of the next cycle: `t_mt^1 + (i + 1) P`.
-fn next_nominal(input: &CycleInput) -> u64 {
-    input
-        .nominal_start
-        .as_ns()
-        .wrapping_add(u64::from(input.period_ns))
-}
 
 /// `next` as a [`CycleOutput`] with the error acted on; the correction is its distance before
 /// the nominal grid.

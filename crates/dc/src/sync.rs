@@ -171,7 +171,7 @@ pub fn extend_reference_time(estimate_ns: u64, low32: u32) -> u64 {
 }
 
 /// The nominal start of the next cycle: `t_mt^1 + (i + 1) P`.
-fn next_nominal(input: &CycleInput) -> u64 {
+pub(crate) fn next_nominal(input: &CycleInput) -> u64 {
     input
         .nominal_start
         .as_ns()
