@@ -663,6 +663,14 @@ impl DcUnit {
         Some((self.start_time.wrapping_add(d), period))
     }
 
+    /// [`DcUnit::sync1`] as a grid of pulses, (first, period ns), when it is one: a period
+    /// of 0 (single shot) or past 32 bits is not.
+    pub fn sync1_grid(&self) -> Option<(u64, u32)> {
+        let (first, period) = self.sync1()?;
+        let period = u32::try_from(period).ok().filter(|&p| p > 0)?;
+        Some((first, period))
+    }
+
     /// The system time of the first SYNC1 pulse strictly after system time `s`, if SYNC1 runs.
     pub fn next_sync1_after(&self, s: u64) -> Option<u64> {
         let (first, period) = self.sync1()?;

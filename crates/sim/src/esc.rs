@@ -38,6 +38,8 @@ mod registers;
 mod sii;
 mod sm_status;
 mod sync;
+#[cfg(test)]
+mod sync1_tests;
 mod watchdog;
 
 use crate::dc_unit::{DC_BLOCK_LEN, DcParams, DcUnit};
@@ -113,6 +115,9 @@ pub struct Esc {
     sync_pending: bool,
     /// The outputs were written by the datagram being processed.
     pd_written: bool,
+    /// The application takes its outputs at SYNC1, not SYNC0 (0x1C32:01 = 3, as an
+    /// oversampling terminal runs: see `sync.rs`).
+    sync1_mode: bool,
     // Lines 1-2: the process RAM and the application.
     ram: Box<[u8]>,
     app: Option<AppLayout>,
@@ -236,6 +241,7 @@ impl Esc {
             wd_last_write_ps: 0,
             pd_written: false,
             sync_pending: false,
+            sync1_mode: false,
             sync: sync::SyncMonitor::default(),
             sm_status: sm_status::MailboxStatusBits::default(),
         };

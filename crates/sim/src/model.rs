@@ -500,6 +500,10 @@ pub struct DeviceInfo {
     /// leaves OP with AL status code 0x0032, ns; 0: none (a firmware setting, no object: see
     /// [`crate::esc::Esc::set_pll_error_limit_ns`]).
     pub pll_limit_ns: u32,
+    /// Samples per cycle of an oversampling terminal (its outputs are that many samples a
+    /// channel; it runs on SYNC1, a sample per SYNC0: see
+    /// [`DeviceInfo::oversampling_terminal`]); 0: the device does not oversample.
+    pub oversampling: u8,
 }
 
 /// Where a device's mailbox buffers are (the SII's standard mailbox words 0x18-0x1B).
@@ -627,6 +631,50 @@ impl DeviceInfo {
             dc_opmodes: Vec::new(),
             sii: None,
             pll_limit_ns: 0,
+            oversampling: 0,
+        }
+    }
+
+    /// An analog output terminal that oversamples, like Beckhoff's EL4732 (two channels,
+    /// INT16, up to 100 samples per cycle): `samples` values a channel each cycle, taken as a
+    /// block at SYNC1 and played one per SYNC0, so SYNC0 runs `samples` times per cycle and
+    /// SYNC1 once (ethercrab #368: SYNC1 = SYNC0 x (samples - 1)). It has CoE, no inputs,
+    /// and its 0x1C32:04 offers DC SYNC1 (0x1C32:01 = 3). Outputs sample `i` of channel 1 at
+    /// 0x7000 + i, of channel 2 at 0x7100 + i (the real terminal assigns one PDO per sample
+    /// of the same objects, 0x1600 onwards; one object a sample keeps the virtual
+    /// dictionary's one-object-per-entry rule). ecsync's identity, not Beckhoff's: it is a
+    /// model of the behaviour, not a twin of the terminal.
+    pub fn oversampling_terminal(serial: u32, samples: u8) -> Self {
+        let samples = samples.clamp(1, 100);
+        let e = |index: u16, name: String| PdoEntry {
+            index,
+            subindex: 0,
+            bits: 16,
+            name,
+        };
+        let outputs = (0..u16::from(samples))
+            .flat_map(|i| {
+                [
+                    e(0x7000 + i, format!("Ch1 sample {}", i + 1)),
+                    e(0x7100 + i, format!("Ch2 sample {}", i + 1)),
+                ]
+            })
+            .collect();
+        DeviceInfo {
+            vendor_id: 0x0000_0e5c,
+            product_code: 0x0000_4732,
+            revision: 0x0001_0000,
+            serial,
+            name: "ecsync virtual oversampling analog output".to_string(),
+            alias: 0,
+            outputs,
+            inputs: vec![],
+            mailbox: Some(MailboxLayout::STANDARD),
+            dictionary: None,
+            dc_opmodes: Vec::new(),
+            sii: None,
+            pll_limit_ns: 0,
+            oversampling: samples,
         }
     }
 
@@ -646,6 +694,7 @@ impl DeviceInfo {
             dc_opmodes: Vec::new(),
             sii: None,
             pll_limit_ns: 0,
+            oversampling: 0,
         }
     }
 }

@@ -805,6 +805,7 @@ fn akd() -> (Segment, Vec<Station>) {
         dc_opmodes: Vec::new(),
         sii: None,
         pll_limit_ns: 0,
+        oversampling: 0,
     };
     let mut seg =
         Segment::new(&[spec(EscModel::servo_mii_dc32(), dev, Upstream::Master, 3)]).unwrap();

@@ -324,7 +324,14 @@ impl ObjectDictionary {
         objects.push(sm_parameters(0x1c33, "SM input parameter", 1_000_000));
         objects.extend(application_objects(dev));
         objects.sort_by_key(|o| o.index);
-        ObjectDictionary { objects }
+        let mut od = ObjectDictionary { objects };
+        if dev.oversampling > 0 {
+            // An oversampling terminal runs on SYNC1 too (bit 3), a sample every SYNC0 down
+            // to 10 us (the EL4732's 100 kHz).
+            od.set(0x1c32, 4, &0x002fu16.to_le_bytes());
+            od.set(0x1c32, 5, &10_000u32.to_le_bytes());
+        }
+        od
     }
 
     /// This dictionary (a device description's) made fit to serve `dev`: the communication

@@ -121,6 +121,10 @@ pub struct SlaveConfig {
     /// shift do. Absent: no limit.
     #[serde(default)]
     pub pll_limit_us: Option<f64>,
+    /// Samples per cycle of an `oversampling-terminal` (1-100; absent: 4): SYNC0 runs that
+    /// many times a cycle, SYNC1 once.
+    #[serde(default)]
+    pub oversampling: Option<i64>,
     /// Serial number.
     #[serde(default)]
     pub serial: Option<u32>,
@@ -362,6 +366,7 @@ impl SegmentConfig {
         let mut device = s.device(serial, at, esi_files)?;
         s.override_identity(&mut device, at)?;
         device.pll_limit_ns = s.pll_limit_ns(at)?;
+        s.check_oversampling(&device, at)?;
         s.override_delays(&mut model, at)?;
         s.check_cable_and_crystal(at)?;
         let upstream = s.upstream(&model, names, specs, at)?;
@@ -445,6 +450,9 @@ impl SlaveConfig {
             {
                 "servo-drive" => DeviceInfo::servo_drive(serial),
                 "coupler" => DeviceInfo::coupler(&self.name, serial),
+                "oversampling-terminal" => {
+                    DeviceInfo::oversampling_terminal(serial, self.samples(at)?)
+                }
                 other => match CATALOG.iter().find(|c| c.0 == other) {
                     Some(c) => c.2(serial),
                     None => {
@@ -452,7 +460,7 @@ impl SlaveConfig {
                             at.line,
                             "device",
                             format!("unknown device \"{other}\""),
-                            "use servo-drive, coupler, ek1100, el2828 or el2889, or describe the device with esi = \"file.xml\"",
+                            "use servo-drive, coupler, oversampling-terminal, ek1100, el2828 or el2889, or describe the device with esi = \"file.xml\"",
                         ));
                     }
                 },
@@ -525,6 +533,33 @@ impl SlaveConfig {
     }
 
     /// The cable length, the crystal's error and its wander are in range.
+    /// An `oversampling-terminal`'s samples per cycle (`oversampling`, 4 when absent).
+    fn samples(&self, at: &SlaveAt<'_>) -> Result<u8, ConfigError> {
+        match self.oversampling {
+            None => Ok(4),
+            Some(n @ 1..=100) => Ok(n as u8),
+            Some(n) => Err(at.error(
+                at.key_line("oversampling"),
+                "oversampling",
+                format!("{n} samples per cycle"),
+                "give the terminal's samples per cycle, 1 to 100 (its SYNC0 runs that many times a cycle)",
+            )),
+        }
+    }
+
+    /// `oversampling` belongs to an oversampling terminal only.
+    fn check_oversampling(&self, device: &DeviceInfo, at: &SlaveAt<'_>) -> Result<(), ConfigError> {
+        if self.oversampling.is_some() && device.oversampling == 0 {
+            return Err(at.error(
+                at.key_line("oversampling"),
+                "oversampling",
+                "the device does not oversample".to_string(),
+                "set device = \"oversampling-terminal\", or leave oversampling out",
+            ));
+        }
+        Ok(())
+    }
+
     /// `pll_limit_us` in ns (0: none).
     fn pll_limit_ns(&self, at: &SlaveAt<'_>) -> Result<u32, ConfigError> {
         let Some(us) = self.pll_limit_us else {

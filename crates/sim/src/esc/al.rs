@@ -177,6 +177,10 @@ impl Esc {
             // A drive set to DC SYNC0 (0x1C32:01 = 2) waits for its sync signals before OP; with
             // SYNC0 not activated none comes (ETG.1020: 0x002D, no sync error).
             self.fail(AlStatusCode::NoSyncError);
+        } else if (from, to) == (SafeOp, Op) && self.sync1_config_invalid() {
+            // Set to run on SYNC1 without a SYNC1 that fits the terminal's samples per cycle
+            // (ETG.1000.6: 0x0030, invalid DC SYNC configuration).
+            self.fail(AlStatusCode::InvalidDcSyncConfiguration);
         } else if (from, to) == (SafeOp, Op) && self.sync0_faster_than_it_can() {
             // SYNC0 faster than the drive's minimum cycle time (0x1C32:05): ETG.1020's 0x0036
             // (SYNC0 cycle time not supported).
@@ -235,12 +239,18 @@ impl Esc {
         }
     }
 
-    /// The drive is set to DC SYNC0 and its SYNC0 runs faster than 0x1C32:05 allows.
+    /// The sync mode 0x1C32:01 (0 without a dictionary).
+    fn od_sync_mode(&self) -> u32 {
+        self.sdo_server().map_or(0, |c| c.od.read_u32(0x1c32, 1))
+    }
+
+    /// The drive is set to DC SYNC0 or SYNC1 and its SYNC0 runs faster than 0x1C32:05 allows
+    /// (an oversampling terminal plays a sample per SYNC0: its minimum is a sample's).
     fn sync0_faster_than_it_can(&self) -> bool {
         let Some(c) = self.sdo_server() else {
             return false;
         };
-        if c.od.read_u32(0x1c32, 1) != 2 {
+        if !matches!(c.od.read_u32(0x1c32, 1), 2 | 3) {
             return false;
         }
         let minimum = c.od.read_u32(0x1c32, 5);
@@ -250,30 +260,49 @@ impl Esc {
             .is_some_and(|(_, cycle)| cycle > 0 && cycle < minimum)
     }
 
-    /// The drive runs on SYNC0 (0x1C32:01 = 2), SYNC0 runs, and 0x1C32:02 (the cycle time, ns)
-    /// is neither 0 (not set: the drive follows SYNC0) nor SYNC0's cycle.
+    /// The drive runs on a DC signal (0x1C32:01 = 2 or 3), the signal runs, and 0x1C32:02
+    /// (the cycle time, ns) is neither 0 (not set: the drive follows the signal) nor the
+    /// period of the events its application runs on (SYNC0's cycle; in SYNC1 mode SYNC1's
+    /// period, the cycle of an oversampling terminal's blocks: ETG.1020 has :02 the cycle
+    /// and :0A the SYNC0 cycle).
     fn cycle_time_disagrees_with_sync0(&self) -> bool {
         let Some(c) = self.sdo_server() else {
             return false;
         };
-        if c.od.read_u32(0x1c32, 1) != 2 {
-            return false;
-        }
+        let mode = c.od.read_u32(0x1c32, 1);
         let cycle_time = c.od.read_u32(0x1c32, 2);
-        cycle_time != 0
-            && self
-                .dc
-                .as_ref()
-                .and_then(|d| d.sync0())
-                .is_some_and(|(_, cycle)| cycle > 0 && cycle != cycle_time)
+        let Some(dc) = self.dc.as_ref() else {
+            return false;
+        };
+        let period = match mode {
+            2 => dc.sync0().map(|(_, cycle)| cycle),
+            3 => dc.sync1_grid().map(|(_, period)| period),
+            _ => None,
+        };
+        cycle_time != 0 && period.is_some_and(|p| p > 0 && p != cycle_time)
     }
 
-    /// The drive is set to DC SYNC0 over CoE and its SYNC0 does not run.
+    /// The drive is set to DC SYNC0 or SYNC1 over CoE and its SYNC0 does not run.
     fn waits_for_sync0_in_vain(&self) -> bool {
-        let dc_mode = self
-            .sdo_server()
-            .is_some_and(|c| c.od.read_u32(0x1c32, 1) == 2);
-        dc_mode && self.dc.as_ref().is_none_or(|d| d.sync0().is_none())
+        matches!(self.od_sync_mode(), 2 | 3) && self.dc.as_ref().is_none_or(|d| d.sync0().is_none())
+    }
+
+    /// The drive is set to DC SYNC1 (0x1C32:01 = 3) and SYNC1 does not run, or (an
+    /// oversampling terminal) its period is not the terminal's samples per cycle times the
+    /// SYNC0 cycle: ETG.1000.6's 0x0030, invalid DC SYNC configuration. ethercrab #368: an
+    /// EL4732 set to SYNC1 = the cycle instead of SYNC0 x (n - 1) stayed out of OP.
+    fn sync1_config_invalid(&self) -> bool {
+        if self.od_sync_mode() != 3 {
+            return false;
+        }
+        let Some(dc) = self.dc.as_ref() else {
+            return true;
+        };
+        let (Some((_, c0)), Some((_, period))) = (dc.sync0(), dc.sync1_grid()) else {
+            return true;
+        };
+        let n = u64::from(self.device.oversampling);
+        n > 0 && u64::from(period) != n * u64::from(c0)
     }
 
     /// Whether the mailbox SyncManagers are as the device's layout has them (true without a

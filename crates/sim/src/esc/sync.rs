@@ -50,6 +50,9 @@ use ecsync_wire::{AlState, AlStatusCode};
 
 /// The ETG.1020 sync mode of 0x1C32:01 that runs the application on SYNC0.
 pub const SYNC_MODE_DC_SYNC0: u32 = 2;
+/// The ETG.1020 sync mode of 0x1C32:01 that runs the application on SYNC1 (an oversampling
+/// terminal: it takes a cycle's block of samples at SYNC1 and plays one per SYNC0).
+pub const SYNC_MODE_DC_SYNC1: u32 = 3;
 /// The ETG.1020 sync mode of 0x1C32:01 that runs the application on each SM2 event.
 pub const SYNC_MODE_SM: u32 = 1;
 /// What a missed SM event adds to the sync error counter (SSC).
@@ -92,6 +95,10 @@ pub(super) struct SyncMonitor {
     pub(super) missed: u64,
     /// 0x1C32:0C: application cycles shorter than :05.
     pub(super) too_small: u64,
+    /// Outputs no event took: new outputs came before an event took the ones before
+    /// (ground truth, no object: a master that sends more often than the application's
+    /// cycle, as ethercrab 0.7's `tx_rx_dc` does on an oversampling terminal, #369).
+    pub(super) overwritten: u64,
     /// The last SM2 event in SM-synchronous mode, in OP, ns.
     last_sm_event_ns: Option<u64>,
 }
@@ -155,6 +162,10 @@ impl SyncMonitor {
             (t_ns - self.next_pulse_ns) / c + 1
         };
         self.next_pulse_ns += n * c;
+        if n == 0 {
+            // The outputs before these were never taken.
+            self.overwritten = self.overwritten.saturating_add(1);
+        }
         if cycle < self.min_cycle_ns && n > 0 {
             // Every one of these pulses started a cycle shorter than the application needs.
             self.too_small = self.too_small.saturating_add(n);
@@ -280,7 +291,12 @@ impl Esc {
             && dc.time_difference_ns().abs() > f64::from(self.sync.pll_limit_ns);
         // (The OD's 0x1C32:0B and :20 are brought up to date when the master's next mailbox
         // message comes, not here: the search of the dictionary costs more than the cycle.)
-        let r = self.sync.outputs_at(t_ns, dc.sync0(), in_op);
+        let grid = if self.sync1_mode {
+            dc.sync1_grid()
+        } else {
+            dc.sync0()
+        };
+        let r = self.sync.outputs_at(t_ns, grid, in_op);
         if pll_lost {
             self.sync.stop();
             self.raise_al_error(AlStatusCode::PllError);
@@ -296,7 +312,12 @@ impl Esc {
             && let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit())
         {
             let t_ns = dc.system_time_split(t_ps).0;
-            self.sync.catch_up(t_ns, dc.sync0());
+            let grid = if self.sync1_mode {
+                dc.sync1_grid()
+            } else {
+                dc.sync0()
+            };
+            self.sync.catch_up(t_ns, grid);
         }
         self.update_sync_objects();
     }
@@ -307,22 +328,24 @@ impl Esc {
             return;
         };
         let mode = c.od.read_u32(0x1c32, 1);
-        let dc_mode = mode == SYNC_MODE_DC_SYNC0;
+        let dc_mode = mode == SYNC_MODE_DC_SYNC0 || mode == SYNC_MODE_DC_SYNC1;
+        let sync1_mode = mode == SYNC_MODE_DC_SYNC1;
         let limit = c.od.read_u32(0x10f1, 2);
         let min_cycle_ns = c.od.read_u32(0x1c32, 5);
-        if dc_mode != self.sync.dc_mode {
+        if dc_mode != self.sync.dc_mode || sync1_mode != self.sync1_mode {
             self.sync.stop();
         }
         self.sync.dc_mode = dc_mode;
+        self.sync1_mode = sync1_mode;
         self.sync.sm_mode = mode == SYNC_MODE_SM;
         self.sync.limit = limit;
         self.sync.min_cycle_ns = min_cycle_ns;
     }
 
-    /// The SYNC0 activation changed: a drive running on SYNC0 in OP whose SYNC0 stops has a
-    /// fatal sync error (ETG.1020: 0x002C), and leaves OP.
+    /// The SYNC0 activation changed: a drive running on SYNC0 (or SYNC1) in OP whose signal
+    /// stops has a fatal sync error (ETG.1020: 0x002C), and leaves OP.
     pub(super) fn sync0_activation_changed(&mut self) {
-        let stopped = self.dc.as_ref().is_none_or(|d| d.sync0().is_none());
+        let stopped = self.application_events().is_none();
         if stopped {
             self.sync.stop();
             if self.sync.dc_mode && self.al_state == AlState::Op {
@@ -365,9 +388,34 @@ impl Esc {
         self.device.pll_limit_ns = limit_ns;
     }
 
-    /// Whether the application runs on SYNC0 (set to DC SYNC0 mode over CoE, 0x1C32:01 = 2).
+    /// Whether the application runs on a DC sync signal (set over CoE to DC SYNC0 mode,
+    /// 0x1C32:01 = 2, or to DC SYNC1, 3: see [`Esc::runs_on_sync1`]).
     pub fn runs_on_sync0(&self) -> bool {
         self.sync.dc_mode
+    }
+
+    /// Whether the application takes its outputs at SYNC1 (0x1C32:01 = 3): an oversampling
+    /// terminal takes a cycle's block at each SYNC1 event and plays a sample per SYNC0.
+    pub fn runs_on_sync1(&self) -> bool {
+        self.sync.dc_mode && self.sync1_mode
+    }
+
+    /// The events the application takes its outputs at, (first, period) in system time ns:
+    /// SYNC0's pulses, or SYNC1's in DC SYNC1 mode; `None` when its signal does not run.
+    /// Whatever the mode, the ESC's SYNC0 (in SYNC1 mode, SYNC1) as configured.
+    pub fn application_events(&self) -> Option<(u64, u32)> {
+        let dc = self.dc.as_ref()?;
+        if self.sync1_mode {
+            dc.sync1_grid()
+        } else {
+            dc.sync0()
+        }
+    }
+
+    /// Outputs that no event took: the outputs after them came first (see
+    /// `SyncMonitor::overwritten`), while the application ran on a DC signal in OP.
+    pub fn outputs_overwritten(&self) -> u64 {
+        self.sync.overwritten
     }
 
     /// The system time its application last took outputs at, ns: while it runs on SYNC0 in OP

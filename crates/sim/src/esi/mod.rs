@@ -445,6 +445,7 @@ impl EsiDevice {
             dc_opmodes: self.dc_opmodes.clone(),
             sii: Some(Arc::new(sii)),
             pll_limit_ns: 0,
+            oversampling: 0,
         }
     }
 }
