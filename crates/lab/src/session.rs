@@ -51,7 +51,7 @@ pub enum Aim {
 }
 
 /// What a session needs besides the network and the method.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SessionConfig {
     /// Cycle time, ns.
     pub cycle_ns: u32,

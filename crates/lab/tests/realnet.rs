@@ -114,6 +114,7 @@ fn session_over_veth() -> Result<Outcome, String> {
             reply_timeout: MasterDuration::from_us(900),
             t_ms_from_tx_stamp: false,
             sync_error_limit: None,
+            oversampled: Vec::new(),
         };
         let mut phase =
             run_cyclic(&mut link, &net, method, &opts, None, None).map_err(|e| e.to_string())?;

@@ -28,7 +28,7 @@ use ecsync_wire::register as reg;
 use ecsync_wire::{AlControlRepr, AlState, Command, DatagramAddress};
 
 /// How a recovery sets SYNC0 up and waits for the states.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RecoveryConfig {
     /// Cycle time and SYNC0 period, ns.
     pub cycle_ns: u32,
@@ -46,6 +46,9 @@ pub struct RecoveryConfig {
     /// The sync error counter limit written again to a reset drive with its sync mode
     /// ([`crate::BringupConfig::sync_error_limit`]; `None`: not written).
     pub sync_error_limit: Option<u16>,
+    /// The slaves run on SYNC1 with oversampling ([`crate::BringupConfig::oversampled`]): a
+    /// reset one gets its SYNC1 set-up again.
+    pub oversampled: Vec<crate::bringup::Oversampled>,
 }
 
 /// What a recovery did.
@@ -491,23 +494,40 @@ async fn restart_sync0(
         if sys_now_ns.saturating_add(cfg.sync0_lead_ns / 2) > start {
             (start, basis_ns) = (start_after(sys_now_ns), now_ns);
         }
+        let plan = crate::bringup::SyncUnitPlan::of(pos, &cfg.oversampled, cfg.cycle_ns);
         link.fpwr(st, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
             .await?;
         link.fpwr(
             st,
             reg::DC_SYNC0_CYCLE,
-            &cfg.cycle_ns.to_le_bytes(),
+            &plan.sync0_cycle_ns.to_le_bytes(),
             "SYNC0 cycle",
         )
         .await?;
-        link.fpwr(st, reg::DC_START_TIME, &start.to_le_bytes(), "SYNC0 start")
-            .await?;
-        link.fpwr(st, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
+        if let Some(d) = plan.sync1_cycle_ns {
+            link.fpwr(st, reg::DC_SYNC1_CYCLE, &d.to_le_bytes(), "SYNC1 cycle")
+                .await?;
+        }
+        let start_at = start.wrapping_add(u64::from(plan.start_after_grid_ns));
+        link.fpwr(
+            st,
+            reg::DC_START_TIME,
+            &start_at.to_le_bytes(),
+            "SYNC0 start",
+        )
+        .await?;
+        link.fpwr(st, reg::DC_ACTIVATION, &[plan.activation()], "SYNC0 on")
             .await?;
     }
+    let oversampling_cycle = if cfg.oversampled.is_empty() {
+        0
+    } else {
+        cfg.cycle_ns
+    };
     Ok(basis_ns
         .saturating_add(cfg.sync0_lead_ns)
-        .saturating_add(2 * u64::from(cfg.cycle_ns)))
+        .saturating_add(2 * u64::from(cfg.cycle_ns))
+        .saturating_add(u64::from(oversampling_cycle)))
 }
 
 /// The states of the reset slaves and of those that left OP, the process data between
@@ -540,7 +560,8 @@ async fn restore_states(
         crate::bringup::request_state_with(link, s.station, ack, &cfg.timeouts).await?;
         if reset.contains(&pos) {
             // Its CoE parameters were reset with it.
-            crate::bringup::configure_sync_mode(link, s, cfg.cycle_ns, cfg.sync_error_limit)
+            let plan = crate::bringup::SyncUnitPlan::of(pos, &cfg.oversampled, cfg.cycle_ns);
+            crate::bringup::configure_sync_mode(link, s, cfg.cycle_ns, cfg.sync_error_limit, plan)
                 .await?;
         }
         crate::bringup::configure_process_data(link, std::slice::from_ref(s)).await?;

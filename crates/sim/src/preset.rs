@@ -35,14 +35,19 @@ pub const LAN9252_PAIR_TOML: &str = include_str!("../../../presets/lan9252-pair.
 pub const EK1100_EL2828_EL2889_TOML: &str =
     include_str!("../../../presets/ek1100-el2828-el2889.toml");
 
+/// The `oversampling` preset file (the repository's `presets/oversampling.toml`): a coupler,
+/// an oversampling analog output terminal on SYNC1 and a servo drive on SYNC0.
+pub const OVERSAMPLING_TOML: &str = include_str!("../../../presets/oversampling.toml");
+
 /// Every built-in network (a scenario with a `[segment]`), by the name of its file in
 /// `presets/`.
-pub const NETWORKS: [(&str, &str); 5] = [
+pub const NETWORKS: [(&str, &str); 6] = [
     ("paper-2024", PAPER_2024_TOML),
     ("twelve-drives", TWELVE_DRIVES_TOML),
     ("akd", AKD_TOML),
     ("lan9252-pair", LAN9252_PAIR_TOML),
     ("ek1100-el2828-el2889", EK1100_EL2828_EL2889_TOML),
+    ("oversampling", OVERSAMPLING_TOML),
 ];
 
 /// Looks up a built-in network by name: its TOML text.

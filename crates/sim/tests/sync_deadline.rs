@@ -69,6 +69,7 @@ fn recovery() -> RecoveryConfig {
         timeouts: BringupTimeouts::default(),
         static_drift_frames: 1_000,
         sync_error_limit: None,
+        oversampled: Vec::new(),
     }
 }
 

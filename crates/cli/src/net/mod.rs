@@ -164,6 +164,23 @@ pub struct RunArgs {
     /// run.sync_error_limit with --config, else not written: each drive keeps its own).
     #[arg(long)]
     sync_error_limit: Option<u16>,
+    /// Run the slave at auto-increment position POS (from 0) on SYNC1 with SAMPLES samples
+    /// per cycle, as an oversampling terminal's DC mode asks (EL4732, EL3702): SYNC0 every
+    /// cycle / SAMPLES, SYNC1 on the cycle's grid, 0x1C32:01 = 3. Repeat for more slaves.
+    #[arg(long, value_name = "POS:SAMPLES", value_parser = parse_oversample)]
+    oversample: Vec<ecsync_master::bringup::Oversampled>,
+}
+
+/// `--oversample POS:SAMPLES`.
+fn parse_oversample(s: &str) -> Result<ecsync_master::bringup::Oversampled, String> {
+    let bad = || format!("{s:?}: give POS:SAMPLES, e.g. 1:4 (position from 0, 1 to 100 samples)");
+    let (pos, samples) = s.split_once(':').ok_or_else(bad)?;
+    let position = pos.trim().parse::<u16>().map_err(|_| bad())?;
+    let samples = samples.trim().parse::<u8>().map_err(|_| bad())?;
+    if !(1..=100).contains(&samples) {
+        return Err(bad());
+    }
+    Ok(ecsync_master::bringup::Oversampled { position, samples })
 }
 
 /// What `ecsync run` reads of a scenario file: the methods' tables and where the frames aim.
@@ -389,6 +406,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         reply_timeout: MasterDuration::from_us(u64::from(args.timeout_us.max(1))),
         t_ms_from_tx_stamp: t_ms_source != TxStampSource::SendTimestamp,
         sync_error_limit,
+        oversampled: args.oversample.clone(),
     };
     let csv = csv.map(|w| Box::new(w) as Box<dyn Write>);
     let mut phase = realnet::run_cyclic(&mut link, &net, method, &opts, csv, Some(&STOP))
@@ -523,6 +541,7 @@ fn bring_up(
         },
         read_sii_details: twin,
         sync_error_limit,
+        oversampled: args.oversample.clone(),
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));

@@ -27,7 +27,7 @@ use summary::{
 };
 
 /// How the cyclic phase runs.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct CyclicOptions {
     /// Cycle time, ns.
     pub cycle_ns: u32,
@@ -49,6 +49,8 @@ pub struct CyclicOptions {
     pub t_ms_from_tx_stamp: bool,
     /// The sync error counter limit a recovered drive gets again.
     pub sync_error_limit: Option<u16>,
+    /// The slaves run on SYNC1 with oversampling (a recovered one gets its set-up again).
+    pub oversampled: Vec<ecsync_master::bringup::Oversampled>,
 }
 
 /// What the cycles of a real network showed (the session's observer).
@@ -207,6 +209,7 @@ pub fn run_cyclic(
             timeouts: BringupTimeouts::default(),
             static_drift_frames: 15_000,
             sync_error_limit: o.sync_error_limit,
+            oversampled: o.oversampled.clone(),
         }),
     };
     // Aim at the reference's grid, at the target phase, where the bring-up's last reading

@@ -152,6 +152,7 @@ impl Run {
                 timeouts: ecsync_master::bringup::BringupTimeouts::default(),
                 static_drift_frames: RECOVERY_STATIC_DRIFT_FRAMES,
                 sync_error_limit: s.sync_error_limit,
+                oversampled: super::oversampled_of(sim.segment()),
             }),
         };
         // The first cycle: frames aimed at the target phase of the reference's grid, less the

@@ -8,7 +8,7 @@ use ecsync_dc::Method;
 use ecsync_dc::fit::LineFit;
 use ecsync_dc::sync::MasterSync;
 use ecsync_dc::time::{MasterDuration, MasterInstant};
-use ecsync_master::bringup::{BringupConfig, Network, Stage, bringup};
+use ecsync_master::bringup::{BringupConfig, Network, Oversampled, Stage, bringup};
 use ecsync_master::cyclic::CyclicEngine;
 use ecsync_master::driver::{CycleReport, CyclicLimits};
 use ecsync_master::network::Phase;
@@ -188,6 +188,7 @@ pub fn bring_up_watched(
         lock_hold_checks: 200,
         monitor_cycles: 10,
         sync_error_limit: s.sync_error_limit,
+        oversampled: oversampled_of(sim.segment()),
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |link| bringup(link, cfg));
@@ -223,6 +224,20 @@ pub fn bring_up_watched(
         seed,
         run,
     })
+}
+
+/// The segment's oversampling terminals, as the master is set up for them (what an ENI's DC
+/// operation mode tells a real master: here the scenario says which device each slave is).
+pub(crate) fn oversampled_of(seg: &Segment) -> Vec<Oversampled> {
+    (0..seg.len())
+        .filter_map(|p| {
+            let samples = seg.esc(p).device().oversampling;
+            (samples > 0).then_some(Oversampled {
+                position: p as u16,
+                samples,
+            })
+        })
+        .collect()
 }
 
 /// A recovered slave's SYNC0 starts at least this long after the recovery reads the time, ns

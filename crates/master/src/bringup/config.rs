@@ -83,6 +83,77 @@ pub struct BringupConfig {
     /// a limit of 0 keeps the SM-Sync sequence valid). `None`: not written, every drive keeps
     /// its own (the virtual drive's is 0).
     pub sync_error_limit: Option<u16>,
+    /// The slaves run on SYNC1 with oversampling (an EL4732-like terminal), by position:
+    /// see [`Oversampled`]. Every other slave with a system time runs on SYNC0.
+    pub oversampled: Vec<Oversampled>,
+}
+
+/// A slave the master runs on SYNC1 with oversampling, as the "DC oversampling" operation
+/// mode of a terminal's ESI has a master do (TwinCAT's Sync0 factor of the cycle and SYNC1
+/// shift): its application takes a block of `samples` values at each SYNC1 event and plays
+/// one per SYNC0 pulse. The master writes 0x1C32:01 = 3 (DC SYNC1) and 0x1C32:02 = the
+/// cycle over CoE, SYNC0 every cycle / `samples`, SYNC1 (0x09A4) the cycle less a SYNC0
+/// cycle (ethercrab #368: SYNC0 x (samples - 1)), 0x0981 = 0x07, and starts SYNC0 a SYNC0
+/// cycle after the grid's pulse: SYNC1 then falls on the grid (cycle start plus the SYNC0
+/// shift), where a SYNC0-mode drive's pulse is, and the deadline of the frame is the same.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Oversampled {
+    /// Auto-increment position.
+    pub position: u16,
+    /// Samples per cycle (1-100); the cycle must be a whole number of nanoseconds times it.
+    pub samples: u8,
+}
+
+/// What a slave's SYNC unit is programmed with: SYNC0's cycle, SYNC1's cycle (0x09A4) when
+/// it runs, and how far SYNC0's start lies after the grid's pulse, ns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct SyncUnitPlan {
+    pub(crate) sync0_cycle_ns: u32,
+    pub(crate) sync1_cycle_ns: Option<u32>,
+    pub(crate) start_after_grid_ns: u32,
+}
+
+impl SyncUnitPlan {
+    /// The plan of a slave at `position` among `oversampled`, on a cycle of `cycle_ns`.
+    pub(crate) fn of(position: u16, oversampled: &[Oversampled], cycle_ns: u32) -> Self {
+        match oversampled.iter().find(|o| o.position == position) {
+            Some(o) if o.samples > 0 => {
+                let c0 = cycle_ns / u32::from(o.samples);
+                SyncUnitPlan {
+                    sync0_cycle_ns: c0,
+                    sync1_cycle_ns: Some(cycle_ns - c0),
+                    start_after_grid_ns: c0,
+                }
+            }
+            _ => SyncUnitPlan {
+                sync0_cycle_ns: cycle_ns,
+                sync1_cycle_ns: None,
+                start_after_grid_ns: 0,
+            },
+        }
+    }
+
+    /// 0x0981: SYNC0 (and SYNC1) on, cyclic operation.
+    pub(crate) fn activation(&self) -> u8 {
+        if self.sync1_cycle_ns.is_some() {
+            0x07
+        } else {
+            0x03
+        }
+    }
+}
+
+/// The oversampled slaves are possible on a cycle of `cycle_ns`.
+fn check_oversampled(oversampled: &[Oversampled], cycle_ns: u32) -> Result<(), MasterError> {
+    for o in oversampled {
+        if !(1..=100).contains(&o.samples) || cycle_ns % u32::from(o.samples) != 0 {
+            return Err(MasterError::Config(format!(
+                "slave {}: {} samples per cycle of {cycle_ns} ns: give 1 to 100 samples that divide the cycle into whole nanoseconds",
+                o.position, o.samples
+            )));
+        }
+    }
+    Ok(())
 }
 
 impl Default for BringupConfig {
@@ -106,6 +177,7 @@ impl Default for BringupConfig {
             rate_window_ns: 0,
             read_sii_details: false,
             sync_error_limit: None,
+            oversampled: Vec::new(),
         }
     }
 }
@@ -119,7 +191,7 @@ impl BringupConfig {
                 self.cycle_ns, self.sync0_shift_ns
             )));
         }
-        Ok(())
+        check_oversampled(&self.oversampled, self.cycle_ns)
     }
 }
 

@@ -1,6 +1,6 @@
 //! The process image, mailboxes, sync mode and process data of each slave.
 
-use super::config::BringupTimeouts;
+use super::config::{BringupTimeouts, Oversampled, SyncUnitPlan};
 use super::operational::request_state;
 use crate::MasterError;
 use crate::io::Link;
@@ -151,12 +151,14 @@ pub(crate) async fn configure_sync_modes(
     slaves: &[SlaveInfo],
     cycle_ns: u32,
     sync_error_limit: Option<u16>,
+    oversampled: &[Oversampled],
 ) -> Result<(), MasterError> {
     let each = link
         .side_by_side(
             slaves.iter().collect(),
             |l, s: &SlaveInfo| async move {
-                configure_sync_mode(&l, s, cycle_ns, sync_error_limit)
+                let plan = SyncUnitPlan::of(s.position, oversampled, cycle_ns);
+                configure_sync_mode(&l, s, cycle_ns, sync_error_limit, plan)
                     .await
                     .map_err(|e| e.at(Phase::PreOp, s.id()))
             },
@@ -168,7 +170,7 @@ pub(crate) async fn configure_sync_modes(
 
 /// Part of [`Phase::PreOp`], in PRE-OP: a drive with CoE and a system time is switched to DC
 /// SYNC0 synchronisation the way masters do it (ETG.1020 section 12): 0x1C32:01 and 0x1C33:01
-/// = 2, and 0x1C32:02 the cycle time; then, when one is configured, the sync error counter
+/// = 2 (3, DC SYNC1, for an oversampled slave: `plan`), and 0x1C32:02 the cycle time; then, when one is configured, the sync error counter
 /// limit 0x10F1:02 ([`BringupConfig::sync_error_limit`]). An object the drive does not have is
 /// skipped (not every device has its SyncManager parameters or error settings), and so is a
 /// read-only cycle time; any other abort is an error.
@@ -177,6 +179,7 @@ pub(crate) async fn configure_sync_mode(
     s: &SlaveInfo,
     cycle_ns: u32,
     sync_error_limit: Option<u16>,
+    plan: SyncUnitPlan,
 ) -> Result<(), MasterError> {
     let Some(m) = s.mailbox.filter(|m| m.coe()) else {
         return Ok(());
@@ -186,10 +189,15 @@ pub(crate) async fn configure_sync_mode(
     }
     let mut c = crate::coe::SdoClient::new(link, s.station, m);
     let limit = sync_error_limit.map(u16::to_le_bytes);
+    let mode = if plan.sync1_cycle_ns.is_some() {
+        3u16
+    } else {
+        2
+    };
     let writes: [(u16, u8, &[u8]); 3] = [
-        (0x1c32, 1, &2u16.to_le_bytes()),
+        (0x1c32, 1, &mode.to_le_bytes()),
         (0x1c32, 2, &cycle_ns.to_le_bytes()),
-        (0x1c33, 1, &2u16.to_le_bytes()),
+        (0x1c33, 1, &mode.to_le_bytes()),
     ];
     let limit_write = limit.as_ref().map(|v| (0x10f1u16, 2u8, &v[..]));
     for (index, sub, v) in writes.into_iter().chain(limit_write) {

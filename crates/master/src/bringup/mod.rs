@@ -27,7 +27,8 @@ use mapping::{map_process_image, request_all};
 use operational::{CyclicFrame, await_first_pulses, enter_op, monitor, start_sync0};
 
 pub use crate::network::*;
-pub use config::{BringupConfig, BringupTimeouts, EsiTiming, Stage};
+pub(crate) use config::SyncUnitPlan;
+pub use config::{BringupConfig, BringupTimeouts, EsiTiming, Oversampled, Stage};
 pub use delays::measure_clock_rates;
 use mapping::configure_sync_modes;
 pub(crate) use mapping::{configure_mailboxes, configure_process_data, configure_sync_mode};
@@ -134,9 +135,15 @@ async fn configure_and_start(
     )
     .await
     .map_err(|e| e.during(Phase::PreOp))?;
-    configure_sync_modes(link, &net.slaves, cfg.cycle_ns, cfg.sync_error_limit)
-        .await
-        .map_err(|e| e.during(Phase::PreOp))?;
+    configure_sync_modes(
+        link,
+        &net.slaves,
+        cfg.cycle_ns,
+        cfg.sync_error_limit,
+        &cfg.oversampled,
+    )
+    .await
+    .map_err(|e| e.during(Phase::PreOp))?;
     net.expected_lrw_wkc = configure_process_data(link, &net.slaves)
         .await
         .map_err(|e| e.during(Phase::ProcessData))?;

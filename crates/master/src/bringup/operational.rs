@@ -1,7 +1,7 @@
 //! SYNC0, the state machine up to OP and the monitoring of the cyclic frame.
 
 use super::clocks::{CycleGrid, DcGroup};
-use super::config::{BringupConfig, BringupTimeouts};
+use super::config::{BringupConfig, BringupTimeouts, SyncUnitPlan};
 use crate::MasterError;
 use crate::io::{Link, Pdu, PduReply};
 use crate::network::{DcCapability, Phase, ReferenceReading, SlaveId, SlaveInfo, Sync0Config};
@@ -54,17 +54,28 @@ pub(super) async fn start_sync0(
             dc_slaves,
             |l, id| async move {
                 let at = |e: MasterError| e.at(Phase::Sync0, id);
+                let plan = SyncUnitPlan::of(id.position, &cfg.oversampled, cfg.cycle_ns);
                 l.fpwr(id.station, reg::DC_ACTIVATION, &[0x00], "SYNC0 off")
                     .await
                     .map_err(at)?;
                 l.fpwr(
                     id.station,
                     reg::DC_SYNC0_CYCLE,
-                    &cfg.cycle_ns.to_le_bytes(),
+                    &plan.sync0_cycle_ns.to_le_bytes(),
                     "SYNC0 cycle",
                 )
                 .await
                 .map_err(at)?;
+                if let Some(d) = plan.sync1_cycle_ns {
+                    l.fpwr(
+                        id.station,
+                        reg::DC_SYNC1_CYCLE,
+                        &d.to_le_bytes(),
+                        "SYNC1 cycle",
+                    )
+                    .await
+                    .map_err(at)?;
+                }
                 // A start time already past when SYNC0 is switched on fires only after the
                 // system time's low 32 bits wrap, 4.3 s later (the ESC compares those): on a
                 // network whose rounds take long, the start moves on by whole cycles, on the
@@ -85,6 +96,8 @@ pub(super) async fn start_sync0(
                     } else {
                         (first_start, read_at_ns)
                     };
+                // An oversampled slave's SYNC0 a SYNC0 cycle later: its SYNC1 on the grid.
+                let start = start.wrapping_add(u64::from(plan.start_after_grid_ns));
                 l.fpwr(
                     id.station,
                     reg::DC_START_TIME,
@@ -93,9 +106,14 @@ pub(super) async fn start_sync0(
                 )
                 .await
                 .map_err(at)?;
-                l.fpwr(id.station, reg::DC_ACTIVATION, &[0x03], "SYNC0 on")
-                    .await
-                    .map_err(at)?;
+                l.fpwr(
+                    id.station,
+                    reg::DC_ACTIVATION,
+                    &[plan.activation()],
+                    "SYNC0 on",
+                )
+                .await
+                .map_err(at)?;
                 Ok::<u64, MasterError>(basis_ns)
             },
             "SYNC0",
@@ -112,9 +130,16 @@ pub(super) async fn start_sync0(
         .into_iter()
         .max()
         .unwrap_or(read_at_ns);
+    // (An oversampled slave's first SYNC1 comes a cycle after the grid's pulse.)
+    let oversampling_cycle = if cfg.oversampled.is_empty() {
+        0
+    } else {
+        cfg.cycle_ns
+    };
     let first_pulses_ns = basis_ns
         .saturating_add(cfg.sync0_lead_ns)
-        .saturating_add(u64::from(cfg.cycle_ns));
+        .saturating_add(u64::from(cfg.cycle_ns))
+        .saturating_add(u64::from(oversampling_cycle));
     Ok(Some((
         Sync0Config {
             start_ns: first_start,

@@ -415,7 +415,7 @@ impl CyclicDriver {
         let now_at = tr.now();
         let now = now_at.as_ns();
         if rs.running.is_none() && eng.health().needs_recovery && now >= rs.retry_at_ns {
-            let (net, cfg) = (rs.net.clone(), rs.cfg);
+            let (net, cfg) = (rs.net.clone(), rs.cfg.clone());
             rs.running = Some(Engine::new(move |link| async move {
                 JobResult::Recovery(recover(link, net, cfg).await)
             }));
