@@ -146,7 +146,7 @@ impl SyncUnitPlan {
 /// The oversampled slaves are possible on a cycle of `cycle_ns`.
 fn check_oversampled(oversampled: &[Oversampled], cycle_ns: u32) -> Result<(), MasterError> {
     for o in oversampled {
-        if !(1..=100).contains(&o.samples) || cycle_ns % u32::from(o.samples) != 0 {
+        if !(1..=100).contains(&o.samples) || !cycle_ns.is_multiple_of(u32::from(o.samples)) {
             return Err(MasterError::Config(format!(
                 "slave {}: {} samples per cycle of {cycle_ns} ns: give 1 to 100 samples that divide the cycle into whole nanoseconds",
                 o.position, o.samples
