@@ -136,11 +136,11 @@ fn a_wrong_sync1_set_up_keeps_the_terminal_out_of_op() {
     let (sim, _) = brought_up(Vec::new()).unwrap();
     let t = sim.segment().esc(1);
     assert!(t.runs_on_sync0() && !t.runs_on_sync1());
-    let e = brought_up(vec![Oversampled {
+    let Err(e) = brought_up(vec![Oversampled {
         position: 1,
         samples: 5,
-    }])
-    .err()
-    .expect("five samples on a four-sample terminal");
+    }]) else {
+        panic!("five samples on a four-sample terminal went to OP");
+    };
     assert!(e.contains("0x0030") || e.contains("invalid DC"), "{e}");
 }
