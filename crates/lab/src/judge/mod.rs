@@ -104,8 +104,13 @@ const RETRY_AFTER_LOSS_PS: u64 = 100_000_000_000;
 #[derive(Debug, Clone)]
 struct Drive {
     name: String,
-    /// Its SYNC0 (start time, cycle) at the last frame.
+    /// The events its application takes outputs at (start time, cycle) at the last frame:
+    /// SYNC0's pulses, or SYNC1's for a drive on SYNC1 (an oversampling terminal).
     sync0: Option<(u64, u32)>,
+    /// It runs on SYNC1.
+    on_sync1: bool,
+    /// Outputs that no event took: a frame after them came before the next event.
+    overwritten: u64,
     track: Tracker,
     margin: Stats,
     late: u64,
@@ -148,6 +153,8 @@ impl Drive {
         Drive {
             name,
             sync0: None,
+            on_sync1: false,
+            overwritten: 0,
             track: Tracker::default(),
             margin: Stats::new(),
             late: 0,
@@ -534,7 +541,9 @@ impl Judge {
         let mut any_retro = false;
         for (x, d) in self.drives.iter_mut().enumerate() {
             let esc = seg.esc(x);
-            let sync = esc.dc().and_then(|u| u.sync0()).filter(|s| s.1 > 0);
+            // A drive on SYNC1 (an oversampling terminal) takes its outputs at SYNC1's events.
+            let sync = esc.application_events().filter(|s| s.1 > 0);
+            d.on_sync1 = esc.runs_on_sync1();
             if sync != d.sync0 || seg.is_powered_off(x) {
                 d.track.reset();
                 d.last_out_ns = None;
@@ -584,6 +593,10 @@ impl Judge {
             let mut pulses = None;
             if let Some(prev) = d.last_out_ns.replace(e.0) {
                 let n = pulse_no(e.0) - pulse_no(prev);
+                if n == 0 {
+                    // The outputs before these: no event took them.
+                    d.overwritten += 1;
+                }
                 let m = (n - 1).max(0) as u64;
                 d.missed += m;
                 most_missed = most_missed.max(m);

@@ -41,9 +41,10 @@ pub struct DriveOut {
     pub position: usize,
     /// The scenario's name.
     pub name: String,
-    /// Its SYNC0 cycle at the end, ns (None: SYNC0 not running).
+    /// Its SYNC0 cycle at the end, ns (None: SYNC0 not running); SYNC1's period for a
+    /// drive on SYNC1 (`on_sync1`).
     pub sync0_cycle_ns: Option<u32>,
-    /// Frames whose outputs it took (in OP; a drive on SYNC0 says which) while its SYNC0 ran.
+    /// Frames with outputs for it (in OP; a drive on SYNC0 says which) while its SYNC0 ran.
     pub frames: u64,
     /// SYNC0 margin (the pulse the outputs were meant for minus the instant the frame's last
     /// bit passed the drive, its system time): smallest, 0.1th percentile and mean, ns.
@@ -56,6 +57,15 @@ pub struct DriveOut {
     pub late: u64,
     /// SYNC0 pulses with no new outputs since the previous pulse.
     pub missed: u64,
+    /// It runs on SYNC1 (an oversampling terminal, 0x1C32:01 = 3): its events (`frames`,
+    /// `margin_*`, `late`, `missed`) are SYNC1's, every `sync0_cycle_ns` (SYNC1's period).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub on_sync1: bool,
+    /// Outputs no event took (a frame with new outputs came before the next event: the
+    /// master sent more often than the drive's cycle; on an oversampling terminal, blocks of
+    /// samples never played).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub overwritten: u64,
     /// |0x092C| as the master would read it (bit 31 the sign): mean and largest, ns.
     pub time_diff_mean_ns: Option<f64>,
     /// Largest |0x092C|, ns.
@@ -240,6 +250,8 @@ impl Judge {
                     margin_mean_ns: some(m.mean),
                     late: d.late,
                     missed: d.missed,
+                    on_sync1: d.on_sync1,
+                    overwritten: d.overwritten,
                     time_diff_mean_ns: some(td.mean),
                     time_diff_max_ns: some(td.max),
                     deviation_max_ns: d.dev_max_ns,
@@ -315,6 +327,10 @@ impl std::fmt::Display for Lost {
     }
 }
 
+fn is_zero(n: &u64) -> bool {
+    *n == 0
+}
+
 fn us(x: Option<f64>) -> String {
     x.map_or("-".into(), |v| format!("{:.1}", v / 1000.0))
 }
@@ -374,6 +390,25 @@ pub fn per_drive_table(out: &JudgeOut) -> String {
             d.deviation_max_ns,
             d.al_errors,
             d.al_state
+        );
+    }
+    for d in out
+        .drives
+        .iter()
+        .filter(|d| d.on_sync1 || d.overwritten > 0)
+    {
+        let on = if d.on_sync1 {
+            format!(
+                "on SYNC1 (every {:.1} us: its events are SYNC1's)",
+                f64::from(d.sync0_cycle_ns.unwrap_or(0)) / 1000.0
+            )
+        } else {
+            "on SYNC0".to_string()
+        };
+        let _ = writeln!(
+            t,
+            "{:>3}  {}: {on}; {} frame(s) of outputs overwritten before an event took them",
+            d.position, d.name, d.overwritten
         );
     }
     t

@@ -44,6 +44,20 @@ pub(crate) fn verdict(out: &JudgeOut) -> (bool, String) {
             out.missed
         ));
     }
+    // An oversampling terminal's blocks that no SYNC1 event took: samples never played
+    // (ethercrab 0.7's `tx_rx_dc` stepping by SYNC0, #369).
+    let lost_blocks: Vec<String> = out
+        .drives
+        .iter()
+        .filter(|d| d.on_sync1 && d.overwritten > 0)
+        .map(|d| format!("{} ({} of {} frames)", d.name, d.overwritten, d.frames))
+        .collect();
+    if !lost_blocks.is_empty() {
+        broke.push(format!(
+            "blocks of samples were overwritten before the SYNC1 event that plays them (the master cycles faster than SYNC1): {}",
+            lost_blocks.join(", ")
+        ));
+    }
     if out.wkc_errors > 0 {
         broke.push(format!(
             "{} frame(s) came back with an unusual working counter ({} with 0)",
