@@ -245,3 +245,73 @@ fn the_first_cycle_aims_at_the_reference_s_grid_on_twelve_random_networks() {
     }
     println!("largest unexplained offset: {:.1} us", worst_ns / 1e3);
 }
+
+/// Issue 34, acceptance 1, on random networks: drives replaced by oversampling terminals (2 to
+/// 20 samples a 1 ms cycle, on SYNC1, which ecsync's master puts on the grid) count in
+/// 0x1C32:0B exactly the SYNC1 events the ground truth finds without a new block, as the
+/// drives on SYNC0 beside them count their pulses, with a shift small enough (4 %) that the
+/// loaded host's frames miss some.
+#[test]
+fn oversampling_terminals_count_the_ground_truths_misses_on_six_random_networks() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0x34_01);
+    let (mut terminals, mut missed_total) = (0, 0);
+    for k in 0..6 {
+        let n = rng.random_range(2..=12);
+        let text = network(&mut rng, n)
+            .replace("sync0_shift_pct = 30", "sync0_shift_pct = 4")
+            .replace("cycles = 12000", "cycles = 3000")
+            .replace(
+                "methods = [\"median\", \"median-fit\"]",
+                "methods = [\"median-fit\", \"bus-shift\", \"kalman\"]",
+            );
+        // Every other drive (at least one) an oversampling terminal.
+        let mut parts: Vec<String> = text
+            .split("[[segment.slave]]")
+            .map(str::to_string)
+            .collect();
+        let mut made = 0;
+        for (i, p) in parts.iter_mut().enumerate().skip(1) {
+            if p.contains("device = \"servo-drive\"") && (i % 2 == 1 || made == 0) {
+                let samples = [2, 4, 5, 8, 10, 20][rng.random_range(0..6)];
+                *p = p.replace(
+                    "device = \"servo-drive\"",
+                    &format!("device = \"oversampling-terminal\"\noversampling = {samples}"),
+                );
+                made += 1;
+            }
+        }
+        terminals += made;
+        let text = parts.join("[[segment.slave]]");
+        let s = ecsync_lab::parse(&format!("over{k}.toml"), &text)
+            .unwrap_or_else(|e| panic!("network {k}: {e}\n{text}"));
+        let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0))
+            .unwrap_or_else(|e| panic!("network {k}: {e}\n{text}"));
+        let out = summarize(&c);
+        for (m, mo) in &out.methods {
+            let counted: Vec<_> = mo
+                .ground_truth
+                .per_slave
+                .iter()
+                .filter(|s| s.drive_sm_events_missed.is_some())
+                .collect();
+            assert_eq!(
+                counted.len(),
+                n - usize::from(text.contains("junction-mii"))
+            );
+            for s in &counted {
+                assert_eq!(
+                    s.drive_sm_events_missed,
+                    Some(s.sync0_missed),
+                    "network {k}, {m}, slave at {}\n{text}",
+                    s.position
+                );
+                missed_total += s.sync0_missed;
+            }
+        }
+    }
+    println!("{terminals} terminals, {missed_total} events missed in all");
+    assert!(
+        missed_total > 100,
+        "the shift was not too small: {missed_total} missed"
+    );
+}
