@@ -152,7 +152,21 @@ def compare_more_methods(r):
     return shown(MORE_METHODS, until(text, "Init-drift") + "...\n")
 
 
+OVERSAMPLING = "ecsync compare --preset oversampling --runs 1 --cycles 20000 --quiet"
+
+
+def compare_oversampling(r):
+    """The oversampling preset's verdict and its per-slave table (terminal and drive)."""
+    text, _ = r.run(tuple(OVERSAMPLING.split()[1:]), "out/compare")
+    lines = text.splitlines()
+    head = until(text, "Ground truth")
+    start = next(i for i, l in enumerate(lines) if l.startswith("Per slave"))
+    table = until("\n".join(lines[start:]) + "\n", "Table 1")
+    return shown(OVERSAMPLING, head + "...\n" + table)
+
+
 GENERATORS = {
+    "compare-oversampling": compare_oversampling,
     "compare-default": compare_default,
     "compare-more-methods": compare_more_methods,
     "compare-default-verdict": compare_default_verdict,
