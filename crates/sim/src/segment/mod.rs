@@ -156,6 +156,9 @@ pub struct FrameOutcome {
     pub returned_sof_ps: Option<u64>,
     /// Whether the datagrams were processed (a malformed frame is forwarded untouched).
     pub processed: bool,
+    /// The master's port it returns on: 0 its first, 1 its second (a ring: see
+    /// [`Segment::connect_ring`]).
+    pub returned_port: u8,
 }
 
 /// A virtual EtherCAT segment.
@@ -187,6 +190,11 @@ pub struct Segment {
     epoch: u64,
     /// The next frame's FCS breaks on its way back ([`Segment::break_fcs_of_next_frame`]).
     fcs_break_pending: bool,
+    /// A ring: the slave (network position) and its port cabled to the master's second port.
+    ring: Option<(u16, u8)>,
+    /// The timing of a frame the master sends on its second port (walked again whenever
+    /// `timing` is).
+    timing_secondary: Option<Arc<Timing>>,
 }
 
 // A visit on one cache line's worth of the plan.
@@ -220,6 +228,8 @@ impl Segment {
             long: LongIndex::default(),
             epoch: 0,
             fcs_break_pending: false,
+            ring: None,
+            timing_secondary: None,
         })
     }
 
@@ -245,6 +255,7 @@ impl Segment {
         // The caller may change anything: the way is walked again, from the plan again.
         node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
         self.timing = None;
+        self.timing_secondary = None;
         // Its counters are brought up to date first, and no plan holds past this.
         self.end_plans();
         self.epoch += 1;
@@ -299,6 +310,59 @@ impl Segment {
         node.plan = build_plan(&node.esc, &node.links, usize::from(node.entry_port));
     }
 
+    /// Makes the segment a ring for cable redundancy: port `port` of the slave at network
+    /// position `pos` (a line's last slave, its port 1) is cabled (`cable_m`) to the master's
+    /// second port. Its port then has a link: a frame the master sends on its first port that
+    /// reaches it leaves the segment to the master's second port (the ring intact: every
+    /// processing unit on the way), and one sent on the second port
+    /// ([`Segment::process_secondary`]) runs the ring the other way through the ports alone
+    /// (the processing unit follows port 0 in the processing order) back to the first. With a
+    /// cable pulled (`set_link`) the ports on both sides close, and each frame is processed by
+    /// the slaves on its side and returns on the port it left by (ETG.1500's cable
+    /// redundancy; the ESC datasheet's loop control).
+    pub fn connect_ring(
+        &mut self,
+        pos: usize,
+        port: u8,
+        cable_m: f64,
+    ) -> Result<(), TopologyError> {
+        let p = usize::from(port);
+        let Some(node) = self.nodes.get(pos) else {
+            return Err(TopologyError::BadUpstream {
+                slave: pos,
+                upstream: pos,
+            });
+        };
+        if p > 3 || node.esc.model().ports[p] == PortKind::None {
+            return Err(TopologyError::NoSuchPort { slave: pos, port });
+        }
+        if node.links[p].is_some() {
+            return Err(TopologyError::PortInUse { slave: pos, port });
+        }
+        if !(cable_m.is_finite() && cable_m >= 0.0) {
+            return Err(TopologyError::BadNumber {
+                slave: pos,
+                what: "cable_m",
+            });
+        }
+        let delay_ps = topology::ps(node.esc.model().link_phy_delay_ns)
+            + (cable_m * CABLE_PS_PER_M).round() as u64;
+        self.nodes[pos].links[p] = Some(topology::Link {
+            peer: topology::Peer::Master,
+            peer_port: 1,
+            delay_ps,
+        });
+        self.ring = Some((pos as u16, port));
+        let off = self.nodes[pos].off;
+        self.set_port_link(pos, p, !off, false);
+        Ok(())
+    }
+
+    /// The ring's slave and port cabled to the master's second port, if the segment is one.
+    pub fn ring(&self) -> Option<(usize, u8)> {
+        self.ring.map(|(p, port)| (usize::from(p), port))
+    }
+
     /// Switches the slave at network position `pos` off at real time `t_ps`: its links go
     /// down (the slaves behind it are cut off) until [`Segment::power_on`].
     pub fn power_off(&mut self, pos: usize, _t_ps: u64) {
@@ -314,6 +378,7 @@ impl Segment {
         self.end_plans();
         self.epoch += 1;
         self.timing = None;
+        self.timing_secondary = None;
         let node = &mut self.nodes[pos];
         node.esc = node.esc.power_cycled(t_ps);
         node.off = false;

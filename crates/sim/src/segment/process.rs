@@ -184,6 +184,7 @@ impl Segment {
                     return FrameOutcome {
                         returned_sof_ps: None,
                         processed: false,
+                        returned_port: 0,
                     };
                 }
             },
@@ -205,26 +206,64 @@ impl Segment {
         } else {
             self.process_flat::<false>(frame, kind, None, &tm, t_send_ps)
         };
-        let back = tm.back;
+        let (back, returned_port) = (tm.back, tm.back_port);
         if fcs_breaks && back.is_some() {
             self.count_broken_fcs(&tm.flat);
         }
         if !loops_changed {
             self.timing = Some(tm);
+        } else {
+            self.timing_secondary = None;
         }
-        match back {
-            Some(back) => FrameOutcome {
-                returned_sof_ps: Some(t_send_ps + back),
-                processed: !matches!(kind, FrameKind::Malformed),
-            },
-            None => {
-                self.lost += 1;
-                FrameOutcome {
-                    returned_sof_ps: None,
-                    processed: !matches!(kind, FrameKind::Malformed),
+        self.outcome(back.map(|b| t_send_ps + b), kind, returned_port)
+    }
+
+    fn outcome(&mut self, returned_sof_ps: Option<u64>, kind: FrameKind, port: u8) -> FrameOutcome {
+        if returned_sof_ps.is_none() {
+            self.lost += 1;
+        }
+        FrameOutcome {
+            returned_sof_ps,
+            processed: !matches!(kind, FrameKind::Malformed),
+            returned_port: port,
+        }
+    }
+
+    /// [`Segment::process`] for a frame the master sends on its second port (a ring's:
+    /// [`Segment::connect_ring`]; without one it is lost). Frames on this port are few (a
+    /// redundant master's copy of each cycle's frame): no visit plan, every ESC on the way
+    /// takes it in full.
+    pub fn process_secondary(&mut self, frame: &mut [u8], t_send_ps: u64) -> FrameOutcome {
+        self.frames += 1;
+        let kind = match self.shapes.find(frame) {
+            Some((_, ctx)) if self.replay => FrameKind::Chain(ctx),
+            _ => match self.classify(frame) {
+                Some((k, _)) => k,
+                None => {
+                    self.trace = FrameTrace {
+                        sent_ps: t_send_ps,
+                        timing: self.unreached.clone(),
+                    };
+                    return self.outcome(None, FrameKind::Malformed, 1);
                 }
-            }
+            },
+        };
+        let tm = match self.timing_secondary.take() {
+            Some(t) => t,
+            None => Arc::new(self.walk_secondary()),
+        };
+        self.trace = FrameTrace {
+            sent_ps: t_send_ps,
+            timing: tm.clone(),
+        };
+        let loops_changed = self.process_flat::<false>(frame, kind, None, &tm, t_send_ps);
+        let (back, port) = (tm.back, tm.back_port);
+        if loops_changed {
+            self.timing = None;
+        } else {
+            self.timing_secondary = Some(tm);
         }
+        self.outcome(back.map(|b| t_send_ps + b), kind, port)
     }
 
     /// How the ESCs take a frame that is not of a remembered shape (`None`: not EtherCAT),

@@ -85,6 +85,9 @@ pub(super) struct Timing {
     pub(super) in_port: Vec<u8>,
     /// Back at the master, ps after the send; `None` if the frame is lost on the way.
     pub(super) back: Option<u64>,
+    /// The master's port it comes back on: 0 its first, 1 its second (a ring's: the frame
+    /// left the segment through the cable of [`Segment::connect_ring`]).
+    pub(super) back_port: u8,
     /// The slaves in the order their processing units see the frame, with their `pu`.
     pub(super) flat: Vec<(usize, u64)>,
 }
@@ -96,6 +99,7 @@ impl Timing {
             ports: vec![[None; 4]; n],
             in_port: vec![0; n],
             back: None,
+            back_port: 0,
             flat: Vec::new(),
         }
     }
@@ -288,34 +292,63 @@ pub(super) fn build_nodes(
         .collect()
 }
 
+/// Why a frame's walk through a slave did not return through the port it came in by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Gone {
+    /// Lost (a port forced open without a link).
+    Lost,
+    /// Out of the segment to the master, through a ring's second cable ([`Timing::back_port`]).
+    Exited,
+}
+
 impl Segment {
     /// The frame's way through the segment, by walking the ports in processing order from the
     /// master's slave: the one walk every frame's timing and the ground truth come from.
     pub(super) fn walk(&self) -> Timing {
-        let n = self.nodes.len();
-        let mut t = Timing::unreached(n);
         let first = usize::from(self.first);
-        let entry = usize::from(self.nodes[first].entry_port);
+        self.walk_in(first, usize::from(self.nodes[first].entry_port), 0)
+    }
+
+    /// The way of a frame the master sends on its second port, into a ring's last slave
+    /// ([`Segment::connect_ring`]); unreached without a ring.
+    pub(super) fn walk_secondary(&self) -> Timing {
+        match self.ring {
+            Some((pos, port)) => self.walk_in(usize::from(pos), usize::from(port), 1),
+            None => Timing::unreached(self.nodes.len()),
+        }
+    }
+
+    /// The walk of a frame the master sends on its port `master_port`, which is cabled to
+    /// port `entry` of slave `first`.
+    fn walk_in(&self, first: usize, entry: usize, master_port: u8) -> Timing {
+        let mut t = Timing::unreached(self.nodes.len());
         // (The master's cable pulled, or the first slave off: every frame is lost.)
         if let Some(l) = self.nodes[first].links[entry]
             && self.nodes[first].esc.links()[entry]
         {
-            t.back = self
-                .walk_from(first, entry, l.delay_ps, &mut t)
-                .map(|b| b + l.delay_ps);
+            match self.walk_from(first, entry, l.delay_ps, &mut t) {
+                Ok(b) => {
+                    t.back = Some(b + l.delay_ps);
+                    t.back_port = master_port;
+                }
+                // (Where it left is in `t` already.)
+                Err(Gone::Exited) => {}
+                Err(Gone::Lost) => t.back = None,
+            }
         }
         t
     }
 
     /// The walk inside slave `idx`, entered through `in_port` at `t_in`: where it returns the
-    /// frame (`None`: lost in it or below it).
+    /// frame, or why it does not (lost in it or below it; out to the master through a ring's
+    /// second cable).
     pub(super) fn walk_from(
         &self,
         idx: usize,
         in_port: usize,
         t_in: u64,
         t: &mut Timing,
-    ) -> Option<u64> {
+    ) -> Result<u64, Gone> {
         let node = &self.nodes[idx];
         let plan = if in_port == usize::from(node.entry_port) {
             node.plan
@@ -333,7 +366,7 @@ impl Segment {
                     t.pu[idx] = Some(t_cur);
                     t.flat.push((idx, t_cur));
                 }
-                Step::Lost => return None,
+                Step::Lost => return Err(Gone::Lost),
                 Step::Port(p, link) => {
                     let d = if through_pu {
                         node.processing_ps
@@ -341,9 +374,11 @@ impl Segment {
                         node.forwarding_ps
                     };
                     through_pu = false;
-                    // A second cable to the master (redundancy) is not modelled.
                     let Peer::Slave(peer) = link.peer else {
-                        return None;
+                        // A ring's cable back to the master: the frame leaves the segment.
+                        t.back = Some(t_cur + d + link.delay_ps);
+                        t.back_port = link.peer_port;
+                        return Err(Gone::Exited);
                     };
                     let back = self.walk_from(
                         usize::from(peer),
@@ -356,14 +391,12 @@ impl Segment {
                 }
             }
         }
-        Some(
-            t_cur
-                + if through_pu {
-                    node.processing_ps
-                } else {
-                    node.forwarding_ps
-                },
-        )
+        Ok(t_cur
+            + if through_pu {
+                node.processing_ps
+            } else {
+                node.forwarding_ps
+            })
     }
 
     /// Time from the master sending a frame to its first bit reaching each slave's processing
