@@ -214,6 +214,7 @@ fn an_echoed_acknowledge_and_a_coupler_without_outputs_are_not_judged() {
         },
         entry_port: 0,
         cable_m: 0.0,
+        ring: None,
     })
     .collect();
     let seg = Segment::new(&specs).unwrap();

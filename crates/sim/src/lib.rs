@@ -83,5 +83,6 @@ pub mod twin;
 pub use esc::{AnswerBufferHabit, DatagramEffects, Esc, EscStats, LoopMode};
 pub use phy::{BYTE_TIME_PS, CABLE_PS_PER_M, frame_wire_time_ps};
 pub use segment::{
-    FrameOutcome, FrameTrace, Segment, SlaveSpec, TopologyError, Upstream, frame_is_processable,
+    FrameOutcome, FrameTrace, RingCable, Segment, SlaveSpec, TopologyError, Upstream,
+    frame_is_processable,
 };

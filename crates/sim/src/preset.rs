@@ -92,6 +92,7 @@ pub fn line(n: usize, seed: u64) -> Vec<SlaveSpec> {
                 },
                 entry_port: 0,
                 cable_m: 1.0,
+                ring: None,
             }
         })
         .collect()

@@ -230,6 +230,7 @@ fn model_specs(net: &Network, notes: &mut Vec<String>) -> (Vec<&'static str>, Ve
             upstream,
             entry_port: s.entry_port,
             cable_m: if i == 0 { UNMEASURED_CABLE_M } else { 0.0 },
+            ring: None,
         });
     }
     (models, specs)

@@ -573,6 +573,7 @@ fn spec(model: EscModel, device: DeviceInfo, upstream: Upstream, seed: u64) -> S
         upstream,
         entry_port: 0,
         cable_m: 0.0,
+        ring: None,
     }
 }
 

@@ -193,6 +193,7 @@ fn the_captured_network_has_the_ek1100_as_reference_and_syncs_the_el2889_alone()
             },
             entry_port: 0,
             cable_m: if i == 0 { 2.0 } else { 0.0 },
+            ring: None,
         })
         .collect();
     let cfg = to_lock(&specs);
@@ -305,6 +306,7 @@ fn a_receive_times_slave_first_is_not_the_reference() {
         },
         entry_port: 0,
         cable_m: 0.0,
+        ring: None,
     })
     .collect();
     let cfg = to_lock(&specs);
@@ -418,6 +420,7 @@ fn random_network(r: &mut Rng, n: usize) -> Vec<SlaveSpec> {
             } else {
                 r.f(0.1, 20.0)
             },
+            ring: None,
         });
     }
     specs

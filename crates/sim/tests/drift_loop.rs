@@ -55,6 +55,7 @@ fn captured_segment(ppm: [f64; 3], local_ns: [u64; 3]) -> Vec<SlaveSpec> {
         },
         entry_port: 0,
         cable_m: 0.0,
+        ring: None,
     })
     .collect()
 }

@@ -758,6 +758,7 @@ fn a_segment_of_esi_drives_answers_coe_with_the_esi_values() {
         },
         entry_port: 0,
         cable_m: 1.0,
+        ring: None,
     };
     let seg = Segment::new(&[spec(0), spec(1)]).unwrap();
     // Each drive's SII words 0-15 read over EtherCAT: ConfigData (line 12405) as words 0-6,

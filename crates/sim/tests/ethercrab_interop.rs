@@ -296,6 +296,7 @@ fn ethercrab_scans_an_ingenia_drive_built_from_its_esi() {
         upstream: Upstream::Master,
         entry_port: 0,
         cable_m: 1.0,
+        ring: None,
     };
     let segment = Segment::new(&[spec]).expect("segment");
     let (tx, rx, pdu_loop) = PDU_STORAGE_ESI.try_split().expect("split once");

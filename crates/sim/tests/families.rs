@@ -23,6 +23,7 @@ fn single(model: EscModel, device: DeviceInfo) -> Segment {
         upstream: Upstream::Master,
         entry_port: 0,
         cable_m: 1.0,
+        ring: None,
     }])
     .unwrap()
 }
@@ -221,6 +222,7 @@ fn line(models: &[EscModel], cable_m: f64, device: impl Fn(usize) -> DeviceInfo)
             },
             entry_port: 0,
             cable_m,
+            ring: None,
         })
         .collect()
 }

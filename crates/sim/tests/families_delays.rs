@@ -43,6 +43,7 @@ fn line(models: &[EscModel], cable_m: f64, device: impl Fn(usize) -> DeviceInfo)
             },
             entry_port: 0,
             cable_m,
+            ring: None,
         })
         .collect()
 }

@@ -74,6 +74,7 @@ fn a_tree_of_512_slaves_with_3_and_4_port_junctions() {
         upstream: up,
         entry_port: 0,
         cable_m: 0.5 + f64::from(i % 7),
+        ring: None,
     };
     let junction = |i: u32, up: Upstream| SlaveSpec {
         model: EscModel::junction_mii(),
@@ -87,6 +88,7 @@ fn a_tree_of_512_slaves_with_3_and_4_port_junctions() {
         upstream: up,
         entry_port: 0,
         cable_m: 1.0,
+        ring: None,
     };
     fn push(specs: &mut Vec<SlaveSpec>, s: SlaveSpec) -> usize {
         specs.push(s);

@@ -61,6 +61,7 @@ fn captured_segment() -> Vec<SlaveSpec> {
         },
         entry_port: 0,
         cable_m: 0.0,
+        ring: None,
     })
     .collect()
 }

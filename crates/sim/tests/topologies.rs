@@ -178,6 +178,7 @@ fn build(g: &Gen) -> (Vec<SlaveSpec>, Vec<EsiTiming>) {
             upstream,
             entry_port: 0,
             cable_m: r.f(0.1, 100.0),
+            ring: None,
         });
     }
     (specs, esi)

@@ -67,6 +67,7 @@ fn segment(seed: u64) -> (Vec<SlaveSpec>, Vec<&'static str>) {
             upstream,
             entry_port: 0,
             cable_m: r.f(0.2, 20.0),
+            ring: None,
         });
         names.push(name);
         i

@@ -121,6 +121,13 @@ pub struct SlaveConfig {
     /// shift do. Absent: no limit.
     #[serde(default)]
     pub pll_limit_us: Option<f64>,
+    /// This slave's port cabled back to the master's second port (cable redundancy: the
+    /// segment is a ring; a line's last slave, port 1). Absent: none.
+    #[serde(default)]
+    pub ring_port: Option<u8>,
+    /// The ring cable's length, m (with `ring_port`).
+    #[serde(default = "default_cable")]
+    pub ring_cable_m: f64,
     /// Samples per cycle of an `oversampling-terminal` (1-100; absent: 4): SYNC0 runs that
     /// many times a cycle, SYNC1 once.
     #[serde(default)]
@@ -370,6 +377,7 @@ impl SegmentConfig {
         s.override_delays(&mut model, at)?;
         s.check_cable_and_crystal(at)?;
         let upstream = s.upstream(&model, names, specs, at)?;
+        let ring = s.ring_cable(&model, at)?;
         Ok(SlaveSpec {
             model,
             device,
@@ -385,6 +393,7 @@ impl SegmentConfig {
             upstream,
             entry_port: s.entry_port,
             cable_m: s.cable_m,
+            ring,
         })
     }
 }
@@ -533,6 +542,37 @@ impl SlaveConfig {
     }
 
     /// The cable length, the crystal's error and its wander are in range.
+    /// The ring cable (`ring_port`, `ring_cable_m`), checked against the model's ports.
+    fn ring_cable(
+        &self,
+        model: &EscModel,
+        at: &SlaveAt<'_>,
+    ) -> Result<Option<crate::segment::RingCable>, ConfigError> {
+        let Some(port) = self.ring_port else {
+            return Ok(None);
+        };
+        if !port_ok(model, port) || port == self.entry_port {
+            return Err(at.error(
+                at.key_line("ring_port"),
+                "ring_port",
+                format!("port {port} cannot take the ring cable"),
+                "name a free port of the slave's model (a line's last slave: 1)",
+            ));
+        }
+        if !(self.ring_cable_m.is_finite() && (0.0..=100_000.0).contains(&self.ring_cable_m)) {
+            return Err(at.error(
+                at.key_line("ring_cable_m"),
+                "ring_cable_m",
+                format!("{} m is not a cable length", self.ring_cable_m),
+                "give a length between 0 and 100000 m",
+            ));
+        }
+        Ok(Some(crate::segment::RingCable {
+            port,
+            cable_m: self.ring_cable_m,
+        }))
+    }
+
     /// An `oversampling-terminal`'s samples per cycle (`oversampling`, 4 when absent).
     fn samples(&self, at: &SlaveAt<'_>) -> Result<u8, ConfigError> {
         match self.oversampling {

@@ -66,6 +66,18 @@ pub struct SlaveSpec {
     pub entry_port: u8,
     /// Cable length to the upstream device, m.
     pub cable_m: f64,
+    /// A cable from one of this slave's ports back to the master's second port: the segment
+    /// is a ring for cable redundancy ([`Segment::connect_ring`]). At most one slave has one.
+    pub ring: Option<RingCable>,
+}
+
+/// The cable that closes a ring: from a slave's port to the master's second port.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RingCable {
+    /// The slave's port (a line's last slave: 1).
+    pub port: u8,
+    /// Its length, m.
+    pub cable_m: f64,
 }
 
 /// Why a segment description cannot be built.
@@ -77,6 +89,9 @@ pub enum TopologyError {
     /// Not exactly one slave connected to the master.
     #[error("exactly one slave must be connected to the master, found {0}")]
     MasterLinks(usize),
+    /// More than one ring cable to the master's second port.
+    #[error("the master has one second port: {0} slaves have a ring cable to it, at most one may")]
+    RingCables(usize),
     /// An upstream index that does not name an earlier slave.
     #[error("slave {slave}: upstream slave {upstream} does not exist or is not listed before it")]
     BadUpstream {
@@ -209,7 +224,15 @@ impl Segment {
         let nodes = build_nodes(spec, &links, &order);
         let n = nodes.len();
         let unreached = Arc::new(Timing::unreached(n));
-        Ok(Segment {
+        let rings: Vec<(usize, RingCable)> = order
+            .iter()
+            .enumerate()
+            .filter_map(|(pos, &i)| spec[i].ring.map(|r| (pos, r)))
+            .collect();
+        if rings.len() > 1 {
+            return Err(TopologyError::RingCables(rings.len()));
+        }
+        let mut seg = Segment {
             trace: FrameTrace {
                 sent_ps: 0,
                 timing: unreached.clone(),
@@ -230,7 +253,11 @@ impl Segment {
             fcs_break_pending: false,
             ring: None,
             timing_secondary: None,
-        })
+        };
+        if let Some(&(pos, r)) = rings.first() {
+            seg.connect_ring(pos, r.port, r.cable_m)?;
+        }
+        Ok(seg)
     }
 
     /// Number of slaves.

@@ -326,6 +326,7 @@ pub fn slaves(
                     upstream: up[p].0,
                     entry_port: up[p].1,
                     cable_m: 1.0,
+                    ring: None,
                 },
                 image,
                 dictionary,
