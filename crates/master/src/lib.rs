@@ -51,6 +51,7 @@ pub mod io;
 pub mod network;
 pub mod pdi;
 pub mod recovery;
+pub mod redundancy;
 pub mod sii;
 pub mod transport;
 

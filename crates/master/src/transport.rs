@@ -22,6 +22,9 @@ pub struct Received {
     pub stamped: bool,
     /// The frame did not fit the buffer (only the first `len` bytes are there).
     pub truncated: bool,
+    /// The master port it arrived on: 0 the first (the only one of most transports), 1 the
+    /// second of a ring ([`crate::redundancy::SecondPort`]).
+    pub port: u8,
 }
 
 impl Received {

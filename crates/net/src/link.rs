@@ -392,6 +392,7 @@ impl Transport for RealLink {
                         .map(|m| MasterInstant::from_ns(self.clock.from_monotonic_ns(m))),
                     stamped,
                     truncated: r.truncated,
+                    port: 0,
                 }));
             }
             let now = sys::monotonic_ns();

@@ -7,6 +7,7 @@ use crate::{FrameTrace, Segment, frame_wire_time_ps};
 use ecsync_dc::time::MasterInstant;
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, ProcedureExchange};
 use ecsync_master::io::{Engine, Event};
+use ecsync_master::redundancy::SecondPort;
 use ecsync_master::transport::{Never, Received, Transport};
 use std::fs::File;
 use std::io::BufWriter;
@@ -221,7 +222,9 @@ pub struct SimTransport {
     cycle_tx_stamp_ns: Option<u64>,
     /// Replies in flight, in the order they arrive: when each is complete at the master (real
     /// ps), its bytes; and spent buffers to reuse.
-    inflight: std::collections::VecDeque<(u64, Vec<u8>)>,
+    inflight: std::collections::VecDeque<(u64, u8, Vec<u8>)>,
+    /// The master's second port (a ring's far end, [`SimTransport::enable_second_port`]).
+    second: SecondWire,
     spare: Vec<Vec<u8>>,
     /// The master's wire is busy with its last frame until then (frames leave back to back).
     wire_free_ps: u64,
@@ -259,6 +262,7 @@ impl SimTransport {
             launch_misses: 0,
             cycle_tx_stamp_ns: None,
             inflight: std::collections::VecDeque::new(),
+            second: SecondWire::default(),
             spare: Vec::new(),
             wire_free_ps: 0,
             last: Exchange::default(),
@@ -287,6 +291,7 @@ impl SimTransport {
             launch_misses: 0,
             cycle_tx_stamp_ns: None,
             inflight: self.inflight.clone(),
+            second: self.second,
             spare: Vec::new(),
             wire_free_ps: self.wire_free_ps,
             last: self.last,
@@ -439,13 +444,25 @@ impl SimTransport {
 
     /// A reply in flight, complete at the master at real time `t_ps`: in arrival order (later
     /// frames of a cycle come back later).
-    fn arrive(&mut self, t_ps: u64, buf: Vec<u8>) {
+    fn arrive(&mut self, t_ps: u64, port: u8, buf: Vec<u8>) {
+        if port == 1 && !self.second.enabled {
+            // Out at a ring's far end, where no port of this master listens.
+            self.spare.push(buf);
+            return;
+        }
         if self.inflight.back().is_none_or(|x| x.0 <= t_ps) {
-            self.inflight.push_back((t_ps, buf));
+            self.inflight.push_back((t_ps, port, buf));
         } else {
             let at = self.inflight.partition_point(|x| x.0 <= t_ps);
-            self.inflight.insert(at, (t_ps, buf));
+            self.inflight.insert(at, (t_ps, port, buf));
         }
+    }
+
+    /// The master listens and sends on its second port too (a ring's far end: the segment's
+    /// [`Segment::connect_ring`]); without it, what arrives there is lost to it, as to a
+    /// master with one port.
+    pub fn enable_second_port(&mut self) {
+        self.second.enabled = true;
     }
 
     /// [`SimTransport::run_procedure`] with the waiting and retries of `cfg` (a bring-up on a
@@ -553,6 +570,7 @@ impl Transport for SimTransport {
             self.cycle_tx_stamp_ns = Some(stamp as u64);
         }
         self.wire_free_ps = tx_ps + frame_wire_time_ps(n);
+        self.second.last_tx_ps = tx_ps;
         // A cycle's earlier frame keeps its ground truth before the segment's trace is
         // overwritten (one frame per cycle copies nothing).
         if self.cycle_mode && self.frame_in_cycle > 0 {
@@ -589,10 +607,12 @@ impl Transport for SimTransport {
             Some(f) => f.before_frame(&mut self.segment, &buf, tx_ps),
             None => FrameFate::default(),
         };
+        let mut port = 0;
         let back = if fate.lost_out {
             None
         } else {
             let out = self.segment.process(&mut buf, tx_ps);
+            port = out.returned_port;
             out.returned_sof_ps.and_then(|t| {
                 if let Some(c) = &mut self.capture {
                     let _ = c.record(t + frame_wire_time_ps(n), &buf);
@@ -613,9 +633,9 @@ impl Transport for SimTransport {
             Some(t) => {
                 if let Some(lag) = fate.copy_after_ps {
                     let copy = buf.clone();
-                    self.arrive(t + lag, copy);
+                    self.arrive(t + lag, port, copy);
                 }
-                self.arrive(t, buf);
+                self.arrive(t, port, buf);
             }
             None => self.spare.push(buf),
         }
@@ -635,10 +655,10 @@ impl Transport for SimTransport {
         deadline: MasterInstant,
     ) -> Result<Option<Received>, Never> {
         let deadline_ns = deadline.as_ns();
-        if let Some(&(t_rx, _)) = self.inflight.front() {
+        if let Some(&(t_rx, port, _)) = self.inflight.front() {
             let rx_ns = self.master_clock.master_ns(t_rx);
             if rx_ns <= deadline_ns {
-                let (_, mut reply) = self.inflight.pop_front().expect("a reply in flight");
+                let (_, _, mut reply) = self.inflight.pop_front().expect("a reply in flight");
                 self.now_ps = t_rx;
                 self.now_master_ns = Some(rx_ns);
                 // The reply's buffer goes to the caller; the caller's is spare.
@@ -650,6 +670,7 @@ impl Transport for SimTransport {
                     tx_stamp: self.cycle_tx_stamp_ns.map(MasterInstant::from_ns),
                     stamped: true,
                     truncated: false,
+                    port,
                 }));
             }
         }
@@ -665,6 +686,45 @@ impl Transport for SimTransport {
         self.cycle_tx_stamp_ns = None;
         self.cycle_mode = true;
         self.frame_in_cycle = 0;
+    }
+}
+
+/// The master's second port: whether it is there, and its wire.
+#[derive(Debug, Clone, Copy, Default)]
+struct SecondWire {
+    enabled: bool,
+    /// Busy with its last frame until then, ps.
+    wire_free_ps: u64,
+    /// When the last frame left the first port, ps: its copy leaves the second at once.
+    last_tx_ps: u64,
+}
+
+impl SecondPort for SimTransport {
+    /// The copy leaves the second port when the last frame left the first (a redundant
+    /// master's NICs send both at once), after the second port's own last frame. No fault of
+    /// a schedule touches it, and the segment's trace stays the first port's frame's (the
+    /// ground truth of the cycle).
+    fn send_secondary(&mut self, frame: &[u8], _at: MasterInstant) -> Result<(), Never> {
+        if !self.second.enabled {
+            return Ok(());
+        }
+        let n = frame.len();
+        let tx_ps = self.second.last_tx_ps.max(self.second.wire_free_ps);
+        self.second.wire_free_ps = tx_ps + frame_wire_time_ps(n);
+        let mut buf = self.spare.pop().unwrap_or_default();
+        buf.clear();
+        buf.extend_from_slice(frame);
+        let trace = self.segment.trace().clone();
+        let out = self.segment.process_secondary(&mut buf, tx_ps);
+        self.segment.restore_trace(trace);
+        match out.returned_sof_ps {
+            Some(t) => {
+                let at = t + frame_wire_time_ps(n) + self.rx_latency_ps;
+                self.arrive(at, out.returned_port, buf);
+            }
+            None => self.spare.push(buf),
+        }
+        Ok(())
     }
 }
 

@@ -265,6 +265,12 @@ impl Segment {
         self.nodes.len()
     }
 
+    /// Puts back the trace of an earlier frame (the transport's second port keeps the first
+    /// port's frame as the cycle's ground truth).
+    pub(crate) fn restore_trace(&mut self, trace: FrameTrace) {
+        self.trace = trace;
+    }
+
     /// Whether the segment has no slaves (never true for a built segment).
     pub fn is_empty(&self) -> bool {
         self.nodes.is_empty()

@@ -721,6 +721,7 @@ impl Transport for TsnNetwork<'_> {
                     tx_stamp: Some(MasterInstant::from_ns(trip.t1_ns)),
                     stamped: true,
                     truncated: false,
+                    port: 0,
                 }))
             }
             _ => Ok(None),
