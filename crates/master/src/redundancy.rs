@@ -93,10 +93,11 @@ impl Slot {
         }
     }
 
-    /// Complete: the first port's copy went round the ring, or both came back.
+    /// Complete: the first port's copy went round the ring, or both came back (the second
+    /// on the first port: it went round the ports alone, the ring closed at its far end by a
+    /// loop, and the first is whole).
     fn complete(&self) -> bool {
-        self.first.is_some_and(|r| r.port == 1)
-            || self.first.is_some() && self.second.is_some_and(|r| r.port == 1)
+        self.first.is_some_and(|r| r.port == 1) || self.first.is_some() && self.second.is_some()
     }
 }
 
@@ -198,6 +199,11 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
                 merge(&s.sent[..n], &s.first_buf[..n], &s.second_buf[..n], buf);
                 self.stats.merged += 1;
                 true
+            }
+            (Some(_), Some(_)) => {
+                buf.copy_from_slice(&s.first_buf[..n]);
+                self.stats.intact += 1;
+                false
             }
             (Some(_), _) => {
                 buf.copy_from_slice(&s.first_buf[..n]);

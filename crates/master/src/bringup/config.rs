@@ -86,6 +86,12 @@ pub struct BringupConfig {
     /// The slaves run on SYNC1 with oversampling (an EL4732-like terminal), by position:
     /// see [`Oversampled`]. Every other slave with a system time runs on SYNC0.
     pub oversampled: Vec<Oversampled>,
+    /// The segment is a ring (cable redundancy): the last slave's port 1 is cabled back to
+    /// the master's second port. The bring-up closes that port's loop (DL control) so that
+    /// it measures a line (a frame that left by the second port latches no receive time on
+    /// its way back), and opens it again (auto) at its end: the cyclic phase runs the ring
+    /// ([`crate::redundancy::Redundant`]).
+    pub ring: bool,
 }
 
 /// A slave the master runs on SYNC1 with oversampling, as the "DC oversampling" operation
@@ -178,6 +184,7 @@ impl Default for BringupConfig {
             read_sii_details: false,
             sync_error_limit: None,
             oversampled: Vec::new(),
+            ring: false,
         }
     }
 }

@@ -12,6 +12,7 @@
 use crate::MasterError;
 use crate::io::{Event, Link};
 use ecsync_wire::AlState;
+use ecsync_wire::register as reg;
 
 mod clocks;
 mod config;
@@ -46,6 +47,12 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     let addressed = assign_station_addresses(&link, scanned)
         .await
         .map_err(|e| e.during(Phase::StationAddresses))?;
+    let ring_end = addressed.slaves.last().copied().filter(|_| cfg.ring);
+    if let Some(last) = ring_end {
+        ring_port(&link, last, true)
+            .await
+            .map_err(|e| e.during(Phase::StationAddresses))?;
+    }
 
     link.event(Event::Phase(Phase::Identify));
     let mut slaves = identify(&link, &addressed, &cfg)
@@ -111,7 +118,32 @@ pub async fn bringup(link: Link, cfg: BringupConfig) -> Result<Network, MasterEr
     let to_op = configure_and_start(&link, &cfg, &mut net, &dc, &mut grid).await;
     link.keep_time(None);
     to_op?;
+    if let Some(last) = ring_end {
+        ring_port(&link, last, false)
+            .await
+            .map_err(|e| e.during(Phase::Monitor))?;
+    }
     Ok(net.done_at(&link))
+}
+
+/// The ring's last slave's port 1 loop ([`BringupConfig::ring`]): closed (DL control 0x0101
+/// bits 2-3 = 11) or back to auto (00). (A bring-up that stops before OP leaves it closed.)
+async fn ring_port(link: &Link, last: SlaveId, close: bool) -> Result<(), MasterError> {
+    let at = |e: MasterError| e.at(Phase::StationAddresses, last);
+    let v = link
+        .fprd(last.station, reg::DL_CONTROL + 1, 1, "read DL control")
+        .await
+        .map_err(at)?;
+    let b = (v.first().copied().unwrap_or(0) & !0x0c) | if close { 0x0c } else { 0 };
+    let what = if close {
+        "close the ring port"
+    } else {
+        "open the ring port"
+    };
+    link.fpwr(last.station, reg::DL_CONTROL + 1, &[b], what)
+        .await
+        .map_err(at)?;
+    Ok(())
 }
 
 /// PRE-OP, the mailboxes and sync mode, the process data, SYNC0, SAFE-OP and OP, then

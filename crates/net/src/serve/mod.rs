@@ -524,6 +524,9 @@ pub fn serve<W: Write, H: ServeHooks>(
             continue;
         }
         match out.returned_sof_ps {
+            // Out at a ring's far end (a segment with `ring_port`): this serve has one
+            // interface, so it does not come back to the master here.
+            Some(_) if out.returned_port != 0 => lp.stats.not_returned += 1,
             Some(back_ps) => {
                 let n = retag(&mut buf, len, &tags);
                 lp.answer(&buf[..n], mono, t_ps, back_ps, fate)?;
