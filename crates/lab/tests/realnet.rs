@@ -137,6 +137,7 @@ fn session_over_veth() -> Result<Outcome, String> {
             t_ms_source: TxStampSource::SendTimestamp,
             t_ms_note: None,
             csv: None,
+            ring_iface: None,
         };
         let out = RunOut::new(head, &phase, &link);
         Ok((net, out, stopped))

@@ -136,6 +136,11 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
         self.inner
     }
 
+    /// The transport underneath, to look at.
+    pub fn get_ref(&self) -> &T {
+        self.inner
+    }
+
     /// The slot for a new frame: a free one, else the oldest.
     fn take_slot(&mut self) -> usize {
         self.serial += 1;

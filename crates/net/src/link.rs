@@ -4,6 +4,7 @@ use crate::sys::{self, OpenError, PacketSocket, Phc, Ready, TimestampSupport};
 use crate::tx_stamp::{PHC_READINGS, PHC_REFRESH_NS, PhcMap, TxStampSource, phc_offset_ns};
 use crate::wall_clock::RealtimeMap;
 use ecsync_dc::time::MasterInstant;
+use ecsync_master::redundancy::SecondPort;
 use ecsync_master::transport::{Received, Transport};
 use std::io;
 
@@ -106,6 +107,9 @@ pub struct RealLink {
     send: SendControl,
     /// The cycle the driver is about to run (its start is the next wait), if one.
     cycle_armed: Option<u64>,
+    /// The second master port of a ring (cable redundancy, [`SecondPort`]): its socket, and
+    /// its sends and receives refused because its interface was down.
+    ring: Option<(PacketSocket, u64)>,
 }
 
 /// How a real master's cyclic task reaches the instant it sends at.
@@ -153,7 +157,22 @@ impl RealLink {
             tx_buf: Vec::with_capacity(RECV_BUF_LEN),
             send: SendControl::default(),
             cycle_armed: None,
+            ring: None,
         })
+    }
+
+    /// Opens `iface` as the second master port of a ring: the far end of the line cabled
+    /// back (cable redundancy). Frames sent there with [`SecondPort::send_secondary`] and
+    /// frames arriving there come back through [`Transport::recv`] with port 1; wrap the link
+    /// in [`ecsync_master::redundancy::Redundant`] to send every frame on both ports.
+    pub fn open_ring(&mut self, iface: &str) -> Result<(), NetError> {
+        self.ring = Some((PacketSocket::open(iface)?, 0));
+        Ok(())
+    }
+
+    /// Sends and receives refused because the second port's interface was down.
+    pub fn ring_link_down_errors(&self) -> u64 {
+        self.ring.as_ref().map_or(0, |r| r.1)
     }
 
     /// Sets how the cyclic task reaches its send instants.
@@ -352,54 +371,39 @@ impl Transport for RealLink {
         // A receive stamp is from this epoch of the wall clock or an earlier one.
         let rx_epoch = self.rt_map.epoch();
         loop {
-            let got = match self.sock.recv(buf) {
-                Ok(r) => r,
-                Err(e) if sys::link_is_down(&e) => {
-                    // No link: nothing can come before the deadline but the link itself.
-                    self.link_down += 1;
-                    let now = sys::monotonic_ns();
-                    if now >= deadline {
-                        return Ok(None);
-                    }
-                    std::thread::sleep(std::time::Duration::from_nanos(
-                        (deadline - now).min(1_000_000),
-                    ));
-                    continue;
+            let first = self.take_frame(buf, 0, rx_epoch)?;
+            if let Taken::Frame(r) = first {
+                return Ok(Some(r));
+            }
+            let first_down = first == Taken::Down;
+            if first_down && self.ring.is_none() {
+                // No link: nothing can come before the deadline but the link itself.
+                let now = sys::monotonic_ns();
+                if now >= deadline {
+                    return Ok(None);
                 }
-                Err(e) => return Err(io_err("receive")(e)),
-            };
-            if let Some(r) = got {
-                let now = self.clock.now_ns();
-                // A stamp across the step just seen goes on its side of the step; one across
-                // two is no stamp: the frame counts unstamped (received now).
-                let rx_mono = r
-                    .kernel_rx_realtime_ns
-                    .and_then(|t| self.rt_map.to_monotonic_ns(t, rx_epoch));
-                let (received_ns, stamped) = match rx_mono {
-                    Some(m) => (self.clock.from_monotonic_ns(m), true),
-                    None => (now, false),
-                };
-                if self.tx_rt.is_none() {
-                    self.read_tx_stamps(false)?;
-                }
-                let tx_mono = self
-                    .tx_rt
-                    .and_then(|(t, e)| self.rt_map.to_monotonic_ns(t, e));
-                return Ok(Some(Received {
-                    len: r.len.min(buf.len()),
-                    received: MasterInstant::from_ns(received_ns),
-                    tx_stamp: tx_mono
-                        .map(|m| MasterInstant::from_ns(self.clock.from_monotonic_ns(m))),
-                    stamped,
-                    truncated: r.truncated,
-                    port: 0,
-                }));
+                std::thread::sleep(std::time::Duration::from_nanos(
+                    (deadline - now).min(1_000_000),
+                ));
+                continue;
+            }
+            if let Taken::Frame(r) = self.take_frame(buf, 1, rx_epoch)? {
+                return Ok(Some(r));
             }
             let now = sys::monotonic_ns();
             if now >= deadline {
                 return Ok(None);
             }
-            let ready = match self.sock.wait(deadline - now) {
+            // A first port that is down is not waited on (its error would end every wait): the
+            // second port's frames come meanwhile.
+            let first_sock = (!first_down).then_some(&self.sock);
+            let ring = self.ring.as_ref().map(|r| &r.0);
+            let wait_ns = if first_down {
+                (deadline - now).min(1_000_000)
+            } else {
+                deadline - now
+            };
+            let ready = match sys::wait_any([first_sock, ring], wait_ns) {
                 Ok(r) => r,
                 Err(e) if sys::link_is_down(&e) => {
                     self.link_down += 1;
@@ -407,14 +411,91 @@ impl Transport for RealLink {
                 }
                 Err(e) => return Err(io_err("wait for a reply")(e)),
             };
-            match ready {
-                Ready::ErrorQueue => {
-                    // Read it, or the next wait returns at once (a busy loop that would starve a
-                    // peer on the same CPU).
-                    self.read_tx_stamps(false)?;
-                }
-                Ready::Frame | Ready::Nothing => {}
+            if ready[0] == Ready::ErrorQueue {
+                // Read it, or the next wait returns at once (a busy loop that would starve a
+                // peer on the same CPU).
+                self.read_tx_stamps(false)?;
             }
+            if ready[1] == Ready::ErrorQueue
+                && let Some((r, _)) = &self.ring
+            {
+                // The second port's transmit stamps: no method takes them.
+                while r
+                    .take_tx_stamps()
+                    .map_err(io_err("TX timestamp"))?
+                    .is_some()
+                {}
+            }
+        }
+    }
+}
+
+impl RealLink {
+    /// A frame from port `port`'s socket, if one is there.
+    fn take_frame(&mut self, buf: &mut [u8], port: u8, rx_epoch: u64) -> Result<Taken, NetError> {
+        let (sock, down) = match (port, &mut self.ring) {
+            (0, _) => (&self.sock, &mut self.link_down),
+            (_, Some((s, down))) => (&*s, down),
+            (_, None) => return Ok(Taken::Nothing),
+        };
+        let r = match sock.recv(buf) {
+            Ok(Some(r)) => r,
+            Ok(None) => return Ok(Taken::Nothing),
+            Err(e) if sys::link_is_down(&e) => {
+                *down += 1;
+                return Ok(Taken::Down);
+            }
+            Err(e) => return Err(io_err("receive")(e)),
+        };
+        let now = self.clock.now_ns();
+        // A stamp across the step just seen goes on its side of the step; one across two is
+        // no stamp: the frame counts unstamped (received now).
+        let rx_mono = r
+            .kernel_rx_realtime_ns
+            .and_then(|t| self.rt_map.to_monotonic_ns(t, rx_epoch));
+        let (received_ns, stamped) = match rx_mono {
+            Some(m) => (self.clock.from_monotonic_ns(m), true),
+            None => (now, false),
+        };
+        if self.tx_rt.is_none() {
+            self.read_tx_stamps(false)?;
+        }
+        let tx_mono = self
+            .tx_rt
+            .and_then(|(t, e)| self.rt_map.to_monotonic_ns(t, e));
+        Ok(Taken::Frame(Received {
+            len: r.len.min(buf.len()),
+            received: MasterInstant::from_ns(received_ns),
+            tx_stamp: tx_mono.map(|m| MasterInstant::from_ns(self.clock.from_monotonic_ns(m))),
+            stamped,
+            truncated: r.truncated,
+            port,
+        }))
+    }
+}
+
+/// What a port's socket had.
+#[derive(Debug, PartialEq)]
+enum Taken {
+    Frame(Received),
+    Nothing,
+    /// The interface is down (counted).
+    Down,
+}
+
+impl SecondPort for RealLink {
+    fn send_secondary(&mut self, frame: &[u8], _at: MasterInstant) -> Result<(), NetError> {
+        let Some((sock, down)) = &mut self.ring else {
+            return Ok(());
+        };
+        match sock.send(frame) {
+            Ok(()) => Ok(()),
+            // Lost on a link that is down: the first port's copy may still come back.
+            Err(e) if sys::link_is_down(&e) => {
+                *down += 1;
+                Ok(())
+            }
+            Err(e) => Err(io_err("send on the ring's second port")(e)),
         }
     }
 }

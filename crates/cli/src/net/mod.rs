@@ -16,9 +16,10 @@ use ecsync_dc::method::{Method, MethodContext, MethodKind, MethodParams, ParamEr
 use ecsync_dc::time::MasterDuration;
 use ecsync_lab::output::write_atomic;
 use ecsync_lab::realnet::summary::{BringupOut, CSV_HEADER, RATE_FIT_MIN_CYCLES, RunOut};
-use ecsync_lab::realnet::{self, CyclicOptions, CyclicPhase, RunHead};
+use ecsync_lab::realnet::{self, CyclicOptions, CyclicPhase, RealTransport, RunHead};
 use ecsync_master::bringup::Stage;
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, Stopped, run_procedure};
+use ecsync_master::redundancy::Redundant;
 use ecsync_master::transport::SendMode;
 use ecsync_master::transport::{Interrupted, Interruptible};
 use ecsync_master::{BringupConfig, Engine, Event, MasterError, Network, bringup};
@@ -66,6 +67,12 @@ pub struct RunArgs {
     /// Network interface the EtherCAT segment is on.
     #[arg(long)]
     iface: String,
+    /// Cable redundancy: the master's second port, where the last slave's free port is cabled
+    /// back (a ring). Every frame leaves on both ports and the two copies that come back are
+    /// made one, so a cable pulled anywhere in the ring loses no slave; the bring-up closes
+    /// the last slave's port while it measures the line. The summary says what the ring did.
+    #[arg(long, value_name = "IFACE")]
+    ring_iface: Option<String>,
     /// Master synchronization method (see below).
     #[arg(long, default_value = "median")]
     method: MethodKind,
@@ -339,10 +346,52 @@ fn tx_stamp_source(
 pub fn run(args: RunArgs) -> Result<ExitCode> {
     check_run_args(&args)?;
     let cycle_ns = args.cycle_us * 1000;
-    let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
     let (method, target_phase_ns, sync_error_limit) = method_for(&args, cycle_ns)?;
     let csv = create_outputs(&args)?;
     let (mut link, t_ms_source, t_ms_note) = open_link(&args, method.is_master_shift())?;
+    let ms = MethodSetup {
+        method,
+        target_phase_ns,
+        sync_error_limit,
+        t_ms_source,
+        t_ms_note,
+    };
+    match &args.ring_iface {
+        Some(ring) => {
+            link.open_ring(ring).map_err(|e| anyhow::anyhow!("{e}"))?;
+            let mut red = Redundant::new(&mut link);
+            run_on(&args, &mut red, csv, ms)
+        }
+        None => run_on(&args, &mut link, csv, ms),
+    }
+}
+
+/// The method and where its send times come from, as `run` set them up.
+struct MethodSetup {
+    method: Method,
+    target_phase_ns: i64,
+    sync_error_limit: Option<u16>,
+    t_ms_source: TxStampSource,
+    t_ms_note: Option<String>,
+}
+
+/// `run` on its transport (the link, or the ring's two ports in redundancy): the bring-up,
+/// the cyclic phase, the summary.
+fn run_on<T: RealTransport>(
+    args: &RunArgs,
+    link: &mut T,
+    csv: Option<std::io::BufWriter<std::fs::File>>,
+    ms: MethodSetup,
+) -> Result<ExitCode> {
+    let cycle_ns = args.cycle_us * 1000;
+    let shift_ns = (f64::from(cycle_ns) * args.shift_pct / 100.0).round() as u32;
+    let MethodSetup {
+        method,
+        target_phase_ns,
+        sync_error_limit,
+        t_ms_source,
+        t_ms_note,
+    } = ms;
     let mut exchanges = ExchangeStats::default();
     install_stop_handler();
     let rt = rt::setup(args.priority, args.cpu.map_or(rt::Pin::Last, rt::Pin::Cpu));
@@ -353,8 +402,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     // Bring-up.
     let t_up = Instant::now();
     let Some(net) = bring_up(
-        &args,
-        &mut link,
+        args,
+        link,
         &mut exchanges,
         cycle_ns,
         shift_ns,
@@ -366,7 +415,7 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     };
     let bring = BringupOut::of(&net, t_up.elapsed().as_secs_f64());
     if let Some(path) = &args.save_network {
-        save_twin(&args, path, &net)?;
+        save_twin(args, path, &net)?;
         if args.scan_only {
             if args.json {
                 println!("{}", serde_json::to_string_pretty(&net)?);
@@ -409,10 +458,10 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         oversampled: args.oversample.clone(),
     };
     let csv = csv.map(|w| Box::new(w) as Box<dyn Write>);
-    let mut phase = realnet::run_cyclic(&mut link, &net, method, &opts, csv, Some(&STOP))
+    let mut phase = realnet::run_cyclic(link, &net, method, &opts, csv, Some(&STOP))
         .map_err(|e| anyhow::anyhow!("{e}"))?;
     if let Some(path) = &args.save_network {
-        save_twin_with_rate(&args, path, &net, &phase)?;
+        save_twin_with_rate(args, path, &net, &phase)?;
     }
     phase.finish_csv().context("writing the CSV file")?;
     let spin = args.send == SendMode::Spin;
@@ -430,8 +479,9 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
         t_ms_source,
         t_ms_note,
         csv: args.csv.as_ref().map(|p| p.display().to_string()),
+        ring_iface: args.ring_iface.clone(),
     };
-    report_run(&args, head, phase, &link)
+    report_run(args, head, phase, link)
 }
 
 /// Refuses the flags `run` cannot use before anything is opened.
@@ -514,9 +564,9 @@ fn open_link(
 /// The DC bring-up on the link, to OP (to the delays with `--scan-only`), its phases on the
 /// terminal; a network that does not answer is named as such. `None`: Ctrl-C or SIGTERM
 /// stopped it (every exchange looks at the flag first).
-fn bring_up(
+fn bring_up<T: RealTransport>(
     args: &RunArgs,
-    link: &mut RealLink,
+    link: &mut T,
     exchanges: &mut ExchangeStats,
     cycle_ns: u32,
     shift_ns: u32,
@@ -542,6 +592,7 @@ fn bring_up(
         read_sii_details: twin,
         sync_error_limit,
         oversampled: args.oversample.clone(),
+        ring: args.ring_iface.is_some(),
         ..BringupConfig::default()
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
@@ -642,11 +693,11 @@ fn save_twin_with_rate(
 
 /// The run's summary: written to `--summary`, printed (as JSON with `--json`); the link's
 /// error fails the command, a network that stopped answering gives exit code 3.
-fn report_run(
+fn report_run<T: RealTransport>(
     args: &RunArgs,
     head: RunHead,
     phase: CyclicPhase,
-    link: &RealLink,
+    link: &T,
 ) -> Result<ExitCode> {
     let gone = match &phase.stopped {
         Ok(Some(Stopped::NetworkGone {

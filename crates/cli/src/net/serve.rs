@@ -2,7 +2,7 @@
 
 use super::{STOP, install_stop_handler};
 use crate::source::SourceArgs;
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use ecsync_net::rt;
 use ecsync_net::sys::PacketSocket;
 use ecsync_sim::Segment;
@@ -26,6 +26,13 @@ pub struct ServeArgs {
     /// Network interface to serve the segment on (with --sandbox: the name of the served end).
     #[arg(long, required_unless_present = "sandbox", default_value = "")]
     iface: String,
+    /// A ring's second interface: the one cabled to the master's second port, where the slave
+    /// with `ring_port` (the scenario's) is cabled back (cable redundancy). Frames arriving
+    /// there enter the ring at its far end; each frame goes back out of the interface of the
+    /// port it leaves the ring by.
+    /// Not with --sandbox (it makes one veth pair).
+    #[arg(long, value_name = "IFACE", conflicts_with = "sandbox")]
+    ring_iface: Option<String>,
     #[command(flatten)]
     source: SourceArgs,
     /// Capture every frame in and out to this pcap file.
@@ -109,6 +116,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         Some(p) => Some(super::control::ControlServer::bind(p)?),
         None => None,
     };
+    let ring_sock = ring_socket(&args, &seg)?;
     let sock = open_socket(&args.iface)?;
     install_stop_handler();
     let rt = rt::setup(args.priority, rt::Pin::No);
@@ -123,6 +131,12 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         None => None,
     };
     print_start(&seg, &sock, &name, &args.iface);
+    if let (Some(ring), Some((p, port))) = (&args.ring_iface, seg.ring()) {
+        eprintln!(
+            "ring: slave {} port {port} cabled back to the master's second port on {ring}",
+            p + 1
+        );
+    }
     super::sandbox::ready(&args.sandbox, &args.iface, seg.len(), &args.source)?;
     let t0 = Instant::now();
     let judge_options = ecsync_lab::judge::JudgeOptions {
@@ -147,6 +161,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
             PaceArg::None => ecsync_net::serve::Pace::None,
         },
         carrier_iface: Some(&args.iface),
+        ring: ring_sock.as_ref(),
     };
     let quiet = args.quiet;
     let stats = ecsync_net::serve::serve(
@@ -169,6 +184,26 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     }
     print_stopped(&args, &stats, &faults, t0);
     judged(&args, &hooks.judge.summary(&seg))
+}
+
+/// `--ring-iface`'s socket; refused where the segment has no ring (a frame would enter
+/// nowhere); a ring served on one interface is warned of.
+fn ring_socket(args: &ServeArgs, seg: &Segment) -> Result<Option<PacketSocket>> {
+    let Some(iface) = &args.ring_iface else {
+        if let Some((p, port)) = seg.ring() {
+            eprintln!(
+                "ecsync serve: warning: slave {} port {port} is cabled back to a master's second port (ring_port), which --ring-iface does not name: frames that leave the ring there are lost",
+                p + 1
+            );
+        }
+        return Ok(None);
+    };
+    if seg.ring().is_none() {
+        bail!(
+            "--ring-iface {iface}: the segment is no ring; fix: give the last slave `ring_port = 1` in the scenario (see the book's \"Cable redundancy: a ring\"), or leave --ring-iface out"
+        );
+    }
+    Ok(Some(open_socket(iface)?))
 }
 
 /// `--faults`: the schedule, refused when it holds a fault of the master's host.

@@ -175,12 +175,12 @@ fn inject(req: &Value, served: &mut Served<'_>) -> Value {
 
 impl ServeHooks for CliHooks {
     fn frame(&mut self, segment: &Segment, frame: &[u8], t_ps: u64, lost: FrameLoss) {
-        let lost = match lost {
-            FrameLoss::No => Lost::No,
-            FrameLoss::Out => Lost::Out,
-            FrameLoss::Back => Lost::Back,
-        };
-        self.judge.frame(segment, frame, t_ps, lost);
+        self.judge.frame(segment, frame, t_ps, lost_of(lost));
+    }
+
+    fn frame_on_ring(&mut self, segment: &Segment, frame: &[u8], t_ps: u64, lost: FrameLoss) {
+        self.judge
+            .frame_on_ring(segment, frame, t_ps, lost_of(lost));
     }
 
     fn reply_sent(&mut self, late_ns: u64) {
@@ -256,4 +256,13 @@ impl ServeHooks for CliHooks {
 /// A player for serve: the schedule's, or an empty one that control requests fill.
 pub(super) fn player(schedule: Option<ecsync_sim::fault::FaultSchedule>) -> FaultPlayer {
     FaultPlayer::new(schedule.unwrap_or_default(), 0)
+}
+
+/// The judge's word for what became of a frame.
+fn lost_of(lost: FrameLoss) -> Lost {
+    match lost {
+        FrameLoss::No => Lost::No,
+        FrameLoss::Out => Lost::Out,
+        FrameLoss::Back => Lost::Back,
+    }
 }

@@ -67,6 +67,22 @@ pub(super) fn print_run(o: &RunOut) {
         o.duplicate_replies,
         o.bad_wkc
     );
+    if let Some(r) = &o.redundancy {
+        println!(
+            "Ring (second port {}): {} frames round the whole ring, {} made of both sides' copies, {} with one copy back; broken {} times, whole again {} times{}.",
+            r.ring_iface,
+            r.intact,
+            r.merged,
+            r.partial,
+            r.breaks,
+            r.restores,
+            if r.broken_at_end {
+                ", broken at the end"
+            } else {
+                ""
+            }
+        );
+    }
     print_run_events(o);
     print_run_figures(o);
     print_t_ms(o);

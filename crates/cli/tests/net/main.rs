@@ -39,6 +39,7 @@ mod ethercrab_io;
 mod ethercrab_raw;
 mod host_stall;
 mod raw_frames;
+mod ring;
 mod send_control;
 mod soem;
 mod twin;
@@ -91,6 +92,23 @@ impl NetPair {
             );
         }
         p
+    }
+
+    /// A second veth pair between the namespaces (a ring's second master port and the
+    /// segment's ring end): its ends in A and in B.
+    fn second_pair(&self) -> (String, String) {
+        let (a, b) = (format!("{}2", self.if_a), format!("{}2", self.if_b));
+        let setup = || -> Result<(), String> {
+            ip(&["link", "add", &a, "type", "veth", "peer", "name", &b])?;
+            ip(&["link", "set", &a, "netns", &self.ns_a])?;
+            ip(&["link", "set", &b, "netns", &self.ns_b])?;
+            ip(&["-n", &self.ns_a, "link", "set", &a, "up"])?;
+            ip(&["-n", &self.ns_b, "link", "set", &b, "up"])
+        };
+        if let Err(e) = setup() {
+            panic!("this test needs a second veth pair, and this machine refused: {e}");
+        }
+        (a, b)
     }
 
     /// `ecsync args...` inside namespace `ns`.

@@ -255,6 +255,9 @@ pub struct Judge {
     lost_pd: u64,
     wkc: WkcWatch,
     last_wkc: Option<u32>,
+    /// The first datagram's index of the last frame with process data (a ring's second copy
+    /// of it completes its working counter).
+    last_pd_index: Option<u8>,
     /// The reference's SYNC0 (position, start, cycle) at the last frame that had one.
     reference: Option<(usize, u64, u32)>,
     phase_track: Tracker,
@@ -300,6 +303,7 @@ impl Judge {
             lost_pd: 0,
             wkc: WkcWatch::default(),
             last_wkc: None,
+            last_pd_index: None,
             reference: None,
             phase_track: Tracker::default(),
             phase: Stats::new(),
@@ -353,6 +357,7 @@ impl Judge {
         self.pd_frames += 1;
         self.wkc.add(info.pd_wkc, self.last_wkc);
         self.last_wkc = Some(info.pd_wkc);
+        self.last_pd_index = Some(info.index);
         if lost == Lost::No {
             self.recoveries(info.pd_wkc, t_ps);
         }
@@ -360,6 +365,37 @@ impl Judge {
         if info.outputs {
             let wire_ps = frame_wire_time_ps(frame.len());
             self.margins(seg, k, wire_ps);
+        }
+    }
+
+    /// After the segment processed a redundant master's second copy of a frame, which entered a
+    /// ring at its far end ([`Judge::frame`] saw the first copy): the slaves it reached (those
+    /// beyond a break; an intact ring's copy passes the ports alone and reaches none) have
+    /// their margins, late frames and missed pulses from it, and its working counter completes
+    /// the first copy's (the master merges the two). Nothing else counts it: the frame is the
+    /// first copy's.
+    pub fn frame_on_ring(&mut self, seg: &Segment, frame: &[u8], t_ps: u64, lost: Lost) {
+        self.last_ps = self.last_ps.max(t_ps);
+        self.al_truth(seg);
+        if lost != Lost::No {
+            return;
+        }
+        let (info, _) = parse(frame, &mut self.al);
+        let trace = seg.trace();
+        if !info.process_data || !(0..seg.len()).any(|p| trace.pu_ps(p).is_some()) {
+            return;
+        }
+        if self.last_pd_index == Some(info.index)
+            && let Some(first) = self.last_wkc
+            && info.pd_wkc > 0
+        {
+            let whole = first + info.pd_wkc;
+            self.wkc.amend(first, whole);
+            self.last_wkc = Some(whole);
+        }
+        if info.outputs {
+            let wire_ps = frame_wire_time_ps(frame.len());
+            self.margins(seg, self.pd_frames.saturating_sub(1), wire_ps);
         }
     }
 

@@ -149,6 +149,16 @@ impl WkcWatch {
         }
         ok
     }
+
+    /// The last frame's working counter was `before` and is `after` (a ring's two copies
+    /// merged): it is counted as `after` would have been.
+    pub(crate) fn amend(&mut self, before: u32, after: u32) {
+        let bad = |w: u32| w == 0 || self.usual.is_some_and(|u| u != w);
+        if bad(before) && !bad(after) {
+            self.changed -= 1;
+            self.zero -= u64::from(before == 0);
+        }
+    }
 }
 
 /// Blocks of frames kept.

@@ -14,7 +14,8 @@ use ecsync_master::bringup::BringupTimeouts;
 use ecsync_master::driver::{CycleReport, CyclicLimits, ExchangeStats, Stopped};
 use ecsync_master::network::Network;
 use ecsync_master::recovery::RecoveryConfig;
-use ecsync_master::transport::{SendMode, Transport as _};
+use ecsync_master::redundancy::{RedundancyStats, Redundant};
+use ecsync_master::transport::{SendMode, Transport};
 use ecsync_net::rt::RtReport;
 use ecsync_net::tx_stamp::TxStampSource;
 use ecsync_net::{NetError, RealLink, SendControl};
@@ -22,8 +23,8 @@ use std::io::Write;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use summary::{
-    ControllerOut, LeftOpRow, RateFit, RecoveryRow, RunOut, SendOut, SyncCounterRow, TmsOut,
-    csv_row, latency,
+    ControllerOut, LeftOpRow, RateFit, RecoveryRow, RedundancyOut, RunOut, SendOut, SyncCounterRow,
+    TmsOut, csv_row, latency,
 };
 
 /// How the cyclic phase runs.
@@ -116,8 +117,8 @@ impl RealCycles {
     }
 }
 
-impl CycleObserver<RealLink> for RealCycles {
-    fn on_cycle(&mut self, _: &mut RealLink, c: &CycleReport) {
+impl<T> CycleObserver<T> for RealCycles {
+    fn on_cycle(&mut self, _: &mut T, c: &CycleReport) {
         self.cycles += 1;
         self.skipped += c.skipped_before;
         let r = &c.record;
@@ -161,6 +162,32 @@ impl CycleObserver<RealLink> for RealCycles {
     }
 }
 
+/// A real network's transport: a [`RealLink`], or a ring's two ports in redundancy
+/// ([`Redundant`] over a link with its second port open, [`RealLink::open_ring`]).
+pub trait RealTransport: Transport<Error = NetError> {
+    /// The link (its first port's socket, its clock and counters).
+    fn link(&self) -> &RealLink;
+    /// What the ring did, in redundancy.
+    fn redundancy(&self) -> Option<RedundancyStats> {
+        None
+    }
+}
+
+impl RealTransport for RealLink {
+    fn link(&self) -> &RealLink {
+        self
+    }
+}
+
+impl RealTransport for Redundant<'_, RealLink> {
+    fn link(&self) -> &RealLink {
+        self.get_ref()
+    }
+    fn redundancy(&self) -> Option<RedundancyStats> {
+        Some(self.stats())
+    }
+}
+
 /// A cyclic phase as it ended.
 pub struct CyclicPhase {
     /// The session: its engine (the method, its health) and driver (counters, recoveries).
@@ -189,8 +216,8 @@ impl CyclicPhase {
 /// Runs the cyclic phase of `net` (brought up on `link`) under `method` until a limit of
 /// `o`, the `stop` flag or the network's loss, writing each cycle to `csv` (with its header
 /// already written) if given.
-pub fn run_cyclic(
-    link: &mut RealLink,
+pub fn run_cyclic<T: RealTransport>(
+    link: &mut T,
     net: &Network,
     method: Method,
     o: &CyclicOptions,
@@ -229,7 +256,7 @@ pub fn run_cyclic(
         t_ms_from_tx_stamp: o.t_ms_from_tx_stamp,
     };
     let mut session = Session::new(net, method, aim, cfg, |_| limits)?;
-    let mut cycles = RealCycles::new(net, link.send_control(), csv);
+    let mut cycles = RealCycles::new(net, link.link().send_control(), csv);
     let t0 = Instant::now();
     let stopped = session.run(link, u64::MAX, stop, &mut cycles);
     Ok(CyclicPhase {
@@ -279,11 +306,14 @@ pub struct RunHead {
     pub t_ms_note: Option<String>,
     /// The per-cycle CSV's path.
     pub csv: Option<String>,
+    /// The ring's second interface, in redundancy.
+    pub ring_iface: Option<String>,
 }
 
 impl RunOut {
     /// The summary of a run: its head, its cyclic phase `c` on `link`.
-    pub fn new(h: RunHead, c: &CyclicPhase, link: &RealLink) -> RunOut {
+    pub fn new<T: RealTransport>(h: RunHead, c: &CyclicPhase, tr: &T) -> RunOut {
+        let link = tr.link();
         let driver = c.session.driver();
         let eng = c.session.engine();
         let first = c.session.first().as_ns();
@@ -380,6 +410,16 @@ impl RunOut {
                 })
                 .collect(),
             link_down_errors: link.link_down_errors(),
+            redundancy: tr.redundancy().map(|r| RedundancyOut {
+                ring_iface: h.ring_iface.clone().unwrap_or_default(),
+                intact: r.intact,
+                merged: r.merged,
+                partial: r.partial,
+                breaks: r.breaks,
+                restores: r.restores,
+                broken_at_end: r.broken,
+                ring_link_down_errors: link.ring_link_down_errors(),
+            }),
             master_clock_steps: eng.health().master_clock_steps,
             csv: h.csv,
         }

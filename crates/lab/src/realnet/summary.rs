@@ -264,6 +264,31 @@ pub struct RunOut {
     pub master_clock_steps: u32,
     /// The per-cycle CSV's path.
     pub csv: Option<String>,
+    /// Cable redundancy (`run --ring-iface`): what the ring did; absent on a line.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub redundancy: Option<RedundancyOut>,
+}
+
+/// What a ring did under `run --ring-iface`, as the frames showed it (every frame sent on
+/// both ports, the copies made one: `ecsync_master::redundancy`).
+#[derive(Debug, Serialize)]
+pub struct RedundancyOut {
+    /// The master's second port.
+    pub ring_iface: String,
+    /// Frames that went round the intact ring.
+    pub intact: u64,
+    /// Frames made of two copies, one from each side of a break.
+    pub merged: u64,
+    /// Frames of which only one copy came back by the deadline.
+    pub partial: u64,
+    /// Times the ring was found broken.
+    pub breaks: u64,
+    /// Times it was found whole again after a break.
+    pub restores: u64,
+    /// Broken at the end of the run.
+    pub broken_at_end: bool,
+    /// Sends and receives the second port's interface refused (it was down).
+    pub ring_link_down_errors: u64,
 }
 
 /// The last cycle's controller log.

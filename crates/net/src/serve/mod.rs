@@ -82,6 +82,17 @@ pub struct ServeStats {
     pub second_master_frames: u64,
     /// Times the served interface was taken down or up with the first slave's link.
     pub carrier_changes: u64,
+    /// Frames received on a ring's second interface ([`ServeConfig::ring`]; not in
+    /// `received`).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub received_on_ring: u64,
+    /// Frames sent back out of the ring's second interface (in `answered`).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub answered_on_ring: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 /// A reply this much after its wire time is counted late in [`ServeStats::host_late`], ns:
@@ -105,6 +116,11 @@ pub struct ServeConfig<'a> {
     pub pace: Pace,
     /// The served interface, taken down while the first slave's link is (`None`: never).
     pub carrier_iface: Option<&'a str>,
+    /// A ring's second interface: where the slave with a ring port (`ring_port`) is cabled
+    /// back to the master's second port. Frames arriving there enter the ring at its far end
+    /// ([`Segment::process_secondary`]), and every frame leaves by the interface of the port
+    /// it left the ring by (`None`: one interface; a frame leaving at the far end is lost).
+    pub ring: Option<&'a PacketSocket>,
 }
 
 /// The segment and its faults, to change between frames (a control command).
@@ -126,6 +142,9 @@ pub trait ServeHooks {
     /// segment returned it (untagged; the request when a fault dropped it on the way out,
     /// `lost_out`); `lost_back` when a fault dropped it after the slaves processed it.
     fn frame(&mut self, _segment: &Segment, _frame: &[u8], _t_ps: u64, _lost: FrameLoss) {}
+    /// After a frame that entered a ring at its far end (on [`ServeConfig::ring`]: a redundant
+    /// master's second copy), as [`ServeHooks::frame`] for the first port's frames.
+    fn frame_on_ring(&mut self, _segment: &Segment, _frame: &[u8], _t_ps: u64, _lost: FrameLoss) {}
     /// A reply left `late_ns` after its wire time.
     fn reply_sent(&mut self, _late_ns: u64) {}
     /// A fault started or ended.
@@ -148,6 +167,9 @@ impl ServeHooks for () {}
 impl<H: ServeHooks> ServeHooks for &mut H {
     fn frame(&mut self, segment: &Segment, frame: &[u8], t_ps: u64, lost: FrameLoss) {
         (**self).frame(segment, frame, t_ps, lost);
+    }
+    fn frame_on_ring(&mut self, segment: &Segment, frame: &[u8], t_ps: u64, lost: FrameLoss) {
+        (**self).frame_on_ring(segment, frame, t_ps, lost);
     }
     fn reply_sent(&mut self, late_ns: u64) {
         (**self).reply_sent(late_ns);
@@ -182,6 +204,8 @@ struct Pending {
     due_ns: u64,
     /// A reply's first copy (its lateness is measured), not a second responder's.
     reply: bool,
+    /// Out of the ring's second interface.
+    ring: bool,
     bytes: Vec<u8>,
 }
 
@@ -191,18 +215,20 @@ struct Pending {
 struct Outbox {
     queue: VecDeque<Pending>,
     spare: Vec<Vec<u8>>,
-    /// When the last reply leaves: a later one cannot overtake it on the wire.
-    last_due_ns: u64,
+    /// When the last reply leaves on each interface: a later one cannot overtake it on the
+    /// wire.
+    last_due_ns: [u64; 2],
 }
 
 impl Outbox {
-    fn push(&mut self, due_ns: u64, reply: bool, frame: &[u8]) {
+    fn push(&mut self, due_ns: u64, reply: bool, ring: bool, frame: &[u8]) {
         let mut bytes = self.spare.pop().unwrap_or_default();
         bytes.clear();
         bytes.extend_from_slice(frame);
         let p = Pending {
             due_ns,
             reply,
+            ring,
             bytes,
         };
         let at = self.queue.partition_point(|q| q.due_ns <= due_ns);
@@ -259,7 +285,11 @@ impl<H: ServeHooks> Loop<'_, H> {
                 break;
             }
             let p = self.outbox.queue.pop_front().expect("a reply is due");
-            send(self.sock, &p.bytes, &mut self.stats)?;
+            let sock = match (p.ring, self.config.ring) {
+                (true, Some(r)) => r,
+                _ => self.sock,
+            };
+            send(sock, &p.bytes, &mut self.stats)?;
             if p.reply && self.config.pace == Pace::Wire {
                 let late = now - due;
                 self.stats.paced += 1;
@@ -345,7 +375,8 @@ impl<H: ServeHooks> Loop<'_, H> {
         if let Some(d) = faults.next_due_ps() {
             until = until.min(self.t0_mono + d / 1000);
         }
-        let ready = match self.sock.wait(until.saturating_sub(now).max(1)) {
+        let socks = [Some(self.sock), self.config.ring];
+        let ready = match sys::wait_any(socks, until.saturating_sub(now).max(1)) {
             Ok(r) => r,
             Err(e) if sys::link_is_down(&e) => {
                 self.stats.link_down_errors += 1;
@@ -359,18 +390,19 @@ impl<H: ServeHooks> Loop<'_, H> {
                 });
             }
         };
-        if ready == Ready::ErrorQueue {
-            // Transmit timestamps of the replies: not needed here, but they must be read or
-            // every wait returns at once.
-            while self
-                .sock
-                .take_tx_timestamp()
-                .map_err(|source| NetError::Io {
-                    what: "TX timestamp",
-                    source,
-                })?
-                .is_some()
-            {}
+        for (sock, ready) in socks.into_iter().zip(ready) {
+            if let (Some(sock), Ready::ErrorQueue) = (sock, ready) {
+                // Transmit timestamps of the replies: not needed here, but they must be read
+                // or every wait returns at once.
+                while sock
+                    .take_tx_timestamp()
+                    .map_err(|source| NetError::Io {
+                        what: "TX timestamp",
+                        source,
+                    })?
+                    .is_some()
+                {}
+            }
         }
         Ok(())
     }
@@ -379,6 +411,7 @@ impl<H: ServeHooks> Loop<'_, H> {
     /// time `t_ps`, and came back at `back_ps`.
     fn answer(
         &mut self,
+        ring: bool,
         frame: &[u8],
         mono_ns: u64,
         t_ps: u64,
@@ -390,8 +423,9 @@ impl<H: ServeHooks> Loop<'_, H> {
             // the frame's length on the wire.
             Pace::Wire => {
                 let wire_ps = back_ps.saturating_sub(t_ps) + frame_wire_time_ps(frame.len());
-                let due = (mono_ns + wire_ps.div_ceil(1000)).max(self.outbox.last_due_ns);
-                self.outbox.last_due_ns = due;
+                let last = &mut self.outbox.last_due_ns[usize::from(ring)];
+                let due = (mono_ns + wire_ps.div_ceil(1000)).max(*last);
+                *last = due;
                 due
             }
             Pace::None => sys::monotonic_ns(),
@@ -401,12 +435,13 @@ impl<H: ServeHooks> Loop<'_, H> {
             self.stats.deferred_sends += 1;
         }
         if self.config.pace == Pace::None && fate.extra_delay_ps == 0 {
-            send(self.sock, frame, &mut self.stats)?;
+            let sock = self.config.ring.filter(|_| ring).unwrap_or(self.sock);
+            send(sock, frame, &mut self.stats)?;
         } else {
-            self.outbox.push(due, true, frame);
+            self.outbox.push(due, true, ring, frame);
         }
         if let Some(lag) = fate.copy_after_ps {
-            self.outbox.push(due + lag / 1000, false, frame);
+            self.outbox.push(due + lag / 1000, false, ring, frame);
             self.stats.deferred_sends += 1;
         }
         Ok(())
@@ -426,7 +461,6 @@ pub fn serve<W: Write, H: ServeHooks>(
     stop: &AtomicBool,
     hooks: H,
 ) -> Result<ServeStats, NetError> {
-    let io = |what| move |source| NetError::Io { what, source };
     // Replies are timed to the microsecond: no batching of wake-ups (best effort).
     let _ = sys::set_timer_slack_ns(1);
     let mut lp = Loop {
@@ -445,7 +479,6 @@ pub fn serve<W: Write, H: ServeHooks>(
     };
     // Room for the longest frame and its tags.
     let mut buf = vec![0u8; 2048];
-    let room = buf.len() - 4 * MAX_TAGS;
     // Kernel stamps onto the monotonic clock: a frame stamped across a step of the wall clock
     // is taken as arriving now (its stamp would put it off by the step).
     let mut rt_map = crate::wall_clock::RealtimeMap::new();
@@ -454,41 +487,98 @@ pub fn serve<W: Write, H: ServeHooks>(
         lp.play_faults(segment, faults);
         lp.poll(segment, faults);
         let rx_epoch = rt_map.epoch();
-        let got = match sock.recv(&mut buf[..room]) {
-            Ok(r) => r,
-            Err(e) if sys::link_is_down(&e) => {
-                // The interface is down: wait and try again, as a slave waits for its link.
-                lp.stats.link_down_errors += 1;
-                lp.wait(faults)?;
-                std::thread::sleep(std::time::Duration::from_millis(1));
-                continue;
+        // The first interface's frames first: a redundant master sends its first port's copy
+        // first.
+        let mut got = None;
+        let downs = lp.stats.link_down_errors;
+        for (ring, sock) in [(false, Some(sock)), (true, config.ring)] {
+            let Some(sock) = sock else { continue };
+            if let Some(r) = lp.receive(sock, &mut buf)? {
+                got = Some((ring, r));
+                break;
             }
-            Err(e) => return Err(io("receive")(e)),
-        };
-        let Some(r) = got else {
+        }
+        let Some((ring, r)) = got else {
             lp.wait(faults)?;
+            if lp.stats.link_down_errors != downs {
+                // An interface is down: try again in a while, as a slave waits for its link.
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
             continue;
         };
-        lp.stats.received += 1;
-        if r.truncated {
-            lp.stats.truncated += 1;
-            continue;
-        }
-        if r.len > 6 && buf[6] & 0x02 != 0 {
-            lp.stats.marked_on_arrival += 1;
-        }
         // The instant the frame arrived, on the segment's time line (ps since serving began).
         let mono = r
             .kernel_rx_realtime_ns
             .and_then(|rt| rt_map.to_monotonic_ns(rt, rx_epoch))
             .unwrap_or_else(sys::monotonic_ns);
-        let t_ps = (mono.saturating_sub(lp.t0_mono))
+        lp.frame_in(
+            segment,
+            faults,
+            capture.as_deref_mut(),
+            &mut buf,
+            r,
+            ring,
+            mono,
+        )?;
+    }
+    Ok(lp.stats)
+}
+
+impl<H: ServeHooks> Loop<'_, H> {
+    /// A frame from `sock`, if one is there (an interface that is down is counted in
+    /// `link_down_errors`).
+    fn receive(
+        &mut self,
+        sock: &PacketSocket,
+        buf: &mut [u8],
+    ) -> Result<Option<sys::Received>, NetError> {
+        let room = buf.len() - 4 * MAX_TAGS;
+        match sock.recv(&mut buf[..room]) {
+            Ok(r) => Ok(r),
+            Err(e) if sys::link_is_down(&e) => {
+                self.stats.link_down_errors += 1;
+                Ok(None)
+            }
+            Err(e) => Err(NetError::Io {
+                what: "receive",
+                source: e,
+            }),
+        }
+    }
+
+    /// A frame that arrived at CLOCK_MONOTONIC `mono` on the first interface or (`ring`) the
+    /// ring's second: through the faults and the segment, answered on the interface of the
+    /// port it left by.
+    #[allow(clippy::too_many_arguments)]
+    fn frame_in<W: Write>(
+        &mut self,
+        segment: &mut Segment,
+        faults: &mut FaultPlayer,
+        mut capture: Option<&mut PcapCapture<W>>,
+        buf: &mut [u8],
+        r: sys::Received,
+        ring: bool,
+        mono: u64,
+    ) -> Result<(), NetError> {
+        if ring {
+            self.stats.received_on_ring += 1;
+        } else {
+            self.stats.received += 1;
+        }
+        if r.truncated {
+            self.stats.truncated += 1;
+            return Ok(());
+        }
+        if r.len > 6 && buf[6] & 0x02 != 0 {
+            self.stats.marked_on_arrival += 1;
+        }
+        let t_ps = (mono.saturating_sub(self.t0_mono))
             .saturating_mul(1000)
-            .max(lp.last_ps);
-        lp.last_ps = t_ps;
-        let Some((len, tags)) = untag(&mut buf, r.len, r.vlan) else {
-            lp.stats.not_returned += 1;
-            continue;
+            .max(self.last_ps);
+        self.last_ps = t_ps;
+        let Some((len, tags)) = untag(buf, r.len, r.vlan) else {
+            self.stats.not_returned += 1;
+            return Ok(());
         };
         if let Some(c) = capture.as_deref_mut() {
             // As it was on the wire, tags included.
@@ -496,48 +586,59 @@ pub fn serve<W: Write, H: ServeHooks>(
             retag(&mut wire, len, &tags);
             let _ = c.record(t_ps, &wire);
         }
-        if let Some(found) = lp.masters.see(&buf[..len]) {
-            lp.hooks.warning(&found.to_string());
+        if let Some(found) = self.masters.see(&buf[..len]) {
+            self.hooks.warning(&found.to_string());
         }
-        lp.stats.second_master_frames = lp.masters.other_address_frames;
+        self.stats.second_master_frames = self.masters.other_address_frames;
         let fate = faults.before_frame(segment, &buf[..len], t_ps);
-        lp.fault_events(segment, faults);
-        if fate.lost_out {
-            lp.stats.dropped_by_faults += 1;
-            lp.hooks.frame(segment, &buf[..len], t_ps, FrameLoss::Out);
-            continue;
-        }
-        let out = segment.process(&mut buf[..len], t_ps);
-        let lost_back = fate.lost_back && out.returned_sof_ps.is_some();
-        lp.hooks.frame(
-            segment,
-            &buf[..len],
-            t_ps,
-            if lost_back {
-                FrameLoss::Back
+        self.fault_events(segment, faults);
+        let judged = |hooks: &mut H, seg: &Segment, frame: &[u8], lost| {
+            if ring {
+                hooks.frame_on_ring(seg, frame, t_ps, lost);
             } else {
-                FrameLoss::No
-            },
-        );
+                hooks.frame(seg, frame, t_ps, lost);
+            }
+        };
+        if fate.lost_out {
+            self.stats.dropped_by_faults += 1;
+            judged(&mut self.hooks, segment, &buf[..len], FrameLoss::Out);
+            return Ok(());
+        }
+        let out = if ring {
+            segment.process_secondary(&mut buf[..len], t_ps)
+        } else {
+            segment.process(&mut buf[..len], t_ps)
+        };
+        let lost_back = fate.lost_back && out.returned_sof_ps.is_some();
+        let loss = if lost_back {
+            FrameLoss::Back
+        } else {
+            FrameLoss::No
+        };
+        judged(&mut self.hooks, segment, &buf[..len], loss);
         if lost_back {
-            lp.stats.dropped_by_faults += 1;
-            continue;
+            self.stats.dropped_by_faults += 1;
+            return Ok(());
         }
         match out.returned_sof_ps {
-            // Out at a ring's far end (a segment with `ring_port`): this serve has one
-            // interface, so it does not come back to the master here.
-            Some(_) if out.returned_port != 0 => lp.stats.not_returned += 1,
+            // Out at a ring's far end (a segment with `ring_port`) where this serve has one
+            // interface: it does not come back to the master.
+            Some(_) if out.returned_port != 0 && self.config.ring.is_none() => {
+                self.stats.not_returned += 1
+            }
             Some(back_ps) => {
-                let n = retag(&mut buf, len, &tags);
-                lp.answer(&buf[..n], mono, t_ps, back_ps, fate)?;
-                lp.stats.answered += 1;
-                lp.stats.answered_tagged += u64::from(tags.len() > 0);
-                if let Some(c) = capture.as_deref_mut() {
+                let out_ring = out.returned_port != 0;
+                let n = retag(buf, len, &tags);
+                self.answer(out_ring, &buf[..n], mono, t_ps, back_ps, fate)?;
+                self.stats.answered += 1;
+                self.stats.answered_on_ring += u64::from(out_ring);
+                self.stats.answered_tagged += u64::from(tags.len() > 0);
+                if let Some(c) = capture {
                     let _ = c.record(back_ps, &buf[..n]);
                 }
             }
-            None => lp.stats.not_returned += 1,
+            None => self.stats.not_returned += 1,
         }
+        Ok(())
     }
-    Ok(lp.stats)
 }

@@ -24,7 +24,7 @@ pub use process::{
     enter_netns, lock_memory, monotonic_ns, pin_to_cpu, realtime_ns, set_fifo, set_timer_slack_ns,
     sleep_until_monotonic,
 };
-pub use socket::{PacketSocket, Ready, Received, TxStamps, link_is_down};
+pub use socket::{PacketSocket, Ready, Received, TxStamps, link_is_down, wait_any};
 
 /// EtherType of EtherCAT frames.
 pub const ETHERTYPE_ETHERCAT: u16 = 0x88a4;

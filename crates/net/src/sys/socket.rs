@@ -508,34 +508,7 @@ impl PacketSocket {
 
     /// Waits until a frame can be read, a transmit timestamp is queued, or `timeout_ns` passed.
     pub fn wait(&self, timeout_ns: u64) -> io::Result<Ready> {
-        let mut p = libc::pollfd {
-            fd: self.fd.as_raw_fd(),
-            events: libc::POLLIN,
-            revents: 0,
-        };
-        let ts = libc::timespec {
-            tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
-            tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
-        };
-        // SAFETY: `p` and `ts` are live locals; one pollfd is passed; no signal mask.
-        let r = unsafe { libc::ppoll(&mut p, 1, &ts, std::ptr::null()) };
-        if r < 0 {
-            let e = io::Error::last_os_error();
-            return if e.raw_os_error() == Some(libc::EINTR) {
-                Ok(Ready::Nothing)
-            } else {
-                Err(e)
-            };
-        }
-        Ok(if p.revents & libc::POLLIN != 0 {
-            Ready::Frame
-        } else if p.revents & libc::POLLERR != 0 {
-            // The error queue holds a transmit timestamp: it must be read, or every poll
-            // returns at once.
-            Ready::ErrorQueue
-        } else {
-            Ready::Nothing
-        })
+        Ok(wait_any([Some(self), None], timeout_ns)?[0])
     }
 
     /// Waits up to `timeout_ns` for room to send.
@@ -570,6 +543,43 @@ pub fn link_is_down(e: &io::Error) -> bool {
             | Some(libc::ENOBUFS)
             | Some(libc::EAGAIN)
     )
+}
+
+/// Waits up to `timeout_ns` for a frame (or a transmit timestamp) on either socket: what each
+/// one has (two sockets in one wait: the two ports of a ring's master, or of a served ring).
+pub fn wait_any(socks: [Option<&PacketSocket>; 2], timeout_ns: u64) -> io::Result<[Ready; 2]> {
+    let fd = |s: Option<&PacketSocket>| s.map_or(-1, |s| s.fd.as_raw_fd());
+    // A negative fd is ignored by poll: one socket waits alone.
+    let mut p = socks.map(|s| libc::pollfd {
+        fd: fd(s),
+        events: libc::POLLIN,
+        revents: 0,
+    });
+    let ts = libc::timespec {
+        tv_sec: (timeout_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (timeout_ns % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: `p` and `ts` are live locals; two pollfds are passed; no signal mask.
+    let r = unsafe { libc::ppoll(p.as_mut_ptr(), 2, &ts, std::ptr::null()) };
+    if r < 0 {
+        let e = io::Error::last_os_error();
+        return if e.raw_os_error() == Some(libc::EINTR) {
+            Ok([Ready::Nothing; 2])
+        } else {
+            Err(e)
+        };
+    }
+    Ok(p.map(|p| {
+        if p.revents & libc::POLLIN != 0 {
+            Ready::Frame
+        } else if p.revents & libc::POLLERR != 0 {
+            // The error queue holds a transmit timestamp: it must be read, or every poll
+            // returns at once.
+            Ready::ErrorQueue
+        } else {
+            Ready::Nothing
+        }
+    }))
 }
 
 /// What [`PacketSocket::wait`] saw.
