@@ -44,6 +44,8 @@ def parse():
     p.add_argument("--jitter-every", type=int, default=0, metavar="N")
     p.add_argument("--jitter-us", type=int, default=0, metavar="U")
     p.add_argument("--max-wkc-errors", type=int, default=0)
+    p.add_argument("--ring-iface", default=None,
+                   help="SOEM's cable redundancy: the second interface (the ring's far end)")
     p.add_argument("--settle-us", type=int, default=100,
                    help="|DC phase - target| to hold 200 cycles before OP is requested")
     p.add_argument("--recv-timeout-us", type=int, default=3000,
@@ -124,7 +126,8 @@ def main():
     a = parse()
     sched = realtime()
     m = pysoem.Master()
-    m.open(a.iface)
+    # SOEM's redundancy: the second NIC where the ring's far end is cabled.
+    m.open(a.iface, a.ring_iface)
     dc = bring_up(m, a)
     cycle = a.cycle_us * 1000
     sync = Sync(cycle, a.offset_us * 1000)
