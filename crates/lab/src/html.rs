@@ -258,8 +258,9 @@ fn per_slave_table(h: &mut String, out: &SummaryOut) {
     for s in &mo.ground_truth.per_slave {
         let _ = write!(
             h,
-            "<tr><td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
+            "<tr><td class=l>{}{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.1}</td></tr>",
             esc(&s.name),
+            if s.on_sync1 { " [SYNC1]" } else { "" },
             s.position,
             us3(s.margin_min_ns),
             us3(s.margin_p001_ns),
@@ -272,6 +273,12 @@ fn per_slave_table(h: &mut String, out: &SummaryOut) {
         );
     }
     let _ = write!(h, "</table>");
+    if mo.ground_truth.per_slave.iter().any(|s| s.on_sync1) {
+        let _ = write!(
+            h,
+            "<p>[SYNC1]: an oversampling terminal, which takes its outputs at SYNC1 events: its margin, late frames and missed pulses are SYNC1's, on the cycle's grid where the others' SYNC0 pulses are, and its own count is of SYNC1 events.</p>"
+        );
+    }
 }
 
 fn letter_table(h: &mut String, out: &SummaryOut, order: &[String]) {

@@ -288,6 +288,9 @@ fn oversampling_terminals_count_the_ground_truths_misses_on_six_random_networks(
             .unwrap_or_else(|e| panic!("network {k}: {e}\n{text}"));
         let out = summarize(&c);
         for (m, mo) in &out.methods {
+            // The terminals, and only they, are marked as running on SYNC1.
+            let on_sync1 = mo.ground_truth.per_slave.iter().filter(|s| s.on_sync1);
+            assert_eq!(on_sync1.count(), made, "network {k}, {m}\n{text}");
             let counted: Vec<_> = mo
                 .ground_truth
                 .per_slave

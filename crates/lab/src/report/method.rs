@@ -60,8 +60,10 @@ pub(super) fn method_out(
                     let mut missed = 0;
                     let mut drive: Option<u64> = None;
                     let mut latest = f64::NEG_INFINITY;
+                    let mut on_sync1 = false;
                     for r in rs {
                         if let Some(x) = r.per_slave.get(i) {
+                            on_sync1 |= x.on_sync1;
                             st.merge(&x.margin);
                             late += x.late_frames;
                             missed += x.sync0_missed;
@@ -82,6 +84,7 @@ pub(super) fn method_out(
                         sync0_missed: missed,
                         drive_sm_events_missed: drive,
                         smallest_safe_shift_pct: shift_pct(latest, period),
+                        on_sync1,
                     }
                 })
                 .collect()

@@ -58,6 +58,10 @@ pub struct SlaveOut {
     pub drive_sm_events_missed: Option<u64>,
     /// The smallest SYNC0 shift this slave needs, % of the cycle (rounded up to 0.1 %).
     pub smallest_safe_shift_pct: f64,
+    /// It runs on SYNC1 (an oversampling terminal): its margin, late frames and missed
+    /// pulses are its SYNC1 events', which fall where the others' SYNC0 pulses do.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub on_sync1: bool,
 }
 
 /// The ground truth of a method, all runs pooled.

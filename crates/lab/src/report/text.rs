@@ -1,6 +1,6 @@
 //! What the terminal and summary.csv get: the verdict, Table 1, the ground truth, per slave.
 
-use super::{Indicators, SummaryOut, us};
+use super::{Indicators, SlaveOut, SummaryOut, us};
 use crate::letter::Row;
 use crate::stats::Summary;
 use std::fmt::Write as _;
@@ -224,9 +224,16 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
         "Per slave with {m}: SYNC0 margin (SYNC0 minus the frame's last bit at the slave) and the shift each needs:"
     );
     let all = &mo.ground_truth.per_slave;
+    let shown_name = |s: &SlaveOut| {
+        if s.on_sync1 {
+            format!("{} [SYNC1]", s.name)
+        } else {
+            s.name.clone()
+        }
+    };
     let name_w = all
         .iter()
-        .map(|s| s.name.chars().count())
+        .map(|s| shown_name(s).chars().count())
         .max()
         .unwrap_or(0)
         .max(5);
@@ -260,7 +267,7 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
         let _ = writeln!(
             t,
             "{:<name_w$}{:>9}{:>16.1}{:>16.1}{:>16.1}{:>8}{:>10}{:>10}{:>14.1}",
-            s.name,
+            shown_name(s),
             s.position,
             s.margin_min_ns / 1000.0,
             s.margin_p001_ns / 1000.0,
@@ -278,6 +285,14 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
          the one before, the ground truth of what a drive counts; drive: the drive's own \
          SM-event-missed count, 0x1C32:0B, over the same cycles, - without CoE DC mode)"
     );
+    if all.iter().any(|s| s.on_sync1) {
+        let _ = writeln!(
+            t,
+            "([SYNC1]: an oversampling terminal, which takes its outputs at SYNC1 events: its \
+             margin, late frames and missed pulses are SYNC1's, on the cycle's grid where the \
+             others' SYNC0 pulses are, and its own count is of SYNC1 events)"
+        );
+    }
     if all.len() > shown.len() {
         let _ = writeln!(
             t,

@@ -76,6 +76,7 @@ fn empty_result(
             last_outputs_ns: None,
             drive_sm_events_missed: None,
             drive_count_at_start: None,
+            on_sync1: false,
         })
         .collect();
     RunResult {

@@ -466,6 +466,7 @@ impl GroundTruth {
                 let now = esc.sm_events_missed();
                 let start = *st.drive_count_at_start.get_or_insert(now);
                 st.drive_sm_events_missed = Some(now.saturating_sub(start));
+                st.on_sync1 = esc.runs_on_sync1();
             }
             if keep {
                 self.margins.push(margin);

@@ -193,6 +193,9 @@ pub struct SlaveTruth {
     pub drive_sm_events_missed: Option<u64>,
     /// The drive's counter after the first measured frame.
     pub drive_count_at_start: Option<u64>,
+    /// It takes its outputs at SYNC1 events (an oversampling terminal, 0x1C32:01 = 3): the
+    /// pulses above are SYNC1's, on the cycle's grid where the others' SYNC0 is.
+    pub on_sync1: bool,
 }
 
 /// The drift the frames underwent while a method averaged its init frames: the reference's
