@@ -216,6 +216,7 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
                 self.stats.broken
             }
             (None, Some(_)) => {
+                // Came back on the second port (`recv` delivers no other alone).
                 merge(&s.sent[..n], &s.sent[..n], &s.second_buf[..n], buf);
                 self.stats.partial += 1;
                 true
@@ -359,11 +360,18 @@ impl<T: SecondPort> Transport for Redundant<'_, T> {
             match self.inner.recv(&mut self.rx, deadline)? {
                 Some(r) => self.file(r),
                 None => {
-                    // The deadline: a frame of which one copy came back, the oldest first.
+                    // The deadline: a frame of which one copy came back processed, the oldest
+                    // first: the first port's on the port it left by (the ring broken, the
+                    // far side's copy late), or the second port's on the second (the same,
+                    // the near side's late). A second copy that went round the ports alone
+                    // is no frame (the ring is whole and the first copy late): the frame is
+                    // lost, as on one port, and a first copy that comes later is late.
                     let partial = (0..SLOTS)
                         .filter(|&k| {
                             let s = &self.slots[k];
-                            s.used && !s.delivered && (s.first.is_some() || s.second.is_some())
+                            s.used
+                                && !s.delivered
+                                && (s.first.is_some() || s.second.is_some_and(|g| g.port == 1))
                         })
                         .min_by_key(|&k| self.slots[k].serial);
                     return Ok(partial.map(|k| self.deliver(k, buf)));

@@ -106,3 +106,87 @@ fn malformed_frames_pass_untouched() {
         second_copy(&f[..n], &mut o);
     }
 }
+
+/// Two ports that give back what the test queued, at once, then nothing until the deadline.
+struct TwoPorts {
+    back: Vec<(Vec<u8>, u8)>,
+}
+
+impl Transport for TwoPorts {
+    type Error = std::io::Error;
+    fn now(&mut self) -> MasterInstant {
+        MasterInstant::from_ns(0)
+    }
+    fn sleep_until(&mut self, _: MasterInstant) {}
+    fn send_with<F: FnOnce(&mut [u8])>(
+        &mut self,
+        len: usize,
+        at: MasterInstant,
+        fill: F,
+    ) -> Result<MasterInstant, std::io::Error> {
+        let mut b = vec![0; len];
+        fill(&mut b);
+        Ok(at)
+    }
+    fn recv(
+        &mut self,
+        buf: &mut Vec<u8>,
+        _: MasterInstant,
+    ) -> Result<Option<Received>, std::io::Error> {
+        let Some((f, port)) = self.back.pop() else {
+            return Ok(None);
+        };
+        buf.clear();
+        buf.extend_from_slice(&f);
+        Ok(Some(Received {
+            len: f.len(),
+            received: MasterInstant::from_ns(0),
+            tx_stamp: None,
+            stamped: false,
+            truncated: false,
+            port,
+        }))
+    }
+}
+
+impl SecondPort for TwoPorts {
+    fn send_secondary(&mut self, _: &[u8], _: MasterInstant) -> Result<(), std::io::Error> {
+        Ok(())
+    }
+}
+
+/// At the deadline: the second port's copy alone, back on the first port (it went round the
+/// whole ring's ports: the ring is whole, the first copy late) is no frame, and no break; the
+/// second copy alone back on the second port (the ring broken, the near side's copy late) is
+/// the far side's frame, and a break.
+#[test]
+fn a_second_copy_alone_is_a_frame_only_where_the_far_side_processed_it() {
+    let sent = frame(&[(12, 7, 0, &[0xaa, 0, 0, 0], 0)], 1);
+    let round = frame(&[(12, 7, 0, &[0xaa, 0, 0, 0], 0)], 0);
+    let far = frame(&[(12, 7, 0, &[0xaa, 0, 0, 0x22], 3)], 0);
+    let mut tr = TwoPorts { back: Vec::new() };
+    let mut red = Redundant::new(&mut tr);
+    let mut buf = Vec::new();
+    let at = MasterInstant::from_ns(0);
+    red.send(&sent, at).unwrap();
+    red.inner().back.push((round, 0));
+    assert!(red.recv(&mut buf, at).unwrap().is_none());
+    assert_eq!((red.stats().partial, red.stats().breaks), (0, 0));
+    let sent = frame(&[(12, 8, 0, &[0xaa, 0, 0, 0], 0)], 1);
+    let far = {
+        let mut f = far;
+        f[FIRST_DATAGRAM + 1] = 8;
+        f
+    };
+    red.send(&sent, at).unwrap();
+    red.inner().back.push((far, 1));
+    let r = red
+        .recv(&mut buf, at)
+        .unwrap()
+        .expect("the far side's frame");
+    assert_eq!(
+        &buf[..r.len],
+        &frame(&[(12, 8, 0, &[0xaa, 0, 0, 0x22], 3)], 1)[..]
+    );
+    assert_eq!((red.stats().partial, red.stats().breaks), (1, 1));
+}

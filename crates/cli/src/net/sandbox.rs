@@ -1,7 +1,9 @@
 //! `ecsync serve --sandbox -- COMMAND`: the segment served in a private network (a network
 //! namespace, inside a user namespace of its own when the caller is not privileged: no root
 //! needed) on one end of a veth pair, COMMAND run on the other end with `ECSYNC_IFACE` naming
-//! it; serving stops when COMMAND exits, and serve exits with its code. And the readiness
+//! it; serving stops when COMMAND exits, and serve exits with its code. With `--ring-iface` a
+//! second pair: the served ring's far end and the master's second port (`ECSYNC_RING_IFACE`).
+//! And the readiness
 //! handshake of every `serve`: one JSON line on stdout once the segment is serving (and the
 //! same in `--ready-file`).
 
@@ -22,6 +24,8 @@ use std::time::{Duration, Instant};
 const SERVED_IFACE: &str = "ecsync0";
 /// The end COMMAND gets (`ECSYNC_IFACE`).
 const MASTER_IFACE: &str = "master0";
+/// With a ring (`--ring-iface`), the second pair's end COMMAND gets (`ECSYNC_RING_IFACE`).
+const MASTER_RING_IFACE: &str = "master1";
 /// How long a COMMAND still running when serving stops has, after the signal, before SIGKILL.
 const KILL_AFTER: Duration = Duration::from_secs(10);
 /// After a terminal's Ctrl-C (which COMMAND received too), how long before it is sent SIGTERM.
@@ -63,6 +67,7 @@ enum State {
     Pending {
         command: Vec<String>,
         master: String,
+        master_ring: Option<String>,
     },
     Running(JoinHandle<ExitStatus>),
     SpawnFailed(u8),
@@ -78,6 +83,7 @@ fn state() -> std::sync::MutexGuard<'static, State> {
 pub fn ready_json(
     iface: &str,
     master_iface: Option<&str>,
+    master_ring_iface: Option<&str>,
     slaves: usize,
     source: &SourceArgs,
 ) -> String {
@@ -89,8 +95,12 @@ pub fn ready_json(
     // Written out so that the keys keep this order ("event" first), as a reader scanning
     // stdout expects; every value goes through serde_json.
     let j = |v: serde_json::Value| v.to_string();
+    // A ring's second master port only where there is one: the line is as before otherwise.
+    let ring = master_ring_iface.map_or(String::new(), |r| {
+        format!(",\"master_ring_iface\":{}", j(r.into()))
+    });
     format!(
-        "{{\"event\":\"ready\",\"iface\":{},\"master_iface\":{},\"slaves\":{slaves},\"pid\":{},\"preset\":{},\"config\":{}}}",
+        "{{\"event\":\"ready\",\"iface\":{},\"master_iface\":{}{ring},\"slaves\":{slaves},\"pid\":{},\"preset\":{},\"config\":{}}}",
         j(iface.into()),
         j(master_iface.into()),
         std::process::id(),
@@ -107,11 +117,21 @@ pub fn ready_json(
 /// line on stdout (and writes `--ready-file`), then, in the sandbox, starts COMMAND.
 pub fn ready(args: &SandboxArgs, iface: &str, slaves: usize, source: &SourceArgs) -> Result<()> {
     let mut st = state();
-    let master = match &*st {
-        State::Pending { master, .. } => Some(master.clone()),
-        _ => None,
+    let (master, master_ring) = match &*st {
+        State::Pending {
+            master,
+            master_ring,
+            ..
+        } => (Some(master.clone()), master_ring.clone()),
+        _ => (None, None),
     };
-    let line = ready_json(iface, master.as_deref(), slaves, source);
+    let line = ready_json(
+        iface,
+        master.as_deref(),
+        master_ring.as_deref(),
+        slaves,
+        source,
+    );
     if let Some(p) = &args.ready_file {
         ecsync_lab::output::write_atomic(p, format!("{line}\n").as_bytes())
             .with_context(|| format!("writing the ready file {}", p.display()))?;
@@ -122,10 +142,18 @@ pub fn ready(args: &SandboxArgs, iface: &str, slaves: usize, source: &SourceArgs
         eprintln!("ecsync serve: warning: the ready line could not be printed: {e}");
     }
     drop(out);
-    if let State::Pending { command, master } = std::mem::replace(&mut *st, State::Off) {
+    if let State::Pending {
+        command,
+        master,
+        master_ring,
+    } = std::mem::replace(&mut *st, State::Off)
+    {
         sys::catch_termination_signals(&STOP).context("catching SIGINT/SIGTERM")?;
         let mut cmd = Command::new(&command[0]);
         cmd.args(&command[1..]).env("ECSYNC_IFACE", &master);
+        if let Some(r) = &master_ring {
+            cmd.env("ECSYNC_RING_IFACE", r);
+        }
         sys::plain_child(&mut cmd);
         match cmd.spawn() {
             Ok(child) => *st = State::Running(std::thread::spawn(move || watch(child))),
@@ -193,12 +221,13 @@ fn watch(mut child: Child) -> ExitStatus {
     }
 }
 
-/// `serve --sandbox`: enters the private network, runs `serve` on its end (which starts
-/// COMMAND through [`ready`]), and returns COMMAND's exit code (or serve's when COMMAND
-/// succeeded and serve did not).
+/// `serve --sandbox`: enters the private network (with `ring`, the served ring end's name, a
+/// second pair), runs `serve` on its end (which starts COMMAND through [`ready`]), and returns
+/// COMMAND's exit code (or serve's when COMMAND succeeded and serve did not).
 pub fn run(
     command: Vec<String>,
     iface: &str,
+    ring: Option<&str>,
     serve: impl FnOnce(String) -> Result<ExitCode>,
 ) -> Result<ExitCode> {
     let served = if iface.is_empty() {
@@ -209,14 +238,26 @@ pub fn run(
     if served == MASTER_IFACE {
         anyhow::bail!("--iface {served}: that is the name of COMMAND's end; choose another");
     }
-    let sb = sys::enter(served, MASTER_IFACE).map_err(|e| anyhow!("--sandbox: {e}"))?;
+    if let Some(r) = ring
+        && [served, MASTER_IFACE, MASTER_RING_IFACE].contains(&r)
+    {
+        anyhow::bail!(
+            "--ring-iface {r}: that name is taken by another end in the sandbox; choose another (e.g. ecsync1)"
+        );
+    }
+    let mut pairs = vec![(served, MASTER_IFACE)];
+    pairs.extend(ring.map(|r| (r, MASTER_RING_IFACE)));
+    let sb = sys::enter(&pairs).map_err(|e| anyhow!("--sandbox: {e}"))?;
     eprintln!(
-        "ecsync serve: sandbox: a private network namespace{}, {served} served, COMMAND on {MASTER_IFACE} (ECSYNC_IFACE)",
+        "ecsync serve: sandbox: a private network namespace{}, {served} served, COMMAND on {MASTER_IFACE} (ECSYNC_IFACE){}",
         if sb.user_namespace {
             " in a user namespace (unprivileged)"
         } else {
             ""
-        }
+        },
+        ring.map_or(String::new(), |r| format!(
+            "; the ring's far end {r}, COMMAND's second port {MASTER_RING_IFACE} (ECSYNC_RING_IFACE)"
+        ))
     );
     if let Some(w) = &sb.sysfs_warning {
         eprintln!("ecsync serve: warning: {w}");
@@ -224,6 +265,7 @@ pub fn run(
     *state() = State::Pending {
         command,
         master: MASTER_IFACE.to_string(),
+        master_ring: ring.map(|_| MASTER_RING_IFACE.to_string()),
     };
     let served = serve(served.to_string());
     STOP.store(true, Ordering::Relaxed);

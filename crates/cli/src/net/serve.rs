@@ -30,8 +30,9 @@ pub struct ServeArgs {
     /// with `ring_port` (the scenario's) is cabled back (cable redundancy). Frames arriving
     /// there enter the ring at its far end; each frame goes back out of the interface of the
     /// port it leaves the ring by.
-    /// Not with --sandbox (it makes one veth pair).
-    #[arg(long, value_name = "IFACE", conflicts_with = "sandbox")]
+    /// With --sandbox: the name of the served ring end; a second veth pair is made, its other
+    /// end (master1) COMMAND's second port, named in ECSYNC_RING_IFACE.
+    #[arg(long, value_name = "IFACE")]
     ring_iface: Option<String>,
     #[command(flatten)]
     source: SourceArgs,
@@ -102,7 +103,10 @@ fn open_socket(iface: &str) -> Result<PacketSocket> {
 pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     if let Some(command) = args.sandbox.take_command() {
         let iface = std::mem::take(&mut args.iface);
-        return super::sandbox::run(command, &iface, |iface| serve(ServeArgs { iface, ..args }));
+        let ring = args.ring_iface.clone();
+        return super::sandbox::run(command, &iface, ring.as_deref(), |iface| {
+            serve(ServeArgs { iface, ..args })
+        });
     }
     let (name, specs, slave_names) = args.source.segment_named()?;
     let mut seg = Segment::new(&specs).context("building the segment")?;

@@ -586,7 +586,9 @@ impl<H: ServeHooks> Loop<'_, H> {
             retag(&mut wire, len, &tags);
             let _ = c.record(t_ps, &wire);
         }
-        if let Some(found) = self.masters.see(&buf[..len]) {
+        // A redundant master's second port has an address of its own (ecsync's flips a bit of
+        // it, SOEM's is another): a second master is looked for on the first interface only.
+        if !ring && let Some(found) = self.masters.see(&buf[..len]) {
             self.hooks.warning(&found.to_string());
         }
         self.stats.second_master_frames = self.masters.other_address_frames;

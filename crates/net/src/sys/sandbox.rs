@@ -50,8 +50,9 @@ pub struct Sandbox {
 /// Moves the (single-threaded) process into a network namespace of its own, with a mount
 /// namespace in which /sys is the new network's, and a user namespace mapping the caller to
 /// root where the caller cannot make a network namespace otherwise; then brings `lo` up, makes
-/// the veth pair `a`-`b` and sets both ends up, returning once both are operationally up.
-pub fn enter(a: &str, b: &str) -> io::Result<Sandbox> {
+/// each veth pair `a`-`b` of `pairs` and sets both ends up, returning once all are
+/// operationally up.
+pub fn enter(pairs: &[(&str, &str)]) -> io::Result<Sandbox> {
     let threads = std::fs::read_dir("/proc/self/task")?.count();
     if threads != 1 {
         return Err(io::Error::other(format!(
@@ -89,18 +90,23 @@ pub fn enter(a: &str, b: &str) -> io::Result<Sandbox> {
     });
     let mut nl = Netlink::open()?;
     nl.set_up("lo")?;
-    nl.add_veth(a, b)
-        .map_err(|e| io::Error::new(e.kind(), format!("creating the veth pair {a}/{b}: {e}")))?;
-    nl.set_up(a)?;
-    nl.set_up(b)?;
+    for &(a, b) in pairs {
+        nl.add_veth(a, b).map_err(|e| {
+            io::Error::new(e.kind(), format!("creating the veth pair {a}/{b}: {e}"))
+        })?;
+        nl.set_up(a)?;
+        nl.set_up(b)?;
+    }
     let t0 = Instant::now();
-    while nl.operstate(a)? != IF_OPER_UP || nl.operstate(b)? != IF_OPER_UP {
-        if t0.elapsed() > Duration::from_secs(5) {
-            return Err(io::Error::other(format!(
-                "the veth pair {a}/{b} is not up after 5 s"
-            )));
+    for &(a, b) in pairs {
+        while nl.operstate(a)? != IF_OPER_UP || nl.operstate(b)? != IF_OPER_UP {
+            if t0.elapsed() > Duration::from_secs(5) {
+                return Err(io::Error::other(format!(
+                    "the veth pair {a}/{b} is not up after 5 s"
+                )));
+            }
+            std::thread::sleep(Duration::from_millis(2));
         }
-        std::thread::sleep(Duration::from_millis(2));
     }
     Ok(Sandbox {
         user_namespace,
