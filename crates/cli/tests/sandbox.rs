@@ -888,8 +888,10 @@ fn a_redundant_master_keeps_a_ring_through_a_pulled_cable_in_the_sandbox_as_nobo
     let partial = red["partial"].as_u64().unwrap();
     assert!(partial <= 20, "{red}");
     assert!(red["merged"].as_u64().unwrap() >= 1_500, "{red}");
+    // (And the frame after it may go without the far side's copy too, before the late copy
+    // comes and says the far side answers.)
     assert!(
-        j["bad_wkc"].as_u64().unwrap() <= partial,
+        j["bad_wkc"].as_u64().unwrap() <= 2 * partial,
         "{}",
         j["bad_wkc"]
     );

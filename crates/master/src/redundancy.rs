@@ -95,9 +95,11 @@ impl Slot {
 
     /// Complete: the first port's copy went round the ring, or both came back (the second
     /// on the first port: it went round the ports alone, the ring closed at its far end by a
-    /// loop, and the first is whole).
-    fn complete(&self) -> bool {
-        self.first.is_some_and(|r| r.port == 1) || self.first.is_some() && self.second.is_some()
+    /// loop, and the first is whole), or the first came back and no second comes
+    /// (`far_silent`).
+    fn complete(&self, far_silent: bool) -> bool {
+        self.first.is_some_and(|r| r.port == 1)
+            || self.first.is_some() && (self.second.is_some() || far_silent)
     }
 }
 
@@ -111,7 +113,16 @@ pub struct Redundant<'a, T> {
     rx: Vec<u8>,
     second: Vec<u8>,
     stats: RedundancyStats,
+    /// Frames in a row whose first port's copy came back by the first port and whose second
+    /// did not come by the deadline. From [`SILENT_AFTER`] on the ring is taken as open at its
+    /// far end (the ring cable pulled, the last slave off): a first copy back is the frame,
+    /// without waiting for a second, until a second comes again. (One late copy on a loaded
+    /// host is not that.)
+    silent_run: u32,
 }
+
+/// Frames in a row without a second copy after which none is waited for.
+const SILENT_AFTER: u32 = 3;
 
 impl<'a, T: SecondPort> Redundant<'a, T> {
     /// Redundancy over `inner`.
@@ -123,6 +134,7 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
             rx: Vec::with_capacity(MAX_FRAME),
             second: vec![0; MAX_FRAME],
             stats: RedundancyStats::default(),
+            silent_run: 0,
         }
     }
 
@@ -169,6 +181,15 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
             let s = &self.slots[k];
             s.used && !s.delivered && s.key == key_of(frame)
         }) else {
+            // A second copy back by the second port after its frame went without it: the far
+            // side answers again (the ring broken elsewhere now).
+            let late_second = (0..SLOTS).any(|k| {
+                let s = &self.slots[k];
+                s.delivered && s.key == key_of(frame) && n >= 12 && frame[11] != s.sent[11]
+            });
+            if late_second && r.port == 1 {
+                self.silent_run = 0;
+            }
             return;
         };
         let s = &mut self.slots[k];
@@ -176,6 +197,7 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
         // ESCs set bit 1 of the first byte on the way: not compared).
         let from_second = n >= 12 && frame[11] != s.sent[11];
         if from_second {
+            self.silent_run = 0;
             s.second_buf[..n].copy_from_slice(frame);
             s.second = Some(Received { len: n, ..r });
         } else {
@@ -198,6 +220,7 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
             (Some(f), _) if f.port == 1 => {
                 buf.copy_from_slice(&s.first_buf[..n]);
                 self.stats.intact += 1;
+                self.silent_run = 0;
                 false
             }
             (Some(_), Some(g)) if g.port == 1 => {
@@ -211,9 +234,12 @@ impl<'a, T: SecondPort> Redundant<'a, T> {
                 false
             }
             (Some(_), _) => {
+                // Back by the port it left by, the second copy not: the ring is open at its
+                // far end (or the far side's copy late), and the next frames do not wait.
                 buf.copy_from_slice(&s.first_buf[..n]);
                 self.stats.partial += 1;
-                self.stats.broken
+                self.silent_run += 1;
+                true
             }
             (None, Some(_)) => {
                 // Came back on the second port (`recv` delivers no other alone).
@@ -351,9 +377,10 @@ impl<T: SecondPort> Transport for Redundant<'_, T> {
         deadline: MasterInstant,
     ) -> Result<Option<Received>, Self::Error> {
         loop {
+            let far_silent = self.silent_run >= SILENT_AFTER;
             if let Some(k) = (0..SLOTS).find(|&k| {
                 let s = &self.slots[k];
-                s.used && !s.delivered && s.complete()
+                s.used && !s.delivered && s.complete(far_silent)
             }) {
                 return Ok(Some(self.deliver(k, buf)));
             }

@@ -166,6 +166,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         },
         carrier_iface: Some(&args.iface),
         ring: ring_sock.as_ref(),
+        ring_carrier_iface: args.ring_iface.as_deref(),
     };
     let quiet = args.quiet;
     let stats = ecsync_net::serve::serve(
@@ -287,6 +288,13 @@ fn print_stopped(
             stats.host_late,
             ecsync_net::serve::HOST_LATE_NS / 1000,
             stats.host_late_max_ns as f64 / 1e3
+        );
+    }
+    if stats.ring_carrier_changes > 0 {
+        eprintln!(
+            "{} went down and up with the ring cable's link {} times",
+            args.ring_iface.as_deref().unwrap_or_default(),
+            stats.ring_carrier_changes / 2
         );
     }
     if stats.carrier_changes > 0 {

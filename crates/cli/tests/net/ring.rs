@@ -111,8 +111,10 @@ fn a_ring_served_on_two_veth_pairs_keeps_every_drive_through_a_pulled_cable() {
     // has one side's working counter: those alone, and none on most runs.
     let partial = r["partial"].as_u64().unwrap();
     assert!(partial <= 20, "{r}");
+    // (And the frame after it may go without the far side's copy too, before the late copy
+    // comes and says the far side answers.)
     assert!(
-        j["bad_wkc"].as_u64().unwrap() <= partial,
+        j["bad_wkc"].as_u64().unwrap() <= 2 * partial,
         "{}",
         j["bad_wkc"]
     );
@@ -124,7 +126,7 @@ fn a_ring_served_on_two_veth_pairs_keeps_every_drive_through_a_pulled_cable() {
     // no lrw_wkc), the ~2 000 of the break merged from both sides' copies.
     let wkc = csv_column(&csv, "lrw_wkc");
     let not_whole = wkc.iter().filter(|&&w| w != 36.0).count() as u64;
-    assert!(not_whole <= partial, "{not_whole} LRWs not whole");
+    assert!(not_whole <= 2 * partial, "{not_whole} LRWs not whole");
     let start = &judge["faults"][0];
     let (pull_s, plug_s) = (
         start["start_s"].as_f64().unwrap(),

@@ -82,6 +82,9 @@ pub struct ServeStats {
     pub second_master_frames: u64,
     /// Times the served interface was taken down or up with the first slave's link.
     pub carrier_changes: u64,
+    /// Times the ring's second interface was taken down or up with the ring cable's link.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub ring_carrier_changes: u64,
     /// Frames received on a ring's second interface ([`ServeConfig::ring`]; not in
     /// `received`).
     #[serde(skip_serializing_if = "is_zero")]
@@ -116,6 +119,9 @@ pub struct ServeConfig<'a> {
     pub pace: Pace,
     /// The served interface, taken down while the first slave's link is (`None`: never).
     pub carrier_iface: Option<&'a str>,
+    /// The ring's second interface by name, taken down while the ring cable's link is
+    /// (`None`: never).
+    pub ring_carrier_iface: Option<&'a str>,
     /// A ring's second interface: where the slave with a ring port (`ring_port`) is cabled
     /// back to the master's second port. Frames arriving there enter the ring at its far end
     /// ([`Segment::process_secondary`]), and every frame leaves by the interface of the port
@@ -265,7 +271,8 @@ struct Loop<'s, H> {
     t0_mono: u64,
     last_ps: u64,
     events_seen: usize,
-    carrier_up: bool,
+    /// Whether the first and the ring's interfaces are up (as this serve last set them).
+    carrier_up: [bool; 2],
     carrier_warned: bool,
     next_poll_ns: u64,
 }
@@ -324,23 +331,41 @@ impl<H: ServeHooks> Loop<'_, H> {
             self.hooks.fault_event(e);
         }
         self.events_seen = events.len();
-        let up = segment.master_link_up();
-        let Some(iface) = self.config.carrier_iface else {
-            return;
-        };
-        if up == self.carrier_up {
+        let ends = [
+            (self.config.carrier_iface, Some(segment.master_link_up())),
+            (self.config.ring_carrier_iface, segment.ring_link_up()),
+        ];
+        for (k, (iface, up)) in ends.into_iter().enumerate() {
+            if let (Some(iface), Some(up)) = (iface, up) {
+                self.follow_carrier(k, iface, up);
+            }
+        }
+    }
+
+    /// Takes interface `k` (0 the first, 1 the ring's) `iface` up or down with its link.
+    fn follow_carrier(&mut self, k: usize, iface: &str, up: bool) {
+        if up == self.carrier_up[k] {
             return;
         }
         match sys::set_interface_up(iface, up) {
             Ok(()) => {
-                self.carrier_up = up;
-                self.stats.carrier_changes += 1;
+                self.carrier_up[k] = up;
+                if k == 0 {
+                    self.stats.carrier_changes += 1;
+                } else {
+                    self.stats.ring_carrier_changes += 1;
+                }
             }
             Err(e) if !self.carrier_warned => {
                 self.carrier_warned = true;
                 self.hooks.warning(&format!(
-                    "cannot take {iface} {} with the first slave's link ({e}): a master that watches carrier does not see it; serve with CAP_NET_ADMIN (root, or --sandbox)",
-                    if up { "up" } else { "down" }
+                    "cannot take {iface} {} with {} ({e}): a master that watches carrier does not see it; serve with CAP_NET_ADMIN (root, or --sandbox)",
+                    if up { "up" } else { "down" },
+                    if k == 0 {
+                        "the first slave's link"
+                    } else {
+                        "the ring cable's link"
+                    }
                 ));
             }
             Err(_) => {}
@@ -473,7 +498,7 @@ pub fn serve<W: Write, H: ServeHooks>(
         t0_mono: sys::monotonic_ns(),
         last_ps: 0,
         events_seen: 0,
-        carrier_up: true,
+        carrier_up: [true; 2],
         carrier_warned: false,
         next_poll_ns: 0,
     };

@@ -83,4 +83,12 @@ impl Segment {
         let node = &self.nodes[usize::from(self.first)];
         !node.off && node.esc.links()[usize::from(node.entry_port)]
     }
+
+    /// Whether the master's second interface has a link, in a ring: the ring cable is in and
+    /// its slave switched on (`None`: no ring).
+    pub fn ring_link_up(&self) -> Option<bool> {
+        let (pos, port) = self.ring?;
+        let node = &self.nodes[usize::from(pos)];
+        Some(!node.off && node.esc.links()[usize::from(port)])
+    }
 }
