@@ -26,6 +26,9 @@ use std::time::{Duration, Instant};
 // The helpers of the sim crate's tests: where the vendors' ESI files are, the shipped ESI.
 #[path = "../../../sim/tests/common/mod.rs"]
 mod common;
+// The ring of issue 34 and its checks, as the sandbox test has them too.
+#[path = "../common/ring.rs"]
+mod ring_common;
 // `ip`, as the lab's realnet test runs it.
 #[path = "../../../lab/tests/common/ip.rs"]
 mod ip;

@@ -11,24 +11,12 @@
 //! which lose a frame whole elsewhere, as in every other test here).
 
 use super::checked_run::csv_column;
+use super::ring_common::{PULL_5_6, check_ring_through_the_pull, ring_toml};
 use super::soem::python;
 use super::{NetPair, ONE_AT_A_TIME, Served, tmp};
-use ecsync_sim::preset;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// The twelve-drives preset with its last drive's port 1 cabled back to the master's second
-/// port.
-fn ring_toml() -> String {
-    let t = preset::TWELVE_DRIVES_TOML;
-    let last = "name = \"drive-12\"\n";
-    assert!(t.contains(last), "the preset's last drive is drive-12");
-    t.replace(last, &format!("{last}ring_port = 1\nring_cable_m = 2.0\n"))
-}
-
-/// The cable at port 1 of drive 5 (to drive 6) pulled from 3 s to 5 s after the first frame
-/// with process data.
-const FAULTS: &str = "[[fault]]\nat_s = 3\nfor_s = 2\nkind = \"link_down\"\nslave = 5\nport = 1\n";
 
 /// Stops serve as Ctrl-C does (its judge writes its files then) and waits for it.
 fn stop(served: &mut Served) {
@@ -45,11 +33,34 @@ fn stop(served: &mut Served) {
 }
 
 /// The judge's summary.json in `dir`.
-fn judge_of(dir: &std::path::Path) -> serde_json::Value {
+fn judge_of(dir: &Path) -> serde_json::Value {
     serde_json::from_str(
         &std::fs::read_to_string(dir.join("summary.json")).expect("the judge's summary"),
     )
     .unwrap()
+}
+
+/// The ring served in A on the pair's end and `ring_a`, its judge's files into `dir`/judge,
+/// with the fault schedule `faults` if given; the judge's folder.
+fn serve_ring(pair: &NetPair, ring_a: &str, dir: &Path, faults: Option<&str>) -> (Served, PathBuf) {
+    let config = dir.join("ring.toml");
+    std::fs::write(&config, ring_toml()).unwrap();
+    let judge_dir = dir.join("judge");
+    let mut args = vec![
+        "--ring-iface".to_string(),
+        ring_a.to_string(),
+        "--config".into(),
+        config.display().to_string(),
+        "--out".into(),
+        judge_dir.display().to_string(),
+    ];
+    if let Some(f) = faults {
+        let path = dir.join("faults.toml");
+        std::fs::write(&path, f).unwrap();
+        args.extend(["--faults".to_string(), path.display().to_string()]);
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    (pair.serve(&args), judge_dir)
 }
 
 #[test]
@@ -59,20 +70,7 @@ fn a_ring_served_on_two_veth_pairs_keeps_every_drive_through_a_pulled_cable() {
     let pair = NetPair::new("r");
     let (ring_a, ring_b) = pair.second_pair();
     let dir = tmp("ring");
-    let (config, faults) = (dir.join("ring.toml"), dir.join("faults.toml"));
-    std::fs::write(&config, ring_toml()).unwrap();
-    std::fs::write(&faults, FAULTS).unwrap();
-    let judge_dir = dir.join("judge");
-    let mut served = pair.serve(&[
-        "--ring-iface",
-        &ring_a,
-        "--config",
-        config.to_str().unwrap(),
-        "--faults",
-        faults.to_str().unwrap(),
-        "--out",
-        judge_dir.to_str().unwrap(),
-    ]);
+    let (mut served, judge_dir) = serve_ring(&pair, &ring_a, &dir, Some(PULL_5_6));
     let csv = dir.join("cycles.csv");
     let o = pair
         .run(&[
@@ -93,60 +91,13 @@ fn a_ring_served_on_two_veth_pairs_keeps_every_drive_through_a_pulled_cable() {
     assert!(o.status.success(), "ecsync run --ring-iface: {stderr}");
     stop(&mut served);
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON summary");
-    let judge = judge_of(&judge_dir);
-    println!(
-        "run: redundancy {}, lost {}, bad wkc {}; judge: faults {}",
-        j["redundancy"], j["lost_frames"], j["bad_wkc"], judge["faults"]
-    );
-
-    // The ring, as the master's frames showed it.
-    let r = &j["redundancy"];
-    assert_eq!(r["breaks"], 1, "{r}");
-    assert_eq!(r["restores"], 1, "{r}");
-    assert_eq!(r["broken_at_end"], false, "{r}");
-    let merged = r["merged"].as_u64().unwrap();
-    // A frame a cycle for 2 s, and the drives' counters read over CoE once a second.
-    assert!((1_500..=2_600).contains(&merged), "{r}");
-    // A frame of which one copy came back by its deadline (the other late: this shared host)
-    // has one side's working counter: those alone, and none on most runs.
-    let partial = r["partial"].as_u64().unwrap();
-    assert!(partial <= 20, "{r}");
-    // (And the frame after it may go without the far side's copy too, before the late copy
-    // comes and says the far side answers.)
-    assert!(
-        j["bad_wkc"].as_u64().unwrap() <= 2 * partial,
-        "{}",
-        j["bad_wkc"]
-    );
-    assert!(j["left_op"].is_null(), "a drive left OP: {}", j["left_op"]);
-    for rec in j["recoveries"].as_array().unwrap() {
-        assert!(rec["slaves"].as_array().unwrap().is_empty(), "{rec}");
-    }
-    // Every frame that came back came back whole but the partial ones (a lost frame's row has
-    // no lrw_wkc), the ~2 000 of the break merged from both sides' copies.
+    let partial = check_ring_through_the_pull(&j, &judge_of(&judge_dir));
+    // Every LRW that came back came back whole but the partial ones and those after them (a
+    // lost frame's row has no lrw_wkc), the ~2 000 of the break merged from both sides'
+    // copies.
     let wkc = csv_column(&csv, "lrw_wkc");
     let not_whole = wkc.iter().filter(|&&w| w != 36.0).count() as u64;
     assert!(not_whole <= 2 * partial, "{not_whole} LRWs not whole");
-    let start = &judge["faults"][0];
-    let (pull_s, plug_s) = (
-        start["start_s"].as_f64().unwrap(),
-        start["end_s"].as_f64().unwrap(),
-    );
-    assert!((plug_s - pull_s - 2.0).abs() < 0.01, "{start}");
-    // Drives in OP through it (ground truth), none of them with an AL error.
-    let in_op = start["drives_in_op"].as_array().unwrap().len();
-    assert_eq!(in_op, 12, "{start}");
-    for d in judge["drives"].as_array().unwrap() {
-        assert_eq!(d["al_state"], "Op", "{d}");
-        assert_eq!(d["al_errors"], 0, "{d}");
-        // Every drive's clock within 100 ns of the reference's all along (every 8th frame).
-        let dev = d["deviation_max_ns"].as_f64().unwrap();
-        assert!(
-            dev < 100.0,
-            "drive {}: {dev} ns from the reference",
-            d["name"]
-        );
-    }
     // Frames lost: this shared host's stalls only (a reply past its cycle's deadline: a
     // handful in 9 000 cycles, with or without a ring); a break sends each side's copy back
     // by its own port and loses none.
@@ -172,19 +123,8 @@ fn soem_redundancy_measures_the_delays_on_the_closed_ring_and_its_clocks_drift_a
     let pair = NetPair::new("q");
     let (ring_a, ring_b) = pair.second_pair();
     let dir = tmp("soem-ring");
-    let config = dir.join("ring.toml");
-    std::fs::write(&config, ring_toml()).unwrap();
-    let judge_dir = dir.join("judge");
-    let mut served = pair.serve(&[
-        "--ring-iface",
-        &ring_a,
-        "--config",
-        config.to_str().unwrap(),
-        "--out",
-        judge_dir.to_str().unwrap(),
-    ]);
-    let script =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/pysoem/soem_cycle.py");
+    let (mut served, judge_dir) = serve_ring(&pair, &ring_a, &dir, None);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/pysoem/soem_cycle.py");
     let o = Command::new("ip")
         .args(["netns", "exec", &pair.ns_b, &py])
         .arg(&script)
