@@ -89,18 +89,7 @@ fn cyclic_config(
     cycle_ns: u32,
     measure_init_frames: u64,
 ) -> Result<CyclicConfig, SessionError> {
-    let reference = net
-        .slaves
-        .get(usize::from(net.reference))
-        .ok_or(SessionError::NoReference)?;
-    Ok(CyclicConfig {
-        period_ns: cycle_ns,
-        reference_station: reference.station,
-        pdi_len: net.pdi_len,
-        measure_init_frames,
-        reference_offset_ns: reference.offset.unwrap_or(0),
-        lrw: net.lrw.clone(),
-    })
+    CyclicConfig::for_network(net, cycle_ns, measure_init_frames).ok_or(SessionError::NoReference)
 }
 
 impl<S: MasterSync> Session<S> {

@@ -17,14 +17,7 @@ fn actual(name: &str, text: &str) -> (u32, usize, u64) {
     let up =
         bring_up_watched(&s, 0, &BringupWatch::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
     let net = up.network();
-    let cfg = CyclicConfig {
-        period_ns: s.cycle_ns,
-        reference_station: net.slaves[usize::from(net.reference)].station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: 0,
-        reference_offset_ns: 0,
-        lrw: net.lrw.clone(),
-    };
+    let cfg = CyclicConfig::for_network(net, s.cycle_ns, 0).expect("a reference");
     let bus_shift = s.methods.iter().any(|k| !k.is_master_shift());
     let lens = cycle_frame_lens(&cfg, bus_shift).unwrap();
     let wire_ps: u64 = lens

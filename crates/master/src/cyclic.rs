@@ -10,7 +10,7 @@
 //! socket.
 
 use crate::io::MASTER_MAC;
-use crate::network::ReferenceReading;
+use crate::network::{Network, ReferenceReading};
 use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, WriteTimes,
@@ -77,6 +77,22 @@ pub struct CyclicConfig {
     /// The process image's LRWs ([`crate::network::Network::lrw`]); empty: one LRW of
     /// `pdi_len` bytes at logical address 0.
     pub lrw: Vec<LrwChunk>,
+}
+
+impl CyclicConfig {
+    /// The cyclic frames' layout for `net` as its bring-up left it (its reference's station
+    /// and offset, its process data's datagrams); `None` without a reference.
+    pub fn for_network(net: &Network, period_ns: u32, measure_init_frames: u64) -> Option<Self> {
+        let reference = net.slaves.get(usize::from(net.reference))?;
+        Some(CyclicConfig {
+            period_ns,
+            reference_station: reference.station,
+            pdi_len: net.pdi_len,
+            measure_init_frames,
+            reference_offset_ns: reference.offset.unwrap_or(0),
+            lrw: net.lrw.clone(),
+        })
+    }
 }
 
 /// Everything one cycle produced.

@@ -80,14 +80,7 @@ impl CycleBench {
     /// The bench of a line brought up (`net` on `sim`): its frames, and the cycle they fit
     /// in, whole milliseconds.
     fn line_on(net: Network, sim: SimTransport) -> Self {
-        let cfg = CyclicConfig {
-            period_ns: 1_000_000,
-            reference_station: net.slaves[usize::from(net.reference)].station,
-            pdi_len: net.pdi_len,
-            measure_init_frames: 1,
-            reference_offset_ns: 0,
-            lrw: net.lrw.clone(),
-        };
+        let cfg = CyclicConfig::for_network(&net, 1_000_000, 1).expect("a reference");
         let mut eng = CyclicEngine::new(
             ecsync_dc::MedianSync::default(),
             cfg,

@@ -23,14 +23,7 @@ fn a_stall_of_two_and_a_half_periods_skips_two_cycles_and_sends_no_burst() {
     let mut engine = Engine::new(move |l| bringup(l, cfg));
     let net = sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
     let period = 1_000_000u64;
-    let cyc = CyclicConfig {
-        period_ns: period as u32,
-        reference_station: net.slaves[usize::from(net.reference)].station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: 2,
-        reference_offset_ns: 0,
-        lrw: net.lrw.clone(),
-    };
+    let cyc = CyclicConfig::for_network(&net, period as u32, 2).expect("a reference");
     let first = (sim.now().as_ns() / period + 2) * period;
     let mut eng = CyclicEngine::new(
         MedianSync::new(11, 0.01, 2),

@@ -82,14 +82,7 @@ fn ecsync_runs_an_oversampling_terminal_on_sync1_with_no_missed_event() {
     );
 
     // 3 000 cycles of median on the grid.
-    let cyc = CyclicConfig {
-        period_ns: PERIOD_NS as u32,
-        reference_station: net.slaves[usize::from(net.reference)].station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: 2,
-        reference_offset_ns: 0,
-        lrw: net.lrw.clone(),
-    };
+    let cyc = CyclicConfig::for_network(&net, PERIOD_NS as u32, 2).expect("a reference");
     let first_cycle = (sim.now().as_ns() / PERIOD_NS + 2) * PERIOD_NS;
     let mut eng = CyclicEngine::new(
         MedianSync::new(11, 0.01, 2),

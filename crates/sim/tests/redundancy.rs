@@ -96,14 +96,7 @@ fn brought_up(ring: bool) -> (SimTransport, CyclicEngine<MedianSync>, u16) {
         );
     }
 
-    let cyc = CyclicConfig {
-        period_ns: PERIOD_NS as u32,
-        reference_station: net.slaves[usize::from(net.reference)].station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: 2,
-        reference_offset_ns: 0,
-        lrw: net.lrw.clone(),
-    };
+    let cyc = CyclicConfig::for_network(&net, PERIOD_NS as u32, 2).expect("a reference");
     let first = (sim.now().as_ns() / PERIOD_NS + 2) * PERIOD_NS;
     let eng = CyclicEngine::new(
         MedianSync::new(11, 0.01, 2),

@@ -40,14 +40,7 @@ fn paper_2024_in_op_with(
     };
     let mut engine = Engine::new(move |l| bringup(l, cfg));
     let net = sim.run_procedure(&mut engine, |_, _, _| {}).unwrap();
-    let cyc = CyclicConfig {
-        period_ns: PERIOD_NS as u32,
-        reference_station: net.slaves[usize::from(net.reference)].station,
-        pdi_len: net.pdi_len,
-        measure_init_frames: 2,
-        reference_offset_ns: 0,
-        lrw: net.lrw.clone(),
-    };
+    let cyc = CyclicConfig::for_network(&net, PERIOD_NS as u32, 2).expect("a reference");
     // Sent at the grid point: the frames pass the drives a few us after it, ~295 us before
     // SYNC0.
     let first = (sim.now().as_ns() / PERIOD_NS + 2) * PERIOD_NS;
