@@ -191,6 +191,46 @@ fn code(r: &Ran) -> Option<i32> {
     r.status.code()
 }
 
+/// A ring's second interface is refused before anything is opened where it cannot be one:
+/// the same as `--iface` (serve and run), or on a segment that is no ring (serve).
+#[test]
+fn a_ring_interface_that_cannot_be_one_is_refused_naming_the_fix() {
+    let dir = tmp("ring-refused");
+    let ring = dir.join("ring.toml");
+    std::fs::write(&ring, ring::ring_toml()).unwrap();
+    let ring = ring.to_str().unwrap();
+    for (args, says) in [
+        (
+            &["run", "--iface", "a0", "--ring-iface", "a0"][..],
+            "that is --iface",
+        ),
+        (
+            &[
+                "serve",
+                "--iface",
+                "a0",
+                "--ring-iface",
+                "a0",
+                "--config",
+                ring,
+            ][..],
+            "that is --iface",
+        ),
+        (
+            &["serve", "--iface", "a0", "--ring-iface", "a1"][..],
+            "the segment is no ring; fix",
+        ),
+    ] {
+        let o = Command::new(ecsync()).args(args).output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {e}");
+        assert!(
+            e.contains("--ring-iface a") && e.contains(says),
+            "{args:?}: {e}"
+        );
+    }
+}
+
 #[test]
 fn serve_needs_an_interface_or_the_sandbox_and_the_sandbox_a_command() {
     for (args, says) in [

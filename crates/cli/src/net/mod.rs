@@ -358,7 +358,8 @@ pub fn run(args: RunArgs) -> Result<ExitCode> {
     };
     match &args.ring_iface {
         Some(ring) => {
-            link.open_ring(ring).map_err(|e| anyhow::anyhow!("{e}"))?;
+            link.open_ring(ring)
+                .map_err(|e| anyhow::anyhow!("--ring-iface {ring}: {e}"))?;
             let mut red = Redundant::new(&mut link);
             run_on(&args, &mut red, csv, ms)
         }
@@ -486,6 +487,12 @@ fn run_on<T: RealTransport>(
 
 /// Refuses the flags `run` cannot use before anything is opened.
 fn check_run_args(args: &RunArgs) -> Result<()> {
+    if args.ring_iface.as_deref() == Some(args.iface.as_str()) {
+        bail!(
+            "--ring-iface {}: that is --iface; fix: give the interface the ring's far end is cabled to, another than --iface",
+            args.iface
+        );
+    }
     if !(1..=1_000_000).contains(&args.cycle_us) {
         bail!("--cycle-us must lie in 1 ..= 1000000");
     }

@@ -208,7 +208,14 @@ fn ring_socket(args: &ServeArgs, seg: &Segment) -> Result<Option<PacketSocket>> 
             "--ring-iface {iface}: the segment is no ring; fix: give the last slave `ring_port = 1` in the scenario (see the book's \"Cable redundancy: a ring\"), or leave --ring-iface out"
         );
     }
-    Ok(Some(open_socket(iface)?))
+    if *iface == args.iface {
+        bail!(
+            "--ring-iface {iface}: that is --iface; fix: give the interface the ring's far end is served on, another than --iface"
+        );
+    }
+    Ok(Some(
+        open_socket(iface).with_context(|| format!("--ring-iface {iface}"))?,
+    ))
 }
 
 /// `--faults`: the schedule, refused when it holds a fault of the master's host.
