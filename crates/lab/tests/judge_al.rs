@@ -204,14 +204,7 @@ fn an_echoed_acknowledge_and_a_coupler_without_outputs_are_not_judged() {
         model,
         device,
         crystal: CrystalParams::default(),
-        upstream: if i == 0 {
-            Upstream::Master
-        } else {
-            Upstream::Slave {
-                index: i - 1,
-                port: 1,
-            }
-        },
+        upstream: Upstream::in_line(i),
         entry_port: 0,
         cable_m: 0.0,
         ring: None,

@@ -82,14 +82,7 @@ pub fn line(n: usize, seed: u64) -> Vec<SlaveSpec> {
                     seed: seed ^ (i as u64),
                     ..Default::default()
                 },
-                upstream: if i == 0 {
-                    Upstream::Master
-                } else {
-                    Upstream::Slave {
-                        index: i - 1,
-                        port: 1,
-                    }
-                },
+                upstream: Upstream::in_line(i),
                 entry_port: 0,
                 cable_m: 1.0,
                 ring: None,

@@ -8,6 +8,8 @@
 
 mod common;
 
+use common::Rng;
+
 use ecsync_master::bringup::{DcCapability, EsiTiming, Network};
 use ecsync_master::{BringupConfig, Engine, MasterError, Stage, bringup};
 use ecsync_sim::catalog;
@@ -183,14 +185,7 @@ fn the_captured_network_has_the_ek1100_as_reference_and_syncs_the_el2889_alone()
                 seed: i as u64,
                 ..CrystalParams::default()
             },
-            upstream: if i == 0 {
-                Upstream::Master
-            } else {
-                Upstream::Slave {
-                    index: i - 1,
-                    port: 1,
-                }
-            },
+            upstream: Upstream::in_line(i),
             entry_port: 0,
             cable_m: if i == 0 { 2.0 } else { 0.0 },
             ring: None,
@@ -296,14 +291,7 @@ fn a_receive_times_slave_first_is_not_the_reference() {
             seed: 10 + i as u64,
             ..CrystalParams::default()
         },
-        upstream: if i == 0 {
-            Upstream::Master
-        } else {
-            Upstream::Slave {
-                index: i - 1,
-                port: 1,
-            }
-        },
+        upstream: Upstream::in_line(i),
         entry_port: 0,
         cable_m: 0.0,
         ring: None,
@@ -315,25 +303,6 @@ fn a_receive_times_slave_first_is_not_the_reference() {
     let net = net.expect("bring-up to the lock");
     assert_eq!(net.reference, 1);
     assert_clocks_by_answer("EL2828-EL2889-EL2889", &sim, &net, threshold, 20.0);
-}
-
-/// splitmix64: the networks are drawn from a fixed seed, so a failure reproduces.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-    fn f(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (self.next() >> 11) as f64 / (1u64 << 53) as f64 * (hi - lo)
-    }
 }
 
 /// A random network of `n` slaves: lines, trees or stars of servo drives (ET1100, MII), EBUS
@@ -433,7 +402,7 @@ fn random_network(r: &mut Rng, n: usize) -> Vec<SlaveSpec> {
 /// system time has no reference: the bring-up says so.
 #[test]
 fn random_networks_of_every_dc_kind_sync_exactly_the_system_time_slaves() {
-    let mut r = Rng(0x32_c10c);
+    let mut r = Rng::new(0x32_c10c);
     let (mut networks, mut without, mut worst) = (0, 0, 0.0f64);
     let mut kinds = [0usize; 4];
     for k in 0..40 {

@@ -21,6 +21,7 @@ mod common;
 use common::{captures_dir, datagrams, has_returned, read_pcapng, u32_of, u64_of};
 use ecsync_sim::catalog;
 use ecsync_sim::clock::CrystalParams;
+use ecsync_sim::rng::splitmix64;
 use ecsync_sim::{Segment, SlaveSpec, Upstream};
 use ecsync_wire::dc_time;
 use ecsync_wire::register as reg;
@@ -45,14 +46,7 @@ fn captured_segment(ppm: [f64; 3], local_ns: [u64; 3]) -> Vec<SlaveSpec> {
             seed: i as u64,
             ..Default::default()
         },
-        upstream: if i == 0 {
-            Upstream::Master
-        } else {
-            Upstream::Slave {
-                index: i - 1,
-                port: 1,
-            }
-        },
+        upstream: Upstream::in_line(i),
         entry_port: 0,
         cable_m: 0.0,
         ring: None,
@@ -142,7 +136,7 @@ fn replay(
         // 40 ns stamp cell it reached the first slave: with a seed, each frame arrives a
         // uniform 0..1000 ns later than its timestamp (independent per frame).
         let jitter_ps =
-            jitter_seed.map_or(0, |seed| splitmix(seed ^ sent.number as u64) % 1_000_000);
+            jitter_seed.map_or(0, |seed| splitmix64(seed ^ sent.number as u64) % 1_000_000);
         let o = seg.process(&mut frame, 1_000_000_000 + sent.t_ns * 1000 + jitter_ps);
         assert!(o.returned_sof_ps.is_some(), "frame {}", sent.number);
         out.push((back.number, datagrams(&frame)));
@@ -263,14 +257,6 @@ fn read_at(answered: &Answered, frame: usize, ado: u16) -> u64 {
         8 => u64_of(&d.data),
         _ => u64::from(u32_of(&d.data)),
     }
-}
-
-/// SplitMix64: a well-mixed 64-bit value of `x` (the jitter's seeded stream).
-fn splitmix(x: u64) -> u64 {
-    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
 }
 
 /// The same reading with each frame after the latch arriving anywhere within its host

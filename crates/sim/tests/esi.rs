@@ -748,14 +748,7 @@ fn a_segment_of_esi_drives_answers_coe_with_the_esi_values() {
         model: EscModel::servo_mii(),
         device: d.device_info(i as u32 + 1),
         crystal: CrystalParams::default(),
-        upstream: if i == 0 {
-            Upstream::Master
-        } else {
-            Upstream::Slave {
-                index: i - 1,
-                port: 1,
-            }
-        },
+        upstream: Upstream::in_line(i),
         entry_port: 0,
         cable_m: 1.0,
         ring: None,

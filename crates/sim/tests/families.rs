@@ -197,43 +197,14 @@ fn the_akd_family_answers_soem_as_the_drive_did() {
     );
 }
 
-/// A line of `models` to the master, each slave on the port 1 of the one before (cable
-/// `cable_m` each), devices built by `device`.
-fn line(models: &[EscModel], cable_m: f64, device: impl Fn(usize) -> DeviceInfo) -> Vec<SlaveSpec> {
-    models
-        .iter()
-        .enumerate()
-        .map(|(i, model)| SlaveSpec {
-            model: model.clone(),
-            device: device(i),
-            crystal: CrystalParams {
-                ppm: [3.0, -7.0, 11.0, -2.0][i % 4],
-                initial_local_ns: 1_000_000_000 + 123_456_789 * i as u64,
-                seed: i as u64,
-                ..Default::default()
-            },
-            upstream: if i == 0 {
-                Upstream::Master
-            } else {
-                Upstream::Slave {
-                    index: i - 1,
-                    port: 1,
-                }
-            },
-            entry_port: 0,
-            cable_m,
-            ring: None,
-        })
-        .collect()
-}
-
 /// The network of replay-dc.pcapng in the families: an EK1100-like coupler, an EL2828-like
 /// terminal (receive times only), an EL2889-like one (64-bit system time).
 fn ek1100_el2828_el2889() -> Vec<SlaveSpec> {
     // The EL2889 reads 0x0040 in 0x0502 where the family's other terminals read 0x0050.
     let mut el2889 = EscModel::et1200_terminal(ecsync_sim::model::DcSupport::Full64);
     el2889.sii_control_idle = 0x0040;
-    line(
+    common::line(
+        0,
         &[
             EscModel::et1100_coupler(),
             EscModel::et1200_terminal(ecsync_sim::model::DcSupport::ReceiveTimes),

@@ -13,40 +13,10 @@ mod common;
 
 use common::{captures_dir, datagrams, has_returned, read_pcapng};
 use ecsync_master::{BringupConfig, Engine, Network, bringup};
-use ecsync_sim::clock::CrystalParams;
 use ecsync_sim::model::{DcSupport, DeviceInfo, EscModel};
 use ecsync_sim::transport::SimTransport;
-use ecsync_sim::{Segment, SlaveSpec, Upstream};
+use ecsync_sim::{Segment, SlaveSpec};
 use ecsync_wire::Command;
-
-/// A line of `models` to the master, each slave on port 1 of the one before.
-fn line(models: &[EscModel], cable_m: f64, device: impl Fn(usize) -> DeviceInfo) -> Vec<SlaveSpec> {
-    models
-        .iter()
-        .enumerate()
-        .map(|(i, model)| SlaveSpec {
-            model: model.clone(),
-            device: device(i),
-            crystal: CrystalParams {
-                ppm: [3.0, -7.0, 11.0, -2.0][i % 4],
-                initial_local_ns: 1_000_000_000 + 123_456_789 * i as u64,
-                seed: 0x5eed_0000 + i as u64,
-                ..Default::default()
-            },
-            upstream: if i == 0 {
-                Upstream::Master
-            } else {
-                Upstream::Slave {
-                    index: i - 1,
-                    port: 1,
-                }
-            },
-            entry_port: 0,
-            cable_m,
-            ring: None,
-        })
-        .collect()
-}
 
 /// ecsync's bring-up on `specs`.
 fn bring_up(specs: &[SlaveSpec]) -> Network {
@@ -103,7 +73,8 @@ fn delays_on_an_ek1100_line_agree_with_the_captured_loops() {
     eprintln!("captured loops: EK1100 {ek:?}, EL2828 {el:?}");
     assert_eq!((ek.len(), el.len()), (4, 4), "one latch read per capture");
     let (ek, el) = (mean(&ek), mean(&el));
-    let specs = line(
+    let specs = common::line(
+        0x5eed_0000,
         &[
             EscModel::et1100_coupler(),
             EscModel::et1200_terminal(DcSupport::ReceiveTimes),
@@ -130,9 +101,12 @@ fn delays_on_an_ek1100_line_agree_with_the_captured_loops() {
 #[test]
 fn delays_on_a_lan9252_pair_agree_with_the_captured_hop() {
     // 1 m of cable, as the family's hop figure assumes.
-    let specs = line(&[EscModel::lan9252(), EscModel::lan9252()], 1.0, |i| {
-        DeviceInfo::servo_drive(i as u32 + 1)
-    });
+    let specs = common::line(
+        0x5eed_0000,
+        &[EscModel::lan9252(), EscModel::lan9252()],
+        1.0,
+        |i| DeviceInfo::servo_drive(i as u32 + 1),
+    );
     let net = bring_up(&specs);
     let d = net.slaves[1].delay_ns.expect("a delay") - net.slaves[0].delay_ns.unwrap_or(0.0);
     eprintln!("LAN9252 pair: second board's delay {d:.1} ns (half of 1440: 720)");

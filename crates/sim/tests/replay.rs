@@ -51,14 +51,7 @@ fn captured_segment() -> Vec<SlaveSpec> {
             seed: i as u64,
             ..Default::default()
         },
-        upstream: if i == 0 {
-            Upstream::Master
-        } else {
-            Upstream::Slave {
-                index: i - 1,
-                port: 1,
-            }
-        },
+        upstream: Upstream::in_line(i),
         entry_port: 0,
         cable_m: 0.0,
         ring: None,

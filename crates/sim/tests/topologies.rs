@@ -8,6 +8,10 @@
 //! master as its ESI would give it); 2-port slaves without DC mixed in; 32- and 64-bit DC;
 //! clocks that wrap their low 32 bits during the measurement.
 
+mod common;
+
+use common::Rng;
+
 use ecsync_master::bringup::EsiTiming;
 use ecsync_master::{BringupConfig, Engine, Stage, bringup};
 use ecsync_sim::clock::CrystalParams;
@@ -32,26 +36,8 @@ struct Gen {
     seed: u64,
 }
 
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        // splitmix64
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-    fn f(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (self.next() >> 11) as f64 / (1u64 << 53) as f64 * (hi - lo)
-    }
-}
-
 fn build(g: &Gen) -> (Vec<SlaveSpec>, Vec<EsiTiming>) {
-    let mut r = Rng(g.seed);
+    let mut r = Rng::new(g.seed);
     let mut specs: Vec<SlaveSpec> = Vec::new();
     let mut esi = Vec::new();
     // Free ports per slave, in the order children should take them.

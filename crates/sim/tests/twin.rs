@@ -5,6 +5,10 @@
 //! original's true delays, and its crystals within 0.1 ppm of the original's against the
 //! reference. The truth is the original segment's, never what the master measured.
 
+mod common;
+
+use common::Rng;
+
 use ecsync_master::{BringupConfig, Engine, Network, Stage, bringup};
 use ecsync_sim::clock::CrystalParams;
 use ecsync_sim::config::parse_segment;
@@ -12,24 +16,6 @@ use ecsync_sim::model::{DcSupport, DeviceInfo, EscModel};
 use ecsync_sim::transport::SimTransport;
 use ecsync_sim::twin::twin_toml;
 use ecsync_sim::{Segment, SlaveSpec, Upstream};
-
-/// splitmix64: a seeded source for the segment's shape, cables and crystals.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn f(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (self.next() >> 11) as f64 / (1u64 << 53) as f64 * (hi - lo)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-}
 
 /// (model name, model) of the line slaves.
 fn line_model(r: &mut Rng) -> (&'static str, EscModel) {
@@ -47,7 +33,7 @@ fn line_model(r: &mut Rng) -> (&'static str, EscModel) {
 /// A reference drive, a short line, a four-port junction with a line on each of ports 3, 1
 /// and 2 (port 3 first in processing order), and a line after the junction's last branch.
 fn segment(seed: u64) -> (Vec<SlaveSpec>, Vec<&'static str>) {
-    let mut r = Rng(seed);
+    let mut r = Rng::new(seed);
     let mut specs: Vec<SlaveSpec> = Vec::new();
     let mut names = Vec::new();
     let mut push = |specs: &mut Vec<SlaveSpec>,

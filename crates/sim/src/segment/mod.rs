@@ -51,6 +51,17 @@ pub enum Upstream {
     },
 }
 
+impl Upstream {
+    /// The entry of slave `i` (from 0) of a line: the master's interface for the first, port 1
+    /// of the slave before for each other.
+    pub fn in_line(i: usize) -> Upstream {
+        match i.checked_sub(1) {
+            None => Upstream::Master,
+            Some(index) => Upstream::Slave { index, port: 1 },
+        }
+    }
+}
+
 /// One slave of a segment description.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SlaveSpec {

@@ -7,7 +7,8 @@
 
 use ecsync_sim::clock::CrystalParams;
 use ecsync_sim::model::{DeviceInfo, EscModel};
-use ecsync_sim::{Esc, Segment};
+use ecsync_sim::rng::SplitMix64;
+use ecsync_sim::{Esc, Segment, SlaveSpec, Upstream};
 use ecsync_wire::{Command, DatagramAddress, EcatFrame, FrameBuilder};
 use pcap_file::pcapng::blocks::interface_description::InterfaceDescriptionOption;
 use pcap_file::pcapng::{Block, PcapNgReader};
@@ -317,5 +318,60 @@ impl MbxDrive {
     /// A CoE message (type 3) with `data` after the mailbox header.
     pub fn coe(&mut self, data: &[u8]) -> Vec<u8> {
         self.send(3, data).expect("an answer")
+    }
+}
+
+/// A line of `models` to the master, each slave on port 1 of the one before (cable `cable_m`
+/// each), devices built by `device`; crystals a few ppm apart, their wander seeded from
+/// `seed` on.
+pub fn line(
+    seed: u64,
+    models: &[EscModel],
+    cable_m: f64,
+    device: impl Fn(usize) -> DeviceInfo,
+) -> Vec<SlaveSpec> {
+    models
+        .iter()
+        .enumerate()
+        .map(|(i, model)| SlaveSpec {
+            model: model.clone(),
+            device: device(i),
+            crystal: CrystalParams {
+                ppm: [3.0, -7.0, 11.0, -2.0][i % 4],
+                initial_local_ns: 1_000_000_000 + 123_456_789 * i as u64,
+                seed: seed + i as u64,
+                ..Default::default()
+            },
+            upstream: Upstream::in_line(i),
+            entry_port: 0,
+            cable_m,
+            ring: None,
+        })
+        .collect()
+}
+
+/// The random draws of the tests that make networks: the simulator's SplitMix64 stream from a
+/// fixed seed (a failure reproduces), with a bounded integer and a uniform real.
+pub struct Rng(SplitMix64);
+
+impl Rng {
+    /// The stream from `seed`.
+    pub fn new(seed: u64) -> Self {
+        Rng(SplitMix64(seed))
+    }
+
+    /// The next 64 random bits.
+    pub fn next(&mut self) -> u64 {
+        self.0.next()
+    }
+
+    /// Uniform in `0..n` (0 for `n` = 0).
+    pub fn below(&mut self, n: u64) -> u64 {
+        self.next() % n.max(1)
+    }
+
+    /// Uniform in `[lo, hi)`.
+    pub fn f(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (self.next() >> 11) as f64 / (1u64 << 53) as f64 * (hi - lo)
     }
 }
