@@ -315,6 +315,9 @@ pub(super) struct GroundTruth {
     grid0: Option<(u64, i64)>,
     /// This cycle's margin per DC slave (NaN: none), for the samples.
     pub(super) margins: Vec<f64>,
+    /// Per DC slave: the first SYNC0 pulse after its last outputs (`SlaveTruth::
+    /// last_outputs_ns`), ns: the pulses since then counted without a division in most cycles.
+    next_pulse_ns: Vec<u64>,
     /// The init frames' drift: the reference's time against the master's clock.
     pub(super) init_fit: LineFit,
     pub(super) init_frames: u64,
@@ -345,6 +348,7 @@ impl GroundTruth {
             regrid: g.regrid,
             grid0: None,
             margins: Vec::with_capacity(n_dc),
+            next_pulse_ns: vec![0; n_dc],
             init_fit: LineFit::default(),
             init_frames: g.init_frames,
         }
@@ -432,10 +436,11 @@ impl GroundTruth {
         let mut worst_margin = f64::INFINITY;
         let mut worst_slave = 0u16;
         self.margins.clear();
-        for ((st, &x), &(k, out_wire_ps)) in per_slave
+        for (((st, &x), &(k, out_wire_ps)), next_pulse) in per_slave
             .iter_mut()
             .zip(self.dc_slaves.iter())
             .zip(self.out_frames.iter())
+            .zip(self.next_pulse_ns.iter_mut())
         {
             let pu = if !runs_sync0(x) {
                 None
@@ -458,8 +463,22 @@ impl GroundTruth {
                 let s = shift as u64;
                 if t < s { 0 } else { (t - s) / period + 1 }
             };
-            if let Some(prev) = st.last_outputs_ns.replace(e.0) {
-                st.sync0_missed += pulses(e.0).saturating_sub(pulses(prev)).saturating_sub(1);
+            let first_after = |t: u64| (shift as u64) + pulses(t) * period;
+            match st.last_outputs_ns.replace(e.0) {
+                // Pulses in (prev, e]: none before the next pulse, one up to a period after
+                // it (a division only for more), none when the time went back (a clock step).
+                Some(prev) if e.0 >= prev => {
+                    let n = if e.0 < *next_pulse {
+                        0
+                    } else if e.0 - *next_pulse < period {
+                        1
+                    } else {
+                        (e.0 - *next_pulse) / period + 1
+                    };
+                    *next_pulse += n * period;
+                    st.sync0_missed += n.saturating_sub(1);
+                }
+                _ => *next_pulse = first_after(e.0),
             }
             let esc = seg.esc(x);
             if esc.runs_on_sync0() {

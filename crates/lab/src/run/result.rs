@@ -94,8 +94,22 @@ pub struct Band {
 pub struct Bands {
     block: u64,
     start: u64,
-    buf: Vec<f32>,
+    /// The block's values as [`order_key`]s: selected as integers, in `f32::total_cmp`'s
+    /// order (a comparison of keys is one instruction, total_cmp's a few more).
+    buf: Vec<i32>,
     out: Vec<Band>,
+}
+
+/// `x`'s key in `f32::total_cmp`'s order: the integer comparison `total_cmp` makes (its bits,
+/// the magnitude's flipped for negatives). Its own inverse.
+#[inline]
+fn order_key(bits: i32) -> i32 {
+    bits ^ (((bits >> 31) as u32) >> 1) as i32
+}
+
+/// The value of a key.
+fn of_key(key: i32) -> f32 {
+    f32::from_bits(order_key(key) as u32)
 }
 
 impl Bands {
@@ -122,7 +136,7 @@ impl Bands {
             self.flush();
             self.start = k / self.block * self.block;
         }
-        self.buf.push(x as f32);
+        self.buf.push(order_key((x as f32).to_bits() as i32));
     }
 
     fn flush(&mut self) {
@@ -133,20 +147,20 @@ impl Bands {
         let at = |q: f64| ((q * n as f64).ceil() as usize).clamp(1, n) - 1;
         let b = &mut self.buf;
         let (i50, i01, i99) = (at(0.5), at(0.01), at(0.99));
-        let (lo, med, hi) = b.select_nth_unstable_by(i50, f32::total_cmp);
-        let med = *med;
+        let (lo, med, hi) = b.select_nth_unstable(i50);
+        let med = of_key(*med);
         let p01 = if i01 < i50 {
-            *lo.select_nth_unstable_by(i01, f32::total_cmp).1
+            of_key(*lo.select_nth_unstable(i01).1)
         } else {
             med
         };
-        let min = lo.iter().copied().fold(med, f32::min);
+        let min = lo.iter().map(|&k| of_key(k)).fold(med, f32::min);
         let p99 = if i99 > i50 {
-            *hi.select_nth_unstable_by(i99 - i50 - 1, f32::total_cmp).1
+            of_key(*hi.select_nth_unstable(i99 - i50 - 1).1)
         } else {
             med
         };
-        let max = hi.iter().copied().fold(med, f32::max);
+        let max = hi.iter().map(|&k| of_key(k)).fold(med, f32::max);
         self.out.push(Band {
             cycle: self.start,
             n: n as u32,
@@ -560,3 +574,64 @@ pub(super) const RELOCK_CYCLES: u32 = 100;
 pub(super) const RELOCK_NS: u32 = 100;
 /// The method's error band, ns (at least).
 pub(super) const RELOCK_M_RS_MIN_NS: f64 = 1_000.0;
+
+#[cfg(test)]
+mod band_tests {
+    use super::*;
+
+    /// The keys sort as `f32::total_cmp` does, and back to the same bits.
+    #[test]
+    fn keys_order_as_total_cmp() {
+        let v = [
+            f32::NEG_INFINITY,
+            -3.4e38,
+            -1.0,
+            -1e-45,
+            -0.0,
+            0.0,
+            1e-45,
+            2.0,
+            f32::INFINITY,
+            f32::NAN,
+            -f32::NAN,
+        ];
+        for a in v {
+            let ka = order_key(a.to_bits() as i32);
+            assert_eq!(of_key(ka).to_bits(), a.to_bits());
+            for b in v {
+                assert_eq!(ka.cmp(&order_key(b.to_bits() as i32)), a.total_cmp(&b), "{a} {b}");
+            }
+        }
+    }
+
+    /// A block's band: its extremes and percentiles by sorting the values (the definition:
+    /// the sample of rank ceil(q n)).
+    #[test]
+    fn a_band_is_the_sorted_blocks_ranks() {
+        let mut x = 0x5eedu64;
+        let mut next = || {
+            x = x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            ((x >> 33) as f64 / (1u64 << 31) as f64 - 0.5) * 2e4
+        };
+        let cycles = 1_000 * BAND_POINTS;
+        let mut bands = Bands::new(cycles);
+        let mut all = Vec::new();
+        for k in 0..cycles {
+            let v = next();
+            bands.add(k, v);
+            all.push(v as f32);
+        }
+        let out = bands.finish();
+        assert_eq!(out.len() as u64, BAND_POINTS);
+        for (i, b) in out.iter().enumerate() {
+            let mut block: Vec<f32> = all[i * 1000..(i + 1) * 1000].to_vec();
+            block.sort_by(f32::total_cmp);
+            let rank = |q: f64| block[((q * 1000.0).ceil() as usize).clamp(1, 1000) - 1];
+            assert_eq!(b.cycle, i as u64 * 1000);
+            assert_eq!(
+                (b.min, b.p01, b.p50, b.p99, b.max),
+                (block[0], rank(0.01), rank(0.5), rank(0.99), block[999])
+            );
+        }
+    }
+}
