@@ -389,4 +389,23 @@ mod testing {
     pub(super) fn wkc(d: &[u8]) -> u16 {
         u16::from_le_bytes([d[d.len() - 2], d[d.len() - 1]])
     }
+
+    /// A BWR of `data` to `ado` at `t_ps`: its working counter.
+    pub(super) fn put(e: &mut Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
+        let mut d = dg(Command::Bwr, 0, ado, data);
+        e.process_datagram(&mut d, t_ps);
+        wkc(&d)
+    }
+
+    /// A BRD of `n` bytes at `ado` at `t_ps`: its working counter and the bytes.
+    pub(super) fn get(e: &mut Esc, ado: u16, n: usize, t_ps: u64) -> (u16, Vec<u8>) {
+        let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
+        e.process_datagram(&mut d, t_ps);
+        (wkc(&d), d[10..10 + n].to_vec())
+    }
+
+    /// [`get`]'s bytes alone.
+    pub(super) fn read(e: &mut Esc, ado: u16, n: usize, t_ps: u64) -> Vec<u8> {
+        get(e, ado, n, t_ps).1
+    }
 }

@@ -599,7 +599,11 @@ mod band_tests {
             let ka = order_key(a.to_bits() as i32);
             assert_eq!(of_key(ka).to_bits(), a.to_bits());
             for b in v {
-                assert_eq!(ka.cmp(&order_key(b.to_bits() as i32)), a.total_cmp(&b), "{a} {b}");
+                assert_eq!(
+                    ka.cmp(&order_key(b.to_bits() as i32)),
+                    a.total_cmp(&b),
+                    "{a} {b}"
+                );
             }
         }
     }

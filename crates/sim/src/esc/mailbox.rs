@@ -435,10 +435,9 @@ fn message(m: &mut MailboxState, mailbox_type: MailboxType, data: &[u8]) -> Vec<
 #[cfg(test)]
 mod tests {
     use super::super::Esc;
-    use super::super::testing::{dg, wkc};
+    use super::super::testing::{get, put};
     use crate::clock::CrystalParams;
     use crate::model::{DeviceInfo, EscModel};
-    use ecsync_wire::Command;
 
     fn drive() -> Esc {
         let mut e = Esc::new(
@@ -448,18 +447,6 @@ mod tests {
         );
         e.set_links([true, false, false, false]);
         e
-    }
-
-    fn put(e: &mut Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
-        let mut d = dg(Command::Bwr, 0, ado, data);
-        e.process_datagram(&mut d, t_ps);
-        wkc(&d)
-    }
-
-    fn get(e: &mut Esc, ado: u16, n: usize, t_ps: u64) -> (u16, Vec<u8>) {
-        let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
-        e.process_datagram(&mut d, t_ps);
-        (wkc(&d), d[10..10 + n].to_vec())
     }
 
     /// A 128-byte mailbox with an SDO upload of `index:sub`, counter `counter`.
@@ -557,23 +544,10 @@ mod tests {
 
 #[cfg(test)]
 mod fragment_tests {
-    use super::super::testing::{dg, wkc};
+    use super::super::testing::{get, put};
     use crate::clock::CrystalParams;
     use crate::coe::{Access, Entry, Object, ObjectCode, data_type};
     use crate::model::{DeviceInfo, EscModel};
-    use ecsync_wire::Command;
-
-    fn put(e: &mut super::Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
-        let mut d = dg(Command::Bwr, 0, ado, data);
-        e.process_datagram(&mut d, t_ps);
-        wkc(&d)
-    }
-
-    fn get(e: &mut super::Esc, ado: u16, n: usize, t_ps: u64) -> (u16, Vec<u8>) {
-        let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
-        e.process_datagram(&mut d, t_ps);
-        (wkc(&d), d[10..10 + n].to_vec())
-    }
 
     #[test]
     fn a_long_od_list_is_read_fragment_by_fragment_through_sm1() {
@@ -649,22 +623,10 @@ mod fragment_tests {
 
 #[cfg(test)]
 mod sync_mode_tests {
-    use super::super::testing::{dg, wkc};
+    use super::super::testing::{dg, put, read};
     use crate::clock::CrystalParams;
     use crate::model::{DeviceInfo, EscModel};
     use ecsync_wire::Command;
-
-    fn put(e: &mut super::Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
-        let mut d = dg(Command::Bwr, 0, ado, data);
-        e.process_datagram(&mut d, t_ps);
-        wkc(&d)
-    }
-
-    fn get(e: &mut super::Esc, ado: u16, n: usize, t_ps: u64) -> Vec<u8> {
-        let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
-        e.process_datagram(&mut d, t_ps);
-        d[10..10 + n].to_vec()
-    }
 
     /// A drive in SAFE-OP after 0x1C32:01 = `mode` over CoE, with or without SYNC0 started.
     fn safe_op(mode: u16, sync0: bool) -> super::Esc {
@@ -713,7 +675,7 @@ mod sync_mode_tests {
             put(&mut e, 0x0981, &[0x03], 2_000_000_000);
         }
         put(&mut e, 0x0120, &[0x04, 0], 2_000_000_000);
-        assert_eq!(get(&mut e, 0x0130, 2, 2_000_000_000)[0], 0x04, "SAFE-OP");
+        assert_eq!(read(&mut e, 0x0130, 2, 2_000_000_000)[0], 0x04, "SAFE-OP");
         e
     }
 
@@ -721,15 +683,15 @@ mod sync_mode_tests {
     fn a_drive_in_dc_mode_without_sync0_refuses_op_with_0x002d() {
         let mut e = safe_op(2, false);
         put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
-        let st = get(&mut e, 0x0130, 6, 3_000_000_000);
+        let st = read(&mut e, 0x0130, 6, 3_000_000_000);
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x002d));
         // With SYNC0 running it goes to OP; in free run it does without.
         let mut e = safe_op(2, true);
         put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
-        assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
+        assert_eq!(read(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
         let mut e = safe_op(0, false);
         put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
-        assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
+        assert_eq!(read(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08);
     }
 
     /// |0x092C| past the drive's PLL limit: 0x0032 with the next outputs, OP left.
@@ -742,7 +704,11 @@ mod sync_mode_tests {
         for k in 0..3 {
             put(&mut e, 0x1100, &[0u8; 16], 3_500_000_000 + k * ms);
         }
-        assert_eq!(get(&mut e, 0x0130, 2, 6_000_000_000)[0], 0x08, "locked: OP");
+        assert_eq!(
+            read(&mut e, 0x0130, 2, 6_000_000_000)[0],
+            0x08,
+            "locked: OP"
+        );
         // The reference's time 5 us ahead: the filtered difference follows over the writes.
         let now = e.dc().unwrap().system_time_ns(6_000_000_000);
         for k in 0..200u64 {
@@ -751,7 +717,7 @@ mod sync_mode_tests {
             put(&mut e, 0x0910, &sys.to_le_bytes()[..4], t);
             put(&mut e, 0x1100, &[0u8; 16], t);
         }
-        let st = get(&mut e, 0x0130, 6, 9_000_000_000);
+        let st = read(&mut e, 0x0130, 6, 9_000_000_000);
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x0032));
     }
 
@@ -768,7 +734,7 @@ mod sync_mode_tests {
                 .write(0x1c32, 2, &cycle_time.to_le_bytes(), AlState::PreOp)
                 .unwrap();
             put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
-            let st = get(&mut e, 0x0130, 6, 3_000_000_000);
+            let st = read(&mut e, 0x0130, 6, 3_000_000_000);
             assert_eq!(
                 (st[0], u16::from_le_bytes([st[4], st[5]])),
                 (status, code),
@@ -791,7 +757,7 @@ mod sync_mode_tests {
         put(&mut e, 0x09a0, &25_000u32.to_le_bytes(), 2_500_000_000);
         put(&mut e, 0x0981, &[0x03], 2_500_000_000);
         put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
-        let st = get(&mut e, 0x0130, 6, 3_000_000_000);
+        let st = read(&mut e, 0x0130, 6, 3_000_000_000);
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x0036));
     }
 
@@ -832,7 +798,7 @@ mod sync_mode_tests {
     fn sm_events_missed_counts_sync0_pulses_without_new_outputs() {
         let mut e = safe_op(2, true);
         put(&mut e, 0x0120, &[0x08, 0], 3_000_000_000);
-        assert_eq!(get(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08, "OP");
+        assert_eq!(read(&mut e, 0x0130, 2, 3_000_000_000)[0], 0x08, "OP");
         assert!(e.runs_on_sync0());
         // The DC system time is the local time here (no offset written): pulses at 10 ms +
         // k ms of local time, local time = real time for the default crystal.
@@ -867,7 +833,7 @@ mod sync_mode_tests {
         assert_eq!(u16::from_le_bytes([v[0], v[1]]), 3);
         // 0x002C: SYNC0 switched off under a drive running on it in OP.
         put(&mut e, 0x0981, &[0x00], at(k + 2, 0));
-        let st = get(&mut e, 0x0130, 6, at(k + 2, 0));
+        let st = read(&mut e, 0x0130, 6, at(k + 2, 0));
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x002c));
     }
 
@@ -894,17 +860,17 @@ mod sync_mode_tests {
             write(&mut e, t0 + k * ms);
         }
         write(&mut e, t0 + 11 * ms);
-        assert_eq!(get(&mut e, 0x0130, 2, t0 + 11 * ms)[0], 0x08, "still OP");
+        assert_eq!(read(&mut e, 0x0130, 2, t0 + 11 * ms)[0], 0x08, "still OP");
         // Another one soon after: 2 + 3 > 4.
         write(&mut e, t0 + 13 * ms);
-        let st = get(&mut e, 0x0130, 6, t0 + 13 * ms);
+        let st = read(&mut e, 0x0130, 6, t0 + 13 * ms);
         assert_eq!((st[0], u16::from_le_bytes([st[4], st[5]])), (0x14, 0x001a));
         assert_eq!(e.sm_events_missed(), 2);
         // And an emergency in SM1, unasked: CoE (type 3), service 1, error code 0xA000,
         // error register 0x10, the AL status code in the manufacturer bytes.
-        let full = get(&mut e, 0x080d, 1, t0 + 14 * ms)[0] & 0x08 != 0;
+        let full = read(&mut e, 0x080d, 1, t0 + 14 * ms)[0] & 0x08 != 0;
         assert!(full, "SM1 holds the emergency");
-        let m = get(&mut e, 0x1080, 128, t0 + 14 * ms);
+        let m = read(&mut e, 0x1080, 128, t0 + 14 * ms);
         assert_eq!((m[0], m[5] & 0x0f), (10, 3), "length 10, CoE: {m:02x?}");
         assert_eq!(
             &m[6..16],

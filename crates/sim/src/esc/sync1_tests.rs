@@ -3,28 +3,16 @@
 //! 10.75 ms + k ms; the OP checks of its DC configuration.
 
 use super::Esc;
-use super::testing::{dg, wkc};
+use super::testing::{dg, put, read};
 use crate::clock::CrystalParams;
 use crate::model::{DeviceInfo, EscModel};
 use ecsync_wire::{AlState, Command};
 
 const MS_PS: u64 = 1_000_000_000;
 
-fn put(e: &mut Esc, ado: u16, data: &[u8], t_ps: u64) -> u16 {
-    let mut d = dg(Command::Bwr, 0, ado, data);
-    e.process_datagram(&mut d, t_ps);
-    wkc(&d)
-}
-
-fn get(e: &mut Esc, ado: u16, n: usize, t_ps: u64) -> Vec<u8> {
-    let mut d = dg(Command::Brd, 0, ado, &vec![0; n]);
-    e.process_datagram(&mut d, t_ps);
-    d[10..10 + n].to_vec()
-}
-
 /// AL status and AL status code.
 fn al(e: &mut Esc, t_ps: u64) -> (u8, u16) {
-    let st = get(e, 0x0130, 6, t_ps);
+    let st = read(e, 0x0130, 6, t_ps);
     (st[0], u16::from_le_bytes([st[4], st[5]]))
 }
 
