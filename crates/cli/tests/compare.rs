@@ -332,3 +332,43 @@ fn bus_shift_m_rs_on_a_32_bit_reference_equals_the_64_bit_one() {
     assert!(wide["mean"].as_f64().unwrap().abs() < 1_000.0, "{wide}");
     assert_eq!(narrow, wide, "32-bit reference against 64-bit");
 }
+
+/// A 32-bit reference (the AKD's DC) syncs as a 64-bit one: SYNC0 runs on its 32-bit time's
+/// own grid across the register's wraps, and the master reads, extends and programs that time
+/// on the grid its cyclic phase aims at. On the same network and noise every method's ground
+/// truth (phase, margins, late frames, spread) is the 64-bit reference's to the bit. Before,
+/// the simulated SYNC0 put a 32-bit unit's pulses on the wrong grid and the master extended
+/// the time two ways: median-fit, the DCMs, snap and soem-pi sat 420-510 us off their target.
+#[test]
+fn every_method_on_a_32_bit_reference_is_judged_as_on_a_64_bit_one() {
+    let preset = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/akd.toml"),
+    )
+    .unwrap();
+    let dir = tmp("dc32-all");
+    let truth = |model: &str| {
+        let cfg = dir.join(format!("{model}.toml"));
+        std::fs::write(
+            &cfg,
+            preset.replace("model = \"akd\"", &format!("model = \"{model}\"")),
+        )
+        .unwrap();
+        let s = run(
+            &dir.join(model),
+            &["--config", cfg.to_str().unwrap(), "--cycles", "3000"],
+        );
+        s["methods"]
+            .as_object()
+            .unwrap()
+            .iter()
+            .map(|(m, v)| (m.clone(), v["ground_truth"].clone()))
+            .collect::<Vec<_>>()
+    };
+    let (wide, narrow) = (truth("servo-mii"), truth("servo-mii-dc32"));
+    assert_eq!(wide.len(), 8, "the default methods");
+    for ((m, w), (_, n)) in wide.iter().zip(&narrow) {
+        let late = w["late_frames"].as_u64().unwrap();
+        assert_eq!(late, 0, "{m} on the 64-bit reference: {w}");
+        assert_eq!(n, w, "{m}: 32-bit reference against 64-bit");
+    }
+}

@@ -692,13 +692,15 @@ impl<S: MasterSync> CyclicEngine<S> {
                     let raw = u64::from_le_bytes(r[at..at + 8].try_into().unwrap_or([0; 8]));
                     self.reference_32bit = raw >> 32 == 0;
                     // A 32-bit reference reads 0 in the upper half: extend next to the
-                    // expectation.
+                    // expectation, the first reading next to the master's time (where the
+                    // bring-up extended it and put SYNC0's grid).
                     let t = match self.last_ref_ns {
-                        Some(prev) if raw >> 32 == 0 => extend_reference_time(
+                        _ if raw >> 32 != 0 => raw,
+                        Some(prev) => extend_reference_time(
                             prev.wrapping_add(u64::from(self.cfg.period_ns)),
                             raw as u32,
                         ),
-                        _ => raw,
+                        None => extend_reference_time(raw_send_ns, raw as u32),
                     };
                     let send_ns = corrected(raw_send_ns, self.health.master_clock_correction_ns);
                     let round_trip_ns = raw_receive_ns.wrapping_sub(raw_send_ns);

@@ -310,6 +310,12 @@ impl DcUnit {
         if self.is_64bit { s } else { s & 0xffff_ffff }
     }
 
+    /// The system time on the unit's 64-bit time line (register view, quantised): a 32-bit
+    /// unit's register shows its lower half. SYNC0's pulses are on this line.
+    fn system_time_full_ns(&self, t_ps: u64) -> u64 {
+        self.clock.local_ns(t_ps).wrapping_add(self.offset)
+    }
+
     /// System time at `t_ps` as (integer ns, fraction), unquantised (ground truth).
     pub fn system_time_split(&self, t_ps: u64) -> (u64, f64) {
         self.system_time_split_in::<false>(t_ps)
@@ -431,7 +437,9 @@ impl DcUnit {
         }
         if overlaps(reg::DC_CYCLIC_UNIT_CONTROL, 0x28) {
             self.clock.advance_to(t_ps);
-            let now = self.system_time_ns(t_ps);
+            // SYNC0 on the unit's 64-bit time line; the registers show what the unit has.
+            let now = self.system_time_full_ns(t_ps);
+            let shown = if self.is_64bit { u64::MAX } else { 0xffff_ffff };
             put(reg::DC_CYCLIC_UNIT_CONTROL, &[self.cyclic_control]);
             put(reg::DC_ACTIVATION, &[self.activation]);
             put(reg::DC_PULSE_LENGTH, &self.pulse_length.to_le_bytes());
@@ -455,13 +463,16 @@ impl DcUnit {
             } else {
                 self.start_time
             };
-            put(reg::DC_START_TIME, &next0_v.to_le_bytes());
+            put(reg::DC_START_TIME, &(next0_v & shown).to_le_bytes());
             let next1 = if self.sync1_active() {
                 self.next_sync1_after(now)
             } else {
                 next0.map(|n| n.wrapping_add(u64::from(self.sync1_cycle)))
             };
-            put(reg::DC_NEXT_SYNC1, &next1.unwrap_or(0).to_le_bytes());
+            put(
+                reg::DC_NEXT_SYNC1,
+                &(next1.unwrap_or(0) & shown).to_le_bytes(),
+            );
             put(reg::DC_SYNC0_CYCLE, &self.sync0_cycle.to_le_bytes());
             put(reg::DC_SYNC1_CYCLE, &self.sync1_cycle.to_le_bytes());
         }
@@ -612,7 +623,21 @@ impl DcUnit {
             // (datasheet: a start time in the past starts SYNC only after ~4.3 s).
             self.clock.advance_to(t_ps);
             let now = self.system_time_ns(t_ps);
-            if dc_time::diff_u64(self.start_time, now) <= 0 {
+            if !self.is_64bit {
+                // A 32-bit unit starts where its 32-bit time next equals the start time. On
+                // the unit's own time line, which the simulation keeps in 64 bits (the upper
+                // half what the offset and the wraps so far put there): the pulses then go on
+                // a cycle apart across the register's wraps, as the real counter's do, and
+                // the first lies where the 32-bit comparison matches (a start taken as the
+                // register's 32-bit value on the 64-bit line put every pulse 2^32 mod cycle
+                // times the wraps off the grid the master computed).
+                let full = self.system_time_full_ns(t_ps);
+                let mut start = (full & !0xffff_ffff) | (self.start_time & 0xffff_ffff);
+                if dc_time::diff_u64(start, full) <= 0 {
+                    start = start.wrapping_add(1 << 32);
+                }
+                self.start_time = start;
+            } else if dc_time::diff_u64(self.start_time, now) <= 0 {
                 let behind = now.wrapping_sub(self.start_time);
                 let wraps = behind / (1 << 32) + 1;
                 self.start_time = self.start_time.wrapping_add(wraps << 32);

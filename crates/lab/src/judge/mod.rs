@@ -543,7 +543,7 @@ impl Judge {
         // The pulses' grid runs back from the start time too (as compare's grid does): frames
         // before SYNC0's first pulse are judged against it, and miss no pulse.
         let p = f64::from(c);
-        let x = after_pulse(at, s, c, dc.is_64bit());
+        let x = after_pulse(at, s, c);
         let phase = self.phase_track.place(x, p);
         self.phase.add(phase);
         self.phase_fit.add(t_ps as f64 / 1e12, phase);
@@ -623,7 +623,7 @@ impl Judge {
             // The pulses since the last outputs (none before SYNC0's first): all but the first
             // found none new.
             let pulse_no = |t: u64| {
-                let d = dc_diff(t, s, dc.is_64bit());
+                let d = dc_diff(t, s);
                 if d < 0 { -1 } else { d / i64::from(c) }
             };
             let mut pulses = None;
@@ -638,7 +638,7 @@ impl Judge {
                 most_missed = most_missed.max(m);
                 pulses = Some(n);
             }
-            let x_after = after_pulse(e, s, c, dc.is_64bit());
+            let x_after = after_pulse(e, s, c);
             let p = f64::from(c);
             let v = d.track.place(x_after, p);
             let mut margin = -v;
@@ -686,20 +686,17 @@ fn position_of(seg: &Segment, st: u16) -> Option<usize> {
         .or_else(|| (0..n).find(|&p| is(p)))
 }
 
-/// System time `t` minus `s`, ns, in the width of the slave's system time.
-fn dc_diff(t: u64, s: u64, is_64bit: bool) -> i64 {
-    let d = t.wrapping_sub(s);
-    if is_64bit {
-        d as i64
-    } else {
-        i64::from(d as u32 as i32)
-    }
+/// System time `t` minus `s`, ns, both on the unit's 64-bit time line (a 32-bit unit's
+/// SYNC0 start is there too: `ecsync_sim::DcUnit::sync0`), so the pulses a cycle apart stay
+/// so across the 32-bit register's wraps.
+fn dc_diff(t: u64, s: u64) -> i64 {
+    t.wrapping_sub(s) as i64
 }
 
 /// The time of `at` (system time, ns and fraction) after the last SYNC0 pulse at or before
 /// it (pulses at `s` + n `c`), in [0, c), ns.
-fn after_pulse(at: (u64, f64), s: u64, c: u32, is_64bit: bool) -> f64 {
+fn after_pulse(at: (u64, f64), s: u64, c: u32) -> f64 {
     let c = i64::from(c);
-    let x = dc_diff(at.0, s, is_64bit).rem_euclid(c) as f64 + at.1;
+    let x = dc_diff(at.0, s).rem_euclid(c) as f64 + at.1;
     if x >= c as f64 { x - c as f64 } else { x }
 }

@@ -311,8 +311,9 @@ pub(super) struct GroundTruth {
     /// Find the grid point anew each cycle (with faults: a method that lost the reference for
     /// a while may come back a few periods off its count).
     regrid: bool,
-    /// The grid point of the first recorded frame, and that frame's recorded cycle.
-    grid0: Option<(u64, i64)>,
+    /// The grid point of the first recorded frame, that frame's recorded cycle, and the
+    /// grid's base (the reference's SYNC0 start less the shift, modulo the cycle).
+    grid0: Option<(u64, i64, u64)>,
     /// This cycle's margin per DC slave (NaN: none), for the samples.
     pub(super) margins: Vec<f64>,
     /// Per DC slave: the first SYNC0 pulse after its last outputs (`SlaveTruth::
@@ -405,14 +406,26 @@ impl GroundTruth {
         // recorded frame, one per cycle from there. With faults, the one nearest the target
         // now: a method that lost the reference for a while (a power cycle) may come back a
         // few periods off its count, and SYNC0 fires every period.
-        let (g0, k0) = *self.grid0.get_or_insert_with(|| {
-            let g = ((r.0 as f64 + r.1 - target as f64) / p).round() as u64;
-            (g, k as i64)
+        // The grid points are the reference's SYNC0 pulses less the shift: a cycle apart
+        // from its start (a multiple of the cycle plus the shift where the master wrote it on
+        // a 64-bit unit, so the base is 0; a 32-bit unit's start is on its 64-bit time line,
+        // whose upper half the register does not show).
+        let base = || {
+            seg.esc(reference)
+                .dc()
+                .and_then(|d| d.sync0())
+                .map_or(0, |(s, _)| s.wrapping_sub(shift as u64) % period)
+        };
+        let nearest = |b: u64| ((r.0 as f64 + r.1 - target as f64 - b as f64) / p).round() as u64;
+        let (g0, k0, b0) = *self.grid0.get_or_insert_with(|| {
+            let b = base();
+            (nearest(b), k as i64, b)
         });
         let grid = if self.regrid {
-            ((r.0 as f64 + r.1 - target as f64) / p).round() as u64 * period
+            let b = base();
+            nearest(b) * period + b
         } else {
-            (g0 + (k as i64 - k0) as u64) * period
+            (g0 + (k as i64 - k0) as u64) * period + b0
         };
         let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
         // The slaves' differences move slowly (the loops act once per cycle): every 8th

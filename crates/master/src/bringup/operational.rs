@@ -32,6 +32,14 @@ pub(super) async fn start_sync0(
         .map_err(|e| e.at(Phase::Sync0, dc.reference))?;
     let read_at_ns = link.now().as_ns();
     let now_sys = u64::from_le_bytes(now_sys[..8].try_into().unwrap_or([0; 8]));
+    // A 32-bit reference reads 0 in the upper half: its time extended next to the master's,
+    // as every later reading of it is (`ReferenceReading::of`, the cyclic engine), so that
+    // the start's grid is the one the cyclic phase aims at (the ESC takes the lower half).
+    let now_sys = if now_sys >> 32 == 0 {
+        ecsync_dc::sync::extend_reference_time(read_at_ns, now_sys as u32)
+    } else {
+        now_sys
+    };
     let first_start = ecsync_dc::sync0_start_time(
         SystemTime::from_ns(now_sys),
         cfg.sync0_lead_ns,
