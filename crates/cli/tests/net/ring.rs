@@ -98,11 +98,13 @@ fn a_ring_served_on_two_veth_pairs_keeps_every_drive_through_a_pulled_cable() {
     let wkc = csv_column(&csv, "lrw_wkc");
     let not_whole = wkc.iter().filter(|&&w| w != 36.0).count() as u64;
     assert!(not_whole <= 2 * partial, "{not_whole} LRWs not whole");
-    // Frames lost: this shared host's stalls only (a reply past its cycle's deadline: a
-    // handful in 9 000 cycles, with or without a ring); a break sends each side's copy back
-    // by its own port and loses none.
+    // Frames lost: this shared host's stalls only (a reply past its cycle's deadline: 2-10
+    // in 9 000 cycles, with or without a ring, and 22 once in CI on a fresh machine); a
+    // break sends each side's copy back by its own port and loses none. A ring that lost
+    // what crossed the break would lose the 2 s of it, 2 000 frames: 1 % of the cycles
+    // tells the two apart.
     let lost = j["lost_frames"].as_u64().unwrap();
-    assert!(lost <= 20, "{lost} frames lost");
+    assert!(lost <= 90, "{lost} frames lost");
     served.kill();
 }
 
