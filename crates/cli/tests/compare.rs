@@ -296,24 +296,31 @@ fn an_unwritable_out_fails_before_the_simulation() {
     }
 }
 
+/// `presets/akd.toml` with its drives' ESC model `model`, written into `dir`: the same
+/// network and noise with another width of DC time.
+fn akd_as(dir: &Path, model: &str) -> std::path::PathBuf {
+    let preset = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/akd.toml"),
+    )
+    .unwrap();
+    let cfg = dir.join(format!("{model}.toml"));
+    std::fs::write(
+        &cfg,
+        preset.replace("model = \"akd\"", &format!("model = \"{model}\"")),
+    )
+    .unwrap();
+    cfg
+}
+
 /// Bus shift writes the master's time into the reference; a 32-bit reference keeps its lower
 /// half. The letter's M-rS (reference time minus send stamp) then compares modulo 2^32: on the
 /// same network and noise, a 32-bit reference (ESC type 0x04 like the AKD) gives the figures a
 /// 64-bit one gives (it printed -8.5e14 us, the master's upper half, before).
 #[test]
 fn bus_shift_m_rs_on_a_32_bit_reference_equals_the_64_bit_one() {
-    let preset = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/akd.toml"),
-    )
-    .unwrap();
     let dir = tmp("dc32");
     let m_rs = |model: &str| {
-        let cfg = dir.join(format!("{model}.toml"));
-        std::fs::write(
-            &cfg,
-            preset.replace("model = \"akd\"", &format!("model = \"{model}\"")),
-        )
-        .unwrap();
+        let cfg = akd_as(&dir, model);
         let out = dir.join(model);
         let s = run(
             &out,
@@ -341,18 +348,9 @@ fn bus_shift_m_rs_on_a_32_bit_reference_equals_the_64_bit_one() {
 /// the time two ways: median-fit, the DCMs, snap and soem-pi sat 420-510 us off their target.
 #[test]
 fn every_method_on_a_32_bit_reference_is_judged_as_on_a_64_bit_one() {
-    let preset = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/akd.toml"),
-    )
-    .unwrap();
     let dir = tmp("dc32-all");
     let truth = |model: &str| {
-        let cfg = dir.join(format!("{model}.toml"));
-        std::fs::write(
-            &cfg,
-            preset.replace("model = \"akd\"", &format!("model = \"{model}\"")),
-        )
-        .unwrap();
+        let cfg = akd_as(&dir, model);
         let s = run(
             &dir.join(model),
             &["--config", cfg.to_str().unwrap(), "--cycles", "3000"],

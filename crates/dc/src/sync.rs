@@ -170,6 +170,17 @@ pub fn extend_reference_time(estimate_ns: u64, low32: u32) -> u64 {
     extend_u32(estimate_ns, low32)
 }
 
+/// The reference's time from an 8-byte read of 0x0910 (`raw`): a 32-bit reference reads 0 in
+/// the upper half, and its time is extended next to `estimate_ns` ([`extend_reference_time`]:
+/// the master's clock, or the previous reading plus a period); a 64-bit one's is as read.
+pub fn reference_time_from_read(estimate_ns: u64, raw: u64) -> u64 {
+    if raw >> 32 == 0 {
+        extend_reference_time(estimate_ns, raw as u32)
+    } else {
+        raw
+    }
+}
+
 /// The nominal start of the next cycle: `t_mt^1 + (i + 1) P`.
 pub(crate) fn next_nominal(input: &CycleInput) -> u64 {
     input

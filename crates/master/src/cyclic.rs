@@ -14,7 +14,7 @@ use crate::network::{Network, ReferenceReading};
 use crate::pdi::LrwChunk;
 use ecsync_dc::sync::{
     ControllerLog, CycleInput, CycleOutput, MasterSync, ReferenceWrite, WriteTimes,
-    extend_reference_time,
+    reference_time_from_read,
 };
 use ecsync_dc::time::{MasterDuration, MasterInstant, SystemTime};
 use ecsync_wire::dc_time::diff_u64;
@@ -694,14 +694,10 @@ impl<S: MasterSync> CyclicEngine<S> {
                     // A 32-bit reference reads 0 in the upper half: extend next to the
                     // expectation, the first reading next to the master's time (where the
                     // bring-up extended it and put SYNC0's grid).
-                    let t = match self.last_ref_ns {
-                        _ if raw >> 32 != 0 => raw,
-                        Some(prev) => extend_reference_time(
-                            prev.wrapping_add(u64::from(self.cfg.period_ns)),
-                            raw as u32,
-                        ),
-                        None => extend_reference_time(raw_send_ns, raw as u32),
-                    };
+                    let estimate = self.last_ref_ns.map_or(raw_send_ns, |prev| {
+                        prev.wrapping_add(u64::from(self.cfg.period_ns))
+                    });
+                    let t = reference_time_from_read(estimate, raw);
                     let send_ns = corrected(raw_send_ns, self.health.master_clock_correction_ns);
                     let round_trip_ns = raw_receive_ns.wrapping_sub(raw_send_ns);
                     let belief = self.believe_reference(t, send_ns, round_trip_ns, outage);

@@ -475,11 +475,7 @@ async fn restart_sync0(
     );
     let read_at_ns = link.now().as_ns();
     // A 32-bit keeper's time extended next to the master's, as the bring-up's (its grid).
-    let now_sys = if now_sys >> 32 == 0 {
-        ecsync_dc::sync::extend_reference_time(read_at_ns, now_sys as u32)
-    } else {
-        now_sys
-    };
+    let now_sys = ecsync_dc::sync::reference_time_from_read(read_at_ns, now_sys);
     let start_after = |sys_ns: u64| {
         ecsync_dc::sync0_start_time(
             SystemTime::from_ns(sys_ns),

@@ -472,11 +472,15 @@ impl GroundTruth {
             let margin = shift - end_after_grid;
             // The pulses at m x period + shift up to the outputs: those between two frames'
             // outputs but the first found none new.
-            let pulses = |t: u64| {
+            // The first pulse (at m x period + shift) after `t`.
+            let first_after = |t: u64| {
                 let s = shift as u64;
-                if t < s { 0 } else { (t - s) / period + 1 }
+                if t < s {
+                    s
+                } else {
+                    s + ((t - s) / period + 1) * period
+                }
             };
-            let first_after = |t: u64| (shift as u64) + pulses(t) * period;
             match st.last_outputs_ns.replace(e.0) {
                 // Pulses in (prev, e]: none before the next pulse, one up to a period after
                 // it (a division only for more), none when the time went back (a clock step).

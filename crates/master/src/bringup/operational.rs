@@ -35,11 +35,7 @@ pub(super) async fn start_sync0(
     // A 32-bit reference reads 0 in the upper half: its time extended next to the master's,
     // as every later reading of it is (`ReferenceReading::of`, the cyclic engine), so that
     // the start's grid is the one the cyclic phase aims at (the ESC takes the lower half).
-    let now_sys = if now_sys >> 32 == 0 {
-        ecsync_dc::sync::extend_reference_time(read_at_ns, now_sys as u32)
-    } else {
-        now_sys
-    };
+    let now_sys = ecsync_dc::sync::reference_time_from_read(read_at_ns, now_sys);
     let first_start = ecsync_dc::sync0_start_time(
         SystemTime::from_ns(now_sys),
         cfg.sync0_lead_ns,
@@ -542,12 +538,7 @@ impl ReferenceReading {
             return None;
         }
         let raw = u64::from_le_bytes(reply.data.get(..8)?.try_into().ok()?);
-        // A 32-bit reference reads 0 in the upper half.
-        let reference_ns = if raw >> 32 == 0 {
-            ecsync_dc::sync::extend_reference_time(master_sent_ns, raw as u32)
-        } else {
-            raw
-        };
+        let reference_ns = ecsync_dc::sync::reference_time_from_read(master_sent_ns, raw);
         Some(ReferenceReading {
             master_sent_ns,
             reference_ns,
