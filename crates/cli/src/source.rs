@@ -8,7 +8,7 @@ use std::path::PathBuf;
 #[derive(Debug, Clone, clap::Args)]
 pub struct SourceArgs {
     /// Built-in network, by the name of its file in the repository's presets/: paper-2024,
-    /// twelve-drives, akd, lan9252-pair or ek1100-el2828-el2889.
+    /// twelve-drives, akd, lan9252-pair, ek1100-el2828-el2889 or oversampling.
     #[arg(long, conflicts_with = "config")]
     pub preset: Option<String>,
     /// A TOML file describing the network (see presets/paper-2024.toml).

@@ -278,6 +278,16 @@ fn the_command_line_refuses_with_a_hint() {
     for p in ecsync_sim::host::HostParams::PRESETS {
         assert!(h.contains(p), "{p} in --help");
     }
+    // Every command that takes --preset names every built-in network (the list is prose).
+    for cmd in ["compare", "bringup", "serve", "sweep", "tune", "run", "tsn"] {
+        let o = ecsync().args([cmd, "--help"]).output().unwrap();
+        let h = String::from_utf8_lossy(&o.stdout);
+        if h.contains("--preset") {
+            for (n, _) in ecsync_sim::preset::NETWORKS {
+                assert!(h.contains(n), "{n} in {cmd} --help");
+            }
+        }
+    }
     assert!(
         h.contains("SYNC0 shift 30 %") && h.contains("1800000"),
         "{h}"

@@ -28,6 +28,7 @@ pub(super) fn warnings(
         w.extend(off_target(m, mo, budget_ns));
         w.extend(late_frames(s, m, mo, budget_ns));
     }
+    w.extend(settling(c, methods, budget_ns));
     w.extend(cycle_too_short(c));
     w.extend(ran().filter_map(|(m, mo)| lost_frames(m, mo)));
     // Drives that left OP on their own (with a fault schedule the faults' table and
@@ -171,6 +172,107 @@ fn off_target(m: &str, mo: &MethodOut, budget_ns: f64) -> Option<Warning> {
             us(budget_ns)
         ),
     })
+}
+
+/// How a run's recording began, from its true phase's bands: the cycles at its start whose
+/// blocks reach outside where every later block stays (beyond a quarter of that range), and
+/// the farthest phase in them, ns; `None` when the first block is within.
+///
+/// A method whose init ends as the warm-up does starts the recording where its init frames
+/// left the phase and pulls in from there: median-fit on lan9252-pair with the preset's
+/// former 10 s warm-up began 90 us off its target and took some 300 cycles at its gain of
+/// 0.01, and that start alone set its max and its smallest safe shift (12.9 % against 7.2 %).
+/// The last nine tenths of the blocks are the reference, so a transient shorter than a tenth
+/// of the run is found and a method that settles nowhere is not.
+pub(super) fn start_transient(bands: &[crate::run::Band]) -> Option<(u64, f64)> {
+    let n = bands.len();
+    if n < 20 {
+        return None;
+    }
+    let rest = &bands[n / 10..];
+    let hi = rest.iter().map(|b| b.p99).fold(f32::NEG_INFINITY, f32::max);
+    let lo = rest.iter().map(|b| b.p01).fold(f32::INFINITY, f32::min);
+    let slack = 0.25 * (hi - lo);
+    let outside = |b: &&crate::run::Band| b.p99 > hi + slack || b.p01 < lo - slack;
+    let lead = bands[..n / 10].iter().take_while(outside).count();
+    if lead == 0 {
+        return None;
+    }
+    let far = bands[..lead]
+        .iter()
+        .flat_map(|b| [b.min, b.max])
+        .max_by(|a, b| {
+            let d = |v: f32| (v - hi).max(lo - v);
+            d(*a).total_cmp(&d(*b))
+        })?;
+    Some((bands[lead].cycle, f64::from(far)))
+}
+
+/// A method still settling when the recording began: a controller (DCM) that first reported
+/// in sync after the warm-up, in its slowest run, or one whose phase started outside where it
+/// stayed later (see [`start_transient`]), in the run whose start took longest. The figures
+/// that take extremes, and with a controller the others too, hold its approach.
+fn settling(c: &Comparison, methods: &BTreeMap<String, MethodOut>, budget_ns: f64) -> Vec<Warning> {
+    let s = &c.scenario;
+    // Faults move the phase on purpose.
+    if s.faults.is_some() {
+        return Vec::new();
+    }
+    let period_s = f64::from(s.cycle_ns) * 1e-9;
+    let warmup_s = s.warmup_cycles as f64 * period_s;
+    let mut w = Vec::new();
+    for (e, runs) in s.entries().iter().zip(&c.results) {
+        let m = e.name();
+        let Some(mo) = methods.get(&m) else { continue };
+        if let Some(ctl) = &mo.controller {
+            let firsts: Vec<Option<u64>> = runs
+                .iter()
+                .filter_map(|r| r.controller.map(|t| t.first_in_sync_cycle))
+                .collect();
+            let pulling_in = match firsts.iter().copied().collect::<Option<Vec<u64>>>() {
+                // Never in sync and off its target: off_target says it.
+                None if mo.ground_truth.offset_from_target_ns.abs() > 0.1 * budget_ns => None,
+                None => Some(format!(
+                    "{m}'s controller never reported in sync in {}: its figures are of its pull-in; a longer warm-up (--warmup-s, or run.warmup_s in the file: now {warmup_s:.0} s) shows where it settles",
+                    if ctl.in_sync_fraction > 0.0 { "some runs" } else { "the recorded cycles" }
+                )),
+                Some(f) => f.into_iter().max().filter(|&k| k > s.warmup_cycles).map(|k| {
+                    let t = k as f64 * period_s;
+                    format!(
+                        "{m}'s controller first reported in sync {t:.1} s into the cyclic phase (its slowest run), after the {warmup_s:.0} s warm-up: its figures hold its pull-in ({:.1} % of the recorded cycles in sync); a warm-up of {:.0} s (--warmup-s, or run.warmup_s in the file) leaves it out",
+                        ctl.in_sync_fraction * 100.0,
+                        (t * 1.1).ceil()
+                    )
+                }),
+            };
+            if let Some(message) = pulling_in {
+                w.push(Warning {
+                    kind: "settling",
+                    method: Some(m.clone()),
+                    message,
+                });
+                continue;
+            }
+        }
+        let Some((cycles, far_ns)) = runs
+            .iter()
+            .filter_map(|r| start_transient(&r.series[2]))
+            .max_by_key(|t| t.0)
+        else {
+            continue;
+        };
+        // Twice what the transient took, in whole seconds.
+        let more_s = (2.0 * cycles as f64 * period_s).ceil().max(1.0);
+        w.push(Warning {
+            kind: "settling",
+            method: Some(m.clone()),
+            message: format!(
+                "{m} was still settling when the recording began: in its first {cycles} cycles the frames reached the reference up to {} from the target, beyond anything later, and its extremes, smallest safe shift and least SYNC0 margin hold that start; a warm-up {more_s:.0} s longer (--warmup-s, or run.warmup_s in the file: now {warmup_s:.0} s) leaves it out",
+                us(far_ns - s.target_phase_ns as f64),
+            ),
+        });
+    }
+    w
 }
 
 /// A method with frames after SYNC0 at the scenario's shift or, short of that, whose
@@ -388,4 +490,46 @@ fn samples(c: &Comparison) -> impl Iterator<Item = Warning> + '_ {
             message: format!("the samples could not be written: {e}"),
         })
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::start_transient;
+    use crate::run::Band;
+
+    /// Bands of 100 cycles around `mid` ns, +-20 us at p01/p99, +-30 us at the extremes.
+    fn bands(mids: &[f32]) -> Vec<Band> {
+        mids.iter()
+            .enumerate()
+            .map(|(i, &m)| Band {
+                cycle: 100 * i as u64,
+                n: 100,
+                min: m - 30_000.0,
+                p01: m - 20_000.0,
+                p50: m,
+                p99: m + 20_000.0,
+                max: m + 30_000.0,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_start_outside_the_later_blocks_by_hand() {
+        // Steady at 0: the band of the later blocks is -20..20 us, a quarter of it 10 us.
+        let mut mids = vec![0.0f32; 100];
+        assert_eq!(start_transient(&bands(&mids)), None);
+        // 90, 60, 40 and 15 us up at the start are outside (p99 110, 80, 60 and 35 us against
+        // 20 + 10), 5 us up is within (p99 25 us): the start is the first 400 cycles, and the
+        // farthest phase in it block 0's max.
+        mids[..5].copy_from_slice(&[90_000.0, 60_000.0, 40_000.0, 15_000.0, 5_000.0]);
+        assert_eq!(start_transient(&bands(&mids)), Some((400, 120_000.0)));
+        // Below: the farthest is the minimum.
+        let low: Vec<f32> = mids.iter().map(|m| -m).collect();
+        assert_eq!(start_transient(&bands(&low)), Some((400, -120_000.0)));
+        // A phase that moves over the whole run has no start apart from the rest.
+        let ramp: Vec<f32> = (0..20).map(|i| 90_000.0 - 4_500.0 * i as f32).collect();
+        assert_eq!(start_transient(&bands(&ramp)), None);
+        // Fewer than 20 blocks: nothing said.
+        assert_eq!(start_transient(&bands(&mids[..19])), None);
+    }
 }
