@@ -321,7 +321,7 @@ fn print_human(o: &Out) {
     println!();
     match (o.lock.converged, o.lock.time_to_lock_ms) {
         (true, Some(t)) => println!(
-            "DC locked {t:.1} ms after drift compensation began ({} FRMW frames): every |0x092C| stayed below 100 ns from then on.",
+            "DC locked {t:.1} ms after drift compensation began: every |0x092C| stayed below 100 ns from then on (the drift compensation sent {} FRMW frames in all).",
             o.lock.frmw_frames
         ),
         _ => println!("DC did NOT lock."),
