@@ -146,6 +146,9 @@ struct Outcome {
     lost_frames: u64,
     /// Each run's smallest safe shift, %.
     per_run_pct: Vec<f64>,
+    /// The comparison's warning that the method was still settling as the recording began
+    /// (its start is in the figures: a gain that pulls in slowly looks worse than it holds).
+    settling: Option<String>,
 }
 
 impl Outcome {
@@ -164,6 +167,11 @@ impl Outcome {
                 .iter()
                 .map(|r| r.keys.smallest_safe_shift_pct)
                 .collect(),
+            settling: out
+                .warnings
+                .iter()
+                .find(|w| w.kind == "settling" && w.method.as_deref() == Some(method))
+                .map(|w| w.message.clone()),
         })
     }
 
@@ -420,6 +428,9 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
                 ", not holding (late, lost or off target)"
             }
         );
+        if let Some(w) = &o.settling {
+            let _ = writeln!(t, "    (warning: {w})");
+        }
     }
     let (verdict, beats) = weigh(&def, &best, best_vals == defaults);
     let _ = writeln!(t, "{verdict}");
