@@ -48,6 +48,27 @@ fn paper_2024_bringup_json_meets_the_acceptance() {
     assert!(max < 100.0, "max |slave - reference| after lock: {max} ns");
 }
 
+/// A capture that cannot be created is refused before the bring-up, in the OS's words (it said
+/// "pcap capture: Error reading bytes", pcap-file's text for any I/O error).
+#[test]
+fn a_capture_that_cannot_be_created_is_refused_in_the_os_s_words() {
+    let path = tmp("no-such-folder").join("x.pcap");
+    let out = ecsync()
+        .args(["bringup", "--preset", "paper-2024", "--pcap"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains(&format!("cannot create {}", path.display()))
+            && err.contains("No such file or directory")
+            && !err.contains("Error reading bytes"),
+        "{err}"
+    );
+    assert!(out.stdout.is_empty(), "nothing brought up first");
+}
+
 /// With no monitoring nothing reads 0x092C in OP: the output says so rather than a 0 ns that
 /// reads as a measurement; with monitoring, the figure is there.
 #[test]

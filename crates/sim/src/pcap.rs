@@ -8,6 +8,27 @@ use std::io::{BufWriter, Write};
 use std::path::Path;
 use std::time::Duration;
 
+/// A capture that could not be written, in the OS's words for an I/O error (pcap-file's own
+/// text for one is "Error reading bytes", a failed create or write included).
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    /// The file could not be created or written.
+    #[error("{0}")]
+    Io(std::io::Error),
+    /// pcap-file refused the data.
+    #[error("{0}")]
+    Pcap(pcap_file::PcapError),
+}
+
+impl From<pcap_file::PcapError> for CaptureError {
+    fn from(e: pcap_file::PcapError) -> Self {
+        match e {
+            pcap_file::PcapError::IoError(io) => CaptureError::Io(io),
+            e => CaptureError::Pcap(e),
+        }
+    }
+}
+
 /// A pcap writer with nanosecond timestamps.
 pub struct PcapCapture<W: Write> {
     writer: PcapWriter<W>,
@@ -24,15 +45,15 @@ impl<W: Write> std::fmt::Debug for PcapCapture<W> {
 
 impl PcapCapture<BufWriter<File>> {
     /// Creates (truncates) a capture file.
-    pub fn create(path: &Path) -> Result<Self, pcap_file::PcapError> {
-        let file = File::create(path).map_err(pcap_file::PcapError::IoError)?;
+    pub fn create(path: &Path) -> Result<Self, CaptureError> {
+        let file = File::create(path).map_err(CaptureError::Io)?;
         Self::new(BufWriter::new(file))
     }
 }
 
 impl<W: Write> PcapCapture<W> {
     /// Starts a capture on any writer.
-    pub fn new(w: W) -> Result<Self, pcap_file::PcapError> {
+    pub fn new(w: W) -> Result<Self, CaptureError> {
         let header = PcapHeader {
             datalink: DataLink::ETHERNET,
             ts_resolution: pcap_file::TsResolution::NanoSecond,
@@ -46,7 +67,7 @@ impl<W: Write> PcapCapture<W> {
     }
 
     /// Records a frame seen at `t_ps` (picoseconds; pcap keeps nanoseconds).
-    pub fn record(&mut self, t_ps: u64, frame: &[u8]) -> Result<(), pcap_file::PcapError> {
+    pub fn record(&mut self, t_ps: u64, frame: &[u8]) -> Result<(), CaptureError> {
         let ts = Duration::from_nanos(t_ps / 1000);
         let pkt = PcapPacket::new(ts, frame.len() as u32, frame);
         self.writer.write_packet(&pkt)?;

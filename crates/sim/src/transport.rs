@@ -733,7 +733,7 @@ pub mod pcap_file_error {
     /// A pcap file could not be created.
     #[derive(Debug, thiserror::Error)]
     #[error("pcap capture: {0}")]
-    pub struct Error(pub pcap_file::PcapError);
+    pub struct Error(pub crate::pcap::CaptureError);
 }
 
 #[cfg(test)]
