@@ -336,3 +336,41 @@ fn a_drive_without_dc_sync0_among_its_modes_stays_in_free_run() {
         assert_eq!(od.read_u32(0x1c32, 1), if x == 4 { 0 } else { 2 });
     }
 }
+
+/// The system time a drive took for its outputs' SYNC0 check, which the comparison's ground
+/// truth reads instead of reading the clock again, is the unit's reading at that instant to
+/// the bit, cycle after cycle (the end of the frame at the drive), and there is none at
+/// another instant.
+#[test]
+fn the_time_a_drive_checked_its_outputs_at_is_its_clock_s_reading_there() {
+    let (sim, _net, mut eng) = paper_2024_in_op();
+    let drives: Vec<usize> = (0..sim.segment().len())
+        .filter(|&x| sim.segment().esc(x).runs_on_sync0())
+        .collect();
+    let wire_ps = ecsync_sim::phy::frame_wire_time_ps(eng.frame_len_of(0));
+    let mut driver = CyclicDriver::new(CyclicLimits {
+        max_cycles: Some(300),
+        ..CyclicLimits::default()
+    });
+    let mut taken = 0;
+    let mut tr = HostStall::at_cycles(sim, Vec::new());
+    driver
+        .run(&mut tr, &mut eng, 300, None, |t, _| {
+            let seg = t.inner.segment();
+            for &x in &drives {
+                let Some(pu) = t.inner.frame_trace(0).pu_ps(x) else {
+                    continue;
+                };
+                let end = pu + wire_ps;
+                let esc = seg.esc(x);
+                let fresh = esc.dc().unwrap().system_time_split(end);
+                if let Some(kept) = esc.system_time_at_outputs(end) {
+                    assert_eq!((kept.0, kept.1.to_bits()), (fresh.0, fresh.1.to_bits()));
+                    taken += 1;
+                }
+                assert_eq!(esc.system_time_at_outputs(end - 1), None);
+            }
+        })
+        .unwrap();
+    assert_eq!(taken, 300 * drives.len(), "every drive, every cycle");
+}

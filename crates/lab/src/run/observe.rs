@@ -462,7 +462,9 @@ impl GroundTruth {
             } else {
                 tr.frame_trace(k).pu_ps(x)
             };
-            let Some(e) = pu.and_then(|pu| sys(x, pu + out_wire_ps)) else {
+            // (The drive took its SYNC0 check at that instant: its reading, else a new one.)
+            let at = |t: u64| seg.esc(x).system_time_at_outputs(t).or_else(|| sys(x, t));
+            let Some(e) = pu.and_then(|pu| at(pu + out_wire_ps)) else {
                 if keep {
                     self.margins.push(f64::NAN);
                 }

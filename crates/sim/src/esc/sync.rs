@@ -101,6 +101,9 @@ pub(super) struct SyncMonitor {
     pub(super) overwritten: u64,
     /// The last SM2 event in SM-synchronous mode, in OP, ns.
     last_sm_event_ns: Option<u64>,
+    /// The system time at the end of the last frame whose outputs the check took: (that
+    /// instant + 1 ps, 0 for none; ns; fraction of a ns), for [`Esc::system_time_at_outputs`].
+    outputs_time: (u64, u64, f64),
 }
 
 const _: () = assert!(core::mem::offset_of!(SyncMonitor, missed) == 64);
@@ -283,7 +286,8 @@ impl Esc {
         let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit()) else {
             return;
         };
-        let t_ns = dc.system_time_split_in::<BRANCH_FREE>(t_end_ps).0;
+        let (t_ns, frac) = dc.system_time_split_in::<BRANCH_FREE>(t_end_ps);
+        self.sync.outputs_time = (t_end_ps + 1, t_ns, frac);
         let in_op = self.al_state == AlState::Op;
         let pll_lost = self.sync.pll_limit_ns != 0
             && in_op
@@ -303,6 +307,16 @@ impl Esc {
         } else if r == SyncReaction::SyncError {
             self.raise_al_error(AlStatusCode::SynchronizationError);
         }
+    }
+
+    /// The system time at real time `t_ps` (as [`crate::dc_unit::DcUnit::system_time_split`] gives it) where
+    /// it was taken there: at the end of the last frame whose outputs this drive checked
+    /// against its SYNC0, which is where a ground truth judges them; `None` elsewhere. Nothing
+    /// moves a unit's clock or offset between a frame's end at it and the next frame, so the
+    /// figure is the one a new reading would give, without a second reading of the clock.
+    pub fn system_time_at_outputs(&self, t_ps: u64) -> Option<(u64, f64)> {
+        let (at, ns, frac) = self.sync.outputs_time;
+        (at == t_ps.wrapping_add(1)).then_some((ns, frac))
     }
 
     /// Before the application answers a mailbox message at `t_ps`: the counters up to now.
