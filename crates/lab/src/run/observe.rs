@@ -336,6 +336,36 @@ pub(super) struct GridSpec {
     pub(super) init_frames: u64,
 }
 
+/// The SYNC0 pulses at m x period + `shift_ns` up to outputs at system time `outputs_ns`:
+/// those between two frames' outputs but the first found none new (`st.sync0_missed`);
+/// `next_pulse` is the first pulse after the last outputs.
+fn count_pulses(
+    st: &mut SlaveTruth,
+    next_pulse: &mut u64,
+    outputs_ns: u64,
+    shift_ns: u64,
+    period: u64,
+) {
+    match st.last_outputs_ns.replace(outputs_ns) {
+        // Pulses in (prev, e]: none before the next pulse, one up to a period after it (a
+        // division only for more), none when the time went back (a clock step).
+        Some(prev) if outputs_ns >= prev => {
+            let n = if outputs_ns < *next_pulse {
+                0
+            } else if outputs_ns - *next_pulse < period {
+                1
+            } else {
+                (outputs_ns - *next_pulse) / period + 1
+            };
+            *next_pulse += n * period;
+            st.sync0_missed += n.saturating_sub(1);
+        }
+        // The first pulse after the outputs.
+        _ if outputs_ns < shift_ns => *next_pulse = shift_ns,
+        _ => *next_pulse = shift_ns + ((outputs_ns - shift_ns) / period + 1) * period,
+    }
+}
+
 impl GroundTruth {
     pub(super) fn new(g: GridSpec) -> Self {
         let n_dc = g.dc_slaves.len();
@@ -462,9 +492,12 @@ impl GroundTruth {
             } else {
                 tr.frame_trace(k).pu_ps(x)
             };
-            // (The drive took its SYNC0 check at that instant: its reading, else a new one.)
-            let at = |t: u64| seg.esc(x).system_time_at_outputs(t).or_else(|| sys(x, t));
-            let Some(e) = pu.and_then(|pu| at(pu + out_wire_ps)) else {
+            // (The reading the drive took there for its SYNC0 check, else a new one.)
+            let esc = seg.esc(x);
+            let Some(e) = pu
+                .map(|pu| pu + out_wire_ps)
+                .and_then(|t| esc.system_time_at_outputs(t).or_else(|| sys(x, t)))
+            else {
                 if keep {
                     self.margins.push(f64::NAN);
                 }
@@ -472,34 +505,7 @@ impl GroundTruth {
             };
             let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
             let margin = shift - end_after_grid;
-            // The pulses at m x period + shift up to the outputs: those between two frames'
-            // outputs but the first found none new.
-            // The first pulse (at m x period + shift) after `t`.
-            let first_after = |t: u64| {
-                let s = shift as u64;
-                if t < s {
-                    s
-                } else {
-                    s + ((t - s) / period + 1) * period
-                }
-            };
-            match st.last_outputs_ns.replace(e.0) {
-                // Pulses in (prev, e]: none before the next pulse, one up to a period after
-                // it (a division only for more), none when the time went back (a clock step).
-                Some(prev) if e.0 >= prev => {
-                    let n = if e.0 < *next_pulse {
-                        0
-                    } else if e.0 - *next_pulse < period {
-                        1
-                    } else {
-                        (e.0 - *next_pulse) / period + 1
-                    };
-                    *next_pulse += n * period;
-                    st.sync0_missed += n.saturating_sub(1);
-                }
-                _ => *next_pulse = first_after(e.0),
-            }
-            let esc = seg.esc(x);
+            count_pulses(st, next_pulse, e.0, shift as u64, period);
             if esc.runs_on_sync0() {
                 let now = esc.sm_events_missed();
                 let start = *st.drive_count_at_start.get_or_insert(now);
