@@ -140,13 +140,14 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
     .map_err(|e| anyhow::anyhow!("{e}"))?;
     writeln!(
         w,
-        "# ecsync host record: cycle {} us, {}, kernel {}{}, memory locked {}, cpu {:?}, iface {}",
+        "# ecsync host record: cycle {} us, {}, kernel {}{}, memory locked {}, cpu {}, iface {}",
         a.cycle_us,
         fifo,
         kernel.trim(),
         if rt.preempt_rt { " (PREEMPT_RT)" } else { "" },
         rt.memory_locked,
-        rt.cpu,
+        rt.cpu
+            .map_or_else(|| "not pinned".to_string(), |c| c.to_string()),
         a.iface.as_deref().unwrap_or("none (tx_delay_ns absent)")
     )?;
     writeln!(w, "{}", ecsync_sim::host_trace::TRACE_HEADER)?;

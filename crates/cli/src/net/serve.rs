@@ -45,6 +45,10 @@ pub struct ServeArgs {
     /// No status line.
     #[arg(long)]
     quiet: bool,
+    /// Serving for a sandbox's COMMAND, which shares the terminal: status lines whole, not
+    /// one line rewritten in place.
+    #[arg(skip)]
+    beside_command: bool,
     /// Play the faults of this schedule on the served segment (TOML `[[fault]]` entries, the
     /// format `compare --faults` reads; the segment's kinds: loss, corrupt, delay, power_cycle,
     /// link_down, second_responder). Times count from the first frame with process data
@@ -105,7 +109,11 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         let iface = std::mem::take(&mut args.iface);
         let ring = args.ring_iface.clone();
         return super::sandbox::run(command, &iface, ring.as_deref(), |iface| {
-            serve(ServeArgs { iface, ..args })
+            serve(ServeArgs {
+                iface,
+                beside_command: true,
+                ..args
+            })
         });
     }
     let (name, specs, slave_names) = args.source.segment_named()?;
@@ -148,8 +156,12 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         preset: name.clone(),
         ..Default::default()
     };
+    // The status line rewritten in place on a terminal of serve's own; elsewhere (a log, a
+    // pipe, a COMMAND writing to the same terminal) a whole line now and then.
+    let live = std::io::IsTerminal::is_terminal(&std::io::stderr()) && !args.beside_command;
     let mut hooks = super::served::CliHooks {
         quiet: args.quiet,
+        live,
         t0,
         last_print: Instant::now(),
         control,
@@ -179,7 +191,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         &mut hooks,
     )
     .map_err(|e| anyhow::anyhow!("serving on {}: {e}", args.iface))?;
-    if !quiet {
+    if !quiet && live {
         eprintln!();
     }
     if let Some(c) = capture {

@@ -11,9 +11,15 @@ use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
+/// How often the status line is printed where it cannot be rewritten in place, s.
+const STATUS_LINE_EVERY_S: f64 = 10.0;
+
 /// `serve`'s hooks.
 pub(super) struct CliHooks {
     pub(super) quiet: bool,
+    /// The status line is rewritten in place every second (a terminal of serve's own), else
+    /// printed whole every [`STATUS_LINE_EVERY_S`].
+    pub(super) live: bool,
     pub(super) t0: Instant,
     pub(super) last_print: Instant,
     pub(super) control: Option<ControlServer>,
@@ -231,16 +237,22 @@ impl ServeHooks for CliHooks {
                 }
             });
         }
-        if !self.quiet && self.last_print.elapsed().as_secs_f64() >= 1.0 {
+        let every_s = if self.live { 1.0 } else { STATUS_LINE_EVERY_S };
+        if !self.quiet && self.last_print.elapsed().as_secs_f64() >= every_s {
             self.last_print = Instant::now();
             let s = served.stats;
-            eprint!(
-                "\r{:>8.1} s: {} frames answered, {} not returned",
+            let line = format!(
+                "{:>8.1} s: {} frames answered, {} not returned",
                 self.t0.elapsed().as_secs_f64(),
                 s.answered,
                 s.not_returned
             );
-            self.line_open = true;
+            if self.live {
+                eprint!("\r{line}");
+                self.line_open = true;
+            } else {
+                eprintln!("ecsync serve: {}", line.trim_start());
+            }
         }
     }
 

@@ -101,8 +101,12 @@ fn print_run_events(o: &RunOut) {
             format!(" ({})", r.left_op.join("; "))
         };
         println!(
-            "Recovered slave(s) {:?} (reset or out of OP: configured again) at {:.3} s, in {:.0} ms{why}.",
-            r.slaves,
+            "Recovered slave(s) {} (reset or out of OP: configured again; 1 = next to the master) at {:.3} s, in {:.0} ms{why}.",
+            r.slaves
+                .iter()
+                .map(u16::to_string)
+                .collect::<Vec<_>>()
+                .join(", "),
             r.start_s,
             r.end_s.map_or(f64::NAN, |e| (e - r.start_s) * 1e3)
         );
@@ -138,7 +142,7 @@ fn print_run_events(o: &RunOut) {
             .map(|c| u64::from(c.missed_between_reads))
             .sum();
         println!(
-            "SM events missed (0x1C32:0B, the drives' own count of SYNC0 cycles without new outputs, between its reads {:.1} s and {:.1} s in){}: {}",
+            "SM events missed (0x1C32:0B, the drives' own count of SYNC0 cycles without new outputs, between its reads {:.1} s and {:.1} s in){}; by slave, 1 = next to the master: {}",
             o.sm_events_missed
                 .iter()
                 .map(|c| c.first_read_s)
