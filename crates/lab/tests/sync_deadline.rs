@@ -294,3 +294,35 @@ fn the_count_read_over_coe_is_the_truths_runs_of_late_cycles() {
         println!("{kind}: {frames} late frames in {runs} runs between the reads, {runs} counted");
     }
 }
+
+/// The AKD's ESC has a 32-bit DC unit (its SYNC0 pulses on the unit's 64-bit time line, its
+/// register the lower half). At a 3 % shift under the loaded host its frames come late now and
+/// then, and each drive's own 0x1C32:0B count over the recorded cycles is the ground truth's
+/// missed pulses, as a 64-bit drive's is (it stayed 0: the deadline was checked on 64-bit
+/// units only).
+#[test]
+fn a_32_bit_dc_drive_counts_its_missed_sm_events_as_the_truth_does() {
+    let t = ecsync_sim::preset::AKD_TOML.replacen(
+        "cycles = 20000",
+        "cycles = 10000\nsync0_shift_pct = 3\nmethods = [\"median\"]",
+        1,
+    );
+    let s = ecsync_lab::parse("akd-deadline.toml", &t).unwrap_or_else(|e| panic!("{e}\n{t}"));
+    let res = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
+    let r = &res.results[0][0];
+    assert_eq!(r.per_slave.len(), 2);
+    for p in &r.per_slave {
+        assert!(
+            p.sync0_missed >= 20,
+            "slave {}: {} missed",
+            p.position,
+            p.sync0_missed
+        );
+        assert_eq!(
+            p.drive_sm_events_missed,
+            Some(p.sync0_missed),
+            "slave {}: the drive's count against the truth's",
+            p.position
+        );
+    }
+}

@@ -274,8 +274,8 @@ impl Esc {
     #[inline(never)]
     fn sync_sm_event(&mut self, t_end_ps: u64) {
         let t_ns = match self.dc.as_ref() {
-            Some(dc) if dc.is_64bit() => dc.system_time_split(t_end_ps).0,
-            _ => t_end_ps / 1000,
+            Some(dc) => dc.system_time_split(t_end_ps).0,
+            None => t_end_ps / 1000,
         };
         let in_op = self.al_state == AlState::Op;
         self.sync.sm_event_at(t_ns, in_op);
@@ -283,7 +283,9 @@ impl Esc {
 
     #[inline(never)]
     fn sync_outputs<const BRANCH_FREE: bool>(&mut self, t_end_ps: u64) {
-        let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit()) else {
+        // A 32-bit unit's too: its SYNC0 pulses are on the unit's 64-bit time line, where
+        // the system time read here is (`DcUnit::system_time_split`).
+        let Some(dc) = self.dc.as_ref() else {
             return;
         };
         let (t_ns, frac) = dc.system_time_split_in::<BRANCH_FREE>(t_end_ps);
@@ -323,7 +325,7 @@ impl Esc {
     pub(super) fn sync_catch_up(&mut self, t_ps: u64) {
         if self.sync.dc_mode
             && self.al_state == AlState::Op
-            && let Some(dc) = self.dc.as_ref().filter(|d| d.is_64bit())
+            && let Some(dc) = self.dc.as_ref()
         {
             let t_ns = dc.system_time_split(t_ps).0;
             let grid = if self.sync1_mode {
