@@ -164,6 +164,7 @@ pub(super) fn method_out(
         cycles_done: rs.iter().map(|r| r.cycles_done).sum(),
         lock_ms: lock.iter().sum::<f64>() / lock.len().max(1) as f64,
         wild_schedule_cycles: rs.iter().map(|r| r.wild_schedule_cycles).sum(),
+        grid_slips: rs.iter().map(|r| r.grid_slips).sum(),
         wall_s: c.method_wall_s[m],
         faults: rs.iter().filter_map(|r| r.faults.clone()).collect(),
         left_op: rs.iter().flat_map(|r| r.left_op.iter().cloned()).collect(),

@@ -165,6 +165,11 @@ pub struct MethodOut {
     /// cycle's own) and the engine held: an unstable controller, all runs (absent when 0).
     #[serde(skip_serializing_if = "is_zero")]
     pub wild_schedule_cycles: u64,
+    /// Grid points the master's schedule aimed at twice or left out (a cycle started less than
+    /// half a period after the one before, or more than one and a half), all runs (absent
+    /// when 0).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub grid_slips: u64,
     /// CPU time of this method's runs, s (in timing.json, not summary.json: a scenario and a
     /// seed give the same summary.json byte for byte on any machine).
     #[serde(skip)]

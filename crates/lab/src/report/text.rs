@@ -172,23 +172,25 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
             Some(c) => format!("{:.1} %", c.in_sync_fraction * 100.0),
             None => "-".into(),
         };
-        let _ = writeln!(
-            t,
-            "{:<18}{:>13.3}{:>11.3}{:>11.3}{:>12.3}{:>14.3}{:>12.3}{:>14.3}{:>14.1}{:>8}{:>12.1}{:>12.1}{:>9}",
-            m,
-            g.offset_from_target_ns / 1000.0,
-            g.phase.std / 1000.0,
-            g.phase_error.rms / 1000.0,
-            (g.phase.min - g.target_phase_ns as f64) / 1000.0,
-            (g.phase.p999 - g.target_phase_ns as f64) / 1000.0,
-            (g.phase.max - g.target_phase_ns as f64) / 1000.0,
-            g.phase_error.p999_abs / 1000.0,
-            g.slave_ref_diff.p999_abs,
-            g.late_frames,
-            g.smallest_safe_shift_pct,
-            g.sync0_margin.min / 1000.0,
-            sync
-        );
+        let _ = write!(t, "{m:<18}");
+        let t_ns = g.target_phase_ns as f64;
+        for (v, w) in [
+            (g.offset_from_target_ns, 13),
+            (g.phase.std, 11),
+            (g.phase_error.rms, 11),
+            (g.phase.min - t_ns, 12),
+            (g.phase.p999 - t_ns, 14),
+            (g.phase.max - t_ns, 12),
+            (g.phase_error.p999_abs, 14),
+        ] {
+            cell(&mut t, &format!("{:.3}", v / 1000.0), w);
+        }
+        cell(&mut t, &format!("{:.1}", g.slave_ref_diff.p999_abs), 14);
+        cell(&mut t, &g.late_frames.to_string(), 8);
+        cell(&mut t, &format!("{:.1}", g.smallest_safe_shift_pct), 12);
+        cell(&mut t, &format!("{:.1}", g.sync0_margin.min / 1000.0), 12);
+        cell(&mut t, &sync, 9);
+        t.push('\n');
     }
     let inits: Vec<String> = order
         .iter()
@@ -391,4 +393,13 @@ pub fn csv(out: &SummaryOut, order: &[String]) -> String {
         }
     }
     t
+}
+
+/// `v` right-aligned in `width` columns, and one space before it where it fills them or more
+/// (a figure out of all proportion stays apart from its neighbour).
+fn cell(t: &mut String, v: &str, width: usize) {
+    if v.len() >= width {
+        t.push(' ');
+    }
+    let _ = write!(t, "{v:>width$}");
 }

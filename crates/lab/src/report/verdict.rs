@@ -86,6 +86,15 @@ pub(super) fn not_ranked(
                     ),
                 });
             }
+            if mo.grid_slips > 0 {
+                return Some(NotRanked {
+                    method: m.clone(),
+                    why: format!(
+                        "{m} did not keep to one frame per SYNC0 cycle: {} times its schedule sent two frames for one grid point or none for one (a cycle started less than half a period after the one before, or more than one and a half: ethercrab's snap sends again at once when its frame reaches the reference just before the grid point, as a send without jitter makes it do often); its application runs an uneven cycle, and its frames are judged against the grid point its schedule led to",
+                        mo.grid_slips
+                    ),
+                });
+            }
             let lost = mo.ground_truth.lost_frames;
             let share = lost as f64 / mo.cycles_done.max(1) as f64;
             (mo.faults.is_empty() && lost > 0 && share > UNRANKED_LOST_SHARE).then(|| NotRanked {

@@ -97,6 +97,7 @@ fn empty_result(
         latest_end_ns: f64::NEG_INFINITY,
         lost_frames: 0,
         wild_schedule_cycles: 0,
+        grid_slips: 0,
         bad_wkc: 0,
         series: Default::default(),
         series_block: Bands::new(s.cycles).block_cycles(),
@@ -401,6 +402,7 @@ impl Run {
             }
         }
         res.wild_schedule_cycles = self.session.engine().health().wild_schedule_cycles;
+        res.grid_slips = truth.grid_slips;
         res.faults =
             faults.map(|f| f.finish(&self.sim, driver, self.session.engine().health(), t0));
         let [a, b, c] = series;

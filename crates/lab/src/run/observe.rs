@@ -314,6 +314,16 @@ pub(super) struct GroundTruth {
     /// The grid point of the first recorded frame, that frame's recorded cycle, and the
     /// grid's base (the reference's SYNC0 start less the shift, modulo the cycle).
     grid0: Option<(u64, i64, u64)>,
+    /// Grid points the master's schedule left out (positive) or aimed at twice (negative)
+    /// since the first recorded frame: added to the count of its cycles (without faults).
+    grid_shift: i64,
+    /// Recorded cycles whose start the master put more than half a cycle from a whole number
+    /// of periods after the last one's: two frames for one SYNC0 cycle, or none for one
+    /// (ethercrab's snap sends again at once when its frame reached the reference just before
+    /// the grid point). The frames after it aim at the grid point that schedule leads to.
+    pub(super) grid_slips: u64,
+    /// The last recorded cycle and its scheduled start on the master's clock, ns.
+    last_scheduled: Option<(u64, u64)>,
     /// This cycle's margin per DC slave (NaN: none), for the samples.
     pub(super) margins: Vec<f64>,
     /// Per DC slave: the first SYNC0 pulse after its last outputs (`SlaveTruth::
@@ -378,10 +388,34 @@ impl GroundTruth {
             target_ns: g.target_ns,
             regrid: g.regrid,
             grid0: None,
+            grid_shift: 0,
+            grid_slips: 0,
+            last_scheduled: None,
             margins: Vec::with_capacity(n_dc),
             next_pulse_ns: vec![0; n_dc],
             init_fit: LineFit::default(),
             init_frames: g.init_frames,
+        }
+    }
+
+    /// Recorded cycle `k`, scheduled at `scheduled_ns` on the master's clock: a start more
+    /// than half a cycle off a whole number of periods after the last recorded cycle's
+    /// (skipped cycles count as periods) moves the grid point this and the later frames aim
+    /// at by the periods it is off.
+    fn schedule(&mut self, k: u64, scheduled_ns: u64) {
+        if self.regrid {
+            // (Found anew each cycle: a fault may move the master's clock or cut cycles.)
+            return;
+        }
+        if let Some((k_last, s_last)) = self.last_scheduled.replace((k, scheduled_ns)) {
+            let p = self.period_ns as i64;
+            let expected = (k.wrapping_sub(k_last) as i64).wrapping_mul(p);
+            let off = (scheduled_ns.wrapping_sub(s_last) as i64).wrapping_sub(expected);
+            if off.abs() > p / 2 {
+                let periods = (off + off.signum() * p / 2) / p;
+                self.grid_shift += periods;
+                self.grid_slips += periods.unsigned_abs();
+            }
         }
     }
 
@@ -451,11 +485,14 @@ impl GroundTruth {
             let b = base();
             (nearest(b), k as i64, b)
         });
+        if k as i64 == k0 {
+            self.grid_shift = 0;
+        }
         let grid = if self.regrid {
             let b = base();
             nearest(b) * period + b
         } else {
-            (g0 + (k as i64 - k0) as u64) * period + b0
+            (g0 + (k as i64 - k0 + self.grid_shift) as u64) * period + b0
         };
         let phase = (r.0.wrapping_sub(grid) as i64) as f64 + r.1;
         // The slaves' differences move slowly (the loops act once per cycle): every 8th
@@ -600,6 +637,7 @@ impl Observers {
 
     /// A recorded cycle: the master's figures, then the ground truth's.
     fn recorded(&mut self, tr: &SimTransport, rec: &CycleRecord, k: u64) {
+        self.truth.schedule(k, rec.scheduled.as_ns());
         let res = &mut self.res;
         res.cycles_done = k + 1;
         self.controller(rec);

@@ -284,6 +284,11 @@ pub struct RunResult {
     /// Cycles whose method asked for a next start the engine held (more than two periods
     /// on, or before the cycle's own): a controller gone unstable (warm-up included).
     pub wild_schedule_cycles: u64,
+    /// Grid points the master's schedule aimed at twice or left out: recorded cycles whose
+    /// start it put more than half a cycle off a whole number of periods after the last one's
+    /// (a cycle sent twice or left out). Not counted with faults (the grid is found anew each
+    /// cycle there).
+    pub grid_slips: u64,
     /// Cycles whose LRW working counter was not the expected one.
     pub bad_wkc: u64,
     /// Time series of M-rS, rS-IS and the true phase.
