@@ -206,10 +206,7 @@ pub fn compare_with(
         results[m].push(res?);
         method_wall_s[m] += cpu_s[j];
     }
-    let interrupted = results
-        .iter()
-        .flatten()
-        .any(|r| r.cycles_done < scenario.cycles);
+    let interrupted = results.iter().flatten().any(|r| !r.reached_end);
     Ok(Comparison {
         scenario: scenario.clone(),
         results,

@@ -77,6 +77,24 @@ pub(super) fn not_ranked(
         .iter()
         .filter_map(|m| {
             let mo = methods.get(m)?;
+            // A fault of the host (its clock stepped, its task stalled) puts the schedule out
+            // of range for every method: said so, not blamed on the gains.
+            let steps: u32 = mo.faults.iter().map(|f| f.master_clock_steps).sum();
+            let skipped: u64 = mo.faults.iter().map(|f| f.skipped_cycles).sum();
+            if mo.wild_schedule_cycles > 0 && (steps > 0 || skipped > 0) {
+                let largest_step_ms = mo
+                    .faults
+                    .iter()
+                    .map(|f| f.last_master_step_ns as f64 / 1e6)
+                    .fold(0.0f64, |a, b| if b.abs() > a.abs() { b } else { a });
+                return Some(NotRanked {
+                    method: m.clone(),
+                    why: format!(
+                        "{m}: the engine held {} of the starts it asked for (more than two cycles away, or before the cycle's own) after the fault schedule moved the master's time ({} step(s) of its clock detected, the last {:+.3} ms; {} cycles skipped by the host): its figures describe the master's clock out of step, not the method at work",
+                        mo.wild_schedule_cycles, steps, largest_step_ms, skipped
+                    ),
+                });
+            }
             if mo.wild_schedule_cycles > 0 {
                 return Some(NotRanked {
                     method: m.clone(),

@@ -98,6 +98,7 @@ fn empty_result(
         lost_frames: 0,
         wild_schedule_cycles: 0,
         grid_slips: 0,
+        reached_end: false,
         bad_wkc: 0,
         series: Default::default(),
         series_block: Bands::new(s.cycles).block_cycles(),
@@ -383,6 +384,7 @@ impl Run {
             samples,
             ..
         } = self.obs;
+        res.reached_end = self.next_cycle >= self.total_cycles;
         let driver = self.session.driver();
         let t0 = self.session.first().as_ns();
         let ms = |t: u64| t.saturating_sub(t0) as f64 / 1e6;

@@ -256,8 +256,12 @@ pub struct RunResult {
     pub spin_ns: f64,
     /// Run index.
     pub run: u32,
-    /// Recorded cycles run (fewer than the scenario's when interrupted).
+    /// Recorded cycles run (fewer than the scenario's when interrupted, or when the master
+    /// skipped the last ones' slots).
     pub cycles_done: u64,
+    /// The run went to its last cycle (its slot, if the master skipped it: a host stall or a
+    /// step of its clock past it): not interrupted.
+    pub reached_end: bool,
     /// The letter's M-rS error, ns.
     pub m_rs: Stats,
     /// The letter's rS-IS error (|BRD of 0x092C|), ns.
