@@ -18,8 +18,8 @@ use std::collections::BTreeSet;
 use std::path::Path;
 use toml::Value;
 
-/// The database's layout version (`sweep.format`).
-const FORMAT: &str = "1";
+/// The database's layout version (`sweep.format`): 2 added `results.not_ranked`.
+const FORMAT: &str = "2";
 
 /// What a sweep is: the same base and points, the same sweep.
 #[derive(Debug, Clone)]
@@ -46,6 +46,11 @@ pub const RESULT_COLUMNS: &[(&str, &str, &str)] = &[
         "rank",
         "INTEGER",
         "place in the point's ranking, 1 best (NULL: not ranked)",
+    ),
+    (
+        "not_ranked",
+        "TEXT",
+        "why the verdict left the method out, in compare's words (NULL: ranked, or no ranking)",
     ),
     ("recommended", "INTEGER", "1 for the point's pick"),
     (
@@ -178,7 +183,9 @@ impl Store {
                 .with_context(|| format!("the database has no sweep.{k}: not a sweep database"))
         };
         if get("format")? != FORMAT {
-            bail!("the database is of another format than this ecsync's ({FORMAT})");
+            bail!(
+                "the database is of another format than this ecsync's ({FORMAT}); fix: give another --db (this ecsync runs its points again into a new one)"
+            );
         }
         let points = get("points")?;
         Ok(Some(Meta {
@@ -266,7 +273,12 @@ impl Store {
             SqlValue::Text(rec.method.clone())
         });
         row.push(SqlValue::Text(rec.ranking.join(", ")));
-        row.push(SqlValue::Text(rec.reason.clone()));
+        // The verdict's reason, then why a method is not ranked, as `compare` prints them.
+        let mut reason = rec.reason.clone();
+        for n in &rec.not_ranked {
+            reason.push_str(&format!(" Not ranked: {}.", n.why));
+        }
+        row.push(SqlValue::Text(reason));
         let warnings: Vec<&str> = out.warnings.iter().map(|w| w.kind).collect();
         row.push(SqlValue::Text(warnings.join(", ")));
         row.push(SqlValue::Text(toml.to_string()));
@@ -286,6 +298,10 @@ impl Store {
                     SqlValue::Integer(point as i64),
                     SqlValue::Text(name.clone()),
                     rank.map_or(SqlValue::Null, |r| SqlValue::Integer(r as i64 + 1)),
+                    rec.not_ranked
+                        .iter()
+                        .find(|n| &n.method == name)
+                        .map_or(SqlValue::Null, |n| SqlValue::Text(n.why.clone())),
                     SqlValue::Integer(i64::from(rank == Some(0))),
                     SqlValue::Integer(i64::from(rec.within_noise.contains(name))),
                     SqlValue::Integer(g.late_frames as i64),
@@ -339,7 +355,7 @@ impl Store {
     pub fn rows(&self) -> Result<Vec<ResultRow>> {
         let mut q = self.conn.prepare(
             "SELECT point, method, late_frames, lost_frames, smallest_safe_shift_pct,
-                    phase_error_p999_ns, holds_target, slave_spread_p999_ns, rank
+                    phase_error_p999_ns, holds_target, slave_spread_p999_ns, rank, not_ranked
              FROM results ORDER BY point, method",
         )?;
         let rows = q.query_map([], |r| {
@@ -353,6 +369,7 @@ impl Store {
                 holds_target: r.get::<_, i64>(6)? != 0,
                 slave_spread_p999_ns: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
                 rank: r.get::<_, Option<i64>>(8)?.map(|k| k as u32),
+                not_ranked: r.get(9)?,
                 good: false,
             })
         })?;

@@ -94,14 +94,18 @@ fn table(h: &mut String, s: &Sweep) {
         }
         let _ = write!(
             h,
-            "<td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            "<td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>{}<td>{}</td></tr>",
             esc(&r.method),
             r.late_frames,
             r.lost_frames,
             fig(r.safe_shift_pct, 1),
             fig(r.phase_error_p999_ns, 0),
             fig(r.slave_spread_p999_ns, 0),
-            r.rank.map_or("-".to_string(), |k| k.to_string()),
+            match (&r.not_ranked, r.rank) {
+                (Some(why), _) => format!("<td class=l>not ranked: {}</td>", esc(why)),
+                (None, Some(k)) => format!("<td>{k}</td>"),
+                (None, None) => "<td>-</td>".to_string(),
+            },
             if r.good { "yes" } else { "no" }
         );
     }
