@@ -92,10 +92,73 @@ pub fn best(rows: &[ResultRow]) -> Best<'_> {
     }
 }
 
+/// Whether the points done differ by their seed only (`run.seed` swept, every other key at one
+/// value): what moves between them is run-to-run noise, and no point is a design's to pick.
+pub fn seed_only(store: &Store, pts: &Points) -> Result<bool> {
+    let varies = |i: usize| pts.rows.iter().any(|r| r[i] != pts.rows[0][i]);
+    Ok(store.seeds()? > 1
+        && pts
+            .keys
+            .iter()
+            .enumerate()
+            .all(|(i, k)| k == SEED_KEY || !varies(i)))
+}
+
+/// The scenario's seed as a swept key.
+const SEED_KEY: &str = "run.seed";
+
+/// The smallest and largest of `xs` (NaN left out), in words with `places` digits.
+fn range(xs: impl Iterator<Item = f64>, places: usize, unit: &str) -> String {
+    let (lo, hi) = xs
+        .filter(|x| x.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+            (a.min(x), b.max(x))
+        });
+    if !lo.is_finite() {
+        return "none".into();
+    }
+    format!("{lo:.places$} to {hi:.places$}{unit}")
+}
+
+/// The answer of a sweep over the seed alone: no point to pick, each method's spread over
+/// the seeds (the noise a single comparison's figures carry).
+fn seeds_text(rows: &[ResultRow], done: usize) -> String {
+    let mut t = format!(
+        "Answer: no point to pick: the points differ by their seed ({SEED_KEY}) only, so what moves between them is run-to-run noise, not a design choice.\nEach method over the {done} seeds (the spread is the noise of one comparison's figures; a design difference smaller than it is none):\n"
+    );
+    let mut methods: Vec<&str> = rows.iter().map(|r| r.method.as_str()).collect();
+    methods.dedup();
+    methods.sort_unstable();
+    methods.dedup();
+    let width = methods.iter().map(|m| m.len()).max().unwrap_or(0);
+    for m in methods {
+        let mine: Vec<&ResultRow> = rows.iter().filter(|r| r.method == m).collect();
+        let bad = mine.iter().filter(|r| !good(r)).count();
+        let _ = writeln!(
+            t,
+            "  {m:<width$}  safe shift {}, phase error p99.9 {}; {}",
+            range(mine.iter().map(|r| r.safe_shift_pct), 1, " %"),
+            range(mine.iter().map(|r| r.phase_error_p999_ns), 0, " ns"),
+            if bad == 0 {
+                "no late or lost frame at any seed, on target".to_string()
+            } else {
+                format!(
+                    "late or lost frames, off target or not ranked at {bad} of {} seeds",
+                    mine.len()
+                )
+            }
+        );
+    }
+    t
+}
+
 /// The sweep's answer from the database's rows.
 pub fn text(store: &Store, pts: &Points) -> Result<String> {
     let rows = store.rows()?;
     let done = store.done()?.len();
+    if seed_only(store, pts)? {
+        return Ok(seeds_text(&rows, done));
+    }
     let Best {
         per_method: best,
         overall,
@@ -174,9 +237,17 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             }
         }
     }
-    let _ = writeln!(
-        t,
-        "Every point ran with the same seed (its noise the same): sweep run.seed, or give --runs 3 or more, to see how far the figures move from run to run."
-    );
+    let seeds = store.seeds()?;
+    if seeds > 1 {
+        let _ = writeln!(
+            t,
+            "The points ran with {seeds} different seeds: a point's figures hold its seed's noise as well as its parameters, so the best point is partly a lucky seed; weigh a parameter by its figures over every seed (their spread is the noise), not by one point."
+        );
+    } else {
+        let _ = writeln!(
+            t,
+            "Every point ran with the same seed (its noise the same): sweep run.seed, or give --runs 3 or more, to see how far the figures move from run to run."
+        );
+    }
     Ok(t)
 }

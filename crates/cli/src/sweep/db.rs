@@ -253,6 +253,14 @@ impl Store {
             .collect())
     }
 
+    /// How many different seeds the points done ran with.
+    pub fn seeds(&self) -> Result<usize> {
+        let n: i64 = self
+            .conn
+            .query_row("SELECT count(DISTINCT seed) FROM points", [], |r| r.get(0))?;
+        Ok(n as usize)
+    }
+
     /// Stores point `point` (its scenario `toml`) and its comparison's figures, in one
     /// transaction: a point is in the database whole or not at all.
     pub fn put(
