@@ -6,7 +6,7 @@ mod sweeps;
 
 use rusqlite::Connection;
 use std::path::Path;
-use sweeps::{ecsync, ok};
+use sweeps::{SHORT, ecsync, ok, sweep_over};
 
 fn tmp_dir(name: &str) -> std::path::PathBuf {
     sweeps::tmp("ecsync-sweep-words", name)
@@ -174,4 +174,86 @@ fn a_sweep_over_the_seed_reads_its_spread_as_noise() {
         a.contains("2 different seeds") && a.contains("lucky seed"),
         "{a}"
     );
+}
+
+fn points_in(db: &Path) -> (i64, usize) {
+    let c = Connection::open(db).unwrap();
+    let done = c
+        .query_row("SELECT count(*) FROM points", [], |r| r.get(0))
+        .unwrap();
+    let canonical: String = c
+        .query_row("SELECT value FROM sweep WHERE key = 'points'", [], |r| {
+            r.get(0)
+        })
+        .unwrap();
+    (done, canonical.lines().count() - 1)
+}
+
+/// A shard or a merge with points missing says how many of the sweep's points ran (as the
+/// database holds them), one with none says so, and a sweep run whole says nothing of shards
+/// and "1 point".
+#[test]
+fn missing_points_are_counted_as_missing() {
+    let dir = tmp_dir("missing");
+    let nine = [
+        "--grid",
+        "run.sync0_shift_pct=10,20,30",
+        "--grid",
+        "run.target_phase_us=0,10,20",
+        "--methods",
+        "median-fit",
+    ];
+    let shard = dir.join("shard0.db");
+    let mut args = nine.to_vec();
+    args.extend(["--shard", "0/3"]);
+    let a = String::from_utf8_lossy(&sweep(&shard, &args).stdout).into_owned();
+    let (done, total) = points_in(&shard);
+    assert_eq!((done, total), (3, 9));
+    assert!(
+        a.contains(&format!("({done} of the {total} points ran)")),
+        "{a}"
+    );
+    assert!(
+        !a.contains("swept)") && !a.contains("Every point of"),
+        "{a}"
+    );
+    let merged = dir.join("merged.db");
+    let o = ecsync()
+        .args(["sweep", "merge", "--db"])
+        .arg(&merged)
+        .arg(&shard)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let a = String::from_utf8_lossy(&o.stdout);
+    assert!(a.contains("(3 of the 9 points ran)"), "{a}");
+    // A shard with no point of its own.
+    let empty = dir.join("empty.db");
+    let mut args = nine.to_vec();
+    args.extend(["--shard", "9/10"]);
+    let a = String::from_utf8_lossy(&sweep(&empty, &args).stdout).into_owned();
+    assert_eq!(points_in(&empty), (0, 9));
+    assert_eq!(
+        a,
+        "Answer: none yet: no point of this sweep has run yet (0 of its 9 points).\n"
+    );
+    // One point, run whole.
+    let one = dir.join("one.db");
+    let o = ok(sweep_over(&["--grid", "run.sync0_shift_pct=10"], &one, &[]));
+    let a = String::from_utf8_lossy(&o.stdout);
+    assert!(a.contains("best point of 1 (1 swept)"), "{a}");
+    let o = ok({
+        let mut c = ecsync();
+        c.args(["sweep", "--grid", "run.sync0_shift_pct=10"])
+            .args(SHORT.iter().filter(|a| **a != "--quiet"))
+            .arg("--db")
+            .arg(&one);
+        c
+    });
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.starts_with("ecsync sweep: 1 point over run.sync0_shift_pct, 1 already in"),
+        "{e}"
+    );
+    assert!(!e.contains("shard") && !e.contains("1 points"), "{e}");
 }

@@ -11,6 +11,11 @@ use ecsync_lab::report::{SHIFT_TIE_PCT, SummaryOut};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+/// `n` and the noun for it.
+fn plural(n: usize, one: &str, many: &str) -> String {
+    ecsync_lab::scenario::plural(n as u64, one, many)
+}
+
 /// One point's comparison in a line: its pick and the pick's figures.
 pub fn point_line(out: &SummaryOut) -> String {
     let rec = &out.recommendation;
@@ -156,6 +161,13 @@ fn seeds_text(rows: &[ResultRow], done: usize) -> String {
 pub fn text(store: &Store, pts: &Points) -> Result<String> {
     let rows = store.rows()?;
     let done = store.done()?.len();
+    let total = pts.rows.len();
+    if done == 0 {
+        return Ok(format!(
+            "Answer: none yet: no point of this sweep has run yet (0 of its {}).\n",
+            plural(total, "point", "points")
+        ));
+    }
     if seed_only(store, pts)? {
         return Ok(seeds_text(&rows, done));
     }
@@ -179,7 +191,8 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             );
             let same = ties(&rows, r);
             let points_of = rows.iter().filter(|x| x.method == r.method).count();
-            if same.len() + 1 == points_of && points_of > 1 {
+            // Every point: of the sweep, not of those run so far.
+            if same.len() + 1 == points_of && points_of > 1 && done == total {
                 let _ = writeln!(
                     t,
                     "  Every point of {} is as good ({tie_words}): the swept parameters make no difference to it here beyond noise.",
@@ -204,18 +217,28 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
                 );
             }
         }
+        None if done < total => {
+            let _ = writeln!(
+                t,
+                "Answer: none so far: {done} of the {total} points ran, and no method at any of them ran without late or lost frames on its target."
+            );
+        }
         None => {
             let _ = writeln!(
                 t,
-                "Answer: none: no method at any of the {done} points ran without late or lost frames on its target."
+                "Answer: none: no method at any of the {} ran without late or lost frames on its target.",
+                plural(done, "point", "points")
             );
         }
     }
-    let _ = writeln!(
-        t,
-        "Each method's best point of {done} ({} swept):",
-        pts.rows.len()
-    );
+    if done < total {
+        let _ = writeln!(
+            t,
+            "Each method's best point ({done} of the {total} points ran):"
+        );
+    } else {
+        let _ = writeln!(t, "Each method's best point of {done} ({total} swept):");
+    }
     let width = best.keys().map(|m| m.len()).max().unwrap_or(0);
     for (m, r) in &best {
         match r {

@@ -162,6 +162,11 @@ pub fn run(args: Args) -> Result<ExitCode> {
     }
 }
 
+/// "1 point", "6 points".
+fn points_text(n: usize) -> String {
+    ecsync_lab::scenario::plural(n as u64, "point", "points")
+}
+
 /// `--shard I/N`.
 fn shard(arg: Option<&str>) -> Result<(usize, usize)> {
     let Some(s) = arg else { return Ok((0, 1)) };
@@ -254,11 +259,16 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
     let todo: Vec<usize> = mine.iter().copied().filter(|p| !done.contains(p)).collect();
     let shard_text = format!("{shard_i}/{shard_n}");
     if !a.quiet {
+        // The shard only when sharding: a sweep run whole is no shard of one.
+        let share = if a.shard.is_some() {
+            format!("; shard {shard_text}: {}", points_text(mine.len()))
+        } else {
+            String::new()
+        };
         note!(
-            "ecsync sweep: {} points over {}; shard {shard_text}: {} points, {} already in {}, {} to run",
-            pts.rows.len(),
+            "ecsync sweep: {} over {}{share}, {} already in {}, {} to run",
+            points_text(pts.rows.len()),
             pts.keys.join(", "),
-            mine.len(),
             mine.len() - todo.len(),
             a.db.display(),
             todo.len()
@@ -307,9 +317,10 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
     if stopped {
         let now = store.done()?;
         note!(
-            "ecsync sweep: stopped; {} of the shard's {} points are in {} ({ran} this time); the same command goes on with the rest",
+            "ecsync sweep: stopped; {} of the {}'s {} are in {} ({ran} this time); the same command goes on with the rest",
             mine.iter().filter(|p| now.contains(p)).count(),
-            mine.len(),
+            if a.shard.is_some() { "shard" } else { "sweep" },
+            points_text(mine.len()),
             a.db.display()
         );
         if a.report.is_some() {
@@ -349,7 +360,8 @@ fn write_report(r: &ReportArgs) -> Result<ExitCode> {
     let total = meta.points.rows.len();
     out!("{}", answer::text(&store, &meta.points)?);
     note!(
-        "ecsync sweep report: {done} of {total} points; wrote {} into {}",
+        "ecsync sweep report: {done} of {}; wrote {} into {}",
+        points_text(total),
         files.join(", "),
         r.out.display()
     );
@@ -370,19 +382,20 @@ fn merge(m: &MergeArgs) -> Result<ExitCode> {
     let mut out = Store::open(&m.db, &meta)?;
     for s in &m.shards {
         let n = out.merge_from(s)?;
-        note!("ecsync sweep merge: {}: {n} points", s.display());
+        note!("ecsync sweep merge: {}: {}", s.display(), points_text(n));
     }
     let done = out.done()?.len();
     let total = meta.points.rows.len();
     note!(
-        "ecsync sweep merge: {done} of {total} points in {}",
+        "ecsync sweep merge: {done} of {} in {}",
+        points_text(total),
         m.db.display()
     );
     out!("{}", answer::text(&out, &meta.points)?);
     if done < total {
         note!(
-            "ecsync sweep merge: {} points missing; fix: run the shards that hold them again (each goes on where it stopped)",
-            total - done
+            "ecsync sweep merge: {} missing; fix: run the shards that hold them again (each goes on where it stopped)",
+            points_text(total - done)
         );
         return Ok(ExitCode::FAILURE);
     }

@@ -27,15 +27,20 @@ pub(super) fn html(s: &Sweep, plots: &[Written], no_heat: Option<&str>) -> Strin
     let missing = s.points.len() - done.len();
     let _ = write!(
         h,
-        "<h1>ecsync sweep</h1><p>{}: {} of {} points over {}; methods {}.{}</p>",
+        "<h1>ecsync sweep</h1><p>{}: {} of {} over {}; methods {}.{}</p>",
         esc(&s.scenario),
         done.len(),
-        s.points.len(),
+        crate::scenario::plural(s.points.len() as u64, "point", "points"),
         esc(&s.keys.join(", ")),
         esc(&s.methods.join(", ")),
         if missing > 0 {
             format!(
-                " <b>{missing} points are not in the database yet</b>: the figures are of the points done."
+                " <b>{} not in the database yet</b>: the figures are of the points done.",
+                if missing == 1 {
+                    "1 point is".to_string()
+                } else {
+                    format!("{missing} points are")
+                }
             )
         } else {
             String::new()
