@@ -257,3 +257,66 @@ fn missing_points_are_counted_as_missing() {
     );
     assert!(!e.contains("shard") && !e.contains("1 points"), "{e}");
 }
+
+/// `run.cycles` in the base scenario a database holds (the truth the message must name).
+fn cycles_in(db: &Path) -> i64 {
+    let toml: String = Connection::open(db)
+        .unwrap()
+        .query_row("SELECT value FROM sweep WHERE key = 'base_toml'", [], |r| {
+            r.get(0)
+        })
+        .unwrap();
+    let t: toml::Table = toml.parse().unwrap();
+    t["run"]["cycles"].as_integer().unwrap()
+}
+
+/// A database or shard of another sweep is refused naming what differs, with both values as
+/// the databases hold them, and the fix.
+#[test]
+fn another_sweep_is_refused_naming_what_differs() {
+    let dir = tmp_dir("another");
+    let (c1, c2) = (dir.join("c1.db"), dir.join("c2.db"));
+    let grid = [
+        "--grid",
+        "run.sync0_shift_pct=10",
+        "--methods",
+        "median-fit",
+    ];
+    sweep(&c1, &grid);
+    let mut args: Vec<&str> = vec!["sweep"];
+    args.extend(grid);
+    args.extend(["--runs", "1", "--cycles", "30000", "--quiet", "--db"]);
+    let mut second = args.clone();
+    second.push(c2.to_str().unwrap());
+    ok({
+        let mut c = ecsync();
+        c.args(&second);
+        c
+    });
+    let (n1, n2) = (cycles_in(&c1), cycles_in(&c2));
+    assert_eq!((n1, n2), (20000, 30000));
+    let mut again = args.clone();
+    again.push(c1.to_str().unwrap());
+    let e = refused(&again[1..]);
+    assert!(
+        e.contains(&format!("run.cycles ({n2} here, {n1} in the database)")) && e.contains("fix:"),
+        "{e}"
+    );
+    assert!(e.contains("(1 point over"), "{e}");
+    let o = ecsync()
+        .args(["sweep", "merge", "--db"])
+        .arg(dir.join("m.db"))
+        .args([&c1, &c2])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains(&format!(
+            "run.cycles ({n2} in {}, {n1} in {})",
+            c2.display(),
+            c1.display()
+        )) && e.contains("fix:"),
+        "{e}"
+    );
+}

@@ -40,6 +40,82 @@ impl PartialEq for Meta {
     }
 }
 
+impl Meta {
+    /// What makes `self` another sweep than `other`, in words: each differing setting of the
+    /// base scenario ("run.cycles (50000 HERE, 100000 THERE)", the first few), or else the
+    /// points; `here` and `there` name the two sides.
+    pub fn differences(&self, other: &Meta, here: &str, there: &str) -> String {
+        let mut found: Vec<(String, String, String)> = Vec::new();
+        match (
+            self.base_toml.parse::<toml::Table>(),
+            other.base_toml.parse::<toml::Table>(),
+        ) {
+            (Ok(a), Ok(b)) => table_differences("", &a, &b, &mut found),
+            _ => found.push(("the base scenario".into(), "one".into(), "another".into())),
+        }
+        let (a, b) = (&self.points, &other.points);
+        if a.keys != b.keys {
+            found.push((
+                "the swept keys".into(),
+                a.keys.join(", "),
+                b.keys.join(", "),
+            ));
+        } else if a.rows.len() != b.rows.len() {
+            found.push((
+                "the points".into(),
+                format!("{} points", a.rows.len()),
+                format!("{}", b.rows.len()),
+            ));
+        } else if let Some(i) = (0..a.rows.len()).find(|&i| a.rows[i] != b.rows[i]) {
+            found.push((format!("point {i}"), a.describe(i), b.describe(i)));
+        }
+        let n = found.len();
+        let mut words: Vec<String> = found
+            .into_iter()
+            .take(3)
+            .map(|(what, x, y)| format!("{what} ({x} {here}, {y} {there})"))
+            .collect();
+        if n > 3 {
+            words.push(format!(
+                "and {}",
+                ecsync_lab::scenario::plural((n - 3) as u64, "more setting", "more settings")
+            ));
+        }
+        words.join(", ")
+    }
+}
+
+/// The fields of `a` and `b` (under `path`) whose values differ, as (field, a's, b's).
+fn table_differences(
+    path: &str,
+    a: &toml::Table,
+    b: &toml::Table,
+    found: &mut Vec<(String, String, String)>,
+) {
+    let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    for k in keys {
+        let field = if path.is_empty() {
+            k.clone()
+        } else {
+            format!("{path}.{k}")
+        };
+        match (a.get(k), b.get(k)) {
+            (Some(Value::Table(x)), Some(Value::Table(y))) => {
+                table_differences(&field, x, y, found);
+            }
+            (x, y) if x != y => {
+                let text = |v: Option<&Value>| match v {
+                    None => "not set".to_string(),
+                    Some(Value::Table(_)) => "a table".to_string(),
+                    Some(v) => show(v),
+                };
+                found.push((field, text(x), text(y)));
+            }
+            _ => {}
+        }
+    }
+}
+
 /// The results columns: name, SQL type, and what they are (the book's table, `sweep --help`).
 pub const RESULT_COLUMNS: &[(&str, &str, &str)] = &[
     (
@@ -156,11 +232,12 @@ impl Store {
                 .with_context(|| format!("--db: cannot create the tables in {}", path.display()))?,
             Some(m) if m == *meta => {}
             Some(m) => bail!(
-                "--db: {} holds another sweep ({} points over {} of {}); fix: give another --db, or the same scenario and points to go on with it",
+                "--db: {} holds another sweep ({} over {} of {}); it differs in {}; fix: give another --db, or the database's settings and points to go on with it",
                 path.display(),
-                m.points.rows.len(),
+                ecsync_lab::scenario::plural(m.points.rows.len() as u64, "point", "points"),
                 m.points.keys.join(", "),
-                m.base_name
+                m.base_name,
+                meta.differences(&m, "here", "in the database")
             ),
         }
         Ok(store)

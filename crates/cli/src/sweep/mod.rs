@@ -371,11 +371,17 @@ fn write_report(r: &ReportArgs) -> Result<ExitCode> {
 fn merge(m: &MergeArgs) -> Result<ExitCode> {
     let meta = db::read_meta(&m.shards[0])?;
     for s in &m.shards[1..] {
-        if db::read_meta(s)? != meta {
+        let other = db::read_meta(s)?;
+        if other != meta {
             bail!(
-                "{} is of another sweep than {}; fix: merge the shards of one sweep (same scenario and points)",
+                "{} is of another sweep than {}: it differs in {}; fix: merge the shards of one sweep (same scenario and points)",
                 s.display(),
-                m.shards[0].display()
+                m.shards[0].display(),
+                other.differences(
+                    &meta,
+                    &format!("in {}", s.display()),
+                    &format!("in {}", m.shards[0].display())
+                )
             );
         }
     }
