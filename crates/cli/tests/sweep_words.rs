@@ -320,3 +320,90 @@ fn another_sweep_is_refused_naming_what_differs() {
         "{e}"
     );
 }
+
+/// The numbers of the `<text>` elements of `svg` whose content is a number, as (x, y, value).
+fn numbers(svg: &str) -> Vec<(i64, i64, f64)> {
+    let attr = |tag: &str, a: &str| -> i64 {
+        let at = tag.find(&format!(" {a}=\"")).unwrap() + a.len() + 3;
+        tag[at..].split('"').next().unwrap().parse().unwrap()
+    };
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|t| {
+            let (tag, rest) = t.split_once('>')?;
+            let v: f64 = rest.split('<').next()?.trim().parse().ok()?;
+            Some((attr(tag, "x"), attr(tag, "y"), v))
+        })
+        .collect()
+}
+
+/// The caption of tradeoff.svg in sweep.html says where the phase-error axis starts, and the
+/// drawing agrees: the value at the plot's bottom edge, read off its tick labels, is the
+/// caption's (to a pixel), and neither is 0.
+#[test]
+fn the_trade_off_caption_says_where_its_axis_starts() {
+    let dir = tmp_dir("axis");
+    let report = dir.join("report");
+    sweep(
+        &dir.join("a.db"),
+        &[
+            "--grid",
+            "run.target_phase_us=0,10",
+            "--methods",
+            "median-fit,soem-pi",
+            "--report",
+            report.to_str().unwrap(),
+        ],
+    );
+    let html = std::fs::read_to_string(report.join("sweep.html")).unwrap();
+    assert!(!html.contains("(from 0)"));
+    let key = "up, its phase error p99.9 (linear from ";
+    let at = html.find(key).expect("the caption's axis") + key.len();
+    let words: Vec<&str> = html[at..].split(' ').collect();
+    let (lo, hi): (f64, f64) = (words[0].parse().unwrap(), words[2].parse().unwrap());
+    let svg = std::fs::read_to_string(report.join("tradeoff.svg")).unwrap();
+    // The y ticks: numbers in one column, one above the other.
+    let nums = numbers(&svg);
+    let ticks: Vec<(i64, f64)> = nums
+        .iter()
+        .filter(|(x, _, _)| nums.iter().filter(|n| n.0 == *x).count() > 2)
+        .map(|(_, y, v)| (*y, *v))
+        .collect();
+    assert!(ticks.len() >= 2, "{nums:?}");
+    let ((y1, v1), (y2, v2)) = (ticks[0], ticks[ticks.len() - 1]);
+    let per_px = (v2 - v1) / (y2 - y1) as f64;
+    // The plot's bottom: where its vertical grid lines start.
+    let line = svg
+        .split("<line")
+        .skip(1)
+        .find(|l| {
+            let x = |a: &str| {
+                l.split(&format!(" {a}=\""))
+                    .nth(1)
+                    .unwrap()
+                    .split('"')
+                    .next()
+                    .unwrap()
+                    .to_string()
+            };
+            x("x1") == x("x2")
+        })
+        .unwrap();
+    let y_of = |a: &str| -> i64 {
+        line.split(&format!(" {a}=\""))
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let bottom = y_of("y1").max(y_of("y2"));
+    let drawn_lo = v1 + (bottom - y1) as f64 * per_px;
+    assert!(lo > 0.0 && lo < hi, "{lo} {hi}");
+    assert!(
+        (drawn_lo - lo).abs() <= 2.0 * per_px.abs(),
+        "drawn from {drawn_lo}, caption {lo}"
+    );
+}
