@@ -407,3 +407,74 @@ fn the_trade_off_caption_says_where_its_axis_starts() {
         "drawn from {drawn_lo}, caption {lo}"
     );
 }
+
+/// `scripts/recipes/sweep-parallel.sh` run again in the same folder keeps the shards it made:
+/// each goes on where it stopped (its log's second row ran no point), and the merge is the
+/// same. (GNU parallel: the script installs it when missing; CI has it.)
+#[test]
+fn the_parallel_recipe_run_again_keeps_its_shards() {
+    let dir = tmp_dir("recipe");
+    let script =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/recipes/sweep-parallel.sh");
+    let out = dir.join("out");
+    let run = || {
+        let o = std::process::Command::new("bash")
+            .arg(&script)
+            .arg("2")
+            .arg(&out)
+            .args(["--grid", "run.sync0_shift_pct=10,20,30,40"])
+            .args(RUN)
+            .args(["--methods", "median-fit", "--threads", "1"])
+            .env("ECSYNC_BIN", env!("CARGO_BIN_EXE_ecsync"))
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    let log = |db: &Path| -> Vec<i64> {
+        let c = Connection::open(db).unwrap();
+        let mut q = c
+            .prepare("SELECT points_run FROM log ORDER BY invocation")
+            .unwrap();
+        q.query_map([], |r| r.get(0))
+            .unwrap()
+            .map(Result::unwrap)
+            .collect()
+    };
+    run();
+    assert_eq!(points_in(&out.join("merged.db")), (4, 4));
+    run();
+    for i in 0..2 {
+        assert_eq!(log(&out.join(format!("shard-{i}.db"))), [2, 0], "shard {i}");
+    }
+    assert_eq!(points_in(&out.join("merged.db")), (4, 4));
+}
+
+/// Values set by options are refused naming the option, not a point or a line of a text the
+/// sweep made; a range past the most points a sweep takes says how many it asked and the most.
+#[test]
+fn options_and_ranges_are_refused_naming_them() {
+    let dir = tmp_dir("options");
+    let db = dir.join("o.db");
+    let grid = ["--grid", "run.sync0_shift_pct=10,20"];
+    for (opt, value) in [("--runs", "0"), ("--cycles", "0"), ("--methods", "nosuch")] {
+        let mut args = grid.to_vec();
+        args.extend([opt, value, "--db", db.to_str().unwrap()]);
+        let e = refused(&args);
+        assert!(e.contains(&format!("error: {opt}: ")), "{e}");
+        assert!(
+            e.contains("fix:") && !e.contains("point") && !e.contains(":4"),
+            "{e}"
+        );
+    }
+    let e = refused(&["--grid", "run.seed=0:1e9:1", "--db", db.to_str().unwrap()]);
+    assert!(
+        e.contains("1000000001 values") && e.contains("more than the 1000000 points"),
+        "{e}"
+    );
+    assert!(!db.exists(), "nothing made");
+}
