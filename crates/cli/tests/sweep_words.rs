@@ -155,6 +155,21 @@ fn a_sweep_over_the_seed_reads_its_spread_as_noise() {
             "{line}"
         );
     }
+    // One shard's single point: still a sweep over the seed, no point to pick.
+    let o = sweep(
+        &dir.join("shard.db"),
+        &[
+            "--grid",
+            "run.seed=1:4:1",
+            "--methods",
+            "median-fit",
+            "--shard",
+            "0/4",
+        ],
+    );
+    let one = String::from_utf8_lossy(&o.stdout);
+    assert!(one.starts_with("Answer: no point to pick"), "{one}");
+    assert!(one.contains("1 seed (1 of the 4 points ran)"), "{one}");
     let t = std::fs::read_to_string(report.join("tradeoff.svg")).unwrap();
     assert!(t.contains("data-best=\"0\"") && !t.contains("data-best=\"1\""));
     let o = sweep(
@@ -171,7 +186,7 @@ fn a_sweep_over_the_seed_reads_its_spread_as_noise() {
     let a = String::from_utf8_lossy(&o.stdout);
     assert!(!a.contains("same seed"), "{a}");
     assert!(
-        a.contains("2 different seeds") && a.contains("lucky seed"),
+        a.contains("different seeds (run.seed swept)") && a.contains("lucky seed"),
         "{a}"
     );
 }

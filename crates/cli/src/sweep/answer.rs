@@ -97,16 +97,23 @@ pub fn best(rows: &[ResultRow]) -> Best<'_> {
     }
 }
 
-/// Whether the points done differ by their seed only (`run.seed` swept, every other key at one
-/// value): what moves between them is run-to-run noise, and no point is a design's to pick.
+/// Whether the sweep's points differ by their seed only (`run.seed` swept, every other key at
+/// one value): what moves between them is run-to-run noise, and no point is a design's to pick.
 pub fn seed_only(store: &Store, pts: &Points) -> Result<bool> {
-    let varies = |i: usize| pts.rows.iter().any(|r| r[i] != pts.rows[0][i]);
-    Ok(store.seeds()? > 1
-        && pts
-            .keys
-            .iter()
-            .enumerate()
-            .all(|(i, k)| k == SEED_KEY || !varies(i)))
+    Ok(seeds_vary(store, pts)?
+        && (0..pts.keys.len()).all(|i| pts.keys[i] == SEED_KEY || !varies(pts, i)))
+}
+
+/// Whether key `i` takes more than one value over the sweep's points.
+fn varies(pts: &Points, i: usize) -> bool {
+    pts.rows.iter().any(|r| r[i] != pts.rows[0][i])
+}
+
+/// Whether the points run with different seeds: `run.seed` is swept, or the points done ran
+/// with more than one.
+fn seeds_vary(store: &Store, pts: &Points) -> Result<bool> {
+    let swept = (0..pts.keys.len()).any(|i| pts.keys[i] == SEED_KEY && varies(pts, i));
+    Ok(swept || store.seeds()? > 1)
 }
 
 /// The scenario's seed as a swept key.
@@ -127,9 +134,15 @@ fn range(xs: impl Iterator<Item = f64>, places: usize, unit: &str) -> String {
 
 /// The answer of a sweep over the seed alone: no point to pick, each method's spread over
 /// the seeds (the noise a single comparison's figures carry).
-fn seeds_text(rows: &[ResultRow], done: usize) -> String {
+fn seeds_text(rows: &[ResultRow], done: usize, total: usize) -> String {
+    let so_far = if done < total {
+        format!(" ({done} of the {total} points ran)")
+    } else {
+        String::new()
+    };
     let mut t = format!(
-        "Answer: no point to pick: the points differ by their seed ({SEED_KEY}) only, so what moves between them is run-to-run noise, not a design choice.\nEach method over the {done} seeds (the spread is the noise of one comparison's figures; a design difference smaller than it is none):\n"
+        "Answer: no point to pick: the points differ by their seed ({SEED_KEY}) only, so what moves between them is run-to-run noise, not a design choice.\nEach method over the {}{so_far} (the spread is the noise of one comparison's figures; a design difference smaller than it is none):\n",
+        plural(done, "seed", "seeds")
     );
     let mut methods: Vec<&str> = rows.iter().map(|r| r.method.as_str()).collect();
     methods.dedup();
@@ -169,7 +182,7 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
         ));
     }
     if seed_only(store, pts)? {
-        return Ok(seeds_text(&rows, done));
+        return Ok(seeds_text(&rows, done, total));
     }
     let Best {
         per_method: best,
@@ -260,11 +273,10 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             }
         }
     }
-    let seeds = store.seeds()?;
-    if seeds > 1 {
+    if seeds_vary(store, pts)? {
         let _ = writeln!(
             t,
-            "The points ran with {seeds} different seeds: a point's figures hold its seed's noise as well as its parameters, so the best point is partly a lucky seed; weigh a parameter by its figures over every seed (their spread is the noise), not by one point."
+            "The points ran with different seeds ({SEED_KEY} swept): a point's figures hold its seed's noise as well as its parameters, so the best point is partly a lucky seed; weigh a parameter by its figures over every seed (their spread is the noise), not by one point."
         );
     } else {
         let _ = writeln!(
