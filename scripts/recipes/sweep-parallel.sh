@@ -4,7 +4,8 @@
 #   scripts/recipes/sweep-parallel.sh N OUTDIR --preset paper-2024 --grid 'run.sync0_shift_pct=10,20,30'
 #   (or the sweep arguments in ECSYNC_SWEEP_ARGS, shell-quoted; the binary in ECSYNC_BIN, else
 #   ecsync on PATH; ECSYNC_JOBS shards at once, default N)
-# Leaves OUTDIR/shard-I.db, OUTDIR/joblog and OUTDIR/merged.db. Installs parallel if missing.
+# Leaves OUTDIR/shard-I.db, OUTDIR/joblog and OUTDIR/merged.db; the same command again goes on
+# with the shards' points not done. Installs parallel if missing.
 set -euo pipefail
 [ $# -ge 2 ] || { sed -n '2,/^set /{/^#/p}' "$0"; exit 2; }
 n=$1 out=$2
@@ -17,7 +18,11 @@ if ! command -v parallel >/dev/null; then
     apt-get install -y -q --no-install-recommends parallel
 fi
 mkdir -p "$out"
-rm -f "$out"/shard-*.db "$out"/merged.db # a merge of stale shards from an earlier N would be wrong
+# The shards are kept: run again after an interruption or a failed shard, each goes on where
+# it stopped (its points done are not run again), and a shard database of another sweep is
+# refused, naming what differs. Only the merge is made anew from them. (With another N, the
+# shards 0..N-1 still hold points of this sweep only, each kept whole, and the merge takes them.)
+rm -f "$out"/merged.db
 # Shards are 0-based and parallel's job number {#} 1-based, so the shard is the input {} from
 # seq 0..N-1. -q quotes every word as given (a grid value may hold shell characters); a failed
 # shard stops the others (--halt now,fail=1) and fails the script before the merge.

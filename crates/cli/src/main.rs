@@ -1,6 +1,7 @@
 //! `ecsync`: EtherCAT clock synchronization on a virtual segment and on real networks.
 
 use clap::{Parser, Subcommand};
+use std::io::Write as _;
 use std::process::ExitCode;
 
 mod bench;
@@ -64,6 +65,21 @@ enum Command {
     HelpMarkdown,
 }
 
+/// A reader that went away (`ecsync compare 2>&1 | head -2`) ends the process quietly, as it
+/// ends `cat` or `grep`, instead of a panic in `println!` ("failed printing to stdout: Broken
+/// pipe", exit 101): SIGPIPE back to its default action. What these commands write to files is
+/// written before their text is printed, or is no longer wanted once nobody reads. Not for
+/// `sweep`, whose database records each invocation: a closed output stops it as Ctrl-C does
+/// (the points done kept, its log row written; see `sweep::say`); nor for `serve`, `ctl` and
+/// `run`, whose control socket's peer may go away without ending them.
+#[cfg(target_os = "linux")]
+fn end_quietly_on_a_closed_pipe() {
+    // SAFETY: sets a signal's disposition to its default before any other thread runs.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // The simulating commands run on a heap of huge pages (see `heap`); the real-time ones
@@ -78,6 +94,13 @@ fn main() -> ExitCode {
             | Command::Tsn(_)
     ) {
         heap::use_huge_pages();
+    }
+    #[cfg(target_os = "linux")]
+    if !matches!(
+        cli.command,
+        Command::Sweep(_) | Command::Serve(_) | Command::Ctl(_) | Command::Run(_)
+    ) {
+        end_quietly_on_a_closed_pipe();
     }
     let r = match cli.command {
         Command::Bringup(a) => bringup::run(a),
@@ -98,7 +121,8 @@ fn main() -> ExitCode {
     match r {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("ecsync: error: {e:#}");
+            // Not `eprintln!`: a closed stderr (see `end_quietly_on_a_closed_pipe`) is no panic.
+            let _ = writeln!(std::io::stderr(), "ecsync: error: {e:#}");
             ExitCode::FAILURE
         }
     }

@@ -305,7 +305,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
             "methods",
             Value::Array(vec![Value::String(kind.to_string())]),
         ),
-        ("runs", Value::Integer(i64::from(args.runs.max(1)))),
+        ("runs", Value::Integer(i64::from(args.runs))),
     ];
     if let Some(c) = args.cycles {
         run_set.push(("cycles", Value::Integer(c as i64)));
@@ -570,6 +570,14 @@ fn against_plain(plain: &Outcome, o: &Outcome, mode: SendMode) -> (String, bool)
     let (d, mean, half) = paired(plain, o);
     let runs: Vec<String> = d.iter().map(|x| format!("{x:.1}")).collect();
     let runs = runs.join(", ");
+    if within_tie(mean) {
+        return (
+            format!(
+                "within the comparison's tie step ({SHIFT_TIE_PCT} % of the cycle) of plain, which compare and sweep call as good ({mean:.2} %; per run, plain minus {mode}: {runs})."
+            ),
+            false,
+        );
+    }
     match half {
         None => (
             format!(
@@ -592,8 +600,15 @@ fn against_plain(plain: &Outcome, o: &Outcome, mode: SendMode) -> (String, bool)
     }
 }
 
+/// The step the per-run smallest safe shift is rounded up to, % of the cycle (the comparison
+/// reports it in tenths of a percent).
+const SHIFT_STEP_PCT: f64 = 0.1;
+
 /// Each run's smallest safe shift of `a` minus `b`'s, % of the cycle, their mean and the half
-/// width of its 95 % interval (`None` from one run).
+/// width of its 95 % interval (`None` from one run). Each difference is of two figures rounded
+/// to [`SHIFT_STEP_PCT`], so runs whose differences print alike may differ by up to a step: the
+/// spread is taken as at least the rounding's own (a step over the square root of 6, two
+/// uniform roundings), never as none.
 fn paired(a: &Outcome, b: &Outcome) -> (Vec<f64>, f64, Option<f64>) {
     let d: Vec<f64> = a
         .per_run_pct
@@ -607,7 +622,14 @@ fn paired(a: &Outcome, b: &Outcome) -> (Vec<f64>, f64, Option<f64>) {
         return (d, mean, None);
     }
     let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
+    let sd = sd.max(SHIFT_STEP_PCT / 6f64.sqrt());
     (d, mean, Some(t95(n - 1) * sd / (n as f64).sqrt()))
+}
+
+/// Whether `mean`, a gain in % of the cycle, is within the comparison's tie step: what
+/// `compare` ranks alike and `sweep` calls as good is no gain, however the runs agree.
+fn within_tie(mean: f64) -> bool {
+    mean <= SHIFT_TIE_PCT
 }
 
 /// The tuned point against the defaults, run by run: the same seeds give both the same
@@ -635,6 +657,15 @@ fn weigh(def: &Outcome, best: &Outcome, same: bool) -> (String, bool) {
                 runs.join(", ")
             ),
             true,
+        );
+    }
+    if within_tie(mean) {
+        return (
+            format!(
+                "Verdict: the tuned parameters' {mean:.2} % of the cycle is within the comparison's tie step ({SHIFT_TIE_PCT} %), which compare and sweep call as good: no gain; keep the defaults (per run, defaults minus tuned: {}).",
+                runs.join(", ")
+            ),
+            false,
         );
     }
     let Some(half) = half else {

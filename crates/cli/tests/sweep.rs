@@ -196,7 +196,12 @@ fn ctrl_c_keeps_the_points_done_and_a_rerun_does_only_the_rest() {
         c
     });
     let e = String::from_utf8_lossy(&o.stderr);
-    assert!(e.contains(&format!("12 points, {kept} already in")), "{e}");
+    assert!(
+        e.contains(&format!(
+            "12 points over run.sync0_shift_pct, {kept} already in"
+        )),
+        "{e}"
+    );
     assert_eq!(count(&db, "SELECT count(*) FROM points"), 12);
     let ran = count(
         &db,

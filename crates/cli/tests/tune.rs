@@ -22,18 +22,26 @@ const SHORT: &[&str] = &["--runs", "3", "--cycles", "20000", "--warmup-s", "10"]
 
 /// paper-2024 with pi-m2s's kp and ki set (the preset's lines replaced).
 fn with_pi(kp: &str, ki: &str) -> String {
+    with_gains("pi-m2s", kp, ki)
+}
+
+/// paper-2024 with `method`'s kp and ki set (the preset's lines replaced).
+fn with_gains(method: &str, kp: &str, ki: &str) -> String {
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
     )
     .unwrap();
-    let at = text.find("[methods.pi-m2s]").unwrap();
+    let at = text.find(&format!("[methods.{method}]")).unwrap();
     let (head, tail) = text.split_at(at);
     let mut out = String::from(head);
+    let (mut kp_set, mut ki_set) = (false, false);
     for line in tail.lines() {
-        if line.starts_with("kp = ") && !out.contains("\nkp = ") {
+        if line.starts_with("kp = ") && !kp_set {
             out.push_str(&format!("kp = {kp}\n"));
-        } else if line.starts_with("ki = ") && !out.contains("\nki = ") {
+            kp_set = true;
+        } else if line.starts_with("ki = ") && !ki_set {
             out.push_str(&format!("ki = {ki}\n"));
+            ki_set = true;
         } else {
             out.push_str(line);
             out.push('\n');
@@ -234,4 +242,121 @@ fn a_send_mode_that_beats_plain_is_picked_and_holds_in_compare() {
         "compare {safe} %, tune {tuned_safe} %"
     );
     assert!(safe < shift, "{safe} % within the fragment's {shift} %");
+}
+
+/// Each run's smallest safe shift of dcm-master-shift in `compare` on `cfg` (2 runs of 20 000
+/// cycles after the preset's warm-up).
+fn per_run_shift(cfg: &Path) -> Vec<f64> {
+    let o = ecsync()
+        .args(["compare", "--config"])
+        .arg(cfg)
+        .args([
+            "--methods",
+            "dcm-master-shift",
+            "--runs",
+            "2",
+            "--cycles",
+            "20000",
+        ])
+        .args(["--json", "--quiet", "--out"])
+        .arg(cfg.with_extension("out"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["methods"]["dcm-master-shift"]["runs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["keys"]["smallest_safe_shift_pct"].as_f64().unwrap())
+        .collect()
+}
+
+/// dcm-master-shift on paper-2024, 2 runs: the tuned gains' smallest safe shift is smaller
+/// than the defaults' in both runs by the same rounded step, as `compare` measures with each
+/// set of gains, but by no more than the comparison's tie step (0.5 % of the cycle), which a
+/// sweep calls as good. That is no gain: tune keeps the defaults in its fragment. And runs
+/// whose rounded differences print alike are not read as a noise of nothing (no interval of
+/// +-0.00).
+#[test]
+fn a_gain_within_the_tie_step_is_no_gain() {
+    let dir = tmp("tie");
+    let o = ecsync()
+        .args([
+            "tune",
+            "--method",
+            "dcm-master-shift",
+            "--preset",
+            "paper-2024",
+        ])
+        .args([
+            "--runs",
+            "2",
+            "--cycles",
+            "20000",
+            "--quiet",
+            "--send-modes",
+        ])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{text}");
+    let line = |p: &str| {
+        text.lines()
+            .find(|l| l.trim_start().starts_with(p))
+            .unwrap_or_else(|| panic!("{p} in {text}"))
+            .to_string()
+    };
+    let gains = |l: &str| {
+        let kp = number_after(l, "(kp ");
+        let ki = number_after(l, ", ki ");
+        (kp, ki)
+    };
+    let (dkp, dki) = gains(&line("defaults "));
+    let (tkp, tki) = gains(&line("tuned "));
+    let cfg = |name: &str, kp: f64, ki: f64| {
+        let p = dir.join(name);
+        std::fs::write(
+            &p,
+            with_gains("dcm-master-shift", &kp.to_string(), &ki.to_string()),
+        )
+        .unwrap();
+        p
+    };
+    let def = per_run_shift(&cfg("defaults.toml", dkp, dki));
+    let tuned = per_run_shift(&cfg("tuned.toml", tkp, tki));
+    let d: Vec<f64> = def.iter().zip(&tuned).map(|(a, b)| a - b).collect();
+    let mean = d.iter().sum::<f64>() / d.len() as f64;
+    // The case this checks: a gain in each run, within the tie step.
+    assert!(d.iter().all(|x| *x > 0.0) && mean <= 0.5, "{d:?}");
+    let verdict = line("Verdict:");
+    assert!(
+        verdict.contains("tie step") && !verdict.contains("use them"),
+        "{verdict}"
+    );
+    let fragment = &text[text.find("[methods.dcm-master-shift]").expect("a fragment")..];
+    let (fkp, fki) = (
+        number_after(fragment, "kp = "),
+        number_after(fragment, "ki = "),
+    );
+    assert_eq!(
+        (fkp, fki),
+        (dkp, dki),
+        "the defaults in the fragment: {text}"
+    );
+    assert!(!text.contains("+-0.00"), "{text}");
+}
+
+/// `--runs 0` is refused, naming the option, as `sweep` and `compare` refuse it.
+#[test]
+fn zero_runs_are_refused() {
+    let o = ecsync()
+        .args(["tune", "--method", "median-fit", "--runs", "0"])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("--runs: 0") && e.contains("fix:"), "{e}");
+    assert!(o.stdout.is_empty());
 }

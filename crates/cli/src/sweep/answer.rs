@@ -11,6 +11,11 @@ use ecsync_lab::report::{SHIFT_TIE_PCT, SummaryOut};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+/// `n` and the noun for it.
+fn plural(n: usize, one: &str, many: &str) -> String {
+    ecsync_lab::scenario::plural(n as u64, one, many)
+}
+
 /// One point's comparison in a line: its pick and the pick's figures.
 pub fn point_line(out: &SummaryOut) -> String {
     let rec = &out.recommendation;
@@ -92,10 +97,93 @@ pub fn best(rows: &[ResultRow]) -> Best<'_> {
     }
 }
 
+/// Whether the sweep's points differ by their seed only (`run.seed` swept, every other key at
+/// one value): what moves between them is run-to-run noise, and no point is a design's to pick.
+pub fn seed_only(store: &Store, pts: &Points) -> Result<bool> {
+    Ok(seeds_vary(store, pts)?
+        && (0..pts.keys.len()).all(|i| pts.keys[i] == SEED_KEY || !varies(pts, i)))
+}
+
+/// Whether key `i` takes more than one value over the sweep's points.
+fn varies(pts: &Points, i: usize) -> bool {
+    pts.rows.iter().any(|r| r[i] != pts.rows[0][i])
+}
+
+/// Whether the points run with different seeds: `run.seed` is swept, or the points done ran
+/// with more than one.
+fn seeds_vary(store: &Store, pts: &Points) -> Result<bool> {
+    let swept = (0..pts.keys.len()).any(|i| pts.keys[i] == SEED_KEY && varies(pts, i));
+    Ok(swept || store.seeds()? > 1)
+}
+
+/// The scenario's seed as a swept key.
+const SEED_KEY: &str = "run.seed";
+
+/// The smallest and largest of `xs` (NaN left out), in words with `places` digits.
+fn range(xs: impl Iterator<Item = f64>, places: usize, unit: &str) -> String {
+    let (lo, hi) = xs
+        .filter(|x| x.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+            (a.min(x), b.max(x))
+        });
+    if !lo.is_finite() {
+        return "none".into();
+    }
+    format!("{lo:.places$} to {hi:.places$}{unit}")
+}
+
+/// The answer of a sweep over the seed alone: no point to pick, each method's spread over
+/// the seeds (the noise a single comparison's figures carry).
+fn seeds_text(rows: &[ResultRow], done: usize, total: usize) -> String {
+    let so_far = if done < total {
+        format!(" ({done} of the {total} points ran)")
+    } else {
+        String::new()
+    };
+    let mut t = format!(
+        "Answer: no point to pick: the points differ by their seed ({SEED_KEY}) only, so what moves between them is run-to-run noise, not a design choice.\nEach method over the {}{so_far} (the spread is the noise of one comparison's figures; a design difference smaller than it is none):\n",
+        plural(done, "seed", "seeds")
+    );
+    let mut methods: Vec<&str> = rows.iter().map(|r| r.method.as_str()).collect();
+    methods.dedup();
+    methods.sort_unstable();
+    methods.dedup();
+    let width = methods.iter().map(|m| m.len()).max().unwrap_or(0);
+    for m in methods {
+        let mine: Vec<&ResultRow> = rows.iter().filter(|r| r.method == m).collect();
+        let bad = mine.iter().filter(|r| !good(r)).count();
+        let _ = writeln!(
+            t,
+            "  {m:<width$}  safe shift {}, phase error p99.9 {}; {}",
+            range(mine.iter().map(|r| r.safe_shift_pct), 1, " %"),
+            range(mine.iter().map(|r| r.phase_error_p999_ns), 0, " ns"),
+            if bad == 0 {
+                "no late or lost frame at any seed, on target".to_string()
+            } else {
+                format!(
+                    "late or lost frames, off target or not ranked at {bad} of {} seeds",
+                    mine.len()
+                )
+            }
+        );
+    }
+    t
+}
+
 /// The sweep's answer from the database's rows.
 pub fn text(store: &Store, pts: &Points) -> Result<String> {
     let rows = store.rows()?;
     let done = store.done()?.len();
+    let total = pts.rows.len();
+    if done == 0 {
+        return Ok(format!(
+            "Answer: none yet: no point of this sweep has run yet (0 of its {}).\n",
+            plural(total, "point", "points")
+        ));
+    }
+    if seed_only(store, pts)? {
+        return Ok(seeds_text(&rows, done, total));
+    }
     let Best {
         per_method: best,
         overall,
@@ -116,7 +204,8 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             );
             let same = ties(&rows, r);
             let points_of = rows.iter().filter(|x| x.method == r.method).count();
-            if same.len() + 1 == points_of && points_of > 1 {
+            // Every point: of the sweep, not of those run so far.
+            if same.len() + 1 == points_of && points_of > 1 && done == total {
                 let _ = writeln!(
                     t,
                     "  Every point of {} is as good ({tie_words}): the swept parameters make no difference to it here beyond noise.",
@@ -141,18 +230,28 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
                 );
             }
         }
+        None if done < total => {
+            let _ = writeln!(
+                t,
+                "Answer: none so far: {done} of the {total} points ran, and no method at any of them ran without late or lost frames on its target."
+            );
+        }
         None => {
             let _ = writeln!(
                 t,
-                "Answer: none: no method at any of the {done} points ran without late or lost frames on its target."
+                "Answer: none: no method at any of the {} ran without late or lost frames on its target.",
+                plural(done, "point", "points")
             );
         }
     }
-    let _ = writeln!(
-        t,
-        "Each method's best point of {done} ({} swept):",
-        pts.rows.len()
-    );
+    if done < total {
+        let _ = writeln!(
+            t,
+            "Each method's best point ({done} of the {total} points ran):"
+        );
+    } else {
+        let _ = writeln!(t, "Each method's best point of {done} ({total} swept):");
+    }
     let width = best.keys().map(|m| m.len()).max().unwrap_or(0);
     for (m, r) in &best {
         match r {
@@ -174,9 +273,16 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             }
         }
     }
-    let _ = writeln!(
-        t,
-        "Every point ran with the same seed (its noise the same): sweep run.seed, or give --runs 3 or more, to see how far the figures move from run to run."
-    );
+    if seeds_vary(store, pts)? {
+        let _ = writeln!(
+            t,
+            "The points ran with different seeds ({SEED_KEY} swept): a point's figures hold its seed's noise as well as its parameters, so the best point is partly a lucky seed; weigh a parameter by its figures over every seed (their spread is the noise), not by one point."
+        );
+    } else {
+        let _ = writeln!(
+            t,
+            "Every point ran with the same seed (its noise the same): sweep run.seed, or give --runs 3 or more, to see how far the figures move from run to run."
+        );
+    }
     Ok(t)
 }

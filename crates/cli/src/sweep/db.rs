@@ -18,8 +18,8 @@ use std::collections::BTreeSet;
 use std::path::Path;
 use toml::Value;
 
-/// The database's layout version (`sweep.format`).
-const FORMAT: &str = "1";
+/// The database's layout version (`sweep.format`): 2 added `results.not_ranked`.
+const FORMAT: &str = "2";
 
 /// What a sweep is: the same base and points, the same sweep.
 #[derive(Debug, Clone)]
@@ -40,12 +40,93 @@ impl PartialEq for Meta {
     }
 }
 
+impl Meta {
+    /// What makes `self` another sweep than `other`, in words: each differing setting of the
+    /// base scenario ("run.cycles (50000 HERE, 100000 THERE)", the first few), or else the
+    /// points; `here` and `there` name the two sides.
+    pub fn differences(&self, other: &Meta, here: &str, there: &str) -> String {
+        let mut found: Vec<(String, String, String)> = Vec::new();
+        match (
+            self.base_toml.parse::<toml::Table>(),
+            other.base_toml.parse::<toml::Table>(),
+        ) {
+            (Ok(a), Ok(b)) => table_differences("", &a, &b, &mut found),
+            _ => found.push(("the base scenario".into(), "one".into(), "another".into())),
+        }
+        let (a, b) = (&self.points, &other.points);
+        if a.keys != b.keys {
+            found.push((
+                "the swept keys".into(),
+                a.keys.join(", "),
+                b.keys.join(", "),
+            ));
+        } else if a.rows.len() != b.rows.len() {
+            found.push((
+                "the points".into(),
+                format!("{} points", a.rows.len()),
+                format!("{}", b.rows.len()),
+            ));
+        } else if let Some(i) = (0..a.rows.len()).find(|&i| a.rows[i] != b.rows[i]) {
+            found.push((format!("point {i}"), a.describe(i), b.describe(i)));
+        }
+        let n = found.len();
+        let mut words: Vec<String> = found
+            .into_iter()
+            .take(3)
+            .map(|(what, x, y)| format!("{what} ({x} {here}, {y} {there})"))
+            .collect();
+        if n > 3 {
+            words.push(format!(
+                "and {}",
+                ecsync_lab::scenario::plural((n - 3) as u64, "more setting", "more settings")
+            ));
+        }
+        words.join(", ")
+    }
+}
+
+/// The fields of `a` and `b` (under `path`) whose values differ, as (field, a's, b's).
+fn table_differences(
+    path: &str,
+    a: &toml::Table,
+    b: &toml::Table,
+    found: &mut Vec<(String, String, String)>,
+) {
+    let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+    for k in keys {
+        let field = if path.is_empty() {
+            k.clone()
+        } else {
+            format!("{path}.{k}")
+        };
+        match (a.get(k), b.get(k)) {
+            (Some(Value::Table(x)), Some(Value::Table(y))) => {
+                table_differences(&field, x, y, found);
+            }
+            (x, y) if x != y => {
+                let text = |v: Option<&Value>| match v {
+                    None => "not set".to_string(),
+                    Some(Value::Table(_)) => "a table".to_string(),
+                    Some(v) => show(v),
+                };
+                found.push((field, text(x), text(y)));
+            }
+            _ => {}
+        }
+    }
+}
+
 /// The results columns: name, SQL type, and what they are (the book's table, `sweep --help`).
 pub const RESULT_COLUMNS: &[(&str, &str, &str)] = &[
     (
         "rank",
         "INTEGER",
         "place in the point's ranking, 1 best (NULL: not ranked)",
+    ),
+    (
+        "not_ranked",
+        "TEXT",
+        "why the verdict left the method out, in compare's words (NULL: ranked, or no ranking)",
     ),
     ("recommended", "INTEGER", "1 for the point's pick"),
     (
@@ -151,11 +232,12 @@ impl Store {
                 .with_context(|| format!("--db: cannot create the tables in {}", path.display()))?,
             Some(m) if m == *meta => {}
             Some(m) => bail!(
-                "--db: {} holds another sweep ({} points over {} of {}); fix: give another --db, or the same scenario and points to go on with it",
+                "--db: {} holds another sweep ({} over {} of {}); it differs in {}; fix: give another --db, or the database's settings and points to go on with it",
                 path.display(),
-                m.points.rows.len(),
+                ecsync_lab::scenario::plural(m.points.rows.len() as u64, "point", "points"),
                 m.points.keys.join(", "),
-                m.base_name
+                m.base_name,
+                meta.differences(&m, "here", "in the database")
             ),
         }
         Ok(store)
@@ -178,7 +260,9 @@ impl Store {
                 .with_context(|| format!("the database has no sweep.{k}: not a sweep database"))
         };
         if get("format")? != FORMAT {
-            bail!("the database is of another format than this ecsync's ({FORMAT})");
+            bail!(
+                "the database is of another format than this ecsync's ({FORMAT}); fix: give another --db (this ecsync runs its points again into a new one)"
+            );
         }
         let points = get("points")?;
         Ok(Some(Meta {
@@ -246,6 +330,14 @@ impl Store {
             .collect())
     }
 
+    /// How many different seeds the points done ran with.
+    pub fn seeds(&self) -> Result<usize> {
+        let n: i64 = self
+            .conn
+            .query_row("SELECT count(DISTINCT seed) FROM points", [], |r| r.get(0))?;
+        Ok(n as usize)
+    }
+
     /// Stores point `point` (its scenario `toml`) and its comparison's figures, in one
     /// transaction: a point is in the database whole or not at all.
     pub fn put(
@@ -266,7 +358,12 @@ impl Store {
             SqlValue::Text(rec.method.clone())
         });
         row.push(SqlValue::Text(rec.ranking.join(", ")));
-        row.push(SqlValue::Text(rec.reason.clone()));
+        // The verdict's reason, then why a method is not ranked, as `compare` prints them.
+        let mut reason = rec.reason.clone();
+        for n in &rec.not_ranked {
+            reason.push_str(&format!(" Not ranked: {}.", n.why));
+        }
+        row.push(SqlValue::Text(reason));
         let warnings: Vec<&str> = out.warnings.iter().map(|w| w.kind).collect();
         row.push(SqlValue::Text(warnings.join(", ")));
         row.push(SqlValue::Text(toml.to_string()));
@@ -286,6 +383,10 @@ impl Store {
                     SqlValue::Integer(point as i64),
                     SqlValue::Text(name.clone()),
                     rank.map_or(SqlValue::Null, |r| SqlValue::Integer(r as i64 + 1)),
+                    rec.not_ranked
+                        .iter()
+                        .find(|n| &n.method == name)
+                        .map_or(SqlValue::Null, |n| SqlValue::Text(n.why.clone())),
                     SqlValue::Integer(i64::from(rank == Some(0))),
                     SqlValue::Integer(i64::from(rec.within_noise.contains(name))),
                     SqlValue::Integer(g.late_frames as i64),
@@ -339,7 +440,7 @@ impl Store {
     pub fn rows(&self) -> Result<Vec<ResultRow>> {
         let mut q = self.conn.prepare(
             "SELECT point, method, late_frames, lost_frames, smallest_safe_shift_pct,
-                    phase_error_p999_ns, holds_target, slave_spread_p999_ns, rank
+                    phase_error_p999_ns, holds_target, slave_spread_p999_ns, rank, not_ranked
              FROM results ORDER BY point, method",
         )?;
         let rows = q.query_map([], |r| {
@@ -353,6 +454,7 @@ impl Store {
                 holds_target: r.get::<_, i64>(6)? != 0,
                 slave_spread_p999_ns: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
                 rank: r.get::<_, Option<i64>>(8)?.map(|k| k as u32),
+                not_ranked: r.get(9)?,
                 good: false,
             })
         })?;

@@ -180,14 +180,21 @@ fn range_values(key: &str, a: &str, b: &str, step: &str) -> Result<Vec<Value>> {
             "--grid {key}={a}:{b}:{step}: {why}; fix: give START:STOP:STEP with a positive STEP, e.g. 10:50:10"
         )
     };
+    let too_many = |n: f64| {
+        anyhow::anyhow!(
+            "--grid {key}={a}:{b}:{step}: {n:.0} values, more than the {MAX_POINTS} points a sweep takes; fix: a larger STEP or a shorter range"
+        )
+    };
     if let (Ok(a), Ok(b), Ok(s)) = (a.parse::<i64>(), b.parse::<i64>(), step.parse::<i64>()) {
         if s <= 0 || b < a {
             return Err(bad("STEP must be above 0 and STOP not below START"));
         }
-        let n = (b - a) / s + 1;
-        if n as usize > MAX_POINTS {
-            return Err(bad("too many values"));
+        // In i128: STOP - START of two i64 does not overflow there.
+        let n = (i128::from(b) - i128::from(a)) / i128::from(s) + 1;
+        if n > MAX_POINTS as i128 {
+            return Err(too_many(n as f64));
         }
+        let n = n as i64;
         return Ok((0..n).map(|i| Value::Integer(a + i * s)).collect());
     }
     let (Ok(x), Ok(y), Ok(s)) = (a.parse::<f64>(), b.parse::<f64>(), step.parse::<f64>()) else {
@@ -196,10 +203,11 @@ fn range_values(key: &str, a: &str, b: &str, step: &str) -> Result<Vec<Value>> {
     if !(s > 0.0 && x.is_finite() && y.is_finite() && y >= x) {
         return Err(bad("STEP must be above 0 and STOP not below START"));
     }
-    let n = ((y - x) / s + 1e-9).floor() as usize + 1;
-    if n > MAX_POINTS {
-        return Err(bad("too many values"));
+    let n = ((y - x) / s + 1e-9).floor() + 1.0;
+    if n > MAX_POINTS as f64 {
+        return Err(too_many(n));
     }
+    let n = n as usize;
     let decimals = [a, b, step]
         .iter()
         .map(|t| t.split_once('.').map_or(0, |(_, d)| d.len()))
@@ -212,7 +220,7 @@ fn range_values(key: &str, a: &str, b: &str, step: &str) -> Result<Vec<Value>> {
 }
 
 /// One value: a TOML value when it reads as one (`10`, `0.5`, `true`, `"plain"`,
-/// `["plain", "txtime"]`), else the text as a string (`median-fit`, `rt-tuned`).
+/// `["plain", "txtime"]`), else the text as a string (`median-fit`, `vanilla-linux`).
 pub fn value_of(text: &str) -> Value {
     match format!("v = {text}").parse::<Table>() {
         Ok(mut t) => t.remove("v").unwrap_or(Value::String(text.to_string())),

@@ -20,6 +20,42 @@ use std::time::Instant;
 /// Set by Ctrl-C or SIGTERM: the point in progress is dropped, the ones done are kept.
 static STOP: AtomicBool = AtomicBool::new(false);
 
+/// Set for stdout (0) and stderr (1) when a write to it failed: its reader went away.
+static CLOSED: [AtomicBool; 2] = [const { AtomicBool::new(false) }; 2];
+
+/// Writes `text` to stdout (`err` false) or stderr. A stream whose reader went away (`2>&1 |
+/// head -2`) is not written again, and the sweep stops as Ctrl-C stops it: the point in
+/// progress dropped, the ones done kept, the invocation's log row written, the same command
+/// goes on. (Going on unseen would hold the pipeline's shell for the sweep's hours; dying of
+/// SIGPIPE as `cat` does would leave no log row.) Never a panic, as `println!` would.
+fn say(err: bool, text: std::fmt::Arguments) {
+    use std::io::Write as _;
+    let closed = &CLOSED[usize::from(err)];
+    if closed.load(Ordering::Relaxed) {
+        return;
+    }
+    let r = if err {
+        std::io::stderr().lock().write_fmt(text)
+    } else {
+        let mut o = std::io::stdout().lock();
+        o.write_fmt(text).and_then(|()| o.flush())
+    };
+    if r.is_err() {
+        closed.store(true, Ordering::Relaxed);
+        STOP.store(true, Ordering::Relaxed);
+    }
+}
+
+/// `print!` through [`say`].
+macro_rules! out {
+    ($($t:tt)*) => { say(false, format_args!($($t)*)) };
+}
+
+/// `eprintln!` through [`say`].
+macro_rules! note {
+    ($($t:tt)*) => { say(true, format_args!("{}\n", format_args!($($t)*))) };
+}
+
 /// `ecsync sweep` and `ecsync sweep merge`.
 #[derive(Debug, clap::Args)]
 #[command(args_conflicts_with_subcommands = true, after_help = after_help())]
@@ -126,6 +162,11 @@ pub fn run(args: Args) -> Result<ExitCode> {
     }
 }
 
+/// "1 point", "6 points".
+fn points_text(n: usize) -> String {
+    ecsync_lab::scenario::plural(n as u64, "point", "points")
+}
+
 /// `--shard I/N`.
 fn shard(arg: Option<&str>) -> Result<(usize, usize)> {
     let Some(s) = arg else { return Ok((0, 1)) };
@@ -218,11 +259,16 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
     let todo: Vec<usize> = mine.iter().copied().filter(|p| !done.contains(p)).collect();
     let shard_text = format!("{shard_i}/{shard_n}");
     if !a.quiet {
-        eprintln!(
-            "ecsync sweep: {} points over {}; shard {shard_text}: {} points, {} already in {}, {} to run",
-            pts.rows.len(),
+        // The shard only when sharding: a sweep run whole is no shard of one.
+        let share = if a.shard.is_some() {
+            format!("; shard {shard_text}: {}", points_text(mine.len()))
+        } else {
+            String::new()
+        };
+        note!(
+            "ecsync sweep: {} over {}{share}, {} already in {}, {} to run",
+            points_text(pts.rows.len()),
             pts.keys.join(", "),
-            mine.len(),
             mine.len() - todo.len(),
             a.db.display(),
             todo.len()
@@ -238,6 +284,9 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
     let t0 = Instant::now();
     let mut ran = 0;
     for (k, &p) in todo.iter().enumerate() {
+        if STOP.load(Ordering::Relaxed) {
+            break;
+        }
         let t = Instant::now();
         let out = match point::run(&format!("{name} at point {p}"), &texts[p], threads, &STOP) {
             Ok(Some(out)) => out,
@@ -247,7 +296,7 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
         store.put(p, &pts.rows[p], &texts[p], &out)?;
         ran += 1;
         if !a.quiet {
-            eprintln!(
+            note!(
                 "point {p} [{}/{}] {}: {} ({:.1} s)",
                 k + 1,
                 todo.len(),
@@ -267,25 +316,26 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
     )?;
     if stopped {
         let now = store.done()?;
-        eprintln!(
-            "ecsync sweep: stopped; {} of the shard's {} points are in {} ({ran} this time); the same command goes on with the rest",
+        note!(
+            "ecsync sweep: stopped; {} of the {}'s {} are in {} ({ran} this time); the same command goes on with the rest",
             mine.iter().filter(|p| now.contains(p)).count(),
-            mine.len(),
+            if a.shard.is_some() { "shard" } else { "sweep" },
+            points_text(mine.len()),
             a.db.display()
         );
         if a.report.is_some() {
-            eprintln!(
+            note!(
                 "ecsync sweep: no report written (stopped); `ecsync sweep report --db {}` writes it from the points done",
                 a.db.display()
             );
         }
         return Ok(ExitCode::from(130));
     }
-    print!("{}", answer::text(&store, &pts)?);
+    out!("{}", answer::text(&store, &pts)?);
     if let Some(dir) = &a.report {
         report::write(&store, &meta, "--report", dir)?;
         if !a.quiet {
-            eprintln!(
+            note!(
                 "ecsync sweep: report in {}",
                 dir.join("sweep.html").display()
             );
@@ -308,9 +358,10 @@ fn write_report(r: &ReportArgs) -> Result<ExitCode> {
     let files = report::write(&store, &meta, "--out", &r.out)?;
     let done = store.done()?.len();
     let total = meta.points.rows.len();
-    print!("{}", answer::text(&store, &meta.points)?);
-    eprintln!(
-        "ecsync sweep report: {done} of {total} points; wrote {} into {}",
+    out!("{}", answer::text(&store, &meta.points)?);
+    note!(
+        "ecsync sweep report: {done} of {}; wrote {} into {}",
+        points_text(total),
         files.join(", "),
         r.out.display()
     );
@@ -320,30 +371,37 @@ fn write_report(r: &ReportArgs) -> Result<ExitCode> {
 fn merge(m: &MergeArgs) -> Result<ExitCode> {
     let meta = db::read_meta(&m.shards[0])?;
     for s in &m.shards[1..] {
-        if db::read_meta(s)? != meta {
+        let other = db::read_meta(s)?;
+        if other != meta {
             bail!(
-                "{} is of another sweep than {}; fix: merge the shards of one sweep (same scenario and points)",
+                "{} is of another sweep than {}: it differs in {}; fix: merge the shards of one sweep (same scenario and points)",
                 s.display(),
-                m.shards[0].display()
+                m.shards[0].display(),
+                other.differences(
+                    &meta,
+                    &format!("in {}", s.display()),
+                    &format!("in {}", m.shards[0].display())
+                )
             );
         }
     }
     let mut out = Store::open(&m.db, &meta)?;
     for s in &m.shards {
         let n = out.merge_from(s)?;
-        eprintln!("ecsync sweep merge: {}: {n} points", s.display());
+        note!("ecsync sweep merge: {}: {}", s.display(), points_text(n));
     }
     let done = out.done()?.len();
     let total = meta.points.rows.len();
-    eprintln!(
-        "ecsync sweep merge: {done} of {total} points in {}",
+    note!(
+        "ecsync sweep merge: {done} of {} in {}",
+        points_text(total),
         m.db.display()
     );
-    print!("{}", answer::text(&out, &meta.points)?);
+    out!("{}", answer::text(&out, &meta.points)?);
     if done < total {
-        eprintln!(
-            "ecsync sweep merge: {} points missing; fix: run the shards that hold them again (each goes on where it stopped)",
-            total - done
+        note!(
+            "ecsync sweep merge: {} missing; fix: run the shards that hold them again (each goes on where it stopped)",
+            points_text(total - done)
         );
         return Ok(ExitCode::FAILURE);
     }

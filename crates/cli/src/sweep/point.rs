@@ -10,7 +10,8 @@ use std::sync::atomic::{AtomicBool, AtomicU64};
 use toml::{Table, Value};
 
 /// The base scenario (`name`, TOML `text`) as a table, checked as `compare` reads it, with
-/// `run` fields set (`runs`, `cycles`, `warmup_s`, `methods`).
+/// `run` fields set (`runs`, `cycles`, `warmup_s`, `methods`, each from its option: a value
+/// the scenario refuses is named by the option).
 pub fn base_table(name: &str, text: &str, run: &[(&str, Value)]) -> Result<Table> {
     ecsync_lab::parse(name, text).map_err(anyhow::Error::msg)?;
     let mut t: Table = text.parse().with_context(|| name.to_string())?;
@@ -20,6 +21,14 @@ pub fn base_table(name: &str, text: &str, run: &[(&str, Value)]) -> Result<Table
     };
     for (k, v) in run {
         r.insert((*k).to_string(), v.clone());
+    }
+    // A value the command line set is refused naming its option (`--runs 0`), not a point or
+    // a line of the text made here.
+    if let Err(e) = ecsync_lab::parse(name, &toml::to_string(&t)?) {
+        match run.iter().find(|(k, _)| e.field == format!("run.{k}")) {
+            Some((k, _)) => bail!("--{}: {}; fix: {}", k.replace('_', "-"), e.message, e.fix),
+            None => return Err(anyhow::Error::msg(e)),
+        }
     }
     Ok(t)
 }

@@ -46,7 +46,13 @@ fn sweep(store: &Store, meta: &Meta) -> Result<Sweep> {
     for r in &mut rows {
         r.good = answer::good(r);
     }
-    let best = answer::best(&rows);
+    let mut best = answer::best(&rows);
+    // Over the seed alone no point is a design's best: none is marked, as the answer names
+    // none.
+    if answer::seed_only(store, &meta.points)? {
+        best.overall = None;
+        best.per_method.clear();
+    }
     Ok(Sweep {
         scenario: meta.base_name.clone(),
         keys: meta.points.keys.clone(),

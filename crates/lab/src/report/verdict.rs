@@ -99,8 +99,8 @@ pub(super) fn not_ranked(
                 return Some(NotRanked {
                     method: m.clone(),
                     why: format!(
-                        "{m} went unstable: in {} cycles it asked for the next start more than two cycles away (or before the cycle's own), which the engine held; its figures describe a broken schedule, not the method at work (smaller gains?)",
-                        mo.wild_schedule_cycles
+                        "{m} went unstable: in {} it asked for the next start more than two cycles away (or before the cycle's own), which the engine held; its figures describe a broken schedule, not the method at work (smaller gains?)",
+                        crate::scenario::plural(mo.wild_schedule_cycles, "cycle", "cycles")
                     ),
                 });
             }

@@ -40,6 +40,9 @@ pub struct Row {
     pub slave_spread_p999_ns: f64,
     /// Its place in the point's ranking, 1 best (`None`: not ranked).
     pub rank: Option<u32>,
+    /// Why the verdict left it out of the ranking, in `compare`'s words (`None`: ranked, or
+    /// the point has no ranking).
+    pub not_ranked: Option<String>,
     /// Whether its mean phase held the target.
     pub holds_target: bool,
     /// Whether the sweep's answer counts the point for this method: drawn filled (else

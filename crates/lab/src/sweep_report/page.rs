@@ -27,15 +27,20 @@ pub(super) fn html(s: &Sweep, plots: &[Written], no_heat: Option<&str>) -> Strin
     let missing = s.points.len() - done.len();
     let _ = write!(
         h,
-        "<h1>ecsync sweep</h1><p>{}: {} of {} points over {}; methods {}.{}</p>",
+        "<h1>ecsync sweep</h1><p>{}: {} of {} over {}; methods {}.{}</p>",
         esc(&s.scenario),
         done.len(),
-        s.points.len(),
+        crate::scenario::plural(s.points.len() as u64, "point", "points"),
         esc(&s.keys.join(", ")),
         esc(&s.methods.join(", ")),
         if missing > 0 {
             format!(
-                " <b>{missing} points are not in the database yet</b>: the figures are of the points done."
+                " <b>{} not in the database yet</b>: the figures are of the points done.",
+                if missing == 1 {
+                    "1 point is".to_string()
+                } else {
+                    format!("{missing} points are")
+                }
             )
         } else {
             String::new()
@@ -94,14 +99,18 @@ fn table(h: &mut String, s: &Sweep) {
         }
         let _ = write!(
             h,
-            "<td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            "<td class=l>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>{}<td>{}</td></tr>",
             esc(&r.method),
             r.late_frames,
             r.lost_frames,
             fig(r.safe_shift_pct, 1),
             fig(r.phase_error_p999_ns, 0),
             fig(r.slave_spread_p999_ns, 0),
-            r.rank.map_or("-".to_string(), |k| k.to_string()),
+            match (&r.not_ranked, r.rank) {
+                (Some(why), _) => format!("<td class=l>not ranked: {}</td>", esc(why)),
+                (None, Some(k)) => format!("<td>{k}</td>"),
+                (None, None) => "<td>-</td>".to_string(),
+            },
             if r.good { "yes" } else { "no" }
         );
     }

@@ -251,15 +251,20 @@ pub(super) fn caption(s: &Sweep) -> String {
     let hidden = s.rows.len() - drawn(s).count();
     let hidden = if hidden > 0 {
         format!(
-            " {hidden} point(s) without a safe shift or a phase error (NULL in the database) are not drawn."
+            " {} without a safe shift or a phase error (NULL in the database) {} not drawn.",
+            crate::scenario::plural(hidden as u64, "point", "points"),
+            if hidden == 1 { "is" } else { "are" }
         )
     } else {
         String::new()
     };
+    // The axis as drawn: linear over the points' own range (not from 0), or a log scale.
     let y = match y_axis(s) {
-        YAxis::Linear(..) => "from 0",
+        YAxis::Linear(lo, hi) => format!(
+            "linear from {lo:.0} to {hi:.0} ns, the points' range, not from 0: read the differences on the tick values"
+        ),
         YAxis::Log(..) => {
-            "on a log scale, as the largest is more than a hundred times the smallest"
+            "on a log scale, as the largest is more than a hundred times the smallest".to_string()
         }
     };
     format!(
