@@ -213,7 +213,8 @@ pub struct Args {
     /// Warm-up per run, s (it must hold the methods' init frames: 10 s at 1 ms).
     #[arg(long, allow_negative_numbers = true)]
     warmup_s: Option<f64>,
-    /// Host preset (see below).
+    /// Host preset (see below), in place of the file's `[host]` table but its `master_ppm`
+    /// (the machine's crystal, kept where the file gives it).
     #[arg(long)]
     host: Option<String>,
     /// Replay this host trace (`ecsync host record`, or `ecsync run --csv`) instead of the host
@@ -397,6 +398,12 @@ fn scenario(args: &Args) -> Result<Scenario> {
             )
         })?;
         s.host_name = h.clone();
+        // The file's own crystal stays: a preset describes a kernel and its load, the
+        // file's master_ppm the machine (--master-ppm below still overrides it).
+        if let Some(ppm) = s.file_master_ppm {
+            s.host.master_ppm = ppm;
+            s.host_name = format!("{h} (modified)");
+        }
     }
     if let Some(ppm) = args.master_ppm {
         given.push("--master-ppm");

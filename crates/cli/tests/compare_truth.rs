@@ -670,3 +670,32 @@ fn output_size_is_bounded() {
         );
     }
 }
+
+/// `--host` puts another preset in place of the file's host but keeps the machine's crystal
+/// the file gives (`[host] master_ppm`): it showed the preset's (0 for ideal, +13.3 for the
+/// stressed RT host) and compared a crystal the file never described; `--master-ppm` still
+/// overrides both, and a file without master_ppm takes the preset's.
+#[test]
+fn another_host_preset_keeps_the_file_s_master_crystal() {
+    let text = include_str!("../../../presets/paper-2024.toml")
+        .replacen("[host]", "[host]\nmaster_ppm = -20.0", 1);
+    let base = ["--methods", "median", "--runs", "1", "--cycles", "1000", "--quiet"];
+    let run = |name: &str, extra: &[&str], cfg: Option<&str>| {
+        let out = tmp(name);
+        let args: Vec<&str> = base.iter().chain(extra).copied().collect();
+        let (j, _) = compare_json(&out, &args, cfg);
+        (j["host"].as_str().unwrap().to_string(), j["master_ppm"].as_f64().unwrap())
+    };
+    assert_eq!(
+        run("host-keep", &["--host", "ideal"], Some(&text)),
+        ("ideal (modified)".to_string(), -20.0)
+    );
+    assert_eq!(
+        run("host-override", &["--host", "ideal", "--master-ppm", "7"], Some(&text)),
+        ("ideal (modified)".to_string(), 7.0)
+    );
+    assert_eq!(
+        run("host-preset", &["--host", "ideal"], None),
+        ("ideal".to_string(), 0.0)
+    );
+}

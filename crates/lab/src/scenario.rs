@@ -150,6 +150,9 @@ pub struct Scenario {
     pub host_name: String,
     /// The host.
     pub host: HostParams,
+    /// The master PC's crystal error the file's `[host] master_ppm` gives, if it does: the
+    /// machine's own, kept when another host preset replaces the rest (`compare --host`).
+    pub file_master_ppm: Option<f64>,
     /// A recorded host trace replayed instead of the model's j_s, e_m (and TX delay where the
     /// trace has it): `compare --host-trace`.
     pub host_trace: Option<Arc<Replay>>,
@@ -486,6 +489,7 @@ pub fn parse(file: &str, text: &str) -> Result<Scenario, ConfigError> {
         slave_names,
         host_name,
         host,
+        file_master_ppm: f.host.master_ppm,
         host_trace: None,
         cycle_ns: run.cycle_ns,
         sync0_shift_pct: r.sync0_shift_pct,
