@@ -430,6 +430,19 @@ fn scenario(args: &Args) -> Result<Scenario> {
         s.seed = seed;
     }
     // The same checks as for the file, naming the flag where one set the value.
+    // A target at or after SYNC0 that the command line made: said of its options.
+    if let Some(p) = s.target_after_sync0()
+        && (given.contains(&"--shift-pct") || given.contains(&"--target-phase-us"))
+    {
+        bail!(
+            "--shift-pct {} with --target-phase-us {}: the target {}; fix: a --target-phase-us below {:.1} (less the frames' way through the network) or a --shift-pct above {:.1}",
+            s.sync0_shift_pct,
+            s.target_phase_ns as f64 / 1000.0,
+            p.message,
+            f64::from(s.sync0_shift_ns()) / 1000.0,
+            100.0 * s.target_phase_ns as f64 / f64::from(s.cycle_ns)
+        );
+    }
     s.check().map_err(|p| problem(p, &given, &name, &text))?;
     Ok(s)
 }

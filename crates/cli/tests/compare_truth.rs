@@ -269,6 +269,33 @@ fn the_command_line_refuses_with_a_hint() {
     let e = refused(&["compare", "--shift-pct", "-10", "--quiet"]);
     assert!(!e.contains("unexpected argument"), "{e}");
     assert!(e.contains("--shift-pct") && e.contains("fix:"), "{e}");
+    // A target at or after SYNC0 leaves no margin (every frame late, warnings of 450000 % of
+    // a 0 us margin): refused on the options that made it, or on the file's field.
+    for args in [
+        &["--shift-pct", "0"][..],
+        &["--target-phase-us", "400"][..],
+        &["--shift-pct", "10", "--target-phase-us", "100"][..],
+    ] {
+        let mut a = vec!["compare", "--quiet"];
+        a.extend_from_slice(args);
+        let e = refused(&a);
+        assert!(
+            e.contains("at or after SYNC0") && e.contains("--shift-pct") && e.contains("fix:"),
+            "{e}"
+        );
+    }
+    let dir = tmp("target");
+    let f = dir.join("late.toml");
+    std::fs::write(
+        &f,
+        ecsync_sim::preset::PAPER_2024_TOML.replace("target_phase_us = 0", "target_phase_us = 350"),
+    )
+    .unwrap();
+    let e = refused(&["compare", "--config", f.to_str().unwrap(), "--quiet"]);
+    assert!(
+        e.contains("late.toml:") && e.contains("run.target_phase_us"),
+        "{e}"
+    );
     // --help lists the methods, the host presets and the defaults.
     let o = ecsync().args(["compare", "--help"]).output().unwrap();
     let h = String::from_utf8_lossy(&o.stdout);
@@ -677,21 +704,39 @@ fn output_size_is_bounded() {
 /// overrides both, and a file without master_ppm takes the preset's.
 #[test]
 fn another_host_preset_keeps_the_file_s_master_crystal() {
-    let text = include_str!("../../../presets/paper-2024.toml")
-        .replacen("[host]", "[host]\nmaster_ppm = -20.0", 1);
-    let base = ["--methods", "median", "--runs", "1", "--cycles", "1000", "--quiet"];
+    let text = include_str!("../../../presets/paper-2024.toml").replacen(
+        "[host]",
+        "[host]\nmaster_ppm = -20.0",
+        1,
+    );
+    let base = [
+        "--methods",
+        "median",
+        "--runs",
+        "1",
+        "--cycles",
+        "1000",
+        "--quiet",
+    ];
     let run = |name: &str, extra: &[&str], cfg: Option<&str>| {
         let out = tmp(name);
         let args: Vec<&str> = base.iter().chain(extra).copied().collect();
         let (j, _) = compare_json(&out, &args, cfg);
-        (j["host"].as_str().unwrap().to_string(), j["master_ppm"].as_f64().unwrap())
+        (
+            j["host"].as_str().unwrap().to_string(),
+            j["master_ppm"].as_f64().unwrap(),
+        )
     };
     assert_eq!(
         run("host-keep", &["--host", "ideal"], Some(&text)),
         ("ideal (modified)".to_string(), -20.0)
     );
     assert_eq!(
-        run("host-override", &["--host", "ideal", "--master-ppm", "7"], Some(&text)),
+        run(
+            "host-override",
+            &["--host", "ideal", "--master-ppm", "7"],
+            Some(&text)
+        ),
         ("ideal (modified)".to_string(), 7.0)
     );
     assert_eq!(

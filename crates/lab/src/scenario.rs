@@ -251,6 +251,30 @@ impl Scenario {
         }
     }
 
+    /// A target phase at or after SYNC0 (every frame would reach the drives after their
+    /// pulse, and the margin between them is none): the problem, on the target's field.
+    pub fn target_after_sync0(&self) -> Option<Problem> {
+        let shift_ns = i64::from(self.sync0_shift_ns());
+        (self.target_phase_ns >= shift_ns).then(|| {
+            let us = |ns: i64| ns as f64 / 1000.0;
+            Problem::new(
+                "run",
+                "target_phase_us",
+                format!(
+                    "{:.1} us is at or after SYNC0 ({:.1} us into the cycle at a {} % shift): every frame would reach the drives after their pulse",
+                    us(self.target_phase_ns),
+                    us(shift_ns),
+                    self.sync0_shift_pct
+                ),
+                format!(
+                    "aim before SYNC0 (target_phase_us below {:.1}, less the frames' way through the network), or put SYNC0 later (sync0_shift_pct above {:.1}, the same way more)",
+                    us(shift_ns),
+                    100.0 * self.target_phase_ns as f64 / f64::from(self.cycle_ns)
+                ),
+            )
+        })
+    }
+
     /// Checks every value a run depends on; the first problem found.
     pub fn check(&self) -> Result<(), Problem> {
         // The cycle first: the host's jitter is judged against it.
@@ -270,6 +294,9 @@ impl Scenario {
         }
         let ctx = self.method_context();
         ctx.check().map_err(param_problem)?;
+        if let Some(p) = self.target_after_sync0() {
+            return Err(p);
+        }
         if !(1..=1000).contains(&self.runs) {
             return Err(Problem::new(
                 "run",
