@@ -279,3 +279,40 @@ fn every_preset_network_is_usable_by_name() {
     assert!(!o.status.success());
     assert!(err.contains("paper-2024, twelve-drives"), "{err}");
 }
+
+/// A drive's crystal past what its time control loop follows of the reference's (763 ppm at
+/// Speed Counter Start 0x1000, from the datasheet's formula for 0x0932) never locked: the
+/// bring-up ran its 30 s and said only "DC did not lock". Refused now with the slave, its line
+/// and the range; just inside the range the simulated bring-up locks.
+#[test]
+fn a_crystal_the_loop_cannot_follow_is_refused_and_one_just_inside_locks() {
+    let dir = tmp("crystal");
+    std::fs::create_dir_all(&dir).unwrap();
+    let write = |name: &str, ppm: &str| {
+        let f = dir.join(name);
+        let text = include_str!("../../../presets/paper-2024.toml").replacen(
+            "ppm = 44.1",
+            &format!("ppm = {ppm}"),
+            1,
+        );
+        std::fs::write(&f, text).unwrap();
+        f
+    };
+    let far = write("far.toml", "800");
+    let o = ecsync()
+        .args(["bringup", "--config"])
+        .arg(&far)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        e.contains("far.toml:") && e.contains("segment.slave[2].ppm") && e.contains("763 ppm"),
+        "{e}"
+    );
+    // 774 - 12.4 = 761.6 ppm from the reference: inside the range, and it locks.
+    let near = write("near.toml", "774");
+    let o = bringup_ok(&["--config", near.to_str().unwrap(), "--json"]);
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(j["lock"]["converged"], true, "{j}");
+}

@@ -855,5 +855,14 @@ mod control_loop;
 
 pub use control_loop::{speed_counter_deviation, speed_counter_diff_for};
 
+/// The largest crystal difference to the reference the time control loop follows at the
+/// Speed Counter Start a master writes (the reset value 0x1000), ppm: the deviation of the
+/// largest Speed Counter Diff, `±(start − 0x7F)` (datasheet section II, 0x0932).
+pub fn max_following_ppm() -> f64 {
+    let start = control_loop::SPEED_COUNTER_START_RESET;
+    let diff = f64::from(control_loop::speed_counter_diff_max(start));
+    speed_counter_deviation(start, diff) * 1e6
+}
+
 #[cfg(test)]
 mod tests;

@@ -108,7 +108,7 @@ pub(super) fn not_ranked(
                 return Some(NotRanked {
                     method: m.clone(),
                     why: format!(
-                        "{m} did not keep to one frame per SYNC0 cycle: {} times its schedule sent two frames for one grid point or none for one (a cycle started less than half a period after the one before, or more than one and a half: ethercrab's snap sends again at once when its frame reaches the reference just before the grid point, as a send without jitter makes it do often); its application runs an uneven cycle, and its frames are judged against the grid point its schedule led to",
+                        "{m} did not keep to one frame per SYNC0 cycle: {} times its schedule sent two frames for one grid point or none for one (a cycle started less than half a period after the one before, or more than one and a half: ethercrab's snap sends again at once when its frame reaches the reference just before the grid point); its application runs an uneven cycle, and its frames are judged against the grid point its schedule led to",
                         mo.grid_slips
                     ),
                 });
@@ -240,8 +240,8 @@ pub(super) fn reason(
     };
     let _ = write!(
         r,
-        "{pick}: {late}; it needs a SYNC0 shift of {:.1} % at least, its frames reach the reference {} from the target on average and within {} of it in 99.9 % of cycles, and the drives stay within {:.0} ns of the reference (p99.9).",
-        g.smallest_safe_shift_pct,
+        "{pick}: {late}; it needs a SYNC0 shift of {} at least, its frames reach the reference {} from the target on average and within {} of it in 99.9 % of cycles, and the drives stay within {:.0} ns of the reference (p99.9).",
+        shift_needed(g.smallest_safe_shift_pct),
         us(g.offset_from_target_ns),
         us(g.phase_error.p999_abs),
         g.slave_ref_diff.p999_abs
@@ -511,4 +511,16 @@ pub(super) fn within_noise<'a>(
         })
         .map(|k| &ranking[k])
         .collect()
+}
+
+/// The smallest safe shift as the text says it: past the whole cycle no shift holds the
+/// frames (SYNC0 would have to come a cycle later than the grid point they aim at).
+pub(super) fn shift_needed(pct: f64) -> String {
+    if pct >= 100.0 {
+        format!(
+            "{pct:.1} %, more than the whole cycle: no SYNC0 shift holds its frames on this host (a longer cycle can)"
+        )
+    } else {
+        format!("{pct:.1} %")
+    }
 }

@@ -295,8 +295,10 @@ fn late_frames(s: &Scenario, m: &str, mo: &MethodOut, budget_ns: f64) -> Option<
             kind: "late_frames",
             method: Some(m.to_string()),
             message: format!(
-                "{m}: {} cycles had a frame after SYNC0 at the {} % shift; it needs {:.1} %",
-                g.late_frames, s.sync0_shift_pct, g.smallest_safe_shift_pct
+                "{m}: {} cycles had a frame after SYNC0 at the {} % shift; it needs {}",
+                g.late_frames,
+                s.sync0_shift_pct,
+                super::verdict::shift_needed(g.smallest_safe_shift_pct)
             ),
         });
     }
@@ -505,6 +507,18 @@ fn samples(c: &Comparison) -> impl Iterator<Item = Warning> + '_ {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_shift_past_the_cycle_is_said_to_hold_nothing() {
+        use crate::report::verdict::shift_needed;
+        assert_eq!(shift_needed(72.4), "72.4 %");
+        let past = shift_needed(116.3);
+        assert!(
+            past.starts_with("116.3 %, more than the whole cycle"),
+            "{past}"
+        );
+        assert!(shift_needed(100.0).contains("no SYNC0 shift holds"));
+    }
+
     use super::start_transient;
     use crate::run::Band;
 

@@ -64,6 +64,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+mod crystals;
 mod source;
 use source::key_line_in;
 pub use source::{ConfigError, ConfigSource, Problem, key_line, line_of, read_text, toml_error};
@@ -307,14 +308,18 @@ impl SegmentConfig {
             specs.push(spec);
             names.push(&sp.get_ref().name);
         }
-        if let Err(e) = crate::Segment::new(&specs) {
-            return Err(src.at(
-                None,
-                format!("{path}.slave"),
-                e.to_string(),
-                "connect every slave once, one of them to the master",
-            ));
-        }
+        let seg = match crate::Segment::new(&specs) {
+            Ok(seg) => seg,
+            Err(e) => {
+                return Err(src.at(
+                    None,
+                    format!("{path}.slave"),
+                    e.to_string(),
+                    "connect every slave once, one of them to the master",
+                ));
+            }
+        };
+        self.check_crystals_lockable(&src, path, &seg, &specs)?;
         Ok(specs)
     }
 
