@@ -122,7 +122,19 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let crystal_ppm: Vec<Option<f64>> = (0..seg.len())
         .map(|i| seg.esc(i).dc().map(|d| d.clock().params().ppm))
         .collect();
+    // The schedule before anything is written: a bad one leaves no capture behind.
+    let schedule = match &args.faults {
+        Some(p) => Some(load_schedule(p, &seg, &name)?),
+        None => None,
+    };
     let mut sim = SimTransport::new(seg);
+    let procedure = match schedule {
+        Some(sched) => {
+            sim.set_faults(ecsync_sim::fault::FaultPlayer::new(sched, 0));
+            ecsync_lab::run::FAULTY_PROCEDURE
+        }
+        None => ecsync_sim::transport::SIM_PROCEDURE,
+    };
     if let Some(p) = &args.pcap {
         sim.capture_to(p)
             .with_context(|| format!("cannot create {}", p.display()))?;
@@ -142,17 +154,6 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let mut samples: Vec<(u64, f64)> = Vec::new();
     let mut after_offsets = false;
     let mut frames = 0u64;
-    let procedure = match &args.faults {
-        Some(p) => {
-            let mut sched =
-                ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
-            // The bring-up's own time: from its first frame.
-            sched.epoch = ecsync_sim::fault::Epoch::Start;
-            sim.set_faults(ecsync_sim::fault::FaultPlayer::new(sched, 0));
-            ecsync_lab::run::FAULTY_PROCEDURE
-        }
-        None => ecsync_sim::transport::SIM_PROCEDURE,
-    };
     // The phases as they begin, on stderr (a large segment's bring-up takes a minute).
     let started = std::time::Instant::now();
     let result = sim.run_procedure_with(&mut engine, procedure, |tr, _, events| {
@@ -242,6 +243,26 @@ pub fn run(args: Args) -> Result<ExitCode> {
     } else {
         ExitCode::from(2)
     })
+}
+
+/// `--faults`: the schedule, checked against the network (a fault naming a slave or a port it
+/// lacks is refused; an empty one is told), its times counted from the bring-up's first frame.
+fn load_schedule(
+    path: &std::path::Path,
+    seg: &Segment,
+    network: &str,
+) -> Result<ecsync_sim::fault::FaultSchedule> {
+    let mut sched = ecsync_sim::fault::FaultSchedule::load(path).map_err(anyhow::Error::msg)?;
+    sched
+        .check_segment(seg, network)
+        .map_err(anyhow::Error::msg)?;
+    // The bring-up's length is not known before it ends: only an empty schedule is told.
+    for w in sched.warnings(None, "") {
+        eprintln!("ecsync: warning: {w}");
+    }
+    // The bring-up's own time: from its first frame.
+    sched.epoch = ecsync_sim::fault::Epoch::Start;
+    Ok(sched)
 }
 
 /// The bring-up's slaves beside the segment's truth: true delays (`truth`, by position),
