@@ -34,7 +34,8 @@ pub struct Args {
     monitor_cycles: u32,
     /// Play the faults of this schedule (TOML `[[fault]]` entries, or a built-in one) during
     /// the bring-up; times count from its first frame. A lost datagram is then waited for
-    /// 5 ms and sent again up to ten times.
+    /// 5 ms and sent again up to ten times. The report ends with what the faults did: the
+    /// frames dropped, the frames sent again, the faults' starts and ends, those not reached.
     #[arg(long)]
     faults: Option<PathBuf>,
     /// Also measure every crystal against the reference's from receive times latched over
@@ -96,6 +97,125 @@ struct Out {
     frames: u64,
     pcap: Option<String>,
     pcap_frames: u64,
+    /// What `--faults` did (absent without it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    faults: Option<FaultsOut>,
+}
+
+/// The bring-up's exchanges that took more than one send.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+struct Tries {
+    /// Exchanges whose frame was sent again (its reply lost, waited for, sent again).
+    retried_exchanges: u64,
+    /// Sends beyond the first, over all exchanges.
+    retries: u64,
+    /// Exchanges whose reply never came, however often sent.
+    given_up: u64,
+}
+
+impl Tries {
+    fn count(&mut self, x: &ecsync_master::driver::ProcedureExchange) {
+        if x.attempts > 1 {
+            self.retried_exchanges += 1;
+            self.retries += u64::from(x.attempts - 1);
+        }
+        if x.received.is_none() {
+            self.given_up += 1;
+        }
+    }
+}
+
+/// A fault of the schedule whose start the bring-up did not reach.
+#[derive(Debug, Serialize)]
+struct NotReached {
+    fault: usize,
+    kind: ecsync_sim::fault::KindName,
+    at_s: f64,
+}
+
+/// What the fault schedule did during the bring-up and how the master took it.
+#[derive(Debug, Serialize)]
+struct FaultsOut {
+    schedule: String,
+    /// What the schedule did to frames.
+    counts: ecsync_sim::fault::FaultCounts,
+    #[serde(flatten)]
+    tries: Tries,
+    /// Every fault's start and end during the bring-up.
+    events: Vec<ecsync_sim::fault::FaultEvent>,
+    /// The faults that start after the bring-up's end.
+    not_reached: Vec<NotReached>,
+    /// The bring-up's length from its first frame, s.
+    ended_s: f64,
+}
+
+impl FaultsOut {
+    fn of(schedule: &str, f: &ecsync_sim::fault::FaultPlayer, tries: Tries, now_ps: u64) -> Self {
+        let started = |n: usize| {
+            f.events()
+                .iter()
+                .any(|e| e.fault == n && e.edge == ecsync_sim::fault::Edge::Start)
+        };
+        FaultsOut {
+            schedule: schedule.to_string(),
+            counts: f.counts(),
+            tries,
+            events: f.events().to_vec(),
+            not_reached: (f.schedule().faults.iter().enumerate())
+                .filter(|(n, _)| !started(*n))
+                .map(|(n, x)| NotReached {
+                    fault: n,
+                    kind: x.kind.name(),
+                    at_s: x.at_ns as f64 / 1e9,
+                })
+                .collect(),
+            ended_s: now_ps.saturating_sub(f.origin_ps().unwrap_or(0)) as f64 * 1e-12,
+        }
+    }
+
+    /// The faults' lines of the report.
+    fn text(&self) -> String {
+        let c = &self.counts;
+        let t = &self.tries;
+        let mut s = format!(
+            "Faults ({}): the schedule dropped {} frames ({} on the way out, {} on the way back; {} corrupted), delayed {} replies and doubled {}; the bring-up sent {} frames again ({} exchanges retried) and gave up on {}.\n",
+            self.schedule,
+            c.lost_out + c.lost_back,
+            c.lost_out,
+            c.lost_back,
+            c.corrupted,
+            c.delayed,
+            c.duplicated,
+            t.retries,
+            t.retried_exchanges,
+            t.given_up
+        );
+        for e in &self.events {
+            let detail = if e.detail.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", e.detail)
+            };
+            s += &format!(
+                "  {:>9.3} s  fault[{}] {} {}{detail}\n",
+                e.since_epoch_ns as f64 / 1e9,
+                e.fault,
+                e.kind,
+                e.edge
+            );
+        }
+        if !self.not_reached.is_empty() {
+            let list: Vec<String> = (self.not_reached.iter())
+                .map(|n| format!("fault[{}] {} at {} s", n.fault, n.kind, n.at_s))
+                .collect();
+            s += &format!(
+                "  not reached (the bring-up ended {:.3} s after its first frame): {}\n",
+                self.ended_s,
+                list.join(", ")
+            );
+        }
+        s
+    }
 }
 
 /// True system time of slave `pos` minus the reference's at real time `t_ps`, ns (`None` for a
@@ -154,11 +274,13 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let mut samples: Vec<(u64, f64)> = Vec::new();
     let mut after_offsets = false;
     let mut frames = 0u64;
+    let mut tries = Tries::default();
     // The phases as they begin, on stderr (a large segment's bring-up takes a minute).
     let started = std::time::Instant::now();
-    let result = sim.run_procedure_with(&mut engine, procedure, |tr, _, events| {
+    let result = sim.run_procedure_with(&mut engine, procedure, |tr, x, events| {
         let (seg, ex) = (tr.segment(), tr.last_exchange());
         frames += 1;
+        tries.count(x);
         for e in events {
             if let Event::Phase(p) = e {
                 eprintln!(
@@ -188,7 +310,21 @@ pub fn run(args: Args) -> Result<ExitCode> {
         }
     });
     let pcap_frames = sim.finish_capture().context("writing the pcap file")?;
-    let net = result.map_err(|e| anyhow::anyhow!("bring-up failed: {e}"))?;
+    let faults = args
+        .faults
+        .as_ref()
+        .zip(sim.faults())
+        .map(|(p, f)| FaultsOut::of(&p.display().to_string(), f, tries, sim.now_ps()));
+    let net = match result {
+        Ok(net) => net,
+        Err(e) => {
+            // What the faults did is the likeliest why.
+            if let Some(f) = &faults {
+                eprint!("{}", f.text());
+            }
+            anyhow::bail!("bring-up failed: {e}");
+        }
+    };
     let truth = sim.segment().true_delays_ns(usize::from(net.reference));
     let max_after = |t0: Option<u64>| match t0 {
         Some(t0) => samples
@@ -232,6 +368,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         frames,
         pcap: args.pcap.as_ref().map(|p| p.display().to_string()),
         pcap_frames,
+        faults,
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -377,5 +514,8 @@ fn print_human(o: &Out) {
     );
     if let Some(p) = &o.pcap {
         println!("Captured {} frames to {p}.", o.pcap_frames);
+    }
+    if let Some(f) = &o.faults {
+        print!("{}", f.text());
     }
 }

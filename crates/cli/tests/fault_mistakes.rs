@@ -229,3 +229,73 @@ fn a_missing_field_or_a_bad_value_says_what_to_write() {
     );
     assert!(!d.join("out").exists());
 }
+
+/// `bringup --faults` says what the faults did: the frames the schedule dropped (the player's
+/// count) are the frames the master sent again (its exchanges' count) when it gave up on none;
+/// the fault events during the bring-up, and the faults it did not reach.
+#[test]
+fn bringup_says_what_the_faults_did() {
+    let d = tmp("bringup");
+    let f = write(
+        &d,
+        "b.toml",
+        "epoch = \"start\"\n[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = 0.05\n\n[[fault]]\nat_s = 1.0\nfor_s = 0.01\nkind = \"corrupt\"\nprobability = 0.5\n\n[[fault]]\nat_s = 100\nkind = \"host_stall\"\nstall_ms = 1\n",
+    );
+    let o = ecsync()
+        .args([
+            "bringup",
+            "--preset",
+            "paper-2024",
+            "--json",
+            "--faults",
+            &f,
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let x = &v["faults"];
+    let c = &x["counts"];
+    let dropped = c["lost_out"].as_u64().unwrap() + c["lost_back"].as_u64().unwrap();
+    assert!(dropped > 10 && c["corrupted"].as_u64().unwrap() > 0, "{x}");
+    assert_eq!(x["given_up"], 0, "{x}");
+    assert_eq!(x["retries"].as_u64().unwrap(), dropped, "{x}");
+    let events: Vec<(u64, String)> = x["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (
+                e["fault"].as_u64().unwrap(),
+                e["edge"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        events,
+        [(0, "start".into()), (1, "start".into()), (1, "end".into())],
+        "{x}"
+    );
+    assert_eq!(x["not_reached"][0]["fault"], 2, "{x}");
+    // The same in words.
+    let o = ecsync()
+        .args(["bringup", "--preset", "paper-2024", "--faults", &f])
+        .output()
+        .unwrap();
+    let so = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        so.contains(&format!("the schedule dropped {dropped} frames"))
+            && so.contains(&format!("the bring-up sent {dropped} frames again"))
+            && so.contains("fault[1] corrupt end")
+            && so.contains("not reached (the bring-up ended")
+            && so.contains("fault[2] host_stall at 100 s"),
+        "{so}"
+    );
+    // Without --faults: no such line, no such field.
+    let o = ecsync()
+        .args(["bringup", "--preset", "paper-2024", "--json"])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v.get("faults").is_none());
+}
