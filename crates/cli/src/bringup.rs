@@ -23,9 +23,11 @@ pub struct Args {
     /// Print a JSON object instead of tables.
     #[arg(long)]
     json: bool,
-    /// FRMW frames of static drift compensation.
-    #[arg(long, default_value_t = 15_000)]
-    static_drift: u32,
+    /// FRMW frames of static drift compensation (default: the file's
+    /// `run.static_drift_frames`, 15000 if it gives none). The cycle, the SYNC0 shift and the
+    /// sync error limit are the file's `[run]` values too.
+    #[arg(long)]
+    static_drift: Option<u32>,
     /// Receive time latches averaged for the delays.
     #[arg(long, default_value_t = 16)]
     latch_rounds: u32,
@@ -230,8 +232,8 @@ fn true_diff(seg: &Segment, pos: usize, r: (u64, f64), t_ps: u64) -> Option<f64>
 }
 
 pub fn run(args: Args) -> Result<ExitCode> {
-    let (name, specs) = args.source.segment()?;
-    let seg = Segment::new(&specs).context("building the segment")?;
+    let (name, scenario) = args.source.scenario()?;
+    let seg = Segment::new(&scenario.slaves).context("building the segment")?;
     let reference = (0..seg.len())
         .find(|&i| seg.esc(i).model().dc.has_system_time())
         .context("no slave has a DC system time to act as reference")?;
@@ -261,7 +263,10 @@ pub fn run(args: Args) -> Result<ExitCode> {
     }
     let cfg = BringupConfig {
         until: Stage::Op,
-        static_drift_frames: args.static_drift,
+        static_drift_frames: args.static_drift.unwrap_or(scenario.static_drift_frames),
+        cycle_ns: scenario.cycle_ns,
+        sync0_shift_ns: scenario.sync0_shift_ns(),
+        sync_error_limit: scenario.sync_error_limit,
         latch_rounds: args.latch_rounds,
         monitor_cycles: args.monitor_cycles,
         rate_window_ns: (args.rate_window_s * 1e9) as u64,

@@ -279,3 +279,43 @@ fn every_preset_network_is_usable_by_name() {
     assert!(!o.status.success());
     assert!(err.contains("paper-2024, twelve-drives"), "{err}");
 }
+
+/// The file's `[run]` holds for the bring-up as for compare: `static_drift_frames` (the option
+/// overrides it), and the cycle and SYNC0
+/// shift (SYNC0 starts on the file's grid at its shift).
+#[test]
+fn the_files_run_table_sets_the_bringup() {
+    let preset = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
+    )
+    .unwrap();
+    let text = preset
+        .replace("static_drift_frames = 15000", "static_drift_frames = 100")
+        .replace("sync0_shift_pct = 30", "sync0_shift_pct = 40")
+        .replace("cycle_us = 1000", "cycle_us = 500");
+    assert_ne!(text, preset);
+    let f = tmp("run-table.toml");
+    std::fs::write(&f, text).unwrap();
+    let json = |extra: &[&str]| -> serde_json::Value {
+        let mut args = vec!["--config", f.to_str().unwrap(), "--json"];
+        args.extend_from_slice(extra);
+        serde_json::from_slice(&bringup_ok(&args).stdout).unwrap()
+    };
+    let frmw = |v: &serde_json::Value| v["lock"]["frmw_frames"].as_u64().unwrap();
+    let from_file = json(&[]);
+    let from_option = json(&["--static-drift", "350"]);
+    assert!(frmw(&from_file) < 15_000, "{}", frmw(&from_file));
+    // The file's 100 is the option's 100 (the same run, frame for frame); 350 sends more.
+    assert_eq!(frmw(&json(&["--static-drift", "100"])), frmw(&from_file));
+    assert!(frmw(&from_option) > frmw(&from_file) + 200);
+    let start = from_file["sync0_start_ns"].as_u64().unwrap();
+    assert_eq!(
+        start % 500_000,
+        200_000,
+        "SYNC0 at 40 % of a 500 us cycle: {start}"
+    );
+    // The preset itself: 30 % of 1 ms.
+    let v: serde_json::Value =
+        serde_json::from_slice(&bringup_ok(&["--preset", "paper-2024", "--json"]).stdout).unwrap();
+    assert_eq!(v["sync0_start_ns"].as_u64().unwrap() % 1_000_000, 300_000);
+}
