@@ -50,6 +50,8 @@ pub struct Args {
 struct SlaveOut {
     #[serde(flatten)]
     identity: SlaveIdentity,
+    /// Its name in the scenario (`name` is the device's, from its SII).
+    config_name: String,
     parent: Option<(u16, u8)>,
     delay_ns: Option<f64>,
     true_delay_ns: Option<f64>,
@@ -249,6 +251,10 @@ pub fn run(args: Args) -> Result<ExitCode> {
         Some(p) => Some(load_schedule(p, &seg, &name)?),
         None => None,
     };
+    // The scenario's names by network position (the tables name slaves by them).
+    let names: Vec<String> = (0..seg.len())
+        .map(|p| scenario.slave_names[seg.spec_index(p)].clone())
+        .collect();
     let mut sim = SimTransport::new(seg);
     let procedure = match schedule {
         Some(sched) => {
@@ -351,7 +357,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let out = Out {
         source: name,
         reference: net.reference,
-        slaves: slave_rows(&net, &truth, &offset_error, &crystal_ppm),
+        slaves: slave_rows(&net, &names, &truth, &offset_error, &crystal_ppm),
         lock: LockOut {
             converged: net.lock.converged,
             time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
@@ -411,6 +417,7 @@ fn load_schedule(
 /// offset errors after the offsets were written, crystals (`crystal_ppm`, by position).
 fn slave_rows(
     net: &ecsync_master::bringup::Network,
+    names: &[String],
     truth: &[Option<f64>],
     offset_error: &[Option<i64>],
     crystal_ppm: &[Option<f64>],
@@ -419,6 +426,10 @@ fn slave_rows(
         .iter()
         .map(|s| SlaveOut {
             identity: SlaveIdentity::of(s),
+            config_name: names
+                .get(usize::from(s.position))
+                .cloned()
+                .unwrap_or_default(),
             parent: s.parent,
             delay_ns: s.delay_ns,
             true_delay_ns: truth[usize::from(s.position)].filter(|_| s.dc != DcCapability::None),
@@ -445,9 +456,26 @@ fn print_human(o: &Out) {
         o.reference
     );
     println!();
+    // The scenario's names (as compare's tables give them), the devices' beside them.
+    let w = o
+        .slaves
+        .iter()
+        .map(|s| s.config_name.chars().count())
+        .max()
+        .unwrap_or(0)
+        .clamp(4, 24);
     println!(
-        "{:>3}  {:>7}  {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
-        "pos", "station", "name", "parent", "DC", "delay ns", "true ns", "err ns", "offset err"
+        "{:>3}  {:>7}  {:<w$} {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
+        "pos",
+        "station",
+        "name",
+        "device",
+        "parent",
+        "DC",
+        "delay ns",
+        "true ns",
+        "err ns",
+        "offset err"
     );
     for s in &o.slaves {
         let parent = match s.parent {
@@ -465,13 +493,14 @@ fn print_human(o: &Out) {
             DcCapability::ReceiveTimes => "rx times",
             DcCapability::None => "none",
         };
-        let mut name = s.identity.name.clone();
-        name.truncate(28);
+        let device: String = s.identity.name.chars().take(28).collect();
+        let name: String = s.config_name.chars().take(w).collect();
         println!(
-            "{:>3}  {:#07x}  {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
+            "{:>3}  {:#07x}  {:<w$} {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
             s.identity.position,
             s.identity.station,
             name,
+            device,
             parent,
             dc,
             f(s.delay_ns),

@@ -319,3 +319,47 @@ fn the_files_run_table_sets_the_bringup() {
         serde_json::from_slice(&bringup_ok(&["--preset", "paper-2024", "--json"]).stdout).unwrap();
     assert_eq!(v["sync0_start_ns"].as_u64().unwrap() % 1_000_000, 300_000);
 }
+
+/// The table names each slave as the scenario does (drives of one device told apart), with the
+/// device's own name beside it; `--json` gives both (`config_name`, `name`).
+#[test]
+fn slaves_are_named_as_the_scenario_names_them() {
+    let preset = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
+    )
+    .unwrap();
+    // A line: network position k is the file's k-th slave.
+    let axes = ["axis-x", "axis-y", "axis-z", "axis-u", "axis-v", "axis-w"];
+    let mut text = preset.clone();
+    for (k, a) in axes.iter().enumerate() {
+        text = text.replace(&format!("\"drive-{}\"", k + 1), &format!("\"{a}\""));
+    }
+    let f = tmp("axes.toml");
+    std::fs::write(&f, &text).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_slice(&bringup_ok(&["--config", f.to_str().unwrap(), "--json"]).stdout)
+            .unwrap();
+    let slaves = v["slaves"].as_array().unwrap();
+    let names: Vec<&str> = slaves
+        .iter()
+        .map(|s| s["config_name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, axes);
+    assert!(
+        slaves
+            .iter()
+            .all(|s| s["name"] == "ecsync virtual servo drive")
+    );
+    let out = bringup_ok(&["--config", f.to_str().unwrap()]);
+    let table = String::from_utf8_lossy(&out.stdout);
+    for (k, a) in axes.iter().enumerate() {
+        let row = table
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{k}  0x")))
+            .unwrap_or_else(|| panic!("no row {k}: {table}"));
+        assert!(
+            row.contains(&format!(" {a} ")) && row.contains("ecsync virtual servo drive"),
+            "{row}"
+        );
+    }
+}
