@@ -4,7 +4,7 @@ use super::{MethodOut, Warning, us};
 use crate::compare::Comparison;
 use crate::scenario::Scenario;
 use ecsync_dc::MethodKind;
-use ecsync_sim::fault::KindName;
+use ecsync_sim::fault::{FaultKind, KindName};
 use ecsync_sim::send::SendMode;
 use std::collections::BTreeMap;
 
@@ -313,29 +313,49 @@ fn late_frames(s: &Scenario, m: &str, mo: &MethodOut, budget_ns: f64) -> Option<
 }
 
 /// A cycle's frames that take longer than the cycle, on the wire or from the first one's send
-/// to the last one's reply, in any run.
+/// to the last one's reply, in any run; or, when only frames inside the window of a fault that
+/// holds replies back took that long, the fault (the cycle is not to blame).
 fn cycle_too_short(c: &Comparison) -> Option<Warning> {
     let period = f64::from(c.scenario.cycle_ns);
-    let trip = c
-        .results
-        .iter()
-        .flatten()
-        .map(|r| r.max_round_trip_ns)
+    let runs = || c.results.iter().flatten();
+    let trip = runs()
+        .map(|r| r.max_round_trip_unfaulted_ns)
         .fold(0.0, f64::max);
-    let wire = c
-        .results
-        .iter()
-        .flatten()
-        .map(|r| r.frame_wire_ns)
-        .fold(0.0, f64::max);
-    (wire > period || trip > period).then(|| Warning {
-        kind: "cycle_too_short",
+    let wire = runs().map(|r| r.frame_wire_ns).fold(0.0, f64::max);
+    if wire > period || trip > period {
+        return Some(Warning {
+            kind: "cycle_too_short",
+            method: None,
+            message: format!(
+                "the cycle's frames take {} on the wire and up to {} from the first one's send to the last one's reply, more than the {} cycle: frames overlap cycles (make the cycle longer)",
+                us(wire),
+                us(trip),
+                us(period)
+            ),
+        });
+    }
+    // The longest frame of all, inside a fault's window.
+    let longest = runs()
+        .filter(|r| r.longest_frame_fault.is_some())
+        .max_by(|a, b| a.max_round_trip_ns.total_cmp(&b.max_round_trip_ns))?;
+    let f = longest.longest_frame_fault?;
+    let kind = c.scenario.faults.as_ref()?.faults.get(f)?.kind;
+    let what = match kind {
+        FaultKind::Delay { extra_ns } => format!("its delay of {}", us(extra_ns as f64)),
+        FaultKind::SecondResponder { lag_ns } => {
+            format!("its second reply {} later", us(lag_ns as f64))
+        }
+        _ => "it".to_string(),
+    };
+    (longest.max_round_trip_ns > period).then(|| Warning {
+        kind: "fault_long_frames",
         method: None,
         message: format!(
-            "the cycle's frames take {} on the wire and up to {} from the first one's send to the last one's reply, more than the {} cycle: frames overlap cycles (make the cycle longer)",
-            us(wire),
-            us(trip),
-            us(period)
+            "frames took up to {} from the first one's send to the last one's reply, more than the {} cycle, inside the window of fault[{f}] ({}): the fault did it ({what}), not the cycle; outside its window they take up to {}",
+            us(longest.max_round_trip_ns),
+            us(period),
+            kind.name(),
+            us(trip)
         ),
     })
 }
