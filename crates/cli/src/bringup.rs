@@ -267,17 +267,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         sim.capture_to(p)
             .with_context(|| format!("cannot create {}", p.display()))?;
     }
-    let cfg = BringupConfig {
-        until: Stage::Op,
-        static_drift_frames: args.static_drift.unwrap_or(scenario.static_drift_frames),
-        cycle_ns: scenario.cycle_ns,
-        sync0_shift_ns: scenario.sync0_shift_ns(),
-        sync_error_limit: scenario.sync_error_limit,
-        latch_rounds: args.latch_rounds,
-        monitor_cycles: args.monitor_cycles,
-        rate_window_ns: (args.rate_window_s * 1e9) as u64,
-        ..BringupConfig::default()
-    };
+    let cfg = bringup_config(&args, &scenario);
     let mut engine = Engine::new(move |link| bringup(link, cfg));
     let n = sim.segment().len();
     let mut offset_error: Vec<Option<i64>> = vec![None; n];
@@ -391,6 +381,22 @@ pub fn run(args: Args) -> Result<ExitCode> {
     } else {
         ExitCode::from(2)
     })
+}
+
+/// The bring-up the file's `[run]` and the options describe (`--static-drift` over the file's
+/// `run.static_drift_frames`).
+fn bringup_config(args: &Args, scenario: &ecsync_lab::Scenario) -> BringupConfig {
+    BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: args.static_drift.unwrap_or(scenario.static_drift_frames),
+        cycle_ns: scenario.cycle_ns,
+        sync0_shift_ns: scenario.sync0_shift_ns(),
+        sync_error_limit: scenario.sync_error_limit,
+        latch_rounds: args.latch_rounds,
+        monitor_cycles: args.monitor_cycles,
+        rate_window_ns: (args.rate_window_s * 1e9) as u64,
+        ..BringupConfig::default()
+    }
 }
 
 /// `--faults`: the schedule, checked against the network (a fault naming a slave or a port it
