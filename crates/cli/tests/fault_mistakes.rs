@@ -182,6 +182,18 @@ fn a_fault_past_the_end_and_an_empty_schedule_are_told() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("out/summary.json")).unwrap())
             .unwrap();
+    let not_played: Vec<&str> = json["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|w| w["kind"] == "fault_not_played")
+        .map(|w| w["message"].as_str().unwrap())
+        .collect();
+    assert!(
+        not_played.len() == 1
+            && not_played[0].starts_with("fault[1] (power_cycle at 500 s) started in no run"),
+        "{not_played:?}"
+    );
     let text = json.to_string();
     assert!(
         text.contains("\"fault\":0") && !text.contains("\"fault\":1"),

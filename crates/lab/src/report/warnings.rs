@@ -37,6 +37,7 @@ pub(super) fn warnings(
         w.extend(ran().filter_map(|(m, mo)| left_op(m, mo)));
     }
     w.extend(ran().filter_map(|(m, mo)| no_relock(m, mo)));
+    w.extend(not_played(s, methods));
     w.extend(hot_connected(methods));
     w.extend(samples(c));
     w
@@ -481,6 +482,43 @@ fn no_relock(m: &str, mo: &MethodOut) -> Option<Warning> {
         message: format!(
             "{m} did not come back to lock (|0x092C| under {band:.0} ns and M-rS within its band, the reference believed, every slave's process data, for 100 cycles) after: {}",
             never.join(", ")
+        ),
+    })
+}
+
+/// The faults of the schedule that started in no run of any method (they come after the
+/// run's end): nothing of theirs is measured, their re-lock is "-".
+fn not_played(s: &Scenario, methods: &BTreeMap<String, MethodOut>) -> Option<Warning> {
+    let sched = s.faults.as_ref()?;
+    let ran = methods.values().any(|mo| !mo.faults.is_empty());
+    let started = |n: usize| {
+        methods.values().any(|mo| {
+            (mo.faults.iter().flat_map(|f| &f.events))
+                .any(|e| e.fault == n && e.edge == ecsync_sim::fault::Edge::Start)
+        })
+    };
+    let never: Vec<String> = (sched.faults.iter().enumerate())
+        .filter(|(n, _)| !started(*n))
+        .map(|(n, f)| {
+            format!(
+                "fault[{n}] ({} at {} s)",
+                f.kind.name(),
+                f.at_ns as f64 / 1e9
+            )
+        })
+        .collect();
+    (ran && !never.is_empty()).then(|| Warning {
+        kind: "fault_not_played",
+        method: None,
+        message: format!(
+            "{} started in no run: the runs ended first ({} s of warm-up and recorded cycles{}), so nothing of theirs is measured (their re-lock: -)",
+            never.join(", "),
+            (s.warmup_cycles + s.cycles) as f64 * f64::from(s.cycle_ns) / 1e9,
+            if sched.epoch == ecsync_sim::fault::Epoch::Start {
+                " after the bring-up"
+            } else {
+                ""
+            }
         ),
     })
 }
