@@ -23,9 +23,11 @@ pub struct Args {
     /// Print a JSON object instead of tables.
     #[arg(long)]
     json: bool,
-    /// FRMW frames of static drift compensation.
-    #[arg(long, default_value_t = 15_000)]
-    static_drift: u32,
+    /// FRMW frames of static drift compensation (default: the file's
+    /// `run.static_drift_frames`, 15000 if it gives none). The cycle, the SYNC0 shift and the
+    /// sync error limit are the file's `[run]` values too.
+    #[arg(long)]
+    static_drift: Option<u32>,
     /// Receive time latches averaged for the delays.
     #[arg(long, default_value_t = 16)]
     latch_rounds: u32,
@@ -34,7 +36,8 @@ pub struct Args {
     monitor_cycles: u32,
     /// Play the faults of this schedule (TOML `[[fault]]` entries, or a built-in one) during
     /// the bring-up; times count from its first frame. A lost datagram is then waited for
-    /// 5 ms and sent again up to ten times.
+    /// 5 ms and sent again up to ten times. The report ends with what the faults did: the
+    /// frames dropped, the frames sent again, the faults' starts and ends, those not reached.
     #[arg(long)]
     faults: Option<PathBuf>,
     /// Also measure every crystal against the reference's from receive times latched over
@@ -47,6 +50,8 @@ pub struct Args {
 struct SlaveOut {
     #[serde(flatten)]
     identity: SlaveIdentity,
+    /// Its name in the scenario (`name` is the device's, from its SII).
+    config_name: String,
     parent: Option<(u16, u8)>,
     delay_ns: Option<f64>,
     true_delay_ns: Option<f64>,
@@ -96,6 +101,125 @@ struct Out {
     frames: u64,
     pcap: Option<String>,
     pcap_frames: u64,
+    /// What `--faults` did (absent without it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    faults: Option<FaultsOut>,
+}
+
+/// The bring-up's exchanges that took more than one send.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+struct Tries {
+    /// Exchanges whose frame was sent again (its reply lost, waited for, sent again).
+    retried_exchanges: u64,
+    /// Sends beyond the first, over all exchanges.
+    retries: u64,
+    /// Exchanges whose reply never came, however often sent.
+    given_up: u64,
+}
+
+impl Tries {
+    fn count(&mut self, x: &ecsync_master::driver::ProcedureExchange) {
+        if x.attempts > 1 {
+            self.retried_exchanges += 1;
+            self.retries += u64::from(x.attempts - 1);
+        }
+        if x.received.is_none() {
+            self.given_up += 1;
+        }
+    }
+}
+
+/// A fault of the schedule whose start the bring-up did not reach.
+#[derive(Debug, Serialize)]
+struct NotReached {
+    fault: usize,
+    kind: ecsync_sim::fault::KindName,
+    at_s: f64,
+}
+
+/// What the fault schedule did during the bring-up and how the master took it.
+#[derive(Debug, Serialize)]
+struct FaultsOut {
+    schedule: String,
+    /// What the schedule did to frames.
+    counts: ecsync_sim::fault::FaultCounts,
+    #[serde(flatten)]
+    tries: Tries,
+    /// Every fault's start and end during the bring-up.
+    events: Vec<ecsync_sim::fault::FaultEvent>,
+    /// The faults that start after the bring-up's end.
+    not_reached: Vec<NotReached>,
+    /// The bring-up's length from its first frame, s.
+    ended_s: f64,
+}
+
+impl FaultsOut {
+    fn of(schedule: &str, f: &ecsync_sim::fault::FaultPlayer, tries: Tries, now_ps: u64) -> Self {
+        let started = |n: usize| {
+            f.events()
+                .iter()
+                .any(|e| e.fault == n && e.edge == ecsync_sim::fault::Edge::Start)
+        };
+        FaultsOut {
+            schedule: schedule.to_string(),
+            counts: f.counts(),
+            tries,
+            events: f.events().to_vec(),
+            not_reached: (f.schedule().faults.iter().enumerate())
+                .filter(|(n, _)| !started(*n))
+                .map(|(n, x)| NotReached {
+                    fault: n,
+                    kind: x.kind.name(),
+                    at_s: x.at_ns as f64 / 1e9,
+                })
+                .collect(),
+            ended_s: now_ps.saturating_sub(f.origin_ps().unwrap_or(0)) as f64 * 1e-12,
+        }
+    }
+
+    /// The faults' lines of the report.
+    fn text(&self) -> String {
+        let c = &self.counts;
+        let t = &self.tries;
+        let mut s = format!(
+            "Faults ({}): the schedule dropped {} frames ({} on the way out, {} on the way back; {} corrupted), delayed {} replies and doubled {}; the bring-up sent {} frames again ({} exchanges retried) and gave up on {}.\n",
+            self.schedule,
+            c.lost_out + c.lost_back,
+            c.lost_out,
+            c.lost_back,
+            c.corrupted,
+            c.delayed,
+            c.duplicated,
+            t.retries,
+            t.retried_exchanges,
+            t.given_up
+        );
+        for e in &self.events {
+            let detail = if e.detail.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", e.detail)
+            };
+            s += &format!(
+                "  {:>9.3} s  fault[{}] {} {}{detail}\n",
+                e.since_epoch_ns as f64 / 1e9,
+                e.fault,
+                e.kind,
+                e.edge
+            );
+        }
+        if !self.not_reached.is_empty() {
+            let list: Vec<String> = (self.not_reached.iter())
+                .map(|n| format!("fault[{}] {} at {} s", n.fault, n.kind, n.at_s))
+                .collect();
+            s += &format!(
+                "  not reached (the bring-up ended {:.3} s after its first frame): {}\n",
+                self.ended_s,
+                list.join(", ")
+            );
+        }
+        s
+    }
 }
 
 /// True system time of slave `pos` minus the reference's at real time `t_ps`, ns (`None` for a
@@ -110,8 +234,8 @@ fn true_diff(seg: &Segment, pos: usize, r: (u64, f64), t_ps: u64) -> Option<f64>
 }
 
 pub fn run(args: Args) -> Result<ExitCode> {
-    let (name, specs) = args.source.segment()?;
-    let seg = Segment::new(&specs).context("building the segment")?;
+    let (name, scenario) = args.source.scenario()?;
+    let seg = Segment::new(&scenario.slaves).context("building the segment")?;
     let reference = (0..seg.len())
         .find(|&i| seg.esc(i).model().dc.has_system_time())
         .context("no slave has a DC system time to act as reference")?;
@@ -122,19 +246,28 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let crystal_ppm: Vec<Option<f64>> = (0..seg.len())
         .map(|i| seg.esc(i).dc().map(|d| d.clock().params().ppm))
         .collect();
+    // The schedule before anything is written: a bad one leaves no capture behind.
+    let schedule = match &args.faults {
+        Some(p) => Some(load_schedule(p, &seg, &name)?),
+        None => None,
+    };
+    // The scenario's names by network position (the tables name slaves by them).
+    let names: Vec<String> = (0..seg.len())
+        .map(|p| scenario.slave_names[seg.spec_index(p)].clone())
+        .collect();
     let mut sim = SimTransport::new(seg);
+    let procedure = match schedule {
+        Some(sched) => {
+            sim.set_faults(ecsync_sim::fault::FaultPlayer::new(sched, 0));
+            ecsync_lab::run::FAULTY_PROCEDURE
+        }
+        None => ecsync_sim::transport::SIM_PROCEDURE,
+    };
     if let Some(p) = &args.pcap {
         sim.capture_to(p)
             .with_context(|| format!("cannot create {}", p.display()))?;
     }
-    let cfg = BringupConfig {
-        until: Stage::Op,
-        static_drift_frames: args.static_drift,
-        latch_rounds: args.latch_rounds,
-        monitor_cycles: args.monitor_cycles,
-        rate_window_ns: (args.rate_window_s * 1e9) as u64,
-        ..BringupConfig::default()
-    };
+    let cfg = bringup_config(&args, &scenario);
     let mut engine = Engine::new(move |link| bringup(link, cfg));
     let n = sim.segment().len();
     let mut offset_error: Vec<Option<i64>> = vec![None; n];
@@ -142,22 +275,13 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let mut samples: Vec<(u64, f64)> = Vec::new();
     let mut after_offsets = false;
     let mut frames = 0u64;
-    let procedure = match &args.faults {
-        Some(p) => {
-            let mut sched =
-                ecsync_sim::fault::FaultSchedule::load(p).map_err(anyhow::Error::msg)?;
-            // The bring-up's own time: from its first frame.
-            sched.epoch = ecsync_sim::fault::Epoch::Start;
-            sim.set_faults(ecsync_sim::fault::FaultPlayer::new(sched, 0));
-            ecsync_lab::run::FAULTY_PROCEDURE
-        }
-        None => ecsync_sim::transport::SIM_PROCEDURE,
-    };
+    let mut tries = Tries::default();
     // The phases as they begin, on stderr (a large segment's bring-up takes a minute).
     let started = std::time::Instant::now();
-    let result = sim.run_procedure_with(&mut engine, procedure, |tr, _, events| {
+    let result = sim.run_procedure_with(&mut engine, procedure, |tr, x, events| {
         let (seg, ex) = (tr.segment(), tr.last_exchange());
         frames += 1;
+        tries.count(x);
         for e in events {
             if let Event::Phase(p) = e {
                 eprintln!(
@@ -187,7 +311,21 @@ pub fn run(args: Args) -> Result<ExitCode> {
         }
     });
     let pcap_frames = sim.finish_capture().context("writing the pcap file")?;
-    let net = result.map_err(|e| anyhow::anyhow!("bring-up failed: {e}"))?;
+    let faults = args
+        .faults
+        .as_ref()
+        .zip(sim.faults())
+        .map(|(p, f)| FaultsOut::of(&p.display().to_string(), f, tries, sim.now_ps()));
+    let net = match result {
+        Ok(net) => net,
+        Err(e) => {
+            // What the faults did is the likeliest why.
+            if let Some(f) = &faults {
+                eprint!("{}", f.text());
+            }
+            anyhow::bail!("bring-up failed: {e}");
+        }
+    };
     let truth = sim.segment().true_delays_ns(usize::from(net.reference));
     let max_after = |t0: Option<u64>| match t0 {
         Some(t0) => samples
@@ -209,7 +347,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let out = Out {
         source: name,
         reference: net.reference,
-        slaves: slave_rows(&net, &truth, &offset_error, &crystal_ppm),
+        slaves: slave_rows(&net, &names, &truth, &offset_error, &crystal_ppm),
         lock: LockOut {
             converged: net.lock.converged,
             time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
@@ -231,6 +369,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         frames,
         pcap: args.pcap.as_ref().map(|p| p.display().to_string()),
         pcap_frames,
+        faults,
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -244,10 +383,47 @@ pub fn run(args: Args) -> Result<ExitCode> {
     })
 }
 
+/// The bring-up the file's `[run]` and the options describe (`--static-drift` over the file's
+/// `run.static_drift_frames`).
+fn bringup_config(args: &Args, scenario: &ecsync_lab::Scenario) -> BringupConfig {
+    BringupConfig {
+        until: Stage::Op,
+        static_drift_frames: args.static_drift.unwrap_or(scenario.static_drift_frames),
+        cycle_ns: scenario.cycle_ns,
+        sync0_shift_ns: scenario.sync0_shift_ns(),
+        sync_error_limit: scenario.sync_error_limit,
+        latch_rounds: args.latch_rounds,
+        monitor_cycles: args.monitor_cycles,
+        rate_window_ns: (args.rate_window_s * 1e9) as u64,
+        ..BringupConfig::default()
+    }
+}
+
+/// `--faults`: the schedule, checked against the network (a fault naming a slave or a port it
+/// lacks is refused; an empty one is told), its times counted from the bring-up's first frame.
+fn load_schedule(
+    path: &std::path::Path,
+    seg: &Segment,
+    network: &str,
+) -> Result<ecsync_sim::fault::FaultSchedule> {
+    let mut sched = ecsync_sim::fault::FaultSchedule::load(path).map_err(anyhow::Error::msg)?;
+    sched
+        .check_segment(seg, network)
+        .map_err(anyhow::Error::msg)?;
+    // The bring-up's length is not known before it ends: only an empty schedule is told.
+    for w in sched.warnings(None, "") {
+        eprintln!("ecsync: warning: {w}");
+    }
+    // The bring-up's own time: from its first frame.
+    sched.epoch = ecsync_sim::fault::Epoch::Start;
+    Ok(sched)
+}
+
 /// The bring-up's slaves beside the segment's truth: true delays (`truth`, by position),
 /// offset errors after the offsets were written, crystals (`crystal_ppm`, by position).
 fn slave_rows(
     net: &ecsync_master::bringup::Network,
+    names: &[String],
     truth: &[Option<f64>],
     offset_error: &[Option<i64>],
     crystal_ppm: &[Option<f64>],
@@ -256,6 +432,10 @@ fn slave_rows(
         .iter()
         .map(|s| SlaveOut {
             identity: SlaveIdentity::of(s),
+            config_name: names
+                .get(usize::from(s.position))
+                .cloned()
+                .unwrap_or_default(),
             parent: s.parent,
             delay_ns: s.delay_ns,
             true_delay_ns: truth[usize::from(s.position)].filter(|_| s.dc != DcCapability::None),
@@ -282,9 +462,26 @@ fn print_human(o: &Out) {
         o.reference
     );
     println!();
+    // The scenario's names (as compare's tables give them), the devices' beside them.
+    let w = o
+        .slaves
+        .iter()
+        .map(|s| s.config_name.chars().count())
+        .max()
+        .unwrap_or(0)
+        .clamp(4, 24);
     println!(
-        "{:>3}  {:>7}  {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
-        "pos", "station", "name", "parent", "DC", "delay ns", "true ns", "err ns", "offset err"
+        "{:>3}  {:>7}  {:<w$} {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
+        "pos",
+        "station",
+        "name",
+        "device",
+        "parent",
+        "DC",
+        "delay ns",
+        "true ns",
+        "err ns",
+        "offset err"
     );
     for s in &o.slaves {
         let parent = match s.parent {
@@ -302,13 +499,14 @@ fn print_human(o: &Out) {
             DcCapability::ReceiveTimes => "rx times",
             DcCapability::None => "none",
         };
-        let mut name = s.identity.name.clone();
-        name.truncate(28);
+        let device: String = s.identity.name.chars().take(28).collect();
+        let name: String = s.config_name.chars().take(w).collect();
         println!(
-            "{:>3}  {:#07x}  {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
+            "{:>3}  {:#07x}  {:<w$} {:<28} {:<12} {:>10}  {:>12}  {:>12}  {:>7}  {:>10}",
             s.identity.position,
             s.identity.station,
             name,
+            device,
             parent,
             dc,
             f(s.delay_ns),
@@ -356,5 +554,8 @@ fn print_human(o: &Out) {
     );
     if let Some(p) = &o.pcap {
         println!("Captured {} frames to {p}.", o.pcap_frames);
+    }
+    if let Some(f) = &o.faults {
+        print!("{}", f.text());
     }
 }

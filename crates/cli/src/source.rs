@@ -38,11 +38,12 @@ impl SourceArgs {
         }
     }
 
-    /// The segment's slaves. The whole file is read as `compare` reads it, so an unknown
-    /// section or field, or a value `compare` would refuse, is refused here with the same words.
-    pub fn segment(&self) -> Result<(String, Vec<SlaveSpec>)> {
-        let (name, specs, _) = self.segment_named()?;
-        Ok((name, specs))
+    /// The whole scenario (the segment, `[run]`, `[host]`...), checked as `compare` checks
+    /// the file.
+    pub fn scenario(&self) -> Result<(String, ecsync_lab::Scenario)> {
+        let (name, text) = self.load()?;
+        let s = ecsync_lab::parse(&name, &text).map_err(anyhow::Error::msg)?;
+        Ok((name, s))
     }
 
     /// The segment's slaves and the names the scenario gives them.

@@ -315,4 +315,87 @@ fn a_crystal_the_loop_cannot_follow_is_refused_and_one_just_inside_locks() {
     let o = bringup_ok(&["--config", near.to_str().unwrap(), "--json"]);
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(j["lock"]["converged"], true, "{j}");
+
+/// The file's `[run]` holds for the bring-up as for compare: `static_drift_frames` (the option
+/// overrides it), and the cycle and SYNC0
+/// shift (SYNC0 starts on the file's grid at its shift).
+#[test]
+fn the_files_run_table_sets_the_bringup() {
+    let preset = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
+    )
+    .unwrap();
+    let text = preset
+        .replace("static_drift_frames = 15000", "static_drift_frames = 100")
+        .replace("sync0_shift_pct = 30", "sync0_shift_pct = 40")
+        .replace("cycle_us = 1000", "cycle_us = 500");
+    assert_ne!(text, preset);
+    let f = tmp("run-table.toml");
+    std::fs::write(&f, text).unwrap();
+    let json = |extra: &[&str]| -> serde_json::Value {
+        let mut args = vec!["--config", f.to_str().unwrap(), "--json"];
+        args.extend_from_slice(extra);
+        serde_json::from_slice(&bringup_ok(&args).stdout).unwrap()
+    };
+    let frmw = |v: &serde_json::Value| v["lock"]["frmw_frames"].as_u64().unwrap();
+    let from_file = json(&[]);
+    let from_option = json(&["--static-drift", "350"]);
+    assert!(frmw(&from_file) < 15_000, "{}", frmw(&from_file));
+    // The file's 100 is the option's 100 (the same run, frame for frame); 350 sends more.
+    assert_eq!(frmw(&json(&["--static-drift", "100"])), frmw(&from_file));
+    assert!(frmw(&from_option) > frmw(&from_file) + 200);
+    let start = from_file["sync0_start_ns"].as_u64().unwrap();
+    assert_eq!(
+        start % 500_000,
+        200_000,
+        "SYNC0 at 40 % of a 500 us cycle: {start}"
+    );
+    // The preset itself: 30 % of 1 ms.
+    let v: serde_json::Value =
+        serde_json::from_slice(&bringup_ok(&["--preset", "paper-2024", "--json"]).stdout).unwrap();
+    assert_eq!(v["sync0_start_ns"].as_u64().unwrap() % 1_000_000, 300_000);
+}
+
+/// The table names each slave as the scenario does (drives of one device told apart), with the
+/// device's own name beside it; `--json` gives both (`config_name`, `name`).
+#[test]
+fn slaves_are_named_as_the_scenario_names_them() {
+    let preset = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
+    )
+    .unwrap();
+    // A line: network position k is the file's k-th slave.
+    let axes = ["axis-x", "axis-y", "axis-z", "axis-u", "axis-v", "axis-w"];
+    let mut text = preset.clone();
+    for (k, a) in axes.iter().enumerate() {
+        text = text.replace(&format!("\"drive-{}\"", k + 1), &format!("\"{a}\""));
+    }
+    let f = tmp("axes.toml");
+    std::fs::write(&f, &text).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_slice(&bringup_ok(&["--config", f.to_str().unwrap(), "--json"]).stdout)
+            .unwrap();
+    let slaves = v["slaves"].as_array().unwrap();
+    let names: Vec<&str> = slaves
+        .iter()
+        .map(|s| s["config_name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, axes);
+    assert!(
+        slaves
+            .iter()
+            .all(|s| s["name"] == "ecsync virtual servo drive")
+    );
+    let out = bringup_ok(&["--config", f.to_str().unwrap()]);
+    let table = String::from_utf8_lossy(&out.stdout);
+    for (k, a) in axes.iter().enumerate() {
+        let row = table
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{k}  0x")))
+            .unwrap_or_else(|| panic!("no row {k}: {table}"));
+        assert!(
+            row.contains(&format!(" {a} ")) && row.contains("ecsync virtual servo drive"),
+            "{row}"
+        );
+    }
 }

@@ -119,6 +119,13 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     let (name, specs, slave_names) = args.source.segment_named()?;
     let mut seg = Segment::new(&specs).context("building the segment")?;
     let schedule = load_schedule(&args)?;
+    if let Some(f) = &schedule {
+        f.check_segment(&seg, &name).map_err(anyhow::Error::msg)?;
+        // How long serve runs is the master's to say: only an empty schedule is told.
+        for w in f.warnings(None, "") {
+            eprintln!("ecsync serve: warning: {w}");
+        }
+    }
     let mut faults = super::served::player(schedule);
     if let Some(dir) = &args.out {
         ecsync_lab::output::ensure_writable_dir(dir)

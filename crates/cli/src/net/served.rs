@@ -160,6 +160,15 @@ fn inject(req: &Value, served: &mut Served<'_>) -> Value {
             fault.kind.name()
         ));
     }
+    // A slave or port the served network lacks, as a file's entry is refused.
+    let one = ecsync_sim::fault::FaultSchedule {
+        faults: vec![fault],
+        ..Default::default()
+    };
+    if let Err(e) = one.check_segment(served.segment, "the served network") {
+        let key = e.field.strip_prefix("fault[0].").unwrap_or(&e.field);
+        return control::error(&format!("fault: {key}: {}; fix: {}", e.message, e.fix));
+    }
     let secs = |k: &str| req.get(k).and_then(Value::as_f64);
     let at_ps = match (secs("in_s"), secs("at_s")) {
         (Some(_), Some(_)) => return control::error("give in_s or at_s, not both"),

@@ -156,6 +156,20 @@ fn a_power_cycle_injected_between_frames_happens_at_its_time_and_loss_starts_for
         String::from_utf8_lossy(&o.stdout).contains("slave"),
         "{o:?}"
     );
+    // A slave the served network lacks is refused as a file's entry is, not played as nothing.
+    let o = Command::new(ecsync())
+        .args(["ctl", "--control"])
+        .arg(&sock)
+        .args(["inject", "power_cycle", "slave=99"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("slave: slave 99 is not in the network")
+            && out.contains("fix: give a network position from 1 to"),
+        "{o:?}"
+    );
 }
 
 /// APRD of `len` bytes at `reg` of the slave at auto-increment position `pos`, from namespace

@@ -256,7 +256,8 @@ pub struct NotRanked {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Warning {
     /// What kind: crystal_difference, off_target, jitter_eats_margin, late_frames,
-    /// cycle_too_short, interrupted, samples, left_op, settling.
+    /// cycle_too_short, fault_long_frames, fault_not_played, interrupted, samples, left_op,
+    /// settling.
     pub kind: &'static str,
     /// The method it concerns, if one.
     pub method: Option<String>,

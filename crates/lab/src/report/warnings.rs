@@ -4,7 +4,7 @@ use super::{MethodOut, Warning, us};
 use crate::compare::Comparison;
 use crate::scenario::Scenario;
 use ecsync_dc::MethodKind;
-use ecsync_sim::fault::KindName;
+use ecsync_sim::fault::{FaultKind, KindName};
 use ecsync_sim::send::SendMode;
 use std::collections::BTreeMap;
 
@@ -37,6 +37,7 @@ pub(super) fn warnings(
         w.extend(ran().filter_map(|(m, mo)| left_op(m, mo)));
     }
     w.extend(ran().filter_map(|(m, mo)| no_relock(m, mo)));
+    w.extend(not_played(s, methods));
     w.extend(hot_connected(methods));
     w.extend(samples(c));
     w
@@ -315,29 +316,49 @@ fn late_frames(s: &Scenario, m: &str, mo: &MethodOut, budget_ns: f64) -> Option<
 }
 
 /// A cycle's frames that take longer than the cycle, on the wire or from the first one's send
-/// to the last one's reply, in any run.
+/// to the last one's reply, in any run; or, when only frames inside the window of a fault that
+/// holds replies back took that long, the fault (the cycle is not to blame).
 fn cycle_too_short(c: &Comparison) -> Option<Warning> {
     let period = f64::from(c.scenario.cycle_ns);
-    let trip = c
-        .results
-        .iter()
-        .flatten()
-        .map(|r| r.max_round_trip_ns)
+    let runs = || c.results.iter().flatten();
+    let trip = runs()
+        .map(|r| r.max_round_trip_unfaulted_ns)
         .fold(0.0, f64::max);
-    let wire = c
-        .results
-        .iter()
-        .flatten()
-        .map(|r| r.frame_wire_ns)
-        .fold(0.0, f64::max);
-    (wire > period || trip > period).then(|| Warning {
-        kind: "cycle_too_short",
+    let wire = runs().map(|r| r.frame_wire_ns).fold(0.0, f64::max);
+    if wire > period || trip > period {
+        return Some(Warning {
+            kind: "cycle_too_short",
+            method: None,
+            message: format!(
+                "the cycle's frames take {} on the wire and up to {} from the first one's send to the last one's reply, more than the {} cycle: frames overlap cycles (make the cycle longer)",
+                us(wire),
+                us(trip),
+                us(period)
+            ),
+        });
+    }
+    // The longest frame of all, inside a fault's window.
+    let longest = runs()
+        .filter(|r| r.longest_frame_fault.is_some())
+        .max_by(|a, b| a.max_round_trip_ns.total_cmp(&b.max_round_trip_ns))?;
+    let f = longest.longest_frame_fault?;
+    let kind = c.scenario.faults.as_ref()?.faults.get(f)?.kind;
+    let what = match kind {
+        FaultKind::Delay { extra_ns } => format!("its delay of {}", us(extra_ns as f64)),
+        FaultKind::SecondResponder { lag_ns } => {
+            format!("its second reply {} later", us(lag_ns as f64))
+        }
+        _ => "it".to_string(),
+    };
+    (longest.max_round_trip_ns > period).then(|| Warning {
+        kind: "fault_long_frames",
         method: None,
         message: format!(
-            "the cycle's frames take {} on the wire and up to {} from the first one's send to the last one's reply, more than the {} cycle: frames overlap cycles (make the cycle longer)",
-            us(wire),
-            us(trip),
-            us(period)
+            "frames took up to {} from the first one's send to the last one's reply, more than the {} cycle, inside the window of fault[{f}] ({}): the fault did it ({what}), not the cycle; outside its window they take up to {}",
+            us(longest.max_round_trip_ns),
+            us(period),
+            kind.name(),
+            us(trip)
         ),
     })
 }
@@ -463,6 +484,43 @@ fn no_relock(m: &str, mo: &MethodOut) -> Option<Warning> {
         message: format!(
             "{m} did not come back to lock (|0x092C| under {band:.0} ns and M-rS within its band, the reference believed, every slave's process data, for 100 cycles) after: {}",
             never.join(", ")
+        ),
+    })
+}
+
+/// The faults of the schedule that started in no run of any method (they come after the
+/// run's end): nothing of theirs is measured, their re-lock is "-".
+fn not_played(s: &Scenario, methods: &BTreeMap<String, MethodOut>) -> Option<Warning> {
+    let sched = s.faults.as_ref()?;
+    let ran = methods.values().any(|mo| !mo.faults.is_empty());
+    let started = |n: usize| {
+        methods.values().any(|mo| {
+            (mo.faults.iter().flat_map(|f| &f.events))
+                .any(|e| e.fault == n && e.edge == ecsync_sim::fault::Edge::Start)
+        })
+    };
+    let never: Vec<String> = (sched.faults.iter().enumerate())
+        .filter(|(n, _)| !started(*n))
+        .map(|(n, f)| {
+            format!(
+                "fault[{n}] ({} at {} s)",
+                f.kind.name(),
+                f.at_ns as f64 / 1e9
+            )
+        })
+        .collect();
+    (ran && !never.is_empty()).then(|| Warning {
+        kind: "fault_not_played",
+        method: None,
+        message: format!(
+            "{} started in no run: the runs ended first ({} s of warm-up and recorded cycles{}), so nothing of theirs is measured (their re-lock: -)",
+            never.join(", "),
+            (s.warmup_cycles + s.cycles) as f64 * f64::from(s.cycle_ns) / 1e9,
+            if sched.epoch == ecsync_sim::fault::Epoch::Start {
+                " after the bring-up"
+            } else {
+                ""
+            }
         ),
     })
 }

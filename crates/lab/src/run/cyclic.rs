@@ -107,6 +107,8 @@ fn empty_result(
         controller: controller.then(ControllerTruth::default),
         frame_wire_ns: 0.0,
         max_round_trip_ns: 0.0,
+        max_round_trip_unfaulted_ns: 0.0,
+        longest_frame_fault: None,
         samples_error: None,
         faults: None,
         left_op: Vec::new(),

@@ -719,9 +719,29 @@ impl CycleObserver<SimTransport> for Observers {
         if let Some(back) = tr.last_exchange().received_ps {
             let sent = tr.real_ps_at(rep.stamp);
             let rt = back.saturating_sub(sent) as f64 / 1000.0;
-            self.res.max_round_trip_ns = self.res.max_round_trip_ns.max(rt);
+            let holding = tr.faults().and_then(holding_fault);
+            if rt > self.res.max_round_trip_ns {
+                self.res.max_round_trip_ns = rt;
+                self.res.longest_frame_fault = holding;
+            }
+            if holding.is_none() {
+                self.res.max_round_trip_unfaulted_ns = self.res.max_round_trip_unfaulted_ns.max(rt);
+            }
         }
         self.res.frame_wire_ns = self.cycle_wire_ps as f64 / 1000.0;
         self.recorded(tr, rec, i - self.warmup);
     }
+}
+
+/// The first fault whose window is open that holds replies back (`delay`, `second_responder`):
+/// a frame's long way then is the fault's.
+fn holding_fault(p: &ecsync_sim::fault::FaultPlayer) -> Option<usize> {
+    use ecsync_sim::fault::FaultKind;
+    (p.schedule().faults.iter().enumerate()).find_map(|(f, x)| {
+        let holds = matches!(
+            x.kind,
+            FaultKind::Delay { .. } | FaultKind::SecondResponder { .. }
+        );
+        (holds && p.is_active(f)).then_some(f)
+    })
 }

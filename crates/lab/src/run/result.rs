@@ -310,6 +310,13 @@ pub struct RunResult {
     /// The longest time from the frame's send timestamp to its reply, ns (late replies
     /// included).
     pub max_round_trip_ns: f64,
+    /// The same outside the windows of the faults that hold replies back (`delay`,
+    /// `second_responder`): what the network and the cycle take; `max_round_trip_ns` without
+    /// such faults.
+    pub max_round_trip_unfaulted_ns: f64,
+    /// The fault whose window held the longest frame (its index in the schedule), when one
+    /// did: the longest time is the fault's, not the network's.
+    pub longest_frame_fault: Option<usize>,
     /// Why `--samples` could not be written (the run went on).
     pub samples_error: Option<String>,
     /// What the fault schedule did and how the master took it (`None`: no faults).

@@ -268,6 +268,19 @@ pub fn toml_error(file: &str, text: &str, e: &toml::de::Error) -> ConfigError {
             fix: format!("add the field `{name}` (presets/paper-2024.toml shows every field)"),
             message: msg,
         };
+    } else if let Some(expected) = msg
+        .split_once("unknown variant")
+        .and_then(|(_, r)| r.split_once("expected "))
+        .map(|(_, e)| e.trim().trim_start_matches("one of ").trim_end_matches('.'))
+    {
+        // serde's "unknown variant `x`, expected `a` or `b`": the accepted values are the fix.
+        return ConfigError {
+            file: file.to_string(),
+            line,
+            field,
+            fix: format!("give one of the accepted values: {expected}"),
+            message: msg,
+        };
     } else if msg.contains("invalid type") || msg.contains("invalid value") {
         "give a value of the type the message names"
     } else {

@@ -81,6 +81,7 @@
 use serde::Deserialize;
 use std::fmt;
 
+mod check;
 mod player;
 mod schedule;
 
@@ -329,6 +330,12 @@ pub struct FaultSchedule {
     pub epoch: Epoch,
     /// The faults, in the file's order.
     pub faults: Vec<Fault>,
+    /// The file the schedule was read from, as given (or the built-in schedule's name), for
+    /// messages; empty for a schedule built in code.
+    pub file: String,
+    /// Each fault's line in that file (its `[[fault]]` header), in the order of `faults`
+    /// (faults injected later have none).
+    pub lines: Vec<usize>,
 }
 
 impl fmt::Display for SlaveRef {

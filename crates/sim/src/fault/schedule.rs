@@ -68,8 +68,9 @@ impl FaultSchedule {
     /// fix).
     pub fn parse(file: &str, text: &str) -> Result<FaultSchedule, ConfigError> {
         let src = ConfigSource::new(file, text);
-        let f: FileRepr = src.deserialize()?;
+        let f: FileRepr = src.deserialize().map_err(|e| entry_error(text, e))?;
         let mut faults = Vec::with_capacity(f.fault.len());
+        let mut lines = Vec::with_capacity(f.fault.len());
         for (n, e) in f.fault.iter().enumerate() {
             let at = EntryAt {
                 src: &src,
@@ -78,11 +79,14 @@ impl FaultSchedule {
                 kind: None,
             };
             faults.push(at.fault(e.get_ref())?);
+            lines.push(at.header_line);
         }
         Ok(FaultSchedule {
             seed: f.seed,
             epoch: f.epoch,
             faults,
+            file: file.to_string(),
+            lines,
         })
     }
 
@@ -112,6 +116,41 @@ impl FaultSchedule {
     pub fn has_host_faults(&self) -> bool {
         self.faults.iter().any(|f| f.kind.is_host_fault())
     }
+}
+
+/// The TOML parser's error in a schedule's words: an entry that lacks a field is named
+/// (`fault[N].kind`, N counting the `[[fault]]` headers up to its line) and the fix points at
+/// files that have faults (the general fix names a scenario preset, which has none).
+fn entry_error(text: &str, mut e: ConfigError) -> ConfigError {
+    let Some(name) = e
+        .message
+        .split_once("missing field `")
+        .and_then(|(_, r)| r.split_once('`'))
+        .map(|(n, _)| n.to_string())
+    else {
+        return e;
+    };
+    if let Some(line) = e.line
+        && e.field.starts_with("fault")
+    {
+        let headers = text
+            .lines()
+            .take(line)
+            .filter(|l| l.trim_start().starts_with("[[fault]]"))
+            .count();
+        if headers > 0 {
+            e.field = format!("fault[{}].{name}", headers - 1);
+        }
+    }
+    let example = match name.as_str() {
+        "at_s" => "at_s = 20.0 (seconds after the epoch)",
+        "kind" => "kind = \"loss\" (or another kind)",
+        _ => "it",
+    };
+    e.fix = format!(
+        "add {example} to the entry: every [[fault]] entry needs at_s and kind (presets/faults-demo.toml and the book's reference, Fault schedules, show every kind and field)"
+    );
+    e
 }
 
 /// Parses one fault entry given on its own (a control command's), as a `[[fault]]` entry of a

@@ -544,3 +544,123 @@ fn a_single_entry_parses_as_in_a_file() {
     let e = parse_fault_entry(&t).unwrap_err();
     assert!(e.contains("frmes"), "{e}");
 }
+
+/// Every fault that names a slave or a port is checked against the network, and the check
+/// agrees with what the player then does: a fault it accepts acts (a slave switched off, a
+/// cable pulled), one it refuses would have done nothing ("is not in the segment", "no cable").
+#[test]
+fn the_network_check_refuses_exactly_what_the_player_would_skip() {
+    let n = 4;
+    let seg0 = Segment::new(&crate::preset::line(n, 1)).unwrap();
+    for slave in 1..=n + 2 {
+        for (kind, port) in [
+            ("power_cycle", None),
+            ("al_error", None),
+            ("link_down", Some(0u8)),
+            ("link_down", Some(1)),
+            ("link_down", Some(2)),
+        ] {
+            let port_line = port.map_or(String::new(), |p| format!("port = {p}\n"));
+            let text = format!(
+                "epoch = \"start\"\n# a comment\n[[fault]]\nat_s = 0.001\nfor_s = 0.001\nkind = \"{kind}\"\nslave = {slave}\n{port_line}"
+            );
+            let s = FaultSchedule::parse("f.toml", &text).unwrap();
+            let checked = s.check_segment(&seg0, "the line");
+            let mut seg = seg0.clone();
+            let mut p = FaultPlayer::new(s, 1);
+            count(&mut seg, &mut p, 0);
+            p.advance_to(&mut seg, 1_500_000_000);
+            let detail = &p.events()[0].detail;
+            let skipped = detail.contains("is not in the segment") || detail.contains("no cable");
+            assert_eq!(
+                checked.is_err(),
+                skipped,
+                "{kind} {slave} {port:?}: {detail}"
+            );
+            if let Err(e) = checked {
+                assert_eq!((e.file.as_str(), e.line), ("f.toml", Some(3)), "{e}");
+                let key = if slave > n { "slave" } else { "port" };
+                assert_eq!(e.field, format!("fault[0].{key}"), "{e}");
+                assert!(e.to_string().contains("fix: give a"), "{e}");
+            }
+        }
+    }
+    // The line's last slave has one cable (port 0): the fix names it.
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "[[fault]]\nat_s = 1\nkind = \"link_down\"\nslave = 4\nport = 1\n",
+    )
+    .unwrap();
+    let e = s.check_segment(&seg0, "the line").unwrap_err();
+    assert!(e.fix.ends_with("with a cable: 0"), "{e}");
+    let e = FaultSchedule::parse(
+        "f.toml",
+        "[[fault]]\nat_s = 1\nkind = \"power_cycle\"\nslave = 9\n",
+    )
+    .unwrap()
+    .check_segment(&seg0, "the line")
+    .unwrap_err();
+    assert!(
+        e.message.contains("slave 9") && e.message.contains("has 4 slaves"),
+        "{e}"
+    );
+    assert!(e.fix.contains("from 1 to 4"), "{e}");
+    // Hot connect: all but the first may appear late.
+    for (slaves, ok) in [(3, true), (4, false), (9, false)] {
+        let s = FaultSchedule::parse(
+            "f.toml",
+            &format!("[[fault]]\nat_s = 1\nkind = \"hot_connect\"\nslaves = {slaves}\n"),
+        )
+        .unwrap();
+        assert_eq!(s.check_segment(&seg0, "the line").is_ok(), ok, "{slaves}");
+    }
+}
+
+/// An empty schedule and a fault past the run's end are told; a fault before the end is not.
+#[test]
+fn warnings_tell_an_empty_schedule_and_a_fault_past_the_end() {
+    let s = FaultSchedule::parse("e.toml", "seed = 3\n").unwrap();
+    let w = s.warnings(Some(10_000_000_000), "run longer");
+    assert_eq!(w.len(), 1);
+    assert!(w[0].starts_with("e.toml: no [[fault]] entry"), "{w:?}");
+    let s = FaultSchedule::parse(
+        "f.toml",
+        "[[fault]]\nat_s = 5\nkind = \"loss\"\nprobability = 0.1\n\n[[fault]]\nat_s = 32\nkind = \"loss\"\nframes = 2\n",
+    )
+    .unwrap();
+    assert!(s.warnings(Some(32_000_000_001), "x").is_empty());
+    assert!(s.warnings(None, "x").is_empty());
+    let w = s.warnings(Some(32_000_000_000), "run longer");
+    assert_eq!(w.len(), 1, "{w:?}");
+    assert!(
+        w[0].starts_with(
+            "f.toml:6: fault[1].at_s: the loss fault at 32 s starts after the run's end, 32 s"
+        ) && w[0].ends_with("fix: give at_s below 32 or run longer"),
+        "{w:?}"
+    );
+}
+
+/// A missing `at_s` or `kind` names the entry and points at files with faults, not at a
+/// scenario preset; a bad epoch lists the accepted values.
+#[test]
+fn a_missing_field_and_a_bad_epoch_say_what_to_write() {
+    let text = "[[fault]]\nat_s = 1\nkind = \"loss\"\nframes = 2\n\n[[fault]]\nat_s = 2\n";
+    let e = FaultSchedule::parse("f.toml", text).unwrap_err();
+    assert_eq!(
+        (e.field.as_str(), e.line),
+        ("fault[1].kind", Some(6)),
+        "{e}"
+    );
+    assert!(
+        e.fix.contains("kind = \"loss\"") && e.fix.contains("presets/faults-demo.toml"),
+        "{e}"
+    );
+    assert!(!e.fix.contains("paper-2024"), "{e}");
+    let e = FaultSchedule::parse("f.toml", "[[fault]]\nkind = \"loss\"\nframes = 2\n").unwrap_err();
+    assert_eq!(e.field, "fault[0].at_s", "{e}");
+    assert!(e.fix.contains("add at_s = "), "{e}");
+    let e = FaultSchedule::parse("f.toml", "epoch = \"begin\"\n").unwrap_err();
+    assert_eq!(e.line, Some(1));
+    assert!(e.fix.contains("`cyclic` or `start`"), "{e}");
+    assert!(!e.fix.contains("TOML syntax"), "{e}");
+}

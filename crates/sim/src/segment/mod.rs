@@ -323,6 +323,15 @@ impl Segment {
         self.set_link_counted(pos, port, false, false)
     }
 
+    /// Whether a cable is plugged into port `port` of the slave at network position `pos` (to
+    /// another slave or to the master), as the segment was built: what [`Segment::set_link`]
+    /// can pull.
+    pub fn has_cable(&self, pos: usize, port: usize) -> bool {
+        self.nodes
+            .get(pos)
+            .is_some_and(|n| n.links.get(port).copied().flatten().is_some())
+    }
+
     fn set_link_counted(&mut self, pos: usize, port: usize, up: bool, count: bool) -> bool {
         let Some(l) = self
             .nodes
