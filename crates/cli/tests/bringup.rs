@@ -315,6 +315,7 @@ fn a_crystal_the_loop_cannot_follow_is_refused_and_one_just_inside_locks() {
     let o = bringup_ok(&["--config", near.to_str().unwrap(), "--json"]);
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(j["lock"]["converged"], true, "{j}");
+}
 
 /// The file's `[run]` holds for the bring-up as for compare: `static_drift_frames` (the option
 /// overrides it), and the cycle and SYNC0
