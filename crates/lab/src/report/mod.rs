@@ -166,10 +166,7 @@ pub fn recommend(
             noise::FEW_CYCLES.div_ceil(u64::from(runs.max(1)))
         )
     } else if ranking.is_empty() && !left_out.is_empty() {
-        let lost_all = left_out
-            .iter()
-            .all(|n| n.why.starts_with(&format!("{} lost ", n.method)));
-        if lost_all {
+        if left_out.iter().all(|n| n.lost_frames) {
             "none: every method lost most of its frames, so no figure here describes a method. Read the warnings: the cycle is likely too short for the network's frames (make it longer, or the reply timeout later).".to_string()
         } else {
             "none: no method could be ranked; why each was not is said under \"Not ranked\"."

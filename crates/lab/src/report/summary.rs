@@ -250,6 +250,9 @@ pub struct NotRanked {
     pub method: String,
     /// Why, in plain words.
     pub why: String,
+    /// It lost most of its frames (the words of a verdict with nothing ranked depend on it).
+    #[serde(skip)]
+    pub lost_frames: bool,
 }
 
 /// A figure at risk.

@@ -93,6 +93,7 @@ pub(super) fn not_ranked(
                         "{m}: the engine held {} of the starts it asked for (more than two cycles away, or before the cycle's own) after the fault schedule moved the master's time ({} step(s) of its clock detected, the last {:+.3} ms; {} cycles skipped by the host): its figures describe the master's clock out of step, not the method at work",
                         mo.wild_schedule_cycles, steps, largest_step_ms, skipped
                     ),
+                    lost_frames: false,
                 });
             }
             if mo.wild_schedule_cycles > 0 {
@@ -102,6 +103,7 @@ pub(super) fn not_ranked(
                         "{m} went unstable: in {} it asked for the next start more than two cycles away (or before the cycle's own), which the engine held; its figures describe a broken schedule, not the method at work (smaller gains?)",
                         crate::scenario::plural(mo.wild_schedule_cycles, "cycle", "cycles")
                     ),
+                    lost_frames: false,
                 });
             }
             if mo.grid_slips > 0 {
@@ -111,6 +113,7 @@ pub(super) fn not_ranked(
                         "{m} did not keep to one frame per SYNC0 cycle: {} times its schedule sent two frames for one grid point or none for one (a cycle started less than half a period after the one before, or more than one and a half: ethercrab's snap sends again at once when its frame reaches the reference just before the grid point); its application runs an uneven cycle, and its frames are judged against the grid point its schedule led to",
                         mo.grid_slips
                     ),
+                    lost_frames: false,
                 });
             }
             let lost = mo.ground_truth.lost_frames;
@@ -122,6 +125,7 @@ pub(super) fn not_ranked(
                     mo.cycles_done,
                     share * 100.0
                 ),
+                lost_frames: true,
             })
         })
         .collect()
