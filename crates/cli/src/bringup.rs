@@ -63,6 +63,49 @@ struct SlaveOut {
     ppm_vs_reference: Option<f64>,
     /// The same from the segment's crystals (their configured ppm, without the wander), ppm.
     true_ppm_vs_reference: Option<f64>,
+    /// The sync unit as the bring-up left it in the slave's ESC (absent without DC).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sync: Option<SyncOut>,
+}
+
+/// What a slave's ESC holds of its sync unit after the bring-up (0x0981, 0x09A0, 0x09A4) and
+/// what its application takes its outputs at (0x1C32:01).
+#[derive(Debug, Serialize)]
+struct SyncOut {
+    /// SYNC0's cycle, ns (absent: SYNC0 not active).
+    sync0_cycle_ns: Option<u32>,
+    /// SYNC1's period, ns (absent: SYNC1 not active).
+    sync1_period_ns: Option<u64>,
+    /// The signal the application takes its outputs at.
+    outputs_on: OutputsOn,
+}
+
+/// The signal an application takes its outputs at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+enum OutputsOn {
+    /// Free run or SM-synchronous: no DC signal.
+    NoSignal,
+    Sync0,
+    Sync1,
+}
+
+impl SyncOut {
+    fn of(esc: &ecsync_sim::Esc) -> Option<SyncOut> {
+        let dc = esc.dc()?;
+        let outputs_on = if esc.runs_on_sync1() {
+            OutputsOn::Sync1
+        } else if esc.runs_on_sync0() {
+            OutputsOn::Sync0
+        } else {
+            OutputsOn::NoSignal
+        };
+        Some(SyncOut {
+            sync0_cycle_ns: dc.sync0().map(|(_, c)| c),
+            sync1_period_ns: dc.sync1().map(|(_, p)| p),
+            outputs_on,
+        })
+    }
 }
 
 #[derive(Debug, Serialize)]
@@ -125,6 +168,30 @@ impl Tries {
         }
         if x.received.is_none() {
             self.given_up += 1;
+        }
+    }
+}
+
+impl LockOut {
+    /// The master's lock report beside the true differences after it declared the network in
+    /// sync (`max_abs_diff_ns`) and from the start of the hold (`from_lock_start_ns`).
+    fn of(
+        lock: &ecsync_master::network::LockReport,
+        monitored: bool,
+        max_abs_diff_ns: f64,
+        from_lock_start_ns: f64,
+    ) -> Self {
+        LockOut {
+            converged: lock.converged,
+            time_to_lock_ms: lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
+            declared_in_sync_ms: lock
+                .declared_ns
+                .map(|t| t.saturating_sub(lock.drift_start_ns) as f64 / 1e6),
+            max_abs_diff_ns,
+            max_abs_diff_from_lock_start_ns: from_lock_start_ns,
+            max_abs_092c_ns: monitored.then_some(lock.max_abs_092c_after_lock_ns),
+            max_abs_092c_by_broadcast: lock.max_abs_092c_by_broadcast,
+            frmw_frames: lock.frmw_frames,
         }
     }
 }
@@ -267,7 +334,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         sim.capture_to(p)
             .with_context(|| format!("cannot create {}", p.display()))?;
     }
-    let cfg = bringup_config(&args, &scenario);
+    let cfg = bringup_config(&args, &scenario, sim.segment());
     let mut engine = Engine::new(move |link| bringup(link, cfg));
     let n = sim.segment().len();
     let mut offset_error: Vec<Option<i64>> = vec![None; n];
@@ -347,21 +414,20 @@ pub fn run(args: Args) -> Result<ExitCode> {
     let out = Out {
         source: name,
         reference: net.reference,
-        slaves: slave_rows(&net, &names, &truth, &offset_error, &crystal_ppm),
-        lock: LockOut {
-            converged: net.lock.converged,
-            time_to_lock_ms: net.lock.time_to_lock_ns.map(|t| t as f64 / 1e6),
-            declared_in_sync_ms: net
-                .lock
-                .declared_ns
-                .map(|t| t.saturating_sub(net.lock.drift_start_ns) as f64 / 1e6),
+        slaves: slave_rows(
+            &net,
+            sim.segment(),
+            &names,
+            &truth,
+            &offset_error,
+            &crystal_ppm,
+        ),
+        lock: LockOut::of(
+            &net.lock,
+            args.monitor_cycles > 0,
             max_abs_diff_ns,
             max_abs_diff_from_lock_start_ns,
-            max_abs_092c_ns: (args.monitor_cycles > 0)
-                .then_some(net.lock.max_abs_092c_after_lock_ns),
-            max_abs_092c_by_broadcast: net.lock.max_abs_092c_by_broadcast,
-            frmw_frames: net.lock.frmw_frames,
-        },
+        ),
         sync0_start_ns: net.sync0.map(|s| s.start_ns),
         pdi_bytes: net.pdi_len,
         expected_lrw_wkc: net.expected_lrw_wkc,
@@ -384,8 +450,9 @@ pub fn run(args: Args) -> Result<ExitCode> {
 }
 
 /// The bring-up the file's `[run]` and the options describe (`--static-drift` over the file's
-/// `run.static_drift_frames`).
-fn bringup_config(args: &Args, scenario: &ecsync_lab::Scenario) -> BringupConfig {
+/// `run.static_drift_frames`), with the segment's oversampling terminals on SYNC1 as `compare`
+/// sets them up.
+fn bringup_config(args: &Args, scenario: &ecsync_lab::Scenario, seg: &Segment) -> BringupConfig {
     BringupConfig {
         until: Stage::Op,
         static_drift_frames: args.static_drift.unwrap_or(scenario.static_drift_frames),
@@ -395,6 +462,7 @@ fn bringup_config(args: &Args, scenario: &ecsync_lab::Scenario) -> BringupConfig
         latch_rounds: args.latch_rounds,
         monitor_cycles: args.monitor_cycles,
         rate_window_ns: (args.rate_window_s * 1e9) as u64,
+        oversampled: ecsync_lab::run::oversampled_of(seg),
         ..BringupConfig::default()
     }
 }
@@ -423,6 +491,7 @@ fn load_schedule(
 /// offset errors after the offsets were written, crystals (`crystal_ppm`, by position).
 fn slave_rows(
     net: &ecsync_master::bringup::Network,
+    seg: &Segment,
     names: &[String],
     truth: &[Option<f64>],
     offset_error: &[Option<i64>],
@@ -450,8 +519,29 @@ fn slave_rows(
                 (Some(p), Some(r)) => Some(((1.0 + p * 1e-6) / (1.0 + r * 1e-6) - 1.0) * 1e6),
                 _ => None,
             },
+            sync: SyncOut::of(seg.esc(usize::from(s.position))),
         })
         .collect()
+}
+
+/// The slaves that take their outputs at SYNC1 (oversampling terminals), with both signals.
+fn print_sync1(o: &Out) {
+    for s in &o.slaves {
+        let Some(y) = s.sync.as_ref().filter(|y| y.outputs_on == OutputsOn::Sync1) else {
+            continue;
+        };
+        let (Some(c0), Some(p1)) = (y.sync0_cycle_ns, y.sync1_period_ns) else {
+            continue;
+        };
+        println!(
+            "Slave {} ({}) takes its outputs at SYNC1 every {:.1} us, with SYNC0 every {:.1} us ({} per SYNC1).",
+            s.identity.position,
+            s.config_name,
+            p1 as f64 / 1e3,
+            f64::from(c0) / 1e3,
+            p1 / u64::from(c0.max(1))
+        );
+    }
 }
 
 fn print_human(o: &Out) {
@@ -548,6 +638,7 @@ fn print_human(o: &Out) {
             o.pdi_bytes, o.expected_lrw_wkc
         );
     }
+    print_sync1(o);
     println!(
         "Bring-up took {:.1} ms of simulated time, {} frames.",
         o.bringup_ms, o.frames

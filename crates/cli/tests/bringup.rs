@@ -400,3 +400,49 @@ fn slaves_are_named_as_the_scenario_names_them() {
         );
     }
 }
+
+/// An oversampling terminal is brought up on SYNC1 as `compare` brings it up: SYNC1 once a
+/// cycle, SYNC0 `oversampling` times a cycle (the preset's figures, the datasheet's rule of
+/// 0x09A4), the drive beside it on SYNC0 once a cycle. It was set up as a plain SYNC0 slave.
+#[test]
+fn an_oversampling_terminal_is_brought_up_on_sync1() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../presets/oversampling.toml"
+    );
+    let preset: toml::Value = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let cycle_ns = preset["run"]["cycle_us"].as_integer().unwrap() as u64 * 1000;
+    let out = bringup_ok(&["--preset", "oversampling", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let slaves = v["slaves"].as_array().unwrap();
+    let mut terminals = 0;
+    for spec in preset["segment"]["slave"].as_array().unwrap() {
+        let name = spec["name"].as_str().unwrap();
+        let s = slaves.iter().find(|s| s["config_name"] == name).unwrap();
+        let sync = &s["sync"];
+        match spec.get("oversampling").and_then(|n| n.as_integer()) {
+            Some(n) => {
+                terminals += 1;
+                assert_eq!(sync["outputs_on"], "sync1", "{name}: {sync}");
+                assert_eq!(sync["sync1_period_ns"].as_u64(), Some(cycle_ns), "{name}");
+                assert_eq!(
+                    sync["sync0_cycle_ns"].as_u64(),
+                    Some(cycle_ns / n as u64),
+                    "{name}"
+                );
+            }
+            None if spec.get("device").and_then(|d| d.as_str()) == Some("servo-drive") => {
+                assert_eq!(sync["outputs_on"], "sync0", "{name}: {sync}");
+                assert_eq!(sync["sync0_cycle_ns"].as_u64(), Some(cycle_ns), "{name}");
+            }
+            None => {}
+        }
+    }
+    assert_eq!(terminals, 1);
+    let text = bringup_ok(&["--preset", "oversampling"]);
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains("(analog-out) takes its outputs at SYNC1 every 1000.0 us, with SYNC0 every 250.0 us (4 per SYNC1)"),
+        "{text}"
+    );
+}

@@ -228,7 +228,7 @@ pub fn bring_up_watched(
 
 /// The segment's oversampling terminals, as the master is set up for them (what an ENI's DC
 /// operation mode tells a real master: here the scenario says which device each slave is).
-pub(crate) fn oversampled_of(seg: &Segment) -> Vec<Oversampled> {
+pub fn oversampled_of(seg: &Segment) -> Vec<Oversampled> {
     (0..seg.len())
         .filter_map(|p| {
             let samples = seg.esc(p).device().oversampling;
