@@ -4,7 +4,7 @@
 use anyhow::{Context, Result, bail};
 use ecsync_sim::host::HostParams;
 use ecsync_sim::host_fit::{fit, wake_quantiles};
-use ecsync_sim::host_trace::HostTrace;
+use ecsync_sim::host_trace::{HostTrace, TraceRow};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -187,6 +187,43 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The fitted model's wake-up quantiles `predicted` (at `qs`: p99, p99.9) against the cycles
+/// it was fitted on, and a warning when it misses them by more than a factor of two: a trace
+/// whose rare long wake-ups are too few to fit (a short recording) gives a model without them.
+fn fitted_against_own(
+    f: &ecsync_sim::host_fit::HostFit,
+    rows: &[TraceRow],
+    predicted: &[f64],
+    qs: &[f64],
+) {
+    let own = wake_quantiles(rows, qs);
+    println!(
+        "# the model against the cycles it was fitted on: wake-up p99 {:.1} us (the trace {:.1} us), p99.9 {:.1} us (the trace {:.1} us)",
+        predicted[0] / 1000.0,
+        own[0] / 1000.0,
+        predicted[1] / 1000.0,
+        own[1] / 1000.0
+    );
+    let missed = (0..qs.len()).rev().find(|&i| {
+        let r = predicted[i] / own[i];
+        !(0.5..=2.0).contains(&r)
+    });
+    if let Some(i) = missed {
+        let name = if i == 0 { "p99" } else { "p99.9" };
+        let why = if f.params.js.tail_p == 0.0 {
+            "no pulses fitted: too few cycles stand out of the core's jitter to tell them from it"
+        } else {
+            "the fitted pulses do not reproduce them"
+        };
+        eprintln!(
+            "ecsync host fit: warning: the model's wake-up {name} is {:.1} us where the {} cycles it was fitted on have {:.1} us ({why}); record longer (`ecsync host record --duration 600`) before a comparison relies on this table",
+            predicted[i] / 1000.0,
+            rows.len(),
+            own[i] / 1000.0
+        );
+    }
+}
+
 fn fit_cmd(a: FitArgs) -> Result<ExitCode> {
     let base = HostParams::preset(&a.base).with_context(|| {
         format!(
@@ -221,11 +258,12 @@ fn fit_cmd(a: FitArgs) -> Result<ExitCode> {
         ecsync_lab::output::write_atomic(out, table.as_bytes())
             .with_context(|| format!("cannot write {}", out.display()))?;
     }
+    let qs = [0.99, 0.999];
+    let predicted = f.predicted_wake_quantiles(&qs, 2_000_000, 1);
+    fitted_against_own(&f, rows, &predicted, &qs);
     if a.check {
-        let qs = [0.99, 0.999];
         let measured = wake_quantiles(second, &qs);
         let fitted_on = wake_quantiles(first, &qs);
-        let predicted = f.predicted_wake_quantiles(&qs, 2_000_000, 1);
         println!(
             "# check: model fitted on the first half against the second half's wake-up latency"
         );

@@ -140,3 +140,73 @@ fn host_fit_writes_a_host_table_and_checks_the_second_half() {
     let written = std::fs::read_to_string(&table).unwrap();
     assert!(ecsync_lab::scenario::check_in_scenario(&written).is_ok());
 }
+
+/// A trace of a core jitter (50-58 us) and `outliers` wake-ups of 2 ms spread over `n` cycles;
+/// its wake-up latencies.
+fn write_thin_trace(path: &Path, n: u64, outliers: u64) -> Vec<f64> {
+    let mut t = String::from("cycle,scheduled_ns,wake_latency_ns,exec_ns,tx_delay_ns\n");
+    let mut wakes = Vec::new();
+    let mut x = 12345u64;
+    for c in 0..n {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        let every = n / outliers.max(1);
+        let wake = if outliers > 0 && c % every == every / 2 {
+            2_000_000 + x % 1_000
+        } else {
+            50_000 + x % 8_000
+        };
+        wakes.push(wake as f64);
+        t.push_str(&format!(
+            "{c},{},{wake},{},\n",
+            c * 1_000_000,
+            900 + x % 200
+        ));
+    }
+    std::fs::write(path, t).unwrap();
+    wakes
+}
+
+/// The figure after `key` in `line`, up to the next space.
+fn figure_after(line: &str, key: &str) -> f64 {
+    let rest = &line[line.find(key).unwrap() + key.len()..];
+    rest.split(' ').next().unwrap().parse().unwrap()
+}
+
+/// A short trace's few long wake-ups are too few to fit pulses to: the model then misses the
+/// trace's own p99.9 by thirty times, and `host fit` says so (it printed the table alone),
+/// with the trace's figure computed here by hand; a trace without them has no warning.
+#[test]
+fn host_fit_warns_when_its_model_misses_the_trace_it_was_fitted_on() {
+    let d = dir("thin");
+    for (outliers, warned) in [(6, true), (0, false)] {
+        let trace = d.join(format!("thin-{outliers}.csv"));
+        let mut wakes = write_thin_trace(&trace, 3_000, outliers);
+        let o = ecsync().args(["host", "fit"]).arg(&trace).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let (out, err) = (
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr),
+        );
+        let line = out
+            .lines()
+            .find(|l| l.starts_with("# the model against the cycles it was fitted on"))
+            .unwrap_or_else(|| panic!("{out}"));
+        // The trace's p99.9 by linear interpolation between ranks, as quantiles are read.
+        wakes.sort_by(f64::total_cmp);
+        let x = 0.999 * (wakes.len() - 1) as f64;
+        let (i, f) = (x.floor() as usize, x - x.floor());
+        let p999_us = (wakes[i] + f * (wakes[i + 1] - wakes[i])) / 1000.0;
+        let printed = figure_after(line, "p99.9 ");
+        let trace_printed = figure_after(line.rsplit_once("(the trace ").unwrap().1, "");
+        assert!((trace_printed - p999_us).abs() < 0.06, "{line}: {p999_us}");
+        let off = !(0.5..=2.0).contains(&(printed / trace_printed));
+        assert_eq!(off, warned, "{line}");
+        assert_eq!(
+            err.contains("warning: the model's wake-up p99.9") && err.contains("record longer"),
+            warned,
+            "{err}"
+        );
+    }
+}
