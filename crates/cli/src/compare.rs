@@ -445,25 +445,35 @@ fn scenario(args: &Args) -> Result<Scenario> {
     }
     s.check().map_err(|p| problem(p, &given, &name, &text))?;
     if let Some(f) = &s.faults {
-        check_faults(f, &s)?;
+        check_faults(
+            f,
+            &s.slaves,
+            &s.name,
+            (s.warmup_cycles + s.cycles, s.cycle_ns),
+            "run longer (--cycles or run.cycles; --warmup-s or run.warmup_s)",
+        )?;
     }
     Ok(s)
 }
 
-/// `--faults` against the scenario, before anything runs: a fault that names a slave or a
-/// port the network lacks is refused; an empty schedule, and a fault that starts after the
-/// run's end (warm-up and recorded cycles, for a schedule that counts from the cyclic phase),
-/// are warned about.
-fn check_faults(f: &ecsync_sim::fault::FaultSchedule, s: &Scenario) -> Result<()> {
-    let seg = ecsync_sim::Segment::new(&s.slaves).context("building the segment")?;
-    f.check_segment(&seg, &s.name).map_err(anyhow::Error::msg)?;
+/// `--faults` against the network of `slaves` (called `network` in messages), before anything
+/// runs: a fault that names a slave or a port the network lacks is refused; an empty schedule,
+/// and a fault that starts after the run's end (`run_cycles` of `cycle_ns`, warm-up included,
+/// for a schedule that counts from the cyclic phase), are warned about, with `how` to run
+/// longer. `compare` and `tsn run` check their schedules here.
+pub(crate) fn check_faults(
+    f: &ecsync_sim::fault::FaultSchedule,
+    slaves: &[ecsync_sim::SlaveSpec],
+    network: &str,
+    (run_cycles, cycle_ns): (u64, u32),
+    how: &str,
+) -> Result<()> {
+    let seg = ecsync_sim::Segment::new(slaves).context("building the segment")?;
+    f.check_segment(&seg, network).map_err(anyhow::Error::msg)?;
     // With epoch = "start" the bring-up's length (not known yet) counts too.
     let end_ns = (f.epoch == ecsync_sim::fault::Epoch::Cyclic)
-        .then(|| (s.warmup_cycles + s.cycles).saturating_mul(u64::from(s.cycle_ns)));
-    for w in f.warnings(
-        end_ns,
-        "run longer (--cycles or run.cycles; --warmup-s or run.warmup_s)",
-    ) {
+        .then(|| run_cycles.saturating_mul(u64::from(cycle_ns)));
+    for w in f.warnings(end_ns, how) {
         eprintln!("ecsync: warning: {w}");
     }
     Ok(())

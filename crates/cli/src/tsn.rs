@@ -214,6 +214,15 @@ fn tsn_run(args: RunArgs) -> Result<ExitCode> {
                     x.kind.name()
                 );
             }
+            // The network's slaves and ports, as compare checks them: refused before any
+            // variant runs.
+            crate::compare::check_faults(
+                &f,
+                &s.slaves,
+                &name,
+                (s.warmup_cycles + s.cycles, s.cycle_ns),
+                "run longer (--duration-s or duration_s; warmup_s)",
+            )?;
             Some(f)
         }
         None => None,

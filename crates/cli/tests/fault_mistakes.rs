@@ -1,5 +1,5 @@
 //! A fault schedule's mistakes as a new user makes them, in every command that reads one
-//! (compare, bringup, serve): a slave or a port the network lacks is refused naming the file,
+//! (compare, bringup, serve, tsn run): a slave or a port the network lacks is refused naming the file,
 //! the entry, its line, the field and the fix, before anything runs or is written; a fault past
 //! the run's end and an empty schedule are told; a missing field or a bad value says what to
 //! write.
@@ -310,4 +310,83 @@ fn bringup_says_what_the_faults_did() {
         .unwrap();
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(v.get("faults").is_none());
+}
+
+/// `tsn run --faults` checks the schedule against the network as compare does: a slave past
+/// the end and a port without a cable are refused before any variant runs, naming the file,
+/// the entry's line, the field and the fix, nothing written; the last slave is accepted. The
+/// preset tsn-2020 has no [segment] table: its network is paper-2024's, counted in that file.
+#[test]
+fn tsn_run_refuses_a_slave_or_port_the_network_lacks() {
+    let d = tmp("tsn");
+    let tsn = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/tsn-2020.toml"),
+    )
+    .unwrap();
+    assert!(
+        !tsn.lines().any(|l| l.trim_start().starts_with("[segment")),
+        "tsn-2020 has a segment of its own"
+    );
+    let n = paper_slaves();
+    let tsn_run = |faults: &str, out: &Path| {
+        ecsync()
+            .args([
+                "tsn",
+                "run",
+                "--variants",
+                "M1",
+                "--duration-s",
+                "0.2",
+                "--faults",
+                faults,
+                "--out",
+            ])
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let f = write(
+        &d,
+        "slave.toml",
+        &format!(
+            "# past the end\n\n[[fault]]\nat_s = 10.1\nfor_s = 0.05\nkind = \"power_cycle\"\nslave = {}\n",
+            n + 3
+        ),
+    );
+    let out = d.join("out-slave");
+    let o = tsn_run(&f, &out);
+    let e = stderr(&o);
+    assert!(!o.status.success(), "accepted: {e}");
+    assert!(
+        e.contains(&format!(
+            "slave.toml:3: fault[0].slave: slave {} is not in the network: preset tsn-2020 has {n} slaves",
+            n + 3
+        )) && e.contains(&format!("fix: give a network position from 1 to {n}")),
+        "{e}"
+    );
+    assert!(!e.contains("running M1"), "it ran: {e}");
+    assert!(!out.exists(), "something was written");
+    let f = write(
+        &d,
+        "port.toml",
+        &format!(
+            "[[fault]]\nat_s = 10.1\nfor_s = 0.05\nkind = \"link_down\"\nslave = {n}\nport = 1\n"
+        ),
+    );
+    let e = stderr(&tsn_run(&f, &d.join("out-port")));
+    assert!(
+        e.contains("port.toml:1: fault[0].port")
+            && e.contains(&format!(
+                "slave {n} of preset tsn-2020 has no cable at port 1"
+            )),
+        "{e}"
+    );
+    // The last slave itself is there: the run goes on.
+    let f = write(
+        &d,
+        "last.toml",
+        &format!("[[fault]]\nat_s = 10.1\nfor_s = 0.05\nkind = \"power_cycle\"\nslave = {n}\n"),
+    );
+    let o = tsn_run(&f, &d.join("out-last"));
+    assert!(o.status.success(), "{}", stderr(&o));
 }

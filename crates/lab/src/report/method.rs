@@ -168,6 +168,7 @@ pub(super) fn method_out(
         wall_s: c.method_wall_s[m],
         faults: rs.iter().filter_map(|r| r.faults.clone()).collect(),
         left_op: rs.iter().flat_map(|r| r.left_op.iter().cloned()).collect(),
+        recording_stopped: rs.iter().filter_map(|r| r.recording_stopped).collect(),
         send: (entry.send != ecsync_sim::send::SendMode::Plain).then(|| {
             let cycles: u64 = rs.iter().map(|r| r.cycles_done).sum();
             SendOut {

@@ -184,6 +184,11 @@ pub struct MethodOut {
     /// error past the configured `run.sync_error_limit`: 0x001A); absent when none did.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub left_op: Vec<crate::run::LeftOpOut>,
+    /// The runs whose recording stopped before their last cycle, where and why (the master's
+    /// task skipped the slots past it: its clock stepped forward, or it stalled); absent when
+    /// every run recorded all its cycles.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub recording_stopped: Vec<crate::run::RecordingStopped>,
 }
 
 /// The letter's values of a method.
@@ -259,8 +264,8 @@ pub struct NotRanked {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Warning {
     /// What kind: crystal_difference, off_target, jitter_eats_margin, late_frames,
-    /// cycle_too_short, fault_long_frames, fault_not_played, interrupted, samples, left_op,
-    /// settling.
+    /// cycle_too_short, fault_long_frames, fault_not_played, interrupted, recording_stopped,
+    /// samples, left_op, settling.
     pub kind: &'static str,
     /// The method it concerns, if one.
     pub method: Option<String>,

@@ -2,9 +2,10 @@
 
 use super::{MethodOut, Warning, us};
 use crate::compare::Comparison;
+use crate::run::{RecordingStopped, StopCause};
 use crate::scenario::Scenario;
 use ecsync_dc::MethodKind;
-use ecsync_sim::fault::{FaultKind, KindName};
+use ecsync_sim::fault::{FaultKind, FaultSchedule, KindName};
 use ecsync_sim::send::SendMode;
 use std::collections::BTreeMap;
 
@@ -22,6 +23,7 @@ pub(super) fn warnings(
     let ran = || order.iter().filter_map(|m| Some((m, methods.get(m)?)));
     let mut w = Vec::new();
     w.extend(interrupted(c, methods));
+    w.extend(ran().flat_map(|(m, mo)| mo.recording_stopped.iter().map(|r| stopped(m, r))));
     w.extend(few_cycles(methods));
     w.extend(crystal_difference(s, methods, budget_ns));
     for (m, mo) in ran().filter(|(_, mo)| mo.ground_truth.phase.n > 0) {
@@ -30,7 +32,7 @@ pub(super) fn warnings(
     }
     w.extend(settling(c, methods, budget_ns));
     w.extend(cycle_too_short(c));
-    w.extend(ran().filter_map(|(m, mo)| lost_frames(m, mo)));
+    w.extend(ran().filter_map(|(m, mo)| lost_frames(m, mo, s.faults.as_ref())));
     // Drives that left OP on their own (with a fault schedule the faults' table and
     // faults.csv tell what the faults did to whom).
     if s.faults.is_none() {
@@ -58,6 +60,45 @@ fn interrupted(c: &Comparison, methods: &BTreeMap<String, MethodOut>) -> Option<
             s.cycles * u64::from(s.runs) * methods.len() as u64
         ),
     })
+}
+
+/// A run whose recording stopped before its last cycle: where, of how many, and why.
+fn stopped(m: &str, r: &RecordingStopped) -> Warning {
+    let at = |ns: u64| format!("{:.3} s", ns as f64 / 1e9);
+    let why = match r.cause {
+        StopCause::ClockStep {
+            fault,
+            step_ns,
+            at_ns,
+        } => format!(
+            "fault[{fault}] (clock_step) stepped the master's clock {:+.3} ms at {}, and its task, waking on that clock, skipped the {} cycle slots the step jumped over",
+            step_ns as f64 / 1e6,
+            at(at_ns),
+            r.skipped_slots
+        ),
+        StopCause::HostStall {
+            fault,
+            stall_ns,
+            at_ns,
+        } => format!(
+            "fault[{fault}] (host_stall) held the master's task {:.3} ms at {}, and it skipped the {} cycle slots that passed",
+            stall_ns as f64 / 1e6,
+            at(at_ns),
+            r.skipped_slots
+        ),
+        StopCause::HostLate => format!(
+            "the master's task woke {} cycle slots late and skipped them",
+            r.skipped_slots
+        ),
+    };
+    Warning {
+        kind: "recording_stopped",
+        method: Some(m.to_string()),
+        message: format!(
+            "{m}: recording stopped at cycle {} of {} (run {}): {why}, past the run's last (its cycles count in the master's slots); the figures are of the {} cycles recorded before",
+            r.recorded, r.of, r.run, r.recorded
+        ),
+    }
 }
 
 /// Fewer measured cycles than put ten samples beyond a p99.9: the percentiles quoted are of
@@ -364,12 +405,17 @@ fn cycle_too_short(c: &Comparison) -> Option<Warning> {
 }
 
 /// A method that lost frames, with the likeliest cause: txtime's missed launch times, the
-/// reply timeout, or the fault schedule.
-fn lost_frames(m: &str, mo: &MethodOut) -> Option<Warning> {
+/// reply timeout, or the faults of the schedule `faults` that lose frames.
+fn lost_frames(m: &str, mo: &MethodOut, faults: Option<&FaultSchedule>) -> Option<Warning> {
     let lost = mo.ground_truth.lost_frames;
     if lost == 0 {
         return None;
     }
+    let timeout = "their replies came after the reply timeout (half a cycle, or the cycle's frames' way back if longer) or not at all";
+    let late: u64 = mo.faults.iter().map(|f| f.late_replies).sum();
+    let cause = faults
+        .filter(|_| !mo.faults.is_empty())
+        .map(|f| losing_faults(f, late));
     Some(Warning {
         kind: "lost_frames",
         method: Some(m.to_string()),
@@ -378,18 +424,79 @@ fn lost_frames(m: &str, mo: &MethodOut) -> Option<Warning> {
                 "{m}: {lost} of {} recorded frames were lost, {} of them handed to the kernel after their launch time (the host's jitter beyond the txtime lead: raise [send] txtime_lead_us)",
                 mo.cycles_done, s.launch_misses
             )
-        } else if mo.faults.is_empty() {
+        } else if let Some(Some(cause)) = cause {
             format!(
-                "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle, or the cycle's frames' way back if longer) or not at all",
+                "{m}: {lost} of {} recorded frames were lost ({cause})",
+                mo.cycles_done
+            )
+        } else if let Some(None) = cause {
+            format!(
+                "{m}: {lost} of {} recorded frames were lost: {timeout} (no fault of the schedule drops frames)",
                 mo.cycles_done
             )
         } else {
             format!(
-                "{m}: {lost} of {} recorded frames were lost (the fault schedule's loss, and the cycles its power cycles and cable pulls cut off)",
+                "{m}: {lost} of {} recorded frames were lost: {timeout}",
                 mo.cycles_done
             )
         },
     })
+}
+
+/// The faults of `schedule` that lose frames, in words ("the fault schedule's loss, and the
+/// cycles its power cycles and cable pulls cut off"; a delay when `late` replies came after
+/// the reply timeout): only the kinds it has; `None` if it has none of them (stalls, clock
+/// steps, hot connects, AL errors and second replies lose none, nor a delay within the
+/// timeout).
+fn losing_faults(schedule: &FaultSchedule, late: u64) -> Option<String> {
+    let kinds = |want: fn(&FaultKind) -> bool| schedule.faults.iter().any(|f| want(&f.kind));
+    let delays: Vec<u64> = (schedule.faults.iter())
+        .filter_map(|f| match f.kind {
+            FaultKind::Delay { extra_ns } => Some(extra_ns),
+            _ => None,
+        })
+        .collect();
+    let mut dropped = Vec::new();
+    if kinds(|k| matches!(k, FaultKind::Loss { .. })) {
+        dropped.push("loss".to_string());
+    }
+    if kinds(|k| matches!(k, FaultKind::Corrupt { .. })) {
+        dropped.push("corrupted frames".to_string());
+    }
+    if let Some(&most) = delays.iter().max().filter(|_| late > 0) {
+        dropped.push(format!(
+            "{} of {}{}, which held replies past the reply timeout",
+            if delays.len() == 1 { "delay" } else { "delays" },
+            if delays.len() == 1 { "" } else { "up to " },
+            us(most as f64)
+        ));
+    }
+    let mut cut = Vec::new();
+    if kinds(|k| matches!(k, FaultKind::PowerCycle { .. })) {
+        cut.push("power cycles");
+    }
+    if kinds(|k| matches!(k, FaultKind::LinkDown { .. })) {
+        cut.push("cable pulls");
+    }
+    let and = |v: &[&str]| match v {
+        [] => String::new(),
+        [one] => one.to_string(),
+        [rest @ .., last] => format!("{} and {last}", rest.join(", ")),
+    };
+    let dropped: Vec<&str> = dropped.iter().map(String::as_str).collect();
+    match (dropped.is_empty(), cut.is_empty()) {
+        (true, true) => None,
+        (false, true) => Some(format!("the fault schedule's {}", and(&dropped))),
+        (true, false) => Some(format!(
+            "the cycles the fault schedule's {} cut off",
+            and(&cut)
+        )),
+        (false, false) => Some(format!(
+            "the fault schedule's {}, and the cycles its {} cut off",
+            and(&dropped),
+            and(&cut)
+        )),
+    }
 }
 
 /// A method under which drives left OP: per slave and AL status code, how often, the first

@@ -112,6 +112,7 @@ fn empty_result(
         samples_error: None,
         faults: None,
         left_op: Vec::new(),
+        recording_stopped: None,
     }
 }
 

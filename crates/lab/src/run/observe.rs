@@ -635,6 +635,35 @@ impl Observers {
         }
     }
 
+    /// Why a cycle past the run's end came after a skip: the slots skipped, and the
+    /// schedule's host fault played last (the one this cycle's wake-up played).
+    fn stopped(&self, tr: &SimTransport, rep: &CycleReport) -> RecordingStopped {
+        let last_host_fault = tr.faults().and_then(|p| {
+            (p.events().iter().rev())
+                .filter(|e| e.edge == Edge::Start)
+                .find_map(|e| match p.schedule().faults.get(e.fault)?.kind {
+                    FaultKind::ClockStep { step_ns } => Some(StopCause::ClockStep {
+                        fault: e.fault,
+                        step_ns,
+                        at_ns: e.since_epoch_ns,
+                    }),
+                    FaultKind::HostStall { stall_ns } => Some(StopCause::HostStall {
+                        fault: e.fault,
+                        stall_ns,
+                        at_ns: e.since_epoch_ns,
+                    }),
+                    _ => None,
+                })
+        });
+        RecordingStopped {
+            run: self.res.run,
+            recorded: self.res.cycles_done,
+            of: self.total - self.warmup,
+            skipped_slots: rep.skipped_before,
+            cause: last_host_fault.unwrap_or(StopCause::HostLate),
+        }
+    }
+
     /// A recorded cycle: the master's figures, then the ground truth's.
     fn recorded(&mut self, tr: &SimTransport, rec: &CycleRecord, k: u64) {
         self.truth.schedule(k, rec.scheduled.as_ns());
@@ -697,6 +726,11 @@ impl CycleObserver<SimTransport> for Observers {
         let rec = &rep.record;
         let i = rec.cycle;
         if i >= self.total {
+            // Only a skip past the end runs a cycle numbered there (the driver runs the
+            // cycles asked for, whose numbers the skipped slots moved on): the first says why.
+            if self.res.recording_stopped.is_none() {
+                self.res.recording_stopped = Some(self.stopped(tr, rep));
+            }
             return;
         }
         if let Some(f) = self.faults.as_mut() {

@@ -325,6 +325,52 @@ pub struct RunResult {
     /// their own: a sync error past the configured 0x10F1:02, a process data watchdog), in
     /// the order its recoveries found them.
     pub left_op: Vec<LeftOpOut>,
+    /// Recording stopped before the run's last cycle because the master's task skipped the
+    /// slots past it (`None`: it recorded every cycle, or was interrupted).
+    pub recording_stopped: Option<RecordingStopped>,
+}
+
+/// A run whose recording stopped early: the master's task woke so late on its own clock (a
+/// step of that clock forward, a stall) that the slots it skipped reached past the run's last
+/// cycle, which counts in the master's slots.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct RecordingStopped {
+    /// The run.
+    pub run: u32,
+    /// Recorded cycles before it stopped.
+    pub recorded: u64,
+    /// Recorded cycles the run was to have.
+    pub of: u64,
+    /// Slots the task skipped at once, on the master's clock.
+    pub skipped_slots: u64,
+    /// Why the task woke that late.
+    pub cause: StopCause,
+}
+
+/// What made the master's task skip slots past a run's end.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum StopCause {
+    /// The schedule's `clock_step` moved the master's clock forward.
+    ClockStep {
+        /// Its entry in the schedule.
+        fault: usize,
+        /// The step, ns.
+        step_ns: i64,
+        /// When it was played, ns after the schedule's epoch.
+        at_ns: u64,
+    },
+    /// The schedule's `host_stall` held the task.
+    HostStall {
+        /// Its entry in the schedule.
+        fault: usize,
+        /// The stall, ns.
+        stall_ns: u64,
+        /// When it was played, ns after the schedule's epoch.
+        at_ns: u64,
+    },
+    /// No fault of the schedule: the host's own lateness.
+    HostLate,
 }
 
 /// A slave the master's recovery found out of OP with its configuration kept, and why.
