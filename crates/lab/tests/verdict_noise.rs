@@ -173,3 +173,61 @@ fn an_unstable_gain_is_reported_not_ranked() {
     let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
     assert_eq!(out.methods["median-fit"].wild_schedule_cycles, 0);
 }
+
+/// A step of the master's clock makes a method ask for starts on the clock's old time until
+/// the engine detects the step and takes it out: the engine holds them, no more than the
+/// slots the step moved the time by (|step| over the cycle, plus two: computed here from the
+/// schedule). Those methods are ranked, with a warning, where every method used to be left
+/// out ("Recommendation: none" for any step of two cycles or more); a gain gone unstable
+/// under the same step holds far more starts and stays out.
+#[test]
+fn starts_held_for_a_clock_step_are_ranked_an_unstable_gain_is_not() {
+    let step_us: i64 = -1_000_000;
+    let mut s = testbed("median-fit,soem-pi", 1, 6_000);
+    s.faults = Some(
+        ecsync_sim::fault::FaultSchedule::parse(
+            "step.toml",
+            &format!("[[fault]]\nat_s = 13\nkind = \"clock_step\"\nstep_us = {step_us}\n"),
+        )
+        .unwrap(),
+    );
+    let slots = step_us.unsigned_abs() * 1000 / u64::from(s.cycle_ns) + 2;
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    for m in ["median-fit", "soem-pi"] {
+        let mo = &out.methods[m];
+        assert_eq!(mo.faults[0].master_clock_steps, 1, "{m}");
+        assert_eq!(mo.faults[0].clock_step_slots, slots, "{m}");
+        assert!(
+            mo.wild_schedule_cycles <= slots,
+            "{m}: {}",
+            mo.wild_schedule_cycles
+        );
+    }
+    // median-fit asks on the old time for the step's slots (its median of 11 frames takes
+    // the step in over them); soem-pi's PI takes it at once.
+    assert!(out.methods["median-fit"].wild_schedule_cycles > 100);
+    let r = &out.recommendation;
+    assert!(r.not_ranked.is_empty(), "{:?}", r.not_ranked);
+    assert_eq!(r.ranking.len(), 2, "{:?}", r.ranking);
+    let held: Vec<_> = (out.warnings.iter())
+        .filter(|w| w.kind == "held_for_clock_steps")
+        .collect();
+    assert!(
+        held.iter().any(|w| w.message.starts_with(&format!(
+            "median-fit: the engine held {} of the starts",
+            out.methods["median-fit"].wild_schedule_cycles
+        )) && w.message.contains(&format!("by {slots} cycle slots"))),
+        "{held:?}"
+    );
+    // An unstable gain under the same step: held every cycle from the start, left out.
+    s.params.median_fit.gain = 0.5;
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    let mf = &out.methods["median-fit"];
+    assert!(
+        mf.wild_schedule_cycles > slots,
+        "{}",
+        mf.wild_schedule_cycles
+    );
+    let nr = &out.recommendation.not_ranked;
+    assert!(nr.len() == 1 && nr[0].method == "median-fit", "{nr:?}");
+}

@@ -39,6 +39,7 @@ pub(super) fn warnings(
         w.extend(ran().filter_map(|(m, mo)| left_op(m, mo)));
     }
     w.extend(ran().filter_map(|(m, mo)| no_relock(m, mo)));
+    w.extend(ran().filter_map(|(m, mo)| held_for_steps(m, mo)));
     w.extend(not_played(s, methods));
     w.extend(hot_connected(methods));
     w.extend(samples(c));
@@ -99,6 +100,25 @@ fn stopped(m: &str, r: &RecordingStopped) -> Warning {
             r.recorded, r.of, r.run, r.recorded
         ),
     }
+}
+
+/// Starts the engine held while the master's clock stepped (see
+/// [`super::verdict::held_for_clock_steps`]): the method is ranked with them, and says so.
+fn held_for_steps(m: &str, mo: &MethodOut) -> Option<Warning> {
+    if !super::verdict::held_for_clock_steps(mo) {
+        return None;
+    }
+    let slots: u64 = mo.faults.iter().map(|f| f.clock_step_slots).sum();
+    let steps: u32 = mo.faults.iter().map(|f| f.master_clock_steps).sum();
+    Some(Warning {
+        kind: "held_for_clock_steps",
+        method: Some(m.to_string()),
+        message: format!(
+            "{m}: the engine held {} of the starts it asked for (more than two cycles away, or before the cycle's own) while the master's clock stepped ({} detected; the steps moved its time by {slots} cycle slots): the method asked on the clock's old time until the engine took the step out; it is ranked with the figures of those cycles",
+            mo.wild_schedule_cycles,
+            crate::scenario::plural(u64::from(steps), "step", "steps"),
+        ),
+    })
 }
 
 /// Fewer measured cycles than put ten samples beyond a p99.9: the percentiles quoted are of

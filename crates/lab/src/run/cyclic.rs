@@ -410,6 +410,9 @@ impl Run {
         res.grid_slips = truth.grid_slips;
         res.faults =
             faults.map(|f| f.finish(&self.sim, driver, self.session.engine().health(), t0));
+        if let (Some(ft), Some(p)) = (res.faults.as_mut(), self.sim.faults()) {
+            ft.clock_step_slots = clock_step_slots(p, self.session.engine().config().period_ns);
+        }
         let [a, b, c] = series;
         res.series = [a.finish(), b.finish(), c.finish()];
         let init_frames = truth.init_frames;
@@ -426,4 +429,18 @@ impl Run {
         }
         Ok(res)
     }
+}
+
+/// The cycle slots the clock steps `p` played moved the master's time by: |step| over the
+/// period `period_ns`, plus two each (the cycle it came in, and the one its detection takes).
+fn clock_step_slots(p: &ecsync_sim::fault::FaultPlayer, period_ns: u32) -> u64 {
+    use ecsync_sim::fault::{Edge, FaultKind};
+    let period = u64::from(period_ns.max(1));
+    (p.events().iter())
+        .filter(|e| e.edge == Edge::Start)
+        .filter_map(|e| match p.schedule().faults.get(e.fault)?.kind {
+            FaultKind::ClockStep { step_ns } => Some(step_ns.unsigned_abs() / period + 2),
+            _ => None,
+        })
+        .sum()
 }

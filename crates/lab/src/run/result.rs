@@ -456,6 +456,12 @@ pub struct FaultsTruth {
     pub master_clock_steps: u32,
     /// The last detected step of the master's clock, ns (positive: forward).
     pub last_master_step_ns: i64,
+    /// The cycle slots the schedule's clock steps that played moved the master's time by
+    /// (|step| over the period, plus two each): how many starts the engine may hold while a
+    /// method still asks on the old time, before the step is detected and taken out (absent
+    /// when 0).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub clock_step_slots: u64,
     /// Cycles with a late frame (after some drive's SYNC0) inside a fault's window (its start
     /// to a second after its end), recorded cycles only.
     pub late_in_windows: u64,
@@ -636,6 +642,10 @@ pub(super) const RELOCK_CYCLES: u32 = 100;
 pub(super) const RELOCK_NS: u32 = 100;
 /// The method's error band, ns (at least).
 pub(super) const RELOCK_M_RS_MIN_NS: f64 = 1_000.0;
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
+}
 
 #[cfg(test)]
 mod band_tests {
