@@ -380,7 +380,7 @@ fn lost_frames(m: &str, mo: &MethodOut) -> Option<Warning> {
             )
         } else if mo.faults.is_empty() {
             format!(
-                "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle, or the cycle's frames' way back if longer) or not at all",
+                "{m}: {lost} of {} recorded frames were lost: their replies came after the reply timeout (half a cycle, or the cycle's frames' way back if longer) or the next cycle's start, whichever was first, or not at all; a frame whose reply was late still passed the drives, and the ground truth judges it with the others",
                 mo.cycles_done
             )
         } else {
