@@ -105,3 +105,69 @@ fn the_prediction_is_the_engines_frames_on_random_networks() {
         check(&format!("random-{case}-{n}"), &text);
     }
 }
+
+/// An EK1100 with terminals that take process data but have no system time (no DC unit, or
+/// receive times only, as the EL2828): no slave has a SYNC0 deadline, so `compare` has nothing
+/// to judge a method's frames by and refuses (it used to print "needs a SYNC0 shift of NaN %"
+/// and warnings of "26144500 % of the 0.0 us margin"). One DC drive behind them is enough: the
+/// ground truth then judges that drive, and only it, as the check counted.
+#[test]
+fn a_network_without_a_sync0_deadline_is_refused_and_one_drive_is_enough() {
+    let slave = |name: &str, model: &str, device: &str, up: &str| {
+        let device = if device.is_empty() {
+            String::new()
+        } else {
+            format!("device = \"{device}\"\n")
+        };
+        let port = if up == "master" {
+            ""
+        } else {
+            "upstream_port = 1\n"
+        };
+        format!(
+            "[[segment.slave]]\nname = \"{name}\"\nmodel = \"{model}\"\n{device}upstream = \"{up}\"\n{port}cable_m = 1.0\nppm = 12.5\n"
+        )
+    };
+    let run = "[run]\ncycle_us = 1000\nsync0_shift_pct = 30\nruns = 1\ncycles = 2000\nwarmup_s = 11\nstatic_drift_frames = 1000\nmethods = [\"median-fit\", \"bus-shift\"]\n";
+    let io = [
+        slave("ek1100", "ek1100", "", "master"),
+        slave("el2828", "el2828", "", "ek1100"),
+        slave("io-1", "ebus-terminal-no-dc", "servo-drive", "el2828"),
+        slave("io-2", "ebus-terminal-no-dc", "servo-drive", "io-1"),
+    ]
+    .concat();
+    let text = format!("[segment]\nseed = 7\n{io}{run}");
+    let s = ecsync_lab::parse("io.toml", &text).unwrap();
+    assert_eq!(cycle_fit(&s).unwrap().sync0_slaves, 0);
+    let stop = std::sync::atomic::AtomicU64::new(0);
+    match ecsync_lab::compare(&s, 1, &stop) {
+        Err(e) => {
+            let e = e.to_string();
+            assert!(e.contains("no slave of the 4 has a SYNC0 deadline"), "{e}");
+            assert!(e.contains("fix: add a DC slave with process data"), "{e}");
+        }
+        Ok(_) => panic!("a network without a SYNC0 deadline was compared"),
+    }
+    let text = format!(
+        "[segment]\nseed = 7\n{io}{}{run}",
+        slave("drive", "servo-mii", "servo-drive", "io-2")
+    );
+    let s = ecsync_lab::parse("io-drive.toml", &text).unwrap();
+    assert_eq!(cycle_fit(&s).unwrap().sync0_slaves, 1);
+    let c = ecsync_lab::compare(&s, 1, &stop).unwrap_or_else(|e| panic!("{e}"));
+    let out = ecsync_lab::report::summarize(&c);
+    for (m, mo) in &out.methods {
+        let judged: Vec<&str> = mo
+            .ground_truth
+            .per_slave
+            .iter()
+            .map(|p| p.name.as_str())
+            .collect();
+        assert_eq!(judged, ["drive"], "{m}");
+        assert!(
+            mo.ground_truth.smallest_safe_shift_pct.is_finite(),
+            "{m}: {:?}",
+            mo.ground_truth
+        );
+    }
+}

@@ -232,6 +232,9 @@ pub struct SimTransport {
     /// The ground truth of each frame of the current cycle (a cycle of several frames).
     traces: Vec<FrameTrace>,
     frame_in_cycle: usize,
+    /// Bit k: the current cycle's frame k reached the segment (not dropped by the host, not
+    /// lost on its way out), so its trace is its own ([`SimTransport::frame_processed`]).
+    processed_in_cycle: u64,
     cycle_mode: bool,
     capture: Option<PcapCapture<BufWriter<File>>>,
     faults: Option<FaultPlayer>,
@@ -268,6 +271,7 @@ impl SimTransport {
             last: Exchange::default(),
             traces: Vec::new(),
             frame_in_cycle: 0,
+            processed_in_cycle: 0,
             cycle_mode: false,
             capture: None,
             faults: None,
@@ -297,6 +301,7 @@ impl SimTransport {
             last: self.last,
             traces: Vec::new(),
             frame_in_cycle: 0,
+            processed_in_cycle: 0,
             cycle_mode: false,
             capture: None,
             faults: self.faults.clone(),
@@ -380,6 +385,15 @@ impl SimTransport {
             Some(t) if k + 1 < self.frame_in_cycle => t,
             _ => self.segment.trace(),
         }
+    }
+
+    /// Whether the current cycle's frame `k` reached the segment: `false` for a frame the host
+    /// dropped before the wire (a missed launch time) or a fault lost on its way out, whose
+    /// [`SimTransport::frame_trace`] is an earlier frame's. A frame whose reply was lost or
+    /// came too late for the master was processed: its outputs reached the slaves. (Frames
+    /// past the 64th of a cycle count as processed.)
+    pub fn frame_processed(&self, k: usize) -> bool {
+        k >= 64 || self.processed_in_cycle & (1 << k) != 0
     }
 
     /// Captures every frame (sent and returned) to a pcap file.
@@ -611,6 +625,9 @@ impl Transport for SimTransport {
         let back = if fate.lost_out {
             None
         } else {
+            if self.cycle_mode && self.frame_in_cycle < 64 {
+                self.processed_in_cycle |= 1 << self.frame_in_cycle;
+            }
             let out = self.segment.process(&mut buf, tx_ps);
             port = out.returned_port;
             out.returned_sof_ps.and_then(|t| {
@@ -686,6 +703,7 @@ impl Transport for SimTransport {
         self.cycle_tx_stamp_ns = None;
         self.cycle_mode = true;
         self.frame_in_cycle = 0;
+        self.processed_in_cycle = 0;
     }
 }
 

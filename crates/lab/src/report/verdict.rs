@@ -247,18 +247,29 @@ pub(super) fn reason(
     let p = &methods[pick];
     let g = &p.ground_truth;
     let mut r = String::new();
+    // Past the whole cycle no shift helps: the cycle must grow.
+    let no_shift_holds = g.smallest_safe_shift_pct >= 100.0;
     let late = if g.late_frames == 0 {
         format!("no frame reached a drive after its SYNC0 at the {s_pct} % shift")
     } else {
         format!(
-            "it had the fewest late frames at the {s_pct} % shift ({}; every method had some: raise the shift)",
-            g.late_frames
+            "it had the fewest late frames at the {s_pct} % shift ({}; every method had some: {})",
+            g.late_frames,
+            if no_shift_holds {
+                "no shift holds them"
+            } else {
+                "raise the shift"
+            }
         )
+    };
+    let needs = if no_shift_holds {
+        format!("{};", shift_needed(g.smallest_safe_shift_pct))
+    } else {
+        format!("{} at least,", shift_needed(g.smallest_safe_shift_pct))
     };
     let _ = write!(
         r,
-        "{pick}: {late}; it needs a SYNC0 shift of {} at least, its frames reach the reference {} from the target on average and within {} of it in 99.9 % of cycles, and the drives stay within {:.0} ns of the reference (p99.9).",
-        shift_needed(g.smallest_safe_shift_pct),
+        "{pick}: {late}; it needs a SYNC0 shift of {needs} its frames reach the reference {} from the target on average and within {} of it in 99.9 % of cycles, and the drives stay within {:.0} ns of the reference (p99.9).",
         us(g.offset_from_target_ns),
         us(g.phase_error.p999_abs),
         g.slave_ref_diff.p999_abs

@@ -431,7 +431,7 @@ fn lost_frames(m: &str, mo: &MethodOut, faults: Option<&FaultSchedule>) -> Optio
     if lost == 0 {
         return None;
     }
-    let timeout = "their replies came after the reply timeout (half a cycle, or the cycle's frames' way back if longer) or not at all";
+    let timeout = "their replies came after the reply timeout (half a cycle, or the cycle's frames' way back if longer) or the next cycle's start, whichever was first, or not at all; a frame whose reply was late still passed the drives, and the ground truth judges it with the others";
     let late: u64 = mo.faults.iter().map(|f| f.late_replies).sum();
     let cause = faults
         .filter(|_| !mo.faults.is_empty())

@@ -32,6 +32,9 @@ pub struct CycleFit {
     pub host_ns: u64,
     /// From the cycle's start to its last reply on a host without jitter: the shortest cycle.
     pub needed_cycle_ns: u64,
+    /// Slaves with a SYNC0 deadline: a system time (SYNC0 runs on it) and process data (what
+    /// SYNC0 takes). A coupler, a terminal without DC, one with receive times only have none.
+    pub sync0_slaves: usize,
 }
 
 impl CycleFit {
@@ -48,13 +51,21 @@ pub fn cycle_fit(s: &Scenario) -> Result<CycleFit, RunError> {
     let config = |e: String| RunError::Bringup(MasterError::Config(e));
     let seg = Segment::new(&s.slaves).map_err(|e| config(e.to_string()))?;
     let reached = seg.pu_offsets_ps();
-    let slaves: Vec<(u32, u32)> = (0..seg.len())
+    let reached: Vec<usize> = (0..seg.len())
         .filter(|&x| reached.get(x).is_some_and(Option::is_some))
-        .map(|x| {
+        .collect();
+    let slaves: Vec<(u32, u32)> = reached
+        .iter()
+        .map(|&x| {
             let d = seg.esc(x).device();
             (d.output_bytes() as u32, d.input_bytes() as u32)
         })
         .collect();
+    let sync0_slaves = reached
+        .iter()
+        .zip(&slaves)
+        .filter(|&(&x, &(o, i))| seg.esc(x).model().dc.has_system_time() && o + i > 0)
+        .count();
     // The bring-up's image: all outputs (working counter 2 each), then all inputs (1 each).
     let mut ranges = Vec::with_capacity(2 * slaves.len());
     let mut logical = 0u32;
@@ -87,12 +98,20 @@ pub fn cycle_fit(s: &Scenario) -> Result<CycleFit, RunError> {
         round_trip_ns,
         host_ns,
         needed_cycle_ns: host_ns + wire_ns + round_trip_ns,
+        sync0_slaves,
     })
 }
 
-/// [`cycle_fit`], refused when the scenario's cycle is shorter than the network needs.
+/// [`cycle_fit`], refused when the scenario's cycle is shorter than the network needs, or
+/// when no slave has a SYNC0 deadline (the comparison judges every method by its frames'
+/// margin before the drives' SYNC0: without one, its shifts and margins would be empty).
 pub fn check_cycle_fits(s: &Scenario) -> Result<CycleFit, RunError> {
     let fit = cycle_fit(s)?;
+    if fit.sync0_slaves == 0 {
+        return Err(RunError::NoSync0Slave {
+            slaves: s.slaves.len(),
+        });
+    }
     if u64::from(s.cycle_ns) < fit.needed_cycle_ns {
         return Err(RunError::CycleTooShort {
             cycle_us: f64::from(s.cycle_ns) / 1000.0,

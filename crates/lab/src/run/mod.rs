@@ -64,6 +64,15 @@ pub enum RunError {
         /// What the network needs.
         fit: CycleFit,
     },
+    /// No slave takes process data on SYNC0 (couplers, terminals without a system time):
+    /// there is no deadline to judge the methods' frames by.
+    #[error(
+        "no slave of the {slaves} has a SYNC0 deadline: none has both a system time (SYNC0 runs on it) and process data (what SYNC0 takes); the comparison judges each method by its frames' margin before the drives' SYNC0, so it would have nothing to judge. fix: add a DC slave with process data (model \"servo-mii\", device \"servo-drive\"), or give one an ESI device with PDOs"
+    )]
+    NoSync0Slave {
+        /// Slaves in the scenario.
+        slaves: usize,
+    },
     /// Stopped (Ctrl-C) before the bring-up was done: nothing was measured.
     #[error("stopped during the bring-up, before any cycle was measured")]
     Interrupted,

@@ -60,7 +60,8 @@ impl SampleSink {
         self.line.clear();
     }
 
-    /// A recorded cycle whose frame did not come back.
+    /// A recorded cycle whose frame did not come back and cannot be judged (it never reached
+    /// the segment, or there was no grid to judge it by).
     fn lost(&mut self, k: u64) {
         let _ = write!(self.line, "{k},1");
         self.write_line();
@@ -79,10 +80,11 @@ impl SampleSink {
         self.write_line();
     }
 
-    /// A recorded cycle judged against the ground truth; `margins` per DC slave.
-    fn judged(&mut self, k: u64, rec: &CycleRecord, t: &CycleTruth, margins: &[f64]) {
+    /// A recorded cycle judged against the ground truth (`lost`: its reply did not come back
+    /// in time, yet the frame passed the slaves); `margins` per DC slave.
+    fn judged(&mut self, k: u64, lost: bool, rec: &CycleRecord, t: &CycleTruth, margins: &[f64]) {
         let l = &mut self.line;
-        let _ = write!(l, "{k},0,{:.3},", t.phase);
+        let _ = write!(l, "{k},{},{:.3},", u8::from(lost), t.phase);
         if let Some(m) = rec.m_rs_ns {
             let _ = write!(l, "{m}");
         }
@@ -461,6 +463,10 @@ impl GroundTruth {
         // without SYNC0 running (power-cycled, not configured again yet) has no grid and no
         // deadline: it is not counted until it has.
         let runs_sync0 = |x: usize| seg.esc(x).dc().is_some_and(|d| d.sync0().is_some());
+        // (A frame that never reached the segment has an earlier frame's trace.)
+        if !tr.frame_processed(0) {
+            return None;
+        }
         let trace = tr.frame_trace(0);
         let r = trace
             .pu_ps(reference)
@@ -522,7 +528,7 @@ impl GroundTruth {
             .zip(self.out_frames.iter())
             .zip(self.next_pulse_ns.iter_mut())
         {
-            let pu = if !runs_sync0(x) {
+            let pu = if !runs_sync0(x) || !tr.frame_processed(k) {
                 None
             } else if k == 0 {
                 trace.pu_ps(x)
@@ -671,14 +677,20 @@ impl Observers {
         res.cycles_done = k + 1;
         self.controller(rec);
         let res = &mut self.res;
-        if rec.receive.is_none() {
+        // A frame the master did not get back (its reply came after the next cycle's start,
+        // or a fault lost it on the way back) still passed the slaves it reached: its outputs
+        // were taken, early or late, and the ground truth judges it. Only a frame that never
+        // reached the segment (dropped by the host, lost on the way out) is not judged.
+        let lost = rec.receive.is_none();
+        if lost {
             res.lost_frames += 1;
-            if let Some(sk) = self.samples.as_mut() {
-                sk.lost(k);
+            if !tr.frame_processed(0) {
+                if let Some(sk) = self.samples.as_mut() {
+                    sk.lost(k);
+                }
+                return;
             }
-            return;
-        }
-        if rec.lrw_wkc != Some(self.expected_wkc) && self.pdi_len > 0 {
+        } else if rec.lrw_wkc != Some(self.expected_wkc) && self.pdi_len > 0 {
             res.bad_wkc += 1;
         }
         if let Some(m) = rec.m_rs_ns {
@@ -692,7 +704,11 @@ impl Observers {
         let keep = self.samples.is_some();
         let Some(t) = self.truth.judge(tr, k, &mut res.per_slave, keep) else {
             if let Some(sk) = self.samples.as_mut() {
-                sk.without_grid(k, rec);
+                if lost {
+                    sk.lost(k);
+                } else {
+                    sk.without_grid(k, rec);
+                }
             }
             return;
         };
@@ -716,7 +732,7 @@ impl Observers {
             res.latest_end_ns = res.latest_end_ns.max(self.truth.shift_ns - t.worst_margin);
         }
         if let Some(sk) = self.samples.as_mut() {
-            sk.judged(k, rec, &t, &self.truth.margins);
+            sk.judged(k, lost, rec, &t, &self.truth.margins);
         }
     }
 }
