@@ -267,12 +267,19 @@ fn per_slave_table(h: &mut String, out: &SummaryOut) {
             us3(s.margin_mean_ns),
             s.late_frames,
             s.sync0_missed,
-            s.drive_sm_events_missed
-                .map_or("-".to_string(), |d| d.to_string()),
+            s.drive_count_shown(),
             s.smallest_safe_shift_pct
         );
     }
     let _ = write!(h, "</table>");
+    for note in mo
+        .ground_truth
+        .per_slave
+        .iter()
+        .filter_map(|s| s.restart_note())
+    {
+        let _ = write!(h, "<p>{}</p>", esc(&note));
+    }
     if mo.ground_truth.per_slave.iter().any(|s| s.on_sync1) {
         let _ = write!(
             h,

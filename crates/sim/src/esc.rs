@@ -162,6 +162,8 @@ pub struct Esc {
     mbx: Option<Box<mailbox::MailboxState>>,
     /// The mailbox SyncManagers' status bits besides "full".
     sm_status: sm_status::MailboxStatusBits,
+    /// Where the last counting of missed SM events ended (ground truth: `sync.rs`).
+    sync_end: sync::SyncEnd,
 }
 
 // The hot lines as laid out above (a field added to a hot line must fit it): a large
@@ -244,6 +246,7 @@ impl Esc {
             sync1_mode: false,
             sync: sync::SyncMonitor::default(),
             sm_status: sm_status::MailboxStatusBits::default(),
+            sync_end: sync::SyncEnd::default(),
         };
         esc.sync.pll_limit_ns = esc.device.pll_limit_ns;
         esc.build_attributes();
@@ -266,6 +269,7 @@ impl Esc {
         esc.sii = self.sii.clone();
         esc.sii.power_up();
         esc.set_answer_buffer_habit(self.answer_buffer_habit());
+        esc.sync.powered_up_after(&self.sync);
         esc
     }
 

@@ -374,3 +374,46 @@ fn the_time_a_drive_checked_its_outputs_at_is_its_clock_s_reading_there() {
         .unwrap();
     assert_eq!(taken, 300 * drives.len(), "every drive, every cycle");
 }
+
+/// A host stalled 150 ms (longer than the drives' 100 ms process data watchdog): each drive
+/// counts the pulses without outputs up to its watchdog's expiry, worked out by hand: the last
+/// outputs ~295 us before a pulse, that pulse takes them, the next 99 (up to 100 ms after the
+/// outputs) find none: 99. It leaves OP there (0x001B), counts nothing in SAFE-OP, and the
+/// master's recovery takes it back to OP with no burst of misses (before, its first outputs
+/// back in OP counted every pulse it had spent out of OP).
+#[test]
+fn a_drive_cut_off_longer_than_its_watchdog_counts_up_to_the_expiry_only() {
+    let (sim, net, mut eng) = paper_2024_in_op();
+    let drives: Vec<usize> = (0..sim.segment().len())
+        .filter(|&x| sim.segment().esc(x).runs_on_sync0())
+        .collect();
+    let mut tr = HostStall::at_cycles(sim, vec![(100, MasterDuration::from_ns(150_100_000))]);
+    let mut driver = CyclicDriver::new(CyclicLimits {
+        max_cycles: Some(700),
+        ..CyclicLimits::default()
+    });
+    driver.set_recovery(net.clone(), recovery());
+    let mut base: Vec<u64> = Vec::new();
+    driver
+        .run(&mut tr, &mut eng, 700, None, |t, c| {
+            if c.record.cycle == 20 {
+                base = drives
+                    .iter()
+                    .map(|&x| t.inner.segment().esc(x).sm_events_missed())
+                    .collect();
+            }
+        })
+        .unwrap();
+    let left: Vec<String> = driver
+        .recoveries()
+        .iter()
+        .flat_map(|e| e.left_op())
+        .collect();
+    for (k, &x) in drives.iter().enumerate() {
+        let esc = tr.inner.segment().esc(x);
+        assert_eq!(esc.sm_events_missed() - base[k], 99, "drive at {x}");
+        assert_eq!(esc.al_state(), ecsync_wire::AlState::Op, "drive at {x}");
+        let who = format!("slave {} in SAFE-OP with AL error 0x001b", x + 1);
+        assert!(left.iter().any(|l| l.starts_with(&who)), "{x}: {left:?}");
+    }
+}

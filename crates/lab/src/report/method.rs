@@ -30,6 +30,46 @@ fn shift_pct(latest_ns: f64, period: f64) -> f64 {
     }
 }
 
+/// Slave `i`'s figures over the runs `rs` (`r0` the first), the cycle `period` ns.
+fn slave_out(rs: &[RunResult], r0: &RunResult, i: usize, period: f64) -> SlaveOut {
+    let mut st = Stats::new();
+    let mut late = 0;
+    let mut missed = 0;
+    let mut drive: Option<u64> = None;
+    let (mut restarts, mut since_restart) = (0, 0);
+    let mut latest = f64::NEG_INFINITY;
+    let mut on_sync1 = false;
+    for r in rs {
+        if let Some(x) = r.per_slave.get(i) {
+            on_sync1 |= x.on_sync1;
+            st.merge(&x.margin);
+            late += x.late_frames;
+            missed += x.sync0_missed;
+            restarts += x.drive_restarts;
+            since_restart += x.sync0_missed - x.sync0_missed_at_restart;
+            if let Some(d) = x.drive_sm_events_missed {
+                drive = Some(drive.unwrap_or(0) + d);
+            }
+            latest = latest.max(x.latest_end_ns);
+        }
+    }
+    let sm = st.summary();
+    SlaveOut {
+        position: r0.per_slave[i].position,
+        name: r0.per_slave[i].name.clone(),
+        margin_min_ns: sm.min,
+        margin_p001_ns: sm.p001,
+        margin_mean_ns: sm.mean,
+        late_frames: late,
+        sync0_missed: missed,
+        drive_sm_events_missed: drive,
+        drive_restarts: restarts,
+        sync0_missed_since_drive_restart: (restarts > 0).then_some(since_restart),
+        smallest_safe_shift_pct: shift_pct(latest, period),
+        on_sync1,
+    }
+}
+
 /// Method `m`'s figures over its runs (`holds_target` is set by `summarize` once the margin
 /// is known).
 pub(super) fn method_out(
@@ -54,39 +94,7 @@ pub(super) fn method_out(
         .first()
         .map(|r0| {
             (0..r0.per_slave.len())
-                .map(|i| {
-                    let mut st = Stats::new();
-                    let mut late = 0;
-                    let mut missed = 0;
-                    let mut drive: Option<u64> = None;
-                    let mut latest = f64::NEG_INFINITY;
-                    let mut on_sync1 = false;
-                    for r in rs {
-                        if let Some(x) = r.per_slave.get(i) {
-                            on_sync1 |= x.on_sync1;
-                            st.merge(&x.margin);
-                            late += x.late_frames;
-                            missed += x.sync0_missed;
-                            if let Some(d) = x.drive_sm_events_missed {
-                                drive = Some(drive.unwrap_or(0) + d);
-                            }
-                            latest = latest.max(x.latest_end_ns);
-                        }
-                    }
-                    let sm = st.summary();
-                    SlaveOut {
-                        position: r0.per_slave[i].position,
-                        name: r0.per_slave[i].name.clone(),
-                        margin_min_ns: sm.min,
-                        margin_p001_ns: sm.p001,
-                        margin_mean_ns: sm.mean,
-                        late_frames: late,
-                        sync0_missed: missed,
-                        drive_sm_events_missed: drive,
-                        smallest_safe_shift_pct: shift_pct(latest, period),
-                        on_sync1,
-                    }
-                })
+                .map(|i| slave_out(rs, r0, i, period))
                 .collect()
         })
         .unwrap_or_default();

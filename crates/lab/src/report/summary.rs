@@ -56,6 +56,14 @@ pub struct SlaveOut {
     /// The drive's own SM-event-missed count (0x1C32:0B) over the same cycles, all runs; none
     /// for a slave that does not run on SYNC0 (no CoE, or not set to DC mode).
     pub drive_sm_events_missed: Option<u64>,
+    /// Power cycles of the drive in the measured cycles, all runs: 0x1C32:0B is a RAM value,
+    /// 0 at each power-up, so `drive_sm_events_missed` counts from a run's last one.
+    #[serde(skip_serializing_if = "is_zero_u32")]
+    pub drive_restarts: u32,
+    /// With restarts: the ground truth's `sync0_missed` since the drive's last power cycle in
+    /// each run, all runs: what `drive_sm_events_missed` compares with.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sync0_missed_since_drive_restart: Option<u64>,
     /// The smallest SYNC0 shift this slave needs, % of the cycle (rounded up to 0.1 %).
     pub smallest_safe_shift_pct: f64,
     /// It runs on SYNC1 (an oversampling terminal): its margin, late frames and missed
@@ -371,4 +379,34 @@ pub struct SendOut {
     pub launch_misses: u64,
     /// CPU time spent busy-waiting before the sends, % of the recorded cycles' time (`spin`).
     pub spin_cpu_pct: f64,
+}
+
+fn is_zero_u32(n: &u32) -> bool {
+    *n == 0
+}
+
+impl SlaveOut {
+    /// The drive's own count as the tables show it: - without CoE DC mode, marked * when its
+    /// counter restarted at a power cycle (see [`SlaveOut::restart_note`]).
+    pub fn drive_count_shown(&self) -> String {
+        match self.drive_sm_events_missed {
+            None => "-".to_string(),
+            Some(d) if self.drive_restarts > 0 => format!("{d}*"),
+            Some(d) => d.to_string(),
+        }
+    }
+
+    /// For a drive whose counter restarted: what its count is against.
+    pub fn restart_note(&self) -> Option<String> {
+        let since = self.sync0_missed_since_drive_restart?;
+        let times = match self.drive_restarts {
+            1 => "a power cycle".to_string(),
+            n => format!("{n} power cycles"),
+        };
+        Some(format!(
+            "*{}: 0x1C32:0B restarted from 0 at {times} (a RAM value): its count is since the \
+             last, against {since} pulses missed since then by the ground truth",
+            self.name
+        ))
+    }
 }

@@ -276,8 +276,7 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
             s.margin_mean_ns / 1000.0,
             s.late_frames,
             s.sync0_missed,
-            s.drive_sm_events_missed
-                .map_or("-".to_string(), |d| d.to_string()),
+            s.drive_count_shown(),
             s.smallest_safe_shift_pct
         );
     }
@@ -287,6 +286,9 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
          the one before, the ground truth of what a drive counts; drive: the drive's own \
          SM-event-missed count, 0x1C32:0B, over the same cycles, - without CoE DC mode)"
     );
+    for note in all.iter().filter_map(|s| s.restart_note()) {
+        let _ = writeln!(t, "({note})");
+    }
     if all.iter().any(|s| s.on_sync1) {
         let _ = writeln!(
             t,
@@ -372,13 +374,13 @@ pub fn csv(out: &SummaryOut, order: &[String]) -> String {
     }
     let _ = writeln!(
         t,
-        "\nmethod,slave,position,margin_min_ns,margin_p0.1_ns,margin_mean_ns,late_frames,sync0_missed,drive_sm_events_missed,smallest_safe_shift_pct"
+        "\nmethod,slave,position,margin_min_ns,margin_p0.1_ns,margin_mean_ns,late_frames,sync0_missed,drive_sm_events_missed,smallest_safe_shift_pct,drive_restarts,sync0_missed_since_drive_restart"
     );
     for m in order {
         for s in &out.methods[m].ground_truth.per_slave {
             let _ = writeln!(
                 t,
-                "{m},{},{},{},{},{},{},{},{},{}",
+                "{m},{},{},{},{},{},{},{},{},{},{},{}",
                 csv_field(&s.name),
                 s.position,
                 s.margin_min_ns,
@@ -388,7 +390,10 @@ pub fn csv(out: &SummaryOut, order: &[String]) -> String {
                 s.sync0_missed,
                 s.drive_sm_events_missed
                     .map_or(String::new(), |d| d.to_string()),
-                s.smallest_safe_shift_pct
+                s.smallest_safe_shift_pct,
+                s.drive_restarts,
+                s.sync0_missed_since_drive_restart
+                    .map_or(String::new(), |d| d.to_string()),
             );
         }
     }

@@ -76,6 +76,8 @@ fn empty_result(
             last_outputs_ns: None,
             drive_sm_events_missed: None,
             drive_count_at_start: None,
+            drive_restarts: 0,
+            sync0_missed_at_restart: 0,
             on_sync1: false,
         })
         .collect();

@@ -8,6 +8,8 @@ use super::*;
 use crate::session::CycleObserver;
 use ecsync_master::cyclic::{CycleRecord, Health};
 use ecsync_master::driver::CyclicDriver;
+use ecsync_sim::Esc;
+use ecsync_wire::AlState;
 
 /// `--samples`: one CSV row per recorded cycle.
 pub(super) struct SampleSink {
@@ -331,6 +333,8 @@ pub(super) struct GroundTruth {
     /// Per DC slave: the first SYNC0 pulse after its last outputs (`SlaveTruth::
     /// last_outputs_ns`), ns: the pulses since then counted without a division in most cycles.
     next_pulse_ns: Vec<u64>,
+    /// Per DC slave: the drive's (power-ups, exits from OP) when last judged (`count_drive`).
+    drive_marks: Vec<Option<(u32, u32)>>,
     /// The init frames' drift: the reference's time against the master's clock.
     pub(super) init_fit: LineFit,
     pub(super) init_frames: u64,
@@ -378,6 +382,61 @@ fn count_pulses(
     }
 }
 
+/// One DC slave's count of missed SYNC0 pulses at outputs at system time `outputs_ns` (see
+/// [`count_pulses`]) as ETG.1020 has a drive count them, and the drive's own count beside it.
+/// The drive counts in OP only: a counting sequence ends where it left OP (the simulator's
+/// truth of that instant: its last outputs, or its watchdog's expiry when they stopped
+/// coming), and starts again with the first outputs back in OP; a power cycle restarts its
+/// counter from 0, so its own count is compared from there (`sync0_missed_at_restart`).
+/// `seen`: the drive's (power-ups, exits from OP) when last looked at.
+#[inline]
+fn count_drive(
+    st: &mut SlaveTruth,
+    next_pulse: &mut u64,
+    seen: &mut Option<(u32, u32)>,
+    esc: &Esc,
+    outputs_ns: u64,
+    shift_ns: u64,
+    period: u64,
+) {
+    let marks = esc.sync_sequence_marks();
+    let changed = seen.replace(marks).filter(|&m| m != marks);
+    let in_op = esc.al_state() == AlState::Op;
+    match changed {
+        None if in_op => count_pulses(st, next_pulse, outputs_ns, shift_ns, period),
+        None => st.last_outputs_ns = None,
+        Some((power_ups, _)) if power_ups != marks.0 => {
+            // Powered off and on: nothing counted in between, the drive's count from 0.
+            st.last_outputs_ns = None;
+            if st.drive_count_at_start.is_some() {
+                st.drive_restarts += 1;
+                st.drive_count_at_start = Some(0);
+                st.drive_sm_events_missed = Some(0);
+                st.sync0_missed_at_restart = st.sync0_missed;
+            }
+            if in_op {
+                count_pulses(st, next_pulse, outputs_ns, shift_ns, period);
+            }
+        }
+        Some(_) => {
+            // It left OP since the last look: the pulses up to then (these outputs' if it took
+            // them before it left), none after.
+            let left = esc.left_op_ns();
+            count_pulses(st, next_pulse, left.min(outputs_ns), shift_ns, period);
+            st.last_outputs_ns = None;
+            if in_op {
+                count_pulses(st, next_pulse, outputs_ns, shift_ns, period);
+            }
+        }
+    }
+    if esc.runs_on_sync0() {
+        let now = esc.sm_events_missed();
+        let start = *st.drive_count_at_start.get_or_insert(now);
+        st.drive_sm_events_missed = Some(now.saturating_sub(start));
+        st.on_sync1 = esc.runs_on_sync1();
+    }
+}
+
 impl GroundTruth {
     pub(super) fn new(g: GridSpec) -> Self {
         let n_dc = g.dc_slaves.len();
@@ -395,6 +454,7 @@ impl GroundTruth {
             last_scheduled: None,
             margins: Vec::with_capacity(n_dc),
             next_pulse_ns: vec![0; n_dc],
+            drive_marks: vec![None; n_dc],
             init_fit: LineFit::default(),
             init_frames: g.init_frames,
         }
@@ -522,11 +582,12 @@ impl GroundTruth {
         let mut worst_margin = f64::INFINITY;
         let mut worst_slave = 0u16;
         self.margins.clear();
-        for (((st, &x), &(k, out_wire_ps)), next_pulse) in per_slave
+        for ((((st, &x), &(k, out_wire_ps)), next_pulse), seen) in per_slave
             .iter_mut()
             .zip(self.dc_slaves.iter())
             .zip(self.out_frames.iter())
             .zip(self.next_pulse_ns.iter_mut())
+            .zip(self.drive_marks.iter_mut())
         {
             let pu = if !runs_sync0(x) || !tr.frame_processed(k) {
                 None
@@ -548,13 +609,7 @@ impl GroundTruth {
             };
             let end_after_grid = (e.0.wrapping_sub(grid) as i64) as f64 + e.1;
             let margin = shift - end_after_grid;
-            count_pulses(st, next_pulse, e.0, shift as u64, period);
-            if esc.runs_on_sync0() {
-                let now = esc.sm_events_missed();
-                let start = *st.drive_count_at_start.get_or_insert(now);
-                st.drive_sm_events_missed = Some(now.saturating_sub(start));
-                st.on_sync1 = esc.runs_on_sync1();
-            }
+            count_drive(st, next_pulse, seen, esc, e.0, shift as u64, period);
             if keep {
                 self.margins.push(margin);
             }

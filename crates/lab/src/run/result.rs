@@ -205,8 +205,15 @@ pub struct SlaveTruth {
     /// The drive's own 0x1C32:0B count over the same frames (its counter after the last one
     /// minus after the first), if it runs on SYNC0 (set to DC mode over CoE).
     pub drive_sm_events_missed: Option<u64>,
-    /// The drive's counter after the first measured frame.
+    /// The drive's counter after the first measured frame (0 after a power cycle: the count
+    /// restarted there).
     pub drive_count_at_start: Option<u64>,
+    /// Power cycles of the drive in the measured cycles: 0x1C32:0B is a RAM value, 0 at each
+    /// power-up, so `drive_sm_events_missed` counts from the last of them.
+    pub drive_restarts: u32,
+    /// `sync0_missed` when the drive last restarted (0 without a restart): what its own count
+    /// compares with is `sync0_missed` less this.
+    pub sync0_missed_at_restart: u64,
     /// It takes its outputs at SYNC1 events (an oversampling terminal, 0x1C32:01 = 3): the
     /// pulses above are SYNC1's, on the cycle's grid where the others' SYNC0 is.
     pub on_sync1: bool,

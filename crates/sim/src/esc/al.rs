@@ -93,6 +93,9 @@ impl Esc {
             self.al_error = control.error_ack();
             self.al_code = AlStatusCode::NoError;
             self.al_state = to;
+            if from == AlState::Op && to != AlState::Op {
+                self.sync_left_op();
+            }
             if matches!(to, AlState::SafeOp | AlState::Op)
                 && !matches!(from, AlState::SafeOp | AlState::Op)
             {
@@ -137,6 +140,7 @@ impl Esc {
         self.send_emergency(super::mailbox::EMERGENCY_ESM_ERROR, 0x10, [lo, hi, 0, 0, 0]);
         if self.al_state == AlState::Op {
             self.al_state = AlState::SafeOp;
+            self.sync_left_op();
             // Out of OP: the process data watchdog no longer runs.
             self.wd_period_ps = 0;
         }
@@ -197,6 +201,9 @@ impl Esc {
             }
         } else {
             self.al_state = to;
+        }
+        if from == Op && self.al_state != Op {
+            self.sync_left_op();
         }
         self.state_entered();
     }

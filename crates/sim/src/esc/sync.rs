@@ -27,7 +27,10 @@
 //!   (the 10 ns granularity of the SYNC0 unit is left out).
 //! - The sequence starts with the first outputs written in OP with SYNC0 running (as SSC's
 //!   check begins with the first SM2 event); leaving OP, SYNC0 stopping or the sync mode
-//!   changing ends it.
+//!   changing ends it. Pulses out of OP are not counted (:0B counts cycles in OP): a drive whose
+//!   outputs stopped counts the pulses up to its process data watchdog's expiry (found only
+//!   with the next frame, counted then as of that instant), and its first outputs back in OP
+//!   begin a new sequence. The counter is a RAM value: a power cycle restarts it from 0.
 //! - The virtual drive's 0x10F1:02 is 0 by default, which here means "count, do not react":
 //!   a comparison that sweeps SYNC0 shifts measures the method, not a drive's reaction. A master
 //!   (or a test) writes a limit to make the drive react, as SSC's default of 4 does.
@@ -99,11 +102,27 @@ pub(super) struct SyncMonitor {
     /// (ground truth, no object: a master that sends more often than the application's
     /// cycle, as ethercrab 0.7's `tx_rx_dc` does on an oversampling terminal, #369).
     pub(super) overwritten: u64,
-    /// The last SM2 event in SM-synchronous mode, in OP, ns.
-    last_sm_event_ns: Option<u64>,
+    /// The last SM2 event in SM-synchronous mode, in OP, ns; 0: none (a u64, not an option,
+    /// for the line's room).
+    last_sm_event_ns: u64,
     /// The system time at the end of the last frame whose outputs the check took: (that
     /// instant + 1 ps, 0 for none; ns; fraction of a ns), for [`Esc::system_time_at_outputs`].
     outputs_time: (u64, u64, f64),
+    /// Ground truth, no object (on this line for a judge's every look): the times the
+    /// application left OP while it counted, power-ups after the first (a power cycle
+    /// restarts 0x1C32:0B from 0). See [`Esc::sync_sequence_marks`].
+    op_exits: u32,
+    power_ups: u32,
+}
+
+/// The cold part of the counting's ground truth (see [`Esc::left_op_ns`]).
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct SyncEnd {
+    /// The system time a read of the counter (or the watchdog's expiry) last brought it up
+    /// to, ns.
+    caught_up_ns: u64,
+    /// The system time the last counting sequence ended at when the drive left OP, ns.
+    left_op_ns: u64,
 }
 
 const _: () = assert!(core::mem::offset_of!(SyncMonitor, missed) == 64);
@@ -217,8 +236,8 @@ impl SyncMonitor {
         }
         if sm_event {
             if self.limit != 0 && self.error_counter > self.limit {
+                // (The sequence ends where the drive leaves OP: `Esc::sync_left_op`.)
                 self.error_counter = 0;
-                self.last_write_ns = None;
                 return SyncReaction::SyncError;
             }
             self.error_counter = self.error_counter.saturating_sub(1);
@@ -231,12 +250,11 @@ impl SyncMonitor {
     #[inline]
     pub(super) fn sm_event_at(&mut self, t_ns: u64, in_op: bool) {
         if !in_op {
-            self.last_sm_event_ns = None;
+            self.last_sm_event_ns = 0;
             return;
         }
-        if let Some(last) = self.last_sm_event_ns.replace(t_ns)
-            && t_ns.saturating_sub(last) < u64::from(self.min_cycle_ns)
-        {
+        let last = std::mem::replace(&mut self.last_sm_event_ns, t_ns.max(1));
+        if last != 0 && t_ns.saturating_sub(last) < u64::from(self.min_cycle_ns) {
             self.too_small = self.too_small.saturating_add(1);
             self.dirty = true;
         }
@@ -246,6 +264,24 @@ impl SyncMonitor {
     pub(super) fn stop(&mut self) {
         self.last_write_ns = None;
         self.error_counter = 0;
+    }
+
+    /// The application left OP: the sequence ends where the counter was brought up to (its
+    /// last outputs, or a later read or the watchdog's expiry: `end`); pulses after it are
+    /// no SM events missed (ETG.1020: :0B counts SYNC0 cycles in OP).
+    pub(super) fn left_op(&mut self, end: &mut SyncEnd) {
+        if let Some(last) = self.last_write_ns {
+            self.op_exits = self.op_exits.wrapping_add(1);
+            end.left_op_ns = last.max(end.caught_up_ns);
+        }
+        end.caught_up_ns = 0;
+        self.stop();
+    }
+
+    /// The counters of a device that was just powered up again after `before`'s power cycle:
+    /// 0x1C32:0B from 0, the power-up counted.
+    pub(super) fn powered_up_after(&mut self, before: &SyncMonitor) {
+        self.power_ups = before.power_ups.wrapping_add(1);
     }
 }
 
@@ -304,7 +340,7 @@ impl Esc {
         };
         let r = self.sync.outputs_at(t_ns, grid, in_op);
         if pll_lost {
-            self.sync.stop();
+            // (Leaving OP ends the sequence: `Esc::sync_left_op`.)
             self.raise_al_error(AlStatusCode::PllError);
         } else if r == SyncReaction::SyncError {
             self.raise_al_error(AlStatusCode::SynchronizationError);
@@ -333,6 +369,9 @@ impl Esc {
             } else {
                 dc.sync0()
             };
+            if self.sync.last_write_ns.is_some_and(|last| t_ns > last) {
+                self.sync_end.caught_up_ns = t_ns;
+            }
             self.sync.catch_up(t_ns, grid);
         }
         self.update_sync_objects();
@@ -363,10 +402,10 @@ impl Esc {
     pub(super) fn sync0_activation_changed(&mut self) {
         let stopped = self.application_events().is_none();
         if stopped {
-            self.sync.stop();
             if self.sync.dc_mode && self.al_state == AlState::Op {
                 self.raise_al_error(AlStatusCode::FatalSyncError);
             }
+            self.sync.stop();
         }
     }
 
@@ -442,9 +481,31 @@ impl Esc {
     }
 
     /// SM events missed (0x1C32:0B) as the drive counted them up to its last outputs, without
-    /// the 16-bit object's ceiling.
+    /// the 16-bit object's ceiling. It starts from 0 at each power-up (a RAM value: see
+    /// [`Esc::sync_sequence_marks`]).
     pub fn sm_events_missed(&self) -> u64 {
         self.sync.missed
+    }
+
+    /// Ground truth for a judge of 0x1C32:0B, no object: (power-ups after the first, the
+    /// times the application left OP while it counted). A change of the first is a power
+    /// cycle (the counter restarted from 0); of the second, the end of a counting sequence at
+    /// [`Esc::left_op_ns`] (pulses after it, out of OP, are not counted).
+    #[inline]
+    pub fn sync_sequence_marks(&self) -> (u32, u32) {
+        (self.sync.power_ups, self.sync.op_exits)
+    }
+
+    /// The system time, ns, the drive counted missed SM events up to before it last left OP
+    /// (its last outputs, or the expiry of its process data watchdog when they stopped).
+    pub fn left_op_ns(&self) -> u64 {
+        self.sync_end.left_op_ns
+    }
+
+    /// The application leaves OP (an AL error, the watchdog, the master's request): the
+    /// counting sequence ends (see `SyncMonitor::left_op`).
+    pub(super) fn sync_left_op(&mut self) {
+        self.sync.left_op(&mut self.sync_end);
     }
 }
 

@@ -69,6 +69,10 @@ impl Esc {
 
     #[inline(never)]
     fn watchdog_expired(&mut self) {
+        // In OP on its DC signal the drive counted every pulse without outputs up to the
+        // expiry (found only now, with the next frame): counted so before it leaves OP.
+        let expiry_ps = self.wd_last_write_ps.saturating_add(self.wd_period_ps);
+        self.sync_catch_up(expiry_ps);
         self.wd_period_ps = 0;
         self.regs[0x0440] &= !0x01;
         self.regs[0x0442] = self.regs[0x0442].saturating_add(1);

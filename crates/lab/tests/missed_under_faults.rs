@@ -1,0 +1,73 @@
+//! The SM-event-missed count 0x1C32:0B under faults, the drives' own against the ground
+//! truth's (SYNC0 pulses in OP with no new outputs since the one before): a drive cut off from
+//! its frames counts the pulses until its process data watchdog takes it out of OP, none while
+//! it is out of OP, and a power-cycled drive's counter (a RAM value) starts again from 0, so its
+//! count is the ground truth's since its restart.
+
+use ecsync_lab::report::summarize;
+use ecsync_sim::fault::FaultSchedule;
+use ecsync_sim::preset::PAPER_2024_TOML;
+use std::sync::atomic::AtomicU64;
+
+/// paper-2024, one run of 3 000 recorded cycles after 0.5 s of warm-up, dcm-master-shift
+/// (no init frames), with `faults` from the start of the cyclic phase.
+fn compare_with(faults: &str) -> ecsync_lab::report::SummaryOut {
+    let mut s = ecsync_lab::parse("paper-2024", PAPER_2024_TOML).unwrap();
+    s.runs = 1;
+    s.cycles = 3_000;
+    s.warmup_cycles = 500;
+    s.methods.retain(|k| k.name() == "dcm-master-shift");
+    s.faults = Some(FaultSchedule::parse("faults.toml", faults).unwrap());
+    summarize(&ecsync_lab::compare(&s, 1, &AtomicU64::new(0)).unwrap())
+}
+
+/// Drive 3 (position 2) power-cycled for 200 ms at 1.5 s, 5 % of the frames lost from 0.6 s to
+/// 3.4 s: drives 4-6, cut off behind it for longer than their 100 ms watchdog, leave OP. Each
+/// drive's own count equals the ground truth's (drive 3's since its restart, which is less than
+/// the whole and more than none: frames were lost before and after it), and the drives cut off
+/// counted about the watchdog's 100 pulses, not the 200 ms they were cut off for or the time
+/// until they were back in OP.
+#[test]
+fn a_power_cycled_drive_counts_from_its_restart_and_the_others_as_the_truth() {
+    let out = compare_with(
+        "[[fault]]\nat_s = 0.6\nfor_s = 2.8\nkind = \"loss\"\nprobability = 0.05\n\n\
+         [[fault]]\nat_s = 1.5\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = 3\n",
+    );
+    let mo = &out.methods["dcm-master-shift"];
+    let per_slave = &mo.ground_truth.per_slave;
+    assert_eq!(per_slave.len(), 6);
+    let loss_only = per_slave[0].sync0_missed;
+    assert!(loss_only > 20, "the loss cost pulses: {:?}", per_slave[0]);
+    for s in per_slave {
+        let drive = s
+            .drive_sm_events_missed
+            .unwrap_or_else(|| panic!("{}: runs on SYNC0: {s:?}", s.name));
+        if s.position == 2 {
+            assert_eq!(s.drive_restarts, 1, "{s:?}");
+            let since = s.sync0_missed_since_drive_restart.unwrap();
+            assert_eq!(
+                drive, since,
+                "{}: its count since its restart: {s:?}",
+                s.name
+            );
+            assert!(0 < since && since < s.sync0_missed, "{s:?}");
+            assert!(s.drive_count_shown().ends_with('*'));
+            assert!(
+                s.restart_note()
+                    .unwrap()
+                    .contains(&format!("against {since} pulses"))
+            );
+        } else {
+            assert_eq!(s.drive_restarts, 0, "{s:?}");
+            assert_eq!(s.sync0_missed_since_drive_restart, None);
+            assert_eq!(drive, s.sync0_missed, "{}: {s:?}", s.name);
+        }
+        if s.position > 2 {
+            // The cut: 99 pulses after the first that took the last outputs, up to the
+            // watchdog's expiry 100 ms after them; then the loss's pulses while it was in OP
+            // (not those of the ~250 cycles until it was back in OP).
+            let m = s.sync0_missed;
+            assert!(99 < m && m < 99 + loss_only, "{}: {m}: {s:?}", s.name);
+        }
+    }
+}
