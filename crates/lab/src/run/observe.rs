@@ -400,8 +400,40 @@ fn count_drive(
     period: u64,
 ) {
     let marks = esc.sync_sequence_marks();
-    let changed = seen.replace(marks).filter(|&m| m != marks);
     let in_op = esc.al_state() == AlState::Op;
+    if in_op && *seen == Some(marks) {
+        // The common cycle: in OP, neither powered up nor out of OP since the last look.
+        count_pulses(st, next_pulse, outputs_ns, shift_ns, period);
+    } else {
+        count_drive_changed(
+            st, next_pulse, seen, esc, marks, in_op, outputs_ns, shift_ns, period,
+        );
+    }
+    if esc.runs_on_sync0() {
+        let now = esc.sm_events_missed();
+        let start = *st.drive_count_at_start.get_or_insert(now);
+        st.drive_sm_events_missed = Some(now.saturating_sub(start));
+        st.on_sync1 = esc.runs_on_sync1();
+    }
+}
+
+/// [`count_drive`] where the drive left OP, was powered up again, is not in OP, or is looked
+/// at for the first time (`marks`: its power-ups and exits from OP now).
+#[cold]
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn count_drive_changed(
+    st: &mut SlaveTruth,
+    next_pulse: &mut u64,
+    seen: &mut Option<(u32, u32)>,
+    esc: &Esc,
+    marks: (u32, u32),
+    in_op: bool,
+    outputs_ns: u64,
+    shift_ns: u64,
+    period: u64,
+) {
+    let changed = seen.replace(marks).filter(|&m| m != marks);
     match changed {
         None if in_op => count_pulses(st, next_pulse, outputs_ns, shift_ns, period),
         None => st.last_outputs_ns = None,
@@ -428,12 +460,6 @@ fn count_drive(
                 count_pulses(st, next_pulse, outputs_ns, shift_ns, period);
             }
         }
-    }
-    if esc.runs_on_sync0() {
-        let now = esc.sm_events_missed();
-        let start = *st.drive_count_at_start.get_or_insert(now);
-        st.drive_sm_events_missed = Some(now.saturating_sub(start));
-        st.on_sync1 = esc.runs_on_sync1();
     }
 }
 
