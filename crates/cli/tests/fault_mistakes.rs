@@ -133,29 +133,40 @@ fn a_slave_or_port_the_network_lacks_is_refused_everywhere() {
             "{kind}: something was written"
         );
     }
-    // The last slave has no cable behind it (port 1): named, with the port it has.
+    last_slave_port_and_itself(&d, n, "paper-2024", 13.0, short_compare);
+}
+
+/// The last of the `n` slaves of `network` has no cable behind it (port 1): a link_down
+/// there is refused naming the port (`run` with a schedule file and an output folder), and
+/// a power cycle of the last slave itself runs; the faults at `at_s`.
+fn last_slave_port_and_itself(
+    d: &Path,
+    n: usize,
+    network: &str,
+    at_s: f64,
+    run: impl Fn(&str, &Path) -> Output,
+) {
     let f = write(
-        &d,
+        d,
         "port.toml",
         &format!(
-            "[[fault]]\nat_s = 13\nfor_s = 0.05\nkind = \"link_down\"\nslave = {n}\nport = 1\n"
+            "[[fault]]\nat_s = {at_s}\nfor_s = 0.05\nkind = \"link_down\"\nslave = {n}\nport = 1\n"
         ),
     );
-    let e = stderr(&short_compare(&f, &d.join("out-port")));
+    let e = stderr(&run(&f, &d.join("out-port")));
     assert!(
-        e.contains("fault[0].port")
+        e.contains("port.toml:1: fault[0].port")
             && e.contains(&format!(
-                "slave {n} of preset paper-2024 has no cable at port 1"
+                "slave {n} of preset {network} has no cable at port 1"
             )),
         "{e}"
     );
-    // The last slave itself is there.
     let f = write(
-        &d,
+        d,
         "last.toml",
-        &format!("[[fault]]\nat_s = 13\nfor_s = 0.2\nkind = \"power_cycle\"\nslave = {n}\n"),
+        &format!("[[fault]]\nat_s = {at_s}\nfor_s = 0.05\nkind = \"power_cycle\"\nslave = {n}\n"),
     );
-    let o = short_compare(&f, &d.join("out-last"));
+    let o = run(&f, &d.join("out-last"));
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
@@ -366,27 +377,5 @@ fn tsn_run_refuses_a_slave_or_port_the_network_lacks() {
     );
     assert!(!e.contains("running M1"), "it ran: {e}");
     assert!(!out.exists(), "something was written");
-    let f = write(
-        &d,
-        "port.toml",
-        &format!(
-            "[[fault]]\nat_s = 10.1\nfor_s = 0.05\nkind = \"link_down\"\nslave = {n}\nport = 1\n"
-        ),
-    );
-    let e = stderr(&tsn_run(&f, &d.join("out-port")));
-    assert!(
-        e.contains("port.toml:1: fault[0].port")
-            && e.contains(&format!(
-                "slave {n} of preset tsn-2020 has no cable at port 1"
-            )),
-        "{e}"
-    );
-    // The last slave itself is there: the run goes on.
-    let f = write(
-        &d,
-        "last.toml",
-        &format!("[[fault]]\nat_s = 10.1\nfor_s = 0.05\nkind = \"power_cycle\"\nslave = {n}\n"),
-    );
-    let o = tsn_run(&f, &d.join("out-last"));
-    assert!(o.status.success(), "{}", stderr(&o));
+    last_slave_port_and_itself(&d, n, "tsn-2020", 10.1, tsn_run);
 }
