@@ -235,6 +235,9 @@ pub struct SimTransport {
     /// Bit k: the current cycle's frame k reached the segment (not dropped by the host, not
     /// lost on its way out), so its trace is its own ([`SimTransport::frame_processed`]).
     processed_in_cycle: u64,
+    /// The same past the 64th frame (a network of thousands of drives sends dozens of frames
+    /// a cycle): bit k - 64. Kept between cycles, so a cycle allocates nothing.
+    processed_beyond: Vec<u64>,
     cycle_mode: bool,
     capture: Option<PcapCapture<BufWriter<File>>>,
     faults: Option<FaultPlayer>,
@@ -272,6 +275,7 @@ impl SimTransport {
             traces: Vec::new(),
             frame_in_cycle: 0,
             processed_in_cycle: 0,
+            processed_beyond: Vec::new(),
             cycle_mode: false,
             capture: None,
             faults: None,
@@ -302,6 +306,7 @@ impl SimTransport {
             traces: Vec::new(),
             frame_in_cycle: 0,
             processed_in_cycle: 0,
+            processed_beyond: Vec::new(),
             cycle_mode: false,
             capture: None,
             faults: self.faults.clone(),
@@ -390,10 +395,29 @@ impl SimTransport {
     /// Whether the current cycle's frame `k` reached the segment: `false` for a frame the host
     /// dropped before the wire (a missed launch time) or a fault lost on its way out, whose
     /// [`SimTransport::frame_trace`] is an earlier frame's. A frame whose reply was lost or
-    /// came too late for the master was processed: its outputs reached the slaves. (Frames
-    /// past the 64th of a cycle count as processed.)
+    /// came too late for the master was processed: its outputs reached the slaves.
     pub fn frame_processed(&self, k: usize) -> bool {
-        k >= 64 || self.processed_in_cycle & (1 << k) != 0
+        match k.checked_sub(64) {
+            None => self.processed_in_cycle & (1 << k) != 0,
+            Some(b) => self
+                .processed_beyond
+                .get(b / 64)
+                .is_some_and(|w| w & (1 << (b % 64)) != 0),
+        }
+    }
+
+    /// The current frame of the cycle reached the segment.
+    fn mark_processed(&mut self) {
+        let k = self.frame_in_cycle;
+        match k.checked_sub(64) {
+            None => self.processed_in_cycle |= 1 << k,
+            Some(b) => {
+                if self.processed_beyond.len() <= b / 64 {
+                    self.processed_beyond.resize(b / 64 + 1, 0);
+                }
+                self.processed_beyond[b / 64] |= 1 << (b % 64);
+            }
+        }
     }
 
     /// Captures every frame (sent and returned) to a pcap file.
@@ -625,8 +649,8 @@ impl Transport for SimTransport {
         let back = if fate.lost_out {
             None
         } else {
-            if self.cycle_mode && self.frame_in_cycle < 64 {
-                self.processed_in_cycle |= 1 << self.frame_in_cycle;
+            if self.cycle_mode {
+                self.mark_processed();
             }
             let out = self.segment.process(&mut buf, tx_ps);
             port = out.returned_port;
@@ -704,6 +728,7 @@ impl Transport for SimTransport {
         self.cycle_mode = true;
         self.frame_in_cycle = 0;
         self.processed_in_cycle = 0;
+        self.processed_beyond.fill(0);
     }
 }
 

@@ -50,7 +50,7 @@ pub struct SlaveOut {
     pub margin_mean_ns: f64,
     /// Cycles this slave got its frame after SYNC0, all runs.
     pub late_frames: u64,
-    /// SYNC0 pulses with no new outputs since the pulse before, all runs (the ground truth of
+    /// SYNC0 pulses in OP with no new outputs since the pulse before, all runs (the ground truth of
     /// what a drive counts in 0x1C32:0B; a late frame right after a late one is not one more).
     pub sync0_missed: u64,
     /// The drive's own SM-event-missed count (0x1C32:0B) over the same cycles, all runs; none

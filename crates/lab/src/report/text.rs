@@ -282,8 +282,8 @@ pub fn per_slave_text(out: &SummaryOut) -> String {
     }
     let _ = writeln!(
         t,
-        "(late: frames after the slave's SYNC0; missed: SYNC0 pulses with no new outputs since \
-         the one before, the ground truth of what a drive counts; drive: the drive's own \
+        "(late: frames after the slave's SYNC0; missed: SYNC0 pulses in OP with no new outputs \
+         since the one before, the ground truth of what a drive counts; drive: the drive's own \
          SM-event-missed count, 0x1C32:0B, over the same cycles, - without CoE DC mode)"
     );
     for note in all.iter().filter_map(|s| s.restart_note()) {
