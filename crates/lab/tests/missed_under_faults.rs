@@ -71,3 +71,41 @@ fn a_power_cycled_drive_counts_from_its_restart_and_the_others_as_the_truth() {
         }
     }
 }
+
+#[path = "common/line.rs"]
+mod line;
+
+/// A line of 300 drives, whose cycle takes several frames, with 5 % of the frames lost all
+/// through: each frame is lost on its own, so the drives behind different frames miss
+/// different pulses, and each drive's own count equals the ground truth's. A cycle whose
+/// first frame (the reference's time) was lost on its way out still has its other frames'
+/// drives judged: they took their outputs (the truth counted a missed pulse for each of them
+/// before).
+#[test]
+fn in_a_cycle_of_several_frames_each_drive_counts_its_own_frames_losses() {
+    let mut s = ecsync_lab::parse("line-300.toml", &line::line(300, 2000)).unwrap();
+    s.methods.retain(|k| k.name() == "soem-pi");
+    s.faults = Some(
+        FaultSchedule::parse(
+            "faults.toml",
+            "[[fault]]\nat_s = 0\nkind = \"loss\"\nprobability = 0.05\n",
+        )
+        .unwrap(),
+    );
+    let c = ecsync_lab::compare(&s, 1, &AtomicU64::new(0)).unwrap();
+    let frames = ecsync_lab::run::cycle_fit(&s).unwrap().frames;
+    assert!(frames >= 4, "{frames} frames a cycle");
+    let out = summarize(&c);
+    let per_slave = &out.methods["soem-pi"].ground_truth.per_slave;
+    assert_eq!(per_slave.len(), 300);
+    let mut counts = std::collections::BTreeSet::new();
+    for d in per_slave {
+        let own = d.drive_sm_events_missed.expect("a drive in DC mode");
+        assert_eq!(own, d.sync0_missed, "{}: {d:?}", d.name);
+        counts.insert(own);
+    }
+    // About 5 % x 1 500 / 2 lost on their way out per frame (the rest on their way back,
+    // after the drives took the outputs), each frame its own.
+    assert!(counts.len() > 1, "{counts:?}");
+    assert!(counts.iter().all(|&n| (10..=80).contains(&n)), "{counts:?}");
+}

@@ -86,7 +86,11 @@ impl SampleSink {
     /// in time, yet the frame passed the slaves); `margins` per DC slave.
     fn judged(&mut self, k: u64, lost: bool, rec: &CycleRecord, t: &CycleTruth, margins: &[f64]) {
         let l = &mut self.line;
-        let _ = write!(l, "{k},{},{:.3},", u8::from(lost), t.phase);
+        let _ = write!(l, "{k},{},", u8::from(lost));
+        if let Some(phase) = t.phase {
+            let _ = write!(l, "{phase:.3}");
+        }
+        l.push(',');
         if let Some(m) = rec.m_rs_ns {
             let _ = write!(l, "{m}");
         }
@@ -284,8 +288,10 @@ impl FaultWatch {
 
 /// One recorded cycle against the segment's truth.
 pub(super) struct CycleTruth {
-    /// The reference's system time at the frame's arrival after its grid point, ns.
-    phase: f64,
+    /// The reference's system time at the frame's arrival after its grid point, ns; `None`
+    /// when the cycle's first frame, which carries the reference's time, did not reach the
+    /// segment (a cycle of several frames: the others' drives are judged all the same).
+    phase: Option<f64>,
     /// The largest difference of a slave's system time from the reference's (every 8th
     /// cycle), ns.
     spread: Option<f64>,
@@ -328,6 +334,9 @@ pub(super) struct GroundTruth {
     pub(super) grid_slips: u64,
     /// The last recorded cycle and its scheduled start on the master's clock, ns.
     last_scheduled: Option<(u64, u64)>,
+    /// The last judged cycle's grid point (system time, ns) and its recorded cycle: a cycle
+    /// whose first frame was lost on its way out has its grid point a period per cycle on.
+    last_grid: Option<(u64, u64)>,
     /// This cycle's margin per DC slave (NaN: none), for the samples.
     pub(super) margins: Vec<f64>,
     /// Per DC slave: the first SYNC0 pulse after its last outputs (`SlaveTruth::
@@ -478,6 +487,7 @@ impl GroundTruth {
             grid_shift: 0,
             grid_slips: 0,
             last_scheduled: None,
+            last_grid: None,
             margins: Vec::with_capacity(n_dc),
             next_pulse_ns: vec![0; n_dc],
             drive_marks: vec![None; n_dc],
@@ -526,16 +536,11 @@ impl GroundTruth {
         }
     }
 
-    /// Recorded cycle `k` against the segment: the reference's phase, the slaves' spread,
-    /// each DC slave's margin (into `per_slave`; kept in `margins` if `keep`). `None`: no grid
-    /// to judge it by (the reference reset, its SYNC0 not running again yet).
-    fn judge(
-        &mut self,
-        tr: &SimTransport,
-        k: u64,
-        per_slave: &mut [SlaveTruth],
-        keep: bool,
-    ) -> Option<CycleTruth> {
+    /// The grid point recorded cycle `k`'s frames aim at (system time, ns), from the cycle's
+    /// first frame at the reference (which reached the segment): with the reference's phase
+    /// after it and, every 8th cycle, the slaves' spread. `None`: the reference has no
+    /// SYNC0 running (reset, not configured again yet).
+    fn reference_grid(&mut self, tr: &SimTransport, k: u64) -> Option<(u64, f64, Option<f64>)> {
         let (reference, period, shift, target) = (
             self.reference,
             self.period_ns,
@@ -545,14 +550,8 @@ impl GroundTruth {
         let p = period as f64;
         let seg = tr.segment();
         let sys = |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
-        // Ground truth from the segment: the cycle's first frame at the reference. A slave
-        // without SYNC0 running (power-cycled, not configured again yet) has no grid and no
-        // deadline: it is not counted until it has.
+        // Ground truth from the segment: the cycle's first frame at the reference.
         let runs_sync0 = |x: usize| seg.esc(x).dc().is_some_and(|d| d.sync0().is_some());
-        // (A frame that never reached the segment has an earlier frame's trace.)
-        if !tr.frame_processed(0) {
-            return None;
-        }
         let trace = tr.frame_trace(0);
         let r = trace
             .pu_ps(reference)
@@ -603,6 +602,47 @@ impl GroundTruth {
             }
             spread = Some(worst);
         }
+        Some((grid, phase, spread))
+    }
+
+    /// Recorded cycle `k` against the segment: the reference's phase, the slaves' spread,
+    /// each DC slave's margin (into `per_slave`; kept in `margins` if `keep`). `None`: no grid
+    /// to judge it by (the reference reset, its SYNC0 not running again yet).
+    fn judge(
+        &mut self,
+        tr: &SimTransport,
+        k: u64,
+        per_slave: &mut [SlaveTruth],
+        keep: bool,
+    ) -> Option<CycleTruth> {
+        let (period, shift) = (self.period_ns, self.shift_ns);
+        let seg = tr.segment();
+        let sys = |slave: usize, t_ps: u64| seg.esc(slave).dc().map(|d| d.system_time_split(t_ps));
+        // A slave without SYNC0 running (power-cycled, not configured again yet) has no grid
+        // and no deadline: it is not counted until it has.
+        let runs_sync0 = |x: usize| seg.esc(x).dc().is_some_and(|d| d.sync0().is_some());
+        let (grid, phase, spread) = if tr.frame_processed(0) {
+            let (grid, phase, spread) = self.reference_grid(tr, k)?;
+            (grid, Some(phase), spread)
+        } else {
+            // The cycle's first frame, which carries the reference's time, did not reach the
+            // segment (a frame that never did has an earlier frame's trace). In a cycle of
+            // several frames the others did, and their drives took their outputs: they are
+            // judged at the grid point the count of cycles gives (with faults: a period per
+            // cycle after the last one judged).
+            let grid = match self.grid0 {
+                Some((g0, k0, b0)) if !self.regrid => {
+                    (g0 + (k as i64 - k0 + self.grid_shift) as u64) * period + b0
+                }
+                _ => {
+                    let (k_last, g_last) = self.last_grid?;
+                    g_last.wrapping_add((k - k_last).wrapping_mul(period))
+                }
+            };
+            (grid, None, None)
+        };
+        self.last_grid = Some((k, grid));
+        let trace = tr.frame_trace(0);
         // The frame has passed a slave when its last bit has: its outputs take effect after
         // the FCS check, and SYNC0 needs them by then.
         let mut worst_margin = f64::INFINITY;
@@ -761,29 +801,31 @@ impl Observers {
         // A frame the master did not get back (its reply came after the next cycle's start,
         // or a fault lost it on the way back) still passed the slaves it reached: its outputs
         // were taken, early or late, and the ground truth judges it. Only a frame that never
-        // reached the segment (dropped by the host, lost on the way out) is not judged.
+        // reached the segment (dropped by the host, lost on the way out) is not judged; in a
+        // cycle of several frames, the others still are.
         let lost = rec.receive.is_none();
         if lost {
             res.lost_frames += 1;
-            if !tr.frame_processed(0) {
-                if let Some(sk) = self.samples.as_mut() {
-                    sk.lost(k);
-                }
-                return;
-            }
         } else if rec.lrw_wkc != Some(self.expected_wkc) && self.pdi_len > 0 {
             res.bad_wkc += 1;
         }
-        if let Some(m) = rec.m_rs_ns {
-            res.m_rs.add(m as f64);
-            self.series[0].add(k, m as f64);
-        }
-        if let Some(v) = rec.rs_is_ns {
-            res.rs_is.add(f64::from(v));
-            self.series[1].add(k, f64::from(v));
+        if !lost || tr.frame_processed(0) {
+            if let Some(m) = rec.m_rs_ns {
+                res.m_rs.add(m as f64);
+                self.series[0].add(k, m as f64);
+            }
+            if let Some(v) = rec.rs_is_ns {
+                res.rs_is.add(f64::from(v));
+                self.series[1].add(k, f64::from(v));
+            }
         }
         let keep = self.samples.is_some();
-        let Some(t) = self.truth.judge(tr, k, &mut res.per_slave, keep) else {
+        let judged = self
+            .truth
+            .judge(tr, k, &mut res.per_slave, keep)
+            .filter(|t| t.phase.is_some() || t.worst_margin.is_finite());
+        let Some(t) = judged else {
+            // No grid, or none of the cycle's frames reached a slave it judges.
             if let Some(sk) = self.samples.as_mut() {
                 if lost {
                     sk.lost(k);
@@ -793,10 +835,12 @@ impl Observers {
             }
             return;
         };
-        let target = self.truth.target_ns;
-        res.phase.add(t.phase);
-        res.phase_error.add(t.phase - target as f64);
-        self.series[2].add(k, t.phase);
+        if let Some(phase) = t.phase {
+            let target = self.truth.target_ns;
+            res.phase.add(phase);
+            res.phase_error.add(phase - target as f64);
+            self.series[2].add(k, phase);
+        }
         if let Some(worst) = t.spread {
             res.slave_diff.add(worst);
         }
