@@ -108,4 +108,17 @@ fn in_a_cycle_of_several_frames_each_drive_counts_its_own_frames_losses() {
     // after the drives took the outputs), each frame its own.
     assert!(counts.len() > 1, "{counts:?}");
     assert!(counts.iter().all(|&n| (10..=80).contains(&n)), "{counts:?}");
+    // The lost count is of cycles: it says so, with the frames a cycle sends.
+    let w = out
+        .warnings
+        .iter()
+        .find(|w| w.kind == "lost_frames")
+        .unwrap();
+    assert!(
+        w.message.contains(&format!(
+            "recorded cycles lost one or more of their {frames} frames"
+        )),
+        "{}",
+        w.message
+    );
 }

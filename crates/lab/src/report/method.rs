@@ -151,6 +151,7 @@ pub(super) fn method_out(
             smallest_safe_shift_pct: shift_pct(latest, period),
             per_slave,
             lost_frames: rs.iter().map(|r| r.lost_frames).sum(),
+            frames_per_cycle: rs.iter().map(|r| r.frames_per_cycle).max().unwrap_or(1),
             bad_wkc: rs.iter().map(|r| r.bad_wkc).sum(),
         },
         init_drift,

@@ -98,8 +98,12 @@ pub struct GroundTruth {
     pub smallest_safe_shift_pct: f64,
     /// Per slave with a DC unit.
     pub per_slave: Vec<SlaveOut>,
-    /// Frames lost, all runs.
+    /// Recorded cycles that lost their frame, all runs (in a cycle of several frames: one or
+    /// more of them).
     pub lost_frames: u64,
+    /// Frames a cycle sends (the most of any run); not in summary.json.
+    #[serde(skip)]
+    pub frames_per_cycle: usize,
     /// Cycles with an unexpected LRW working counter, all runs.
     pub bad_wkc: u64,
 }

@@ -133,11 +133,19 @@ pub(super) fn not_ranked(
             let share = lost as f64 / mo.cycles_done.max(1) as f64;
             (mo.faults.is_empty() && lost > 0 && share > UNRANKED_LOST_SHARE).then(|| NotRanked {
                 method: m.clone(),
-                why: format!(
-                    "{m} lost {lost} of {} frames ({:.0} %) with no fault scheduled: the figures of the frames that came back do not describe it",
-                    mo.cycles_done,
-                    share * 100.0
-                ),
+                why: if mo.ground_truth.frames_per_cycle > 1 {
+                    format!(
+                        "{m} lost a frame in {lost} of {} cycles ({:.0} %) with no fault scheduled: the figures of the cycles that came back do not describe it",
+                        mo.cycles_done,
+                        share * 100.0
+                    )
+                } else {
+                    format!(
+                        "{m} lost {lost} of {} frames ({:.0} %) with no fault scheduled: the figures of the frames that came back do not describe it",
+                        mo.cycles_done,
+                        share * 100.0
+                    )
+                },
                 lost_frames: true,
             })
         })

@@ -436,29 +436,29 @@ fn lost_frames(m: &str, mo: &MethodOut, faults: Option<&FaultSchedule>) -> Optio
     let cause = faults
         .filter(|_| !mo.faults.is_empty())
         .map(|f| losing_faults(f, late));
+    let g = &mo.ground_truth;
+    let lost_of = if g.frames_per_cycle > 1 {
+        format!(
+            "{lost} of {} recorded cycles lost one or more of their {} frames",
+            mo.cycles_done, g.frames_per_cycle
+        )
+    } else {
+        format!("{lost} of {} recorded frames were lost", mo.cycles_done)
+    };
     Some(Warning {
         kind: "lost_frames",
         method: Some(m.to_string()),
         message: if let Some(s) = mo.send.as_ref().filter(|s| s.launch_misses > 0) {
             format!(
-                "{m}: {lost} of {} recorded frames were lost, {} of them handed to the kernel after their launch time (the host's jitter beyond the txtime lead: raise [send] txtime_lead_us)",
-                mo.cycles_done, s.launch_misses
+                "{m}: {lost_of}, {} of them handed to the kernel after their launch time (the host's jitter beyond the txtime lead: raise [send] txtime_lead_us)",
+                s.launch_misses
             )
         } else if let Some(Some(cause)) = cause {
-            format!(
-                "{m}: {lost} of {} recorded frames were lost ({cause})",
-                mo.cycles_done
-            )
+            format!("{m}: {lost_of} ({cause})")
         } else if let Some(None) = cause {
-            format!(
-                "{m}: {lost} of {} recorded frames were lost: {timeout} (no fault of the schedule drops frames)",
-                mo.cycles_done
-            )
+            format!("{m}: {lost_of}: {timeout} (no fault of the schedule drops frames)")
         } else {
-            format!(
-                "{m}: {lost} of {} recorded frames were lost: {timeout}",
-                mo.cycles_done
-            )
+            format!("{m}: {lost_of}: {timeout}")
         },
     })
 }

@@ -98,6 +98,7 @@ fn empty_result(
         late_frames: 0,
         latest_end_ns: f64::NEG_INFINITY,
         lost_frames: 0,
+        frames_per_cycle: 1,
         wild_schedule_cycles: 0,
         grid_slips: 0,
         reached_end: false,
@@ -225,7 +226,8 @@ impl Run {
                 (k, frame_wire_time_ps(eng.frame_len_of(k)))
             })
             .collect();
-        let res = empty_result(s, entry, up.run, &named, lock_ms, has_log);
+        let mut res = empty_result(s, entry, up.run, &named, lock_ms, has_log);
+        res.frames_per_cycle = eng.frame_count();
         let truth = GroundTruth::new(GridSpec {
             reference,
             dc_slaves,

@@ -290,8 +290,10 @@ pub struct RunResult {
     /// The latest end of a frame at any slave after its grid point, ns: the smallest SYNC0
     /// shift without a late frame.
     pub latest_end_ns: f64,
-    /// Frames lost.
+    /// Recorded cycles that lost their frame (one or more of them in a cycle of several).
     pub lost_frames: u64,
+    /// Frames a cycle sends (one unless the process image needs more).
+    pub frames_per_cycle: usize,
     /// Cycles whose method asked for a next start the engine held (more than two periods
     /// on, or before the cycle's own): a controller gone unstable (warm-up included).
     pub wild_schedule_cycles: u64,
