@@ -521,7 +521,9 @@ impl GroundTruth {
     /// system time runs against the master's clock, read at the frame's arrival (the clocks'
     /// truth, free of the host's jitter).
     fn warmup(&mut self, tr: &mut SimTransport, i: u64) {
-        if i >= self.init_frames {
+        // (A frame that never reached the segment has an earlier frame's trace: its reading
+        // is of that frame's time, not this cycle's.)
+        if i >= self.init_frames || !tr.frame_processed(0) {
             return;
         }
         let reference = self.reference;
