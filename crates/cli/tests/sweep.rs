@@ -239,6 +239,14 @@ fn bad_points_shards_and_databases_are_refused_first() {
         e.contains("point 1") && e.contains("gain") && e.contains("fix:"),
         "{e}"
     );
+    // The point is named once and the file without a line: the text checked is the point's,
+    // made from the file without its comments and in another order, so no line of it is one
+    // of the file's (this gain is on line 187 of presets/paper-2024.toml; the error said 33).
+    assert_eq!(e.matches("point 1").count(), 1, "{e}");
+    assert!(
+        e.contains("(methods.median-fit.gain=2): preset paper-2024: methods.median-fit.gain: "),
+        "{e}"
+    );
     let e = run(&["--grid", "run.sync0_shift_pct=10", "--shard", "4/4"]);
     assert!(e.contains("--shard 4/4") && e.contains("fix:"), "{e}");
     let e = run(&["--grid", "run.sync0_shift_pct=40:10:5"]);
