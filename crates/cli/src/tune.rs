@@ -149,6 +149,8 @@ struct Outcome {
     /// The comparison's warning that the method was still settling as the recording began
     /// (its start is in the figures: a gain that pulls in slowly looks worse than it holds).
     settling: Option<String>,
+    /// Why it does not hold, in `compare`'s words (empty when it holds).
+    why_not: String,
 }
 
 impl Outcome {
@@ -156,8 +158,9 @@ impl Outcome {
         let m = out.methods.get(method)?;
         let g = &m.ground_truth;
         let ranked = out.recommendation.ranking.iter().any(|r| r == method);
+        let good = ranked && g.late_frames == 0 && g.lost_frames == 0 && g.holds_target;
         Some(Outcome {
-            good: ranked && g.late_frames == 0 && g.lost_frames == 0 && g.holds_target,
+            good,
             safe_shift_pct: g.smallest_safe_shift_pct,
             phase_error_p999_ns: g.phase_error.p999_abs,
             late_frames: g.late_frames,
@@ -172,6 +175,11 @@ impl Outcome {
                 .iter()
                 .find(|w| w.kind == "settling" && w.method.as_deref() == Some(method))
                 .map(|w| w.message.clone()),
+            why_not: if good {
+                String::new()
+            } else {
+                why_not(out, method)
+            },
         })
     }
 
@@ -184,6 +192,46 @@ impl Outcome {
             nan(self.phase_error_p999_ns),
         )
     }
+}
+
+/// Why `method` does not hold in `out`, in `compare`'s words: why it is not ranked, or its late
+/// and lost frames and the warning that it sits off its target.
+fn why_not(out: &SummaryOut, method: &str) -> String {
+    let rec = &out.recommendation;
+    if let Some(n) = rec.not_ranked.iter().find(|n| n.method == method) {
+        return n.why.clone();
+    }
+    let Some(m) = out.methods.get(method) else {
+        return format!("{method} did not run");
+    };
+    let g = &m.ground_truth;
+    let mut parts = Vec::new();
+    if g.late_frames > 0 {
+        parts.push(format!(
+            "{} with a frame after SYNC0 at the {} % shift",
+            ecsync_lab::scenario::plural(g.late_frames, "cycle", "cycles"),
+            g.sync0_shift_pct
+        ));
+    }
+    if g.lost_frames > 0 {
+        parts.push(ecsync_lab::scenario::plural(
+            g.lost_frames,
+            "lost frame",
+            "lost frames",
+        ));
+    }
+    if !g.holds_target {
+        parts.push(
+            out.warnings
+                .iter()
+                .find(|w| w.kind == "off_target" && w.method.as_deref() == Some(method))
+                .map_or_else(
+                    || format!("{method} sits off its target"),
+                    |w| w.message.clone(),
+                ),
+        );
+    }
+    parts.join("; ")
 }
 
 /// The search's state: the base, what ran, how to say it.
@@ -344,6 +392,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
 fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) -> Result<String> {
     let knobs = knobs(kind, base_s);
     let keys: Vec<String> = knobs.iter().map(|(k, _)| k.key.clone()).collect();
+    let gainless = keys.is_empty();
     let defaults: Vec<Value> = knobs
         .iter()
         .map(|(k, v)| {
@@ -455,10 +504,12 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
         }
     }
     if !best.good {
-        let _ = writeln!(
-            t,
-            "Nothing to paste: late or lost frames, or off its target, at every point: {kind} on this network and host needs more than other gains."
-        );
+        t.push_str(&nothing_held(
+            kind,
+            gainless,
+            &best,
+            search.args.shortest_cycle,
+        ));
         return Ok(t);
     }
     let _ = writeln!(t, "Scenario fragment (paste into the scenario file):");
@@ -549,6 +600,29 @@ fn send_modes(
         ),
     };
     Ok((t, pick))
+}
+
+/// What tune says when nothing held (`def`: the defaults' outcome, which the verdict kept):
+/// why, in `compare`'s words, and, when `--shortest-cycle` asked for it, that no cycle was
+/// searched and why.
+fn nothing_held(kind: MethodKind, gainless: bool, def: &Outcome, shortest: bool) -> String {
+    let mut t = if gainless {
+        format!(
+            "Nothing to paste: {kind} has no gains to tune, and on this network and host it does not hold: {}.\n",
+            def.why_not
+        )
+    } else {
+        format!(
+            "Nothing to paste: {kind} holds at no point of the search on this network and host; with the defaults: {}.\n",
+            def.why_not
+        )
+    };
+    if shortest {
+        t.push_str(
+            "Shortest cycle: not searched: the method does not hold at the scenario's own cycle, and a shorter one leaves it less of the cycle.\n",
+        );
+    }
+    t
 }
 
 fn plural_runs(n: u32) -> String {
