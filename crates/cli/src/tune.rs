@@ -801,7 +801,9 @@ fn shortest_cycle(
     let (mut lo, mut hi) = (0.0f64, hi0);
     while hi - lo > step {
         let mid = ((lo + hi) / 2.0 / step).round() * step;
-        let mid = mid.clamp(lo + step, hi - step);
+        // A step of a cycle or more (--cycle-step-us 499 on a 500 us cycle) leaves lo + step
+        // above hi - step: the one step inside (lo, hi) is lo + step (clamp panicked).
+        let mid = mid.clamp(lo + step, (hi - step).max(lo + step));
         if holds(search, mid)?.is_some_and(|o| o.good) {
             hi = mid;
         } else {
@@ -809,7 +811,8 @@ fn shortest_cycle(
         }
     }
     let below = hi - step;
-    let b = if below >= 10.0 {
+    let min_us = ecsync_lab::scenario::CYCLE_US_RANGE.0;
+    let b = if below >= min_us {
         holds(search, below)?
     } else {
         None
@@ -817,22 +820,32 @@ fn shortest_cycle(
     let at = holds(search, hi)?.expect("held");
     let _ = writeln!(
         t,
-        "Shortest cycle this host holds with these parameters at a {} % SYNC0 shift: {hi} us (no late or lost frame, safe shift {:.1} %); at {below} us: {}.",
+        "Shortest cycle this host holds with these parameters at a {} % SYNC0 shift: {hi} us (no late or lost frame, safe shift {:.1} %); {}.",
         base_s.sync0_shift_pct,
         at.safe_shift_pct,
-        match &b {
-            Some(o) if o.good => "it held too (noise near the edge: run more cycles)".to_string(),
-            Some(o) => format!(
-                "{} late and {} lost frames{}",
-                o.late_frames,
-                o.lost_frames,
-                if o.late_frames + o.lost_frames == 0 {
-                    ", off target"
-                } else {
-                    ""
+        if below < min_us {
+            format!(
+                "a step of {step} us below it is no cycle (a cycle is {min_us} us at least): give a smaller --cycle-step-us to look closer"
+            )
+        } else {
+            format!(
+                "at {below} us: {}",
+                match &b {
+                    Some(o) if o.good =>
+                        "it held too (noise near the edge: run more cycles)".to_string(),
+                    Some(o) => format!(
+                        "{} late and {} lost frames{}",
+                        o.late_frames,
+                        o.lost_frames,
+                        if o.late_frames + o.lost_frames == 0 {
+                            ", off target"
+                        } else {
+                            ""
+                        }
+                    ),
+                    None => "refused or never ran (below what the network takes)".to_string(),
                 }
-            ),
-            None => "refused or never ran (below what the network takes)".to_string(),
+            )
         }
     );
     Ok(t)

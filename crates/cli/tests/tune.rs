@@ -405,3 +405,58 @@ fn a_method_that_holds_nowhere_is_told_why_in_compare_words() {
     assert!(!text.contains("needs more than other gains"), "{text}");
     assert!(text.contains("Shortest cycle: not searched"), "{text}");
 }
+
+/// A cycle step of about the cycle: `--cycle-step-us 999` on the 1000 us cycle panicked (a
+/// clamp of 999 to 1 in the bisection), 2000 named "-1000 us" as the cycle below. The cycle
+/// named holds in `compare`, and the step below it is said to be no cycle.
+#[test]
+fn a_cycle_step_as_long_as_the_cycle_is_searched_and_named() {
+    let run = ["--runs", "1", "--cycles", "20000", "--warmup-s", "10"];
+    let tune = |step: &str| {
+        let o = ecsync()
+            .args(["tune", "--method", "soem-pi", "--shortest-cycle", "--quiet"])
+            .args(["--cycle-step-us", step])
+            .args(run)
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "--cycle-step-us {step}: {e}");
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let t = tune("999");
+    assert!(
+        t.contains(" 999 us (no late or lost frame")
+            && t.contains("a step of 999 us below it is no cycle"),
+        "{t}"
+    );
+    let t = tune("2000");
+    assert!(
+        t.contains(" 1000 us (no late or lost frame") && !t.contains("-1000"),
+        "{t}"
+    );
+    // compare at 999 us: the cycle tune named holds.
+    let dir = tmp("step");
+    let c = ecsync()
+        .args([
+            "compare",
+            "--methods",
+            "soem-pi",
+            "--cycle-us",
+            "999",
+            "--json",
+        ])
+        .args(["--quiet", "--out"])
+        .arg(dir.join("cmp"))
+        .args(run)
+        .output()
+        .unwrap();
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&c.stdout).unwrap();
+    let g = &v["methods"]["soem-pi"]["ground_truth"];
+    assert_eq!(
+        (&g["late_frames"], &g["lost_frames"]),
+        (&0.into(), &0.into()),
+        "{g}"
+    );
+    assert_eq!(g["holds_target"], true, "{g}");
+}
