@@ -541,3 +541,60 @@ fn a_sweep_over_the_cycle_names_the_shortest_cycle_held() {
     let below = truth("250");
     assert!(below["late_frames"].as_u64().unwrap() > 0, "{below}");
 }
+
+/// A `--list` written by a CSV writer (Python's csv module writes a list of send modes as
+/// `"[""plain"", ""spin""]"`) gives the points a `--grid` of the same values gives: the same
+/// scenario at every point. Before, the CSV quotes were kept and the cell read as a string
+/// ("invalid type: string ..., expected a sequence"), though the list's doc promised CSV
+/// quoting.
+#[test]
+fn a_list_quoted_as_csv_quotes_is_read_as_the_grid() {
+    let dir = tmp_dir("csv");
+    let list = dir.join("points.csv");
+    std::fs::write(
+        &list,
+        "send.modes,methods.median-fit.gain\n\"[\"\"plain\"\", \"\"spin\"\"]\",0.02\n\"[\"\"plain\"\"]\",\"0.005\"\n",
+    )
+    .unwrap();
+    let args = ["--methods", "median-fit", "--warmup-s", "10"];
+    let mut with_list = args.to_vec();
+    with_list.extend(["--list", list.to_str().unwrap()]);
+    sweep(&dir.join("list.db"), &with_list);
+    let scenarios = |db: &Path| -> Vec<String> {
+        let c = Connection::open(db).unwrap();
+        let mut st = c
+            .prepare("SELECT scenario FROM points ORDER BY point")
+            .unwrap();
+        st.query_map([], |r| r.get(0))
+            .unwrap()
+            .map(Result::unwrap)
+            .collect()
+    };
+    for (i, (modes, gain)) in [(r#"["plain", "spin"]"#, "0.02"), (r#"["plain"]"#, "0.005")]
+        .into_iter()
+        .enumerate()
+    {
+        let db = dir.join(format!("grid{i}.db"));
+        let mut with_grid = args.to_vec();
+        let (m, g) = (
+            format!("send.modes={modes}"),
+            format!("methods.median-fit.gain={gain}"),
+        );
+        with_grid.extend(["--grid", m.as_str(), "--grid", g.as_str()]);
+        sweep(&db, &with_grid);
+        assert_eq!(
+            scenarios(&dir.join("list.db"))[i],
+            scenarios(&db)[0],
+            "point {i}"
+        );
+    }
+    let c = Connection::open(dir.join("list.db")).unwrap();
+    let spin: i64 = c
+        .query_row(
+            "SELECT count(*) FROM results WHERE point = 0 AND method = 'median-fit+spin'",
+            [],
+            |r| r.get(0),
+        )
+        .unwrap();
+    assert_eq!(spin, 1);
+}
