@@ -243,6 +243,9 @@ struct Search<'a> {
     quiet: bool,
     /// Every point run, by its values' text.
     seen: BTreeMap<String, Option<Outcome>>,
+    /// The points the scenario refused (a gain x 4 past what the method takes), how many and
+    /// the first's words: they are in `seen` but never ran.
+    refused: (usize, Option<String>),
     args: &'a Args,
 }
 
@@ -262,6 +265,10 @@ impl Search<'_> {
         let mut refused = None;
         let o = match point::scenario_text(&self.name, &self.base, keys, vals, &what) {
             Err(e) => {
+                self.refused.0 += 1;
+                if self.refused.1.is_none() {
+                    self.refused.1 = Some(format!("{e:#}"));
+                }
                 refused = Some(e);
                 None
             }
@@ -373,6 +380,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
         quiet: args.quiet,
         seen: BTreeMap::new(),
+        refused: (0, None),
         args: &args,
     };
     match tune(&mut search, kind, &base_s) {
@@ -451,7 +459,14 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
             (defaults.clone(), def.clone())
         }
     };
-    let _ = writeln!(t, "  points run: {}", search.seen.len());
+    let _ = match &search.refused {
+        (0, _) | (_, None) => writeln!(t, "  points run: {}", search.seen.len()),
+        (n, Some(first)) => writeln!(
+            t,
+            "  points run: {}; {n} more refused by the scenario's checks, the first: {first}",
+            search.seen.len() - n
+        ),
+    };
     let describe = |vals: &[Value]| -> String {
         if vals.is_empty() {
             return "no gains of its own".into();

@@ -460,3 +460,44 @@ fn a_cycle_step_as_long_as_the_cycle_is_searched_and_named() {
     );
     assert_eq!(g["holds_target"], true, "{g}");
 }
+
+/// Points the scenario refuses (median-fit's gain 0.5 x 4 = 2, past the (0, 1] it takes) are
+/// not counted as run: "points run" is the number of comparisons tune printed a line for, and
+/// the refused ones are counted apart with the scenario's words. Before, "points run: 17"
+/// counted the 3 refused with the 14 that ran.
+#[test]
+fn refused_points_are_not_counted_as_run() {
+    let dir = tmp("refused");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
+    )
+    .unwrap();
+    let at = text.find("[methods.median-fit]").unwrap();
+    let (head, tail) = text.split_at(at);
+    let cfg = dir.join("gain.toml");
+    std::fs::write(
+        &cfg,
+        format!("{head}{}", tail.replacen("gain = 0.01", "gain = 0.5", 1)),
+    )
+    .unwrap();
+    let o = ecsync()
+        .args(["tune", "--method", "median-fit", "--config"])
+        .arg(&cfg)
+        .args(["--runs", "1", "--cycles", "5000", "--warmup-s", "10"])
+        .output()
+        .unwrap();
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(o.status.success(), "{err}");
+    let ran = err.lines().filter(|l| l.starts_with("  methods.")).count();
+    let refused = err.lines().filter(|l| l.starts_with("  refused: ")).count();
+    assert_eq!(refused, 3, "{err}");
+    assert!(
+        out.contains(&format!(
+            "  points run: {ran}; {refused} more refused by the scenario's checks, the first: "
+        )) && out.contains("gain k = 2 must lie in (0, 1]"),
+        "{ran} ran: {out}"
+    );
+}
