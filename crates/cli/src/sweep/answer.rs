@@ -116,6 +116,30 @@ fn seeds_vary(store: &Store, pts: &Points) -> Result<bool> {
     Ok(swept || store.seeds()? > 1)
 }
 
+/// Why `method` has no good point, counted over its points: not ranked, with late or lost
+/// frames, off its target (a point may count under more than one).
+fn why_no_point(rows: &[ResultRow], method: &str) -> String {
+    let mine: Vec<&ResultRow> = rows.iter().filter(|r| r.method == method).collect();
+    let count = |f: &dyn Fn(&ResultRow) -> bool| mine.iter().filter(|r| f(r)).count();
+    let parts: Vec<String> = [
+        (count(&|r| r.rank.is_none()), "not ranked"),
+        (
+            count(&|r| r.late_frames > 0 || r.lost_frames > 0),
+            "late or lost frames",
+        ),
+        (count(&|r| !r.holds_target), "off its target"),
+    ]
+    .into_iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, what)| format!("{what} at {n}"))
+    .collect();
+    format!(
+        "{} of its {}",
+        parts.join(", "),
+        plural(mine.len(), "point", "points")
+    )
+}
+
 /// The cycle time as a swept key.
 const CYCLE_KEY: &str = "run.cycle_us";
 
@@ -307,7 +331,8 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             None => {
                 let _ = writeln!(
                     t,
-                    "  {m:<width$}  no point without late or lost frames on target"
+                    "  {m:<width$}  no point without late or lost frames on target ({})",
+                    why_no_point(&rows, m)
                 );
             }
         }
