@@ -459,14 +459,7 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
             (defaults.clone(), def.clone())
         }
     };
-    let _ = match &search.refused {
-        (0, _) | (_, None) => writeln!(t, "  points run: {}", search.seen.len()),
-        (n, Some(first)) => writeln!(
-            t,
-            "  points run: {}; {n} more refused by the scenario's checks, the first: {first}",
-            search.seen.len() - n
-        ),
-    };
+    t.push_str(&points_run(search));
     let describe = |vals: &[Value]| -> String {
         if vals.is_empty() {
             return "no gains of its own".into();
@@ -615,6 +608,17 @@ fn send_modes(
         ),
     };
     Ok((t, pick))
+}
+
+/// How many points ran, and how many the scenario refused (with the first's words).
+fn points_run(search: &Search) -> String {
+    match &search.refused {
+        (0, _) | (_, None) => format!("  points run: {}\n", search.seen.len()),
+        (n, Some(first)) => format!(
+            "  points run: {}; {n} more refused by the scenario's checks, the first: {first}\n",
+            search.seen.len() - n
+        ),
+    }
 }
 
 /// What tune says when nothing held (`def`: the defaults' outcome, which the verdict kept):
