@@ -266,3 +266,41 @@ fn bad_points_shards_and_databases_are_refused_first() {
         "{e}"
     );
 }
+
+/// Four shards started together into one new database (the same command run twice is the
+/// same race): each finds the sweep the first made and adds its points, and the database
+/// equals the sweep run whole. Before, all but one failed at once ("table sweep already
+/// exists", or "the database has no sweep.points: not a sweep database") in every try.
+#[test]
+fn shards_started_together_into_one_database_all_run() {
+    let dir = tmp_dir("one-db");
+    let grid = ["--grid", "run.sync0_shift_pct=5:40:5"];
+    let whole = dir.join("whole.db");
+    ok(sweep_over(&grid, &whole, &[]));
+    for attempt in 0..3 {
+        let db = dir.join(format!("together-{attempt}.db"));
+        let children: Vec<_> = (0..4)
+            .map(|i| {
+                sweep_over(
+                    &grid,
+                    &db,
+                    &["--shard", &format!("{i}/4"), "--threads", "1"],
+                )
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+            })
+            .collect();
+        for (i, c) in children.into_iter().enumerate() {
+            let o = c.wait_with_output().unwrap();
+            assert!(
+                o.status.success(),
+                "attempt {attempt}, shard {i}: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+        }
+        assert_eq!(content(&db), content(&whole), "attempt {attempt}");
+        assert_eq!(count(&db, "SELECT count(*) FROM log"), 4);
+    }
+}
