@@ -304,3 +304,38 @@ fn shards_started_together_into_one_database_all_run() {
         assert_eq!(count(&db, "SELECT count(*) FROM log"), 4);
     }
 }
+
+/// The same sweep started twice at once into one new database: both finish, each point is
+/// stored once (the log's points add up to the sweep's), and the database equals the sweep
+/// run whole. Before, the second failed with "UNIQUE constraint failed: points.point" at the
+/// first point the other had stored, its log row unwritten.
+#[test]
+fn the_same_sweep_twice_at_once_stores_each_point_once() {
+    let dir = tmp_dir("twice");
+    let grid = ["--grid", "run.sync0_shift_pct=5:40:5"];
+    let whole = dir.join("whole.db");
+    ok(sweep_over(&grid, &whole, &[]));
+    for attempt in 0..3 {
+        let db = dir.join(format!("twice-{attempt}.db"));
+        let children: Vec<_> = (0..2)
+            .map(|_| {
+                sweep_over(&grid, &db, &["--threads", "1"])
+                    .stdout(Stdio::null())
+                    .stderr(Stdio::piped())
+                    .spawn()
+                    .unwrap()
+            })
+            .collect();
+        for c in children {
+            let o = c.wait_with_output().unwrap();
+            assert!(
+                o.status.success(),
+                "attempt {attempt}: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+        }
+        assert_eq!(content(&db), content(&whole), "attempt {attempt}");
+        assert_eq!(count(&db, "SELECT sum(points_run) FROM log"), 8);
+        assert_eq!(count(&db, "SELECT count(*) FROM log"), 2);
+    }
+}

@@ -360,14 +360,16 @@ impl Store {
     }
 
     /// Stores point `point` (its scenario `toml`) and its comparison's figures, in one
-    /// transaction: a point is in the database whole or not at all.
+    /// transaction: a point is in the database whole or not at all. `false`: another sweep on
+    /// this database (the same command run twice) stored it first; its rows are kept (a point's
+    /// comparison is deterministic: they are these).
     pub fn put(
         &mut self,
         point: usize,
         values: &[Value],
         toml: &str,
         out: &SummaryOut,
-    ) -> Result<()> {
+    ) -> Result<bool> {
         let tx = self.conn.transaction()?;
         let mut row: Vec<SqlValue> = vec![SqlValue::Integer(point as i64)];
         row.extend(values.iter().map(sql_of));
@@ -389,10 +391,13 @@ impl Store {
         row.push(SqlValue::Text(warnings.join(", ")));
         row.push(SqlValue::Text(toml.to_string()));
         let marks = vec!["?"; row.len()].join(", ");
-        tx.execute(
-            &format!("INSERT INTO points VALUES ({marks})"),
+        let stored = tx.execute(
+            &format!("INSERT OR IGNORE INTO points VALUES ({marks})"),
             rusqlite::params_from_iter(row),
         )?;
+        if stored == 0 {
+            return Ok(false);
+        }
         let marks = vec!["?"; RESULT_COLUMNS.len() + 2].join(", ");
         {
             let mut ins = tx.prepare(&format!("INSERT INTO results VALUES ({marks})"))?;
@@ -437,7 +442,18 @@ impl Store {
             }
         }
         tx.commit()?;
-        Ok(())
+        Ok(true)
+    }
+
+    /// Whether point `point` is in the database (another sweep on it may have stored it since
+    /// this one looked).
+    pub fn has(&self, point: usize) -> Result<bool> {
+        let n: i64 = self.conn.query_row(
+            "SELECT count(*) FROM points WHERE point = ?1",
+            [point as i64],
+            |r| r.get(0),
+        )?;
+        Ok(n > 0)
     }
 
     /// Records one invocation: the shard it ran, how many points, how long, whether stopped.
