@@ -149,6 +149,8 @@ struct Outcome {
     /// The comparison's warning that the method was still settling as the recording began
     /// (its start is in the figures: a gain that pulls in slowly looks worse than it holds).
     settling: Option<String>,
+    /// Why it does not hold, in `compare`'s words (empty when it holds).
+    why_not: String,
 }
 
 impl Outcome {
@@ -156,8 +158,9 @@ impl Outcome {
         let m = out.methods.get(method)?;
         let g = &m.ground_truth;
         let ranked = out.recommendation.ranking.iter().any(|r| r == method);
+        let good = ranked && g.late_frames == 0 && g.lost_frames == 0 && g.holds_target;
         Some(Outcome {
-            good: ranked && g.late_frames == 0 && g.lost_frames == 0 && g.holds_target,
+            good,
             safe_shift_pct: g.smallest_safe_shift_pct,
             phase_error_p999_ns: g.phase_error.p999_abs,
             late_frames: g.late_frames,
@@ -172,6 +175,11 @@ impl Outcome {
                 .iter()
                 .find(|w| w.kind == "settling" && w.method.as_deref() == Some(method))
                 .map(|w| w.message.clone()),
+            why_not: if good {
+                String::new()
+            } else {
+                why_not(out, method)
+            },
         })
     }
 
@@ -186,6 +194,46 @@ impl Outcome {
     }
 }
 
+/// Why `method` does not hold in `out`, in `compare`'s words: why it is not ranked, or its late
+/// and lost frames and the warning that it sits off its target.
+fn why_not(out: &SummaryOut, method: &str) -> String {
+    let rec = &out.recommendation;
+    if let Some(n) = rec.not_ranked.iter().find(|n| n.method == method) {
+        return n.why.clone();
+    }
+    let Some(m) = out.methods.get(method) else {
+        return format!("{method} did not run");
+    };
+    let g = &m.ground_truth;
+    let mut parts = Vec::new();
+    if g.late_frames > 0 {
+        parts.push(format!(
+            "{} with a frame after SYNC0 at the {} % shift",
+            ecsync_lab::scenario::plural(g.late_frames, "cycle", "cycles"),
+            g.sync0_shift_pct
+        ));
+    }
+    if g.lost_frames > 0 {
+        parts.push(ecsync_lab::scenario::plural(
+            g.lost_frames,
+            "lost frame",
+            "lost frames",
+        ));
+    }
+    if !g.holds_target {
+        parts.push(
+            out.warnings
+                .iter()
+                .find(|w| w.kind == "off_target" && w.method.as_deref() == Some(method))
+                .map_or_else(
+                    || format!("{method} sits off its target"),
+                    |w| w.message.clone(),
+                ),
+        );
+    }
+    parts.join("; ")
+}
+
 /// The search's state: the base, what ran, how to say it.
 struct Search<'a> {
     name: String,
@@ -195,6 +243,9 @@ struct Search<'a> {
     quiet: bool,
     /// Every point run, by its values' text.
     seen: BTreeMap<String, Option<Outcome>>,
+    /// The points the scenario refused (a gain x 4 past what the method takes), how many and
+    /// the first's words: they are in `seen` but never ran.
+    refused: (usize, Option<String>),
     args: &'a Args,
 }
 
@@ -214,6 +265,10 @@ impl Search<'_> {
         let mut refused = None;
         let o = match point::scenario_text(&self.name, &self.base, keys, vals, &what) {
             Err(e) => {
+                self.refused.0 += 1;
+                if self.refused.1.is_none() {
+                    self.refused.1 = Some(format!("{e:#}"));
+                }
                 refused = Some(e);
                 None
             }
@@ -325,6 +380,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
         quiet: args.quiet,
         seen: BTreeMap::new(),
+        refused: (0, None),
         args: &args,
     };
     match tune(&mut search, kind, &base_s) {
@@ -344,6 +400,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
 fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) -> Result<String> {
     let knobs = knobs(kind, base_s);
     let keys: Vec<String> = knobs.iter().map(|(k, _)| k.key.clone()).collect();
+    let gainless = keys.is_empty();
     let defaults: Vec<Value> = knobs
         .iter()
         .map(|(k, v)| {
@@ -402,7 +459,7 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
             (defaults.clone(), def.clone())
         }
     };
-    let _ = writeln!(t, "  points run: {}", search.seen.len());
+    t.push_str(&points_run(search));
     let describe = |vals: &[Value]| -> String {
         if vals.is_empty() {
             return "no gains of its own".into();
@@ -455,10 +512,12 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
         }
     }
     if !best.good {
-        let _ = writeln!(
-            t,
-            "Nothing to paste: late or lost frames, or off its target, at every point: {kind} on this network and host needs more than other gains."
-        );
+        t.push_str(&nothing_held(
+            kind,
+            gainless,
+            &best,
+            search.args.shortest_cycle,
+        ));
         return Ok(t);
     }
     let _ = writeln!(t, "Scenario fragment (paste into the scenario file):");
@@ -549,6 +608,40 @@ fn send_modes(
         ),
     };
     Ok((t, pick))
+}
+
+/// How many points ran, and how many the scenario refused (with the first's words).
+fn points_run(search: &Search) -> String {
+    match &search.refused {
+        (0, _) | (_, None) => format!("  points run: {}\n", search.seen.len()),
+        (n, Some(first)) => format!(
+            "  points run: {}; {n} more refused by the scenario's checks, the first: {first}\n",
+            search.seen.len() - n
+        ),
+    }
+}
+
+/// What tune says when nothing held (`def`: the defaults' outcome, which the verdict kept):
+/// why, in `compare`'s words, and, when `--shortest-cycle` asked for it, that no cycle was
+/// searched and why.
+fn nothing_held(kind: MethodKind, gainless: bool, def: &Outcome, shortest: bool) -> String {
+    let mut t = if gainless {
+        format!(
+            "Nothing to paste: {kind} has no gains to tune, and on this network and host it does not hold: {}.\n",
+            def.why_not
+        )
+    } else {
+        format!(
+            "Nothing to paste: {kind} holds at no point of the search on this network and host; with the defaults: {}.\n",
+            def.why_not
+        )
+    };
+    if shortest {
+        t.push_str(
+            "Shortest cycle: not searched: the method does not hold at the scenario's own cycle, and a shorter one leaves it less of the cycle.\n",
+        );
+    }
+    t
 }
 
 fn plural_runs(n: u32) -> String {
@@ -727,7 +820,9 @@ fn shortest_cycle(
     let (mut lo, mut hi) = (0.0f64, hi0);
     while hi - lo > step {
         let mid = ((lo + hi) / 2.0 / step).round() * step;
-        let mid = mid.clamp(lo + step, hi - step);
+        // A step of a cycle or more (--cycle-step-us 499 on a 500 us cycle) leaves lo + step
+        // above hi - step: the one step inside (lo, hi) is lo + step (clamp panicked).
+        let mid = mid.clamp(lo + step, (hi - step).max(lo + step));
         if holds(search, mid)?.is_some_and(|o| o.good) {
             hi = mid;
         } else {
@@ -735,7 +830,8 @@ fn shortest_cycle(
         }
     }
     let below = hi - step;
-    let b = if below >= 10.0 {
+    let min_us = ecsync_lab::scenario::CYCLE_US_RANGE.0;
+    let b = if below >= min_us {
         holds(search, below)?
     } else {
         None
@@ -743,22 +839,32 @@ fn shortest_cycle(
     let at = holds(search, hi)?.expect("held");
     let _ = writeln!(
         t,
-        "Shortest cycle this host holds with these parameters at a {} % SYNC0 shift: {hi} us (no late or lost frame, safe shift {:.1} %); at {below} us: {}.",
+        "Shortest cycle this host holds with these parameters at a {} % SYNC0 shift: {hi} us (no late or lost frame, safe shift {:.1} %); {}.",
         base_s.sync0_shift_pct,
         at.safe_shift_pct,
-        match &b {
-            Some(o) if o.good => "it held too (noise near the edge: run more cycles)".to_string(),
-            Some(o) => format!(
-                "{} late and {} lost frames{}",
-                o.late_frames,
-                o.lost_frames,
-                if o.late_frames + o.lost_frames == 0 {
-                    ", off target"
-                } else {
-                    ""
+        if below < min_us {
+            format!(
+                "a step of {step} us below it is no cycle (a cycle is {min_us} us at least): give a smaller --cycle-step-us to look closer"
+            )
+        } else {
+            format!(
+                "at {below} us: {}",
+                match &b {
+                    Some(o) if o.good =>
+                        "it held too (noise near the edge: run more cycles)".to_string(),
+                    Some(o) => format!(
+                        "{} late and {} lost frames{}",
+                        o.late_frames,
+                        o.lost_frames,
+                        if o.late_frames + o.lost_frames == 0 {
+                            ", off target"
+                        } else {
+                            ""
+                        }
+                    ),
+                    None => "refused or never ran (below what the network takes)".to_string(),
                 }
-            ),
-            None => "refused or never ran (below what the network takes)".to_string(),
+            )
         }
     );
     Ok(t)

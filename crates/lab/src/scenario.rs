@@ -398,7 +398,9 @@ impl Scenario {
 
 fn cycle_problem(cycle_us: f64) -> Problem {
     let (lo, hi) = CYCLE_US_RANGE;
-    let hint = if cycle_us > hi && cycle_us >= 1000.0 * lo {
+    // The millisecond reading is a hint only when it is a cycle this file takes (not for
+    // inf, nor for 1e9 us, whose reading in ms is out of range as well).
+    let hint = if cycle_us > hi && (lo..=hi).contains(&(cycle_us / 1000.0)) {
         format!(
             " ({cycle_us} us is {} ms: did you mean {} us?)",
             cycle_us / 1000.0,
@@ -780,6 +782,13 @@ mod tests {
         let e = bad(("cycle_us = 1000", "cycle_us = 1000000"));
         assert_eq!(e.field, "run.cycle_us");
         assert!(e.message.contains("did you mean 1000 us"), "{e}");
+        // No hint where the reading in ms is no cycle either (it said "inf us is inf ms: did
+        // you mean inf us?", and "did you mean 1000000 us?" for 1e9).
+        for v in ["inf", "1e9"] {
+            let e = bad(("cycle_us = 1000", &format!("cycle_us = {v}")));
+            assert_eq!(e.field, "run.cycle_us");
+            assert!(!e.message.contains("did you mean"), "{e}");
+        }
         // Absurd jitter.
         let e = bad((
             "preset = \"preempt-rt-stress\"",

@@ -5,7 +5,7 @@
 //! a design can spend elsewhere), then the smallest phase error p99.9.
 
 use super::db::{ResultRow, Store};
-use super::grid::Points;
+use super::grid::{self, Points};
 use anyhow::Result;
 use ecsync_lab::report::{SHIFT_TIE_PCT, SummaryOut};
 use std::collections::BTreeMap;
@@ -114,6 +114,69 @@ fn varies(pts: &Points, i: usize) -> bool {
 fn seeds_vary(store: &Store, pts: &Points) -> Result<bool> {
     let swept = (0..pts.keys.len()).any(|i| pts.keys[i] == SEED_KEY && varies(pts, i));
     Ok(swept || store.seeds()? > 1)
+}
+
+/// Why `method` has no good point, counted over its points: not ranked, with late or lost
+/// frames, off its target (a point may count under more than one).
+fn why_no_point(rows: &[ResultRow], method: &str) -> String {
+    let mine: Vec<&ResultRow> = rows.iter().filter(|r| r.method == method).collect();
+    let count = |f: &dyn Fn(&ResultRow) -> bool| mine.iter().filter(|r| f(r)).count();
+    let parts: Vec<String> = [
+        (count(&|r| r.rank.is_none()), "not ranked"),
+        (
+            count(&|r| r.late_frames > 0 || r.lost_frames > 0),
+            "late or lost frames",
+        ),
+        (count(&|r| !r.holds_target), "off its target"),
+    ]
+    .into_iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, what)| format!("{what} at {n}"))
+    .collect();
+    format!(
+        "{} of its {}",
+        parts.join(", "),
+        plural(mine.len(), "point", "points")
+    )
+}
+
+/// The cycle time as a swept key.
+const CYCLE_KEY: &str = "run.cycle_us";
+
+/// When the points differ in cycle time: that their shifts are shares of different cycles
+/// (the same time is a smaller share of a longer one, so the answer leans to the longest
+/// cycle), and the shortest cycle each method held, what a sweep over the cycle is run for.
+fn cycles_text(rows: &[ResultRow], pts: &Points) -> String {
+    let Some(i) = (0..pts.keys.len()).find(|&i| pts.keys[i] == CYCLE_KEY && varies(pts, i)) else {
+        return String::new();
+    };
+    let cycle = |p: usize| match &pts.rows[p][i] {
+        toml::Value::Integer(n) => *n as f64,
+        toml::Value::Float(x) => *x,
+        _ => f64::NAN,
+    };
+    let mut shortest: BTreeMap<&str, Option<&ResultRow>> = BTreeMap::new();
+    for r in rows {
+        let slot = shortest.entry(r.method.as_str()).or_insert(None);
+        if good(r) && slot.is_none_or(|b| cycle(r.point) < cycle(b.point)) {
+            *slot = Some(r);
+        }
+    }
+    let each: Vec<String> = shortest
+        .iter()
+        .map(|(m, r)| match r {
+            Some(r) => format!(
+                "{m} {} us (point {})",
+                grid::show(&pts.rows[r.point][i]),
+                r.point
+            ),
+            None => format!("{m} none"),
+        })
+        .collect();
+    format!(
+        "The points differ in cycle time ({CYCLE_KEY}): each safe shift is a share of its own point's cycle, and the same time is a smaller share of a longer cycle, so the answer leans to the longest. The shortest cycle each method held (no late or lost frame, on target): {}.\n",
+        each.join(", ")
+    )
 }
 
 /// The scenario's seed as a swept key.
@@ -268,11 +331,13 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             None => {
                 let _ = writeln!(
                     t,
-                    "  {m:<width$}  no point without late or lost frames on target"
+                    "  {m:<width$}  no point without late or lost frames on target ({})",
+                    why_no_point(&rows, m)
                 );
             }
         }
     }
+    t.push_str(&cycles_text(&rows, pts));
     if seeds_vary(store, pts)? {
         let _ = writeln!(
             t,

@@ -226,8 +226,30 @@ impl Store {
         conn.pragma_update(None, "journal_mode", "WAL")
             .with_context(|| format!("--db: cannot write {}", path.display()))?;
         let store = Store { conn };
-        match store.meta()? {
-            None => store
+        // Looking for the tables and making them is one write transaction: two sweeps started
+        // on one new database (shards run side by side into one file, or the same command
+        // twice) both found no tables, and all but one failed ("table sweep already exists",
+        // or "no sweep.points" when read between the tables and their rows). The second waits
+        // for the first (SQLite's busy timeout) and finds its sweep.
+        store
+            .conn
+            .busy_timeout(std::time::Duration::from_secs(60))
+            .and_then(|()| store.conn.execute_batch("BEGIN IMMEDIATE"))
+            .with_context(|| format!("--db: cannot write {}", path.display()))?;
+        match store.open_in_transaction(path, meta) {
+            Ok(()) => store.conn.execute_batch("COMMIT")?,
+            Err(e) => {
+                let _ = store.conn.execute_batch("ROLLBACK");
+                return Err(e);
+            }
+        }
+        Ok(store)
+    }
+
+    /// [`Store::open`]'s look for the sweep, in its transaction.
+    fn open_in_transaction(&self, path: &Path, meta: &Meta) -> Result<()> {
+        match self.meta()? {
+            None => self
                 .create(meta)
                 .with_context(|| format!("--db: cannot create the tables in {}", path.display()))?,
             Some(m) if m == *meta => {}
@@ -240,7 +262,7 @@ impl Store {
                 meta.differences(&m, "here", "in the database")
             ),
         }
-        Ok(store)
+        Ok(())
     }
 
     /// The sweep this database is for (`None`: a new database).
@@ -293,9 +315,9 @@ impl Store {
             .iter()
             .map(|(n, _, _)| format!(", r.{n}"))
             .collect();
+        // In the caller's transaction (see `open`): the tables and their rows come whole.
         self.conn.execute_batch(&format!(
-            "BEGIN;
-             CREATE TABLE sweep (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+            "CREATE TABLE sweep (key TEXT PRIMARY KEY, value TEXT NOT NULL);
              CREATE TABLE points (point INTEGER PRIMARY KEY, {keys} seed INTEGER NOT NULL,
                  recommended TEXT, ranking TEXT NOT NULL, reason TEXT NOT NULL,
                  warnings TEXT NOT NULL, scenario TEXT NOT NULL);
@@ -305,8 +327,7 @@ impl Store {
                  started_unix_s INTEGER NOT NULL, points_run INTEGER NOT NULL,
                  wall_s REAL NOT NULL, stopped INTEGER NOT NULL);
              CREATE VIEW sweep_results AS SELECT p.point, {view_keys} r.method {view_results},
-                 p.seed FROM points p JOIN results r ON r.point = p.point;
-             COMMIT;"
+                 p.seed FROM points p JOIN results r ON r.point = p.point;"
         ))?;
         let mut put = self
             .conn
@@ -339,14 +360,16 @@ impl Store {
     }
 
     /// Stores point `point` (its scenario `toml`) and its comparison's figures, in one
-    /// transaction: a point is in the database whole or not at all.
+    /// transaction: a point is in the database whole or not at all. `false`: another sweep on
+    /// this database (the same command run twice) stored it first; its rows are kept (a point's
+    /// comparison is deterministic: they are these).
     pub fn put(
         &mut self,
         point: usize,
         values: &[Value],
         toml: &str,
         out: &SummaryOut,
-    ) -> Result<()> {
+    ) -> Result<bool> {
         let tx = self.conn.transaction()?;
         let mut row: Vec<SqlValue> = vec![SqlValue::Integer(point as i64)];
         row.extend(values.iter().map(sql_of));
@@ -368,10 +391,13 @@ impl Store {
         row.push(SqlValue::Text(warnings.join(", ")));
         row.push(SqlValue::Text(toml.to_string()));
         let marks = vec!["?"; row.len()].join(", ");
-        tx.execute(
-            &format!("INSERT INTO points VALUES ({marks})"),
+        let stored = tx.execute(
+            &format!("INSERT OR IGNORE INTO points VALUES ({marks})"),
             rusqlite::params_from_iter(row),
         )?;
+        if stored == 0 {
+            return Ok(false);
+        }
         let marks = vec!["?"; RESULT_COLUMNS.len() + 2].join(", ");
         {
             let mut ins = tx.prepare(&format!("INSERT INTO results VALUES ({marks})"))?;
@@ -416,7 +442,18 @@ impl Store {
             }
         }
         tx.commit()?;
-        Ok(())
+        Ok(true)
+    }
+
+    /// Whether point `point` is in the database (another sweep on it may have stored it since
+    /// this one looked).
+    pub fn has(&self, point: usize) -> Result<bool> {
+        let n: i64 = self.conn.query_row(
+            "SELECT count(*) FROM points WHERE point = ?1",
+            [point as i64],
+            |r| r.get(0),
+        )?;
+        Ok(n > 0)
     }
 
     /// Records one invocation: the shard it ran, how many points, how long, whether stopped.

@@ -85,7 +85,12 @@ impl Points {
                     keys.len()
                 );
             }
-            rows.push(cells.iter().map(|c| value_of(c.trim())).collect());
+            rows.push(
+                cells
+                    .iter()
+                    .map(|c| value_of(&csv_unquote(c.trim())))
+                    .collect(),
+            );
         }
         if rows.is_empty() {
             bail!("{file}: no point; fix: give one line of values per point after the header");
@@ -246,6 +251,18 @@ fn split_csv(s: &str) -> Vec<String> {
         out.last_mut().expect("one").push(c);
     }
     out
+}
+
+/// A CSV cell as its text: a cell wholly in double quotes is CSV's quoting (RFC 4180: what a
+/// spreadsheet, Python's csv or pandas writes around a value holding a comma or a quote, its
+/// quotes doubled), taken off before the text is read as TOML: `"[""plain"", ""spin""]"` is
+/// the list `["plain", "spin"]`, `"0.5"` the number. A TOML string needs its own quotes inside
+/// CSV's (`"""text"""`), or none where the text is not TOML (`vanilla-linux`).
+fn csv_unquote(cell: &str) -> String {
+    match cell.strip_prefix('"').and_then(|c| c.strip_suffix('"')) {
+        Some(inner) if !inner.replace("\"\"", "").contains('"') => inner.replace("\"\"", "\""),
+        _ => cell.to_string(),
+    }
 }
 
 /// The base scenario with `keys` set to `values`: the TOML text of the point's scenario.

@@ -287,22 +287,32 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
         if STOP.load(Ordering::Relaxed) {
             break;
         }
+        // Another sweep on this database (the same command run twice, shards side by side
+        // into one file) may have stored it since we looked: its rows stand (they are these).
+        if store.has(p)? {
+            continue;
+        }
         let t = Instant::now();
         let out = match point::run(&format!("{name} at point {p}"), &texts[p], threads, &STOP) {
             Ok(Some(out)) => out,
             Ok(None) => break,
             Err(e) => bail!("point {p} ({}): {e}", pts.describe(p)),
         };
-        store.put(p, &pts.rows[p], &texts[p], &out)?;
-        ran += 1;
+        let stored = store.put(p, &pts.rows[p], &texts[p], &out)?;
+        ran += usize::from(stored);
         if !a.quiet {
             note!(
-                "point {p} [{}/{}] {}: {} ({:.1} s)",
+                "point {p} [{}/{}] {}: {} ({:.1} s){}",
                 k + 1,
                 todo.len(),
                 pts.describe(p),
                 answer::point_line(&out),
-                t.elapsed().as_secs_f64()
+                t.elapsed().as_secs_f64(),
+                if stored {
+                    ""
+                } else {
+                    "; another sweep on this database stored it first"
+                }
             );
         }
     }

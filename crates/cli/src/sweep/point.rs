@@ -34,7 +34,9 @@ pub fn base_table(name: &str, text: &str, run: &[(&str, Value)]) -> Result<Table
 }
 
 /// The TOML text of `base` with `keys` set to `values`, checked as a scenario file and against
-/// the cycle its network needs (the error names `what`, the point).
+/// the cycle its network needs (the error names `what`, the point, and the file `name`: not a
+/// line, since the text checked is the one made here, without the file's comments and in
+/// another order, and the base file itself was checked first: the point's values are the cause).
 pub fn scenario_text(
     name: &str,
     base: &Table,
@@ -43,8 +45,10 @@ pub fn scenario_text(
     what: &str,
 ) -> Result<String> {
     let text = grid::apply(base, keys, values)?;
-    let s = ecsync_lab::parse(&format!("{name} at {what}"), &text)
-        .map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
+    let s = ecsync_lab::parse(name, &text).map_err(|mut e| {
+        e.line = None;
+        anyhow::anyhow!("{what}: {e}")
+    })?;
     ecsync_lab::run::check_cycle_fits(&s).map_err(|e| anyhow::anyhow!("{what}: {e}"))?;
     Ok(text)
 }
