@@ -546,6 +546,11 @@ fn compare(args: &Args, s: &Scenario) -> Result<Option<Comparison>> {
     match result.map_err(|_| anyhow::anyhow!("a simulation thread panicked"))? {
         Ok(c) => Ok(Some(c)),
         Err(RunError::Interrupted) => Ok(None),
+        // What the scenario file says is refused: named with the file (its field and fix are
+        // in the words).
+        Err(e @ (RunError::CycleTooShort { .. } | RunError::NoSync0Slave { .. })) => {
+            Err(anyhow::anyhow!("{}: {e}", s.name))
+        }
         Err(e) => Err(anyhow::anyhow!("{e}")),
     }
 }

@@ -529,8 +529,10 @@ fn warnings_come_where_the_figures_are_at_risk() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
-        err.contains("the 45 us cycle is too short for this network: its 1 cyclic frames take 24.0 us on the wire")
-            && err.contains("set run.cycle_us (or --cycle-us) to 180 or more"),
+        err.contains(&format!(
+            "{}: the 45 us cycle is too short for this network: its 1 cyclic frames take 24.0 us on the wire",
+            f.display()
+        )) && err.contains("set run.cycle_us (or --cycle-us) to 180 or more"),
         "{err}"
     );
     assert!(!out.join("report").join("summary.json").exists());
