@@ -265,6 +265,22 @@ fn bad_points_shards_and_databases_are_refused_first() {
         e.contains("holds another sweep") && e.contains("fix:"),
         "{e}"
     );
+    // A database in a folder that is not there: named, with the cause and the fix.
+    let nowhere = dir.join("no-such-folder").join("sweep.db");
+    let o = ecsync()
+        .args(["sweep", "--grid", "run.sync0_shift_pct=10"])
+        .args(SHORT)
+        .arg("--db")
+        .arg(&nowhere)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains(&format!("--db: cannot open {}: ", nowhere.display()))
+            && e.contains("; fix: give a file in a folder that exists"),
+        "{e}"
+    );
 }
 
 /// Four shards started together into one new database (the same command run twice is the

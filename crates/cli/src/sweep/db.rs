@@ -222,9 +222,19 @@ impl Store {
     /// another sweep is refused: mixing them would give a table nobody can read.
     pub fn open(path: &Path, meta: &Meta) -> Result<Store> {
         let conn = Connection::open(path)
-            .with_context(|| format!("--db: cannot open {}", path.display()))?;
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "--db: cannot open {}: {e}; fix: give a file in a folder that exists and you may write to",
+                    path.display()
+                )
+            })?;
         conn.pragma_update(None, "journal_mode", "WAL")
-            .with_context(|| format!("--db: cannot write {}", path.display()))?;
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "--db: cannot write {}: {e}; fix: give a file in a folder that exists and you may write to",
+                    path.display()
+                )
+            })?;
         let store = Store { conn };
         // Looking for the tables and making them is one write transaction: two sweeps started
         // on one new database (shards run side by side into one file, or the same command
@@ -235,7 +245,12 @@ impl Store {
             .conn
             .busy_timeout(std::time::Duration::from_secs(60))
             .and_then(|()| store.conn.execute_batch("BEGIN IMMEDIATE"))
-            .with_context(|| format!("--db: cannot write {}", path.display()))?;
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "--db: cannot write {}: {e}; fix: give a file in a folder that exists and you may write to",
+                    path.display()
+                )
+            })?;
         match store.open_in_transaction(path, meta) {
             Ok(()) => store.conn.execute_batch("COMMIT")?,
             Err(e) => {
@@ -564,7 +579,12 @@ pub fn read_meta(path: &Path) -> Result<Meta> {
 /// the sweep it holds.
 pub fn read(path: &Path) -> Result<(Store, Meta)> {
     let conn = Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
-        .with_context(|| format!("cannot open {}", path.display()))?;
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "cannot open {}: {e}; fix: give a database `ecsync sweep --db` wrote",
+                path.display()
+            )
+        })?;
     let store = Store { conn };
     let meta = store
         .meta()
