@@ -389,11 +389,39 @@ pub fn run(args: Args) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Err(e) if STOP.load(Ordering::Relaxed) => {
-            eprintln!("ecsync tune: {e}; nothing to report");
+            // What the points run so far say is kept: the best of them, unrefined.
+            match best_so_far(&search) {
+                Some(line) => print!("{line}"),
+                None => eprintln!("ecsync tune: {e}; nothing to report"),
+            }
             Ok(ExitCode::from(130))
         }
         Err(e) => Err(e),
     }
+}
+
+/// After Ctrl-C: the best point the search ran before it stopped, in words (`None`: no point
+/// ran to the end).
+fn best_so_far(search: &Search) -> Option<String> {
+    let ran = search.seen.values().flatten().count();
+    let (what, o) = search
+        .seen
+        .iter()
+        .filter_map(|(w, o)| Some((w, o.as_ref()?)))
+        .min_by(|a, b| {
+            a.1.key()
+                .partial_cmp(&b.1.key())
+                .unwrap_or(std::cmp::Ordering::Equal)
+        })?;
+    let holds = if o.good {
+        "holds the target without a late or lost frame"
+    } else {
+        "does not hold (late, lost or off target), nor did any other point"
+    };
+    Some(format!(
+        "Stopped after {ran} of the search's points: the best so far is {what} (safe shift {:.1} %, phase error p99.9 {:.0} ns), which {holds}; not refined, nor weighed against the defaults run by run: run `ecsync tune` again to finish.\n",
+        o.safe_shift_pct, o.phase_error_p999_ns
+    ))
 }
 
 /// The search and its report.

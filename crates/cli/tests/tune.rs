@@ -501,3 +501,59 @@ fn refused_points_are_not_counted_as_run() {
         "{ran} ran: {out}"
     );
 }
+
+/// Ctrl-C in the middle of the search: exit 130 within the point's slice, and the best of the
+/// points that ran is printed (the one with the smallest safe shift of those the per-point
+/// lines called candidates), not "nothing to report".
+#[test]
+fn ctrl_c_prints_the_best_point_so_far() {
+    use std::io::{BufRead, BufReader, Read};
+    use std::process::Stdio;
+    let mut child = ecsync()
+        .args(["tune", "--method", "median-fit"])
+        .args(["--runs", "1", "--cycles", "300000", "--warmup-s", "10"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut points: Vec<String> = Vec::new();
+    while points.len() < 3 {
+        let l = lines.next().expect("a line").unwrap();
+        if l.contains(": safe shift ") {
+            points.push(l);
+        }
+    }
+    let asked = std::time::Instant::now();
+    // SAFETY: plain FFI call on the pid of a child not yet waited for.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    let rest: Vec<String> = lines.map(Result::unwrap).collect();
+    let status = child.wait().unwrap();
+    eprintln!("stopped {:?} after the signal", asked.elapsed());
+    let mut out = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    assert_eq!(status.code(), Some(130), "{rest:?}");
+    // The per-point lines: "  <what>: safe shift X %, ..." and " (not a candidate)" if not.
+    let pct = |l: &str| -> f64 {
+        let v = l.split(": safe shift ").nth(1).unwrap();
+        v.split(' ').next().unwrap().parse().unwrap()
+    };
+    let seen: Vec<&String> = points.iter().chain(rest.iter()).collect();
+    let best = seen
+        .iter()
+        .filter(|l| l.contains(": safe shift ") && !l.contains("not a candidate"))
+        .map(|l| pct(l))
+        .fold(f64::INFINITY, f64::min);
+    assert!(best.is_finite(), "{seen:?}");
+    assert!(
+        out.starts_with("Stopped after ")
+            && out.contains(&format!("(safe shift {best:.1} %"))
+            && out.contains("holds the target"),
+        "{out}\n{seen:?}"
+    );
+}
