@@ -267,9 +267,24 @@ pub(crate) struct Slope {
     my: f64,
     cxx: f64,
     cxy: f64,
+    /// [`Slope::add_on_grid`]: the last value as given and the whole periods added to it.
+    last: Option<f64>,
+    turns: f64,
 }
 
 impl Slope {
+    /// `y` kept in one period `p` of a grid (the tracker's phase, which wraps to the next
+    /// pulse as a drifting master's frames pass one): unwrapped first, each step taken as the
+    /// shortest way round, so that a master that drifts over the grid has the slope it drifts
+    /// at, not a sawtooth's.
+    pub(crate) fn add_on_grid(&mut self, x: f64, y: f64, p: f64) {
+        if let Some(last) = self.last {
+            self.turns -= ((y - last) / p).round() * p;
+        }
+        self.last = Some(y);
+        self.add(x, y + self.turns);
+    }
+
     pub(crate) fn add(&mut self, x: f64, y: f64) {
         let x = x - *self.x0.get_or_insert(x);
         self.n += 1.0;
