@@ -167,6 +167,8 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     let judge_options = ecsync_lab::judge::JudgeOptions {
         names,
         preset: name.clone(),
+        // The judge's late replies are the ones serve's own summary counts.
+        late_reply_ns: ecsync_net::serve::HOST_LATE_NS,
         ..Default::default()
     };
     // The status line rewritten in place on a terminal of serve's own; elsewhere (a log, a
