@@ -250,6 +250,19 @@ fn a_missing_field_or_a_bad_value_says_what_to_write() {
             && e.contains("fix: give one of the accepted values: `cyclic` or `start`"),
         "{e}"
     );
+    // A misspelt field names its entry as the other mistakes do (it said `typo.toml:8:
+    // probabilty: unknown field`, the entry left to find).
+    let f = write(
+        &d,
+        "typo.toml",
+        "[[fault]]\nat_s = 1\nkind = \"loss\"\nframes = 1\n\n[[fault]]\nat_s = 2\nprobabilty = 0.1\nkind = \"loss\"\n",
+    );
+    let e = stderr(&short_compare(&f, &d.join("out")));
+    assert!(
+        e.contains("typo.toml:8: fault[1].probabilty: unknown field `probabilty`")
+            && e.contains("fix: remove the field or correct its spelling"),
+        "{e}"
+    );
     assert!(!d.join("out").exists());
 }
 

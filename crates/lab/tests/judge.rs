@@ -312,6 +312,58 @@ fn a_master_drifting_over_the_grid_misses_one_pulse_once() {
 }
 
 #[test]
+fn a_master_drifting_over_the_grid_has_the_drift_it_drifts_at() {
+    // Each frame 5 us later against the pulses than the one before, sent every 1.005 ms: the
+    // phase moves +5 us a frame, 4 975 124 ns/s (worked out from the send instants). Its
+    // frames pass a pulse and are then meant for the next one, so the phase the judge keeps
+    // jumps back a cycle: the drift is not that sawtooth's slope (which was 1.17e6 ns/s, a
+    // quarter of the truth; dcm-bus-shift through serve, drifting -48 000 ns/s, had +1 596).
+    let mut r = Rig::new();
+    let mut t = r.send_ps(1, 24_000);
+    for n in 1..=120u64 {
+        r.send(&lrw(n as u8), t, Lost::No);
+        t += (CYCLE_NS + 5_000) * 1000;
+    }
+    let out = r.judge.summary(&r.seg);
+    let truth = 5_000.0 / 1.005e-3;
+    let drift = out.phase.drift_ns_per_s.unwrap();
+    assert!(
+        (drift - truth).abs() < 1e-6 * truth,
+        "drift {drift} ns/s, the master's {truth}"
+    );
+}
+
+#[test]
+fn a_jittery_master_that_does_not_drift_has_the_drift_of_its_send_instants() {
+    // pysoem's sleep loop through serve: frames 380 us before the pulses on average, up to
+    // 300 us either side, one after the other up to 600 us apart on the grid, but not
+    // drifting. Its drift is the least-squares slope of its frames' offsets from the pulses
+    // over their send instants, worked out here from those instants; unwrapping the phase by
+    // the steps between frames made it +888 000 ns/s through serve.
+    let mut r = Rig::new();
+    let f = lrw(0);
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    for k in 1..=1000u64 {
+        let j = 300_000.0 * (((k * 7919) % 19) as f64 - 9.0) / 9.0;
+        let off_ns = -380_000.0 + j;
+        let t = (r.send_ps(k, 0) as f64 + off_ns * 1000.0) as u64;
+        r.send(&f, t, Lost::No);
+        xs.push(t as f64 / 1e12);
+        ys.push(off_ns);
+    }
+    let n = xs.len() as f64;
+    let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
+    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let sxx: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
+    let truth = sxy / sxx;
+    let drift = r.judge.summary(&r.seg).phase.drift_ns_per_s.unwrap();
+    assert!(
+        (drift - truth).abs() < 1.0 + 1e-6 * truth.abs(),
+        "drift {drift} ns/s, the send instants' {truth}"
+    );
+}
+
+#[test]
 fn a_retry_of_a_frame_lost_on_its_way_out_is_one() {
     // An APRD of slave 3's AL status lost before the first slave (the request), sent again
     // 2 ms later (SOEM's timeout): the answer's position field has been counted up by every

@@ -158,9 +158,17 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
     }
     super::sandbox::ready(&args.sandbox, &args.iface, seg.len(), &args.source)?;
     let t0 = Instant::now();
+    // The judge names its drives by network position; the scenario's names are in the file's
+    // order, which a junction's ports (processed 0, 3, 1, 2) or a branch listed before the
+    // line behind it put elsewhere.
+    let names = (0..seg.len())
+        .map(|p| slave_names[seg.spec_index(p)].clone())
+        .collect();
     let judge_options = ecsync_lab::judge::JudgeOptions {
-        names: slave_names,
+        names,
         preset: name.clone(),
+        // The judge's late replies are the ones serve's own summary counts.
+        late_reply_ns: ecsync_net::serve::HOST_LATE_NS,
         ..Default::default()
     };
     // The status line rewritten in place on a terminal of serve's own; elsewhere (a log, a

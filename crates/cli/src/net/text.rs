@@ -187,7 +187,19 @@ fn print_run_figures(o: &RunOut) {
         "{:<22} {:>10} {:>10} {:>10} {:>10}",
         "us", "mean", "std", "max", "min"
     );
-    for (name, s) in [("M-rS", &o.m_rs), ("rS-IS |0x092C|", &o.rs_is)] {
+    let none = [
+        "the run stopped before the method's initialisation (--init-s) ended",
+        "no cycle came back with it",
+    ];
+    for (i, (name, s)) in [("M-rS", &o.m_rs), ("rS-IS |0x092C|", &o.rs_is)]
+        .into_iter()
+        .enumerate()
+    {
+        if s.n == 0 {
+            // Not NaNs: a run stopped before its method's initialisation ended has no M-rS.
+            println!("{name:<22} none measured: {}", none[i]);
+            continue;
+        }
         println!(
             "{:<22} {:>10.3} {:>10.3} {:>10.3} {:>10.3}",
             name,

@@ -291,3 +291,36 @@ fn run_method_once(pair: &NetPair, method: &str) {
         j["wake_latency"]["p99_us"].as_f64().unwrap()
     );
 }
+
+#[test]
+#[ignore = "needs network namespaces (root)"]
+fn a_run_that_ends_in_its_method_s_initialisation_says_so_not_nan() {
+    // 0.5 s of cycles against a 2 s initialisation: the method never measured an M-rS (the
+    // summary's n is 0); the text said `M-rS NaN NaN NaN NaN` (as after a Ctrl-C in the
+    // first second of the cyclic phase).
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("i");
+    let dir = tmp("init");
+    let summary = dir.join("s.json");
+    let _served = pair.serve(&[]);
+    let o = pair
+        .run(&["--method", "median", "--init-s", "2", "--duration", "0.5"])
+        .args(["--summary", summary.to_str().unwrap()])
+        .output()
+        .expect("ecsync run");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    assert_eq!(j["m_rs"]["n"], 0, "{j}");
+    assert!(j["rs_is"]["n"].as_u64().unwrap() > 0, "{j}");
+    assert!(!text.contains("NaN"), "{text}");
+    assert!(
+        text.contains("M-rS                   none measured: the run stopped before the method's initialisation (--init-s) ended"),
+        "{text}"
+    );
+}

@@ -546,7 +546,8 @@ impl Judge {
         let x = after_pulse(at, s, c);
         let phase = self.phase_track.place(x, p);
         self.phase.add(phase);
-        self.phase_fit.add(t_ps as f64 / 1e12, phase);
+        self.phase_fit
+            .add(t_ps as f64 / 1e12, self.phase_track.unwrapped());
         self.phase_bands.add(k, phase);
         if k.is_multiple_of(8) {
             let mut worst = 0.0f64;

@@ -18,6 +18,10 @@ pub(crate) struct Tracker {
     at: usize,
     typical: f64,
     calls: u32,
+    /// The whole periods the typical offset was moved by to keep it in [-p, 0), taken back:
+    /// [`Tracker::unwrapped`].
+    turns: f64,
+    unwrapped: f64,
 }
 
 impl Default for Tracker {
@@ -28,6 +32,8 @@ impl Default for Tracker {
             at: 0,
             typical: 0.0,
             calls: 0,
+            turns: 0.0,
+            unwrapped: 0.0,
         }
     }
 }
@@ -42,10 +48,21 @@ impl Tracker {
     /// Takes `v` (in [-p, 0)) as the typical offset from now on, forgetting the frames so far.
     pub(crate) fn reanchor(&mut self, v: f64, p: f64) {
         let v = if v < -p { v + p } else { v };
+        self.turns -= ((v - self.typical) / p).round() * p;
         self.ring[0] = v;
         self.len = 1;
         self.at = 1;
         self.typical = v;
+    }
+
+    /// The value [`Tracker::place`] returned last, on one continuous scale: the whole periods
+    /// the typical offset was moved by before it was placed taken back. A master drifting over the
+    /// grid has its frames placed on a sawtooth (each passes a pulse and is then meant for the
+    /// next); unwrapped, they lie on the line it drifts along. Taken from the typical's moves,
+    /// not from the steps between frames: a jittery master's frames step by up to a cycle
+    /// without drifting.
+    pub(crate) fn unwrapped(&self) -> f64 {
+        self.unwrapped
     }
 
     /// The last 4 offsets (the newest included) rise steadily: every step forward, the largest
@@ -72,6 +89,7 @@ impl Tracker {
         }
         let c = self.typical;
         let v = x + ((c - x) / p).round() * p;
+        self.unwrapped = v + self.turns;
         self.ring[self.at] = v;
         self.at = (self.at + 1) % RING;
         self.len = (self.len + 1).min(RING);
@@ -96,6 +114,7 @@ impl Tracker {
             0.0
         };
         if shift != 0.0 {
+            self.turns -= shift;
             t += shift;
             for r in &mut self.ring[..self.len] {
                 *r += shift;

@@ -102,6 +102,10 @@ fn is_zero(v: &u64) -> bool {
 /// beyond a good host's wake-up latency.
 pub const HOST_LATE_NS: u64 = 50_000;
 
+/// How far behind the clock [`Segment::expire_watchdogs`] plays the drives' watchdogs between
+/// frames, ps: longer than a frame waits in the socket unless this host stalled.
+const WATCHDOG_GRACE_PS: u64 = 20_000_000_000;
+
 /// When replies leave.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Pace {
@@ -379,6 +383,10 @@ impl<H: ServeHooks> Loop<'_, H> {
         }
         self.next_poll_ns = now + self.hooks.poll_interval_ns();
         let now_ps = self.now_ps();
+        // The drives' process data watchdogs by the clock, a grace behind it: a frame that
+        // arrived before the expiry and still waits in the socket must find them as it left
+        // them.
+        segment.expire_watchdogs(now_ps.saturating_sub(WATCHDOG_GRACE_PS));
         let mut served = Served {
             segment,
             faults,

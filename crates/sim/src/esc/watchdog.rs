@@ -67,6 +67,14 @@ impl Esc {
         false
     }
 
+    /// Plays the process data watchdog's expiry by the clock, between frames: when no write
+    /// of the outputs came for its time before `t_ps`, the drive leaves OP now (as a real one
+    /// does 100 ms after its master stopped), not only when the next frame finds it expired.
+    /// Whether it expired.
+    pub fn expire_watchdog(&mut self, t_ps: u64) -> bool {
+        self.watchdog_check(t_ps)
+    }
+
     #[inline(never)]
     fn watchdog_expired(&mut self) {
         // In OP on its DC signal the drive counted every pulse without outputs up to the

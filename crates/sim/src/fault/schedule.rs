@@ -122,6 +122,21 @@ impl FaultSchedule {
 /// (`fault[N].kind`, N counting the `[[fault]]` headers up to its line) and the fix points at
 /// files that have faults (the general fix names a scenario preset, which has none).
 fn entry_error(text: &str, mut e: ConfigError) -> ConfigError {
+    let headers_to = |line: usize| {
+        text.lines()
+            .take(line)
+            .filter(|l| l.trim_start().starts_with("[[fault]]"))
+            .count()
+    };
+    // A misspelt field of an entry: which entry, as every other entry error says.
+    if e.message.contains("unknown field")
+        && let Some(line) = e.line
+        && headers_to(line) > 0
+        && !e.field.is_empty()
+    {
+        e.field = format!("fault[{}].{}", headers_to(line) - 1, e.field);
+        return e;
+    }
     let Some(name) = e
         .message
         .split_once("missing field `")
@@ -133,11 +148,7 @@ fn entry_error(text: &str, mut e: ConfigError) -> ConfigError {
     if let Some(line) = e.line
         && e.field.starts_with("fault")
     {
-        let headers = text
-            .lines()
-            .take(line)
-            .filter(|l| l.trim_start().starts_with("[[fault]]"))
-            .count();
+        let headers = headers_to(line);
         if headers > 0 {
             e.field = format!("fault[{}].{name}", headers - 1);
         }

@@ -493,6 +493,19 @@ impl Segment {
         (self.frames, self.malformed, self.lost)
     }
 
+    /// Plays every powered slave's process data watchdog up to `t_ps` (between frames: a
+    /// master that stopped sending finds its drives in SAFE-OP with 0x001B, and so does anyone
+    /// who looks at them meanwhile). The slaves that left OP by it, by network position.
+    pub fn expire_watchdogs(&mut self, t_ps: u64) -> Vec<usize> {
+        let mut expired = Vec::new();
+        for (p, n) in self.nodes.iter_mut().enumerate() {
+            if !n.off && n.esc.expire_watchdog(t_ps) {
+                expired.push(p);
+            }
+        }
+        expired
+    }
+
     /// Advances every clock to `t_ps` (wander, slews); call between frames when time passes.
     pub fn advance_to(&mut self, t_ps: u64) {
         for n in &mut self.nodes {
