@@ -228,13 +228,29 @@ impl Store {
                     path.display()
                 )
             })?;
-        conn.pragma_update(None, "journal_mode", "WAL")
-            .map_err(|e| {
-                anyhow::anyhow!(
-                    "--db: cannot write {}: {e}; fix: give a file in a folder that exists and you may write to",
-                    path.display()
-                )
-            })?;
+        // Another sweep on the same file (shards side by side, the same command twice) may
+        // hold its lock: wait for it, from the first statement on. Switching a new database
+        // to WAL takes the lock too, and SQLite may answer it busy without waiting: tried
+        // again for as long.
+        let wait = std::time::Duration::from_secs(60);
+        let cannot_write = |e: rusqlite::Error| {
+            anyhow::anyhow!(
+                "--db: cannot write {}: {e}; fix: give a file in a folder that exists and you may write to",
+                path.display()
+            )
+        };
+        conn.busy_timeout(wait).map_err(cannot_write)?;
+        let t0 = std::time::Instant::now();
+        while let Err(e) = conn.pragma_update(None, "journal_mode", "WAL") {
+            let busy = matches!(
+                e.sqlite_error_code(),
+                Some(rusqlite::ErrorCode::DatabaseBusy | rusqlite::ErrorCode::DatabaseLocked)
+            );
+            if !busy || t0.elapsed() > wait {
+                return Err(cannot_write(e));
+            }
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
         let store = Store { conn };
         // Looking for the tables and making them is one write transaction: two sweeps started
         // on one new database (shards run side by side into one file, or the same command
@@ -243,14 +259,8 @@ impl Store {
         // for the first (SQLite's busy timeout) and finds its sweep.
         store
             .conn
-            .busy_timeout(std::time::Duration::from_secs(60))
-            .and_then(|()| store.conn.execute_batch("BEGIN IMMEDIATE"))
-            .map_err(|e| {
-                anyhow::anyhow!(
-                    "--db: cannot write {}: {e}; fix: give a file in a folder that exists and you may write to",
-                    path.display()
-                )
-            })?;
+            .execute_batch("BEGIN IMMEDIATE")
+            .map_err(cannot_write)?;
         match store.open_in_transaction(path, meta) {
             Ok(()) => store.conn.execute_batch("COMMIT")?,
             Err(e) => {
