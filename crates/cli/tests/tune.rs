@@ -129,20 +129,47 @@ fn tuned_gains_beat_bad_defaults_and_the_shortest_cycle_holds_in_compare() {
         );
     }
     // The shortest cycle: held at it, not one step (100 us) below, as compare sees it.
+    // Both at the fragment's shift, kept in us after the grid point: the line names the share
+    // at the shortest cycle.
     let sc = line("Shortest cycle");
-    let us = number_after(&sc, "SYNC0 shift: ");
+    let us = number_after(&sc, "(the fragment's shift): ");
+    let pct = number_after(&sc, "sync0_shift_pct = ");
+    let shift_us = number_after(&sc, "SYNC0 ");
+    let frag_pct = number_after(&line("sync0_shift_pct ="), "sync0_shift_pct =");
+    assert!((shift_us - frag_pct * 10.0).abs() < 0.051, "{sc}\n{text}");
+    assert!(pct * us / 100.0 >= shift_us - 1e-6, "{sc}");
     let tuned_cfg = dir.join("tuned.toml");
+    // The fragment as pasted (its gains and its shift) holds in compare: before, its shift was
+    // the safe shift plus the tie step alone, where pi-m2s's 8 us offset from its target was
+    // more than 10 % of the margin left, and compare called it off target.
+    let pasted = compare(&tuned_cfg, &["--shift-pct", &frag_pct.to_string()]);
+    let g = &pasted["ground_truth"];
+    assert_eq!(g["late_frames"], 0, "{text}");
+    assert_eq!(g["lost_frames"], 0, "{text}");
+    assert_eq!(g["holds_target"], true, "{text}\n{g}");
     let at = compare(
         &tuned_cfg,
-        &["--cycle-us", &us.to_string(), "--shift-pct", "30"],
+        &[
+            "--cycle-us",
+            &us.to_string(),
+            "--shift-pct",
+            &pct.to_string(),
+        ],
     );
     let g = &at["ground_truth"];
     assert_eq!(g["late_frames"], 0, "{sc}");
     assert_eq!(g["lost_frames"], 0, "{sc}");
     assert_eq!(g["holds_target"], true, "{sc}");
+    let below_us = us - 100.0;
+    let below_pct = (shift_us / below_us * 1000.0 - 1e-6).ceil() / 10.0;
     let below = compare(
         &tuned_cfg,
-        &["--cycle-us", &(us - 100.0).to_string(), "--shift-pct", "30"],
+        &[
+            "--cycle-us",
+            &below_us.to_string(),
+            "--shift-pct",
+            &below_pct.to_string(),
+        ],
     );
     let g = &below["ground_truth"];
     assert!(
@@ -425,16 +452,17 @@ fn a_cycle_step_as_long_as_the_cycle_is_searched_and_named() {
     };
     let t = tune("999");
     assert!(
-        t.contains(" 999 us (no late or lost frame")
+        t.contains(" 999 us, with sync0_shift_pct = ")
             && t.contains("a step of 999 us below it is no cycle"),
         "{t}"
     );
+    let pct_999 = number_after(&t, "with sync0_shift_pct = ").to_string();
     let t = tune("2000");
     assert!(
-        t.contains(" 1000 us (no late or lost frame") && !t.contains("-1000"),
+        t.contains(" 1000 us, with sync0_shift_pct = ") && !t.contains("-1000"),
         "{t}"
     );
-    // compare at 999 us: the cycle tune named holds.
+    // compare at 999 us and the shift tune named there: the cycle holds.
     let dir = tmp("step");
     let c = ecsync()
         .args([
@@ -443,6 +471,8 @@ fn a_cycle_step_as_long_as_the_cycle_is_searched_and_named() {
             "soem-pi",
             "--cycle-us",
             "999",
+            "--shift-pct",
+            &pct_999,
             "--json",
         ])
         .args(["--quiet", "--out"])
@@ -491,7 +521,18 @@ fn refused_points_are_not_counted_as_run() {
         String::from_utf8_lossy(&o.stderr),
     );
     assert!(o.status.success(), "{err}");
-    let ran = err.lines().filter(|l| l.starts_with("  methods.")).count();
+    // The gains' search; the fragment's shift is confirmed by a point of its own after it.
+    let ran = err
+        .lines()
+        .filter(|l| l.starts_with("  methods.") && !l.contains("run.sync0_shift_pct="))
+        .count();
+    assert_eq!(
+        err.lines()
+            .filter(|l| l.contains("run.sync0_shift_pct="))
+            .count(),
+        usize::from(out.contains("confirmed by a comparison at this shift")),
+        "{err}"
+    );
     let refused = err.lines().filter(|l| l.starts_with("  refused: ")).count();
     assert_eq!(refused, 3, "{err}");
     assert!(

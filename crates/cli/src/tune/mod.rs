@@ -15,6 +15,9 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use toml::Value;
 
+mod fragment;
+use fragment::fragment;
+
 /// Set by Ctrl-C or SIGTERM.
 static STOP: AtomicBool = AtomicBool::new(false);
 
@@ -37,8 +40,9 @@ pub struct Args {
     /// Warm-up per run, s (default: the scenario's).
     #[arg(long)]
     warmup_s: Option<f64>,
-    /// Also find the shortest cycle this host holds with the tuned parameters at the
-    /// scenario's SYNC0 shift (no late or lost frame), by bisection over run.cycle_us.
+    /// Also find the shortest cycle this host holds with the tuned parameters and the
+    /// fragment's SYNC0 shift, kept in us after the grid point (no late or lost frame), by
+    /// bisection over run.cycle_us.
     #[arg(long)]
     shortest_cycle: bool,
     /// Also weigh the host's other send modes (spin, txtime, and hwstamp for a master-shift
@@ -146,6 +150,12 @@ struct Outcome {
     lost_frames: u64,
     /// Each run's smallest safe shift, %.
     per_run_pct: Vec<f64>,
+    /// The smallest SYNC0 shift, % of the cycle, at which the method holds its target by
+    /// compare's rule (its mean phase within 10 % of the margin the shift leaves): a tight
+    /// shift leaves a small margin, and an offset a wide one forgives ranks it off target.
+    hold_shift_pct: f64,
+    /// The mean phase's distance from the target, ns.
+    offset_ns: f64,
     /// The comparison's warning that the method was still settling as the recording began
     /// (its start is in the figures: a gain that pulls in slowly looks worse than it holds).
     settling: Option<String>,
@@ -165,6 +175,8 @@ impl Outcome {
             phase_error_p999_ns: g.phase_error.p999_abs,
             late_frames: g.late_frames,
             lost_frames: g.lost_frames,
+            hold_shift_pct: hold_shift_pct(out, g),
+            offset_ns: g.offset_from_target_ns,
             per_run_pct: m
                 .runs
                 .iter()
@@ -192,6 +204,16 @@ impl Outcome {
             nan(self.phase_error_p999_ns),
         )
     }
+}
+
+/// [`Outcome::hold_shift_pct`] from a point's figures: the shift whose margin (the shift less
+/// the target and the frame's transit from the reference to the last drive, here this
+/// method's own) is ten times the method's offset from its target.
+fn hold_shift_pct(out: &SummaryOut, g: &ecsync_lab::report::GroundTruth) -> f64 {
+    let shift_ns = out.sync0_shift_pct / 100.0 * f64::from(out.cycle_ns);
+    let transit_ns = shift_ns - g.sync0_margin.mean - g.phase.mean;
+    let need_ns = out.target_phase_ns as f64 + transit_ns + 10.0 * g.offset_from_target_ns.abs();
+    need_ns / f64::from(out.cycle_ns) * 100.0
 }
 
 /// Why `method` does not hold in `out`, in `compare`'s words: why it is not ranked, or its late
@@ -548,25 +570,7 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
         ));
         return Ok(t);
     }
-    let _ = writeln!(t, "Scenario fragment (paste into the scenario file):");
-    let margin = best.safe_shift_pct + SHIFT_TIE_PCT;
-    let _ = writeln!(
-        t,
-        "  [run]\n  sync0_shift_pct = {margin:.1}   # the smallest safe shift {:.1} % plus {SHIFT_TIE_PCT} % (the comparison's tie step) as margin",
-        best.safe_shift_pct
-    );
-    let mut table = "";
-    for (k, v) in keys.iter().zip(&best_vals) {
-        let (head, field) = k.rsplit_once('.').unwrap_or(("", k));
-        if head != table {
-            let _ = writeln!(t, "  [{head}]");
-            table = head;
-        }
-        let _ = writeln!(t, "  {field} = {v}");
-    }
-    if search.args.shortest_cycle {
-        t.push_str(&shortest_cycle(search, &keys, &best_vals, base_s)?);
-    }
+    t.push_str(&fragment(search, &keys, &best_vals, &best, base_s)?);
     Ok(t)
 }
 
@@ -814,86 +818,4 @@ fn weigh(def: &Outcome, best: &Outcome, same: bool) -> (String, bool) {
             false,
         )
     }
-}
-
-/// The shortest cycle the host holds with `vals` at the scenario's SYNC0 shift (no late or
-/// lost frame, on target), by bisection over run.cycle_us, then confirmed one step below.
-fn shortest_cycle(
-    search: &mut Search,
-    keys: &[String],
-    vals: &[Value],
-    base_s: &ecsync_lab::Scenario,
-) -> Result<String> {
-    let step = search.args.cycle_step_us;
-    let mut keys = keys.to_vec();
-    keys.push("run.cycle_us".into());
-    let holds = |search: &mut Search, us: f64| -> Result<Option<Outcome>> {
-        let mut v = vals.to_vec();
-        v.push(Value::Float(us));
-        search.eval(&keys, &v)
-    };
-    let hi0 = f64::from(base_s.cycle_ns) / 1000.0;
-    let mut t = String::new();
-    if !search.quiet {
-        eprintln!("ecsync tune: the shortest cycle, by bisection in steps of {step} us");
-    }
-    if !holds(search, hi0)?.is_some_and(|o| o.good) {
-        let _ = writeln!(
-            t,
-            "Shortest cycle: the scenario's own {hi0} us does not hold at {} % (late or lost frames): nothing shorter will.",
-            base_s.sync0_shift_pct
-        );
-        return Ok(t);
-    }
-    let (mut lo, mut hi) = (0.0f64, hi0);
-    while hi - lo > step {
-        let mid = ((lo + hi) / 2.0 / step).round() * step;
-        // A step of a cycle or more (--cycle-step-us 499 on a 500 us cycle) leaves lo + step
-        // above hi - step: the one step inside (lo, hi) is lo + step (clamp panicked).
-        let mid = mid.clamp(lo + step, (hi - step).max(lo + step));
-        if holds(search, mid)?.is_some_and(|o| o.good) {
-            hi = mid;
-        } else {
-            lo = mid;
-        }
-    }
-    let below = hi - step;
-    let min_us = ecsync_lab::scenario::CYCLE_US_RANGE.0;
-    let b = if below >= min_us {
-        holds(search, below)?
-    } else {
-        None
-    };
-    let at = holds(search, hi)?.expect("held");
-    let _ = writeln!(
-        t,
-        "Shortest cycle this host holds with these parameters at a {} % SYNC0 shift: {hi} us (no late or lost frame, safe shift {:.1} %); {}.",
-        base_s.sync0_shift_pct,
-        at.safe_shift_pct,
-        if below < min_us {
-            format!(
-                "a step of {step} us below it is no cycle (a cycle is {min_us} us at least): give a smaller --cycle-step-us to look closer"
-            )
-        } else {
-            format!(
-                "at {below} us: {}",
-                match &b {
-                    Some(o) if o.good =>
-                        "it held too (noise near the edge: run more cycles)".to_string(),
-                    Some(o) => format!(
-                        "{} late and {} lost frames{}",
-                        o.late_frames,
-                        o.lost_frames,
-                        if o.late_frames + o.lost_frames == 0 {
-                            ", off target"
-                        } else {
-                            ""
-                        }
-                    ),
-                    None => "refused or never ran (below what the network takes)".to_string(),
-                }
-            )
-        }
-    );
-    Ok(t)
 }
