@@ -651,3 +651,77 @@ fn a_method_without_a_good_point_is_told_why() {
         assert!(ranking.contains(&"snap".into()), "{ranking:?}");
     }
 }
+
+/// dcm-master-shift at kp 0.0003 pulls in slowly: after a 10 s warm-up `compare` on the
+/// point's scenario warns that it was still settling. The sweep stores that warning with the
+/// method's results and its answer, which names that point (the only one), says so; at the
+/// letter's kp 0.004 compare does not warn, and neither does the sweep. Before, the answer
+/// named a settling point as if its figures were where the method settles.
+#[test]
+fn the_answer_says_when_its_point_was_still_settling() {
+    let dir = tmp_dir("settling");
+    for (kp, settles_late) in [("0.0003", true), ("0.004", false)] {
+        let db = dir.join(format!("kp{kp}.db"));
+        let grid = format!("methods.dcm-master-shift.kp={kp}");
+        let out = sweep(
+            &db,
+            &[
+                "--grid",
+                &grid,
+                "--methods",
+                "dcm-master-shift",
+                "--warmup-s",
+                "10",
+            ],
+        );
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        let c = Connection::open(&db).unwrap();
+        let (scenario, kinds): (String, String) = c
+            .query_row(
+                "SELECT p.scenario, r.warnings FROM points p JOIN results r USING (point)
+                 WHERE point = 0 AND method = 'dcm-master-shift'",
+                [],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .unwrap();
+        // compare on the point's scenario: the truth the sweep must agree with.
+        let cfg = dir.join(format!("kp{kp}.toml"));
+        std::fs::write(&cfg, &scenario).unwrap();
+        let o = ok({
+            let mut cmd = ecsync();
+            cmd.args(["compare", "--config"])
+                .arg(&cfg)
+                .args(["--json", "--quiet", "--out"])
+                .arg(dir.join(format!("cmp{kp}")));
+            cmd
+        });
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let warned = v["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w["kind"] == "settling" && w["method"] == "dcm-master-shift");
+        assert_eq!(warned, settles_late, "kp {kp}: {}", v["warnings"]);
+        assert_eq!(
+            kinds.split(", ").any(|k| k == "settling"),
+            warned,
+            "{kinds}"
+        );
+        assert!(
+            text.starts_with("Answer: dcm-master-shift at point 0 "),
+            "{text}"
+        );
+        assert_eq!(
+            text.contains(
+                "  Warning: dcm-master-shift was still settling at point 0 when the recording began"
+            ),
+            warned,
+            "kp {kp}: {text}"
+        );
+        assert_eq!(
+            text.contains("; still settling as the recording began"),
+            warned,
+            "{text}"
+        );
+    }
+}

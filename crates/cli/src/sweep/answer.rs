@@ -265,6 +265,13 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
                 r.phase_error_p999_ns,
                 r.slave_spread_p999_ns
             );
+            if r.settling {
+                let _ = writeln!(
+                    t,
+                    "  Warning: {} was still settling at point {} when the recording began (compare's `settling` warning): its figures hold the pull-in, not only where it settles; a longer warm-up (run.warmup_s) at that point shows whether the answer stands.",
+                    r.method, r.point
+                );
+            }
             let same = ties(&rows, r);
             let points_of = rows.iter().filter(|x| x.method == r.method).count();
             // Every point: of the sweep, not of those run so far.
@@ -321,11 +328,16 @@ pub fn text(store: &Store, pts: &Points) -> Result<String> {
             Some(r) => {
                 let _ = writeln!(
                     t,
-                    "  {m:<width$}  point {}: safe shift {:.1} %, phase error p99.9 {:.0} ns ({})",
+                    "  {m:<width$}  point {}: safe shift {:.1} %, phase error p99.9 {:.0} ns ({}){}",
                     r.point,
                     r.safe_shift_pct,
                     r.phase_error_p999_ns,
-                    pts.describe(r.point)
+                    pts.describe(r.point),
+                    if r.settling {
+                        "; still settling as the recording began"
+                    } else {
+                        ""
+                    }
                 );
             }
             None => {

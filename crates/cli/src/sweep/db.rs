@@ -18,8 +18,9 @@ use std::collections::BTreeSet;
 use std::path::Path;
 use toml::Value;
 
-/// The database's layout version (`sweep.format`): 2 added `results.not_ranked`.
-const FORMAT: &str = "2";
+/// The database's layout version (`sweep.format`): 2 added `results.not_ranked`, 3
+/// `results.warnings`.
+const FORMAT: &str = "3";
 
 /// What a sweep is: the same base and points, the same sweep.
 #[derive(Debug, Clone)]
@@ -196,6 +197,11 @@ pub const RESULT_COLUMNS: &[(&str, &str, &str)] = &[
     ("rs_is_min_ns", "REAL", "rS-IS MMin"),
     ("lock_ms", "REAL", "bring-up time to DC lock"),
     ("cycles", "INTEGER", "recorded cycles, all runs"),
+    (
+        "warnings",
+        "TEXT",
+        "the kinds of compare's warnings about the method, comma-separated (settling: still pulling in as the recording began)",
+    ),
 ];
 
 /// An SQL identifier, quoted (parameter keys hold dots and dashes).
@@ -462,6 +468,14 @@ impl Store {
                     SqlValue::Real(m.rs_is.min),
                     SqlValue::Real(m.lock_ms),
                     SqlValue::Integer(m.cycles_done as i64),
+                    SqlValue::Text(
+                        out.warnings
+                            .iter()
+                            .filter(|w| w.method.as_deref() == Some(name.as_str()))
+                            .map(|w| w.kind)
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                    ),
                 ];
                 ins.execute(rusqlite::params_from_iter(v))?;
             }
@@ -502,7 +516,8 @@ impl Store {
     pub fn rows(&self) -> Result<Vec<ResultRow>> {
         let mut q = self.conn.prepare(
             "SELECT point, method, late_frames, lost_frames, smallest_safe_shift_pct,
-                    phase_error_p999_ns, holds_target, slave_spread_p999_ns, rank, not_ranked
+                    phase_error_p999_ns, holds_target, slave_spread_p999_ns, rank, not_ranked,
+                    warnings
              FROM results ORDER BY point, method",
         )?;
         let rows = q.query_map([], |r| {
@@ -517,6 +532,7 @@ impl Store {
                 slave_spread_p999_ns: r.get::<_, Option<f64>>(7)?.unwrap_or(f64::NAN),
                 rank: r.get::<_, Option<i64>>(8)?.map(|k| k as u32),
                 not_ranked: r.get(9)?,
+                settling: r.get::<_, String>(10)?.split(", ").any(|k| k == "settling"),
                 good: false,
             })
         })?;

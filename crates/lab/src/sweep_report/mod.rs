@@ -45,6 +45,9 @@ pub struct Row {
     pub not_ranked: Option<String>,
     /// Whether its mean phase held the target.
     pub holds_target: bool,
+    /// Whether compare warned that it was still settling as the recording began: its figures
+    /// hold the pull-in.
+    pub settling: bool,
     /// Whether the sweep's answer counts the point for this method: drawn filled (else
     /// hollow on the trade-off, grey and hatched on a heat map).
     pub good: bool,
