@@ -40,11 +40,19 @@ fn fragment_shift(
             "the smallest safe shift {:.1} % plus {SHIFT_TIE_PCT} % (the comparison's tie step) as margin",
             best.safe_shift_pct
         );
-        if pct > safe {
+        if first > safe {
             let _ = write!(
                 why,
                 ", raised so that the method's mean phase, {:.1} us from its target, is within 10 % of the margin (compare's rule for holding the target)",
                 best.offset_ns.abs() / 1000.0
+            );
+        }
+        if i > 0 {
+            let _ = write!(
+                why,
+                ", and by {:.1} % more: the comparison at {:.1} % did not hold (late or lost frames, or off target)",
+                pct - first,
+                round_up(pct - SHIFT_TIE_PCT)
             );
         }
         why.push_str("; confirmed by a comparison at this shift");
