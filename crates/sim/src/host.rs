@@ -107,6 +107,25 @@ impl Jitter {
         self.tail_sign.signum() * -mean * u_size.ln()
     }
 
+    /// The latest a sample comes, ns, about once in `draws` draws: the core's expected
+    /// largest of that many (`sigma * sqrt(2 ln draws)`), plus, when the pulses make it later,
+    /// the pulse size that many draws exceed about once (`mean * ln(draws * tail_p)`, of the
+    /// class that reaches further), clamped to `max_abs_ns`. A bound to plan with, not a
+    /// certainty: once in a run of that length a sample comes about this late.
+    pub fn latest_in_ns(&self, draws: f64) -> f64 {
+        let n = draws.max(2.0);
+        let core = self.sigma_ns * (2.0 * n.ln()).sqrt();
+        let pulse = if self.tail_p > 0.0 && self.tail_sign > 0.0 {
+            let light = n * self.tail_p * (1.0 - self.tail_heavy_share);
+            let heavy = n * self.tail_p * self.tail_heavy_share;
+            let reach = |count: f64, mean: f64| if count > 1.0 { mean * count.ln() } else { 0.0 };
+            reach(light, self.tail_mean_ns).max(reach(heavy, self.tail_heavy_mean_ns))
+        } else {
+            0.0
+        };
+        (core + pulse).min(self.max_abs_ns)
+    }
+
     /// Checks the numbers; returns the field at fault and why.
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         for (f, v) in [
@@ -245,6 +264,21 @@ pub struct HostParams {
 }
 
 impl HostParams {
+    /// How much later than its mean plan (`em_ns` and `tx_latency_ns` after the cycle's slot)
+    /// a frame reaches the wire, ns, about once in `cycles` cycles: the scheduling jitter j_s
+    /// (scaled in bursts, when there are any), the execution time's variation and the NIC's
+    /// jitter j_c, each at [`Jitter::latest_in_ns`].
+    pub fn latest_send_delay_ns(&self, cycles: f64) -> f64 {
+        let burst = if self.bursts.is_none() {
+            1.0
+        } else {
+            self.bursts.js_scale.max(1.0)
+        };
+        self.js.latest_in_ns(cycles) * burst
+            + self.em_jitter.latest_in_ns(cycles)
+            + self.jc.latest_in_ns(cycles)
+    }
+
     /// A host preset by name.
     pub fn preset(name: &str) -> Option<HostParams> {
         Some(match name {

@@ -10,7 +10,8 @@
 //! back to back on the wire, the first bit's way round the segment and the receive latency: a
 //! shorter cycle loses every frame even on a host without jitter, and is refused. A cycle just
 //! above that loses the frames the host's jitter delays: the simulation counts those, and the
-//! cycle the refusal suggests leaves room for them.
+//! cycle the refusal suggests leaves room for them (the latest the host model sends but once in
+//! twenty comparisons of its length, or a replayed trace's worst cycle).
 
 use super::{REPLY_MARGIN_NS, RunError};
 use crate::Scenario;
@@ -18,6 +19,10 @@ use ecsync_master::MasterError;
 use ecsync_master::cyclic::{CyclicConfig, cycle_frame_lens};
 use ecsync_master::pdi::lrw_chunks;
 use ecsync_sim::{Segment, frame_wire_time_ps};
+
+/// The suggested cycle's room is exceeded in one of this many comparisons of the scenario's
+/// length (the host model's latest send about once in that many times its cycles).
+pub const ONE_IN: f64 = 20.0;
 
 /// What a cycle of the scenario's network takes, ns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -32,16 +37,21 @@ pub struct CycleFit {
     pub host_ns: u64,
     /// From the cycle's start to its last reply on a host without jitter: the shortest cycle.
     pub needed_cycle_ns: u64,
+    /// The room the suggested cycle leaves for the host: how late past their mean plan its
+    /// frames reach the wire at most but in one of [`ONE_IN`] comparisons of this length (the
+    /// host model's jitter), or a replayed trace's worst cycle; the engine's reply margin at
+    /// least.
+    pub room_ns: u64,
     /// Slaves with a SYNC0 deadline: a system time (SYNC0 runs on it) and process data (what
     /// SYNC0 takes). A coupler, a terminal without DC, one with receive times only have none.
     pub sync0_slaves: usize,
 }
 
 impl CycleFit {
-    /// The cycle to configure: the shortest with room for the host's jitter (the engine's
-    /// reply margin), rounded up to 10 us, us.
+    /// The cycle to configure: the shortest with room for the host's jitter
+    /// ([`CycleFit::room_ns`]), rounded up to 10 us, us.
     pub fn suggested_cycle_us(&self) -> u64 {
-        (self.needed_cycle_ns + REPLY_MARGIN_NS).div_ceil(10_000) * 10
+        (self.needed_cycle_ns + self.room_ns).div_ceil(10_000) * 10
     }
 }
 
@@ -92,12 +102,32 @@ pub fn cycle_fit(s: &Scenario) -> Result<CycleFit, RunError> {
     let round_trip_ns = seg.round_trip_ps() / 1000;
     let h = &s.host;
     let host_ns = (h.em_ns + h.tx_latency_ns + h.rx_latency_ns).max(0.0) as u64;
+    let late_ns = match &s.host_trace {
+        // The trace's cycles stand in for j_s, e_m and (where it has them) the TX delay: its
+        // worst cycle against the mean plan the host's figures give.
+        Some(r) => r
+            .trace()
+            .rows
+            .iter()
+            .map(|row| {
+                row.wake_latency_ns.max(0.0)
+                    + row.exec_ns.max(0.0)
+                    + row.tx_delay_ns.unwrap_or(h.tx_latency_ns)
+                    - h.em_ns
+                    - h.tx_latency_ns
+            })
+            .fold(0.0, f64::max),
+        // Once in twenty comparisons of this length: a bound reached once in this one would
+        // lose a frame in every other comparison.
+        None => h.latest_send_delay_ns(ONE_IN * s.runs as f64 * s.cycles as f64),
+    };
     Ok(CycleFit {
         frames: lens.len(),
         wire_ns,
         round_trip_ns,
         host_ns,
         needed_cycle_ns: host_ns + wire_ns + round_trip_ns,
+        room_ns: (late_ns.ceil() as u64).max(REPLY_MARGIN_NS),
         sync0_slaves,
     })
 }

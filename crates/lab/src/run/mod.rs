@@ -49,13 +49,14 @@ pub enum RunError {
     /// The cycle is shorter than the network's frames need to come back (every one would be
     /// lost): found before anything is simulated.
     #[error(
-        "the {cycle_us} us cycle is too short for this network: its {} cyclic frames take {:.1} us on the wire, their first bit {:.1} us round the segment and the host {:.1} us, so the last reply comes {:.1} us after the cycle's start even without jitter, and every frame would be lost; set run.cycle_us (or --cycle-us) to {} or more ({} us of room for the host's jitter: a host whose wake-up runs later than that loses those cycles' frames, and `ecsync tune --method <method> --shortest-cycle` finds the shortest cycle this host holds)",
+        "the {cycle_us} us cycle is too short for this network: its {} cyclic frames take {:.1} us on the wire, their first bit {:.1} us round the segment and the host {:.1} us, so the last reply comes {:.1} us after the cycle's start even without jitter, and every frame would be lost; set run.cycle_us (or --cycle-us) to {} or more ({} us of room for the host's jitter: what this host's latest send exceeds in one of twenty comparisons of this length, at least the engine's {} us reply margin; a cycle whose frame goes out later than that loses it, and `ecsync tune --method <method> --shortest-cycle` finds the shortest cycle this host holds)",
         fit.frames,
         fit.wire_ns as f64 / 1000.0,
         fit.round_trip_ns as f64 / 1000.0,
         fit.host_ns as f64 / 1000.0,
         fit.needed_cycle_ns as f64 / 1000.0,
         fit.suggested_cycle_us(),
+        fit.room_ns.div_ceil(1000),
         REPLY_MARGIN_NS / 1000
     )]
     CycleTooShort {
