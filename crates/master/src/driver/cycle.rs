@@ -51,7 +51,7 @@ impl Default for CyclicLimits {
 }
 
 /// One cycle as it happened.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CycleReport {
     /// What the engine and the method made of it.
     pub record: CycleRecord,
@@ -108,6 +108,9 @@ pub struct CyclicDriver {
     pub(super) recovery: Option<RecoverySlot>,
     /// Cycles whose t_ms was the transmit timestamp, and those that had none to take.
     pub(super) t_ms_sources: (u64, u64),
+    /// The cycle's report, filled in place each cycle: a record is a few hundred bytes, and
+    /// returned and moved into a new report it was copied twice a cycle.
+    pub(super) report: CycleReport,
 }
 
 impl CyclicDriver {
@@ -125,6 +128,7 @@ impl CyclicDriver {
             stats: ExchangeStats::default(),
             recovery: None,
             t_ms_sources: (0, 0),
+            report: CycleReport::default(),
         }
     }
 
@@ -303,21 +307,15 @@ impl CyclicDriver {
             if job_pending {
                 self.job_frame_lost();
             }
-            let (record, tx_stamp, round_trip) = self.complete(tr, eng, pending, last, sent);
+            self.complete(tr, eng, pending, last, sent);
             self.cycles += 1;
-            on_cycle(
-                tr,
-                &CycleReport {
-                    record,
-                    woke,
-                    wake_latency_ns: woke.signed_since(scheduled),
-                    skipped_before: skipped,
-                    tx_stamp,
-                    stamp: sent,
-                    round_trip,
-                    frame_len: len,
-                },
-            );
+            let r = &mut self.report;
+            r.woke = woke;
+            r.wake_latency_ns = woke.signed_since(scheduled);
+            r.skipped_before = skipped;
+            r.stamp = sent;
+            r.frame_len = len;
+            on_cycle(tr, &self.report);
             // The rest of the cycle is the recovery's, up to a quarter cycle before the next
             // slot: its frames one after the other (a static drift compensation of a reset
             // slave is thousands of them).
@@ -587,7 +585,7 @@ impl CyclicDriver {
     }
 
     /// Hands the cycle's replies to the engine: the record, the transmit stamp and the round
-    /// trip (with `pending` frames unanswered: a lost cycle, timed now).
+    /// trip into the report (with `pending` frames unanswered: a lost cycle, timed now).
     fn complete<S: MasterSync, Tr: Transport>(
         &mut self,
         tr: &mut Tr,
@@ -595,7 +593,7 @@ impl CyclicDriver {
         pending: usize,
         last: Option<Received>,
         sent: MasterInstant,
-    ) -> (CycleRecord, Option<MasterInstant>, Option<MasterDuration>) {
+    ) {
         let replies = &self.replies;
         let views = |k: usize| replies[k].1.map(|l| &replies[k].0[..l]);
         if pending == 0 {
@@ -611,14 +609,17 @@ impl CyclicDriver {
                     sent
                 }
             };
-            let rec = eng.complete_by(views, t_ms, r.received);
+            self.report.record = eng.complete_by(views, t_ms, r.received);
             self.lost_row = 0;
-            self.last_good = Some(rec.cycle);
-            (rec, r.tx_stamp, Some(r.received.saturating_since(sent)))
+            self.last_good = Some(self.report.record.cycle);
+            self.report.tx_stamp = r.tx_stamp;
+            self.report.round_trip = Some(r.received.saturating_since(sent));
         } else {
             self.lost_row += 1;
             let now = tr.now();
-            (eng.complete_by(views, sent, now), None, None)
+            self.report.record = eng.complete_by(views, sent, now);
+            self.report.tx_stamp = None;
+            self.report.round_trip = None;
         }
     }
 }
