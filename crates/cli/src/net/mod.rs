@@ -2,6 +2,7 @@
 //! DC bring-up and a synchronization method on a network interface).
 
 mod control;
+mod iface_lock;
 mod sandbox;
 mod serve;
 mod served;
