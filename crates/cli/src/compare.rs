@@ -168,7 +168,7 @@ pub fn after_help() -> String {
         ));
     }
     t.push_str(
-        "Ctrl-C (or SIGTERM) stops the runs within a second and writes the statistics of the cycles done (exit code 130); during the bring-up it stops that, and nothing is written. Progress: a bar on a terminal, a line every 5 s otherwise (--quiet: none).",
+        "Ctrl-C (or SIGTERM) stops the runs within a second and writes the statistics of the cycles done (exit code 130 after Ctrl-C, 143 after SIGTERM); during the bring-up it stops that, and nothing is written. Progress: a bar on a terminal, a line every 5 s otherwise (--quiet: none).",
     );
     t
 }
@@ -281,7 +281,7 @@ fn problem(p: Problem, given: &[&str], file: &str, text: &str) -> anyhow::Error 
 static STOP: AtomicBool = AtomicBool::new(false);
 
 /// Runs the comparison the arguments describe, writes its outputs and prints its tables (or
-/// summary.json); exit code 130 when Ctrl-C stopped it.
+/// summary.json); exit code 128 + the signal when one stopped it (Ctrl-C 130, SIGTERM 143).
 pub fn run(args: Args) -> Result<ExitCode> {
     let s = scenario(&args)?;
     if let Some(t) = args.threads
@@ -308,7 +308,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
         eprintln!(
             "ecsync: stopped during the bring-up, before any cycle was measured; nothing written"
         );
-        return Ok(ExitCode::from(130));
+        return Ok(crate::stop::exit_code());
     };
     let out = summarize(&cmp);
     let order: Vec<String> = s.entries().iter().map(|e| e.name()).collect();
@@ -324,7 +324,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
             out.cycles_done,
             args.out.display()
         );
-        return Ok(ExitCode::from(130));
+        return Ok(crate::stop::exit_code());
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -523,7 +523,7 @@ fn compare(args: &Args, s: &Scenario) -> Result<Option<Comparison>> {
     let done = AtomicU64::new(0);
     let up = BringupProgress::default();
     let mut bar = progress(args, s, total);
-    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    crate::stop::raise_on_signals(&STOP);
     let opts = Options {
         stop: Some(&STOP),
         samples_dir: args.samples.clone(),

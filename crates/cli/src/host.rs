@@ -87,7 +87,7 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
     use ecsync_net::host_record::{RecordConfig, record};
     use ecsync_net::rt::{Pin, setup};
     use ecsync_net::sys::PacketSocket;
-    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::atomic::AtomicBool;
     static STOP: AtomicBool = AtomicBool::new(false);
     if !(10..=1_000_000).contains(&a.cycle_us) {
         bail!(
@@ -113,7 +113,7 @@ fn record(a: RecordArgs) -> Result<ExitCode> {
         }
         None => None,
     };
-    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    crate::stop::raise_on_signals(&STOP);
     let f = std::fs::File::create(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut w = std::io::BufWriter::new(f);

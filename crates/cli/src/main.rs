@@ -14,6 +14,7 @@ mod host;
 mod net;
 mod progress;
 mod source;
+mod stop;
 mod sweep;
 mod tsn;
 mod tune;

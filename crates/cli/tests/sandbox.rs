@@ -13,36 +13,24 @@
 // The ring of issue 34 and its checks, as the real-network test has them too.
 #[path = "common/ring.rs"]
 mod ring;
+// The binary, folders, `serve --sandbox`, waiting with a limit.
+#[path = "common/sandbox.rs"]
+mod sandbox_common;
 
-use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Command, ExitStatus, Stdio};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use sandbox_common::{NEEDS_NS, drain, ecsync, sandboxed, tmp, wait_at_most};
+
 /// The masters that run cycles in real time take the machine's cores one at a time.
 static TIMED: Mutex<()> = Mutex::new(());
-
-const NEEDS_NS: &str = "needs network namespaces (root or unprivileged user namespaces)";
-
-fn ecsync() -> &'static str {
-    env!("CARGO_BIN_EXE_ecsync")
-}
 
 fn script(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/pysoem")
         .join(name)
-}
-
-/// A fresh directory any user can read and enter.
-fn tmp(name: &str) -> PathBuf {
-    use std::os::unix::fs::PermissionsExt;
-    let dir = std::env::temp_dir().join(format!("ecsync-sandbox-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o777)).unwrap();
-    dir
 }
 
 /// What a command did: its status, stdout, stderr, and how long it took.
@@ -77,40 +65,6 @@ fn run(mut cmd: Command, limit: Duration) -> Ran {
     );
     assert!(t0.elapsed() < limit, "killed after {limit:?}: {}", r.stderr);
     r
-}
-
-fn drain(r: Option<impl Read + Send + 'static>) -> std::thread::JoinHandle<String> {
-    std::thread::spawn(move || {
-        let mut s = String::new();
-        if let Some(mut r) = r {
-            let _ = r.read_to_string(&mut s);
-        }
-        s
-    })
-}
-
-fn wait_at_most(child: &mut Child, limit: Duration) -> ExitStatus {
-    let t0 = Instant::now();
-    loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            return s;
-        }
-        if t0.elapsed() > limit {
-            let _ = child.kill();
-            return child.wait().unwrap();
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-/// `ecsync serve --quiet --sandbox [extra] -- command...`.
-fn sandboxed(extra: &[&str], command: &[&str]) -> Command {
-    let mut c = Command::new(ecsync());
-    c.args(["serve", "--preset", "paper-2024", "--quiet", "--sandbox"])
-        .args(extra)
-        .arg("--")
-        .args(command);
-    c
 }
 
 /// nobody's uid and gid.
@@ -334,38 +288,6 @@ fn the_command_finds_its_interface_up_after_the_ready_line() {
     );
     ready_line_then_interface_up(&r, &ready);
     println!("{}", r.stdout.lines().next().unwrap());
-}
-
-#[test]
-#[ignore = "needs network namespaces (root or unprivileged user namespaces)"]
-fn a_sigterm_to_serve_reaches_the_command_and_its_code_is_serve_s() {
-    let mut child = sandboxed(&[], &["sleep", "60"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let err = drain(child.stderr.take());
-    let mut first = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut first)
-        .unwrap();
-    if first.is_empty() {
-        let status = wait_at_most(&mut child, Duration::from_secs(10));
-        panic!(
-            "no ready line ({status}); this test {NEEDS_NS}: {}",
-            err.join().unwrap()
-        );
-    }
-    let v: serde_json::Value = serde_json::from_str(&first).expect("the ready line");
-    assert_eq!(v["pid"].as_u64(), Some(u64::from(child.id())));
-    let t0 = Instant::now();
-    // SAFETY: plain FFI call on the pid of a child not yet waited for.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
-    let status = wait_at_most(&mut child, Duration::from_secs(20));
-    let e = err.join().unwrap();
-    assert_eq!(status.code(), Some(128 + libc::SIGTERM), "{e}");
-    assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
-    assert!(e.contains("COMMAND exited: signal: 15"), "{e}");
 }
 
 #[test]

@@ -42,3 +42,43 @@ fn per_cycle_processing_allocates_nothing() {
     assert_eq!(wkc, b.expected_lrw_wkc, "the cycle did its work");
     assert_eq!(after - before, 0, "allocations in 20 000 cycles");
 }
+
+/// serve plays the drives' watchdogs between every two frames: a call that expires nothing
+/// allocates nothing, and one that does allocates no more than the ESCs' own expiries do when
+/// called one by one (it used to collect the positions in a Vec that its caller dropped); the
+/// count it returns is the slaves its expiry took out of OP, as their AL state tells, and a
+/// second call finds none left to expire.
+#[test]
+fn expiring_watchdogs_between_frames_allocates_nothing_of_its_own() {
+    let mut b = CycleBench::paper_2024();
+    let mut work = vec![0u8; 1514];
+    b.run(100, &mut work);
+    let in_op = |s: &ecsync_sim::Segment| {
+        (0..s.len())
+            .filter(|&p| s.esc(p).al_state() == ecsync_wire::AlState::Op)
+            .count()
+    };
+    let op_before = in_op(&b.segment);
+    let mut one_by_one = b.segment.clone();
+    // Nothing written for far longer than any watchdog's 100 ms.
+    let later_ps = b.start_ps + 2_000_000_000_000;
+    let allocs = |f: &mut dyn FnMut() -> usize| {
+        let before = ALLOCS.load(Ordering::Relaxed);
+        let n = f();
+        (n, ALLOCS.load(Ordering::Relaxed) - before)
+    };
+    let (first, first_allocs) = allocs(&mut || b.segment.expire_watchdogs(b.start_ps));
+    assert_eq!((first, first_allocs), (0, 0), "outputs written this cycle");
+    let (expired, by_segment) = allocs(&mut || b.segment.expire_watchdogs(later_ps));
+    let (by_hand, by_escs) = allocs(&mut || {
+        (0..one_by_one.len())
+            .filter(|&p| one_by_one.esc_mut(p).expire_watchdog(later_ps))
+            .count()
+    });
+    assert_eq!(by_segment, by_escs, "allocations beyond the ESCs' own");
+    assert!(expired > 0, "no watchdog expired");
+    assert_eq!(expired, by_hand);
+    assert_eq!(expired, op_before - in_op(&b.segment), "left OP");
+    let (again, again_allocs) = allocs(&mut || b.segment.expire_watchdogs(later_ps));
+    assert_eq!((again, again_allocs), (0, 0), "an expired watchdog is off");
+}

@@ -2,6 +2,7 @@
 //! DC bring-up and a synchronization method on a network interface).
 
 mod control;
+mod iface_lock;
 mod sandbox;
 mod serve;
 mod served;
@@ -17,7 +18,7 @@ use ecsync_dc::time::MasterDuration;
 use ecsync_lab::output::write_atomic;
 use ecsync_lab::realnet::summary::{BringupOut, CSV_HEADER, RATE_FIT_MIN_CYCLES, RunOut};
 use ecsync_lab::realnet::{self, CyclicOptions, CyclicPhase, RealTransport, RunHead};
-use ecsync_master::bringup::Stage;
+use ecsync_master::bringup::{Phase, Stage};
 use ecsync_master::driver::{ExchangeStats, ProcedureConfig, Stopped, run_procedure};
 use ecsync_master::redundancy::Redundant;
 use ecsync_master::transport::SendMode;
@@ -31,16 +32,15 @@ use serde::Deserialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
-use text::{print_bringup, print_run};
+use text::{print_bringup, print_run, stopped_in_bring_up};
 
 /// Raised by Ctrl-C (SIGINT) and SIGTERM.
 static STOP: AtomicBool = AtomicBool::new(false);
 
 fn install_stop_handler() {
-    // A second installation (tests calling twice in one process) is harmless to ignore.
-    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    crate::stop::raise_on_signals(&STOP);
 }
 
 /// `run --send`: the modes a real send has (a hardware transmit stamp is `--tx-stamp`), as
@@ -402,17 +402,19 @@ fn run_on<T: RealTransport>(
 
     // Bring-up.
     let t_up = Instant::now();
-    let Some(net) = bring_up(
+    let net = match bring_up(
         args,
         link,
         &mut exchanges,
         cycle_ns,
         shift_ns,
         sync_error_limit,
-    )?
-    else {
-        eprintln!("ecsync run: stopped during the bring-up; nothing measured");
-        return Ok(ExitCode::from(130));
+    )? {
+        Ok(net) => net,
+        Err(started) => {
+            eprintln!("{}", stopped_in_bring_up(&started));
+            return Ok(crate::stop::exit_code());
+        }
     };
     let bring = BringupOut::of(&net, t_up.elapsed().as_secs_f64());
     if let Some(path) = &args.save_network {
@@ -569,8 +571,8 @@ fn open_link(
 }
 
 /// The DC bring-up on the link, to OP (to the delays with `--scan-only`), its phases on the
-/// terminal; a network that does not answer is named as such. `None`: Ctrl-C or SIGTERM
-/// stopped it (every exchange looks at the flag first).
+/// terminal; a network that does not answer is named as such. `Err`: Ctrl-C or SIGTERM
+/// stopped it (every exchange looks at the flag first), with the phases it had started.
 fn bring_up<T: RealTransport>(
     args: &RunArgs,
     link: &mut T,
@@ -578,7 +580,7 @@ fn bring_up<T: RealTransport>(
     cycle_ns: u32,
     shift_ns: u32,
     sync_error_limit: Option<u16>,
-) -> Result<Option<Network>> {
+) -> Result<Result<Network, Vec<Phase>>> {
     let twin = args.save_network.is_some();
     let cfg = BringupConfig {
         until: if args.scan_only {
@@ -612,6 +614,7 @@ fn bring_up<T: RealTransport>(
         retries: args.retries,
     };
     let mut link = Interruptible::new(link, &STOP);
+    let mut started = Vec::new();
     let net: Network = match run_procedure(
         &mut link,
         &mut engine,
@@ -619,8 +622,11 @@ fn bring_up<T: RealTransport>(
         exchanges,
         |_, _, events| {
             for e in events {
-                if let (Event::Phase(p), false) = (e, json) {
-                    eprintln!("  {p}");
+                if let Event::Phase(p) = e {
+                    started.push(*p);
+                    if !json {
+                        eprintln!("  {p}");
+                    }
                 }
             }
         },
@@ -633,11 +639,11 @@ fn bring_up<T: RealTransport>(
             ),
             _ => bail!("bring-up on {} failed: {e}", args.iface),
         },
-        Err(Interrupted::Stopped) => return Ok(None),
+        Err(Interrupted::Stopped) => return Ok(Err(started)),
         Err(Interrupted::Transport(NetError::Open(e))) => bail!("{e}"),
         Err(Interrupted::Transport(e)) => bail!("bring-up on {}: {e}", args.iface),
     };
-    Ok(Some(net))
+    Ok(Ok(net))
 }
 
 /// Writes the network's twin to `path` with the reference's crystal `reference_ppm` (`None`:

@@ -26,10 +26,9 @@ const SERVED_IFACE: &str = "ecsync0";
 const MASTER_IFACE: &str = "master0";
 /// With a ring (`--ring-iface`), the second pair's end COMMAND gets (`ECSYNC_RING_IFACE`).
 const MASTER_RING_IFACE: &str = "master1";
-/// How long a COMMAND still running when serving stops has, after the signal, before SIGKILL.
-const KILL_AFTER: Duration = Duration::from_secs(10);
-/// After a terminal's Ctrl-C (which COMMAND received too), how long before it is sent SIGTERM.
-const GRACE_AFTER_CTRL_C: Duration = Duration::from_secs(2);
+/// How long a COMMAND still running when serving stops has, after the signal, before its
+/// process group is killed: serve exits within a second of being told to.
+const KILL_AFTER: Duration = Duration::from_millis(500);
 
 /// The options of `serve` for the sandbox and the readiness handshake.
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -37,8 +36,10 @@ pub struct SandboxArgs {
     /// Serve in a private network of its own (a network namespace, in a user namespace when not
     /// root: no privileges needed) on one end of a veth pair (--iface names it, default
     /// ecsync0), run COMMAND (after `--`) on the other end (master0) with its name in
-    /// ECSYNC_IFACE, stop when COMMAND exits and exit with its code (128+N for signal N);
-    /// SIGINT/SIGTERM are forwarded to it.
+    /// ECSYNC_IFACE, stop when COMMAND exits and exit with its code (128+N for signal N).
+    /// COMMAND runs in a process group of its own: a SIGINT/SIGTERM/SIGHUP to serve (a
+    /// terminal's Ctrl-C too) is forwarded to that group, which is killed if it still runs
+    /// half a second later; what COMMAND leaves running is killed when it exits.
     #[arg(long, requires = "command")]
     pub sandbox: bool,
     /// Also write the ready line (the JSON object printed on stdout once the segment is
@@ -171,16 +172,19 @@ pub fn ready(args: &SandboxArgs, iface: &str, slaves: usize, source: &SourceArgs
     Ok(())
 }
 
-/// Waits for COMMAND: raises the stop flag when it exits; forwards a stop to it (the signal
-/// serve was sent, or SIGTERM when serving ended otherwise), and kills it if it outlives
-/// that by [`KILL_AFTER`].
+/// Waits for COMMAND: raises the stop flag when it exits, and kills what it left running in
+/// its process group; forwards a stop to the group (the signal serve was sent, or SIGTERM when
+/// serving ended otherwise), and kills the group if COMMAND outlives that by [`KILL_AFTER`].
 fn watch(mut child: Child) -> ExitStatus {
-    let pid = child.id();
-    let mut stopping: Option<(Instant, bool)> = None;
+    // COMMAND leads its group (`plain_child`).
+    let group = child.id();
+    let mut stopping: Option<Instant> = None;
     loop {
         match child.try_wait() {
             Ok(Some(status)) => {
                 STOP.store(true, Ordering::Relaxed);
+                // A shell's children would hold the private network, and outlive serve.
+                let _ = sys::signal_group(group, libc::SIGKILL);
                 return status;
             }
             Ok(None) => {}
@@ -194,26 +198,19 @@ fn watch(mut child: Child) -> ExitStatus {
         let now = Instant::now();
         match stopping {
             None if STOP.load(Ordering::Relaxed) => {
-                // A terminal's Ctrl-C reached COMMAND too (same foreground group): it gets
-                // time to end on it before SIGTERM. A signal from a process is passed on.
-                let sent = match sys::stop_signal() {
-                    Some((_, true)) => false,
-                    Some((sig, false)) => sys::send_signal(pid, sig).is_ok(),
-                    None => sys::send_signal(pid, libc::SIGTERM).is_ok(),
-                };
-                stopping = Some((now, sent));
+                // COMMAND's group is not the terminal's: a Ctrl-C reached serve alone, and is
+                // passed on as any signal is.
+                let sig = sys::stop_signal().map_or(libc::SIGTERM, |(sig, _)| sig);
+                let _ = sys::signal_group(group, sig);
+                stopping = Some(now);
             }
-            Some((t, false)) if now - t >= GRACE_AFTER_CTRL_C => {
-                let _ = sys::send_signal(pid, libc::SIGTERM);
-                stopping = Some((now, true));
-            }
-            Some((t, true)) if now - t >= KILL_AFTER => {
+            Some(t) if now - t >= KILL_AFTER => {
                 eprintln!(
-                    "ecsync serve: COMMAND still runs {} s after it was told to stop: killed",
-                    KILL_AFTER.as_secs()
+                    "ecsync serve: COMMAND still runs {} ms after it was told to stop: killed with its process group",
+                    KILL_AFTER.as_millis()
                 );
-                let _ = child.kill();
-                stopping = Some((now + Duration::from_secs(3600), true));
+                let _ = sys::signal_group(group, libc::SIGKILL);
+                stopping = Some(now + Duration::from_secs(3600));
             }
             _ => {}
         }

@@ -131,6 +131,22 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         ecsync_lab::output::ensure_writable_dir(dir)
             .with_context(|| format!("--out {}: cannot write there", dir.display()))?;
     }
+    // Held until serve returns: a second serve on these interfaces is refused meanwhile (a
+    // ring on --iface itself is refused by `ring_socket`). Not in the sandbox: its network is
+    // its own.
+    let lock = |iface: &str, flag: &str| -> Result<Option<super::iface_lock::IfaceLock>> {
+        if args.beside_command {
+            return Ok(None);
+        }
+        super::iface_lock::take(iface, flag).map(Some)
+    };
+    let _locks = (
+        lock(&args.iface, "--iface")?,
+        match &args.ring_iface {
+            Some(r) if *r != args.iface => lock(r, "--ring-iface")?,
+            _ => None,
+        },
+    );
     let control = match &args.control {
         Some(p) => Some(super::control::ControlServer::bind(p)?),
         None => None,

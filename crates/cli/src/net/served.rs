@@ -156,7 +156,7 @@ fn inject(req: &Value, served: &mut Served<'_>) -> Value {
     };
     if fault.kind.is_host_fault() {
         return control::error(&format!(
-            "fault: \"{}\" is a fault of the master's host, which serve cannot play",
+            "fault: \"{}\" is a fault of the master's host, which serve cannot play; fix: play it in virtual time with `ecsync compare --faults`, or inject a fault of the segment here (any kind but host_stall and clock_step, e.g. `inject power_cycle slave=2 for_s=0.5`)",
             fault.kind.name()
         ));
     }

@@ -2,7 +2,7 @@
 //! phase's summary.
 
 use ecsync_lab::realnet::summary::{BringupOut, RunOut};
-use ecsync_master::bringup::DcCapability;
+use ecsync_master::bringup::{DcCapability, Phase};
 use ecsync_net::tx_stamp::TxStampSource;
 
 /// The bring-up as text: the slaves with their delays and DC, and whether DC locked.
@@ -278,5 +278,65 @@ fn print_t_ms(o: &RunOut) {
     println!();
     if let Some(n) = &t.note {
         println!("  ({n})");
+    }
+}
+
+/// What `run` says when a signal stopped its bring-up, given the phases it had started (in
+/// order; the last one was in progress): the ones done, and what they had measured, which is
+/// not reported (the bring-up was not done, no summary is written).
+pub(super) fn stopped_in_bring_up(started: &[Phase]) -> String {
+    let Some((now, done)) = started.split_last() else {
+        return "ecsync run: stopped before the bring-up began; nothing measured, nothing written"
+            .to_string();
+    };
+    if done.is_empty() {
+        return format!(
+            "ecsync run: stopped during the bring-up, in its first phase ({now}); nothing measured, nothing written"
+        );
+    }
+    let names: Vec<&str> = done.iter().map(|p| p.name()).collect();
+    // The phases whose results are measurements (the rest write or change states).
+    let measured: Vec<&str> = done
+        .iter()
+        .filter_map(|p| match p {
+            Phase::Scan => Some("the slave count"),
+            Phase::Identify => Some("each slave's identity and DC"),
+            Phase::Delays => Some("the propagation delays"),
+            Phase::StaticDrift => Some("the lock of the clocks"),
+            _ => None,
+        })
+        .collect();
+    format!(
+        "ecsync run: stopped during the bring-up, in its {now} phase, after {} (measured: {}); the bring-up was not done, so nothing is reported or written",
+        names.join(", "),
+        measured.join(", ")
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stop_after_the_delays_says_they_were_measured() {
+        let t = stopped_in_bring_up(&[
+            Phase::Scan,
+            Phase::Identify,
+            Phase::Delays,
+            Phase::Offsets,
+            Phase::StaticDrift,
+        ]);
+        assert!(t.contains("in its drift phase"), "{t}");
+        assert!(t.contains("after scan, identify, delays, offsets"), "{t}");
+        assert!(t.contains("the propagation delays"), "{t}");
+        assert!(!t.contains("the lock"), "the drift phase was not done: {t}");
+        assert!(!t.contains("nothing measured"), "{t}");
+    }
+
+    #[test]
+    fn a_stop_in_the_scan_measured_nothing() {
+        assert!(stopped_in_bring_up(&[Phase::Scan]).contains("nothing measured"));
+        assert!(stopped_in_bring_up(&[]).contains("nothing measured"));
+        assert!(!stopped_in_bring_up(&[Phase::Scan, Phase::Identify]).contains("delays"));
     }
 }

@@ -274,7 +274,7 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
             todo.len()
         );
     }
-    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    crate::stop::raise_on_signals(&STOP);
     let threads = a
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -339,7 +339,7 @@ fn sweep(a: &RunArgs) -> Result<ExitCode> {
                 a.db.display()
             );
         }
-        return Ok(ExitCode::from(130));
+        return Ok(crate::stop::exit_code());
     }
     out!("{}", answer::text(&store, &pts)?);
     if let Some(dir) = &a.report {

@@ -392,7 +392,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
     }
     let base = point::base_table(&name, &text, &run_set)?;
     let base_s = ecsync_lab::parse(&name, &toml::to_string(&base)?).map_err(anyhow::Error::msg)?;
-    let _ = ctrlc::set_handler(|| STOP.store(true, Ordering::Relaxed));
+    crate::stop::raise_on_signals(&STOP);
     let mut search = Search {
         name: name.clone(),
         base,
@@ -416,7 +416,7 @@ pub fn run(args: Args) -> Result<ExitCode> {
                 Some(line) => print!("{line}"),
                 None => eprintln!("ecsync tune: {e}; nothing to report"),
             }
-            Ok(ExitCode::from(130))
+            Ok(crate::stop::exit_code())
         }
         Err(e) => Err(e),
     }

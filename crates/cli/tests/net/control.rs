@@ -172,6 +172,36 @@ fn a_power_cycle_injected_between_frames_happens_at_its_time_and_loss_starts_for
     );
 }
 
+/// A fault of the master's host (clock_step, host_stall) cannot be played by serve: ctl's
+/// refusal says what to do instead, as its other refusals do (before: no fix at all).
+#[test]
+#[ignore = "needs network namespaces (root)"]
+fn a_host_fault_injected_is_refused_with_what_to_do_instead() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("hf");
+    let sock = tmp("host-fault").join("ctl.sock");
+    let _served = pair.serve(&["--control", sock.to_str().unwrap()]);
+    for words in [
+        &["inject", "clock_step", "step_us=100"][..],
+        &["inject", "host_stall", "stall_ms=3"][..],
+    ] {
+        let v = ctl(&sock, words);
+        assert_eq!(v["ok"], false, "{v}");
+        let e = v["error"].as_str().unwrap();
+        assert!(
+            e.contains(&format!("\"{}\" is a fault of the master's host", words[1]))
+                && e.contains("fix:")
+                && e.contains("ecsync compare --faults"),
+            "{e}"
+        );
+    }
+    // The hint's example is one serve plays.
+    assert_eq!(
+        ctl(&sock, &["inject", "power_cycle", "slave=2", "for_s=0.5"])["ok"],
+        true
+    );
+}
+
 /// APRD of `len` bytes at `reg` of the slave at auto-increment position `pos`, from namespace
 /// `ns`: its data and working counter.
 fn aprd(ns: &str, iface: &str, pos: u16, reg: u16, len: usize) -> (Vec<u8>, u16) {

@@ -432,6 +432,56 @@ fn a_missing_interface_is_one_clear_line() {
     }
 }
 
+/// Two serves on one interface would both answer every frame (a master sees two segments'
+/// replies): the second is refused, naming the interface, the first's pid and the fix, and
+/// the first serves on. (Before, the second served beside it without a word.)
+#[test]
+#[ignore = "needs network namespaces (root)"]
+fn a_second_serve_on_an_interface_is_refused_naming_the_first() {
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("ss");
+    let mut first = pair.serve(&[]);
+    // `ip netns exec` execs ecsync: the child's pid is serve's.
+    let pid = first.child.id();
+    let mut second = pair
+        .command(&pair.ns_a, &["serve", "--iface", &pair.if_a, "--quiet"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn the second serve");
+    // A limit against a second serve that serves on (as it did), not a timing.
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = second.try_wait().unwrap() {
+            break Some(s);
+        }
+        if t0.elapsed() > Duration::from_secs(30) {
+            let _ = second.kill();
+            let _ = second.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut e = String::new();
+    std::io::Read::read_to_string(&mut second.stderr.take().unwrap(), &mut e).unwrap();
+    let status = status.unwrap_or_else(|| panic!("the second serve served on: {e}"));
+    assert!(!status.success(), "{e}");
+    assert!(
+        e.contains(&format!("--iface {}", pair.if_a))
+            && e.contains(&format!("pid {pid}"))
+            && e.contains("fix: stop that serve"),
+        "{e}"
+    );
+    assert!(
+        first.child.try_wait().unwrap().is_none(),
+        "the first serve ended"
+    );
+    // Once the first has ended, its interface is free again.
+    first.kill();
+    let third = pair.serve(&[]);
+    drop(third);
+}
+
 /// Root without CAP_NET_RAW (dropped from the bounding set by setpriv, util-linux).
 #[test]
 #[ignore = "needs network namespaces (root), setpriv"]

@@ -22,7 +22,7 @@ pub use nic::{
 };
 pub use process::{
     enter_netns, lock_memory, monotonic_ns, pin_to_cpu, realtime_ns, set_fifo, set_timer_slack_ns,
-    sleep_until_monotonic,
+    sleep_until_monotonic, try_lock_exclusive,
 };
 pub use socket::{PacketSocket, Ready, Received, TxStamps, link_is_down, wait_any};
 

@@ -131,3 +131,19 @@ pub fn set_timer_slack_ns(ns: u64) -> io::Result<()> {
         Err(io::Error::last_os_error())
     }
 }
+
+/// Takes `file`'s exclusive advisory lock (flock) if no other open file holds it: `Ok(false)`
+/// when one does. The lock lasts as long as the file stays open, and the kernel drops it when
+/// the process ends however it ends: no stale lock outlives its holder.
+pub fn try_lock_exclusive(file: &std::fs::File) -> io::Result<bool> {
+    // SAFETY: plain FFI call on a descriptor `file` owns and keeps open for the call.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+        return Ok(true);
+    }
+    let e = io::Error::last_os_error();
+    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Ok(false)
+    } else {
+        Err(e)
+    }
+}

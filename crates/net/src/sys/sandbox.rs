@@ -399,15 +399,30 @@ pub fn send_signal(pid: u32, sig: i32) -> io::Result<()> {
     }
 }
 
-/// Makes `cmd`'s process start at normal scheduling (not this thread's SCHED_FIFO), and be
-/// sent SIGTERM should this process die without stopping it.
+/// Sends `sig` to every process of the process group `pgid`.
+pub fn signal_group(pgid: u32, sig: i32) -> io::Result<()> {
+    // SAFETY: plain FFI call; a negative pid names a process group.
+    if unsafe { libc::kill(-(pgid as libc::pid_t), sig) } == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Makes `cmd`'s process start at normal scheduling (not this thread's SCHED_FIFO), lead a
+/// process group of its own (its pid is the group's id: [`signal_group`] reaches it and what
+/// it started, a shell's children too), and be sent SIGTERM should this process die without
+/// stopping it.
 pub fn plain_child(cmd: &mut Command) {
     // SAFETY: the closure runs in the forked child before exec and calls only
-    // async-signal-safe functions (sched_setscheduler, prctl) on values it owns.
+    // async-signal-safe functions (sched_setscheduler, setpgid, prctl) on values it owns.
     unsafe {
         cmd.pre_exec(|| {
             let p = libc::sched_param { sched_priority: 0 };
             libc::sched_setscheduler(0, libc::SCHED_OTHER, &p);
+            if libc::setpgid(0, 0) != 0 {
+                return Err(io::Error::last_os_error());
+            }
             libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong);
             Ok(())
         });

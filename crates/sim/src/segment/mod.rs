@@ -495,12 +495,14 @@ impl Segment {
 
     /// Plays every powered slave's process data watchdog up to `t_ps` (between frames: a
     /// master that stopped sending finds its drives in SAFE-OP with 0x001B, and so does anyone
-    /// who looks at them meanwhile). The slaves that left OP by it, by network position.
-    pub fn expire_watchdogs(&mut self, t_ps: u64) -> Vec<usize> {
-        let mut expired = Vec::new();
-        for (p, n) in self.nodes.iter_mut().enumerate() {
+    /// who looks at them meanwhile). How many watchdogs expired by it; nothing allocated (serve
+    /// calls it between every two frames).
+    pub fn expire_watchdogs(&mut self, t_ps: u64) -> usize {
+        let mut expired = 0;
+        for n in &mut self.nodes {
+            // Every node's watchdog is played: no short-circuit past the first expiry.
             if !n.off && n.esc.expire_watchdog(t_ps) {
-                expired.push(p);
+                expired += 1;
             }
         }
         expired
