@@ -412,6 +412,54 @@ mod tests {
         assert!(last.in_sync && c.in_sync());
     }
 
+    /// A closed bus-shift loop by hand with the proportional part limited to 5 ppm: the
+    /// reference's crystal 89 ppm slow against the master's (-49 ppm against +40 ppm), the frame
+    /// first 300 us after the target, no noise. The reference's phase, computed here from the
+    /// drift and the offsets written, must end on the target, the learnt drift at 89 ppm and the
+    /// controller in sync. (Before the ramp followed the slip, the phase slipped through
+    /// +-P/2 every few seconds and the learnt drift went back and forth between -16 and -28 ppm.)
+    #[test]
+    fn bus_shift_learns_a_drift_far_beyond_its_slew_limit() {
+        for drift_ns_per_cycle in [89i64, -89, 100, -100] {
+            let prm = DcmParams::default_bus_shift(0, P);
+            let mut c = Dcm::new(DcmMode::BusShift, prm);
+            let p = u64::from(P);
+            let base = 1_000_000 * p;
+            // The reference's time is its own (drifting) time plus the offsets written so far;
+            // the master's frame leaves on the nominal grid.
+            let mut offset_ns: i64 = 0;
+            let mut phase_ns = 0i64;
+            let mut last = ControllerLog::default();
+            for i in 0..150_000u64 {
+                let own = 300_000 + drift_ns_per_cycle * i as i64;
+                let t_ra = (base + i * p).wrapping_add_signed(own + offset_ns);
+                phase_ns = grid_phase(t_ra, 0, P);
+                c.update(&CycleInput {
+                    cycle: i,
+                    period_ns: P,
+                    nominal_start: crate::time::MasterInstant::from_ns(base + i * p),
+                    scheduled_start: crate::time::MasterInstant::from_ns(base + i * p),
+                    send: crate::time::MasterInstant::from_ns(base + i * p + 20_000),
+                    receive: crate::time::MasterInstant::from_ns(base + i * p + 70_000),
+                    ref_time: Some(crate::time::SystemTime::from_ns(t_ra)),
+                });
+                // The offset the next frame writes (0x0920 moves the reference's time).
+                offset_ns = c.reference_write(WriteTimes::default()).unwrap() as i64;
+                last = c.controller_log().unwrap();
+            }
+            let d = drift_ns_per_cycle as f64;
+            assert!(
+                phase_ns.abs() <= 100,
+                "{drift_ns_per_cycle}: phase {phase_ns} {last:?}"
+            );
+            assert!(
+                (last.drift_ppm - d).abs() < 0.5,
+                "{drift_ns_per_cycle}: {last:?}"
+            );
+            assert!(c.in_sync(), "{drift_ns_per_cycle}: {last:?}");
+        }
+    }
+
     /// Bus shift writes the negated re-adjustment as the offset change, and its schedule stays
     /// on the nominal grid.
     #[test]
