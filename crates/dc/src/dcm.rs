@@ -34,9 +34,15 @@
 //!   integral learns the drift between the master's clock and the reference (the "PI drift
 //!   controller"; its ppm is logged) and a constant drift leaves no error. The proportional
 //!   part is limited to `max_slew_ppm` of the cycle (bus shift: the other slaves must be able
-//!   to follow the reference); while it is at the limit the learnt drift ramps towards the error
-//!   at [`DRIFT_RAMP_PPM_PER_S`] instead of integrating (no wind-up, and a drift beyond the
-//!   limit is learnt all the same).
+//!   to follow the reference); while it is at the limit the learnt drift ramps at
+//!   [`DRIFT_RAMP_PPM_PER_S`] instead of integrating (no wind-up), so the integral carries any
+//!   drift, however far beyond the limit. Which way it ramps: towards the drift the phase's slip
+//!   shows (its filtered change per cycle plus the proportional part) while that is more than
+//!   the limit away, else towards the phase error. The phase error alone cannot say it: a drift
+//!   more than the limit away slips the phase through ±P/2, the wrapped error changes sign at
+//!   every slip, and a ramp on its sign goes back and forth without ever learning the drift
+//!   (it did: a reference at -49 ppm and a master at +40 ppm never locked). The filtered error
+//!   is wrapped as the error is, so a slip does not drag it through 0.
 //! * Master shift moves the master's next cycle start earlier by the re-adjustment. Bus shift
 //!   moves the reference's system time back by it: the note's register 0x0910 is the system time
 //!   the reference reads and distributes, and the re-adjustment reaches it through the
@@ -151,6 +157,10 @@ pub struct Dcm {
     integral: f64,
     adjustment: f64,
     rate: f64,
+    /// The proportional part of the last rate, ns per cycle.
+    p_part: f64,
+    /// Filtered drift still to learn (the drift minus the learnt one), ns per cycle.
+    drift_error: f64,
     send_delay_mean: f64,
     send_delay_n: u64,
     started: bool,
@@ -171,6 +181,8 @@ impl Dcm {
             integral: 0.0,
             adjustment: 0.0,
             rate: 0.0,
+            p_part: 0.0,
+            drift_error: 0.0,
             send_delay_mean: 0.0,
             send_delay_n: 0,
             started: false,
@@ -211,6 +223,23 @@ const MAX_INVALID_RUN: u32 = 64;
 /// whose rate ramps by `r` ppm/s by about `4 r` ppm, which with the 5 ppm limit stays well
 /// within the 24 ppm their phase slew holds.
 pub const DRIFT_RAMP_PPM_PER_S: f64 = 2.0;
+
+/// The drift error's filter is this many times slower than the phase error's: the slip per
+/// cycle of the filtered error is a few ns under a loaded host's scheduling jitter, the drift
+/// it shows (tens of ns per cycle when the ramp matters) must stand out of that.
+const DRIFT_FILTER_SLOWER: f64 = 16.0;
+
+/// `x` wrapped into `[-P/2, P/2)`, for values a few periods at most from that range.
+fn wrap_phase_f64(x: f64, period_ns: f64) -> f64 {
+    let mut y = x;
+    while y >= period_ns / 2.0 {
+        y -= period_ns;
+    }
+    while y < -period_ns / 2.0 {
+        y += period_ns;
+    }
+    y
+}
 
 impl MasterSync for Dcm {
     fn name(&self) -> &'static str {
@@ -269,22 +298,36 @@ impl MasterSync for Dcm {
                 || self.invalid_run >= MAX_INVALID_RUN;
             if valid {
                 self.invalid_run = 0;
-                self.filtered += (e_f - self.filtered) * self.weight;
-                let mut p_part = prm.kp * self.filtered;
                 let period = f64::from(input.period_ns);
+                let before = self.filtered;
+                let step = wrap_phase_f64(e_f - self.filtered, period) * self.weight;
+                self.filtered = wrap_phase_f64(self.filtered + step, period);
+                // The phase moves by the drift less the rate applied: the slip plus the last
+                // proportional part is the drift the integral has still to learn.
+                let slip = wrap_phase_f64(self.filtered - before, period);
+                self.drift_error +=
+                    (slip + self.p_part - self.drift_error) * self.weight / DRIFT_FILTER_SLOWER;
+                let mut p_part = prm.kp * self.filtered;
                 let limit = prm.max_slew_ppm * 1e-6 * period;
                 if limit > 0.0 && p_part.abs() > limit {
                     p_part = p_part.clamp(-limit, limit);
                     // At the limit the integral would wind up with the pull-in and overshoot;
-                    // it moves the learnt drift towards the error at DRIFT_RAMP_PPM_PER_S
-                    // instead, so a drift beyond the limit is still learnt.
+                    // the learnt drift ramps at DRIFT_RAMP_PPM_PER_S instead: towards the drift
+                    // while the phase slips past what the limit holds (the error's sign flips
+                    // at each slip), else towards the error.
                     if prm.ki > 0.0 {
                         let ramp = DRIFT_RAMP_PPM_PER_S * 1e-6 * period * period * 1e-9;
-                        self.integral += self.filtered.signum() * ramp / prm.ki;
+                        let towards = if self.drift_error.abs() > limit {
+                            self.drift_error.signum()
+                        } else {
+                            self.filtered.signum()
+                        };
+                        self.integral += towards * ramp / prm.ki;
                     }
                 } else {
                     self.integral += self.filtered;
                 }
+                self.p_part = p_part;
                 self.rate = p_part + prm.ki * self.integral;
             } else {
                 self.invalid_run += 1;
@@ -367,6 +410,54 @@ mod tests {
         assert!(last.error_ns.abs() <= 2, "{last:?}");
         assert!((last.drift_ppm - 20.0).abs() < 0.05, "{last:?}");
         assert!(last.in_sync && c.in_sync());
+    }
+
+    /// A closed bus-shift loop by hand with the proportional part limited to 5 ppm: the
+    /// reference's crystal 89 ppm slow against the master's (-49 ppm against +40 ppm), the frame
+    /// first 300 us after the target, no noise. The reference's phase, computed here from the
+    /// drift and the offsets written, must end on the target, the learnt drift at 89 ppm and the
+    /// controller in sync. (Before the ramp followed the slip, the phase slipped through
+    /// +-P/2 every few seconds and the learnt drift went back and forth between -16 and -28 ppm.)
+    #[test]
+    fn bus_shift_learns_a_drift_far_beyond_its_slew_limit() {
+        for drift_ns_per_cycle in [89i64, -89, 100, -100] {
+            let prm = DcmParams::default_bus_shift(0, P);
+            let mut c = Dcm::new(DcmMode::BusShift, prm);
+            let p = u64::from(P);
+            let base = 1_000_000 * p;
+            // The reference's time is its own (drifting) time plus the offsets written so far;
+            // the master's frame leaves on the nominal grid.
+            let mut offset_ns: i64 = 0;
+            let mut phase_ns = 0i64;
+            let mut last = ControllerLog::default();
+            for i in 0..150_000u64 {
+                let own = 300_000 + drift_ns_per_cycle * i as i64;
+                let t_ra = (base + i * p).wrapping_add_signed(own + offset_ns);
+                phase_ns = grid_phase(t_ra, 0, P);
+                c.update(&CycleInput {
+                    cycle: i,
+                    period_ns: P,
+                    nominal_start: crate::time::MasterInstant::from_ns(base + i * p),
+                    scheduled_start: crate::time::MasterInstant::from_ns(base + i * p),
+                    send: crate::time::MasterInstant::from_ns(base + i * p + 20_000),
+                    receive: crate::time::MasterInstant::from_ns(base + i * p + 70_000),
+                    ref_time: Some(crate::time::SystemTime::from_ns(t_ra)),
+                });
+                // The offset the next frame writes (0x0920 moves the reference's time).
+                offset_ns = c.reference_write(WriteTimes::default()).unwrap() as i64;
+                last = c.controller_log().unwrap();
+            }
+            let d = drift_ns_per_cycle as f64;
+            assert!(
+                phase_ns.abs() <= 100,
+                "{drift_ns_per_cycle}: phase {phase_ns} {last:?}"
+            );
+            assert!(
+                (last.drift_ppm - d).abs() < 0.5,
+                "{drift_ns_per_cycle}: {last:?}"
+            );
+            assert!(c.in_sync(), "{drift_ns_per_cycle}: {last:?}");
+        }
     }
 
     /// Bus shift writes the negated re-adjustment as the offset change, and its schedule stays

@@ -89,6 +89,10 @@ pub(super) fn print_run(o: &RunOut) {
     if let Some(p) = &o.csv {
         println!("per-cycle CSV: {p}");
     }
+    for w in &o.warnings {
+        println!();
+        println!("Warning: {w}");
+    }
 }
 
 /// The drives recovered, out of OP and hot-connected, the SM events they missed, and what went

@@ -24,7 +24,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use summary::{
     ControllerOut, LeftOpRow, RateFit, RecoveryRow, RedundancyOut, RunOut, SendOut, SyncCounterRow,
-    TmsOut, csv_row, latency,
+    TmsOut, controller_warnings, csv_row, latency,
 };
 
 /// How the cyclic phase runs.
@@ -328,7 +328,15 @@ impl RunOut {
         exchanges.duplicates += d.duplicates;
         exchanges.truncated += d.truncated;
         let s_of = move |t: u64| t.saturating_sub(first) as f64 / 1e9;
+        let controller = eng.sync().controller_log().map(|c| ControllerOut {
+            in_sync: c.in_sync,
+            drift_ppm: c.drift_ppm,
+            filtered_error_ns: c.filtered_error_ns,
+            adjustment_ns: c.adjustment_ns,
+        });
+        let warnings = controller_warnings(&h.method, controller.as_ref(), f.cycles);
         RunOut {
+            warnings,
             iface: h.iface,
             method: h.method,
             cycle_ns: h.cycle_ns,
@@ -358,12 +366,7 @@ impl RunOut {
                 cycles_without_tx_stamp: driver.t_ms_sources().1,
             },
             round_trip: f.round_trip.summary(),
-            controller: eng.sync().controller_log().map(|c| ControllerOut {
-                in_sync: c.in_sync,
-                drift_ppm: c.drift_ppm,
-                filtered_error_ns: c.filtered_error_ns,
-                adjustment_ns: c.adjustment_ns,
-            }),
+            controller,
             reference_held_cycles: f.held,
             recoveries: driver
                 .recoveries()

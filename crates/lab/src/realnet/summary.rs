@@ -242,6 +242,10 @@ pub struct RunOut {
     pub round_trip: Summary,
     /// A controller's state at the end (DCM): in sync, the drift it learnt, its error.
     pub controller: Option<ControllerOut>,
+    /// What the figures do not show by themselves, as `compare` warns of it: a controller
+    /// (DCM) not in sync at the end. Absent when there is nothing to say.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// Cycles whose reference time the engine did not believe (gone, or jumped): the method
     /// held over, the FRMW went out as an FPRD.
     pub reference_held_cycles: u64,
@@ -302,6 +306,21 @@ pub struct ControllerOut {
     pub filtered_error_ns: f64,
     /// Its last adjustment, ns.
     pub adjustment_ns: i64,
+}
+
+/// The warnings of a run whose method `method` ended with the controller state `c` after
+/// `cycles` cycles: a controller that reports "in sync" (DCM) and was not at the end. Its
+/// figures then hold a pull-in (or a loss of sync), not the lock the method is run for, and
+/// nothing else in the summary says so: `compare` warns of the same.
+pub fn controller_warnings(method: &str, c: Option<&ControllerOut>, cycles: u64) -> Vec<String> {
+    match c {
+        Some(c) if !c.in_sync && cycles > 0 => vec![format!(
+            "{method}'s controller did not report in sync at the end of the run (filtered error {:.1} us, learnt drift {:.2} ppm): its figures are of its pull-in or of a loss of sync, not of a lock; a longer --duration shows whether it settles (its error must stay in its in-sync band for the hold time, 1.5 s by default)",
+            c.filtered_error_ns / 1e3,
+            c.drift_ppm
+        )],
+        _ => Vec::new(),
+    }
 }
 
 /// Cycles of the run a twin's reference crystal is fitted over at least (10 s at 1 ms).
@@ -429,7 +448,30 @@ pub const CSV_HEADER: &str = "cycle,scheduled_ns,send_ns,ref_time_ns,error_ns,co
 
 #[cfg(test)]
 mod tests {
-    use super::RateFit;
+    use super::{ControllerOut, RateFit, controller_warnings};
+
+    /// A DCM controller out of sync at the end is warned of, with its error and drift; one in
+    /// sync, a method without a controller, and a run of no cycles are not.
+    #[test]
+    fn a_controller_not_in_sync_at_the_end_is_warned_of() {
+        let c = |in_sync| ControllerOut {
+            in_sync,
+            drift_ppm: -44.46,
+            filtered_error_ns: -506_796.0,
+            adjustment_ns: 0,
+        };
+        let w = controller_warnings("dcm-bus-shift", Some(&c(false)), 20_000);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(
+            w[0].starts_with("dcm-bus-shift's controller did not report in sync at the end")
+                && w[0].contains("filtered error -506.8 us, learnt drift -44.46 ppm"),
+            "{}",
+            w[0]
+        );
+        assert!(controller_warnings("dcm-bus-shift", Some(&c(true)), 20_000).is_empty());
+        assert!(controller_warnings("snap", None, 20_000).is_empty());
+        assert!(controller_warnings("dcm-bus-shift", Some(&c(false)), 0).is_empty());
+    }
 
     #[test]
     fn the_rate_fit_finds_a_crystal_under_jitter() {
