@@ -38,7 +38,7 @@ pub struct CycleFit {
     /// From the cycle's start to its last reply on a host without jitter: the shortest cycle.
     pub needed_cycle_ns: u64,
     /// The room the suggested cycle leaves for the host: how late past their mean plan its
-    /// frames reach the wire at most but in one of [`ONE_IN`] comparisons of this length (the
+    /// frames reach the wire at most but in one of twenty comparisons of this length (the
     /// host model's jitter), or a replayed trace's worst cycle; the engine's reply margin at
     /// least.
     pub room_ns: u64,
