@@ -23,6 +23,21 @@ fn sweep(db: &Path, args: &[&str]) -> std::process::Output {
     })
 }
 
+/// `compare --json` on a point's `scenario` (written to `dir/name.toml`): its summary.
+fn compare_json(dir: &Path, name: &str, scenario: &str) -> serde_json::Value {
+    let cfg = dir.join(format!("{name}.toml"));
+    std::fs::write(&cfg, scenario).unwrap();
+    let o = ok({
+        let mut cmd = ecsync();
+        cmd.args(["compare", "--config"])
+            .arg(&cfg)
+            .args(["--json", "--quiet", "--out"])
+            .arg(dir.join(format!("cmp-{name}")));
+        cmd
+    });
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 /// Runs `ecsync sweep` with `args`, which must fail: its stderr.
 fn refused(args: &[&str]) -> String {
     let o = ecsync().arg("sweep").args(args).output().unwrap();
@@ -59,17 +74,7 @@ fn why_a_method_is_not_ranked_is_stored_as_compare_words_it() {
         )
         .unwrap();
     // compare on the point's scenario: the truth the sweep must agree with.
-    let cfg = dir.join("point1.toml");
-    std::fs::write(&cfg, &scenario).unwrap();
-    let o = ok({
-        let mut cmd = ecsync();
-        cmd.args(["compare", "--config"])
-            .arg(&cfg)
-            .args(["--json", "--quiet", "--out"])
-            .arg(dir.join("cmp"));
-        cmd
-    });
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = compare_json(&dir, "point1", &scenario);
     let nr = v["recommendation"]["not_ranked"].as_array().unwrap();
     assert_eq!(nr.len(), 1, "{nr:?}");
     assert_eq!(nr[0]["method"], "pi-m2s");
@@ -685,17 +690,7 @@ fn the_answer_says_when_its_point_was_still_settling() {
             )
             .unwrap();
         // compare on the point's scenario: the truth the sweep must agree with.
-        let cfg = dir.join(format!("kp{kp}.toml"));
-        std::fs::write(&cfg, &scenario).unwrap();
-        let o = ok({
-            let mut cmd = ecsync();
-            cmd.args(["compare", "--config"])
-                .arg(&cfg)
-                .args(["--json", "--quiet", "--out"])
-                .arg(dir.join(format!("cmp{kp}")));
-            cmd
-        });
-        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let v = compare_json(&dir, &format!("kp{kp}"), &scenario);
         let warned = v["warnings"]
             .as_array()
             .unwrap()

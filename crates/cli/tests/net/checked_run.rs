@@ -59,6 +59,24 @@ pub(crate) fn csv_column(csv: &Path, name: &str) -> Vec<f64> {
         .collect()
 }
 
+/// `ecsync run` with `args` and `--summary summary` against the served segment, which must
+/// succeed: its standard output and the summary.
+fn run_with_summary(pair: &NetPair, args: &[&str], summary: &Path) -> (String, serde_json::Value) {
+    let o = pair
+        .run(args)
+        .args(["--summary", summary.to_str().unwrap()])
+        .output()
+        .expect("ecsync run");
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let j = serde_json::from_str(&std::fs::read_to_string(summary).unwrap()).unwrap();
+    (text, j)
+}
+
 fn run_method_once(pair: &NetPair, method: &str) {
     let dir = tmp(method);
     let csv = dir.join("cycles.csv");
@@ -301,21 +319,12 @@ fn a_run_that_ends_in_its_method_s_initialisation_says_so_not_nan() {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let pair = NetPair::new("i");
     let dir = tmp("init");
-    let summary = dir.join("s.json");
     let _served = pair.serve(&[]);
-    let o = pair
-        .run(&["--method", "median", "--init-s", "2", "--duration", "0.5"])
-        .args(["--summary", summary.to_str().unwrap()])
-        .output()
-        .expect("ecsync run");
-    let text = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "{text}{}",
-        String::from_utf8_lossy(&o.stderr)
+    let (text, j) = run_with_summary(
+        &pair,
+        &["--method", "median", "--init-s", "2", "--duration", "0.5"],
+        &dir.join("s.json"),
     );
-    let j: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
     assert_eq!(j["m_rs"]["n"], 0, "{j}");
     assert!(j["rs_is"]["n"].as_u64().unwrap() > 0, "{j}");
     assert!(!text.contains("NaN"), "{text}");
@@ -338,20 +347,11 @@ fn a_dcm_run_not_in_sync_at_its_end_says_so() {
     let dir = tmp("dcm-warn");
     let _served = pair.serve(&[]);
     for (method, warned) in [("dcm-bus-shift", true), ("snap", false)] {
-        let summary = dir.join(format!("{method}.json"));
-        let o = pair
-            .run(&["--method", method, "--duration", "0.5"])
-            .args(["--summary", summary.to_str().unwrap()])
-            .output()
-            .expect("ecsync run");
-        let text = String::from_utf8_lossy(&o.stdout);
-        assert!(
-            o.status.success(),
-            "{text}{}",
-            String::from_utf8_lossy(&o.stderr)
+        let (text, j) = run_with_summary(
+            &pair,
+            &["--method", method, "--duration", "0.5"],
+            &dir.join(format!("{method}.json")),
         );
-        let j: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
         if warned {
             // The controller's own state at the end, which the warning reports.
             assert_eq!(j["controller"]["in_sync"], false, "{method}: {j}");
