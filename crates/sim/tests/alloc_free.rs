@@ -4,15 +4,29 @@
 
 use ecsync_sim::bench::CycleBench;
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::cell::Cell;
 
 struct Counting;
 
-static ALLOCS: AtomicU64 = AtomicU64::new(0);
+thread_local! {
+    /// This thread's allocations: `cargo test` runs the tests of a file on threads of one
+    /// process, and one test's allocations must not count in another's.
+    static ALLOCS: Cell<u64> = const { Cell::new(0) };
+}
+
+/// Counts one allocation of the calling thread (none while the thread is being torn down).
+fn count() {
+    let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
+}
+
+/// The calling thread's allocations so far.
+fn allocs_so_far() -> u64 {
+    ALLOCS.with(Cell::get)
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: forwarding to the system allocator with the caller's layout.
         unsafe { System.alloc(layout) }
     }
@@ -21,7 +35,7 @@ unsafe impl GlobalAlloc for Counting {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        count();
         // SAFETY: as above.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -35,10 +49,10 @@ fn per_cycle_processing_allocates_nothing() {
     let mut b = CycleBench::paper_2024();
     let mut work = vec![0u8; 1514];
     b.run(100, &mut work);
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = allocs_so_far();
     // 20 s of simulated time: crosses the crystals' wander grid (10 s) too.
     let wkc = b.run(20_000, &mut work);
-    let after = ALLOCS.load(Ordering::Relaxed);
+    let after = allocs_so_far();
     assert_eq!(wkc, b.expected_lrw_wkc, "the cycle did its work");
     assert_eq!(after - before, 0, "allocations in 20 000 cycles");
 }
@@ -63,9 +77,9 @@ fn expiring_watchdogs_between_frames_allocates_nothing_of_its_own() {
     // Nothing written for far longer than any watchdog's 100 ms.
     let later_ps = b.start_ps + 2_000_000_000_000;
     let allocs = |f: &mut dyn FnMut() -> usize| {
-        let before = ALLOCS.load(Ordering::Relaxed);
+        let before = allocs_so_far();
         let n = f();
-        (n, ALLOCS.load(Ordering::Relaxed) - before)
+        (n, allocs_so_far() - before)
     };
     let (first, first_allocs) = allocs(&mut || b.segment.expire_watchdogs(b.start_ps));
     assert_eq!((first, first_allocs), (0, 0), "outputs written this cycle");
