@@ -54,6 +54,28 @@ fn content(db: &Path) -> Vec<String> {
     all
 }
 
+/// Starts every command of `cmds` at once (their output unread, their errors kept) and waits
+/// for all: each must succeed (`what` names the run in the message, with its place).
+fn all_at_once(cmds: impl IntoIterator<Item = Command>, what: &str) {
+    let children: Vec<_> = cmds
+        .into_iter()
+        .map(|mut c| {
+            c.stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for (i, c) in children.into_iter().enumerate() {
+        let o = c.wait_with_output().unwrap();
+        assert!(
+            o.status.success(),
+            "{what}, process {i}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}
+
 fn count(db: &Path, sql: &str) -> i64 {
     Connection::open(db)
         .unwrap()
@@ -72,27 +94,17 @@ fn forty_points_whole_and_as_four_merged_shards_are_the_same_database() {
     assert_eq!(count(&whole, "SELECT count(*) FROM sweep_results"), 80);
     // Four processes at once, each its share.
     let shards: Vec<PathBuf> = (0..4).map(|i| dir.join(format!("shard-{i}.db"))).collect();
-    let children: Vec<_> = shards
-        .iter()
-        .enumerate()
-        .map(|(i, db)| {
-            sweep(db, &["--shard", &format!("{i}/4"), "--threads", "1"])
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap()
-        })
-        .collect();
-    for (i, c) in children.into_iter().enumerate() {
-        let o = c.wait_with_output().unwrap();
-        assert!(
-            o.status.success(),
-            "shard {i}: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-        assert_eq!(count(&shards[i], "SELECT count(*) FROM points"), 10);
+    all_at_once(
+        shards
+            .iter()
+            .enumerate()
+            .map(|(i, db)| sweep(db, &["--shard", &format!("{i}/4"), "--threads", "1"])),
+        "shards",
+    );
+    for (i, shard) in shards.iter().enumerate() {
+        assert_eq!(count(shard, "SELECT count(*) FROM points"), 10);
         let mine = count(
-            &shards[i],
+            shard,
             &format!("SELECT count(*) FROM points WHERE point % 4 = {i}"),
         );
         assert_eq!(mine, 10, "shard {i} ran its own points");
@@ -295,27 +307,16 @@ fn shards_started_together_into_one_database_all_run() {
     ok(sweep_over(&grid, &whole, &[]));
     for attempt in 0..3 {
         let db = dir.join(format!("together-{attempt}.db"));
-        let children: Vec<_> = (0..4)
-            .map(|i| {
+        all_at_once(
+            (0..4).map(|i| {
                 sweep_over(
                     &grid,
                     &db,
                     &["--shard", &format!("{i}/4"), "--threads", "1"],
                 )
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap()
-            })
-            .collect();
-        for (i, c) in children.into_iter().enumerate() {
-            let o = c.wait_with_output().unwrap();
-            assert!(
-                o.status.success(),
-                "attempt {attempt}, shard {i}: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
-        }
+            }),
+            &format!("attempt {attempt}"),
+        );
         assert_eq!(content(&db), content(&whole), "attempt {attempt}");
         assert_eq!(count(&db, "SELECT count(*) FROM log"), 4);
     }
@@ -333,23 +334,10 @@ fn the_same_sweep_twice_at_once_stores_each_point_once() {
     ok(sweep_over(&grid, &whole, &[]));
     for attempt in 0..3 {
         let db = dir.join(format!("twice-{attempt}.db"));
-        let children: Vec<_> = (0..2)
-            .map(|_| {
-                sweep_over(&grid, &db, &["--threads", "1"])
-                    .stdout(Stdio::null())
-                    .stderr(Stdio::piped())
-                    .spawn()
-                    .unwrap()
-            })
-            .collect();
-        for c in children {
-            let o = c.wait_with_output().unwrap();
-            assert!(
-                o.status.success(),
-                "attempt {attempt}: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
-        }
+        all_at_once(
+            (0..2).map(|_| sweep_over(&grid, &db, &["--threads", "1"])),
+            &format!("attempt {attempt}"),
+        );
         assert_eq!(content(&db), content(&whole), "attempt {attempt}");
         assert_eq!(count(&db, "SELECT sum(points_run) FROM log"), 8);
         assert_eq!(count(&db, "SELECT count(*) FROM log"), 2);

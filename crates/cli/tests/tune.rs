@@ -62,6 +62,19 @@ fn number_after(line: &str, key: &str) -> f64 {
         .unwrap_or_else(|_| panic!("a number after {key} in {line}"))
 }
 
+/// `compare --json` of `method` on the preset with `args` (its output in a scratch folder
+/// `name`): the summary.
+fn compare_preset(name: &str, method: &str, args: &[&str]) -> serde_json::Value {
+    let o = ecsync()
+        .args(["compare", "--methods", method, "--json", "--quiet", "--out"])
+        .arg(tmp(name).join("cmp"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 /// `compare` on `cfg` with pi-m2s: its summary.json's pi-m2s entry.
 fn compare(cfg: &Path, extra: &[&str]) -> serde_json::Value {
     let o = ecsync()
@@ -404,15 +417,7 @@ fn a_method_that_holds_nowhere_is_told_why_in_compare_words() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout).into_owned();
     // compare with the same method, runs and cycles: the truth tune must quote.
-    let dir = tmp("nowhere");
-    let c = ecsync()
-        .args(["compare", "--methods", "snap", "--json", "--quiet", "--out"])
-        .arg(dir.join("cmp"))
-        .args(run)
-        .output()
-        .unwrap();
-    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
-    let v: serde_json::Value = serde_json::from_slice(&c.stdout).unwrap();
+    let v = compare_preset("nowhere", "snap", &run);
     assert_eq!(v["methods"]["snap"]["ground_truth"]["holds_target"], false);
     let warning = v["warnings"]
         .as_array()
@@ -463,25 +468,9 @@ fn a_cycle_step_as_long_as_the_cycle_is_searched_and_named() {
         "{t}"
     );
     // compare at 999 us and the shift tune named there: the cycle holds.
-    let dir = tmp("step");
-    let c = ecsync()
-        .args([
-            "compare",
-            "--methods",
-            "soem-pi",
-            "--cycle-us",
-            "999",
-            "--shift-pct",
-            &pct_999,
-            "--json",
-        ])
-        .args(["--quiet", "--out"])
-        .arg(dir.join("cmp"))
-        .args(run)
-        .output()
-        .unwrap();
-    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
-    let v: serde_json::Value = serde_json::from_slice(&c.stdout).unwrap();
+    let mut args = run.to_vec();
+    args.extend(["--cycle-us", "999", "--shift-pct", &pct_999]);
+    let v = compare_preset("step", "soem-pi", &args);
     let g = &v["methods"]["soem-pi"]["ground_truth"];
     assert_eq!(
         (&g["late_frames"], &g["lost_frames"]),
