@@ -142,8 +142,9 @@ fn every_figure_is_recomputed_from_the_samples() {
     assert_eq!(ranking.len(), ecsync_dc::MethodKind::DEFAULT.len());
     assert_eq!(rec["method"].as_str().unwrap(), ranking[0]);
     assert!(rec["reason"].as_str().unwrap().len() > 80, "{rec}");
+    // Late or lost: a cycle whose drives kept the outputs before, or whose inputs never came.
     let late = |m: &str| {
-        j["methods"][m]["ground_truth"]["late_frames"]
+        j["methods"][m]["ground_truth"]["late_or_lost_frames"]
             .as_u64()
             .unwrap()
     };
@@ -151,7 +152,7 @@ fn every_figure_is_recomputed_from_the_samples() {
     assert_eq!(
         late(ranking[0]),
         fewest,
-        "the pick has the fewest late frames"
+        "the pick has the fewest late or lost frames"
     );
     // Not the letter's testbed: no letter rows anywhere.
     assert_eq!(j["letter_testbed"], false);
@@ -563,9 +564,10 @@ fn warnings_come_where_the_figures_are_at_risk() {
         stdout.contains("1 run x") && stdout.contains("on 1 thread"),
         "{stdout}"
     );
-    // The pick has the fewest late frames of all, and here they differ between the methods.
+    // The pick has the fewest late (or lost) frames of all, and here they differ between the
+    // methods.
     let late_of = |m: &str| {
-        j["methods"][m]["ground_truth"]["late_frames"]
+        j["methods"][m]["ground_truth"]["late_or_lost_frames"]
             .as_u64()
             .unwrap()
     };

@@ -172,3 +172,65 @@ fn hwstamp_takes_j_c_out_of_the_measurement_not_out_of_the_send() {
     let e = b.check().unwrap_err().to_string();
     assert!(e.contains("modes") && e.contains("master-shift"), "{e}");
 }
+
+/// A frame the host hands over after its launch time is dropped: that cycle's drives keep the
+/// outputs before, as after a late frame. The verdict counts both alike: `txtime`, which loses
+/// some frames on the letter's loaded host (its jitter beyond the 100 us lead, counted from the
+/// host model directly), is not recommended over `plain`, which at the configured 30 % shift
+/// has neither a late nor a lost frame (the simulator's ground truth). Before, the ranking's
+/// first key was late frames alone, and the verdict said of `txtime` "no frame reached a drive
+/// after its SYNC0" with hundreds of frames dropped.
+#[test]
+fn a_mode_that_drops_frames_is_not_recommended_over_one_that_drops_none() {
+    let mut s = ecsync_lab::parse("paper-2024", ecsync_sim::preset::PAPER_2024_TOML).unwrap();
+    s.methods = vec![ecsync_dc::MethodKind::MedianFit];
+    s.send_modes = vec![SendMode::Plain, SendMode::Txtime];
+    s.runs = 1;
+    s.cycles = 100_000;
+    let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).unwrap();
+    let out = summarize(&c);
+    let plain = &out.methods["median-fit"].ground_truth;
+    let tx = &out.methods["median-fit+txtime"].ground_truth;
+    // The host model's own count of the launch times txtime misses (the independent truth).
+    let seed = ecsync_lab::run::bring_up(&s, 0).unwrap().seed();
+    let noise = HostNoise::new(s.host, seed);
+    let late_for = s.send.txtime_lead_ns - s.send.txtime_delta_ns;
+    let misses = (s.warmup_cycles..s.warmup_cycles + s.cycles)
+        .filter(|&i| {
+            let n = noise.cycle(i);
+            n.js_ns + n.em_ns > late_for
+        })
+        .count() as u64;
+    println!(
+        "plain: {} late, {} lost; txtime: {} late, {} lost ({misses} launch times missed)",
+        plain.late_frames, plain.lost_frames, tx.late_frames, tx.lost_frames
+    );
+    assert!(misses > 0, "the loaded host's tail reaches past the lead");
+    assert_eq!(tx.lost_frames, misses);
+    assert_eq!(tx.late_or_lost_frames, tx.late_frames + misses);
+    assert_eq!((plain.late_frames, plain.lost_frames), (0, 0));
+    assert_eq!(plain.late_or_lost_frames, 0);
+    let r = &out.recommendation;
+    assert_eq!(
+        r.ranking,
+        ["median-fit", "median-fit+txtime"],
+        "{}",
+        r.reason
+    );
+    assert!(
+        r.reason.starts_with("median-fit: no frame reached"),
+        "{}",
+        r.reason
+    );
+    assert!(
+        r.reason.contains("median-fit+txtime lost frames"),
+        "{}",
+        r.reason
+    );
+    assert!(
+        r.rule
+            .contains("late at a drive or (with no fault scheduled) lost"),
+        "{}",
+        r.rule
+    );
+}

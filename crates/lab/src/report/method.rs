@@ -151,6 +151,7 @@ pub(super) fn method_out(
             smallest_safe_shift_pct: shift_pct(latest, period),
             per_slave,
             lost_frames: rs.iter().map(|r| r.lost_frames).sum(),
+            late_or_lost_frames: rs.iter().map(|r| r.late_or_lost_frames).sum(),
             frames_per_cycle: rs.iter().map(|r| r.frames_per_cycle).max().unwrap_or(1),
             bad_wkc: rs.iter().map(|r| r.bad_wkc).sum(),
         },
@@ -164,6 +165,7 @@ pub(super) fn method_out(
                 rs_is: x[1].into(),
                 keys: RunKeys {
                     late_frames: r.late_frames,
+                    late_or_lost_frames: r.late_or_lost_frames,
                     smallest_safe_shift_pct: shift_pct(r.latest_end_ns, period),
                     slave_spread_p999_ns: r.slave_diff.summary().p999_abs,
                     phase_error_p999_ns: r.phase_error.summary().p999_abs,

@@ -53,8 +53,10 @@ impl Difference {
 
 /// Key `i` (the order of the ranking's keys; 1, holding the target, has no per-run value) of
 /// one run.
-fn key(k: &RunKeys, i: usize) -> Option<f64> {
+/// (`lost`: the first key counts lost frames, as with no fault schedule.)
+fn key(k: &RunKeys, i: usize, lost: bool) -> Option<f64> {
     match i {
+        0 if lost => Some(k.late_or_lost_frames as f64),
         0 => Some(k.late_frames as f64),
         2 => Some(k.smallest_safe_shift_pct),
         3 => Some(k.slave_spread_p999_ns),
@@ -70,7 +72,9 @@ pub fn paired(a: &MethodOut, b: &MethodOut, i: usize) -> Option<Difference> {
         .runs
         .iter()
         .zip(&b.runs)
-        .filter_map(|(x, y)| Some(key(&x.keys, i)? - key(&y.keys, i)?))
+        .filter_map(|(x, y)| {
+            Some(key(&x.keys, i, a.faults.is_empty())? - key(&y.keys, i, b.faults.is_empty())?)
+        })
         .filter(|d| d.is_finite())
         .collect();
     difference(&d)

@@ -101,6 +101,9 @@ pub struct GroundTruth {
     /// Recorded cycles that lost their frame, all runs (in a cycle of several frames: one or
     /// more of them).
     pub lost_frames: u64,
+    /// Recorded cycles whose process data exchange failed, all runs: a frame late at some
+    /// slave or lost (the first key of the ranking; a frame both is counted once).
+    pub late_or_lost_frames: u64,
     /// Frames a cycle sends (the most of any run); not in summary.json.
     #[serde(skip)]
     pub frames_per_cycle: usize,
@@ -229,6 +232,8 @@ pub struct RunOut {
 pub struct RunKeys {
     /// Frames after a drive's SYNC0.
     pub late_frames: u64,
+    /// Cycles with a frame late at a drive or lost: the ranking's first key.
+    pub late_or_lost_frames: u64,
     /// The smallest SYNC0 shift without a late frame, % of the cycle.
     pub smallest_safe_shift_pct: f64,
     /// p99.9 of |slave - reference|, ns.

@@ -154,17 +154,29 @@ pub(super) fn not_ranked(
 
 /// The ranking rule when a drive left OP with an AL error under some method (with nothing to
 /// separate it is left out of the rule's words: the ranking is [`RANKING_RULE`]'s).
-pub const RANKING_RULE_DRIVE_ERRORS: &str = "methods under which no drive left OP with an AL error (a PLL or synchronization error: it stops a machine) first, then fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|; a difference the runs do not confirm (each run's difference between the two methods, which meet the same noise, against its 95 % interval) is reported as within run-to-run noise";
+pub const RANKING_RULE_DRIVE_ERRORS: &str = "methods under which no drive left OP with an AL error (a PLL or synchronization error: it stops a machine) first, then fewest cycles with a frame late at a drive or (with no fault scheduled) lost at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|; a difference the runs do not confirm (each run's difference between the two methods, which meet the same noise, against its 95 % interval) is reported as within run-to-run noise";
 
 /// The ranking rule, in words.
-pub const RANKING_RULE: &str = "fewest late frames at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|; a difference the runs do not confirm (each run's difference between the two methods, which meet the same noise, against its 95 % interval) is reported as within run-to-run noise";
+pub const RANKING_RULE: &str = "fewest cycles with a frame late at a drive or (with no fault scheduled) lost at the configured SYNC0 shift, then holding the target (mean phase within 10 % of the margin), then the smallest SYNC0 shift without a late frame (in steps of 0.5 % of the cycle above the best), then the smallest slave spread p99.9 (in steps of 10 % of the best, at least 2 ns), then the smallest p99.9 of |true phase - target|; a difference the runs do not confirm (each run's difference between the two methods, which meet the same noise, against its 95 % interval) is reported as within run-to-run noise";
+
+/// The ranking's first key: the cycles whose drives kept the outputs before (a frame late at
+/// one) or whose exchange failed (a frame lost: dropped by the host, on the wire, or its reply
+/// too late). With a fault schedule only the late ones: the faults' losses are the schedule's,
+/// the same for every method, and what a method does about them is judged by the re-lock.
+pub(super) fn failed_cycles(m: &MethodOut) -> u64 {
+    if m.faults.is_empty() {
+        m.ground_truth.late_or_lost_frames
+    } else {
+        m.ground_truth.late_frames
+    }
+}
 
 /// The ranking keys of a method (smaller is better), NaN last.
 fn keys(m: &MethodOut) -> [f64; 5] {
     let g = &m.ground_truth;
     let nan_last = |x: f64| if x.is_nan() { f64::INFINITY } else { x };
     [
-        g.late_frames as f64,
+        failed_cycles(m) as f64,
         if g.holds_target { 0.0 } else { 1.0 },
         nan_last(g.smallest_safe_shift_pct),
         nan_last(g.slave_ref_diff.p999_abs),
@@ -242,6 +254,34 @@ fn drive_error_codes(m: &MethodOut) -> String {
     codes.join(", ")
 }
 
+/// The pick's `late` and `lost` frames at the `s_pct` % shift, in words: none, or the fewest of
+/// any method and what to do about them.
+/// (`others_lost`: some method lost frames, so "the fewest" counts both.)
+fn failed_exchanges(
+    (late, lost): (u64, u64),
+    s_pct: f64,
+    no_shift_holds: bool,
+    others_lost: bool,
+) -> String {
+    let raise = if no_shift_holds {
+        "no shift holds them"
+    } else {
+        "raise the shift"
+    };
+    match (late, lost) {
+        (0, 0) => format!("no frame reached a drive after its SYNC0 at the {s_pct} % shift"),
+        (late, 0) if !others_lost => format!(
+            "it had the fewest late frames at the {s_pct} % shift ({late}; every method had some: {raise})"
+        ),
+        (0, lost) => format!(
+            "no frame reached a drive after its SYNC0 at the {s_pct} % shift, but {lost} of its frames were lost (every method had late or lost frames; the warnings say why they were lost)"
+        ),
+        (late, lost) => format!(
+            "it had the fewest late or lost frames at the {s_pct} % shift ({late} late, {lost} lost; every method had some: {raise}, and the warnings say why frames were lost)"
+        ),
+    }
+}
+
 /// Why the pick, in words: its figures at the `s_pct` % shift, whether it holds its target,
 /// the key it beats the next one on, the methods off their target, its rS-IS spread.
 pub(super) fn reason(
@@ -257,19 +297,21 @@ pub(super) fn reason(
     let mut r = String::new();
     // Past the whole cycle no shift helps: the cycle must grow.
     let no_shift_holds = g.smallest_safe_shift_pct >= 100.0;
-    let late = if g.late_frames == 0 {
-        format!("no frame reached a drive after its SYNC0 at the {s_pct} % shift")
-    } else {
-        format!(
-            "it had the fewest late frames at the {s_pct} % shift ({}; every method had some: {})",
-            g.late_frames,
-            if no_shift_holds {
-                "no shift holds them"
-            } else {
-                "raise the shift"
-            }
-        )
+    // (Under a fault schedule the losses are the faults': the key counts late frames only.)
+    let lost_of = |m: &MethodOut| {
+        if m.faults.is_empty() {
+            m.ground_truth.lost_frames
+        } else {
+            0
+        }
     };
+    let others_lost = methods.values().any(|m| lost_of(m) > 0);
+    let late = failed_exchanges(
+        (g.late_frames, lost_of(p)),
+        s_pct,
+        no_shift_holds,
+        others_lost,
+    );
     let needs = if no_shift_holds {
         format!("{};", shift_needed(g.smallest_safe_shift_pct))
     } else {
@@ -347,11 +389,25 @@ pub(super) fn reason(
     if !off.is_empty() {
         let _ = write!(
             r,
-            " {} {} not hold {} target on this network (see the warnings) and {} ranked after the methods that do, late frames permitting.",
+            " {} {} not hold {} target on this network (see the warnings) and {} ranked after the methods that do, late or lost frames permitting.",
             off.join(", "),
             if off.len() == 1 { "does" } else { "do" },
             if off.len() == 1 { "its" } else { "their" },
             if off.len() == 1 { "is" } else { "are" }
+        );
+    }
+    let dropped: Vec<&str> = ranking
+        .iter()
+        .filter(|m| *m != pick && lost_of(&methods[*m]) > 0)
+        .map(|m| m.as_str())
+        .collect();
+    if lost_of(p) == 0 && !dropped.is_empty() {
+        let one = dropped.len() == 1;
+        let _ = write!(
+            r,
+            " {} lost frames (see the warnings): a lost frame leaves the drives' outputs as a late one does, and {} ranked by the two together.",
+            dropped.join(", "),
+            if one { "it is" } else { "they are" }
         );
     }
     if p.rs_is.std > 0.0 {
@@ -422,12 +478,21 @@ pub(super) fn versus(
 
 /// The keys' names, in the ranking's order.
 const KEY_NAMES: [&str; 5] = [
-    "late frames",
+    "late or lost frames",
     "holding its target",
     "the smallest safe SYNC0 shift",
     "the slave spread",
     "the true phase's deviation from the target",
 ];
+
+/// Key `i`'s name for method `m` (under a fault schedule the first counts late frames only).
+fn key_name(i: usize, m: &MethodOut) -> &'static str {
+    if i == 0 && !m.faults.is_empty() {
+        "late frames"
+    } else {
+        KEY_NAMES[i]
+    }
+}
 
 /// Key `i`'s value `v` of method `m` in words, with `fine` digits where the coarse ones would
 /// print two different values alike.
@@ -482,7 +547,7 @@ fn second_note(
             let _ = write!(
                 r,
                 " Next is {second}, which loses on {}: {b} against {a}",
-                KEY_NAMES[i]
+                key_name(i, p)
             );
             if let Some(d) = d {
                 let _ = write!(
@@ -500,7 +565,7 @@ fn second_note(
             let _ = write!(
                 r,
                 " Next is {second}, which loses on {}: {b} against {a}; with {} nobody can tell whether that is more than run-to-run noise (run --runs 3 or more).",
-                KEY_NAMES[i],
+                key_name(i, p),
                 crate::scenario::plural(runs as u64, "run", "runs")
             );
         }

@@ -98,6 +98,7 @@ fn empty_result(
         late_frames: 0,
         latest_end_ns: f64::NEG_INFINITY,
         lost_frames: 0,
+        late_or_lost_frames: 0,
         frames_per_cycle: 1,
         wild_schedule_cycles: 0,
         grid_slips: 0,

@@ -808,6 +808,7 @@ impl Observers {
         let lost = rec.receive.is_none();
         if lost {
             res.lost_frames += 1;
+            res.late_or_lost_frames += 1;
         } else if rec.lrw_wkc != Some(self.expected_wkc) && self.pdi_len > 0 {
             res.bad_wkc += 1;
         }
@@ -855,6 +856,7 @@ impl Observers {
             res.margin.add(t.worst_margin);
             if t.late() {
                 res.late_frames += 1;
+                res.late_or_lost_frames += u64::from(!lost);
             }
             res.latest_end_ns = res.latest_end_ns.max(self.truth.shift_ns - t.worst_margin);
         }

@@ -292,6 +292,9 @@ pub struct RunResult {
     pub latest_end_ns: f64,
     /// Recorded cycles that lost their frame (one or more of them in a cycle of several).
     pub lost_frames: u64,
+    /// Recorded cycles whose process data exchange failed: a frame late at some slave, or
+    /// lost (a frame can be both: its reply lost after it passed the slaves late).
+    pub late_or_lost_frames: u64,
     /// Frames a cycle sends (one unless the process image needs more).
     pub frames_per_cycle: usize,
     /// Cycles whose method asked for a next start the engine held (more than two periods
