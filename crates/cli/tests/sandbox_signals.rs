@@ -168,3 +168,130 @@ fn a_run_stopped_in_its_bring_up_says_what_it_had_measured() {
         assert!(!e.contains("nothing measured"), "{name}: {e}");
     }
 }
+
+/// A pseudo-terminal: its master end, and the path of its slave end.
+fn pty() -> (std::fs::File, String) {
+    use std::os::fd::FromRawFd;
+    // SAFETY: plain FFI calls; the descriptor is owned by the File from here on; ptsname_r
+    // writes at most the buffer's length, NUL-terminated.
+    unsafe {
+        let fd = libc::posix_openpt(libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC);
+        assert!(fd >= 0, "posix_openpt: {}", std::io::Error::last_os_error());
+        let master = std::fs::File::from_raw_fd(fd);
+        assert_eq!(libc::grantpt(fd), 0);
+        assert_eq!(libc::unlockpt(fd), 0);
+        let mut name = [0 as libc::c_char; 128];
+        assert_eq!(libc::ptsname_r(fd, name.as_mut_ptr(), name.len()), 0);
+        let name = std::ffi::CStr::from_ptr(name.as_ptr());
+        (master, name.to_string_lossy().into_owned())
+    }
+}
+
+/// Waits up to `limit` for `path` to hold a whole line; its text.
+fn line_in(path: &std::path::Path, limit: Duration) -> Option<String> {
+    let until = Instant::now() + limit;
+    loop {
+        if let Ok(t) = std::fs::read_to_string(path)
+            && t.ends_with('\n')
+        {
+            return Some(t.trim().to_string());
+        }
+        if Instant::now() >= until {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// An interactive COMMAND reads the terminal serve was started from. A shell in a session of
+/// its own on a pseudo-terminal (its controlling terminal, as a login's) runs serve, then
+/// reads a line itself: serve hands the terminal to COMMAND's process group, COMMAND reads
+/// the first line, and serve takes the terminal back when COMMAND ends, so that the shell
+/// reads the second. Before, COMMAND's read from the background stopped it (SIGTTIN) and
+/// serve served on for ever; without the terminal taken back the shell would stop the same way.
+#[test]
+#[ignore = "needs network namespaces (root or unprivileged user namespaces)"]
+fn an_interactive_command_reads_serve_s_terminal_which_serve_takes_back() {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    use std::os::unix::process::CommandExt;
+    let dir = tmp("terminal");
+    let f = |name: &str| dir.join(name).display().to_string();
+    let inner = format!(
+        "echo $$ > {}; read a; echo \"$a\" > {}",
+        f("inner.pid"),
+        f("inner")
+    );
+    let script = format!(
+        "{} serve --preset paper-2024 --quiet --sandbox -- sh -c '{inner}' > {} 2> {}; echo $? > {}; read b; echo \"$b\" > {}",
+        ecsync(),
+        f("serve.out"),
+        f("serve.err"),
+        f("serve.code"),
+        f("outer")
+    );
+    let (mut master, slave) = pty();
+    let tty = || {
+        std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .custom_flags(libc::O_NOCTTY)
+            .open(&slave)
+            .unwrap()
+    };
+    let mut shell = std::process::Command::new("sh");
+    shell
+        .args(["-c", &script])
+        .stdin(tty())
+        .stdout(tty())
+        .stderr(tty());
+    // SAFETY: setsid and ioctl are async-signal-safe; stdin is the slave end by now.
+    unsafe {
+        shell.pre_exec(|| {
+            if libc::setsid() < 0 || libc::ioctl(0, libc::TIOCSCTTY, 0) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut shell = shell.spawn().unwrap();
+    // The echo of what is typed, read away so that the terminal never fills.
+    let mut echo = master.try_clone().unwrap();
+    std::thread::spawn(move || std::io::copy(&mut echo, &mut std::io::sink()));
+    master.write_all(b"one\n").unwrap();
+    let kill_all = |shell: &mut std::process::Child| {
+        let mut groups = vec![shell.id() as i32];
+        groups.extend(
+            line_in(&dir.join("inner.pid"), Duration::ZERO).map(|p| p.parse::<i32>().unwrap()),
+        );
+        for g in groups {
+            // SAFETY: plain FFI call on the test's own process groups (the shell's, serve in
+            // it; COMMAND's).
+            unsafe { libc::kill(-g, libc::SIGKILL) };
+        }
+        let _ = shell.wait();
+    };
+    let Some(read) = line_in(&dir.join("inner"), Duration::from_secs(60)) else {
+        kill_all(&mut shell);
+        panic!(
+            "COMMAND did not read the terminal (stopped by SIGTTIN?); this test {NEEDS_NS}: {}",
+            std::fs::read_to_string(dir.join("serve.err")).unwrap_or_default()
+        );
+    };
+    assert_eq!(read, "one");
+    let code = line_in(&dir.join("serve.code"), Duration::from_secs(30));
+    master.write_all(b"two\n").unwrap();
+    let outer = line_in(&dir.join("outer"), Duration::from_secs(30));
+    let err = std::fs::read_to_string(dir.join("serve.err")).unwrap_or_default();
+    if outer.is_none() {
+        kill_all(&mut shell);
+    }
+    assert_eq!(code.as_deref(), Some("0"), "{err}");
+    assert_eq!(
+        outer.as_deref(),
+        Some("two"),
+        "the shell did not read the terminal after serve (not taken back?): {err}"
+    );
+    let status = wait_at_most(&mut shell, Duration::from_secs(10));
+    assert!(status.success(), "{status}: {err}");
+}

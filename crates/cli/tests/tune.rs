@@ -481,11 +481,13 @@ fn a_cycle_step_as_long_as_the_cycle_is_searched_and_named() {
 }
 
 /// Points the scenario refuses (median-fit's gain 0.5 x 4 = 2, past the (0, 1] it takes) are
-/// not counted as run: "points run" is the number of comparisons tune printed a line for, and
-/// the refused ones are counted apart with the scenario's words. Before, "points run: 17"
-/// counted the 3 refused with the 14 that ran.
+/// not counted as run, and every comparison tune ran is: "Comparisons run" is the number of
+/// comparisons tune printed a line for, by what they were for (the gains, the send modes, the
+/// fragment's shift confirmed, the shortest cycle), and the refused points are counted apart
+/// with the scenario's words. Before, "points run: 17" counted the 3 refused with the 14 that
+/// ran, and later "points run" counted the gain search's alone.
 #[test]
-fn refused_points_are_not_counted_as_run() {
+fn refused_points_are_not_counted_as_run_and_every_comparison_is() {
     let dir = tmp("refused");
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../presets/paper-2024.toml"),
@@ -503,6 +505,7 @@ fn refused_points_are_not_counted_as_run() {
         .args(["tune", "--method", "median-fit", "--config"])
         .arg(&cfg)
         .args(["--runs", "1", "--cycles", "5000", "--warmup-s", "10"])
+        .args(["--send-modes", "--shortest-cycle", "--cycle-step-us", "200"])
         .output()
         .unwrap();
     let (out, err) = (
@@ -510,25 +513,44 @@ fn refused_points_are_not_counted_as_run() {
         String::from_utf8_lossy(&o.stderr),
     );
     assert!(o.status.success(), "{err}");
-    // The gains' search; the fragment's shift is confirmed by a point of its own after it.
-    let ran = err
+    // Each comparison's line, by the keys it set beyond the gains.
+    let points: Vec<&str> = err
         .lines()
-        .filter(|l| l.starts_with("  methods.") && !l.contains("run.sync0_shift_pct="))
-        .count();
-    assert_eq!(
-        err.lines()
-            .filter(|l| l.contains("run.sync0_shift_pct="))
-            .count(),
-        usize::from(out.contains("confirmed by a comparison at this shift")),
-        "{err}"
-    );
+        .filter(|l| l.starts_with("  methods."))
+        .collect();
+    let count = |f: &dyn Fn(&str) -> bool| points.iter().filter(|l| f(l)).count();
+    let cycle = count(&|l| l.contains("run.cycle_us="));
+    let confirm = count(&|l| l.contains("run.sync0_shift_pct=") && !l.contains("run.cycle_us="));
+    let modes = count(&|l| l.contains("send.modes=") && !l.contains("run.sync0_shift_pct="));
+    let gains = points.len() - cycle - confirm - modes;
     let refused = err.lines().filter(|l| l.starts_with("  refused: ")).count();
-    assert_eq!(refused, 3, "{err}");
+    // The gain search's three (x 4 = 2, its fine grid's x 1.4 of them and so on).
+    assert!(refused >= 3, "{err}");
+    assert!(gains > 0 && modes > 0, "{err}");
+    let parts: Vec<String> = [
+        (gains, "in the gain search"),
+        (modes, "weighing the send modes"),
+        (confirm, "confirming the fragment's shift"),
+        (cycle, "searching the shortest cycle"),
+    ]
+    .iter()
+    .filter(|(n, _)| *n > 0)
+    .map(|(n, w)| format!("{n} {w}"))
+    .collect();
     assert!(
         out.contains(&format!(
-            "  points run: {ran}; {refused} more refused by the scenario's checks, the first: "
+            "Comparisons run: {} ({}); {refused} more points refused by the scenario's checks, the first: ",
+            points.len(),
+            parts.join(", ")
         )) && out.contains("gain k = 2 must lie in (0, 1]"),
-        "{ran} ran: {out}"
+        "{} ran: {out}",
+        points.len()
+    );
+    // The send modes and the fragment ran: what was counted is what this test asks for.
+    assert_eq!(
+        confirm > 0,
+        out.contains("confirmed by a comparison at this shift"),
+        "{out}"
     );
 }
 

@@ -207,6 +207,12 @@ fn phase_margin_late_missed_by_hand() {
     r.judge.reply_late(25_000);
     let out = r.judge.summary(&r.seg);
     assert_eq!((out.late_replies, out.late_reply_max_ns), (1, 25_000));
+    assert_eq!(out.stalled_replies, 0);
+    // A stall: late past the stall threshold (1 ms by default), counted late too.
+    r.judge.reply_late(1_500_000);
+    let out = r.judge.summary(&r.seg);
+    assert_eq!((out.late_replies, out.stalled_replies), (2, 1));
+    assert_eq!(out.stalled_reply_threshold_ns, 1_000_000);
     let table = per_drive_table(&out);
     assert!(table.contains("drive-6"), "{table}");
     let html = report_html(&out);

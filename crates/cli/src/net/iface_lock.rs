@@ -2,8 +2,12 @@
 //! master there would see two segments' replies. Each serve holds an exclusive lock (flock) on
 //! a file named after the interface and its network namespace while it serves; a second is
 //! refused naming the first's pid. The kernel drops the lock when its holder ends, however it
-//! ends, so a serve that was killed leaves nothing stale behind (its file is removed when it
-//! ends cleanly; a lock taken on a file removed meanwhile is taken again on the new one).
+//! ends: the file of a serve that was killed (SIGKILL) stays, unlocked, and the next serve on
+//! the interface takes it over. Its file is removed when it ends cleanly, and a serve that
+//! takes a lock removes the folder's other unlocked lock files (a killed serve's in a network
+//! namespace that is gone, whose name no serve takes again); a lock taken on a file removed
+//! meanwhile is taken again on the new one, and a lock held only while its file is removed
+//! is waited for a moment, not reported as a serve.
 
 use anyhow::{Result, anyhow};
 use std::fs::File;
@@ -52,13 +56,46 @@ fn lock_name(iface: &str) -> String {
     format!("serve-net{netns}-{iface}.lock")
 }
 
+/// How long a lock held by another process is tried again before that process is named as a
+/// serve: a serve removing its file as it ends, or another sweeping a stale one, holds it for
+/// microseconds.
+const HELD_RETRIES: u32 = 20;
+const HELD_RETRY_MS: u64 = 5;
+
+/// Whether `name` is a lock file's name (see [`lock_name`]).
+fn is_lock_name(name: &str) -> bool {
+    name.starts_with("serve-net") && name.ends_with(".lock")
+}
+
+/// Removes the unlocked lock files in `dir` but `keep`: their serves ended without removing
+/// them (SIGKILL). Each is removed while locked, as a serve's own file is when it ends, so that
+/// a serve that opened it meanwhile takes its lock again on a new file.
+fn sweep_stale(dir: &Path, keep: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let path = e.path();
+        if path == keep || !e.file_name().to_str().is_some_and(is_lock_name) {
+            continue;
+        }
+        let Ok(file) = File::open(&path) else {
+            continue;
+        };
+        if ecsync_net::sys::try_lock_exclusive(&file).unwrap_or(false) && still_names(&path, &file)
+        {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
+}
+
 /// Takes the lock of `iface` (`flag` names the option that gave it), or says which serve holds
 /// it and what to do.
 pub fn take(iface: &str, flag: &str) -> Result<IfaceLock> {
     let name = lock_name(iface);
     let mut refused = Vec::new();
     let mut dirs = lock_dirs().into_iter();
-    let mut retries = 0;
+    let (mut retries, mut held_retries) = (0, 0);
     let mut dir = dirs.next();
     while let Some(d) = dir.take() {
         let path = d.join(&name);
@@ -89,9 +126,16 @@ pub fn take(iface: &str, flag: &str) -> Result<IfaceLock> {
             file.set_len(0)?;
             file.rewind()?;
             write!(file, "{}", std::process::id())?;
+            sweep_stale(&d, &path);
             return Ok(IfaceLock {
                 held: Some((file, path)),
             });
+        }
+        if held_retries < HELD_RETRIES {
+            held_retries += 1;
+            std::thread::sleep(std::time::Duration::from_millis(HELD_RETRY_MS));
+            dir = Some(d);
+            continue;
         }
         let mut pid = String::new();
         let _ = file.read_to_string(&mut pid);

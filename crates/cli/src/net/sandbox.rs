@@ -37,9 +37,11 @@ pub struct SandboxArgs {
     /// root: no privileges needed) on one end of a veth pair (--iface names it, default
     /// ecsync0), run COMMAND (after `--`) on the other end (master0) with its name in
     /// ECSYNC_IFACE, stop when COMMAND exits and exit with its code (128+N for signal N).
-    /// COMMAND runs in a process group of its own: a SIGINT/SIGTERM/SIGHUP to serve (a
-    /// terminal's Ctrl-C too) is forwarded to that group, which is killed if it still runs
-    /// half a second later; what COMMAND leaves running is killed when it exits.
+    /// COMMAND runs in a process group of its own: a SIGINT/SIGTERM/SIGHUP to serve is
+    /// forwarded to that group, which is killed if it still runs half a second later; what
+    /// COMMAND leaves running is killed when it exits. When stdin is the terminal serve runs
+    /// in the foreground of, that group gets the terminal while COMMAND runs (an interactive
+    /// COMMAND reads it; Ctrl-C reaches COMMAND), and serve takes it back when COMMAND ends.
     #[arg(long, requires = "command")]
     pub sandbox: bool,
     /// Also write the ready line (the JSON object printed on stdout once the segment is
@@ -155,10 +157,26 @@ pub fn ready(args: &SandboxArgs, iface: &str, slaves: usize, source: &SourceArgs
         if let Some(r) = &master_ring {
             cmd.env("ECSYNC_RING_IFACE", r);
         }
-        sys::plain_child(&mut cmd);
+        // An interactive COMMAND reads the terminal serve was started from: its group gets
+        // it (a read from the background would stop it with SIGTTIN), serve takes it back
+        // when COMMAND ends.
+        let loan = if sys::owns_foreground_terminal() {
+            sys::TerminalLoan::begin()
+                .map_err(|e| {
+                    eprintln!(
+                        "ecsync serve: warning: the terminal stays serve's, COMMAND cannot read it (ignoring SIGTTOU: {e})"
+                    );
+                })
+                .ok()
+        } else {
+            None
+        };
+        sys::plain_child(&mut cmd, loan.as_ref());
         match cmd.spawn() {
-            Ok(child) => *st = State::Running(std::thread::spawn(move || watch(child))),
+            Ok(child) => *st = State::Running(std::thread::spawn(move || watch(child, loan))),
             Err(e) => {
+                // The child may have taken the terminal before its exec failed.
+                drop(loan);
                 let code = if e.kind() == std::io::ErrorKind::NotFound {
                     127
                 } else {
@@ -172,10 +190,11 @@ pub fn ready(args: &SandboxArgs, iface: &str, slaves: usize, source: &SourceArgs
     Ok(())
 }
 
-/// Waits for COMMAND: raises the stop flag when it exits, and kills what it left running in
-/// its process group; forwards a stop to the group (the signal serve was sent, or SIGTERM when
-/// serving ended otherwise), and kills the group if COMMAND outlives that by [`KILL_AFTER`].
-fn watch(mut child: Child) -> ExitStatus {
+/// Waits for COMMAND: raises the stop flag when it exits, kills what it left running in its
+/// process group and takes the terminal back (`terminal`, if it was lent); forwards a stop to
+/// the group (the signal serve was sent, or SIGTERM when serving ended otherwise), and kills
+/// the group if COMMAND outlives that by [`KILL_AFTER`].
+fn watch(mut child: Child, terminal: Option<sys::TerminalLoan>) -> ExitStatus {
     // COMMAND leads its group (`plain_child`).
     let group = child.id();
     let mut stopping: Option<Instant> = None;
@@ -185,6 +204,7 @@ fn watch(mut child: Child) -> ExitStatus {
                 STOP.store(true, Ordering::Relaxed);
                 // A shell's children would hold the private network, and outlive serve.
                 let _ = sys::signal_group(group, libc::SIGKILL);
+                drop(terminal);
                 return status;
             }
             Ok(None) => {}
@@ -198,8 +218,8 @@ fn watch(mut child: Child) -> ExitStatus {
         let now = Instant::now();
         match stopping {
             None if STOP.load(Ordering::Relaxed) => {
-                // COMMAND's group is not the terminal's: a Ctrl-C reached serve alone, and is
-                // passed on as any signal is.
+                // A signal to serve alone (a `kill`, or a Ctrl-C when the terminal was not
+                // COMMAND's to read: stdin not serve's terminal) is passed on.
                 let sig = sys::stop_signal().map_or(libc::SIGTERM, |(sig, _)| sig);
                 let _ = sys::signal_group(group, sig);
                 stopping = Some(now);

@@ -185,6 +185,7 @@ pub fn serve(mut args: ServeArgs) -> Result<ExitCode> {
         preset: name.clone(),
         // The judge's late replies are the ones serve's own summary counts.
         late_reply_ns: ecsync_net::serve::HOST_LATE_NS,
+        stalled_reply_ns: ecsync_net::serve::HOST_STALL_NS,
         ..Default::default()
     };
     // The status line rewritten in place on a terminal of serve's own; elsewhere (a log, a
@@ -333,10 +334,12 @@ fn print_stopped(
     );
     if stats.paced > 0 {
         eprintln!(
-            "replies at wire time: {}; this host sent {} of them more than {} us late, the latest {:.1} us late (the host's lateness, not the model's)",
+            "replies at wire time: {}; this host sent {} of them more than {} us late, {} more than {} us, the latest {:.1} us late (the host's lateness, not the model's)",
             stats.paced,
             stats.host_late,
             ecsync_net::serve::HOST_LATE_NS / 1000,
+            stats.host_stalled,
+            ecsync_net::serve::HOST_STALL_NS / 1000,
             stats.host_late_max_ns as f64 / 1e3
         );
     }

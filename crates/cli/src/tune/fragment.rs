@@ -1,7 +1,7 @@
 //! The fragment tune prints (its SYNC0 shift confirmed by a comparison at it) and the
 //! shortest cycle that holds with it.
 
-use super::{Outcome, Search};
+use super::{Outcome, Phase, Search};
 use anyhow::Result;
 use ecsync_lab::report::SHIFT_TIE_PCT;
 use std::fmt::Write as _;
@@ -24,6 +24,7 @@ fn fragment_shift(
     let round_up = |pct: f64| (pct * 10.0 - 1e-6).ceil() / 10.0;
     let safe = round_up(best.safe_shift_pct + SHIFT_TIE_PCT);
     let first = safe.max(round_up(best.hold_shift_pct));
+    search.phase = Phase::Confirm;
     let mut keys = keys.to_vec();
     keys.push("run.sync0_shift_pct".into());
     for i in 0..FRAGMENT_SHIFT_TRIES {
@@ -122,6 +123,7 @@ fn shortest_cycle(
     let step = search.args.cycle_step_us;
     let hi0 = f64::from(base_s.cycle_ns) / 1000.0;
     let shift_us = shift_pct * hi0 / 100.0;
+    search.phase = Phase::ShortestCycle;
     let mut keys = keys.to_vec();
     keys.push("run.sync0_shift_pct".into());
     keys.push("run.cycle_us".into());

@@ -256,6 +256,38 @@ fn why_not(out: &SummaryOut, method: &str) -> String {
     parts.join("; ")
 }
 
+/// What a comparison tune runs is for, in the order tune runs them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// The defaults and the gains' grids.
+    Gains,
+    /// `--send-modes`: each other send mode with the chosen gains.
+    SendModes,
+    /// The fragment's SYNC0 shift confirmed.
+    Confirm,
+    /// `--shortest-cycle`: the bisection and the step below.
+    ShortestCycle,
+}
+
+impl Phase {
+    const ALL: [Phase; 4] = [
+        Phase::Gains,
+        Phase::SendModes,
+        Phase::Confirm,
+        Phase::ShortestCycle,
+    ];
+
+    /// What the comparisons of this phase were for, after their number.
+    fn words(self) -> &'static str {
+        match self {
+            Phase::Gains => "in the gain search",
+            Phase::SendModes => "weighing the send modes",
+            Phase::Confirm => "confirming the fragment's shift",
+            Phase::ShortestCycle => "searching the shortest cycle",
+        }
+    }
+}
+
 /// The search's state: the base, what ran, how to say it.
 struct Search<'a> {
     name: String,
@@ -265,6 +297,11 @@ struct Search<'a> {
     quiet: bool,
     /// Every point run, by its values' text.
     seen: BTreeMap<String, Option<Outcome>>,
+    /// What the comparisons [`Search::eval`] runs now are for.
+    phase: Phase,
+    /// The comparisons run (a point asked for again is not run again), per [`Phase`] in
+    /// [`Phase::ALL`]'s order.
+    ran: [usize; 4],
     /// The points the scenario refused (a gain x 4 past what the method takes), how many and
     /// the first's words: they are in `seen` but never ran.
     refused: (usize, Option<String>),
@@ -298,6 +335,7 @@ impl Search<'_> {
                 let Some(out) = point::run(&self.name, &text, self.threads, &STOP)? else {
                     bail!("stopped");
                 };
+                self.ran[self.phase as usize] += 1;
                 Outcome::of(&out, &self.method)
             }
         };
@@ -402,12 +440,14 @@ pub fn run(args: Args) -> Result<ExitCode> {
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
         quiet: args.quiet,
         seen: BTreeMap::new(),
+        phase: Phase::Gains,
+        ran: [0; 4],
         refused: (0, None),
         args: &args,
     };
     match tune(&mut search, kind, &base_s) {
         Ok(t) => {
-            print!("{t}");
+            print!("{t}{}", comparisons_run(&search));
             Ok(ExitCode::SUCCESS)
         }
         Err(e) if STOP.load(Ordering::Relaxed) => {
@@ -509,7 +549,6 @@ fn tune(search: &mut Search, kind: MethodKind, base_s: &ecsync_lab::Scenario) ->
             (defaults.clone(), def.clone())
         }
     };
-    t.push_str(&points_run(search));
     let describe = |vals: &[Value]| -> String {
         if vals.is_empty() {
             return "no gains of its own".into();
@@ -587,6 +626,7 @@ fn send_modes(
     if !search.quiet {
         eprintln!("ecsync tune: the send modes with these gains");
     }
+    search.phase = Phase::SendModes;
     let mut keys = keys.to_vec();
     keys.push("send.modes".into());
     let mut t = String::from(
@@ -642,15 +682,24 @@ fn send_modes(
     Ok((t, pick))
 }
 
-/// How many points ran, and how many the scenario refused (with the first's words).
-fn points_run(search: &Search) -> String {
-    match &search.refused {
-        (0, _) | (_, None) => format!("  points run: {}\n", search.seen.len()),
-        (n, Some(first)) => format!(
-            "  points run: {}; {n} more refused by the scenario's checks, the first: {first}\n",
-            search.seen.len() - n
-        ),
+/// How many comparisons tune ran, for what, and how many points the scenario refused (with
+/// the first's words): every comparison, not the gain search's alone.
+fn comparisons_run(search: &Search) -> String {
+    let parts: Vec<String> = Phase::ALL
+        .iter()
+        .filter(|&&p| search.ran[p as usize] > 0)
+        .map(|&p| format!("{} {}", search.ran[p as usize], p.words()))
+        .collect();
+    let total: usize = search.ran.iter().sum();
+    let mut t = format!("Comparisons run: {total} ({})", parts.join(", "));
+    if let (n, Some(first)) = &search.refused {
+        let _ = write!(
+            t,
+            "; {n} more points refused by the scenario's checks, the first: {first}"
+        );
     }
+    t.push_str(".\n");
+    t
 }
 
 /// What tune says when nothing held (`def`: the defaults' outcome, which the verdict kept):

@@ -20,15 +20,17 @@ pub const PULL_5_6: &str =
 /// What `run --ring-iface`'s summary (`run`) and serve's judge (`judge`) must show after the
 /// pull: the ring broken once and whole once, 1 500 to 2 600 frames merged (a frame a cycle
 /// for 2 s and the drives' counters read over CoE once a second), few frames with one copy
-/// back (a copy late on this shared host) and no other LRW short of the ring's working
+/// back (a copy late on this shared host: 20, and one more for each reply serve's judge saw
+/// its host send over 1 ms late, a stall that costs the 1 ms cycle a copy; a ring that lost
+/// what crossed the break would have some 2 000) and no other LRW short of the ring's working
 /// counter, no drive out of OP or recovered; by the ground truth every drive in OP with no
 /// AL error and within 100 ns of the reference all along (every 8th frame). The partial
 /// frames' count.
 pub fn check_ring_through_the_pull(run: &serde_json::Value, judge: &serde_json::Value) -> u64 {
     let r = &run["redundancy"];
     println!(
-        "run: redundancy {r}, lost {}, bad wkc {}; judge: faults {}",
-        run["lost_frames"], run["bad_wkc"], judge["faults"]
+        "run: redundancy {r}, lost {}, bad wkc {}; judge: faults {}, stalled replies {}",
+        run["lost_frames"], run["bad_wkc"], judge["faults"], judge["stalled_replies"]
     );
     assert_eq!(
         (r["breaks"].as_u64(), r["restores"].as_u64()),
@@ -41,7 +43,14 @@ pub fn check_ring_through_the_pull(run: &serde_json::Value, judge: &serde_json::
         "{r}"
     );
     let partial = r["partial"].as_u64().unwrap();
-    assert!(partial <= 20, "{r}");
+    // CI once: 28 partial frames at a load of 5, with a limit of 20 that did not know of the
+    // host's stalls.
+    let stalled = judge["stalled_replies"].as_u64().unwrap();
+    assert!(
+        partial <= 20 + stalled,
+        "{r}; serve's host sent {stalled} replies over {} ns late",
+        judge["stalled_reply_threshold_ns"]
+    );
     // A partial frame has one side's working counter, and the frame after it may go without
     // the far side's copy too, before the late copy comes and says the far side answers.
     let bad = run["bad_wkc"].as_u64().unwrap();

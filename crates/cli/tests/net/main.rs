@@ -482,6 +482,62 @@ fn a_second_serve_on_an_interface_is_refused_naming_the_first() {
     drop(third);
 }
 
+/// A serve killed with SIGKILL leaves its lock file, unlocked: the next serve on the interface
+/// takes it over without a word (its own pid in it), and removes the folder's other unlocked
+/// lock files (a killed serve's in a namespace that is gone: before, one stayed for each, and
+/// /run/ecsync filled with them), not one another process holds.
+#[test]
+#[ignore = "needs network namespaces (root)"]
+fn a_serve_killed_with_sigkill_leaves_a_lock_the_next_takes_and_stale_ones_are_removed() {
+    use std::os::fd::AsRawFd;
+    use std::os::unix::fs::MetadataExt;
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("k");
+    // Root's lock folder; the file is named after the namespace's inode and the interface.
+    let dir = Path::new("/run/ecsync");
+    let netns = std::fs::metadata(format!("/run/netns/{}", pair.ns_a))
+        .unwrap()
+        .ino();
+    let lock = dir.join(format!("serve-net{netns}-{}.lock", pair.if_a));
+    let mut first = pair.serve(&[]);
+    let pid = first.child.id();
+    assert_eq!(std::fs::read_to_string(&lock).unwrap(), pid.to_string());
+    // `Served::kill` is SIGKILL: serve removes nothing.
+    first.kill();
+    assert_eq!(std::fs::read_to_string(&lock).unwrap(), pid.to_string());
+    // A dead serve's file of an interface in a namespace that is gone (pid 0: nobody), and one
+    // this test holds locked as a live serve would.
+    let id = std::process::id();
+    let stale = dir.join(format!("serve-net1-stale{id}.lock"));
+    let held = dir.join(format!("serve-net1-held{id}.lock"));
+    std::fs::write(&stale, "0").unwrap();
+    std::fs::write(&held, "0").unwrap();
+    let held_file = std::fs::File::open(&held).unwrap();
+    // SAFETY: plain FFI call on a descriptor the File owns and keeps open.
+    let r = unsafe { libc::flock(held_file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    assert_eq!(r, 0);
+    // `serve` panics unless the next serve starts serving.
+    let second = pair.serve(&[]);
+    let second_pid = second.child.id();
+    let now = std::fs::read_to_string(&lock).unwrap();
+    let (stale_left, held_left) = (stale.exists(), held.exists());
+    let _ = std::fs::remove_file(&stale);
+    drop(held_file);
+    let _ = std::fs::remove_file(&held);
+    assert_eq!(now, second_pid.to_string());
+    assert!(
+        !stale_left,
+        "the stale lock file {} is still there",
+        stale.display()
+    );
+    assert!(
+        held_left,
+        "a locked lock file {} was removed",
+        held.display()
+    );
+    drop(second);
+}
+
 /// Root without CAP_NET_RAW (dropped from the bounding set by setpriv, util-linux).
 #[test]
 #[ignore = "needs network namespaces (root), setpriv"]

@@ -138,7 +138,7 @@ def main():
     settle_max = 6000
     phase = "settle"  # then "op-requested", then "counted"
     settled = op_at = 0
-    counted = wkc_errors = stalled_wkc_errors = stalls = 0
+    counted = wkc_errors = no_reply = stalled_wkc_errors = stalls = 0
     lateness = []
     worst_delta = 0
     shift = a.sync0_shift_us * 1000
@@ -202,6 +202,9 @@ def main():
                 stalled_wkc_errors += 1
             elif wkc != expected:
                 wkc_errors += 1
+                # SOEM's EC_NOFRAME: no reply within the receive timeout (a stall of the
+                # serving host can cause it; a wrong working counter that came back cannot).
+                no_reply += wkc < 0
                 first_bad = first_bad or (counted, wkc)
             if counted >= a.cycles:
                 phase = "done"
@@ -228,7 +231,8 @@ def main():
         fail(f"{stalled_wkc_errors} cycles with a wrong working counter in {stalls} stalls of "
              f"the master's own loop: the host is too loaded to judge the network")
     if wkc_errors > a.max_wkc_errors:
-        fail(f"{wkc_errors} cycles with a wrong working counter (the first: cycle {first_bad[0]}, "
+        fail(f"{wkc_errors} cycles with a wrong working counter, {no_reply} of them without a "
+             f"reply within {a.recv_timeout_us} us (the first: cycle {first_bad[0]}, "
              f"wkc {first_bad[1]}, expected {expected})")
 
 

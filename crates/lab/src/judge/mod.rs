@@ -65,6 +65,9 @@ pub struct JudgeOptions {
     pub preset: String,
     /// A reply the serving host sent more than this past its wire time is counted late, ns.
     pub late_reply_ns: u64,
+    /// A reply sent more than this past its wire time is counted as a stall of the serving
+    /// host too (long enough to cost a master its reply), ns.
+    pub stalled_reply_ns: u64,
     /// A frame that repeats the index and datagram headers of one sent less than this before
     /// is a retry, ns (and one that repeats a lost frame's within 100 ms).
     pub retry_window_ns: u64,
@@ -78,6 +81,7 @@ impl Default for JudgeOptions {
             names: Vec::new(),
             preset: String::new(),
             late_reply_ns: 10_000,
+            stalled_reply_ns: 1_000_000,
             retry_window_ns: 500_000,
             band_frames: 1000,
         }
@@ -268,6 +272,7 @@ pub struct Judge {
     late: u64,
     missed: u64,
     replies_late: u64,
+    replies_stalled: u64,
     reply_late_max_ns: u64,
     retries: u64,
     sent: Box<[Sent; 256]>,
@@ -313,6 +318,7 @@ impl Judge {
             late: 0,
             missed: 0,
             replies_late: 0,
+            replies_stalled: 0,
             reply_late_max_ns: 0,
             retries: 0,
             sent: Box::new([Sent::default(); 256]),
@@ -403,6 +409,9 @@ impl Judge {
     pub fn reply_late(&mut self, host_late_ns: u64) {
         if host_late_ns > self.opts.late_reply_ns {
             self.replies_late += 1;
+        }
+        if host_late_ns > self.opts.stalled_reply_ns {
+            self.replies_stalled += 1;
         }
         self.reply_late_max_ns = self.reply_late_max_ns.max(host_late_ns);
     }

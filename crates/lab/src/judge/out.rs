@@ -148,6 +148,11 @@ pub struct JudgeOut {
     pub late_replies: u64,
     /// The threshold, ns.
     pub late_reply_threshold_ns: u64,
+    /// Of the late replies, those later than the stall threshold (a stall of the serving host
+    /// long enough to cost a master its reply).
+    pub stalled_replies: u64,
+    /// The stall threshold, ns.
+    pub stalled_reply_threshold_ns: u64,
     /// The latest reply, ns past its wire time.
     pub late_reply_max_ns: u64,
     /// Retries: frames repeating the index and headers of one just sent or lost.
@@ -303,6 +308,8 @@ impl Judge {
             lost_pd: self.lost_pd,
             late_replies: self.replies_late,
             late_reply_threshold_ns: self.opts.late_reply_ns,
+            stalled_replies: self.replies_stalled,
+            stalled_reply_threshold_ns: self.opts.stalled_reply_ns,
             late_reply_max_ns: self.reply_late_max_ns,
             duplicates: self.retries,
             al_errors: drives.iter().map(|d| d.al_errors).sum(),

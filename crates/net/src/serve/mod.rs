@@ -75,6 +75,8 @@ pub struct ServeStats {
     pub paced: u64,
     /// Of them, those this host sent more than [`HOST_LATE_NS`] after their wire time.
     pub host_late: u64,
+    /// Of them, those this host sent more than [`HOST_STALL_NS`] after their wire time.
+    pub host_stalled: u64,
     /// The latest a reply left after its wire time, ns (this host's lateness, not the
     /// model's).
     pub host_late_max_ns: u64,
@@ -101,6 +103,11 @@ fn is_zero(v: &u64) -> bool {
 /// A reply this much after its wire time is counted late in [`ServeStats::host_late`], ns:
 /// beyond a good host's wake-up latency.
 pub const HOST_LATE_NS: u64 = 50_000;
+
+/// A reply this much after its wire time is counted in [`ServeStats::host_stalled`], ns: a
+/// stall of this host long enough to cost a master with a 1 ms cycle the reply (its next
+/// cycle's send), which a master's test can then tell from a fault of the segment.
+pub const HOST_STALL_NS: u64 = 1_000_000;
 
 /// How far behind the clock [`Segment::expire_watchdogs`] plays the drives' watchdogs between
 /// frames, ps: longer than a frame waits in the socket unless this host stalled.
@@ -305,6 +312,7 @@ impl<H: ServeHooks> Loop<'_, H> {
                 let late = now - due;
                 self.stats.paced += 1;
                 self.stats.host_late += u64::from(late > HOST_LATE_NS);
+                self.stats.host_stalled += u64::from(late > HOST_STALL_NS);
                 self.stats.host_late_max_ns = self.stats.host_late_max_ns.max(late);
                 self.hooks.reply_sent(late);
             }

@@ -3,7 +3,8 @@
 //! does, so that no root and no capability from outside is needed), brings `lo` up and makes a
 //! veth pair there by rtnetlink (no `ip` command needed); the child it later spawns inherits
 //! the namespaces. Also: the termination signals recorded (which one, and whether a terminal
-//! sent it) so that they can be forwarded to the child, and the child's scheduling reset.
+//! sent it) so that they can be forwarded to the child, the child's scheduling reset, and the
+//! terminal lent to the child's process group while it runs.
 
 #![allow(unsafe_code)]
 
@@ -409,21 +410,90 @@ pub fn signal_group(pgid: u32, sig: i32) -> io::Result<()> {
     }
 }
 
+/// Whether stdin is this process's controlling terminal and this process's group its
+/// foreground group: the terminal is this process's to lend to a child ([`TerminalLoan`]).
+/// Not so with stdin a file or a pipe, nor for a process started in the background (`&`).
+pub fn owns_foreground_terminal() -> bool {
+    // SAFETY: plain FFI calls that only inspect descriptor 0 (tcgetpgrp fails with ENOTTY on a
+    // terminal that is not this process's controlling one).
+    unsafe { libc::isatty(0) == 1 && libc::tcgetpgrp(0) == libc::getpgrp() }
+}
+
+/// The terminal on stdin lent to a child's process group ([`plain_child`] gives it to the
+/// group before the child runs its program, so that the child never reads it from the
+/// background and stops with SIGTTIN). While it lives SIGTTOU is ignored by this process:
+/// taking the terminal back from the background is allowed then, and a status line this
+/// process writes to the terminal does not stop it on a terminal with `tostop` set. Dropped,
+/// it takes the terminal back for this process's group and restores SIGTTOU's disposition.
+pub struct TerminalLoan {
+    previous_ttou: libc::sigaction,
+}
+
+impl TerminalLoan {
+    /// Starts a loan (to be given to [`plain_child`]); only where
+    /// [`owns_foreground_terminal`].
+    pub fn begin() -> io::Result<TerminalLoan> {
+        // SAFETY: all-zero bytes are a valid sigaction; both structures are live for the call.
+        unsafe {
+            let mut ignore: libc::sigaction = std::mem::zeroed();
+            ignore.sa_sigaction = libc::SIG_IGN;
+            libc::sigemptyset(&mut ignore.sa_mask);
+            let mut previous_ttou: libc::sigaction = std::mem::zeroed();
+            if libc::sigaction(libc::SIGTTOU, &ignore, &mut previous_ttou) != 0 {
+                return Err(io::Error::last_os_error());
+            }
+            Ok(TerminalLoan { previous_ttou })
+        }
+    }
+
+    /// Whether SIGTTOU was ignored before the loan (a child then keeps it ignored, as it
+    /// would have inherited it).
+    fn ttou_was_ignored(&self) -> bool {
+        self.previous_ttou.sa_sigaction == libc::SIG_IGN
+    }
+}
+
+impl Drop for TerminalLoan {
+    fn drop(&mut self) {
+        // SAFETY: plain FFI calls on descriptor 0 and this process's group; SIGTTOU is still
+        // ignored by the first, so that it is allowed from the background; the sigaction
+        // restored is the one the kernel gave back in `begin`.
+        unsafe {
+            libc::tcsetpgrp(0, libc::getpgrp());
+            libc::sigaction(libc::SIGTTOU, &self.previous_ttou, std::ptr::null_mut());
+        }
+    }
+}
+
 /// Makes `cmd`'s process start at normal scheduling (not this thread's SCHED_FIFO), lead a
 /// process group of its own (its pid is the group's id: [`signal_group`] reaches it and what
 /// it started, a shell's children too), and be sent SIGTERM should this process die without
-/// stopping it.
-pub fn plain_child(cmd: &mut Command) {
+/// stopping it. With `terminal`, its group is made the foreground group of the terminal on
+/// stdin before it runs its program (and SIGTTOU, which the loan ignores, made default again
+/// unless it was ignored before).
+pub fn plain_child(cmd: &mut Command, terminal: Option<&TerminalLoan>) {
+    let lend = terminal.is_some();
+    let keep_ttou_ignored = terminal.is_some_and(TerminalLoan::ttou_was_ignored);
     // SAFETY: the closure runs in the forked child before exec and calls only
-    // async-signal-safe functions (sched_setscheduler, setpgid, prctl) on values it owns.
+    // async-signal-safe functions (sched_setscheduler, setpgid, prctl, tcsetpgrp, signal) on
+    // values it owns.
     unsafe {
-        cmd.pre_exec(|| {
+        cmd.pre_exec(move || {
             let p = libc::sched_param { sched_priority: 0 };
             libc::sched_setscheduler(0, libc::SCHED_OTHER, &p);
             if libc::setpgid(0, 0) != 0 {
                 return Err(io::Error::last_os_error());
             }
             libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong);
+            if lend {
+                // From the background (the new group): allowed, SIGTTOU being ignored (the
+                // loan's disposition, inherited). A failure leaves the child as it was before
+                // terminals were lent: it runs, and reading the terminal stops it.
+                libc::tcsetpgrp(0, libc::getpid());
+                if !keep_ttou_ignored {
+                    libc::signal(libc::SIGTTOU, libc::SIG_DFL);
+                }
+            }
             Ok(())
         });
     }
