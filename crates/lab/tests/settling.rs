@@ -196,3 +196,37 @@ fn the_warm_up_a_warning_names_is_enough_on_random_networks() {
         "{warned} of 8 networks warned: the test tests little"
     );
 }
+
+/// A controller that never reported in sync in a recorded cycle is not ranked: its figures are
+/// its pull-in. dcm-bus-shift on twelve-drives (the reference 49.9 ppm from the master) after a
+/// 15 s warm-up is still ramping its drift, hundreds of microseconds off its target by the
+/// ground truth; ranked, it came first under a replayed host trace for the late frames its
+/// moving phase happened to miss.
+#[test]
+fn a_controller_never_in_sync_in_the_recording_is_not_ranked() {
+    let text = ecsync_sim::preset::named("twelve-drives").expect("the preset");
+    let mut s = ecsync_lab::parse("twelve-drives.toml", text).expect("the preset parses");
+    s.methods = ["dcm-bus-shift", "median-fit"]
+        .map(|m| m.parse().expect("a method"))
+        .to_vec();
+    (s.runs, s.warmup_cycles, s.cycles) = (1, 15_000, 20_000);
+    let out = summarize(&ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs"));
+    let dcm = &out.methods["dcm-bus-shift"];
+    let ctl = dcm.controller.expect("a controller");
+    assert_eq!(ctl.in_sync_fraction, 0.0);
+    assert!(ctl.time_to_sync_ms.is_none());
+    let off = dcm.ground_truth.offset_from_target_ns;
+    assert!(off.abs() > 100_000.0, "{off} ns off its target");
+    let r = &out.recommendation;
+    assert_eq!(r.ranking, ["median-fit"], "{}", r.reason);
+    let n = r
+        .not_ranked
+        .iter()
+        .find(|n| n.method == "dcm-bus-shift")
+        .expect("dcm-bus-shift not ranked");
+    assert!(
+        n.why.contains("never reported in sync") && n.why.contains("--warmup-s"),
+        "{}",
+        n.why
+    );
+}

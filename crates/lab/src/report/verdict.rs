@@ -129,6 +129,23 @@ pub(super) fn not_ranked(
                     lost_frames: false,
                 });
             }
+            // A controller that never said it was in sync in a recorded cycle: its figures are
+            // its pull-in, and where it settles is not in them (with a short warm-up such a
+            // method was recommended for the late frames its moving phase happened to miss).
+            // Under a fault schedule losing sync is what is measured.
+            if let Some(c) = &mo.controller
+                && mo.faults.is_empty()
+                && c.time_to_sync_ms.is_none()
+                && c.in_sync_fraction == 0.0
+            {
+                return Some(NotRanked {
+                    method: m.clone(),
+                    why: format!(
+                        "{m}'s controller never reported in sync in the recorded cycles: its figures are of its pull-in, not of where it settles; a longer warm-up (--warmup-s, or run.warmup_s in the file) shows that"
+                    ),
+                    lost_frames: false,
+                });
+            }
             let lost = mo.ground_truth.lost_frames;
             let share = lost as f64 / mo.cycles_done.max(1) as f64;
             (mo.faults.is_empty() && lost > 0 && share > UNRANKED_LOST_SHARE).then(|| NotRanked {
