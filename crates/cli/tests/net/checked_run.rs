@@ -338,10 +338,9 @@ fn a_run_that_ends_in_its_method_s_initialisation_says_so_not_nan() {
 #[ignore = "needs network namespaces (root)"]
 fn a_dcm_run_not_in_sync_at_its_end_says_so() {
     // Half a second of dcm-bus-shift, shorter than its in-sync hold (1.5 s): its controller
-    // cannot be in sync at the end, and run said nothing of it where compare warns. snap has
-    // no controller to be in sync: no warning. (A dcm-bus-shift run long enough to lock is not
-    // asked for here: on the served segment it was still pulling in after 20 s, before the
-    // drift ramp's change as after.)
+    // cannot be in sync at the end, nor at any cycle before it, and run said nothing of it
+    // where compare warns; then it said only the end's state, which does not tell "never
+    // locked" from "lost it at the end". snap has no controller to be in sync: no warning.
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let pair = NetPair::new("w");
     let dir = tmp("dcm-warn");
@@ -353,8 +352,19 @@ fn a_dcm_run_not_in_sync_at_its_end_says_so() {
             &dir.join(format!("{method}.json")),
         );
         if warned {
-            // The controller's own state at the end, which the warning reports.
-            assert_eq!(j["controller"]["in_sync"], false, "{method}: {j}");
+            // The controller's own state at the end, which the warning reports, and over the
+            // run: every cycle run (none skipped or not) out of sync, by the hold time alone.
+            let c = &j["controller"];
+            assert_eq!(c["in_sync"], false, "{method}: {j}");
+            assert_eq!(c["cycles_run"], j["cycles"], "{method}: {j}");
+            assert_eq!(c["in_sync_share"], 0.0, "{method}: {j}");
+            assert!(c["first_in_sync_s"].is_null(), "{method}: {j}");
+            assert_eq!(c["sync_losses"], 0, "{method}: {j}");
+            let never = format!(
+                "it never reported in sync in the {} cycles it ran",
+                j["cycles"]
+            );
+            assert!(text.contains(&never), "{method}: {text}");
         } else {
             assert!(j["controller"].is_null(), "{method}: {j}");
         }
@@ -363,4 +373,41 @@ fn a_dcm_run_not_in_sync_at_its_end_says_so() {
         assert_eq!(text.contains(&says), warned, "{method}: {text}");
         assert_eq!(j["warnings"].is_array(), warned, "{method}: {j}");
     }
+}
+
+#[test]
+#[ignore = "needs network namespaces (root)"]
+fn a_dcm_bus_shift_run_pulling_in_past_its_slew_limit_says_so() {
+    // The served segment is paper-2024's: its reference's crystal is 12.4 ppm from the host's
+    // clock, which serve and run both read, where compare's master sits at 13.3 ppm (0.9 ppm
+    // apart). dcm-bus-shift's proportional part is limited to 5 ppm, so it must ramp its
+    // learnt drift (2 ppm/s) past the limit and pull the phase in at it: on this VM it first
+    // reported in sync after 14.5 s (11.1 s in virtual time with compare --master-ppm 0). After
+    // 8 s it has learnt more than the limit and is still pulling in, and the warning says why.
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pair = NetPair::new("p");
+    let dir = tmp("dcm-pull-in");
+    let _served = pair.serve(&[]);
+    let (text, j) = run_with_summary(
+        &pair,
+        &["--method", "dcm-bus-shift", "--duration", "8"],
+        &dir.join("s.json"),
+    );
+    let c = &j["controller"];
+    let drift = c["drift_ppm"].as_f64().unwrap();
+    // The truth: 12.4 ppm; the ramp overshoots it while the phase comes back (by 6 ppm in
+    // virtual time).
+    assert!((5.0..25.0).contains(&drift), "learnt {drift} ppm: {j}");
+    assert_eq!(c["in_sync"], false, "{j}");
+    assert_eq!(c["limits"]["max_slew_ppm"], 5.0, "{j}");
+    let slew = format!(
+        "likely why: the reference's crystal runs about {drift:.1} ppm from this host's clock (the drift it learnt), beyond its 5 ppm slew limit"
+    );
+    assert!(text.contains(&slew), "{text}");
+    println!(
+        "dcm-bus-shift after 8 s: learnt {drift:.2} ppm, filtered error {:.1} us, in sync {:.1} %, wake-up p99.9 {:.0} us",
+        c["filtered_error_ns"].as_f64().unwrap() / 1e3,
+        c["in_sync_share"].as_f64().unwrap() * 100.0,
+        j["wake_latency"]["p999_us"].as_f64().unwrap()
+    );
 }

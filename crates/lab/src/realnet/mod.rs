@@ -23,8 +23,8 @@ use std::io::Write;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use summary::{
-    ControllerOut, LeftOpRow, RateFit, RecoveryRow, RedundancyOut, RunOut, SendOut, SyncCounterRow,
-    TmsOut, controller_warnings, csv_row, latency,
+    ControllerOut, DcmLimitsOut, LeftOpRow, RateFit, RecoveryRow, RedundancyOut, RunOut, SendOut,
+    SyncCounterRow, TmsOut, controller_warnings, csv_row, latency,
 };
 
 /// How the cyclic phase runs.
@@ -84,6 +84,8 @@ pub struct RealCycles {
     /// the reference runs free, so the slope over the run is its crystal against this host's
     /// clock (seconds of cycles: far better than the bring-up's 2 s of latches).
     pub ref_rate: RateFit,
+    /// What a controller with a log (DCM) reported over the run.
+    pub controller: ControllerTrack,
     csv: Option<Box<dyn Write>>,
     csv_err: Option<std::io::Error>,
     expected_wkc: u16,
@@ -108,6 +110,7 @@ impl RealCycles {
             tx_path: Stats::new(),
             round_trip: Stats::new(),
             ref_rate: RateFit::default(),
+            controller: ControllerTrack::default(),
             csv,
             csv_err: None,
             expected_wkc: net.expected_lrw_wkc,
@@ -135,6 +138,9 @@ impl<T> CycleObserver<T> for RealCycles {
             }
         }
         self.held += u64::from(r.reference_held);
+        if let Some(log) = r.log {
+            self.controller.cycle(log.in_sync, r.scheduled);
+        }
         if r.receive.is_none() {
             self.lost += 1;
         } else {
@@ -159,6 +165,35 @@ impl<T> CycleObserver<T> for RealCycles {
         {
             self.csv_err = Some(e);
         }
+    }
+}
+
+/// What a controller with a log (DCM) reported over the cycles it ran: a run that ends out
+/// of sync may never have locked, or have lost its lock, and its end alone cannot say which.
+#[derive(Debug, Default, Clone, Copy, PartialEq)]
+pub struct ControllerTrack {
+    /// Cycles the controller ran (a slot the task skipped is none).
+    pub cycles_run: u64,
+    /// Of them, cycles it reported in sync.
+    pub in_sync_cycles: u64,
+    /// The scheduled start of the first cycle it reported in sync.
+    pub first_in_sync: Option<MasterInstant>,
+    /// Times it left "in sync".
+    pub sync_losses: u64,
+    was_in_sync: bool,
+}
+
+impl ControllerTrack {
+    /// A cycle the controller ran, scheduled at `scheduled`: in sync or not.
+    pub fn cycle(&mut self, in_sync: bool, scheduled: MasterInstant) {
+        self.cycles_run += 1;
+        if in_sync {
+            self.in_sync_cycles += 1;
+            self.first_in_sync.get_or_insert(scheduled);
+        } else if self.was_in_sync {
+            self.sync_losses += 1;
+        }
+        self.was_in_sync = in_sync;
     }
 }
 
@@ -328,13 +363,27 @@ impl RunOut {
         exchanges.duplicates += d.duplicates;
         exchanges.truncated += d.truncated;
         let s_of = move |t: u64| t.saturating_sub(first) as f64 / 1e9;
+        let track = &f.controller;
         let controller = eng.sync().controller_log().map(|c| ControllerOut {
             in_sync: c.in_sync,
             drift_ppm: c.drift_ppm,
             filtered_error_ns: c.filtered_error_ns,
             adjustment_ns: c.adjustment_ns,
+            cycles_run: track.cycles_run,
+            in_sync_share: track.in_sync_cycles as f64 / track.cycles_run.max(1) as f64,
+            first_in_sync_s: track.first_in_sync.map(|t| s_of(t.as_ns())),
+            sync_losses: track.sync_losses,
+            limits: match eng.sync() {
+                Method::Dcm(d) => Some(DcmLimitsOut::new(&d.params, h.cycle_ns)),
+                _ => None,
+            },
         });
-        let warnings = controller_warnings(&h.method, controller.as_ref(), f.cycles);
+        let warnings = controller_warnings(
+            &h.method,
+            controller.as_ref(),
+            f.cycles,
+            latency(&f.wake).p999_us,
+        );
         RunOut {
             warnings,
             iface: h.iface,

@@ -295,7 +295,7 @@ pub struct RedundancyOut {
     pub ring_link_down_errors: u64,
 }
 
-/// The last cycle's controller log.
+/// The last cycle's controller log, and what the controller reported over the run.
 #[derive(Debug, Serialize)]
 pub struct ControllerOut {
     /// In sync at the end.
@@ -306,21 +306,122 @@ pub struct ControllerOut {
     pub filtered_error_ns: f64,
     /// Its last adjustment, ns.
     pub adjustment_ns: i64,
+    /// Cycles it ran (the slots the task skipped are not among them).
+    pub cycles_run: u64,
+    /// Share of those it reported in sync.
+    pub in_sync_share: f64,
+    /// When it first reported in sync, s after the cyclic phase's first cycle (`None`: never).
+    pub first_in_sync_s: Option<f64>,
+    /// Times it left "in sync".
+    pub sync_losses: u64,
+    /// The limits its pull-in and its "in sync" depend on (`None`: not a DCM controller).
+    pub limits: Option<DcmLimitsOut>,
+}
+
+/// A DCM controller's parameters that set how fast it pulls in and when it says "in sync".
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct DcmLimitsOut {
+    /// The most its proportional part moves the re-adjustment, ppm (0: no limit).
+    pub max_slew_ppm: f64,
+    /// The validity gate (used once in sync only), us.
+    pub max_valid_us: f64,
+    /// The filter's depth: an error moves the filtered error by `2^-depth` of itself.
+    pub filter_depth: u8,
+    /// The in-sync band, us.
+    pub in_sync_limit_us: f64,
+    /// How long the filtered error must stay in the band, s.
+    pub in_sync_hold_s: f64,
+}
+
+impl DcmLimitsOut {
+    /// The limits of `p` at a cycle of `cycle_ns`.
+    pub fn new(p: &ecsync_dc::dcm::DcmParams, cycle_ns: u32) -> Self {
+        DcmLimitsOut {
+            max_slew_ppm: p.max_slew_ppm,
+            max_valid_us: p.max_valid_ns as f64 / 1e3,
+            filter_depth: p.filter_depth,
+            in_sync_limit_us: p.in_sync_limit_ns as f64 / 1e3,
+            in_sync_hold_s: p.in_sync_hold_cycles as f64 * f64::from(cycle_ns) / 1e9,
+        }
+    }
+}
+
+/// Why a DCM controller `c` pulled in slowly or kept leaving "in sync", as far as the run
+/// shows: a learnt drift beyond its slew limit (bus shift), and wake-ups later than its
+/// validity gate (`wake_p999_us`, the 99.9th percentile of the task's wake-up latency).
+///
+/// Measured on paper-2024's segment served on a veth pair of this non-PREEMPT_RT VM: the
+/// reference's crystal (12.4 ppm) against the host's clock, not against compare's master at
+/// 13.3 ppm (0.9 ppm apart), and wake-ups up to 273 us late (p99.9) took dcm-bus-shift to its
+/// first "in sync" after 14.5 s and out of it again; compare with `--master-ppm 0 --host
+/// vanilla-linux` shows the same (14.7 s, three losses in 40 s), and with `--master-ppm 0`
+/// alone the pull-in (11.1 s, none lost).
+fn slow_lock_causes(c: &ControllerOut, wake_p999_us: f64) -> Vec<String> {
+    let Some(l) = c.limits else {
+        return Vec::new();
+    };
+    let mut why = Vec::new();
+    if l.max_slew_ppm > 0.0 && c.drift_ppm.abs() > l.max_slew_ppm {
+        why.push(format!(
+            "the reference's crystal runs about {:.1} ppm from this host's clock (the drift it learnt), beyond its {} ppm slew limit: it learns the rest of the drift by a ramp of {} ppm/s and pulls the phase in no faster than the limit, so its pull-in takes seconds to tens of seconds where crystals within the limit lock in a few",
+            c.drift_ppm,
+            l.max_slew_ppm,
+            ecsync_dc::dcm::DRIFT_RAMP_PPM_PER_S
+        ));
+    }
+    if wake_p999_us > l.max_valid_us {
+        why.push(format!(
+            "this host's task woke up to {wake_p999_us:.0} us late (p99.9), beyond its {} us validity gate, which drops such errors only once in sync: until then each moves its filtered error by 1/{} of itself, out of its {} us in-sync band, and restarts the {} s hold (a PREEMPT_RT kernel, or --send spin, keeps the wake-ups within the gate)",
+            l.max_valid_us,
+            1u32 << l.filter_depth.min(20),
+            l.in_sync_limit_us,
+            l.in_sync_hold_s
+        ));
+    }
+    why
 }
 
 /// The warnings of a run whose method `method` ended with the controller state `c` after
 /// `cycles` cycles: a controller that reports "in sync" (DCM) and was not at the end. Its
 /// figures then hold a pull-in (or a loss of sync), not the lock the method is run for, and
 /// nothing else in the summary says so: `compare` warns of the same.
-pub fn controller_warnings(method: &str, c: Option<&ControllerOut>, cycles: u64) -> Vec<String> {
-    match c {
-        Some(c) if !c.in_sync && cycles > 0 => vec![format!(
-            "{method}'s controller did not report in sync at the end of the run (filtered error {:.1} us, learnt drift {:.2} ppm): its figures are of its pull-in or of a loss of sync, not of a lock; a longer --duration shows whether it settles (its error must stay in its in-sync band for the hold time, 1.5 s by default)",
-            c.filtered_error_ns / 1e3,
-            c.drift_ppm
-        )],
-        _ => Vec::new(),
-    }
+///
+/// The state at the end alone cannot tell a controller that never locked from one that lost
+/// its lock: the warning says which, with the share of the run in sync and when it first was.
+/// When it can tell, it says why ([`slow_lock_causes`]).
+pub fn controller_warnings(
+    method: &str,
+    c: Option<&ControllerOut>,
+    cycles: u64,
+    wake_p999_us: f64,
+) -> Vec<String> {
+    let Some(c) = c.filter(|c| !c.in_sync && cycles > 0) else {
+        return Vec::new();
+    };
+    let why = slow_lock_causes(c, wake_p999_us);
+    let why = if why.is_empty() {
+        String::new()
+    } else {
+        format!("; likely why: {}", why.join("; and "))
+    };
+    let over_the_run = match c.first_in_sync_s {
+        None => format!(
+            "it never reported in sync in the {} cycles it ran: its figures are of its pull-in, not of a lock",
+            c.cycles_run
+        ),
+        Some(t) => format!(
+            "it was in sync {:.1} % of the {} cycles it ran, first {t:.1} s into the cyclic phase, and left it {} time{}: it locked and lost its lock, so its figures hold a loss of sync",
+            c.in_sync_share * 100.0,
+            c.cycles_run,
+            c.sync_losses,
+            if c.sync_losses == 1 { "" } else { "s" }
+        ),
+    };
+    vec![format!(
+        "{method}'s controller did not report in sync at the end of the run (filtered error {:.1} us, learnt drift {:.2} ppm); {over_the_run}{why}; a longer --duration shows whether it settles (its error must stay in its in-sync band for the hold time, 1.5 s by default)",
+        c.filtered_error_ns / 1e3,
+        c.drift_ppm
+    )]
 }
 
 /// Cycles of the run a twin's reference crystal is fitted over at least (10 s at 1 ms).
@@ -448,7 +549,7 @@ pub const CSV_HEADER: &str = "cycle,scheduled_ns,send_ns,ref_time_ns,error_ns,co
 
 #[cfg(test)]
 mod tests {
-    use super::{ControllerOut, RateFit, controller_warnings};
+    use super::{ControllerOut, DcmLimitsOut, RateFit, controller_warnings};
 
     /// A DCM controller out of sync at the end is warned of, with its error and drift; one in
     /// sync, a method without a controller, and a run of no cycles are not.
@@ -459,18 +560,108 @@ mod tests {
             drift_ppm: -44.46,
             filtered_error_ns: -506_796.0,
             adjustment_ns: 0,
+            cycles_run: 20_000,
+            in_sync_share: 0.0,
+            first_in_sync_s: None,
+            sync_losses: 0,
+            limits: None,
         };
-        let w = controller_warnings("dcm-bus-shift", Some(&c(false)), 20_000);
+        let w = controller_warnings("dcm-bus-shift", Some(&c(false)), 20_000, 0.0);
         assert_eq!(w.len(), 1, "{w:?}");
         assert!(
             w[0].starts_with("dcm-bus-shift's controller did not report in sync at the end")
-                && w[0].contains("filtered error -506.8 us, learnt drift -44.46 ppm"),
+                && w[0].contains("filtered error -506.8 us, learnt drift -44.46 ppm")
+                && w[0].contains("it never reported in sync in the 20000 cycles it ran"),
             "{}",
             w[0]
         );
-        assert!(controller_warnings("dcm-bus-shift", Some(&c(true)), 20_000).is_empty());
-        assert!(controller_warnings("snap", None, 20_000).is_empty());
-        assert!(controller_warnings("dcm-bus-shift", Some(&c(false)), 0).is_empty());
+        // One that locked after 3.2 s and lost it once: the share and the time, no "never".
+        let lost = ControllerOut {
+            in_sync_share: 0.623,
+            first_in_sync_s: Some(3.2),
+            sync_losses: 1,
+            ..c(false)
+        };
+        let w = controller_warnings("dcm-bus-shift", Some(&lost), 20_000, 0.0);
+        assert!(
+            w.len() == 1
+                && w[0].contains("it was in sync 62.3 % of the 20000 cycles it ran, first 3.2 s into the cyclic phase, and left it 1 time: it locked and lost its lock")
+                && !w[0].contains("never"),
+            "{w:?}"
+        );
+        assert!(controller_warnings("dcm-bus-shift", Some(&c(true)), 20_000, 0.0).is_empty());
+        assert!(controller_warnings("snap", None, 20_000, 0.0).is_empty());
+        assert!(controller_warnings("dcm-bus-shift", Some(&c(false)), 0, 0.0).is_empty());
+    }
+
+    /// Why a DCM controller is slow to lock, from its limits (bus shift's defaults at 1 ms:
+    /// 5 ppm, 50 us gate, depth 6, 5 us for 1.5 s): a learnt drift beyond the slew limit and
+    /// wake-ups beyond the gate are named, each alone and both; within them, neither is.
+    #[test]
+    fn a_slow_lock_names_the_slew_limit_and_the_host_s_wake_ups() {
+        use ecsync_dc::dcm::DcmParams;
+        let limits = DcmLimitsOut::new(&DcmParams::default_bus_shift(0, 1_000_000), 1_000_000);
+        let c = |drift_ppm| ControllerOut {
+            in_sync: false,
+            drift_ppm,
+            filtered_error_ns: -3_498.0,
+            adjustment_ns: 0,
+            cycles_run: 19_995,
+            in_sync_share: 0.12,
+            first_in_sync_s: Some(14.5),
+            sync_losses: 1,
+            limits: Some(limits),
+        };
+        let slew = "the reference's crystal runs about 13.4 ppm from this host's clock (the drift it learnt), beyond its 5 ppm slew limit: it learns the rest of the drift by a ramp of 2 ppm/s";
+        let wake = "this host's task woke up to 273 us late (p99.9), beyond its 50 us validity gate, which drops such errors only once in sync: until then each moves its filtered error by 1/64 of itself, out of its 5 us in-sync band, and restarts the 1.5 s hold";
+        for (drift, p999, has_slew, has_wake) in [
+            (13.36, 273.0, true, true),
+            (-13.36, 20.0, true, false),
+            (3.0, 273.0, false, true),
+            (3.0, 20.0, false, false),
+        ] {
+            let w = controller_warnings("dcm-bus-shift", Some(&c(drift)), 19_995, p999);
+            assert_eq!(w.len(), 1, "{w:?}");
+            let slew = slew.replace("13.4", &format!("{drift:.1}"));
+            assert_eq!(w[0].contains(&slew), has_slew, "{drift} {p999}: {}", w[0]);
+            assert_eq!(w[0].contains(wake), has_wake, "{drift} {p999}: {}", w[0]);
+            assert_eq!(
+                w[0].contains("likely why"),
+                has_slew || has_wake,
+                "{}",
+                w[0]
+            );
+        }
+        // Master shift has no slew limit.
+        let free = ControllerOut {
+            limits: Some(DcmLimitsOut {
+                max_slew_ppm: 0.0,
+                ..limits
+            }),
+            ..c(40.0)
+        };
+        let w = controller_warnings("dcm-master-shift", Some(&free), 19_995, 20.0);
+        assert!(!w[0].contains("likely why"), "{}", w[0]);
+    }
+
+    /// The track over a run by hand: out for 3 cycles, in for 4, out for 2, in for 1, out at
+    /// the end: 5 of 11 in sync, first at the 4th cycle's slot, left twice.
+    #[test]
+    fn the_controller_track_counts_the_share_the_first_lock_and_the_losses() {
+        use crate::realnet::ControllerTrack;
+        use ecsync_dc::time::MasterInstant;
+        let mut t = ControllerTrack::default();
+        let pattern = [0, 0, 0, 1, 1, 1, 1, 0, 0, 1, 0];
+        for (k, s) in pattern.iter().enumerate() {
+            t.cycle(
+                *s == 1,
+                MasterInstant::from_ns(1_000 + k as u64 * 1_000_000),
+            );
+        }
+        assert_eq!(t.cycles_run, 11);
+        assert_eq!(t.in_sync_cycles, 5);
+        assert_eq!(t.first_in_sync, Some(MasterInstant::from_ns(3_001_000)));
+        assert_eq!(t.sync_losses, 2);
     }
 
     #[test]

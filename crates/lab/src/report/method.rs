@@ -111,11 +111,17 @@ pub(super) fn method_out(
     });
     let ctls: Vec<_> = rs.iter().filter_map(|r| r.controller).collect();
     let controller = (!ctls.is_empty()).then(|| {
-        let done: u64 = rs.iter().map(|r| r.cycles_done).sum();
+        // The recorded slots (a skipped slot moved the cycle numbers on) against the cycles
+        // the controller ran: a slot the driver skipped (a host stall, a step of the master's
+        // clock) is no cycle the controller was out of sync in, so the share leaves it out.
+        let slots: u64 = rs.iter().map(|r| r.cycles_done).sum();
+        let run: u64 = ctls.iter().map(|t| t.cycles_run).sum();
         let firsts: Vec<u64> = ctls.iter().filter_map(|t| t.first_in_sync_cycle).collect();
         ControllerOut {
             in_sync_fraction: ctls.iter().map(|t| t.in_sync_cycles).sum::<u64>() as f64
-                / done.max(1) as f64,
+                / run.max(1) as f64,
+            cycles_run: run,
+            skipped_slots: slots.saturating_sub(run),
             time_to_sync_ms: (firsts.len() == ctls.len())
                 .then(|| firsts.iter().sum::<u64>() as f64 / firsts.len() as f64 * period / 1e6),
             sync_losses: ctls.iter().map(|t| t.sync_losses).sum(),

@@ -128,8 +128,14 @@ pub struct InitDriftOut {
 /// A controller's own report (DCM), over runs.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ControllerOut {
-    /// Share of the recorded cycles reported in sync.
+    /// Share of the recorded cycles the controller ran that it reported in sync (the slots
+    /// the driver skipped are not among them: `skipped_slots`).
     pub in_sync_fraction: f64,
+    /// Recorded cycles the controller ran, all runs.
+    pub cycles_run: u64,
+    /// Recorded cycle slots the driver skipped (its task woke after them: a host stall, a
+    /// step of the master's clock), all runs: no controller ran in them.
+    pub skipped_slots: u64,
     /// Mean time from the start of the cyclic phase to the first "in sync", ms (`None` when a
     /// run never got there).
     pub time_to_sync_ms: Option<f64>,

@@ -211,6 +211,25 @@ pub fn truth_text(out: &SummaryOut, order: &[String]) -> String {
             inits.join("; ")
         );
     }
+    let skips: Vec<String> = order
+        .iter()
+        .filter_map(|m| {
+            let c = out.methods[m].controller?;
+            (c.skipped_slots > 0).then(|| {
+                format!(
+                    "{m} of {} cycles run, {} slots skipped",
+                    c.cycles_run, c.skipped_slots
+                )
+            })
+        })
+        .collect();
+    if !skips.is_empty() {
+        let _ = writeln!(
+            t,
+            "In sync: of the cycles each controller ran, not of the slots its task skipped (a host stall, a step of the master's clock): {}",
+            skips.join("; ")
+        );
+    }
     t
 }
 

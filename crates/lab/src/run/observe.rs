@@ -750,6 +750,7 @@ impl Observers {
     /// The controller's log of a recorded cycle (DCM): in sync, losses, what it learnt.
     fn controller(&mut self, rec: &CycleRecord) {
         if let (Some(c), Some(t)) = (rec.log, self.res.controller.as_mut()) {
+            t.cycles_run += 1;
             if c.in_sync {
                 t.in_sync_cycles += 1;
             } else if self.was_in_sync {

@@ -238,6 +238,9 @@ pub struct InitDrift {
 pub struct ControllerTruth {
     /// Recorded cycles reported in sync.
     pub in_sync_cycles: u64,
+    /// Recorded cycles the controller ran: the slots the driver skipped (its task woke after
+    /// them: a host stall, a step of the master's clock) are not among them.
+    pub cycles_run: u64,
     /// Times the controller left "in sync" during the recorded cycles.
     pub sync_losses: u64,
     /// The first cycle of the cyclic phase (warm-up included) reported in sync.
