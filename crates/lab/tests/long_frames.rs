@@ -39,13 +39,19 @@ fn frames_longer_than_half_the_cycle_come_back_and_a_cycle_too_short_is_refused_
         wire_ns > 400_000.0,
         "the frames take {wire_ns} ns on the wire"
     );
-    assert_eq!(
-        out.recommendation.ranking.len(),
-        2,
-        "{:?}",
-        out.recommendation
-    );
-    assert!(out.recommendation.not_ranked.is_empty());
+    // Both ranked but a controller that never reported in sync in the 1 500 recorded cycles
+    // after the line's 1 s warm-up: its figures are its pull-in.
+    let r = &out.recommendation;
+    for (m, mo) in &out.methods {
+        let pulling_in = mo.controller.is_some_and(|c| c.in_sync_fraction == 0.0);
+        assert_eq!(r.ranking.contains(m), !pulling_in, "{m}: {r:?}");
+        assert_eq!(
+            r.not_ranked.iter().any(|n| &n.method == m),
+            pulling_in,
+            "{m}: {r:?}"
+        );
+    }
+    assert!(!r.ranking.is_empty(), "{r:?}");
     assert!(
         !out.warnings.iter().any(|w| w.kind == "cycle_too_short"),
         "{:?}",

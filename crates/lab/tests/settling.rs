@@ -230,3 +230,29 @@ fn a_controller_never_in_sync_in_the_recording_is_not_ranked() {
         n.why
     );
 }
+
+/// The verdict itself says when its pick was still settling as the recording began, not only
+/// the warnings: median-fit alone on lan9252-pair after the 10 s its init frames take starts
+/// 90 us off its target by the ground truth (its first block), and its smallest safe shift
+/// holds that start.
+#[test]
+fn the_verdict_says_when_its_pick_was_still_settling() {
+    let mut s = lan9252_pair(10);
+    s.methods.truncate(1);
+    let c = ecsync_lab::compare(&s, 2, &AtomicU64::new(0)).expect("runs");
+    let first_max = f64::from(c.results[0][0].series[2][0].max);
+    assert!(first_max > 60_000.0, "median-fit's first block {first_max}");
+    let out = summarize(&c);
+    let r = &out.recommendation;
+    assert_eq!(r.method, "median-fit");
+    assert!(
+        r.reason
+            .contains("It was still settling when the recording began"),
+        "{}",
+        r.reason
+    );
+    // With the warm-up the warning names, not.
+    let c = ecsync_lab::compare(&lan9252_pair(11), 2, &AtomicU64::new(0)).expect("runs");
+    let r = summarize(&c).recommendation;
+    assert!(!r.reason.contains("still settling"), "{}", r.reason);
+}

@@ -96,8 +96,19 @@ pub fn summarize(c: &Comparison) -> SummaryOut {
         let g = &mut m.ground_truth;
         g.holds_target = g.phase.n > 0 && g.offset_from_target_ns.abs() <= 0.1 * budget;
     }
-    let recommendation = recommend(&methods, &order, s.sync0_shift_pct, s.runs);
+    let mut recommendation = recommend(&methods, &order, s.sync0_shift_pct, s.runs);
     let warnings = warnings(c, &methods, &order, budget);
+    // The pick's figures that take extremes hold a start it was still settling from: the
+    // verdict says so where the reader looks first, not only among the warnings.
+    let pick = Some(recommendation.method.as_str());
+    if warnings
+        .iter()
+        .any(|w| w.kind == "settling" && w.method.as_deref() == pick)
+    {
+        recommendation.reason.push_str(
+            " It was still settling when the recording began (see the warnings): its extremes and smallest safe shift hold that start, and the warm-up the warning names leaves it out.",
+        );
+    }
     SummaryOut {
         recommendation,
         warnings,
