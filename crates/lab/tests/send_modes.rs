@@ -11,6 +11,20 @@ use ecsync_sim::host::HostNoise;
 use ecsync_sim::send::SendMode;
 use std::sync::atomic::AtomicU64;
 
+/// The recorded cycles of `s`'s first run whose host work (j_s + e_m, drawn from the host
+/// model directly) outlasts txtime's lead less the qdisc's delta: the launch times missed.
+fn launch_misses(s: &ecsync_lab::scenario::Scenario) -> u64 {
+    let seed = ecsync_lab::run::bring_up(s, 0).unwrap().seed();
+    let noise = HostNoise::new(s.host, seed);
+    let late_for = s.send.txtime_lead_ns - s.send.txtime_delta_ns;
+    (s.warmup_cycles..s.warmup_cycles + s.cycles)
+        .filter(|&i| {
+            let n = noise.cycle(i);
+            n.js_ns + n.em_ns > late_for
+        })
+        .count() as u64
+}
+
 #[test]
 fn txtime_takes_the_send_jitter_out_and_counts_the_launch_times_missed() {
     let mut s = ecsync_lab::parse("paper-2024", ecsync_sim::preset::PAPER_2024_TOML).unwrap();
@@ -51,15 +65,7 @@ fn txtime_takes_the_send_jitter_out_and_counts_the_launch_times_missed() {
     assert!(spin.ground_truth.phase_error.rms > g.phase_error.rms);
 
     // The misses: the recorded cycles whose host work outlasts the lead less the delta.
-    let seed = ecsync_lab::run::bring_up(&s, 0).unwrap().seed();
-    let noise = HostNoise::new(s.host, seed);
-    let late_for = s.send.txtime_lead_ns - s.send.txtime_delta_ns;
-    let expected = (s.warmup_cycles..s.warmup_cycles + s.cycles)
-        .filter(|&i| {
-            let n = noise.cycle(i);
-            n.js_ns + n.em_ns > late_for
-        })
-        .count() as u64;
+    let expected = launch_misses(&s);
     let send = tx.send.as_ref().expect("txtime reported");
     assert_eq!(send.launch_misses, expected);
     assert!(expected > 0, "the loaded host's tail reaches past the lead");
@@ -192,15 +198,7 @@ fn a_mode_that_drops_frames_is_not_recommended_over_one_that_drops_none() {
     let plain = &out.methods["median-fit"].ground_truth;
     let tx = &out.methods["median-fit+txtime"].ground_truth;
     // The host model's own count of the launch times txtime misses (the independent truth).
-    let seed = ecsync_lab::run::bring_up(&s, 0).unwrap().seed();
-    let noise = HostNoise::new(s.host, seed);
-    let late_for = s.send.txtime_lead_ns - s.send.txtime_delta_ns;
-    let misses = (s.warmup_cycles..s.warmup_cycles + s.cycles)
-        .filter(|&i| {
-            let n = noise.cycle(i);
-            n.js_ns + n.em_ns > late_for
-        })
-        .count() as u64;
+    let misses = launch_misses(&s);
     println!(
         "plain: {} late, {} lost; txtime: {} late, {} lost ({misses} launch times missed)",
         plain.late_frames, plain.lost_frames, tx.late_frames, tx.lost_frames

@@ -388,7 +388,8 @@ fn slow_lock_causes(c: &ControllerOut, wake_p999_us: f64) -> Vec<String> {
 ///
 /// The state at the end alone cannot tell a controller that never locked from one that lost
 /// its lock: the warning says which, with the share of the run in sync and when it first was.
-/// When it can tell, it says why ([`slow_lock_causes`]).
+/// When it can tell, it says why (`slow_lock_causes`: a DCM pulling in past its slew limit,
+/// late wake-ups before the lock).
 pub fn controller_warnings(
     method: &str,
     c: Option<&ControllerOut>,
